@@ -1,0 +1,45 @@
+"""Exception hierarchy of the engine.
+
+Infeasibility of an optimisation problem is a *result*, not an exception; exceptions are
+for bad input (``SpecError``) and for solver breakdowns (``SolverError``).
+"""
+
+from __future__ import annotations
+
+__all__ = ["CodevError", "SpecError", "SolverError"]
+
+
+class CodevError(Exception):
+    """Base class of every error the engine raises on purpose."""
+
+
+class SpecError(CodevError, ValueError):
+    """A problem specification (or any user input file) is invalid.
+
+    Parameters
+    ----------
+    reason : str
+        What is wrong, in words a user understands.
+    file : str, optional
+        The file the bad input came from.
+    field : str, optional
+        The dotted field name inside that file (``mpc.Q``, ``verify.initial_set.lower``).
+    """
+
+    def __init__(self, reason: str, *, file: str | None = None, field: str | None = None):
+        self.reason = reason
+        self.file = file
+        self.field = field
+        super().__init__(self._format())
+
+    def _format(self) -> str:
+        where = ": ".join(p for p in (self.file, self.field) if p)
+        return f"{where}: {self.reason}" if where else self.reason
+
+    def with_file(self, file: str) -> SpecError:
+        """Return a copy that names ``file`` (used when the loader knows the path)."""
+        return SpecError(self.reason, file=file, field=self.field)
+
+
+class SolverError(CodevError, RuntimeError):
+    """A numerical solver failed in a way the engine could not recover from."""

@@ -1,0 +1,564 @@
+"""Exact multi-parametric LP/QP solver: geometric exploration of the parameter space.
+
+Algorithm (see ``docs/algorithm.md`` for the argument):
+
+1. **Reduce.** Eliminate equalities, move pure-parameter rows to the parameter set,
+   normalise and de-duplicate the rows.
+2. **Unique selection.** The optimizer is made a single-valued function of theta:
+   for an mp-QP with H > 0 it is unique already; for an mp-LP the cost is perturbed by a
+   tiny generic vector (fixed seed) so that every LP has exactly one optimal vertex; the
+   optimal basis of the perturbed LP is checked to be optimal for the *original* cost
+   (its reduced costs are >= 0 under the original cost), so every law is exactly optimal.
+3. **Critical region at a point.** Solve at theta (DAQP, exact active sets), take the
+   optimal active set / basis, and write the affine optimizer ``z = K theta + k`` and the
+   polyhedron where it stays optimal (primal feasibility of every row plus, for QPs,
+   non-negative multipliers). For an LP the region of an affine law is the whole set where
+   that law is primal feasible, which makes regions of different laws interior-disjoint.
+4. **Exploration with a non-facet-to-facet-safe step.** Every facet of every region is
+   covered: a facet is split into *pieces*; for each piece, step a tiny distance across its
+   Chebyshev centre, find (or compute) the region there, check it touches the piece, and
+   subtract it from the piece (set difference by reversing its rows one at a time). A piece
+   is done when it is empty, lies on the parameter-set boundary, or the problem is
+   infeasible across it (then, by convexity of the feasible set, the whole facet is on its
+   boundary). So the union of the regions is the whole feasible set: no holes even when
+   neighbouring regions do not meet facet to facet.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import daqp
+import numpy as np
+
+from .errors import SolverError, SpecError
+from .locate import PointLocator
+from .mpprogram import MpProgram
+from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+
+__all__ = ["CriticalRegion", "MpSolution", "mpsolve", "SolveOptions"]
+
+
+@dataclass(frozen=True)
+class SolveOptions:
+    """Numerical options of ``mpsolve`` (lengths are relative to the parameter-set size).
+
+    Attributes
+    ----------
+    region_tol : float
+        A region or facet piece whose inscribed ball is smaller than this is treated as
+        lower-dimensional.
+    step : float
+        Distance stepped across a facet to find the neighbour.
+    lp_perturbation : float
+        Relative size of the generic cost perturbation that makes mp-LP optimizers unique.
+    seed : int
+        Seed of that perturbation and of point jitter (results are reproducible).
+    max_regions : int
+        Safety stop.
+    """
+
+    region_tol: float = 1e-7
+    step: float = 1e-6
+    lp_perturbation: float = 1e-7
+    seed: int = 0
+    max_regions: int = 200_000
+
+
+@dataclass(frozen=True)
+class CriticalRegion:
+    """A region ``{theta : A theta <= b}`` where ``z*(theta) = K theta + k``.
+
+    Attributes
+    ----------
+    A : (r, d) ndarray
+        Non-redundant, unit-norm rows.
+    b : (r,) ndarray
+    K : (nz, d) ndarray
+    k : (nz,) ndarray
+    active : tuple of int
+        The optimal active set (QP) or basis (LP), as row indices of the reduced program.
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    K: np.ndarray
+    k: np.ndarray
+    active: tuple[int, ...] = ()
+
+
+@dataclass
+class MpSolution:
+    """Explicit solution of an ``MpProgram``: a partition of its feasible parameter set.
+
+    Attributes
+    ----------
+    program : MpProgram
+    regions : list of CriticalRegion
+        In the original variables ``z`` (equalities eliminated internally are mapped back).
+    seconds : float
+        Wall time of the solve.
+    stats : dict
+        Counters (LPs solved, pieces, ...).
+    """
+
+    program: MpProgram
+    regions: list[CriticalRegion]
+    seconds: float = 0.0
+    stats: dict = field(default_factory=dict)
+    _locator: PointLocator | None = field(default=None, repr=False)
+
+    @property
+    def num_regions(self) -> int:
+        return len(self.regions)
+
+    @property
+    def locator(self) -> PointLocator:
+        if self._locator is None:
+            self._locator = PointLocator([r.A for r in self.regions], [r.b for r in self.regions])
+        return self._locator
+
+    def locate(self, Theta: np.ndarray) -> np.ndarray:
+        """Region index per row of ``Theta`` (P, d) -> (P,) int, -1 outside."""
+        return self.locator.locate(np.atleast_2d(np.asarray(Theta, dtype=float)))
+
+    def primal(self, Theta: np.ndarray) -> np.ndarray:
+        """Optimizer ``z*(theta)`` per row -> (P, nz), NaN outside the feasible set."""
+        Theta = np.atleast_2d(np.asarray(Theta, dtype=float))
+        idx = self.locate(Theta)
+        Z = np.full((Theta.shape[0], self.program.nz), np.nan)
+        if self.regions:
+            K = np.stack([r.K for r in self.regions])
+            k = np.stack([r.k for r in self.regions])
+            inside = idx >= 0
+            Z[inside] = np.einsum("pij,pj->pi", K[idx[inside]], Theta[inside]) + k[idx[inside]]
+        return Z
+
+    def value(self, Theta: np.ndarray) -> np.ndarray:
+        """Optimal value per row -> (P,), NaN outside the feasible set."""
+        Theta = np.atleast_2d(np.asarray(Theta, dtype=float))
+        Z = self.primal(Theta)
+        p = self.program
+        lin = p.c[None, :] + Theta @ p.C.T
+        return 0.5 * np.einsum("pi,ij,pj->p", Z, p.H, Z) + np.einsum("pi,pi->p", lin, Z)
+
+
+# --------------------------------------------------------------------------------------
+# reduction
+
+
+@dataclass(frozen=True)
+class _Reduced:
+    """The program after equality elimination and row clean-up.
+
+    ``z = Z0 + Z1 theta + Nz w`` maps the reduced variables ``w`` back.
+    """
+
+    H: np.ndarray
+    c: np.ndarray
+    C: np.ndarray
+    G: np.ndarray
+    w: np.ndarray
+    S: np.ndarray
+    At: np.ndarray
+    bt: np.ndarray
+    Z0: np.ndarray
+    Z1: np.ndarray
+    Nz: np.ndarray
+
+
+def _reduce(p: MpProgram) -> _Reduced:
+    nz, d = p.nz, p.d
+    H, c, C, G, w, S = p.H, p.c, p.C, p.A, p.b, p.F
+    Z0 = np.zeros(nz)
+    Z1 = np.zeros((nz, d))
+    Nz = np.eye(nz)
+    if p.Aeq is not None and p.Aeq.shape[0]:
+        Aeq, beq, Feq = p.Aeq, p.beq, p.Feq
+        U, s, Vt = np.linalg.svd(Aeq)
+        rank = int(np.sum(s > 1e-10 * max(1.0, s[0] if s.size else 1.0)))
+        pinv = np.linalg.pinv(Aeq, rcond=1e-10)
+        # equalities must be consistent for every theta: the rows outside the range of Aeq
+        resid = np.hstack([beq[:, None], Feq]) - Aeq @ pinv @ np.hstack([beq[:, None], Feq])
+        if np.max(np.abs(resid), initial=0.0) > 1e-8 * max(1.0, np.max(np.abs(Feq), initial=1)):
+            raise SpecError("equality constraints are inconsistent for some parameters", field="Aeq")
+        Z0 = pinv @ beq
+        Z1 = pinv @ Feq
+        Nz = Vt[rank:].T
+        H, c, C = Nz.T @ H @ Nz, Nz.T @ (H @ Z0 + c), Nz.T @ (H @ Z1 + C)
+        w = w - G @ Z0
+        S = S - G @ Z1
+        G = G @ Nz
+    # pure parameter rows belong to the parameter set
+    gnorm = np.linalg.norm(G, axis=1)
+    pure = gnorm <= 1e-12 * max(1.0, np.max(gnorm, initial=1.0))
+    At = np.vstack([p.A_theta, -S[pure]])
+    bt = np.concatenate([p.b_theta, w[pure]])
+    G, w, S = G[~pure], w[~pure], S[~pure]
+    scale = np.linalg.norm(G, axis=1)
+    G, w, S = G / scale[:, None], w / scale, S / scale[:, None]
+    # identical rows are one constraint (they would break LICQ everywhere)
+    if G.shape[0]:
+        key = np.round(np.hstack([G, w[:, None], S]), 11)
+        _, first = np.unique(key, axis=0, return_index=True)
+        first = np.sort(first)
+        G, w, S = G[first], w[first], S[first]
+    At, bt, ok = normalize_rows(At, bt)
+    if not ok:
+        raise SpecError("the parameter set is empty", field="A_theta")
+    return _Reduced(H=0.5 * (H + H.T), c=c, C=C, G=G, w=w, S=S, At=At, bt=bt, Z0=Z0, Z1=Z1, Nz=Nz)
+
+
+# --------------------------------------------------------------------------------------
+# the explorer
+
+
+class _Explorer:
+    def __init__(self, red: _Reduced, opts: SolveOptions, progress: Callable | None):
+        self.r = red
+        self.opts = opts
+        self.progress = progress
+        self.d = red.At.shape[1]
+        self.nw = red.H.shape[0]
+        self.is_lp = not np.any(red.H)
+        self.rng = np.random.default_rng(opts.seed)
+        self.stats = {"solves": 0, "pieces": 0, "jitters": 0, "step_refinements": 0}
+        # parameter-set scale: widths of its bounding box
+        lo, hi = self._bounding_box(red.At, red.bt)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            raise SpecError("the parameter set is unbounded", field="A_theta")
+        if np.any(hi - lo < 0):
+            raise SpecError("the parameter set is empty", field="A_theta")
+        self.scale = float(max(np.max(hi - lo), 1e-12))
+        self.region_tol = opts.region_tol * self.scale
+        self.step = opts.step * self.scale
+        self.touch_tol = 1e-8 * self.scale
+        if self.is_lp:
+            pert = self.rng.uniform(0.5, 1.0, self.nw) * self.rng.choice([-1.0, 1.0], self.nw)
+            cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
+            self.c_pert = red.c + opts.lp_perturbation * cmag * pert
+        self.regions: list[CriticalRegion] = []
+        self._rowsA: list[np.ndarray] = []
+        self._rowsb: list[np.ndarray] = []
+        self._owner: np.ndarray = np.zeros(0, dtype=int)
+        self._stackA = np.zeros((0, self.d))
+        self._stackb = np.zeros(0)
+        self._dirty = False
+
+    # ---- small geometry helpers -------------------------------------------------------
+
+    def _bounding_box(self, A, b):
+        d = A.shape[1]
+        lo, hi = np.empty(d), np.empty(d)
+        for i in range(d):
+            e = np.zeros(d)
+            e[i] = 1.0
+            x, st, _ = solve_lp(e, A, b)
+            lo[i] = x[i] if st == "optimal" else -np.inf
+            x, st, _ = solve_lp(-e, A, b)
+            hi[i] = x[i] if st == "optimal" else np.inf
+        return lo, hi
+
+    def _in_theta(self, q: np.ndarray) -> bool:
+        return bool(np.all(self.r.At @ q <= self.r.bt + 1e-12 * self.scale))
+
+    def _find(self, q: np.ndarray, tol: float) -> int:
+        """Index of a found region containing q (-1 if none)."""
+        if self._dirty:
+            self._stackA = np.vstack(self._rowsA)
+            self._stackb = np.concatenate(self._rowsb)
+            self._owner = np.repeat(
+                np.arange(len(self._rowsA)), [a.shape[0] for a in self._rowsA]
+            )
+            self._dirty = False
+        if not self.regions:
+            return -1
+        viol = self._stackA @ q - self._stackb > tol
+        bad = np.zeros(len(self.regions), dtype=bool)
+        np.logical_or.at(bad, self._owner, viol)
+        hits = np.flatnonzero(~bad)
+        return int(hits[0]) if hits.size else -1
+
+    # ---- optimisation at a point ------------------------------------------------------
+
+    def _solve_at(self, q: np.ndarray):
+        """Solve the (perturbed) program at theta = q -> (w, lam) or None if infeasible."""
+        r = self.r
+        self.stats["solves"] += 1
+        rhs = r.w + r.S @ q
+        m = rhs.shape[0]
+        sense = np.zeros(m, dtype=np.int32)
+        lower = np.full(m, -1e30)
+        if self.is_lp:
+            x, _, flag, info = daqp.solve(
+                np.zeros((self.nw, self.nw)), self.c_pert + r.C @ q, r.G, rhs, lower, sense,
+                eps_prox=1e-2, iter_limit=10_000, primal_tol=1e-11, dual_tol=1e-12,
+            )
+        else:
+            x, _, flag, info = daqp.solve(
+                r.H, r.c + r.C @ q, r.G, rhs, lower, sense, iter_limit=10_000,
+                primal_tol=1e-11, dual_tol=1e-12,
+            )
+        if flag == -1:
+            return None
+        if flag == -3:
+            raise SolverError(
+                "the program is unbounded for some parameters (an LP optimizer runs off along "
+                "a direction of zero cost: bound the variables or make the cost definite)"
+            )
+        if flag != 1:
+            return "fail"
+        return np.asarray(x), np.asarray(info["lam"])
+
+    def _region_at(self, q: np.ndarray, jitter: float):
+        """Critical region whose closure holds q (or a jittered q); None if infeasible."""
+        for _ in range(8):
+            sol = self._solve_at(q)
+            if sol is None:
+                return None
+            if not isinstance(sol, str):
+                reg = self._region_from_solution(q, *sol)
+                if reg is not None:
+                    return reg
+            # q sits on a degenerate spot (lower-dimensional set): move off it
+            q = self._jitter(q, jitter)
+            self.stats["jitters"] += 1
+        raise SolverError(f"could not identify a full-dimensional critical region near theta={q}")
+
+    def _jitter(self, q: np.ndarray, size: float) -> np.ndarray:
+        qn = q + self.rng.normal(size=q.shape) * size
+        return qn if self._in_theta(qn) else q
+
+    def _region_from_solution(self, q, x, lam):
+        r = self.r
+        d = self.d
+        if self.is_lp:
+            act = np.flatnonzero(lam > 0)
+            if act.size < self.nw:
+                # complete the basis with tight rows (primal degenerate vertex)
+                slack = r.w + r.S @ q - r.G @ x
+                tight = np.setdiff1d(np.flatnonzero(slack <= 1e-9 * self.scale), act)
+                act = _complete_basis(r.G, act, tight, self.nw)
+                if act is None:
+                    return None
+            GB = r.G[act]
+            try:
+                Z = np.linalg.solve(GB, np.hstack([r.w[act, None], r.S[act]]))
+                # the basis must be optimal for the ORIGINAL cost (exactness of the law)
+                duals = np.linalg.solve(GB.T, -(r.c + r.C @ q))
+            except np.linalg.LinAlgError:
+                return None
+            if np.min(duals) < -1e-9 * max(1.0, np.max(np.abs(r.c))):
+                raise SolverError(
+                    "the cost perturbation changed the optimal basis; lower lp_perturbation"
+                )
+            k0, K = Z[:, 0], Z[:, 1:]
+            Ar = r.G @ K - r.S
+            br = r.w - r.G @ k0
+            if np.any(r.C):
+                # with a parameter-dependent cost the basis needs duals >= 0 as well
+                Dl = np.linalg.solve(GB.T, -np.hstack([r.c[:, None], r.C]))
+                Ar = np.vstack([Ar, -Dl[:, 1:]])
+                br = np.concatenate([br, Dl[:, 0]])
+        else:
+            act = np.flatnonzero(lam > 0)
+            GA = r.G[act]
+            na = act.size
+            KKT = np.block([[r.H, GA.T], [GA, np.zeros((na, na))]])
+            rhs = np.vstack(
+                [
+                    np.hstack([-r.c[:, None], -r.C]),
+                    np.hstack([r.w[act, None], r.S[act]]),
+                ]
+            )
+            try:
+                sol = np.linalg.solve(KKT, rhs)
+            except np.linalg.LinAlgError:
+                return None
+            if not np.all(np.isfinite(sol)):
+                return None
+            k0, K = sol[: self.nw, 0], sol[: self.nw, 1:]
+            mu0, M = sol[self.nw :, 0], sol[self.nw :, 1:]
+            inact = np.setdiff1d(np.arange(r.G.shape[0]), act)
+            Ar = np.vstack([r.G[inact] @ K - r.S[inact], -M])
+            br = np.concatenate([r.w[inact] - r.G[inact] @ k0, mu0])
+        Ar = np.vstack([Ar, r.At])
+        br = np.concatenate([br, r.bt])
+        Ar, br, ok = normalize_rows(Ar, br, tol=1e-10)
+        if not ok:
+            return None
+        centre, radius = chebyshev_ball(Ar, br)
+        if not radius > self.region_tol:
+            return None
+        if np.any(Ar @ q - br > 1e-7 * self.scale):
+            return None
+        keep = minimal_rows(Ar, br)
+        return CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=tuple(int(i) for i in act))
+
+    # ---- exploration --------------------------------------------------------------------
+
+    def _add(self, reg: CriticalRegion) -> int:
+        self.regions.append(reg)
+        self._rowsA.append(reg.A)
+        self._rowsb.append(reg.b)
+        self._dirty = True
+        if self.progress is not None:
+            self.progress(len(self.regions))
+        if len(self.regions) > self.opts.max_regions:
+            raise SolverError(f"more than {self.opts.max_regions} regions")
+        return len(self.regions) - 1
+
+    def start_point(self) -> np.ndarray | None:
+        """A parameter well inside the feasible set (lifted Chebyshev centre), or None."""
+        r = self.r
+        d, nw = self.d, self.nw
+        # rows over (w, theta):  G w - S theta <= w ;  At theta <= bt
+        A = np.vstack([np.hstack([r.G, -r.S]), np.hstack([np.zeros((r.At.shape[0], nw)), r.At])])
+        b = np.concatenate([r.w, r.bt])
+        # radius measured in theta only: ball of theta's, any w
+        norms = np.concatenate(
+            [np.linalg.norm(r.S, axis=1), np.linalg.norm(r.At, axis=1)]
+        )
+        f = np.zeros(nw + d + 1)
+        f[-1] = -1.0
+        ub = np.full(nw + d + 1, np.inf)
+        ub[-1] = self.scale
+        x, st, _ = solve_lp(f, np.hstack([A, norms[:, None]]), b, ub=ub)
+        if st != "optimal" or x is None or x[-1] <= self.region_tol:
+            return None
+        # the centre is often a symmetric, degenerate point (the origin): start off it
+        u = self.rng.normal(size=d)
+        return x[nw : nw + d] + 0.37 * x[-1] * u / np.linalg.norm(u)
+
+    def run(self) -> list[CriticalRegion]:
+        q0 = self.start_point()
+        if q0 is None:
+            return []
+        first = self._region_at(q0, 1e-3 * self.scale)
+        if first is None:
+            return []
+        queue = deque([self._add(first)])
+        while queue:
+            i = queue.popleft()
+            reg = self.regions[i]
+            for j in range(reg.A.shape[0]):
+                for new in self._cover_facet(reg, j):
+                    queue.append(new)
+        return self.regions
+
+    def _cover_facet(self, reg: CriticalRegion, j: int) -> list[int]:
+        """Make sure every point of facet j of reg has a region on its other side."""
+        a, beta = reg.A[j], reg.b[j]
+        others = np.delete(np.arange(reg.A.shape[0]), j)
+        baseA, baseb = reg.A[others], reg.b[others]
+        new_regions: list[int] = []
+        pieces = [(np.zeros((0, self.d)), np.zeros(0))]
+        budget = 2000
+        while pieces and budget:
+            budget -= 1
+            EA, Eb = pieces.pop()
+            self.stats["pieces"] += 1
+            PA = np.vstack([baseA, EA])
+            Pb = np.concatenate([baseb, Eb])
+            p, rho = chebyshev_ball(PA, Pb, a[None, :], np.array([beta]))
+            if not rho > self.region_tol:
+                continue
+            eps = min(self.step, 0.5 * rho)
+            target = -1
+            for _ in range(6):
+                q = p + eps * a
+                if not self._in_theta(q):
+                    target = -2
+                    break
+                k = self._find(q, 1e-12 * self.scale)
+                if k < 0:
+                    nreg = self._region_at(q, 0.1 * eps)
+                    if nreg is None:
+                        target = -2  # infeasible beyond: this facet is on the boundary
+                        break
+                    k = self._add(nreg)
+                    new_regions.append(k)
+                R2 = self.regions[k]
+                if np.all(R2.A @ p - R2.b <= self.touch_tol):
+                    target = k
+                    break
+                eps *= 0.1  # a thinner region lies in between: step closer
+                self.stats["step_refinements"] += 1
+            if target == -2:
+                if not self._in_theta(q):
+                    continue
+                return new_regions  # whole facet is on the feasible-set boundary
+            if target < 0:
+                raise SolverError("could not step across a facet (numerical trouble)")
+            # subtract R2 from the piece, inside the facet's hyperplane
+            R2 = self.regions[target]
+            tang = R2.A - np.outer(R2.A @ a, a)
+            cut = np.linalg.norm(tang, axis=1) > 1e-9
+            prevA = np.zeros((0, self.d))
+            prevb = np.zeros(0)
+            for row, rhs in zip(R2.A[cut], R2.b[cut], strict=True):
+                pieces.append(
+                    (np.vstack([EA, prevA, -row[None, :]]), np.concatenate([Eb, prevb, [-rhs]]))
+                )
+                prevA = np.vstack([prevA, row[None, :]])
+                prevb = np.concatenate([prevb, [rhs]])
+        if budget == 0:
+            raise SolverError("facet coverage did not converge (too many pieces)")
+        return new_regions
+
+
+def _complete_basis(G, act, tight, n):
+    """Extend the rows ``act`` with rows of ``tight`` to n linearly independent rows."""
+    rows = list(act)
+    for t in tight:
+        trial = G[rows + [t]]
+        if np.linalg.matrix_rank(trial, tol=1e-9) == len(rows) + 1:
+            rows.append(int(t))
+            if len(rows) == n:
+                break
+    return np.array(rows) if len(rows) == n else None
+
+
+def mpsolve(
+    program: MpProgram,
+    *,
+    options: SolveOptions | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> MpSolution:
+    """Solve an mp-LP / mp-QP exactly.
+
+    Parameters
+    ----------
+    program : MpProgram
+    options : SolveOptions, optional
+    progress : callable, optional
+        Called with the number of regions found so far each time one is added.
+
+    Returns
+    -------
+    MpSolution
+        Empty (no regions) when the program is infeasible for every parameter.
+    """
+    opts = options or SolveOptions()
+    t0 = time.perf_counter()
+    red = _reduce(program)
+    if np.any(red.H) and np.min(np.linalg.eigvalsh(red.H)) <= 1e-12 * max(
+        1.0, np.max(np.abs(red.H))
+    ):
+        raise SolverError("semi-definite H is not supported yet by mpsolve (H must be > 0)")
+    ex = _Explorer(red, opts, progress)
+    regions = ex.run()
+    # back to the original variables: z = Z0 + Z1 theta + Nz w
+    out = [
+        CriticalRegion(
+            A=reg.A, b=reg.b, K=red.Z1 + red.Nz @ reg.K, k=red.Z0 + red.Nz @ reg.k,
+            active=reg.active,
+        )
+        for reg in regions
+    ]
+    return MpSolution(
+        program=program, regions=out, seconds=time.perf_counter() - t0, stats=ex.stats
+    )

@@ -1,0 +1,227 @@
+"""Polytopes in H-representation and the small LPs the engine needs on them.
+
+A polytope is ``{x : A x <= b}`` with ``A`` (k, d) and ``b`` (k,). The LPs here are tiny
+(d <= ~10 variables, tens of rows) and are solved thousands of times during synthesis, so
+they go to DAQP (a dual active-set solver in C; LPs via its proximal-point mode), which is
+one to two orders of magnitude faster than a general LP front end on this size; SciPy's
+HiGHS is the fallback whenever DAQP does not report a clean optimum.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import daqp
+import numpy as np
+from scipy.optimize import linprog
+
+__all__ = [
+    "Polytope",
+    "solve_lp",
+    "chebyshev_ball",
+    "minimal_rows",
+    "normalize_rows",
+    "box_halfspaces",
+    "contains",
+]
+
+_INF = 1e30
+#: cap on the Chebyshev radius LP so that unbounded sets still give a finite answer
+_RADIUS_CAP = 1e6
+
+
+@dataclass(frozen=True)
+class Polytope:
+    """``{x : A x <= b}``.
+
+    Attributes
+    ----------
+    A : (k, d) ndarray
+    b : (k,) ndarray
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        return self.A.shape[1]
+
+    def contains(self, X: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        """Membership of the rows of ``X`` (P, d) -> (P,) bool."""
+        return contains(self.A, self.b, X, tol)
+
+    def chebyshev(self) -> tuple[np.ndarray, float]:
+        """Centre (d,) and radius of the largest inscribed ball (radius < 0: empty)."""
+        return chebyshev_ball(self.A, self.b)
+
+
+def contains(A: np.ndarray, b: np.ndarray, X: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Rows of ``X`` (P, d) with ``A x <= b + tol`` -> (P,) bool."""
+    X = np.atleast_2d(X)
+    return np.all(X @ A.T <= b + tol, axis=1)
+
+
+def box_halfspaces(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """H-representation of the box ``lower <= x <= upper`` (finite sides only)."""
+    d = lower.shape[0]
+    eye = np.eye(d)
+    A = np.vstack([eye, -eye])
+    b = np.concatenate([upper, -lower])
+    keep = np.isfinite(b)
+    return A[keep], b[keep]
+
+
+def normalize_rows(
+    A: np.ndarray, b: np.ndarray, tol: float = 1e-12
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Scale rows to unit norm and drop rows ``0 <= b``.
+
+    Returns
+    -------
+    A, b : ndarray
+        Normalised rows.
+    feasible : bool
+        False when a zero row reads ``0 <= b`` with ``b < 0`` (the set is empty).
+    """
+    norms = np.linalg.norm(A, axis=1)
+    zero = norms <= tol
+    feasible = bool(np.all(b[zero] >= -tol))
+    keep = ~zero
+    return A[keep] / norms[keep, None], b[keep] / norms[keep], feasible
+
+
+def solve_lp(
+    f: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    Aeq: np.ndarray | None = None,
+    beq: np.ndarray | None = None,
+    lb: np.ndarray | None = None,
+    ub: np.ndarray | None = None,
+) -> tuple[np.ndarray | None, str, np.ndarray | None]:
+    """``min f'x  s.t.  A x <= b, Aeq x = beq, lb <= x <= ub``.
+
+    Returns
+    -------
+    x : (nx,) ndarray or None
+    status : str
+        ``"optimal"``, ``"infeasible"`` or ``"unbounded"``.
+    lam : ndarray or None
+        Multipliers of the rows of ``A`` (>= 0), then of ``Aeq`` (DAQP's sign convention,
+        ``f + A' lam = 0`` at the optimum); None when they come from the fallback.
+    """
+    nx = f.shape[0]
+    rows = [A]
+    upper = [b]
+    lower = [np.full(b.shape[0], -_INF)]
+    sense = [np.zeros(b.shape[0], dtype=np.int32)]
+    if Aeq is not None and Aeq.shape[0]:
+        rows.append(Aeq)
+        upper.append(beq)
+        lower.append(beq)
+        sense.append(np.full(beq.shape[0], 5, dtype=np.int32))
+    if lb is not None or ub is not None:
+        lo = np.full(nx, -_INF) if lb is None else np.where(np.isfinite(lb), lb, -_INF)
+        hi = np.full(nx, _INF) if ub is None else np.where(np.isfinite(ub), ub, _INF)
+        rows.append(np.eye(nx))
+        upper.append(hi)
+        lower.append(lo)
+        sense.append(np.zeros(nx, dtype=np.int32))
+    M = np.ascontiguousarray(np.vstack(rows), dtype=float)
+    x, _, flag, info = daqp.solve(
+        np.zeros((nx, nx)),
+        np.ascontiguousarray(f, dtype=float),
+        M,
+        np.concatenate(upper).astype(float),
+        np.concatenate(lower).astype(float),
+        np.concatenate(sense),
+        eps_prox=1e-2,
+    )
+    if flag == 1:
+        return np.asarray(x, dtype=float), "optimal", np.asarray(info["lam"], dtype=float)
+    if flag == -1:
+        return None, "infeasible", None
+    # anything else (cycling, iteration limit, unbounded claims): ask HiGHS
+    bounds = [(None, None)] * nx
+    if lb is not None or ub is not None:
+        lo = np.full(nx, -np.inf) if lb is None else lb
+        hi = np.full(nx, np.inf) if ub is None else ub
+        bounds = [
+            (None if not np.isfinite(lo_i) else lo_i, None if not np.isfinite(hi_i) else hi_i)
+            for lo_i, hi_i in zip(lo, hi, strict=True)
+        ]
+    res = linprog(
+        f,
+        A_ub=A if A.shape[0] else None,
+        b_ub=b if A.shape[0] else None,
+        A_eq=Aeq if Aeq is not None and Aeq.shape[0] else None,
+        b_eq=beq if Aeq is not None and Aeq.shape[0] else None,
+        bounds=bounds,
+        method="highs",
+    )
+    if res.status == 0:
+        return np.asarray(res.x), "optimal", None
+    if res.status == 2:
+        return None, "infeasible", None
+    if res.status == 3:
+        return None, "unbounded", None
+    return None, "infeasible", None
+
+
+def chebyshev_ball(
+    A: np.ndarray,
+    b: np.ndarray,
+    Aeq: np.ndarray | None = None,
+    beq: np.ndarray | None = None,
+) -> tuple[np.ndarray, float]:
+    """Largest ball inside ``{A x <= b}`` (within the affine set ``Aeq x = beq``).
+
+    With equalities the radius is measured inside the affine set: each row's norm is the
+    norm of its component orthogonal to the equality rows.
+
+    Returns
+    -------
+    centre : (d,) ndarray
+    radius : float
+        Negative when the set is empty; capped at 1e6 for unbounded sets.
+    """
+    d = A.shape[1]
+    if Aeq is not None and Aeq.shape[0]:
+        Qe, _ = np.linalg.qr(Aeq.T)
+        proj = A - (A @ Qe) @ Qe.T
+        norms = np.linalg.norm(proj, axis=1)
+    else:
+        norms = np.linalg.norm(A, axis=1)
+    Ab = np.hstack([A, norms[:, None]])
+    f = np.zeros(d + 1)
+    f[-1] = -1.0
+    ub = np.full(d + 1, np.inf)
+    ub[-1] = _RADIUS_CAP
+    Aeq_b = None if Aeq is None else np.hstack([Aeq, np.zeros((Aeq.shape[0], 1))])
+    x, status, _ = solve_lp(f, Ab, b, Aeq_b, beq, ub=ub)
+    if status != "optimal" or x is None:
+        return np.full(d, np.nan), -np.inf
+    return x[:d], float(x[d])
+
+
+def minimal_rows(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Indices of the non-redundant rows of a full-dimensional polytope ``A x <= b``.
+
+    Rows are expected normalised (``normalize_rows``). Exact duplicates are removed first
+    (keeping the first), then DAQP's minimal-representation routine removes the rest.
+
+    Returns
+    -------
+    (r,) ndarray of int
+    """
+    if A.shape[0] == 0:
+        return np.zeros(0, dtype=int)
+    key = np.round(np.hstack([A, b[:, None]]), 10)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    # a row parallel to another with a larger offset is redundant too; minrep handles it
+    Au = np.ascontiguousarray(A[first])
+    bu = np.ascontiguousarray(b[first])
+    redundant = np.asarray(daqp.minrep(Au, bu), dtype=bool)
+    return first[~redundant]
