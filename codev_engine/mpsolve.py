@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import daqp
 import numpy as np
+from scipy.optimize import linprog
 
 from .errors import SolverError, SpecError
 from .locate import PointLocator
@@ -184,7 +185,9 @@ def _reduce(p: MpProgram) -> _Reduced:
         # equalities must be consistent for every theta: the rows outside the range of Aeq
         resid = np.hstack([beq[:, None], Feq]) - Aeq @ pinv @ np.hstack([beq[:, None], Feq])
         if np.max(np.abs(resid), initial=0.0) > 1e-8 * max(1.0, np.max(np.abs(Feq), initial=1)):
-            raise SpecError("equality constraints are inconsistent for some parameters", field="Aeq")
+            raise SpecError(
+                "equality constraints are inconsistent for some parameters", field="Aeq"
+            )
         Z0 = pinv @ beq
         Z1 = pinv @ Feq
         Nz = Vt[rank:].T
@@ -270,9 +273,7 @@ class _Explorer:
         if self._dirty:
             self._stackA = np.vstack(self._rowsA)
             self._stackb = np.concatenate(self._rowsb)
-            self._owner = np.repeat(
-                np.arange(len(self._rowsA)), [a.shape[0] for a in self._rowsA]
-            )
+            self._owner = np.repeat(np.arange(len(self._rowsA)), [a.shape[0] for a in self._rowsA])
             self._dirty = False
         if not self.regions:
             return -1
@@ -294,13 +295,28 @@ class _Explorer:
         lower = np.full(m, -1e30)
         if self.is_lp:
             x, _, flag, info = daqp.solve(
-                np.zeros((self.nw, self.nw)), self.c_pert + r.C @ q, r.G, rhs, lower, sense,
-                eps_prox=1e-2, iter_limit=10_000, primal_tol=1e-11, dual_tol=1e-12,
+                np.zeros((self.nw, self.nw)),
+                self.c_pert + r.C @ q,
+                r.G,
+                rhs,
+                lower,
+                sense,
+                eps_prox=1e-2,
+                iter_limit=10_000,
+                primal_tol=1e-11,
+                dual_tol=1e-12,
             )
         else:
             x, _, flag, info = daqp.solve(
-                r.H, r.c + r.C @ q, r.G, rhs, lower, sense, iter_limit=10_000,
-                primal_tol=1e-11, dual_tol=1e-12,
+                r.H,
+                r.c + r.C @ q,
+                r.G,
+                rhs,
+                lower,
+                sense,
+                iter_limit=10_000,
+                primal_tol=1e-11,
+                dual_tol=1e-12,
             )
         if flag == -1:
             return None
@@ -310,8 +326,27 @@ class _Explorer:
                 "a direction of zero cost: bound the variables or make the cost definite)"
             )
         if flag != 1:
-            return "fail"
+            return self._solve_at_fallback(q)
         return np.asarray(x), np.asarray(info["lam"])
+
+    def _solve_at_fallback(self, q: np.ndarray):
+        """HiGHS (LP) or Clarabel-free KKT check when DAQP reports trouble (cycling)."""
+        r = self.r
+        rhs = r.w + r.S @ q
+        if self.is_lp:
+            res = linprog(
+                self.c_pert + r.C @ q,
+                A_ub=r.G,
+                b_ub=rhs,
+                bounds=[(None, None)] * self.nw,
+                method="highs-ds",
+            )
+            if res.status == 2:
+                return None
+            if res.status != 0:
+                return "fail"
+            return np.asarray(res.x), -np.asarray(res.ineqlin.marginals)
+        return "fail"
 
     def _region_at(self, q: np.ndarray, jitter: float):
         """Critical region whose closure holds q (or a jittered q); None if infeasible."""
@@ -334,7 +369,6 @@ class _Explorer:
 
     def _region_from_solution(self, q, x, lam):
         r = self.r
-        d = self.d
         if self.is_lp:
             act = np.flatnonzero(lam > 0)
             if act.size < self.nw:
@@ -419,9 +453,7 @@ class _Explorer:
         A = np.vstack([np.hstack([r.G, -r.S]), np.hstack([np.zeros((r.At.shape[0], nw)), r.At])])
         b = np.concatenate([r.w, r.bt])
         # radius measured in theta only: ball of theta's, any w
-        norms = np.concatenate(
-            [np.linalg.norm(r.S, axis=1), np.linalg.norm(r.At, axis=1)]
-        )
+        norms = np.concatenate([np.linalg.norm(r.S, axis=1), np.linalg.norm(r.At, axis=1)])
         f = np.zeros(nw + d + 1)
         f[-1] = -1.0
         ub = np.full(nw + d + 1, np.inf)
@@ -554,7 +586,10 @@ def mpsolve(
     # back to the original variables: z = Z0 + Z1 theta + Nz w
     out = [
         CriticalRegion(
-            A=reg.A, b=reg.b, K=red.Z1 + red.Nz @ reg.K, k=red.Z0 + red.Nz @ reg.k,
+            A=reg.A,
+            b=reg.b,
+            K=red.Z1 + red.Nz @ reg.K,
+            k=red.Z0 + red.Nz @ reg.k,
             active=reg.active,
         )
         for reg in regions
