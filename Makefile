@@ -1,0 +1,32 @@
+# Everything runs inside .venv, created on first use from pyproject.toml.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test lint bench clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+## demo: set everything up and synthesise the bundled double-integrator example
+demo: $(STAMP)
+	$(BIN)/codev synth examples/double_integrator.toml --out out/double_integrator.law.npz
+
+## test: the whole test suite (what CI runs)
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check codev_engine workbench tests benchmarks
+
+## bench: synthesis benchmark against PPOPT (installs the peer into .venv)
+bench: $(STAMP)
+	$(BIN)/python -m pip install --quiet -r benchmarks/requirements.txt
+	$(BIN)/python benchmarks/synth.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,156 @@
+"""The ``codev`` command line: a thin shell over the engine.
+
+Exit status: 0 success, 1 a verification/replay outcome that is not a pass (where a
+command defines one), 2 bad input (one line on stderr: file, field, reason).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from .errors import CodevError
+
+__all__ = ["main"]
+
+
+def _err(msg: str) -> None:
+    print(f"codev: error: {msg}", file=sys.stderr)
+
+
+@contextmanager
+def _progress(label: str, enabled: bool) -> Iterator[Callable[[int], None]]:
+    """A live 'regions found' counter on a terminal (rich), silent otherwise."""
+    if not enabled or not sys.stderr.isatty():
+        yield lambda _count: None
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("[bold]{task.description}"),
+        TextColumn("{task.fields[count]} regions"),
+        TimeElapsedColumn(),
+        transient=True,
+        console=None,
+    ) as prog:
+        task = prog.add_task(label, count=0)
+        last = [0.0]
+
+        def update(count: int) -> None:
+            now = time.monotonic()
+            if now - last[0] > 0.1:  # keep terminal updates ~10 Hz
+                last[0] = now
+                prog.update(task, count=count)
+
+        yield update
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    from .spec import load_spec
+    from .synthesis import synthesize
+
+    problem = load_spec(args.spec)
+    with _progress(f"synthesising {problem.name}", not args.json) as update:
+        law = synthesize(problem, progress=update)
+    out = None
+    if args.out:
+        out = str(law.save(args.out))
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "problem": problem.name,
+                    "regions": law.num_regions,
+                    "regions_before_merge": law.meta.get("regions_before_merge"),
+                    "seconds": law.meta["seconds"],
+                    "n": law.n,
+                    "m": law.m,
+                    "norm": problem.mpc.norm,
+                    "horizon": problem.mpc.horizon,
+                    "out": out,
+                }
+            )
+        )
+        return 0
+    mpc = problem.mpc
+    print(
+        f"{problem.name}: explicit MPC with {law.num_regions} critical regions "
+        f"(n={law.n}, m={law.m}, N={mpc.horizon}, norm {mpc.norm}) "
+        f"in {law.meta['seconds']:.3f} s"
+    )
+    if law.meta.get("regions_before_merge") != law.num_regions:
+        print(f"  merged from {law.meta['regions_before_merge']} regions (simplify)")
+    shown = min(law.num_regions, 5)
+    for i in range(shown):
+        terms = []
+        for r in range(law.m):
+            coef = " ".join(f"{v:+.4g}*{s}" for v, s in zip(law.F[i, r], law.states, strict=True))
+            terms.append(f"{law.inputs[r]} = {coef} {law.G[i, r]:+.4g}")
+        print(f"  region {i}: {law.A[i].shape[0]} facets; " + "; ".join(terms))
+    if law.num_regions > shown:
+        print(f"  ... {law.num_regions - shown} more regions")
+    if out:
+        print(f"law written to {out}")
+    return 0
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="codev",
+        description="Explicit MPC synthesis and closed-loop verification.",
+    )
+    parser.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = parser.add_subparsers(dest="command")
+
+    p = sub.add_parser("synth", help="synthesise the explicit MPC law of a spec")
+    p.add_argument("spec", help="problem spec (TOML)")
+    p.add_argument("--out", help="write the law to this .npz file")
+    p.add_argument("--json", action="store_true", help="print a JSON summary only")
+    p.set_defaults(func=_cmd_synth)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``codev`` console script."""
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    if args.version:
+        from . import __version__
+
+        print(__version__)
+        return 0
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args))
+    except CodevError as exc:
+        _err(str(exc))
+        return 2
+    except KeyboardInterrupt:
+        _err("interrupted")
+        return 130
+    except OSError as exc:
+        name = getattr(exc, "filename", None)
+        _err(f"{name}: {exc.strerror}" if name else str(exc))
+        return 2
+    except Exception as exc:  # a bug in codev: one line, the traceback on request
+        if os.environ.get("CODEV_DEBUG"):
+            raise
+        _err(f"internal error ({exc.__class__.__name__}: {exc}); set CODEV_DEBUG=1 for details")
+        return 1
+
+
+def _path(s: str) -> Path:
+    return Path(s)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,604 @@
+"""The MPC front door: condensed multi-parametric program and the online (reference) MPC.
+
+Conventions (those of MPT3, see ``benchmarks/README.md``):
+
+* prediction model in deviation coordinates ``dx+ = A dx + B du + c`` (``LinearModel``);
+* stage costs ``k = 0..N-1`` on states and inputs, terminal cost on ``x_N`` when ``P`` is
+  given;
+* state bounds on ``x_0..x_N`` (the ``x_0`` bound is the parameter set), input bounds on
+  ``u_0..u_{N-1}``;
+* norm ``"2"``: ``sum_k x_k'Q x_k + u_k'R u_k + x_N'P x_N``;
+  norms ``"1"``/``"inf"``: ``sum_k ||Q x_k||_p + ||R u_k||_p + ||P x_N||_p``.
+
+``build_program`` condenses the MPC into an ``MpProgram`` whose parameter is the initial
+state deviation ``theta = x_0 - x_op``. ``OnlineMpc`` solves the *non-condensed* MPC with
+cvxpy + Clarabel at one state at a time; it is the reference the explicit law is tested
+against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+from scipy.optimize import linprog
+
+from .errors import SolverError, SpecError
+from .mpprogram import MpProgram
+from .plant import LinearModel
+from .spec import MpcSpec, Problem
+
+__all__ = [
+    "MpcProgram",
+    "build_program",
+    "check_feasible",
+    "OnlineSolution",
+    "OnlineMpc",
+]
+
+_NORMS = ("1", "inf", "2")
+
+# Clarabel settings of the reference solver: much tighter than the defaults (1e-8) so the
+# online optimum is an oracle at 1e-6 relative.
+CLARABEL_OPTIONS: dict[str, float | int] = {
+    "tol_gap_abs": 1e-10,
+    "tol_gap_rel": 1e-10,
+    "tol_feas": 1e-10,
+    "tol_infeas_abs": 1e-10,
+    "tol_infeas_rel": 1e-10,
+    "tol_ktratio": 1e-8,
+    "max_iter": 500,
+}
+
+
+# ---------------------------------------------------------------------------------------
+# the condensed program
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class MpcProgram:
+    """The condensed MPC as a multi-parametric program, with what is needed to read it.
+
+    The parameter is ``theta = x_0 - x_op`` (n,). The decision vector is
+    ``z = [u_0, ..., u_{N-1}, s]``: the deviation inputs (N*m) first, then the slacks of the
+    LP norms (none for norm ``"2"``). The full MPC cost at ``(theta, z)`` is
+    ``0.5 z'Hz + (c + C theta)'z + theta_constant(theta)``.
+
+    Attributes
+    ----------
+    program : MpProgram
+    model : LinearModel
+    spec : MpcSpec
+    n, m, N : int
+        State and input dimensions, horizon.
+    u0_slice : slice
+        Where the first deviation input ``u_0 - u_op`` sits inside ``z``.
+    x_op : (n,) ndarray
+    u_op : (m,) ndarray
+    """
+
+    program: MpProgram
+    model: LinearModel
+    spec: MpcSpec
+    n: int
+    m: int
+    N: int
+    u0_slice: slice
+    x_op: np.ndarray
+    u_op: np.ndarray
+    # theta_constant(theta) = theta' _Kq theta + _kl' theta + _k0   (norm "2")
+    #                       = ||Q theta||_p                         (norms "1", "inf")
+    _Kq: np.ndarray
+    _kl: np.ndarray
+    _k0: float
+
+    @property
+    def n_slack(self) -> int:
+        """Number of slack variables (after the N*m inputs in ``z``)."""
+        return self.program.nz - self.N * self.m
+
+    def theta_constant(self, theta: np.ndarray) -> np.ndarray:
+        """The part of the MPC cost that depends on theta only (dropped from the program).
+
+        Parameters
+        ----------
+        theta : (P, n) ndarray
+            Initial state deviations ``x_0 - x_op``.
+
+        Returns
+        -------
+        (P,) ndarray
+        """
+        T = np.atleast_2d(np.asarray(theta, dtype=float))
+        if self.spec.norm == "2":
+            return np.einsum("pi,ij,pj->p", T, self._Kq, T) + T @ self._kl + self._k0
+        Q = np.asarray(self.spec.Q, dtype=float)
+        ordp = 1 if self.spec.norm == "1" else np.inf
+        return np.linalg.norm(T @ Q.T, ord=ordp, axis=1)
+
+    def to_theta(self, X: np.ndarray) -> np.ndarray:
+        """Plant states ``X`` (P, n) -> parameters ``theta = X - x_op`` (P, n)."""
+        return np.asarray(X, dtype=float) - self.x_op
+
+    def from_theta(self, theta: np.ndarray) -> np.ndarray:
+        """Parameters ``theta`` (P, n) -> plant states ``theta + x_op`` (P, n)."""
+        return np.asarray(theta, dtype=float) + self.x_op
+
+    def u0_from_z(self, Z: np.ndarray) -> np.ndarray:
+        """The first move in plant coordinates, ``Z[..., u0_slice] + u_op``.
+
+        Parameters
+        ----------
+        Z : (nz,) or (P, nz) ndarray
+
+        Returns
+        -------
+        (m,) or (P, m) ndarray
+        """
+        return np.asarray(Z, dtype=float)[..., self.u0_slice] + self.u_op
+
+
+def _as2d(M: np.ndarray | None, cols: int) -> np.ndarray | None:
+    if M is None:
+        return None
+    return np.asarray(M, dtype=float).reshape(-1, cols)
+
+
+def _check_dims(spec: MpcSpec, n: int, m: int) -> None:
+    if spec.norm not in _NORMS:
+        raise SpecError(f"norm must be one of {_NORMS}, got {spec.norm!r}", field="mpc.norm")
+    if spec.horizon < 1:
+        raise SpecError("the horizon must be at least 1", field="mpc.horizon")
+    for name, M, cols in (("Q", spec.Q, n), ("R", spec.R, m), ("P", spec.P, n)):
+        if M is None:
+            continue
+        M = np.asarray(M)
+        if M.ndim != 2 or M.shape[1] != cols:
+            raise SpecError(f"{name} must have {cols} columns, got shape {M.shape}",
+                            field=f"mpc.{name}")
+        if spec.norm == "2":
+            if M.shape[0] != cols:
+                raise SpecError(f"{name} must be square ({cols}x{cols}) for norm '2'",
+                                field=f"mpc.{name}")
+            Ms = 0.5 * (M + M.T).astype(float)
+            if np.linalg.eigvalsh(Ms).min() < -1e-10 * max(1.0, np.abs(Ms).max()):
+                raise SpecError(f"{name} must be positive semidefinite for norm '2'",
+                                field=f"mpc.{name}")
+
+
+def _predictions(
+    model: LinearModel, N: int
+) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Condensed predictions ``x_k = Phi_k theta + Gam_k u + d_k``, k = 0..N.
+
+    Returns
+    -------
+    Phi : list of (n, n) ndarray
+    Gam : list of (n, N*m) ndarray
+    d : list of (n,) ndarray
+    """
+    A = np.asarray(model.A, dtype=float)
+    B = np.asarray(model.B, dtype=float)
+    c = np.asarray(model.c, dtype=float).reshape(-1)
+    n, m = B.shape
+    Phi = [np.eye(n)]
+    Gam = [np.zeros((n, N * m))]
+    d = [np.zeros(n)]
+    for k in range(N):
+        G = A @ Gam[k]
+        G[:, k * m:(k + 1) * m] += B
+        Phi.append(A @ Phi[k])
+        Gam.append(G)
+        d.append(A @ d[k] + c)
+    return Phi, Gam, d
+
+
+def _theta_box(spec: MpcSpec, x_op: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounded parameter box ``lo <= theta <= hi``.
+
+    The finite state bounds (minus ``x_op``); an infinite side is replaced by
+    ``-+spec.domain_bound``.
+    """
+    xmin = np.asarray(spec.x_min, dtype=float) - x_op
+    xmax = np.asarray(spec.x_max, dtype=float) - x_op
+    D = float(spec.domain_bound)
+    lo = np.where(np.isfinite(xmin), xmin, -D)
+    hi = np.where(np.isfinite(xmax), xmax, D)
+    return lo, hi
+
+
+def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
+    """Condense the MPC into a multi-parametric LP (norms "1", "inf") or QP (norm "2").
+
+    Parameters
+    ----------
+    spec : MpcSpec
+        Weights ``Q`` (q, n), ``R`` (r, m), optional ``P`` (p, n) (square for norm "2"),
+        bounds in plant coordinates.
+    model : LinearModel
+        The discrete-time model in deviation coordinates.
+
+    Returns
+    -------
+    MpcProgram
+        ``program`` has parameter ``theta = x_0 - x_op`` (n,) and decision
+        ``z = [u_0..u_{N-1} (deviations), slacks]``; state bounds on ``x_1..x_N`` and input
+        bounds are rows ``A z <= b + F theta``, the ``x_0`` bound (a box, ``domain_bound`` on
+        infinite sides) and any constraint on theta alone form ``A_theta theta <= b_theta``.
+    """
+    n, m = np.asarray(model.B).shape
+    N = int(spec.horizon)
+    _check_dims(spec, n, m)
+    x_op = np.asarray(model.x_op, dtype=float).reshape(n)
+    u_op = np.asarray(model.u_op, dtype=float).reshape(m)
+    nu = N * m
+    Phi, Gam, d = _predictions(model, N)
+
+    Q = _as2d(spec.Q, n)
+    R = _as2d(spec.R, m)
+    P = _as2d(spec.P, n)
+
+    # --- bounds: rows  Au u <= b + F theta  (u = the N*m deviation inputs) ---------------
+    Au_rows: list[np.ndarray] = []
+    b_rows: list[np.ndarray] = []
+    F_rows: list[np.ndarray] = []
+
+    umin = np.asarray(spec.u_min, dtype=float) - u_op
+    umax = np.asarray(spec.u_max, dtype=float) - u_op
+    Iu = np.eye(nu)
+    for k in range(N):
+        for i in range(m):
+            j = k * m + i
+            if np.isfinite(umax[i]):
+                Au_rows.append(Iu[j])
+                b_rows.append(np.array([umax[i]]))
+                F_rows.append(np.zeros((1, n)))
+            if np.isfinite(umin[i]):
+                Au_rows.append(-Iu[j])
+                b_rows.append(np.array([-umin[i]]))
+                F_rows.append(np.zeros((1, n)))
+    xmin = np.asarray(spec.x_min, dtype=float) - x_op
+    xmax = np.asarray(spec.x_max, dtype=float) - x_op
+    up, lo = np.flatnonzero(np.isfinite(xmax)), np.flatnonzero(np.isfinite(xmin))
+    for k in range(1, N + 1):
+        # x_k = Phi theta + Gam u + d <= xmax   <=>   Gam u <= xmax - d - Phi theta
+        for i in up:
+            Au_rows.append(Gam[k][i])
+            b_rows.append(np.array([xmax[i] - d[k][i]]))
+            F_rows.append(-Phi[k][i][None, :])
+        for i in lo:
+            Au_rows.append(-Gam[k][i])
+            b_rows.append(np.array([d[k][i] - xmin[i]]))
+            F_rows.append(Phi[k][i][None, :])
+
+    Au = np.array(Au_rows, dtype=float).reshape(-1, nu)
+    bu = np.concatenate(b_rows) if b_rows else np.zeros(0)
+    Fu = np.vstack(F_rows) if F_rows else np.zeros((0, n))
+
+    # --- the parameter set: box, plus the pure-theta rows --------------------------------
+    th_lo, th_hi = _theta_box(spec, x_op)
+    A_theta_rows = [np.eye(n), -np.eye(n)]
+    b_theta_rows = [th_hi, -th_lo]
+    pure = ~np.any(Au != 0.0, axis=1)
+    if np.any(pure):
+        # 0 <= b + F theta   <=>   -F theta <= b; drop the ones the box already implies
+        At, bt = -Fu[pure], bu[pure]
+        box_max = np.maximum(At * th_lo, At * th_hi).sum(axis=1)
+        scale = 1.0 + np.abs(bt) + np.abs(At) @ np.maximum(np.abs(th_lo), np.abs(th_hi))
+        keep = box_max > bt + 1e-12 * scale
+        A_theta_rows.append(At[keep])
+        b_theta_rows.append(bt[keep])
+        Au, bu, Fu = Au[~pure], bu[~pure], Fu[~pure]
+    A_theta = np.vstack(A_theta_rows)
+    b_theta = np.concatenate(b_theta_rows)
+
+    # --- the cost ------------------------------------------------------------------------
+    if spec.norm == "2":
+        assert Q is not None and R is not None
+        Qs = 0.5 * (Q + Q.T)
+        Rs = 0.5 * (R + R.T)
+        W = [Qs] * N + ([0.5 * (P + P.T)] if P is not None else [np.zeros((n, n))])
+        H = 2.0 * np.kron(np.eye(N), Rs)
+        cz = np.zeros(nu)
+        Cz = np.zeros((nu, n))
+        Kq = np.zeros((n, n))
+        kl = np.zeros(n)
+        k0 = 0.0
+        for k in range(N + 1):
+            Gk, Wk = Gam[k], W[k]
+            H += 2.0 * Gk.T @ Wk @ Gk
+            cz += 2.0 * Gk.T @ Wk @ d[k]
+            Cz += 2.0 * Gk.T @ Wk @ Phi[k]
+            Kq += Phi[k].T @ Wk @ Phi[k]
+            kl += 2.0 * Phi[k].T @ Wk @ d[k]
+            k0 += float(d[k] @ Wk @ d[k])
+        H = 0.5 * (H + H.T)
+        Kq = 0.5 * (Kq + Kq.T)
+        program = MpProgram(
+            H=H, c=cz, C=Cz, A=Au, b=bu, F=Fu, A_theta=A_theta, b_theta=b_theta,
+        )
+        return MpcProgram(
+            program=program, model=model, spec=spec, n=n, m=m, N=N,
+            u0_slice=slice(0, m), x_op=x_op, u_op=u_op, _Kq=Kq, _kl=kl, _k0=k0,
+        )
+
+    # LP norms: terms (M, Gv, dv, Phiv) with v = Gv u + Phiv theta + dv
+    assert Q is not None and R is not None
+    terms: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    for k in range(1, N):  # the k = 0 state term depends on theta only
+        terms.append((Q, Gam[k], d[k], Phi[k]))
+    for k in range(N):
+        G = np.zeros((m, nu))
+        G[:, k * m:(k + 1) * m] = np.eye(m)
+        terms.append((R, G, np.zeros(m), np.zeros((m, n))))
+    if P is not None:
+        terms.append((P, Gam[N], d[N], Phi[N]))
+    terms = [t for t in terms if t[0].shape[0] > 0]
+
+    n_slack = sum(M.shape[0] for M, *_ in terms) if spec.norm == "1" else len(terms)
+    nz = nu + n_slack
+    A_rows = [np.hstack([Au, np.zeros((Au.shape[0], n_slack))])]
+    b_list = [bu]
+    F_list = [Fu]
+    s = nu  # index of the next slack
+    for M, G, dv, Ph in terms:
+        q = M.shape[0]
+        MG, Md, MP = M @ G, M @ dv, M @ Ph
+        S = np.zeros((q, n_slack))
+        if spec.norm == "1":
+            S[:, s - nu:s - nu + q] = -np.eye(q)
+            s += q
+        else:
+            S[:, s - nu] = -1.0
+            s += 1
+        #  M(G u + Ph theta + dv) - t <= 0   and   -M(...) - t <= 0
+        A_rows += [np.hstack([MG, S]), np.hstack([-MG, S])]
+        b_list += [-Md, Md]
+        F_list += [-MP, MP]
+    A_all = np.vstack(A_rows)
+    b_all = np.concatenate(b_list)
+    F_all = np.vstack(F_list)
+    cz = np.concatenate([np.zeros(nu), np.ones(n_slack)])
+    program = MpProgram(
+        H=np.zeros((nz, nz)), c=cz, C=np.zeros((nz, n)), A=A_all, b=b_all, F=F_all,
+        A_theta=A_theta, b_theta=b_theta,
+    )
+    return MpcProgram(
+        program=program, model=model, spec=spec, n=n, m=m, N=N,
+        u0_slice=slice(0, m), x_op=x_op, u_op=u_op,
+        _Kq=np.zeros((n, n)), _kl=np.zeros(n), _k0=0.0,
+    )
+
+
+def check_feasible(problem: Problem, model: LinearModel | None = None) -> None:
+    """Raise ``SpecError`` if no initial state in the state bounds has a feasible MPC.
+
+    Solves the feasibility LP of the lifted set ``{(theta, z): A z <= b + F theta,
+    A_theta theta <= b_theta}`` with HiGHS.
+
+    Parameters
+    ----------
+    problem : Problem
+    model : LinearModel, optional
+        The prediction model; ``plant.discretize(problem)`` when omitted.
+
+    Raises
+    ------
+    SpecError
+        ``field="mpc"`` when the lifted set is empty.
+    SolverError
+        When HiGHS fails.
+    """
+    if model is None:
+        from .plant import discretize
+
+        model = discretize(problem)
+    prog = build_program(problem.mpc, model).program
+    d, nz = prog.d, prog.nz
+    A_ub = np.vstack([
+        np.hstack([-prog.F, prog.A]),
+        np.hstack([prog.A_theta, np.zeros((prog.A_theta.shape[0], nz))]),
+    ])
+    b_ub = np.concatenate([prog.b, prog.b_theta])
+    kw: dict = {}
+    if prog.Aeq is not None:
+        kw = {"A_eq": np.hstack([-prog.Feq, prog.Aeq]), "b_eq": prog.beq}
+    res = linprog(np.zeros(d + nz), A_ub=A_ub, b_ub=b_ub, bounds=(None, None),
+                  method="highs", **kw)
+    if res.status == 2:
+        raise SpecError("the MPC is infeasible for every initial state in the state bounds",
+                        field="mpc")
+    if res.status != 0:
+        raise SolverError(f"MPC feasibility LP failed: {res.message}")
+
+
+# ---------------------------------------------------------------------------------------
+# the online (reference) MPC
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OnlineSolution:
+    """Result of one online MPC solve (plant coordinates).
+
+    Attributes
+    ----------
+    status : str
+        ``"optimal"`` or ``"infeasible"``.
+    u0 : (m,) ndarray
+        First move; NaN when infeasible.
+    U : (N, m) ndarray
+        All planned inputs; NaN when infeasible.
+    X : (N+1, n) ndarray
+        Predicted states ``x_0..x_N``; NaN when infeasible.
+    cost : float
+        Optimal MPC cost (including the ``x_0`` stage term); ``inf`` when infeasible.
+    """
+
+    status: str
+    u0: np.ndarray
+    U: np.ndarray
+    X: np.ndarray
+    cost: float
+
+    @property
+    def feasible(self) -> bool:
+        return self.status == "optimal"
+
+
+class OnlineMpc:
+    """The MPC solved online at one state, non-condensed, with cvxpy + Clarabel.
+
+    Variables are the plant-coordinate states ``x_0..x_N`` (with the dynamics as
+    equalities) and inputs ``u_0..u_{N-1}``; the cost includes the ``x_0`` stage term, so
+    ``solve(x).cost`` is the full MPC cost. The problems are compiled once (DPP, ``x_0`` is a
+    cvxpy Parameter), so repeated solves are cheap.
+
+    Unlike the explicit law's parameter set, no ``domain_bound`` is imposed on state axes
+    with infinite bounds.
+
+    Parameters
+    ----------
+    spec : MpcSpec
+    model : LinearModel
+    solver_options : dict, optional
+        Clarabel settings; defaults to ``CLARABEL_OPTIONS``.
+    """
+
+    def __init__(self, spec: MpcSpec, model: LinearModel,
+                 solver_options: dict | None = None) -> None:
+        A = np.asarray(model.A, dtype=float)
+        B = np.asarray(model.B, dtype=float)
+        c = np.asarray(model.c, dtype=float).reshape(-1)
+        n, m = B.shape
+        N = int(spec.horizon)
+        _check_dims(spec, n, m)
+        self.spec = spec
+        self.model = model
+        self.n, self.m, self.N = n, m, N
+        self.x_op = np.asarray(model.x_op, dtype=float).reshape(n)
+        self.u_op = np.asarray(model.u_op, dtype=float).reshape(m)
+        self.solver_options = dict(CLARABEL_OPTIONS if solver_options is None
+                                   else solver_options)
+
+        x = cp.Variable((N + 1, n), name="x")
+        u = cp.Variable((N, m), name="u")
+        self._x, self._u = x, u
+        self._x0 = cp.Parameter(n, name="x0")
+        self._u0 = cp.Parameter(m, name="u0")
+        dx = [x[k] - self.x_op for k in range(N + 1)]
+        du = [u[k] - self.u_op for k in range(N)]
+
+        cons = [x[0] == self._x0]
+        for k in range(N):
+            cons.append(dx[k + 1] == A @ dx[k] + B @ du[k] + c)
+        xmin, xmax = np.asarray(spec.x_min, float), np.asarray(spec.x_max, float)
+        umin, umax = np.asarray(spec.u_min, float), np.asarray(spec.u_max, float)
+        for lo, hi, var, K in ((xmin, xmax, x, N + 1), (umin, umax, u, N)):
+            ilo, ihi = np.flatnonzero(np.isfinite(lo)), np.flatnonzero(np.isfinite(hi))
+            for k in range(K):
+                if ilo.size:
+                    cons.append(var[k][ilo] >= lo[ilo])
+                if ihi.size:
+                    cons.append(var[k][ihi] <= hi[ihi])
+
+        Q = _as2d(spec.Q, n)
+        R = _as2d(spec.R, m)
+        P = _as2d(spec.P, n)
+        terms = []
+        if spec.norm == "2":
+            def quad(v, M):
+                return cp.quad_form(v, cp.psd_wrap(0.5 * (M + M.T)))
+        else:
+            ordp = 1 if spec.norm == "1" else "inf"
+
+            def quad(v, M):
+                return cp.norm(M @ v, ordp)
+        for k in range(N):
+            if Q.shape[0]:
+                terms.append(quad(dx[k], Q))
+            if R.shape[0]:
+                terms.append(quad(du[k], R))
+        if P is not None and P.shape[0]:
+            terms.append(quad(dx[N], P))
+        objective = cp.Minimize(cp.sum(cp.hstack(terms)) if terms else cp.Constant(0.0))
+
+        self._prob = cp.Problem(objective, cons)
+        self._prob_fixed = cp.Problem(objective, cons + [u[0] == self._u0])
+        assert self._prob.is_dcp(dpp=True) and self._prob_fixed.is_dcp(dpp=True)
+
+    def _run(self, prob: cp.Problem) -> bool:
+        """Solve ``prob``; True if optimal, False if infeasible."""
+        try:
+            prob.solve(solver=cp.CLARABEL, **self.solver_options)
+            if prob.status in (cp.OPTIMAL_INACCURATE, cp.INFEASIBLE_INACCURATE, cp.USER_LIMIT):
+                # the tight tolerances were not reached: Clarabel's defaults reached
+                # ("Solved") beat the reduced tolerances of "AlmostSolved"
+                prob.solve(solver=cp.CLARABEL)
+        except cp.SolverError as exc:
+            raise SolverError(f"online MPC: Clarabel failed: {exc}") from exc
+        if prob.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            return True
+        if prob.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            return False
+        raise SolverError(f"online MPC: unexpected solver status {prob.status!r}")
+
+    def solve(self, x: np.ndarray) -> OnlineSolution:
+        """Solve the MPC at the plant state ``x`` (n,).
+
+        Returns
+        -------
+        OnlineSolution
+        """
+        self._x0.value = np.asarray(x, dtype=float).reshape(self.n)
+        if not self._run(self._prob):
+            nan = np.nan
+            return OnlineSolution(
+                status="infeasible", u0=np.full(self.m, nan),
+                U=np.full((self.N, self.m), nan), X=np.full((self.N + 1, self.n), nan),
+                cost=float("inf"),
+            )
+        U = np.array(self._u.value, dtype=float)
+        return OnlineSolution(
+            status="optimal", u0=U[0].copy(), U=U, X=np.array(self._x.value, dtype=float),
+            cost=float(self._prob.value),
+        )
+
+    def first_move_cost(self, x: np.ndarray, u0: np.ndarray) -> float:
+        """Optimal MPC cost at ``x`` (n,) with the first move fixed to ``u0`` (m,).
+
+        Both in plant coordinates. ``u0`` is an optimal first move iff this equals
+        ``solve(x).cost`` (within solver tolerance).
+
+        Returns
+        -------
+        float
+            ``inf`` when no feasible plan starts with ``u0``.
+        """
+        self._x0.value = np.asarray(x, dtype=float).reshape(self.n)
+        self._u0.value = np.asarray(u0, dtype=float).reshape(self.m)
+        if not self._run(self._prob_fixed):
+            return float("inf")
+        return float(self._prob_fixed.value)
+
+    def solve_many(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Solve at each row of ``X`` (P, n).
+
+        Returns
+        -------
+        U0 : (P, m) ndarray
+            First moves (NaN where infeasible).
+        cost : (P,) ndarray
+            Optimal costs (inf where infeasible).
+        feasible : (P,) bool ndarray
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        U0 = np.full((X.shape[0], self.m), np.nan)
+        cost = np.full(X.shape[0], np.inf)
+        feasible = np.zeros(X.shape[0], dtype=bool)
+        for p, xp in enumerate(X):
+            sol = self.solve(xp)
+            U0[p], cost[p], feasible[p] = sol.u0, sol.cost, sol.feasible
+        return U0, cost, feasible
