@@ -1,0 +1,336 @@
+"""Plant: symbolic dynamics, Jacobian, linearisation and discretisation.
+
+Produces the discrete-time prediction model ``LinearModel`` used by the MPC.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import control
+import numpy as np
+import sympy
+
+from .errors import SpecError
+from .expr import make_symbol, parse_expression
+
+if TYPE_CHECKING:
+    from .spec import PlantSpec, Problem
+
+__all__ = [
+    "LinearModel",
+    "NumericDynamics",
+    "SymbolicPlant",
+    "discretize",
+    "linearize",
+    "numeric_dynamics",
+    "symbolic_model",
+]
+
+
+@dataclass(frozen=True)
+class LinearModel:
+    """Discrete-time affine model in deviation coordinates around the operating point.
+
+    ``dx+ = A dx + B du + c`` with ``dx = x - x_op``, ``du = u - u_op``. ``c`` (n,) is zero
+    when the operating point is an equilibrium of the plant.
+
+    Attributes
+    ----------
+    A : (n, n) ndarray
+    B : (n, m) ndarray
+    c : (n,) ndarray
+    dt : float
+        Sample time (s).
+    x_op : (n,) ndarray
+    u_op : (m,) ndarray
+    Ac, Bc : ndarray or None
+        The continuous-time linearisation (None for an explicit discrete model).
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    c: np.ndarray
+    dt: float
+    x_op: np.ndarray
+    u_op: np.ndarray
+    Ac: np.ndarray | None = None
+    Bc: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.B.shape[1]
+
+
+@dataclass(frozen=True)
+class SymbolicPlant:
+    """Symbolic continuous-time dynamics ``dx/dt = f(x, u)`` and its Jacobians.
+
+    Attributes
+    ----------
+    x : tuple of sympy.Symbol, length n
+        State symbols, in spec order.
+    u : tuple of sympy.Symbol, length m
+        Input symbols, in spec order.
+    f : (n, 1) sympy.ImmutableMatrix
+        The vector field.
+    Jx : (n, n) sympy.ImmutableMatrix
+        ``df/dx``.
+    Ju : (n, m) sympy.ImmutableMatrix
+        ``df/du``.
+    """
+
+    x: tuple[sympy.Symbol, ...]
+    u: tuple[sympy.Symbol, ...]
+    f: sympy.ImmutableMatrix
+    Jx: sympy.ImmutableMatrix
+    Ju: sympy.ImmutableMatrix
+
+
+class NumericDynamics(tuple):
+    """Numeric dynamics: unpacks as the pair ``(f, jac_x)``; ``jac_u`` is an attribute.
+
+    ``f(x, u)``: x (n,), u (m,) -> (n,); batched x (P, n), u (P, m) or (m,) -> (P, n).
+    ``jac_x(x, u)``: (n, n), batched (P, n, n). ``jac_u(x, u)``: (n, m), batched (P, n, m).
+    """
+
+    f: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    jac_x: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    jac_u: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+    def __new__(cls, f, jac_x, jac_u):
+        self = super().__new__(cls, (f, jac_x))
+        self.f = f
+        self.jac_x = jac_x
+        self.jac_u = jac_u
+        return self
+
+
+def _plant_of(problem_or_plant: Problem | PlantSpec) -> PlantSpec:
+    plant = getattr(problem_or_plant, "plant", problem_or_plant)
+    if not hasattr(plant, "states"):
+        raise TypeError(f"expected a Problem or a PlantSpec, got {type(problem_or_plant)!r}")
+    return plant
+
+
+def _no_continuous_plant() -> SpecError:
+    return SpecError(
+        "the spec has no continuous-time plant (only an explicit discrete model): give "
+        "plant.dynamics or plant.A and plant.B",
+        field="plant",
+    )
+
+
+def symbolic_model(problem_or_plant: Problem | PlantSpec) -> SymbolicPlant:
+    """Build the symbolic dynamics and Jacobians of the plant.
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+
+    Returns
+    -------
+    SymbolicPlant
+        ``f`` (n, 1) from the parsed ``dynamics`` expressions, or ``A x + B u`` for a
+        matrix plant; ``Jx`` (n, n) and ``Ju`` (n, m) by ``sympy`` differentiation.
+
+    Raises
+    ------
+    SpecError
+        If the plant has no continuous-time dynamics, or an expression is invalid.
+    """
+    plant = _plant_of(problem_or_plant)
+    x = tuple(make_symbol(s) for s in plant.states)
+    u = tuple(make_symbol(s) for s in plant.inputs)
+    if plant.dynamics is not None:
+        names = dict(zip((*plant.states, *plant.inputs), (*x, *u), strict=True))
+        exprs = [
+            parse_expression(text, names, field=f"plant.dynamics[{i}]")
+            for i, text in enumerate(plant.dynamics)
+        ]
+        f = sympy.ImmutableMatrix(len(exprs), 1, exprs)
+    elif plant.A is not None and plant.B is not None:
+        A = sympy.Matrix(np.asarray(plant.A, dtype=float).tolist())
+        B = sympy.Matrix(np.asarray(plant.B, dtype=float).tolist())
+        f = sympy.ImmutableMatrix(A * sympy.Matrix(x) + B * sympy.Matrix(u))
+    else:
+        raise _no_continuous_plant()
+    Jx = sympy.ImmutableMatrix(f.jacobian(sympy.Matrix(x)))
+    Ju = sympy.ImmutableMatrix(f.jacobian(sympy.Matrix(u)))
+    return SymbolicPlant(x=x, u=u, f=f, Jx=Jx, Ju=Ju)
+
+
+def _lambdify(exprs: list[sympy.Expr], args: tuple[sympy.Symbol, ...]):
+    """Compile a flat list of expressions; the result returns one value per expression."""
+    # Derivatives of sign() are DiracDelta: zero almost everywhere, and numpy has no such
+    # function. Replace by 0 (the a.e. derivative).
+    clean = [e.replace(sympy.DiracDelta, lambda *a: sympy.S.Zero) for e in exprs]
+    return sympy.lambdify(args, clean, modules="numpy", dummify=True)
+
+
+def _vectorised(
+    compiled, n: int, m: int, out_shape: tuple[int, ...]
+) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    size = int(np.prod(out_shape))
+
+    def call(x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if x.shape[-1:] != (n,) or x.ndim > 2:
+            raise ValueError(f"x must have shape ({n},) or (P, {n}), got {x.shape}")
+        if u.shape[-1:] != (m,) or u.ndim > 2:
+            raise ValueError(f"u must have shape ({m},) or (P, {m}), got {u.shape}")
+        batch = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+        values = compiled(*(x[..., i] for i in range(n)), *(u[..., j] for j in range(m)))
+        out = np.empty((*batch, size))
+        for k, v in enumerate(values):
+            out[..., k] = np.broadcast_to(np.asarray(v, dtype=float), batch)
+        return out.reshape(*batch, *out_shape)
+
+    return call
+
+
+def numeric_dynamics(problem_or_plant: Problem | PlantSpec) -> NumericDynamics:
+    """Fast numeric versions of ``f``, ``df/dx`` and ``df/du``.
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+
+    Returns
+    -------
+    NumericDynamics
+        Unpacks as ``f, jac_x = numeric_dynamics(plant)``; also has ``.jac_u``.
+
+        - ``f(x, u)``: x (n,), u (m,) -> (n,); vectorised: x (P, n), u (P, m) -> (P, n)
+          (u of shape (m,) is broadcast).
+        - ``jac_x(x, u)``: (n, n), vectorised (P, n, n).
+        - ``jac_u(x, u)``: (n, m), vectorised (P, n, m).
+
+        For a matrix plant these are exact matrix products; for ``dynamics`` they are built
+        with ``sympy.lambdify(..., modules="numpy")`` from the parsed (whitelisted) sympy
+        expressions -- never from user text.
+    """
+    plant = _plant_of(problem_or_plant)
+    n, m = plant.n, plant.m
+    if plant.dynamics is None and plant.A is not None and plant.B is not None:
+        A = np.array(plant.A, dtype=float)
+        B = np.array(plant.B, dtype=float)
+
+        def f(x, u):
+            x = np.asarray(x, dtype=float)
+            u = np.asarray(u, dtype=float)
+            return x @ A.T + u @ B.T
+
+        def jac_x(x, u):
+            batch = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
+            return np.broadcast_to(A, (*batch, n, n)).copy()
+
+        def jac_u(x, u):
+            batch = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
+            return np.broadcast_to(B, (*batch, n, m)).copy()
+
+        return NumericDynamics(f, jac_x, jac_u)
+    sym = symbolic_model(plant)
+    args = (*sym.x, *sym.u)
+    f = _vectorised(_lambdify(list(sym.f), args), n, m, (n,))
+    jac_x = _vectorised(_lambdify(list(sym.Jx), args), n, m, (n, n))
+    jac_u = _vectorised(_lambdify(list(sym.Ju), args), n, m, (n, m))
+    return NumericDynamics(f, jac_x, jac_u)
+
+
+def linearize(
+    plant: PlantSpec, x_op: np.ndarray, u_op: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Continuous-time linearisation at an operating point.
+
+    Parameters
+    ----------
+    plant : PlantSpec
+    x_op : (n,) array_like
+    u_op : (m,) array_like
+
+    Returns
+    -------
+    Ac : (n, n) ndarray
+        ``df/dx(x_op, u_op)``.
+    Bc : (n, m) ndarray
+        ``df/du(x_op, u_op)``.
+    f0 : (n,) ndarray
+        ``f(x_op, u_op)`` (zero iff the operating point is an equilibrium).
+    """
+    plant = _plant_of(plant)
+    x_op = np.asarray(x_op, dtype=float).reshape(plant.n)
+    u_op = np.asarray(u_op, dtype=float).reshape(plant.m)
+    if plant.dynamics is None:
+        if plant.A is None or plant.B is None:
+            raise _no_continuous_plant()
+        Ac = np.array(plant.A, dtype=float)
+        Bc = np.array(plant.B, dtype=float)
+        return Ac, Bc, Ac @ x_op + Bc @ u_op
+    f, jac_x = (nd := numeric_dynamics(plant))
+    return jac_x(x_op, u_op), nd.jac_u(x_op, u_op), f(x_op, u_op)
+
+
+def discretize(problem: Problem) -> LinearModel:
+    """The discrete-time prediction model of a problem.
+
+    With an explicit discrete model (``model.A``/``model.B``) that model is used as given
+    (``c = 0``, ``Ac``/``Bc`` None). Otherwise the plant is linearised at the operating point
+    and sampled with python-control (``model.method``, ``model.sample_time``). When the
+    operating point is not an equilibrium (``f0 = f(x_op, u_op) != 0``), ``f0`` is sampled as
+    an extra constant input, so ``c`` is its effect over one sample period (with the same
+    method; for "zoh" exactly ``integral_0^dt exp(Ac s) ds f0``).
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    LinearModel
+        ``dx+ = A dx + B du + c`` in deviations from ``(x_op, u_op)``: A (n, n), B (n, m),
+        c (n,).
+
+    Notes
+    -----
+    "zoh", "impulse" and "euler"/"backward_diff" keep the plant state as the model state.
+    "foh" and "tustin"/"bilinear" are used as python-control returns them (their ``A``, ``B``
+    are the state-space realisation of the sampled transfer function with ``C = I``; its
+    output, not its state, equals the plant state).
+    """
+    spec = problem.model
+    n, m = problem.plant.n, problem.plant.m
+    x_op = np.array(spec.x_op, dtype=float).reshape(n) if spec.x_op.size else np.zeros(n)
+    u_op = np.array(spec.u_op, dtype=float).reshape(m) if spec.u_op.size else np.zeros(m)
+    dt = float(spec.sample_time)
+    if spec.A is not None and spec.B is not None:
+        return LinearModel(
+            A=np.array(spec.A, dtype=float),
+            B=np.array(spec.B, dtype=float),
+            c=np.zeros(n),
+            dt=dt,
+            x_op=x_op,
+            u_op=u_op,
+        )
+    Ac, Bc, f0 = linearize(problem.plant, x_op, u_op)
+    if not (np.all(np.isfinite(Ac)) and np.all(np.isfinite(Bc)) and np.all(np.isfinite(f0))):
+        raise SpecError(
+            "the dynamics cannot be linearised at the operating point (non-finite values)",
+            field="model.operating_point",
+        )
+    affine = bool(np.any(f0 != 0.0))
+    Bin = np.hstack([Bc, f0[:, None]]) if affine else Bc
+    sys = control.ss(Ac, Bin, np.eye(n), np.zeros((n, Bin.shape[1])))
+    sampled = sys.sample(dt, method=spec.method)
+    A = np.array(sampled.A, dtype=float)
+    Bd = np.array(sampled.B, dtype=float)
+    B = Bd[:, :m].copy()
+    c = Bd[:, m].copy() if affine else np.zeros(n)
+    return LinearModel(A=A, B=B, c=c, dt=dt, x_op=x_op, u_op=u_op, Ac=Ac, Bc=Bc)
