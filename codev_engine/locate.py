@@ -70,10 +70,11 @@ class PointLocator:
         self.lo = lo.min(axis=0)
         self.hi = hi.max(axis=0)
         span = np.maximum(self.hi - self.lo, 1e-12)
-        # about 4 cells per region overall, at most 256 per axis
-        g = int(np.clip(np.ceil((4 * R) ** (1.0 / d)), 1, 256))
+        # about 16 cells per region overall, at most 256 per axis
+        g = int(np.clip(np.ceil((16 * R) ** (1.0 / d)), 1, 256))
         self.g = g
         self.cell = span / g
+        half = 0.5 * self.cell
         clo = np.clip(np.floor((lo - self.lo) / self.cell - 1e-9), 0, g - 1).astype(int)
         chi = np.clip(np.floor((hi - self.lo) / self.cell + 1e-9), 0, g - 1).astype(int)
         lists: list[list[int]] = [[] for _ in range(g**d)]
@@ -81,7 +82,12 @@ class PointLocator:
         for i in range(R):
             ranges = [np.arange(clo[i, j], chi[i, j] + 1) for j in range(d)]
             mesh = np.stack(np.meshgrid(*ranges, indexing="ij"), axis=-1).reshape(-1, d)
-            for c in mesh @ strides:
+            # drop cells that one of the region's rows separates from it entirely
+            centres = self.lo + (mesh + 0.5) * self.cell
+            A, b = As[i], bs[i]
+            lowest = centres @ A.T - np.abs(A) @ half
+            meets = np.all(lowest <= b + tol, axis=1)
+            for c in mesh[meets] @ strides:
                 lists[int(c)].append(i)
         counts = np.array([len(x) for x in lists])
         self.start = np.concatenate([[0], np.cumsum(counts)])

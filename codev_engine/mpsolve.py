@@ -38,7 +38,7 @@ from scipy.optimize import linprog
 from .errors import SolverError, SpecError
 from .locate import PointLocator
 from .mpprogram import MpProgram
-from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp, vertices
 
 __all__ = ["CriticalRegion", "MpSolution", "mpsolve", "SolveOptions"]
 
@@ -244,6 +244,8 @@ class _Explorer:
             cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
             self.c_pert = red.c + opts.lp_perturbation * cmag * pert
         self.regions: list[CriticalRegion] = []
+        self._verts: list[np.ndarray | None] = []
+        self._done: list[np.ndarray] = []  # per region: facets already known to be covered
         self._rowsA: list[np.ndarray] = []
         self._rowsb: list[np.ndarray] = []
         self._owner: np.ndarray = np.zeros(0, dtype=int)
@@ -436,6 +438,8 @@ class _Explorer:
 
     def _add(self, reg: CriticalRegion) -> int:
         self.regions.append(reg)
+        self._verts.append(vertices(reg.A, reg.b, tol=self.touch_tol))
+        self._done.append(np.zeros(reg.A.shape[0], dtype=bool))
         self._rowsA.append(reg.A)
         self._rowsb.append(reg.b)
         self._dirty = True
@@ -477,18 +481,58 @@ class _Explorer:
             i = queue.popleft()
             reg = self.regions[i]
             for j in range(reg.A.shape[0]):
-                for new in self._cover_facet(reg, j):
+                if self._done[i][j]:
+                    continue
+                for new in self._cover_facet(i, j):
                     queue.append(new)
         return self.regions
 
-    def _cover_facet(self, reg: CriticalRegion, j: int) -> list[int]:
-        """Make sure every point of facet j of reg has a region on its other side."""
+    def _facet_vertices(self, i: int, j: int) -> np.ndarray | None:
+        V = self._verts[i]
+        if V is None:
+            return None
+        reg = self.regions[i]
+        Vf = V[np.abs(V @ reg.A[j] - reg.b[j]) <= self.touch_tol]
+        # a facet of a d-dimensional polytope has >= d vertices spanning d-1 dimensions;
+        # anything less means the enumeration lost a vertex: do not trust it
+        if Vf.shape[0] < self.d:
+            return None
+        if self.d > 1 and np.linalg.matrix_rank(Vf[1:] - Vf[0], tol=self.touch_tol) < self.d - 1:
+            return None
+        return Vf
+
+    def _covers_whole_facet(self, i: int, j: int, k: int) -> bool:
+        """Does region k contain all of facet j of region i (vertex test)?
+
+        When it does and k has the opposite facet, that facet of k is covered by region i
+        as soon as its vertices lie in region i: mark it so it is not explored twice.
+        """
+        Vf = self._facet_vertices(i, j)
+        if Vf is None or Vf.shape[0] == 0:
+            return False
+        Rk = self.regions[k]
+        if not np.all(Vf @ Rk.A.T - Rk.b <= self.touch_tol):
+            return False
+        reg = self.regions[i]
+        match = np.flatnonzero(
+            (np.abs(Rk.A @ reg.A[j] + 1.0) <= 1e-9) & (np.abs(Rk.b + reg.b[j]) <= self.touch_tol)
+        )
+        for r in match:
+            Vk = self._facet_vertices(k, r)
+            if Vk is not None and Vk.shape[0] and np.all(Vk @ reg.A.T - reg.b <= self.touch_tol):
+                self._done[k][r] = True
+        return True
+
+    def _cover_facet(self, i: int, j: int) -> list[int]:
+        """Make sure every point of facet j of region i has a region on its other side."""
+        reg = self.regions[i]
         a, beta = reg.A[j], reg.b[j]
         others = np.delete(np.arange(reg.A.shape[0]), j)
         baseA, baseb = reg.A[others], reg.b[others]
         new_regions: list[int] = []
         pieces = [(np.zeros((0, self.d)), np.zeros(0))]
         budget = 2000
+        whole = True  # the first piece is the whole facet
         while pieces and budget:
             budget -= 1
             EA, Eb = pieces.pop()
@@ -525,6 +569,9 @@ class _Explorer:
                 return new_regions  # whole facet is on the feasible-set boundary
             if target < 0:
                 raise SolverError("could not step across a facet (numerical trouble)")
+            if whole and self._covers_whole_facet(i, j, target):
+                return new_regions  # neighbour meets this facet facet-to-facet (or more)
+            whole = False
             # subtract R2 from the piece, inside the facet's hyperplane
             R2 = self.regions[target]
             tang = R2.A - np.outer(R2.A @ a, a)
