@@ -43,6 +43,9 @@ class ExplicitLaw:
         refuse a law file that belongs to another problem.
     meta : dict
         Free-form JSON-able metadata (problem name, norm, seconds, solver stats).
+    domain_A, domain_b : ndarray
+        The law's domain (the MPC's feasible set, the union of the regions) as
+        ``domain_A x <= domain_b``, non-redundant.
     """
 
     A: list[np.ndarray]
@@ -53,6 +56,8 @@ class ExplicitLaw:
     inputs: tuple[str, ...] = ()
     fingerprint: str = ""
     meta: dict = field(default_factory=dict)
+    domain_A: np.ndarray | None = None
+    domain_b: np.ndarray | None = None
     _locator: PointLocator | None = field(default=None, repr=False, compare=False)
     _boxes: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
@@ -153,6 +158,8 @@ class ExplicitLaw:
         }
         if self._boxes is not None:
             arrays["box_lo"], arrays["box_hi"] = self._boxes
+        if self.domain_A is not None:
+            arrays["domain_A"], arrays["domain_b"] = self.domain_A, self.domain_b
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
         try:
@@ -210,6 +217,11 @@ class ExplicitLaw:
                 fingerprint=str(data["fingerprint"]),
                 meta=json.loads(str(data["meta"])),
             )
+            if "domain_A" in data:
+                law.domain_A = data["domain_A"].astype(float)
+                law.domain_b = data["domain_b"].astype(float)
+                if law.domain_A.ndim != 2 or law.domain_b.shape != law.domain_A.shape[:1]:
+                    raise SpecError("inconsistent domain arrays", file=str(path))
             if "box_lo" in data:
                 law._boxes = (data["box_lo"], data["box_hi"])
             return law

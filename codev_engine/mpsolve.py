@@ -100,6 +100,9 @@ class MpSolution:
     program : MpProgram
     regions : list of CriticalRegion
         In the original variables ``z`` (equalities eliminated internally are mapped back).
+    domain_A, domain_b : ndarray
+        The feasible parameter set (the union of the regions) as ``domain_A theta <=
+        domain_b``, non-redundant.
     seconds : float
         Wall time of the solve.
     stats : dict
@@ -108,6 +111,8 @@ class MpSolution:
 
     program: MpProgram
     regions: list[CriticalRegion]
+    domain_A: np.ndarray | None = None
+    domain_b: np.ndarray | None = None
     seconds: float = 0.0
     stats: dict = field(default_factory=dict)
     _locator: PointLocator | None = field(default=None, repr=False)
@@ -244,6 +249,7 @@ class _Explorer:
             cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
             self.c_pert = red.c + opts.lp_perturbation * cmag * pert
         self.regions: list[CriticalRegion] = []
+        self.boundary: list[np.ndarray] = []  # facets beyond which the program is infeasible
         self._verts: list[np.ndarray | None] = []
         self._done: list[np.ndarray] = []  # per region: facets already known to be covered
         self._rowsA: list[np.ndarray] = []
@@ -566,7 +572,9 @@ class _Explorer:
             if target == -2:
                 if not self._in_theta(q):
                     continue
-                return new_regions  # whole facet is on the feasible-set boundary
+                # whole facet is on the feasible-set boundary: it supports the domain
+                self.boundary.append(np.concatenate([a, [beta]]))
+                return new_regions
             if target < 0:
                 raise SolverError("could not step across a facet (numerical trouble)")
             if whole and self._covers_whole_facet(i, j, target):
@@ -630,6 +638,7 @@ def mpsolve(
         raise SolverError("semi-definite H is not supported yet by mpsolve (H must be > 0)")
     ex = _Explorer(red, opts, progress)
     regions = ex.run()
+    domain = _domain(red, ex.boundary) if regions else (np.zeros((0, red.At.shape[1])), np.zeros(0))
     # back to the original variables: z = Z0 + Z1 theta + Nz w
     out = [
         CriticalRegion(
@@ -642,5 +651,22 @@ def mpsolve(
         for reg in regions
     ]
     return MpSolution(
-        program=program, regions=out, seconds=time.perf_counter() - t0, stats=ex.stats
+        program=program,
+        regions=out,
+        domain_A=domain[0],
+        domain_b=domain[1],
+        seconds=time.perf_counter() - t0,
+        stats=ex.stats,
     )
+
+
+def _domain(red: _Reduced, boundary: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """H-representation of the feasible parameter set (the union of the regions).
+
+    Its facets are parameter-set facets or region facets beyond which the program is
+    infeasible; both kinds are valid inequalities for the (convex) feasible set.
+    """
+    rows = np.vstack([np.hstack([red.At, red.bt[:, None]])] + [b[None, :] for b in boundary])
+    A, b = rows[:, :-1], rows[:, -1]
+    keep = minimal_rows(A, b)
+    return A[keep], b[keep]

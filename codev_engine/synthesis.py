@@ -51,6 +51,8 @@ def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> Exp
         F, G = F[src], G[src]
         merged = len(As)
     return ExplicitLaw(
+        domain_A=sol.domain_A,
+        domain_b=sol.domain_b + sol.domain_A @ mp.x_op,
         A=As,
         b=bs,
         F=F,
