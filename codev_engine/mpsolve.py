@@ -33,7 +33,6 @@ from dataclasses import dataclass, field
 
 import daqp
 import numpy as np
-from scipy.optimize import linprog
 
 from .errors import SolverError, SpecError
 from .locate import PointLocator
@@ -244,20 +243,22 @@ class _Explorer:
         self.region_tol = opts.region_tol * self.scale
         self.step = opts.step * self.scale
         self.touch_tol = 1e-8 * self.scale
+        self._hs = None
+        self.cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
+        # the perturbation is also used, unperturbed in effect, for QP feasibility checks
+        self.c_pert = red.c.copy()
         if self.is_lp:
             pert = self.rng.uniform(0.5, 1.0, self.nw) * self.rng.choice([-1.0, 1.0], self.nw)
-            cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
-            self.c_pert = red.c + opts.lp_perturbation * cmag * pert
+            self.c_pert = red.c + opts.lp_perturbation * self.cmag * pert
         self.regions: list[CriticalRegion] = []
         self.boundary: list[np.ndarray] = []  # facets beyond which the program is infeasible
         self._verts: list[np.ndarray | None] = []
         self._done: list[np.ndarray] = []  # per region: facets already known to be covered
-        self._rowsA: list[np.ndarray] = []
-        self._rowsb: list[np.ndarray] = []
-        self._owner: np.ndarray = np.zeros(0, dtype=int)
-        self._stackA = np.zeros((0, self.d))
-        self._stackb = np.zeros(0)
-        self._dirty = False
+        # all regions' rows, contiguous per region, in growing buffers (for _find)
+        self._bufA = np.zeros((1024, self.d))
+        self._bufb = np.zeros(1024)
+        self._nrows = 0
+        self._starts = np.zeros(0, dtype=np.intp)
 
     # ---- small geometry helpers -------------------------------------------------------
 
@@ -278,17 +279,12 @@ class _Explorer:
 
     def _find(self, q: np.ndarray, tol: float) -> int:
         """Index of a found region containing q (-1 if none)."""
-        if self._dirty:
-            self._stackA = np.vstack(self._rowsA)
-            self._stackb = np.concatenate(self._rowsb)
-            self._owner = np.repeat(np.arange(len(self._rowsA)), [a.shape[0] for a in self._rowsA])
-            self._dirty = False
         if not self.regions:
             return -1
-        viol = self._stackA @ q - self._stackb > tol
-        bad = np.zeros(len(self.regions), dtype=bool)
-        np.logical_or.at(bad, self._owner, viol)
-        hits = np.flatnonzero(~bad)
+        rows = self._nrows
+        viol = (self._bufA[:rows] @ q - self._bufb[:rows] > tol).astype(np.int32)
+        counts = np.add.reduceat(viol, self._starts)
+        hits = np.flatnonzero(counts == 0)
         return int(hits[0]) if hits.size else -1
 
     # ---- optimisation at a point ------------------------------------------------------
@@ -327,7 +323,7 @@ class _Explorer:
                 dual_tol=1e-12,
             )
         if flag == -1:
-            return None
+            return None if self._infeasible(q) else self._solve_at_fallback(q)
         if flag == -3:
             raise SolverError(
                 "the program is unbounded for some parameters (an LP optimizer runs off along "
@@ -338,23 +334,19 @@ class _Explorer:
         return np.asarray(x), np.asarray(info["lam"])
 
     def _solve_at_fallback(self, q: np.ndarray):
-        """HiGHS (LP) or Clarabel-free KKT check when DAQP reports trouble (cycling)."""
-        r = self.r
-        rhs = r.w + r.S @ q
-        if self.is_lp:
-            res = linprog(
-                self.c_pert + r.C @ q,
-                A_ub=r.G,
-                b_ub=rhs,
-                bounds=[(None, None)] * self.nw,
-                method="highs-ds",
-            )
-            if res.status == 2:
-                return None
-            if res.status != 0:
-                return "fail"
-            return np.asarray(res.x), -np.asarray(res.ineqlin.marginals)
-        return "fail"
+        """HiGHS when DAQP reports trouble (cycling near the feasibility boundary)."""
+        import highspy
+
+        if not self.is_lp:
+            return None if self._infeasible(q) else "fail"
+        h = self._highs(q)
+        status = h.getModelStatus()
+        if status == highspy.HighsModelStatus.kInfeasible:
+            return None
+        if status != highspy.HighsModelStatus.kOptimal:
+            return "fail"
+        sol = h.getSolution()
+        return np.asarray(sol.col_value), -np.asarray(sol.row_dual)
 
     def _region_at(self, q: np.ndarray, jitter: float):
         """Critical region whose closure holds q (or a jittered q); None if infeasible."""
@@ -375,17 +367,96 @@ class _Explorer:
         qn = q + self.rng.normal(size=q.shape) * size
         return qn if self._in_theta(qn) else q
 
+    def _lp_basis(self, q: np.ndarray, lam: np.ndarray) -> np.ndarray | None:
+        """An optimal basis (row indices) of the perturbed LP at q.
+
+        DAQP's working set is taken when it is a basis whose vertex is primal feasible and
+        whose duals are non-negative for the perturbed cost. Otherwise (DAQP's proximal LP
+        mode can stop on an edge when the cost slope is as small as the perturbation) HiGHS's
+        dual simplex gives a vertex and its basis.
+        """
+        r = self.r
+        act = np.flatnonzero(lam > 0)
+        if act.size == self.nw:
+            GB = r.G[act]
+            try:
+                zB = np.linalg.solve(GB, r.w[act] + r.S[act] @ q)
+                dp = np.linalg.solve(GB.T, -(self.c_pert + r.C @ q))
+            except np.linalg.LinAlgError:
+                zB = dp = None
+            if (
+                dp is not None
+                and np.all(dp >= -1e-12 * self.cmag)
+                and np.all(r.G @ zB <= r.w + r.S @ q + 1e-9 * self.scale)
+            ):
+                return act
+        return self._highs_basis(q)
+
+    def _highs(self, q: np.ndarray):
+        """Solve the perturbed LP at q with HiGHS (warm-started dual simplex)."""
+        import highspy
+
+        r = self.r
+        m, nw = r.G.shape
+        inf = highspy.kHighsInf
+        if self._hs is None:
+            h = highspy.Highs()
+            h.setOptionValue("output_flag", False)
+            lp = highspy.HighsLp()
+            lp.num_col_, lp.num_row_ = nw, m
+            # QPs only ask HiGHS about feasibility: zero cost
+            lp.col_cost_ = self.c_pert.copy() if self.is_lp else np.zeros(nw)
+            lp.col_lower_ = np.full(nw, -inf)
+            lp.col_upper_ = np.full(nw, inf)
+            lp.row_lower_ = np.full(m, -inf)
+            lp.row_upper_ = r.w.copy()
+            lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+            lp.a_matrix_.start_ = np.arange(0, m * nw + 1, nw)
+            lp.a_matrix_.index_ = np.tile(np.arange(nw), m)
+            lp.a_matrix_.value_ = r.G.ravel()
+            h.passModel(lp)
+            self._hs = h
+        h = self._hs
+        self.stats["highs"] = self.stats.get("highs", 0) + 1
+        h.changeRowsBounds(m, np.arange(m, dtype=np.int32), np.full(m, -inf), r.w + r.S @ q)
+        if self.is_lp and np.any(r.C):
+            h.changeColsCost(nw, np.arange(nw, dtype=np.int32), self.c_pert + r.C @ q)
+        h.run()
+        return h
+
+    def _highs_basis(self, q: np.ndarray) -> np.ndarray | None:
+        import highspy
+
+        h = self._highs(q)
+        status = h.getModelStatus()
+        if status != highspy.HighsModelStatus.kOptimal:
+            return None
+        rows = np.array(
+            [s == highspy.HighsBasisStatus.kUpper for s in h.getBasis().row_status], dtype=bool
+        )
+        act = np.flatnonzero(rows)
+        if act.size < self.nw:
+            r = self.r
+            x = np.asarray(h.getSolution().col_value)
+            slack = r.w + r.S @ q - r.G @ x
+            tight = np.setdiff1d(np.flatnonzero(slack <= 1e-9 * self.scale), act)
+            act = _complete_basis(r.G, act, tight, self.nw)
+        return act
+
+    def _infeasible(self, q: np.ndarray) -> bool:
+        """Confirm with HiGHS that the program is infeasible at q (a false 'infeasible'
+        would end the exploration of a facet and leave a hole)."""
+        import highspy
+
+        h = self._highs(q)
+        return h.getModelStatus() == highspy.HighsModelStatus.kInfeasible
+
     def _region_from_solution(self, q, x, lam):
         r = self.r
         if self.is_lp:
-            act = np.flatnonzero(lam > 0)
-            if act.size < self.nw:
-                # complete the basis with tight rows (primal degenerate vertex)
-                slack = r.w + r.S @ q - r.G @ x
-                tight = np.setdiff1d(np.flatnonzero(slack <= 1e-9 * self.scale), act)
-                act = _complete_basis(r.G, act, tight, self.nw)
-                if act is None:
-                    return None
+            act = self._lp_basis(q, lam)
+            if act is None:
+                return None
             GB = r.G[act]
             try:
                 Z = np.linalg.solve(GB, np.hstack([r.w[act, None], r.S[act]]))
@@ -446,9 +517,15 @@ class _Explorer:
         self.regions.append(reg)
         self._verts.append(vertices(reg.A, reg.b, tol=self.touch_tol))
         self._done.append(np.zeros(reg.A.shape[0], dtype=bool))
-        self._rowsA.append(reg.A)
-        self._rowsb.append(reg.b)
-        self._dirty = True
+        k = reg.A.shape[0]
+        if self._nrows + k > self._bufA.shape[0]:
+            cap = 2 * (self._nrows + k)
+            self._bufA = np.resize(self._bufA, (cap, self.d))
+            self._bufb = np.resize(self._bufb, cap)
+        self._bufA[self._nrows : self._nrows + k] = reg.A
+        self._bufb[self._nrows : self._nrows + k] = reg.b
+        self._starts = np.append(self._starts, self._nrows)
+        self._nrows += k
         if self.progress is not None:
             self.progress(len(self.regions))
         if len(self.regions) > self.opts.max_regions:
