@@ -1,7 +1,8 @@
 """The ``codev`` command line: a thin shell over the engine.
 
-Exit status: 0 success, 1 a verification/replay outcome that is not a pass (where a
-command defines one), 2 bad input (one line on stderr: file, field, reason).
+Exit status: 0 success (for ``verify``/``run``: robustly safe), 1 a verification outcome
+that is not a proof (unsafe or unknown), 2 bad input (one line on stderr: file, field,
+reason).
 """
 
 from __future__ import annotations
@@ -101,6 +102,71 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _verification(args: argparse.Namespace, problem, law, synth_seconds: float | None) -> int:
+    import numpy as np
+
+    from .verify import verify
+
+    if problem.verify is None:
+        raise CodevError(f"{problem.path}: verify: the spec has no [verify] section")
+    with _progress(f"verifying {problem.name}", not args.json) as update:
+        result = verify(
+            problem,
+            law,
+            hold=args.hold,
+            max_depth=args.max_depth,
+            progress=lambda st: update(st.get("branches", 0)),
+        )
+    tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
+    width = result.width_at(problem.verify.time_horizon)
+    cex = result.counterexample
+    payload = {
+        "problem": problem.name,
+        "verdict": result.verdict,
+        "reason": result.reason,
+        "hold": result.hold,
+        "regions": law.num_regions,
+        "synthesis_seconds": synth_seconds,
+        "verification_seconds": round(result.seconds, 6),
+        "branches": result.stats.get("branches"),
+        "partitions": result.stats.get("partitions"),
+        "boxes": result.tube.num_boxes,
+        "tube_width_at_horizon": [None if not np.isfinite(w) else float(w) for w in width],
+        "counterexample": None
+        if cex is None
+        else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind, "index": cex.index},
+        "tube": tube_path,
+    }
+    if args.json:
+        print(json.dumps(payload))
+    else:
+        print(f"{problem.name}: {law.num_regions} regions; " + result.summary())
+        print("  tube width at the horizon: " + np.array2string(width, precision=4))
+        if tube_path:
+            print(f"tube written to {tube_path}")
+    return 0 if result.verdict == "robustly_safe" else 1
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from .law import ExplicitLaw
+    from .spec import load_spec
+    from .synthesis import synthesize
+    from .verify import check_law_matches
+
+    problem = load_spec(args.spec)
+    if problem.verify is None:
+        raise CodevError(f"{args.spec}: verify: the spec has no [verify] section")
+    if args.law:
+        law = ExplicitLaw.load(args.law)
+        check_law_matches(problem, law, file=args.law)
+        synth_seconds = law.meta.get("seconds")
+    else:
+        with _progress(f"synthesising {problem.name}", not args.json) as update:
+            law = synthesize(problem, progress=update)
+        synth_seconds = law.meta["seconds"]
+    return _verification(args, problem, law, synth_seconds)
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="codev",
@@ -114,6 +180,20 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="write the law to this .npz file")
     p.add_argument("--json", action="store_true", help="print a JSON summary only")
     p.set_defaults(func=_cmd_synth)
+
+    for name, helptext in (
+        ("verify", "verify the closed loop (synthesises first unless --law is given)"),
+        ("run", "synthesise, then verify"),
+    ):
+        p = sub.add_parser(name, help=helptext)
+        p.add_argument("spec", help="problem spec (TOML) with a [verify] section")
+        if name == "verify":
+            p.add_argument("--law", help="use this law file (from codev synth --out)")
+        p.add_argument("--hold", choices=["zoh", "continuous"], help="override verify.hold")
+        p.add_argument("--max-depth", type=int, help="override verify.max_depth")
+        p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
+        p.add_argument("--json", action="store_true", help="print a JSON summary only")
+        p.set_defaults(func=_cmd_verify, law=None)
     return parser
 
 

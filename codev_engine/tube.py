@@ -1,0 +1,139 @@
+"""Reachtubes: time-stamped boxes that contain every trajectory.
+
+Contract (also in ``docs/verification.md``): every trajectory of the closed loop from the
+initial set, at every time ``t`` with ``t_start[k] <= t <= t_end[k]`` for some ``k``, lies in
+one of the boxes ``[lower[k], upper[k]]`` whose interval contains ``t``.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SpecError
+
+__all__ = ["Tube", "TUBE_FORMAT"]
+
+TUBE_FORMAT = "codev-tube/1"
+
+
+@dataclass(frozen=True)
+class Tube:
+    """A reachtube as K boxes with time intervals.
+
+    Attributes
+    ----------
+    t_start, t_end : (K,) ndarray
+    lower, upper : (K, n) ndarray
+    branch : (K,) ndarray of int
+        Which reach-set branch (initial-set piece / mode sequence) each box belongs to.
+    """
+
+    t_start: np.ndarray
+    t_end: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    branch: np.ndarray
+
+    @property
+    def num_boxes(self) -> int:
+        return int(self.t_start.shape[0])
+
+    @classmethod
+    def empty(cls, n: int) -> Tube:
+        return cls(np.zeros(0), np.zeros(0), np.zeros((0, n)), np.zeros((0, n)), np.zeros(0, int))
+
+    @classmethod
+    def concatenate(cls, tubes: list[Tube], n: int) -> Tube:
+        if not tubes:
+            return cls.empty(n)
+        return cls(
+            np.concatenate([t.t_start for t in tubes]),
+            np.concatenate([t.t_end for t in tubes]),
+            np.vstack([t.lower for t in tubes]),
+            np.vstack([t.upper for t in tubes]),
+            np.concatenate([t.branch for t in tubes]),
+        )
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The boxes active at time ``t`` -> lower (k, n), upper (k, n)."""
+        sel = (self.t_start <= t) & (t <= self.t_end)
+        return self.lower[sel], self.upper[sel]
+
+    def hull_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box of all boxes active at ``t``."""
+        lo, hi = self.at(t)
+        if lo.shape[0] == 0:
+            n = self.lower.shape[1]
+            return np.full(n, np.nan), np.full(n, np.nan)
+        return lo.min(axis=0), hi.max(axis=0)
+
+    def contains(self, t: np.ndarray, X: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        """Is state ``X[p]`` at time ``t[p]`` inside some active box?  -> (P,) bool."""
+        t = np.asarray(t, dtype=float)
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        out = np.zeros(X.shape[0], dtype=bool)
+        order = np.argsort(self.t_start)
+        ts, te = self.t_start[order], self.t_end[order]
+        lo, hi = self.lower[order], self.upper[order]
+        for p in range(X.shape[0]):
+            sel = (ts <= t[p]) & (t[p] <= te)
+            if np.any(sel):
+                inside = np.all((lo[sel] - tol <= X[p]) & (X[p] <= hi[sel] + tol), axis=1)
+                out[p] = bool(np.any(inside))
+        return out
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write ``t_start``, ``t_end``, ``lower``, ``upper`` (and ``branch``) to an npz."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez_compressed(
+                    fh,
+                    format=np.array(TUBE_FORMAT),
+                    t_start=self.t_start,
+                    t_end=self.t_end,
+                    lower=self.lower,
+                    upper=self.upper,
+                    branch=self.branch,
+                )
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Tube:
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+        except Exception as exc:
+            raise SpecError(
+                f"not a readable tube file ({exc.__class__.__name__})", file=str(path)
+            ) from None
+        try:
+            tube = cls(
+                d["t_start"],
+                d["t_end"],
+                d["lower"],
+                d["upper"],
+                d.get("branch", np.zeros(len(d["t_start"]), int)),
+            )
+        except KeyError as exc:
+            raise SpecError(f"missing array {exc.args[0]!r}", file=str(path)) from None
+        K = tube.t_start.shape[0]
+        if (
+            tube.t_end.shape != (K,)
+            or tube.lower.shape[0] != K
+            or tube.upper.shape != tube.lower.shape
+        ):
+            raise SpecError("inconsistent array shapes", file=str(path))
+        return tube

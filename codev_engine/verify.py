@@ -1,0 +1,225 @@
+"""Closed-loop verification: verdicts from sound reachtubes and concrete counterexamples.
+
+Verdicts
+--------
+``robustly_safe``
+    The reachtube is disjoint from every unsafe set, inside every safe set, inside the law's
+    domain at every sample, and (with ``input_bounds``) the input stays within its bounds.
+``unsafe``
+    A concrete simulated trajectory (``counterexample``) violates a property or reaches a
+    state where the law is undefined. Every ``unsafe`` is confirmed by an independent
+    simulation (scipy ``solve_ivp``, tight tolerances) from the reported initial state.
+``unknown``
+    With ``reason`` ``"max_depth"`` (refinement budget exhausted while the
+    over-approximation still meets a property boundary) or ``"infeasible_region"`` (only the
+    over-approximation leaves the law's domain).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .errors import SpecError
+from .law import ExplicitLaw
+from .reach_linear import LinearReach, affine_plant
+from .spec import Problem
+from .tube import Tube
+
+__all__ = ["VerificationResult", "Counterexample", "verify"]
+
+
+@dataclass(frozen=True)
+class Counterexample:
+    """A concrete trajectory that violates the specification.
+
+    Attributes
+    ----------
+    x0 : (n,) ndarray
+        Initial state (inside the initial set).
+    t : float
+        Time of the violation.
+    kind : str
+        ``"unsafe"``, ``"safe"``, ``"input_bounds"`` or ``"undefined"``.
+    index : int
+        Which unsafe/safe set or input (-1 for ``"undefined"``).
+    trace : object
+        The simulated ``simulate.Trace`` (t, x, u, region).
+    """
+
+    x0: np.ndarray
+    t: float
+    kind: str
+    index: int
+    trace: object
+
+
+@dataclass
+class VerificationResult:
+    """Outcome of ``verify``."""
+
+    verdict: str
+    reason: str | None
+    tube: Tube
+    hold: str
+    counterexample: Counterexample | None = None
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def seconds(self) -> float:
+        return float(self.stats.get("seconds", 0.0))
+
+    def width_at(self, t: float) -> np.ndarray:
+        """Width (n,) of the hull of the tube's boxes active at ``t``."""
+        lo, hi = self.tube.hull_at(t)
+        return hi - lo
+
+    def summary(self) -> str:
+        line = f"verdict: {self.verdict}"
+        if self.reason:
+            line += f" ({self.reason})"
+        line += f"; hold {self.hold}; {self.tube.num_boxes} boxes"
+        line += f"; {self.stats.get('branches', 0)} branches in {self.seconds:.3f} s"
+        if self.counterexample is not None:
+            ce = self.counterexample
+            line += (
+                f"\ncounterexample: x0 = {np.array2string(ce.x0, precision=6)}, "
+                f"{ce.kind} at t = {ce.t:.4f}"
+            )
+        return line
+
+
+def check_law_matches(problem: Problem, law: ExplicitLaw, *, file: str | None = None) -> None:
+    """Refuse a law computed for a different problem (fingerprint mismatch)."""
+    from .mpc import build_program
+    from .plant import discretize
+    from .synthesis import problem_fingerprint
+
+    if law.n != problem.plant.n or law.m != problem.plant.m:
+        raise SpecError(
+            f"the law has n={law.n}, m={law.m} but the spec has n={problem.plant.n}, "
+            f"m={problem.plant.m}",
+            file=file,
+        )
+    fp = problem_fingerprint(build_program(problem.mpc, discretize(problem)))
+    if law.fingerprint and law.fingerprint != fp:
+        raise SpecError(
+            "the law was computed for a different problem (fingerprint mismatch)", file=file
+        )
+
+
+def verify(
+    problem: Problem,
+    law: ExplicitLaw,
+    *,
+    hold: str | None = None,
+    max_depth: int | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> VerificationResult:
+    """Verify the sampled closed loop of ``problem``'s plant with ``law``.
+
+    Parameters
+    ----------
+    problem : Problem
+        Must have a ``[verify]`` section.
+    law : ExplicitLaw
+    hold : {"zoh", "continuous"}, optional
+        Default ``problem.verify.hold``.
+    max_depth : int, optional
+        Refinement budget; default ``problem.verify.max_depth``.
+    progress : callable, optional
+        Called with a dict of counters now and then.
+
+    Returns
+    -------
+    VerificationResult
+    """
+    if problem.verify is None:
+        raise SpecError("the spec has no [verify] section", file=problem.path, field="verify")
+    vs = problem.verify
+    hold = hold or vs.hold
+    if hold not in ("zoh", "continuous"):
+        raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
+    depth = vs.max_depth if max_depth is None else max_depth
+    t0 = time.perf_counter()
+    plant = affine_plant(problem)
+    if plant is not None:
+        eng = LinearReach(problem, law, plant, hold, depth)
+        eng.run()
+        findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
+        c0, V0 = eng.c0, eng.V0
+        stats["partitions"] = 1
+        stats["method"] = "exact-flow star sets"
+    else:
+        from .reach_nonlinear import NonlinearReach
+
+        eng = NonlinearReach(problem, law, hold, depth, progress=progress)
+        eng.run()
+        findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
+        c0, V0 = eng.c0, eng.V0
+    tube = Tube.concatenate(tubes, problem.plant.n)
+    stats["boxes"] = tube.num_boxes
+    verdict, reason, cex = "robustly_safe", None, None
+    concrete = [f for f in findings if f.alpha is not None]
+    for f in concrete:
+        cex = _confirm(problem, law, hold, c0 + V0 @ f.alpha)
+        if cex is not None:
+            verdict, reason = "unsafe", cex.kind
+            break
+    if verdict != "unsafe" and findings:
+        kinds = {f.kind for f in findings}
+        verdict = "unknown"
+        reason = "infeasible_region" if "undefined" in kinds else "max_depth"
+        # a possible violation is worth a few concrete simulations
+        cex = _search(problem, law, hold)
+        if cex is not None:
+            verdict, reason = "unsafe", cex.kind
+    stats["seconds"] = time.perf_counter() - t0
+    return VerificationResult(verdict, reason, tube, hold, cex, stats)
+
+
+def _confirm(
+    problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray
+) -> Counterexample | None:
+    """Simulate from x0 (independent integrator); a Counterexample if it violates."""
+    from .simulate import first_violation, simulate
+
+    vs = problem.verify
+    x0 = np.clip(x0, vs.initial_lower, vs.initial_upper)
+    trace = simulate(problem, law, x0, hold=hold)
+    v = first_violation(problem, law, trace)
+    if v is None:
+        return None
+    return Counterexample(x0=x0, t=float(v.t), kind=v.kind, index=int(v.index), trace=trace)
+
+
+def _search(
+    problem: Problem, law: ExplicitLaw, hold: str, samples: int = 64
+) -> Counterexample | None:
+    """Concrete simulations from corners, centre and random initial states."""
+    from .simulate import simulate_many, violations_many
+
+    vs = problem.verify
+    lo, hi = vs.initial_lower, vs.initial_upper
+    n = lo.shape[0]
+    corners = (
+        np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij")).reshape(n, -1).T
+    )
+    rng = np.random.default_rng(0)
+    X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples], rng.uniform(lo, hi, (samples, n))])
+    t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+    bad, _ = violations_many(problem, t, X, U, alive)
+    for p in np.flatnonzero(bad):
+        cex = _confirm(problem, law, hold, X0[p])
+        if cex is not None:
+            return cex
+    return None
+
+
+def with_hold(problem: Problem, hold: str) -> Problem:
+    """A copy of ``problem`` whose verify section uses ``hold``."""
+    assert problem.verify is not None
+    return replace(problem, verify=replace(problem.verify, hold=hold))
