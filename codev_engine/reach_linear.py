@@ -112,8 +112,10 @@ class LinearReach:
         self.unsafe = [normalize_rows(*s.halfspaces())[:2] for s in vs.unsafe]
         self.safe = [normalize_rows(*s.halfspaces())[:2] for s in vs.safe]
         self.check_u = bool(vs.input_bounds)
-        self.u_min = np.asarray(p.mpc.u_min, float)
-        self.u_max = np.asarray(p.mpc.u_max, float)
+        # the law meets its own input bounds only up to round-off and the 1e-9 tolerance of
+        # point location on region boundaries: input bounds are checked with 1e-7 slack
+        self.u_min = np.asarray(p.mpc.u_min, float) - 1e-7 * (1 + np.abs(p.mpc.u_min))
+        self.u_max = np.asarray(p.mpc.u_max, float) + 1e-7 * (1 + np.abs(p.mpc.u_max))
         self.boxes_lo, self.boxes_hi = self.law.boxes
         self._flows: dict = {}
         self.tubes: list[Tube] = []
