@@ -61,9 +61,9 @@ class SolveOptions:
         Safety stop.
     """
 
-    region_tol: float = 1e-7
+    region_tol: float = 1e-9
     step: float = 1e-6
-    lp_perturbation: float = 1e-7
+    lp_perturbation: float = 1e-5
     seed: int = 0
     max_regions: int = 200_000
 
@@ -223,6 +223,10 @@ def _reduce(p: MpProgram) -> _Reduced:
 # the explorer
 
 
+class _NoRegionError(SolverError):
+    """No full-dimensional region could be identified around a point (degenerate spot)."""
+
+
 class _Explorer:
     def __init__(self, red: _Reduced, opts: SolveOptions, progress: Callable | None):
         self.r = red
@@ -242,14 +246,16 @@ class _Explorer:
         self.scale = float(max(np.max(hi - lo), 1e-12))
         self.region_tol = opts.region_tol * self.scale
         self.step = opts.step * self.scale
-        self.touch_tol = 1e-8 * self.scale
+        self.touch_tol = 1e-11 * self.scale
         self._hs = None
+        self._hs_cost: np.ndarray | None = None
+        self.pert = np.zeros(self.nw)
         self.cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
         # the perturbation is also used, unperturbed in effect, for QP feasibility checks
         self.c_pert = red.c.copy()
         if self.is_lp:
-            pert = self.rng.uniform(0.5, 1.0, self.nw) * self.rng.choice([-1.0, 1.0], self.nw)
-            self.c_pert = red.c + opts.lp_perturbation * self.cmag * pert
+            self.pert = self.rng.uniform(0.5, 1.0, self.nw) * self.rng.choice([-1.0, 1.0], self.nw)
+            self.c_pert = red.c + opts.lp_perturbation * self.cmag * self.pert
         self.regions: list[CriticalRegion] = []
         self.boundary: list[np.ndarray] = []  # facets beyond which the program is infeasible
         self._verts: list[np.ndarray | None] = []
@@ -361,38 +367,58 @@ class _Explorer:
             # q sits on a degenerate spot (lower-dimensional set): move off it
             q = self._jitter(q, jitter)
             self.stats["jitters"] += 1
-        raise SolverError(f"could not identify a full-dimensional critical region near theta={q}")
+        raise _NoRegionError(
+            f"could not identify a full-dimensional critical region near theta={q}"
+        )
 
     def _jitter(self, q: np.ndarray, size: float) -> np.ndarray:
         qn = q + self.rng.normal(size=q.shape) * size
         return qn if self._in_theta(qn) else q
 
-    def _lp_basis(self, q: np.ndarray, lam: np.ndarray) -> np.ndarray | None:
-        """An optimal basis (row indices) of the perturbed LP at q.
+    def _lex_optimal(self, act: np.ndarray, q: np.ndarray) -> bool:
+        """Is the basis ``act`` lexicographically optimal at q?
 
-        DAQP's working set is taken when it is a basis whose vertex is primal feasible and
-        whose duals are non-negative for the perturbed cost. Otherwise (DAQP's proximal LP
-        mode can stop on an edge when the cost slope is as small as the perturbation) HiGHS's
-        dual simplex gives a vertex and its basis.
+        The selection rule is lexicographic in (c, r), r the fixed generic direction of the
+        perturbation: duals for the original cost must be >= 0 (exactness of the law), and
+        on the ties (duals ~ 0, |d0| <= 1e-9 |c|) the duals for r must be >= 0. Among all
+        c-optimal vertices this picks the r-optimal one, which is unique for a generic r --
+        the same vertex whatever the perturbation size used to find it, so regions of
+        different laws cannot overlap.
         """
         r = self.r
-        act = np.flatnonzero(lam > 0)
-        if act.size == self.nw:
-            GB = r.G[act]
-            try:
-                zB = np.linalg.solve(GB, r.w[act] + r.S[act] @ q)
-                dp = np.linalg.solve(GB.T, -(self.c_pert + r.C @ q))
-            except np.linalg.LinAlgError:
-                zB = dp = None
-            if (
-                dp is not None
-                and np.all(dp >= -1e-12 * self.cmag)
-                and np.all(r.G @ zB <= r.w + r.S @ q + 1e-9 * self.scale)
-            ):
-                return act
-        return self._highs_basis(q)
+        GB = r.G[act]
+        try:
+            d0 = np.linalg.solve(GB.T, -(r.c + r.C @ q))
+            d1 = np.linalg.solve(GB.T, -self.pert)
+            zB = np.linalg.solve(GB, r.w[act] + r.S[act] @ q)
+        except np.linalg.LinAlgError:
+            return False
+        tie = np.abs(d0) <= 1e-9 * self.cmag
+        if np.any(d0[~tie] < 0) or np.any(d1[tie] < -1e-9 * np.max(np.abs(self.pert))):
+            return False
+        return bool(np.all(r.G @ zB <= r.w + r.S @ q + 1e-9 * self.scale))
 
-    def _highs(self, q: np.ndarray):
+    def _lp_basis(self, q: np.ndarray, lam: np.ndarray) -> np.ndarray | None:
+        """The lexicographically optimal basis (row indices) of the LP at q.
+
+        DAQP's working set is tried first. Otherwise (DAQP's proximal LP mode can stop on an
+        edge when the cost slope along it is as small as the perturbation) HiGHS's dual
+        simplex solves the perturbed LP, with smaller perturbations if needed, until the
+        basis passes the lexicographic test.
+        """
+        act = np.flatnonzero(lam > 0)
+        if act.size == self.nw and self._lex_optimal(act, q):
+            return act
+        for delta in (self.opts.lp_perturbation, 1e-3 * self.opts.lp_perturbation):
+            act = self._highs_basis(q, delta)
+            if act is None or (isinstance(act, str)):
+                return None
+            if self._lex_optimal(act, q):
+                return act
+            self.stats["rejected_bases"] = self.stats.get("rejected_bases", 0) + 1
+        return None
+
+    def _highs(self, q: np.ndarray, delta: float | None = None):
         """Solve the perturbed LP at q with HiGHS (warm-started dual simplex)."""
         import highspy
 
@@ -402,6 +428,9 @@ class _Explorer:
         if self._hs is None:
             h = highspy.Highs()
             h.setOptionValue("output_flag", False)
+            # the perturbation must dominate the solver's tolerances
+            h.setOptionValue("primal_feasibility_tolerance", 1e-10)
+            h.setOptionValue("dual_feasibility_tolerance", 1e-10)
             lp = highspy.HighsLp()
             lp.num_col_, lp.num_row_ = nw, m
             # QPs only ask HiGHS about feasibility: zero cost
@@ -419,20 +448,35 @@ class _Explorer:
         h = self._hs
         self.stats["highs"] = self.stats.get("highs", 0) + 1
         h.changeRowsBounds(m, np.arange(m, dtype=np.int32), np.full(m, -inf), r.w + r.S @ q)
-        if self.is_lp and np.any(r.C):
-            h.changeColsCost(nw, np.arange(nw, dtype=np.int32), self.c_pert + r.C @ q)
+        if self.is_lp:
+            delta = self.opts.lp_perturbation if delta is None else delta
+            cost = r.c + delta * self.cmag * self.pert + r.C @ q
+            if self._hs_cost is None or np.any(cost != self._hs_cost):
+                h.changeColsCost(nw, np.arange(nw, dtype=np.int32), cost)
+                self._hs_cost = cost
         h.run()
+        if h.getModelStatus() == highspy.HighsModelStatus.kUnknown:
+            # a warm start gone wrong, or tolerances too tight for this point: cold start,
+            # then once more with HiGHS's default tolerances
+            h.clearSolver()
+            h.run()
+            if h.getModelStatus() == highspy.HighsModelStatus.kUnknown:
+                h.setOptionValue("primal_feasibility_tolerance", 1e-7)
+                h.setOptionValue("dual_feasibility_tolerance", 1e-7)
+                h.clearSolver()
+                h.run()
+                h.setOptionValue("primal_feasibility_tolerance", 1e-10)
+                h.setOptionValue("dual_feasibility_tolerance", 1e-10)
         return h
 
-    def _highs_basis(self, q: np.ndarray) -> np.ndarray | None:
+    def _highs_basis(self, q: np.ndarray, delta: float) -> np.ndarray | None:
         import highspy
 
-        h = self._highs(q)
-        status = h.getModelStatus()
-        if status != highspy.HighsModelStatus.kOptimal:
+        h = self._highs(q, delta)
+        if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
             return None
         rows = np.array(
-            [s == highspy.HighsBasisStatus.kUpper for s in h.getBasis().row_status], dtype=bool
+            [st == highspy.HighsBasisStatus.kUpper for st in h.getBasis().row_status], dtype=bool
         )
         act = np.flatnonzero(rows)
         if act.size < self.nw:
@@ -459,15 +503,10 @@ class _Explorer:
                 return None
             GB = r.G[act]
             try:
+                # _lp_basis checked the basis is optimal for the ORIGINAL cost
                 Z = np.linalg.solve(GB, np.hstack([r.w[act, None], r.S[act]]))
-                # the basis must be optimal for the ORIGINAL cost (exactness of the law)
-                duals = np.linalg.solve(GB.T, -(r.c + r.C @ q))
             except np.linalg.LinAlgError:
                 return None
-            if np.min(duals) < -1e-9 * max(1.0, np.max(np.abs(r.c))):
-                raise SolverError(
-                    "the cost perturbation changed the optimal basis; lower lp_perturbation"
-                )
             k0, K = Z[:, 0], Z[:, 1:]
             Ar = r.G @ K - r.S
             br = r.w - r.G @ k0
@@ -634,7 +673,14 @@ class _Explorer:
                     break
                 k = self._find(q, 1e-12 * self.scale)
                 if k < 0:
-                    nreg = self._region_at(q, 0.1 * eps)
+                    try:
+                        nreg = self._region_at(q, 0.1 * eps)
+                    except _NoRegionError:
+                        # only regions thinner than region_tol live here: a numerically
+                        # flat piece; counted and reported, never silently
+                        self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
+                        target = -3
+                        break
                     if nreg is None:
                         target = -2  # infeasible beyond: this facet is on the boundary
                         break
@@ -646,6 +692,8 @@ class _Explorer:
                     break
                 eps *= 0.1  # a thinner region lies in between: step closer
                 self.stats["step_refinements"] += 1
+            if target == -3:
+                continue
             if target == -2:
                 if not self._in_theta(q):
                     continue

@@ -137,6 +137,10 @@ def solve_lp(
         np.concatenate(lower).astype(float),
         np.concatenate(sense),
         eps_prox=1e-2,
+        # DAQP's default primal tolerance (1e-6) is far too loose for geometry: a facet
+        # centre 3e-7 off its hyperplane made the exploration cycle
+        primal_tol=1e-11,
+        dual_tol=1e-12,
     )
     if flag == 1:
         return np.asarray(x, dtype=float), "optimal", np.asarray(info["lam"], dtype=float)
