@@ -439,9 +439,16 @@ class NonlinearReach:
             & np.all(self.boxes_hi >= xlo - 1e-9, axis=1)
         )
         out = []
+        X = s.y[None, :] + s.V @ s.D.T  # images of the deviation polytope's vertices
         for i in cand:
             Ai, bi = self.law.A[i], self.law.b[i]
             slack = np.linalg.norm(Ai @ self.Winv, axis=1) * s.rho + 1e-9
+            viol = X @ Ai.T - bi  # (nv, rows)
+            if np.any(np.all(viol > slack, axis=0)):
+                continue  # one row of the region excludes the whole set (convex hull)
+            if np.all(viol <= -slack):
+                out.append((int(i), _Set(s.y, s.D, s.rho, s.k, s.path + (int(i),), s.H, s.h, s.V)))
+                continue  # the whole set is inside the region: no cut needed
             Hn = np.vstack([s.H, Ai @ s.D])
             hn = np.concatenate([s.h, bi - Ai @ s.y + slack])
             Hn, hn, ok = normalize_rows(Hn, hn)
