@@ -35,6 +35,8 @@ from .mpsolve import CriticalRegion, MpSolution, SolveOptions, mpsolve
 from .plant import LinearModel, discretize
 from .spec import Problem, load_spec, loads_spec
 from .synthesis import synthesize
+from .tube import Tube
+from .verify import Counterexample, VerificationResult, verify
 
 __version__ = "0.1.0"
 
@@ -57,4 +59,8 @@ __all__ = [
     "loads_spec",
     "mpsolve",
     "synthesize",
+    "Tube",
+    "Counterexample",
+    "VerificationResult",
+    "verify",
 ]
