@@ -652,19 +652,25 @@ class _Explorer:
         others = np.delete(np.arange(reg.A.shape[0]), j)
         baseA, baseb = reg.A[others], reg.b[others]
         new_regions: list[int] = []
-        pieces = [(np.zeros((0, self.d)), np.zeros(0))]
+        # a piece: extra rows (EA, Eb), a step scale, and its Chebyshev ball if known
+        pieces: list = [(np.zeros((0, self.d)), np.zeros(0), 1.0, None)]
         budget = 2000
         whole = True  # the first piece is the whole facet
         while pieces and budget:
             budget -= 1
-            EA, Eb = pieces.pop()
+            EA, Eb, scale, ball = pieces.pop()
             self.stats["pieces"] += 1
-            PA = np.vstack([baseA, EA])
-            Pb = np.concatenate([baseb, Eb])
-            p, rho = chebyshev_ball(PA, Pb, a[None, :], np.array([beta]))
+            if ball is None:
+                PA = np.vstack([baseA, EA])
+                Pb = np.concatenate([baseb, Eb])
+                ball = chebyshev_ball(PA, Pb, a[None, :], np.array([beta]))
+            p, rho = ball
             if not rho > self.region_tol:
                 continue
-            eps = min(self.step, 0.5 * rho)
+            if scale < 1e-6:
+                self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
+                continue
+            eps = min(self.step, 0.5 * rho) * scale
             target = -1
             for _ in range(6):
                 q = p + eps * a
@@ -711,10 +717,22 @@ class _Explorer:
             cut = np.linalg.norm(tang, axis=1) > 1e-9
             prevA = np.zeros((0, self.d))
             prevb = np.zeros(0)
+            # progress needs R2 to cover a relative-interior ball of the piece; when R2 only
+            # touches the piece (at p, in a lower-dimensional set), step again, closer
+            _, common = chebyshev_ball(
+                np.vstack([baseA, EA, R2.A]),
+                np.concatenate([baseb, Eb, R2.b]),
+                a[None, :],
+                np.array([beta]),
+            )
+            if not common > self.region_tol:
+                self.stats["step_refinements"] += 1
+                pieces.append((EA, Eb, scale * 0.1, ball))
+                continue
             for row, rhs in zip(R2.A[cut], R2.b[cut], strict=True):
-                pieces.append(
-                    (np.vstack([EA, prevA, -row[None, :]]), np.concatenate([Eb, prevb, [-rhs]]))
-                )
+                nEA = np.vstack([EA, prevA, -row[None, :]])
+                nEb = np.concatenate([Eb, prevb, [-rhs]])
+                pieces.append((nEA, nEb, 1.0, None))
                 prevA = np.vstack([prevA, row[None, :]])
                 prevb = np.concatenate([prevb, [rhs]])
         if budget == 0:

@@ -133,8 +133,14 @@ class LinearReach:
         F, G = self.law.F[i], self.law.G[i]
         return pl.Ac + pl.Bc @ F, pl.Bc @ G + pl.f0
 
-    def _flow(self, i: int, taus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Phi (J, n, n) and g (J, n) with x(tau) = Phi x_k + g, region i, both holds."""
+    def _flow(self, i: int, taus: np.ndarray):
+        """Flow of region i's closed loop: x(tau) = Phi x_k + g.
+
+        Returns Phi (J, n, n), g (J, n) and the *magnitudes* Pm (J, n, n), gm (J, n) that
+        bound the rounding error of Phi and g relative to the terms they are computed from
+        (``|E11| + |E12||F|`` for zoh: the sum can cancel, e.g. for a deadbeat law, and
+        its error scales with the terms, not with the result).
+        """
         key = (i if self.hold == "continuous" else -1, taus.tobytes())
         hit = self._flows.get(key)
         if hit is None:
@@ -151,28 +157,35 @@ class LinearReach:
                 Ma = np.zeros((n + 1, n + 1))
                 Ma[:n, :n] = M
                 Ma[:n, -1] = v
-            hit = expm(taus[:, None, None] * Ma[None])
+            E = expm(taus[:, None, None] * Ma[None])
+            # scaling-and-squaring error grows with expm(|Ma| tau), not with |expm(Ma tau)|
+            Emag = expm(taus[:, None, None] * np.abs(Ma)[None])
+            hit = (E, Emag)
             self._flows[key] = hit
-        E = hit
+        E, Emag = hit
         n = self.n
         if self.hold == "zoh":
             F, G = self.law.F[i], self.law.G[i]
             E11, E12, E13 = E[:, :n, :n], E[:, :n, n : n + self.m], E[:, :n, -1]
-            return E11 + E12 @ F, np.einsum("jnm,m->jn", E12, G) + E13
-        return E[:, :n, :n], E[:, :n, -1]
+            M11, M12, M13 = Emag[:, :n, :n], Emag[:, :n, n : n + self.m], Emag[:, :n, -1]
+            Phi = E11 + E12 @ F
+            g = np.einsum("jnm,m->jn", E12, G) + E13
+            Pm = M11 + M12 @ np.abs(F)
+            gm = np.einsum("jnm,m->jn", M12, np.abs(G)) + M13
+            return Phi, g, Pm, gm
+        return E[:, :n, :n], E[:, :n, -1], Emag[:, :n, :n], Emag[:, :n, -1]
 
     # ---- one period of one branch ----------------------------------------------------
 
     def _images(self, s: _Star, i: int, taus: np.ndarray):
-        Phi, g = self._flow(i, taus)
+        Phi, g, Pm, gm = self._flow(i, taus)
         X = Phi @ s.c + g  # (J, n)
         W = Phi @ s.V  # (J, n, na)
         Y = X[:, None, :] + np.einsum("jna,va->jvn", W, s.verts)  # (J, nv, n)
-        absPhi = np.abs(Phi)
+        # the true Phi is within _REL * Pm of the computed one (element-wise), likewise g
+        bound = np.abs(Phi) + _REL * Pm
         err = (
-            absPhi @ s.err
-            + _REL * (absPhi @ np.abs(s.c) + np.abs(W).sum(axis=2) + np.abs(g))
-            + 1e-300
+            bound @ s.err + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm) + 1e-300
         )
         return X, W, Y, err
 
@@ -357,7 +370,12 @@ class LinearReach:
             if np.max(viol) > 0:
                 v = int(np.argmax(np.max(viol, axis=1)))
                 exact = np.max(Y[v] @ A.T - b) > 10 * np.max(s.err) + 1e-12
-                return Finding("undefined", -1, t, s.verts[v] if exact else None)
+                if exact:
+                    return Finding("undefined", -1, t, s.verts[v])
+                # only the over-approximation leaves the domain: say so, and go on with the
+                # part inside the regions so the tube still holds every trajectory for as
+                # long as its law is defined
+                self.findings.append(Finding("undefined", -1, t, None))
         cand = np.flatnonzero(
             np.all(self.boxes_lo <= hi + 1e-9, axis=1) & np.all(self.boxes_hi >= lo - 1e-9, axis=1)
         )
@@ -379,7 +397,7 @@ class LinearReach:
             verts = _checked_vertices(H, h)
             children.append((int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),))))
         if not children:
-            return Finding("undefined", -1, t, None)
+            self.findings.append(Finding("undefined", -1, t, None))
         return children
 
     def run(self) -> None:

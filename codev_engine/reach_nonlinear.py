@@ -180,8 +180,9 @@ class NonlinearReach:
         lo, hi = lo - 1.5 * grow - 1e-12, hi + 1.5 * grow + 1e-12
         for _ in range(12):
             flo, fhi = self._f(lo, hi, i, ulo, uhi)
-            nlo = _dn(slo + h * np.minimum(flo, 0.0))
-            nhi = _up(shi + h * np.maximum(fhi, 0.0))
+            dlo, dhi = h * np.minimum(flo, 0.0), h * np.maximum(fhi, 0.0)
+            nlo = slo + dlo - _add_pad(slo, dlo)
+            nhi = shi + dhi + _add_pad(shi, dhi)
             if np.all(nlo >= lo) and np.all(nhi <= hi):
                 return nlo, nhi  # contained: nlo/nhi is itself an enclosure
             span = np.maximum(hi - lo, 1e-12)
@@ -277,8 +278,10 @@ class NonlinearReach:
             else:
                 Jl, Jh = _imat_add_point(jxl, jxh, jul, juh, F)
             ddl, ddh = _imatvec(Jl, Jh, gl, gh)
-            nlo = _dn(y + h * fl + 0.5 * h * h * np.minimum(ddl, ddh))
-            nhi = _up(y + h * fh + 0.5 * h * h * np.maximum(ddl, ddh))
+            t1l, t1h = h * fl, h * fh
+            t2l, t2h = 0.5 * h * h * np.minimum(ddl, ddh), 0.5 * h * h * np.maximum(ddl, ddh)
+            nlo = y + t1l + t2l - _add_pad(y, t1l, t2l)
+            nhi = y + t1h + t2h + _add_pad(y, t1h, t2h)
             y_next = 0.5 * (nlo + nhi)
             eps = np.maximum(y_next - nlo, nhi - y_next)
             # deviation dynamics over B: Jacobian at the centre and its spread
@@ -391,8 +394,15 @@ class NonlinearReach:
 
     # ---- driver -----------------------------------------------------------------------
 
-    def _piece(self, lo: np.ndarray, hi: np.ndarray) -> tuple[str, list[Tube], float | None]:
-        """Reach the initial box [lo, hi]: 'ok', 'violation' or 'undefined' (possible)."""
+    def _piece(
+        self, lo: np.ndarray, hi: np.ndarray, complete: bool = False
+    ) -> tuple[str, list[Tube], float | None]:
+        """Reach the initial box [lo, hi]: 'ok', 'violation' or 'undefined' (possible).
+
+        Stops at the first possible violation unless ``complete``: then it records the
+        first one and goes on, so the tube still holds every trajectory of the piece for
+        as long as its law is defined (used at the last refinement level).
+        """
         n = self.n
         c = 0.5 * (lo + hi)
         r = 0.5 * (hi - lo)
@@ -401,6 +411,14 @@ class NonlinearReach:
         V0 = np.array(np.meshgrid(*[[-ri, ri] for ri in r], indexing="ij")).reshape(n, -1).T
         stack = [_Set(c, np.eye(n), 0.0, 0, (), H0, h0, V0)]
         tubes: list[Tube] = []
+        status, first_t = "ok", None
+
+        def flag(kind: str, when: float) -> bool:
+            nonlocal status, first_t
+            if status == "ok":
+                status, first_t = kind, when
+            return not complete  # stop now?
+
         while stack:
             s = stack.pop()
             t = s.k * self.Ts
@@ -408,21 +426,25 @@ class NonlinearReach:
             if A is not None and A.shape[0]:
                 _, up = s.range(A)
                 sup = A @ s.y + up + np.linalg.norm(A @ self.Winv, axis=1) * s.rho
-                if np.any(sup > b):
-                    return "undefined", tubes, t
+                if np.any(sup > b) and flag("undefined", t):
+                    return status, tubes, first_t
             for i, child in self._split(s):
                 self.stats["branches"] += 1
                 nxt, tube, findings = self._period(child, i)
                 tubes.append(tube)
                 if findings:
-                    return "violation", tubes, findings[0].t
+                    # the enclosure failed: this branch cannot go on, even when complete
+                    flag("violation", findings[0].t)
+                    return status, tubes, first_t
                 if self._violations(tube, i, child):
-                    return "violation", tubes, float(tube.t_start[0]) if tube.num_boxes else t
+                    when = float(tube.t_start[0]) if tube.num_boxes else t
+                    if flag("violation", when):
+                        return status, tubes, first_t
                 if nxt is not None and nxt.k * self.Ts < self.T - 1e-12:
                     stack.append(nxt)
             if self.progress is not None:
                 self.progress(dict(self.stats))
-        return "ok", tubes, None
+        return status, tubes, first_t
 
     def _split(self, s: _Set) -> list[tuple[int, _Set]]:
         """One child per region the set meets, its deviation polytope cut by the region.
@@ -472,7 +494,7 @@ class NonlinearReach:
         while queue:
             lo, hi, depth = queue.pop()
             self.stats["partitions"] += 1
-            status, tubes, t_bad = self._piece(lo, hi)
+            status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
             if status == "ok":
                 self.tubes.extend(tubes)
                 continue
@@ -512,18 +534,36 @@ def _gronwall(rho: float, mu: float, a: float, S: float, h: float, b: float) -> 
     return float(grow * rho + integ * (a * S + b)) * (1 + 1e-12)
 
 
+_GAMMA = 4 * 2.0**-52  # per-term rounding allowance for short float sums and products
+
+
 def _imat_add_point(Al, Ah, Bl, Bh, F):
-    """[A] + [B] F for interval matrices [A] (n,n), [B] (n,m) and a point matrix F (m,n)."""
+    """[A] + [B] F for interval matrices [A] (n,n), [B] (n,m) and a point matrix F (m,n).
+
+    Float sums are widened by the size of their *terms* (a cancelling sum's rounding error
+    scales with the terms, not with the result).
+    """
     Fp, Fn = np.maximum(F, 0), np.minimum(F, 0)
     lo = Al + Bl @ Fp + Bh @ Fn
     hi = Ah + Bh @ Fp + Bl @ Fn
-    return _dn(lo), _up(hi)
+    k = F.shape[0] + 2
+    mag = np.maximum(np.abs(Al), np.abs(Ah)) + np.maximum(np.abs(Bl), np.abs(Bh)) @ np.abs(F)
+    pad = k * _GAMMA * mag + 1e-300
+    return lo - pad, hi + pad
 
 
 def _imatvec(Al, Ah, xl, xh):
-    """Interval matrix times interval vector."""
+    """Interval matrix times interval vector, widened by the size of the summed terms."""
     cands = np.stack([Al * xl, Al * xh, Ah * xl, Ah * xh])
-    return _dn(cands.min(axis=0).sum(axis=1)), _up(cands.max(axis=0).sum(axis=1))
+    lo = cands.min(axis=0).sum(axis=1)
+    hi = cands.max(axis=0).sum(axis=1)
+    pad = (xl.shape[0] + 2) * _GAMMA * np.abs(cands).max(axis=0).sum(axis=1) + 1e-300
+    return lo - pad, hi + pad
+
+
+def _add_pad(*terms):
+    """Rounding allowance of a short float sum of these terms (element-wise)."""
+    return (len(terms) + 1) * _GAMMA * sum(np.abs(t) for t in terms) + 1e-300
 
 
 def _dn(x):
