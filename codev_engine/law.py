@@ -84,9 +84,14 @@ class ExplicitLaw:
 
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
-        """Bounding boxes of the regions, lower (k, n) and upper (k, n)."""
+        """Bounding boxes of the regions, lower (k, n) and upper (k, n).
+
+        Finite: where a region's LP fails, its box falls back on the domain's box (see
+        ``bounding_boxes``).
+        """
         if self._boxes is None:
-            self._boxes = bounding_boxes(self.A, self.b)
+            domain = None if self.domain_A is None else (self.domain_A, self.domain_b)
+            self._boxes = bounding_boxes(self.A, self.b, domain=domain)
         return self._boxes
 
     @property
@@ -185,48 +190,81 @@ class ExplicitLaw:
                 f"not a readable law file ({exc.__class__.__name__})", file=str(path)
             ) from None
         try:
-            if str(data["format"]) != LAW_FORMAT:
-                raise SpecError(f"unsupported law format {str(data['format'])!r}", file=str(path))
-            A, b, off = data["A"], data["b"], data["offsets"]
-            F, G = data["F"].astype(float), data["G"].astype(float)
-            k = F.shape[0]
-            ok = (
-                A.ndim == 2
-                and b.ndim == 1
-                and off.ndim == 1
-                and off.shape[0] == k + 1
-                and off[0] == 0
-                and off[-1] == A.shape[0] == b.shape[0]
-                and np.all(np.diff(off) >= 0)
-                and F.ndim == 3
-                and G.shape == F.shape[:2]
-                and (k == 0 or A.shape[1] == F.shape[2])
-            )
-            if not ok:
-                raise SpecError("inconsistent array shapes", file=str(path))
-            for arr in (A, b, F, G):
-                if not np.all(np.isfinite(arr)):
-                    raise SpecError("non-finite numbers", file=str(path))
-            law = cls(
-                A=[A[off[i] : off[i + 1]] for i in range(k)],
-                b=[b[off[i] : off[i + 1]] for i in range(k)],
-                F=F,
-                G=G,
-                states=tuple(str(s) for s in data["states"]),
-                inputs=tuple(str(s) for s in data["inputs"]),
-                fingerprint=str(data["fingerprint"]),
-                meta=json.loads(str(data["meta"])),
-            )
-            if "domain_A" in data:
-                law.domain_A = data["domain_A"].astype(float)
-                law.domain_b = data["domain_b"].astype(float)
-                if law.domain_A.ndim != 2 or law.domain_b.shape != law.domain_A.shape[:1]:
-                    raise SpecError("inconsistent domain arrays", file=str(path))
-            if "box_lo" in data:
-                law._boxes = (data["box_lo"], data["box_hi"])
-            return law
-        except KeyError as exc:
-            raise SpecError(f"missing array {exc.args[0]!r}", file=str(path)) from None
+            return cls._from_arrays(data)
+        except SpecError as exc:
+            raise exc.with_file(str(path)) from None
+
+    @classmethod
+    def _from_arrays(cls, data: dict[str, np.ndarray]) -> ExplicitLaw:
+        """Validate the arrays of a law file and build the law (``SpecError`` names the array).
+
+        Every array is checked here, in one place: presence, dtype kind (numbers are real
+        floats or integers -- never complex, bool, text or objects; the offsets are
+        integers; the names are text), shape, finiteness, and the consistency of the
+        shapes with each other.
+        """
+        fmt = _text(data, "format")
+        if fmt != LAW_FORMAT:
+            raise SpecError(f"unsupported law format {fmt!r}", field="format")
+        F = _real(data, "F", ndim=3)
+        k, m, n = F.shape
+        G = _real(data, "G", shape=(k, m))
+        A = _real(data, "A", ndim=2)
+        if k and A.shape[1] != n:
+            raise SpecError(f"has {A.shape[1]} columns, F has {n}", field="A")
+        b = _real(data, "b", shape=(A.shape[0],))
+        off = _array(data, "offsets")
+        if off.dtype.kind not in "iu":
+            raise SpecError(f"must be integers, got dtype {off.dtype}", field="offsets")
+        if off.shape != (k + 1,):
+            raise SpecError(f"must have shape ({k + 1},), got {off.shape}", field="offsets")
+        rows = A.shape[0]
+        if np.any(off < 0) or np.any(off > rows):
+            raise SpecError(f"must lie in [0, {rows}]", field="offsets")
+        off = off.astype(np.int64)
+        if off[0] != 0 or off[-1] != rows or np.any(np.diff(off) < 0):
+            raise SpecError(f"must increase from 0 to {rows} (the rows of A)", field="offsets")
+        states = _names(data, "states", n if k else None)
+        inputs = _names(data, "inputs", m if k else None)
+        cols = n if k else None  # the columns of domain_A and the boxes (any: no regions)
+        fingerprint = _text(data, "fingerprint")
+        meta_text = _text(data, "meta")
+        try:
+            meta = json.loads(meta_text)
+        except (ValueError, RecursionError) as exc:
+            reason = getattr(exc, "msg", type(exc).__name__)
+            raise SpecError(f"not valid JSON ({reason})", field="meta") from None
+        if not isinstance(meta, dict):
+            raise SpecError("must be a JSON object", field="meta")
+        law = cls(
+            A=[A[off[i] : off[i + 1]] for i in range(k)],
+            b=[b[off[i] : off[i + 1]] for i in range(k)],
+            F=F,
+            G=G,
+            states=states,
+            inputs=inputs,
+            fingerprint=fingerprint,
+            meta=meta,
+        )
+        _pair(data, "domain_A", "domain_b")
+        if "domain_A" in data:
+            law.domain_A = _real(data, "domain_A", ndim=2)
+            if cols is not None and law.domain_A.shape[1] != cols:
+                raise SpecError(
+                    f"must have {cols} columns, got shape {law.domain_A.shape}", field="domain_A"
+                )
+            law.domain_b = _real(data, "domain_b", shape=law.domain_A.shape[:1])
+        _pair(data, "box_lo", "box_hi")
+        if "box_lo" in data:
+            lo = _real(data, "box_lo", ndim=2)
+            if lo.shape[0] != k or (cols is not None and lo.shape[1] != cols):
+                want = f"({k}, {cols})" if cols is not None else f"({k}, d)"
+                raise SpecError(f"must have shape {want}, got {lo.shape}", field="box_lo")
+            hi = _real(data, "box_hi", shape=lo.shape)
+            if np.any(lo > hi):
+                raise SpecError("box_lo exceeds box_hi", field="box_hi")
+            law._boxes = (lo, hi)
+        return law
 
     # ---- display -----------------------------------------------------------------------
 
@@ -257,3 +295,61 @@ def _json_default(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     raise TypeError(type(obj).__name__)
+
+
+# ---- validation of law files ------------------------------------------------------------
+
+
+def _array(data: dict[str, np.ndarray], key: str) -> np.ndarray:
+    if key not in data:
+        raise SpecError("missing array", field=key)
+    return data[key]
+
+
+def _real(
+    data: dict[str, np.ndarray],
+    key: str,
+    *,
+    ndim: int | None = None,
+    shape: tuple[int, ...] | None = None,
+) -> np.ndarray:
+    """A finite real array (float or integer dtype) of the given ndim / shape, as float."""
+    arr = _array(data, key)
+    if arr.dtype.kind not in "fiu":
+        raise SpecError(f"must hold real numbers, got dtype {arr.dtype}", field=key)
+    if shape is not None and arr.shape != shape:
+        raise SpecError(f"must have shape {shape}, got {arr.shape}", field=key)
+    if ndim is not None and arr.ndim != ndim:
+        raise SpecError(f"must be {ndim}-dimensional, got shape {arr.shape}", field=key)
+    arr = arr.astype(float)
+    if not np.all(np.isfinite(arr)):
+        raise SpecError("non-finite numbers", field=key)
+    return arr
+
+
+def _text(data: dict[str, np.ndarray], key: str) -> str:
+    """A single string (0-d text array)."""
+    arr = _array(data, key)
+    if arr.dtype.kind != "U" or arr.ndim != 0:
+        raise SpecError(
+            f"must be a single string, got dtype {arr.dtype} shape {arr.shape}", field=key
+        )
+    return str(arr)
+
+
+def _names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str, ...]:
+    """A 1-D text array of ``count`` names (or none: unnamed); any count if ``None``."""
+    arr = _array(data, key)
+    if arr.ndim != 1 or (arr.dtype.kind != "U" and arr.size):
+        raise SpecError(
+            f"must be a list of names, got dtype {arr.dtype} shape {arr.shape}", field=key
+        )
+    if count is not None and arr.size not in (0, count):
+        raise SpecError(f"must have {count} names, got {arr.size}", field=key)
+    return tuple(str(s) for s in arr)
+
+
+def _pair(data: dict[str, np.ndarray], a: str, b: str) -> None:
+    """``a`` and ``b`` come together or not at all."""
+    if (a in data) != (b in data):
+        raise SpecError("missing array", field=b if a in data else a)

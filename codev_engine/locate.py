@@ -10,26 +10,102 @@ candidates per cell rather than to the number of regions.
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import linprog
 
 from .polytope import solve_lp
 
 __all__ = ["PointLocator", "bounding_boxes"]
 
 
-def bounding_boxes(As: list[np.ndarray], bs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounding boxes of bounded polytopes -> lower (R, d), upper (R, d)."""
+def bounding_boxes(
+    As: list[np.ndarray],
+    bs: list[np.ndarray],
+    domain: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounding boxes of bounded polytopes -> lower (R, d), upper (R, d).
+
+    Each bound is an LP (DAQP, then HiGHS when DAQP gives no optimum). A thin sliver region
+    may defeat both (reported infeasible or unbounded); its bound then comes, in this
+    order, from
+
+    1. the same LP on the region enlarged by ``1e-7 * (1 + |b|)`` on every row (which
+       contains the region, so the bound stays sound),
+    2. the bounding box of ``domain = (A, b)`` (the union of all regions), if given,
+    3. the overall box of all finite bounds of all regions.
+
+    The result is always finite (when there is at least one finite bound per axis): a
+    point locator built on it must never see an infinite or NaN box.
+    """
     R = len(As)
     d = As[0].shape[1] if R else 0
-    lo = np.empty((R, d))
-    hi = np.empty((R, d))
-    eye = np.eye(d)
+    lo = np.full((R, d), np.nan)
+    hi = np.full((R, d), np.nan)
     for i, (A, b) in enumerate(zip(As, bs, strict=True)):
+        lo[i], hi[i] = _box(A, b, d)
+    failed = ~(np.isfinite(lo) & np.isfinite(hi))
+    if not np.any(failed):
+        return lo, hi
+    dlo = dhi = None
+    if domain is not None and domain[0] is not None and domain[0].shape[1] == d:
+        dlo, dhi = _box(np.asarray(domain[0], float), np.asarray(domain[1], float), d)
+    flo, fhi = _finite_hull(lo, hi)
+    for box, overall, pick in ((lo, flo, np.minimum), (hi, fhi, np.maximum)):
         for j in range(d):
-            x, st, _ = solve_lp(eye[j], A, b)
-            lo[i, j] = x[j] if st == "optimal" else -np.inf
-            x, st, _ = solve_lp(-eye[j], A, b)
-            hi[i, j] = x[j] if st == "optimal" else np.inf
+            bad = ~np.isfinite(box[:, j])
+            if not np.any(bad):
+                continue
+            fill = overall[j]
+            if domain is not None and dlo is not None:
+                dom = (dlo if box is lo else dhi)[j]
+                if np.isfinite(dom):
+                    # the domain contains every region; keep the overall box too, in case
+                    # the domain is only approximately their union
+                    fill = pick(dom, fill) if np.isfinite(fill) else dom
+            box[bad, j] = fill
     return lo, hi
+
+
+def _finite_hull(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per axis, the smallest interval holding every finite number of ``lo`` and ``hi``.
+
+    ``(inf, -inf)`` on an axis without a finite number.
+    """
+    both = np.vstack([lo, hi])
+    fin = np.isfinite(both)
+    return (
+        np.where(fin, both, np.inf).min(axis=0, initial=np.inf),
+        np.where(fin, both, -np.inf).max(axis=0, initial=-np.inf),
+    )
+
+
+def _box(A: np.ndarray, b: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box of ``{x : A x <= b}``; NaN where no LP gave a finite optimum."""
+    lo = np.full(d, np.nan)
+    hi = np.full(d, np.nan)
+    eye = np.eye(d)
+    relaxed = b + 1e-7 * (1.0 + np.abs(b))
+    for j in range(d):
+        for sign, out in ((1.0, lo), (-1.0, hi)):
+            f = sign * eye[j]
+            x, st, _ = solve_lp(f, A, b)
+            if st != "optimal" or x is None or not np.isfinite(x[j]):
+                x = _highs(f, A, b)
+            if x is None:
+                x = _highs(f, A, relaxed)
+            if x is not None:
+                out[j] = x[j]
+    return lo, hi
+
+
+def _highs(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """``argmin f'x s.t. A x <= b`` by HiGHS; None unless optimal (and finite)."""
+    try:
+        res = linprog(f, A_ub=A, b_ub=b, bounds=(None, None), method="highs")
+    except ValueError:  # non-finite input
+        return None
+    if res.status != 0 or res.x is None or not np.all(np.isfinite(res.x)):
+        return None
+    return np.asarray(res.x, dtype=float)
 
 
 class PointLocator:
@@ -55,6 +131,7 @@ class PointLocator:
     ):
         self.num_regions = len(As)
         self.tol = tol
+        self.loose = np.zeros(0, dtype=int)
         if self.num_regions == 0:
             return
         self.d = As[0].shape[1]
@@ -66,9 +143,21 @@ class PointLocator:
             self.Apad[i, : A.shape[0]] = A
             self.bpad[i, : A.shape[0]] = b
         lo, hi = boxes if boxes is not None else bounding_boxes(As, bs)
+        lo = np.array(lo, dtype=float).reshape(R, d)
+        hi = np.array(hi, dtype=float).reshape(R, d)
+        # A box that is not finite (an LP failed when it was computed, or it came so from
+        # a file) or is reversed does not bound its region: clip it to the finite hull of
+        # all boxes, so that the grid stays finite, and test the region by brute force
+        # at points outside that hull.
+        flo, fhi = _finite_hull(lo, hi)
+        none = ~(flo <= fhi)
+        flo[none], fhi[none] = -1.0, 1.0
+        loose = ~np.all(np.isfinite(lo) & np.isfinite(hi) & (lo <= hi), axis=1)
+        lo = np.where(np.isfinite(lo) & ~loose[:, None], lo, flo)
+        hi = np.where(np.isfinite(hi) & ~loose[:, None], hi, fhi)
+        self.loose = np.flatnonzero(loose)
         self.box_lo, self.box_hi = lo, hi
-        self.lo = lo.min(axis=0)
-        self.hi = hi.max(axis=0)
+        self.lo, self.hi = flo, fhi
         span = np.maximum(self.hi - self.lo, 1e-12)
         # about 16 cells per region overall, at most 256 per axis
         g = int(np.clip(np.ceil((16 * R) ** (1.0 / d)), 1, 256))
@@ -103,6 +192,16 @@ class PointLocator:
             return out
         finite = np.all(np.isfinite(X), axis=1)
         inbox = finite & np.all((X >= self.lo - self.tol) & (X <= self.hi + self.tol), axis=1)
+        if self.loose.size:
+            # outside the grid only the regions without a proper box can hold a point
+            rest = np.flatnonzero(finite & ~inbox)
+            for i in self.loose:
+                if rest.size == 0:
+                    break
+                viol = X[rest] @ self.Apad[i].T - self.bpad[i]
+                hit = np.all(viol <= self.tol, axis=1)
+                out[rest[hit]] = i
+                rest = rest[~hit]
         pts = np.flatnonzero(inbox)
         cidx = np.clip(np.floor((X[pts] - self.lo) / self.cell), 0, self.g - 1).astype(int)
         cell = cidx @ self.strides

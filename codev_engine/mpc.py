@@ -18,6 +18,7 @@ against.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import cvxpy as cp
@@ -50,6 +51,28 @@ CLARABEL_OPTIONS: dict[str, float | int] = {
     "tol_ktratio": 1e-8,
     "max_iter": 500,
 }
+
+#: Clarabel settings tried, in order, when the tight settings fail at a state where the MPC
+#: is feasible (HiGHS says so): the defaults, then more regularisation and iterations,
+#: then looser tolerances with no equilibration.
+RETRY_OPTIONS: tuple[dict, ...] = (
+    {},
+    {
+        "static_regularization_constant": 1e-6,
+        "max_iter": 1000,
+        "tol_gap_abs": 1e-9,
+        "tol_gap_rel": 1e-9,
+        "tol_feas": 1e-9,
+    },
+    {
+        "static_regularization_constant": 1e-5,
+        "equilibrate_enable": False,
+        "max_iter": 2000,
+        "tol_gap_abs": 1e-7,
+        "tol_gap_rel": 1e-7,
+        "tol_feas": 1e-7,
+    },
+)
 
 
 # ---------------------------------------------------------------------------------------
@@ -372,6 +395,20 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
     )
 
 
+def _onto_bounds(v: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 tol: float = 1e-9) -> np.ndarray | None:
+    """``v`` clipped to ``[lo, hi]`` if it is within ``tol * max(1, |bound|)`` of it (and
+    finite); None otherwise."""
+    v = np.asarray(v, dtype=float)
+    if not np.all(np.isfinite(v)):
+        return None
+    if np.any(v < lo - tol * np.maximum(1.0, np.abs(lo))) or np.any(
+        v > hi + tol * np.maximum(1.0, np.abs(hi))
+    ):
+        return None
+    return np.clip(v, lo, hi)
+
+
 def check_feasible(problem: Problem, model: LinearModel | None = None) -> None:
     """Raise ``SpecError`` if no initial state in the state bounds has a feasible MPC.
 
@@ -459,6 +496,10 @@ class OnlineMpc:
     Unlike the explicit law's parameter set, no ``domain_bound`` is imposed on state axes
     with infinite bounds.
 
+    Where Clarabel fails at the tight settings (near the boundary of the feasible set),
+    feasibility is decided by a HiGHS LP on the same constraints and Clarabel is retried
+    with other settings (see ``_run``); ``SolverError`` only when all of that fails.
+
     Parameters
     ----------
     spec : MpcSpec
@@ -496,6 +537,18 @@ class OnlineMpc:
             cons.append(dx[k + 1] == A @ dx[k] + B @ du[k] + c)
         xmin, xmax = np.asarray(spec.x_min, float), np.asarray(spec.x_max, float)
         umin, umax = np.asarray(spec.u_min, float), np.asarray(spec.u_max, float)
+        # the same constraints for the feasibility LP (HiGHS): variables x_0..x_N, then
+        # u_0..u_{N-1}; dynamics as equalities, bounds as variable bounds
+        self._xmin, self._xmax, self._umin, self._umax = xmin, xmax, umin, umax
+        nv = (N + 1) * n + N * m
+        Aeq = np.zeros((N * n, nv))
+        for k in range(N):
+            r = slice(k * n, (k + 1) * n)
+            Aeq[r, (k + 1) * n:(k + 2) * n] = np.eye(n)
+            Aeq[r, k * n:(k + 1) * n] = -A
+            Aeq[r, (N + 1) * n + k * m:(N + 1) * n + (k + 1) * m] = -B
+        self._lp_Aeq = Aeq
+        self._lp_beq = np.tile(c + self.x_op - A @ self.x_op - B @ self.u_op, N)
         for lo, hi, var, K in ((xmin, xmax, x, N + 1), (umin, umax, u, N)):
             ilo, ihi = np.flatnonzero(np.isfinite(lo)), np.flatnonzero(np.isfinite(hi))
             for k in range(K):
@@ -529,21 +582,98 @@ class OnlineMpc:
         self._prob_fixed = cp.Problem(objective, cons + [u[0] == self._u0])
         assert self._prob.is_dcp(dpp=True) and self._prob_fixed.is_dcp(dpp=True)
 
-    def _run(self, prob: cp.Problem) -> bool:
-        """Solve ``prob``; True if optimal, False if infeasible."""
-        try:
-            prob.solve(solver=cp.CLARABEL, **self.solver_options)
-            if prob.status in (cp.OPTIMAL_INACCURATE, cp.INFEASIBLE_INACCURATE, cp.USER_LIMIT):
-                # the tight tolerances were not reached: Clarabel's defaults reached
-                # ("Solved") beat the reduced tolerances of "AlmostSolved"
-                prob.solve(solver=cp.CLARABEL)
-        except cp.SolverError as exc:
-            raise SolverError(f"online MPC: Clarabel failed: {exc}") from exc
-        if prob.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+    def _run(self, prob: cp.Problem, u0: np.ndarray | None = None) -> bool:
+        """Solve ``prob``; True if optimal, False if infeasible.
+
+        Clarabel at the tight ``solver_options`` first. When it does not answer cleanly
+        (inaccurate, iteration limit, numerical failure -- typically a few 1e-5 outside the
+        feasible set, where the problem is nearly infeasible), feasibility is decided by an
+        exact LP (HiGHS) on the same constraints: infeasible is the answer; feasible means
+        Clarabel is retried with the settings of ``RETRY_OPTIONS`` (defaults first), and
+        only if every one fails is ``SolverError`` raised.
+
+        ``u0`` is the fixed first move of ``_prob_fixed`` (for the feasibility LP).
+        """
+        status, error = self._clarabel(prob, self.solver_options)
+        attempts = [status]
+        if status == cp.OPTIMAL:
             return True
-        if prob.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+        if status == cp.INFEASIBLE:
             return False
-        raise SolverError(f"online MPC: unexpected solver status {prob.status!r}")
+        feasible = self._feasible_lp(np.asarray(self._x0.value, dtype=float), u0)
+        if feasible is False:
+            return False
+        inaccurate = self.solver_options if status == cp.OPTIMAL_INACCURATE else None
+        for options in RETRY_OPTIONS:
+            status, err = self._clarabel(prob, options)
+            attempts.append(status)
+            error = err or error
+            if status == cp.OPTIMAL:
+                return True
+            if status == cp.INFEASIBLE:
+                # a certificate of infeasibility: HiGHS (tolerance 1e-9) accepted a state
+                # within its tolerance of the feasible set, or could not decide
+                return False
+            if status == cp.OPTIMAL_INACCURATE and inaccurate is None:
+                inaccurate = options
+        if inaccurate is not None:
+            # no setting reached its tolerances: the first inaccurate answer is still an
+            # answer (and HiGHS agrees the problem is feasible); solve again to restore it
+            status, err = self._clarabel(prob, inaccurate)
+            if status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+                return True
+        what = "feasible" if feasible else "undecided"
+        raise SolverError(
+            f"online MPC: Clarabel failed at x0={self._x0.value.tolist()} (HiGHS: {what}); "
+            f"statuses {', '.join(attempts)}" + (f"; {error}" if error else "")
+        )
+
+    @staticmethod
+    def _clarabel(prob: cp.Problem, options: dict) -> tuple[str, str]:
+        """Solve with Clarabel -> (cvxpy status, error text); a solver failure is the
+        status ``"failed"``."""
+        try:
+            with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
+                # "Solution may be inaccurate": the status says so, and it is handled (as
+                # are overflows in the objective value of a diverged iterate)
+                warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+                prob.solve(solver=cp.CLARABEL, **options)
+        except cp.SolverError as exc:
+            return "failed", str(exc)
+        return prob.status, ""
+
+    def _feasible_lp(self, x0: np.ndarray, u0: np.ndarray | None) -> bool | None:
+        """Are the MPC constraints feasible at ``x0`` (and first move ``u0``)? HiGHS LP.
+
+        ``x0`` and ``u0`` may exceed their bounds by the LP's tolerance (1e-9, relative to
+        the bound when larger than 1; a first move on an input bound is often a rounding
+        error beyond it) and are then moved onto the bound.
+
+        True / False, or None when HiGHS cannot decide either.
+        """
+        n, m, N = self.n, self.m, self.N
+        x0 = _onto_bounds(x0, self._xmin, self._xmax)
+        if x0 is None:
+            return False
+        lo = np.concatenate([x0, np.tile(self._xmin, N), np.tile(self._umin, N)])
+        hi = np.concatenate([x0, np.tile(self._xmax, N), np.tile(self._umax, N)])
+        if u0 is not None:
+            u0 = _onto_bounds(np.asarray(u0, dtype=float).reshape(m), self._umin, self._umax)
+            if u0 is None:
+                return False
+            lo[(N + 1) * n:(N + 1) * n + m] = u0
+            hi[(N + 1) * n:(N + 1) * n + m] = u0
+        try:
+            res = linprog(np.zeros(lo.shape[0]), A_eq=self._lp_Aeq, b_eq=self._lp_beq,
+                          bounds=np.column_stack([lo, hi]), method="highs",
+                          options={"primal_feasibility_tolerance": 1e-9})
+        except ValueError:
+            return None
+        if res.status == 0:
+            return True
+        if res.status == 2:
+            return False
+        return None
 
     def solve(self, x: np.ndarray) -> OnlineSolution:
         """Solve the MPC at the plant state ``x`` (n,).
@@ -579,7 +709,7 @@ class OnlineMpc:
         """
         self._x0.value = np.asarray(x, dtype=float).reshape(self.n)
         self._u0.value = np.asarray(u0, dtype=float).reshape(self.m)
-        if not self._run(self._prob_fixed):
+        if not self._run(self._prob_fixed, u0=self._u0.value):
             return float("inf")
         return float(self._prob_fixed.value)
 

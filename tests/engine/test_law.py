@@ -482,3 +482,144 @@ def test_pickled_object_array_is_a_spec_error(tmp_path, good_bytes):
     arrays = arrays_of(good_bytes)
     arrays["meta"] = np.array([{"x": 1}], dtype=object)
     assert_spec_error(write_npz(tmp_path / "obj.npz", arrays))
+
+
+# ---- more malformed content: every array's dtype kind, shape and finiteness -----------
+
+
+def _more_mutations() -> dict[str, callable]:
+    def set_(key, fn):
+        def mut(arrs):
+            arrs[key] = fn(arrs[key])
+            return arrs
+
+        return mut
+
+    def drop(key):
+        def mut(arrs):
+            del arrs[key]
+            return arrs
+
+        return mut
+
+    def inf_at(a):
+        a = a.astype(float).copy()
+        a.flat[-1] = -np.inf
+        return a
+
+    def half_offsets(a):
+        a = a.astype(float).copy()
+        a[1] += 0.5
+        return a
+
+    return {
+        "offsets_non_integer": set_("offsets", half_offsets),
+        "offsets_complex": set_("offsets", lambda a: a.astype(complex)),
+        "offsets_text": set_("offsets", lambda a: a.astype(str)),
+        "offsets_bool": set_("offsets", lambda a: a.astype(bool)),
+        "offsets_beyond_rows": set_("offsets", lambda a: np.concatenate([a[:-1], [a[-1] + 3]])),
+        "b_complex": set_("b", lambda a: a + 0.5j),
+        "F_complex": set_("F", lambda a: a.astype(complex)),  # imaginary part 0: still no
+        "G_complex": set_("G", lambda a: a + 1j),
+        "F_bool": set_("F", lambda a: a != 0),
+        "A_text": set_("A", lambda a: a.astype(str)),
+        "b_text": set_("b", lambda a: a.astype(str)),
+        "states_short": set_("states", lambda a: a[:1]),
+        "states_long": set_("states", lambda a: np.append(a, "extra")),
+        "states_numbers": set_("states", lambda a: np.arange(a.size, dtype=float)),
+        "states_2d": set_("states", lambda a: a[None, :]),
+        "inputs_long": set_("inputs", lambda a: np.append(a, "v")),
+        "fingerprint_number": set_("fingerprint", lambda a: np.array(3.0)),
+        "fingerprint_list": set_("fingerprint", lambda a: np.array([str(a), str(a)])),
+        "meta_number": set_("meta", lambda a: np.array(2.0)),
+        "meta_json_list": set_("meta", lambda a: np.array("[1, 2]")),
+        "meta_deep": set_("meta", lambda a: np.array("[" * 100_000 + "]" * 100_000)),
+        "inf_box_hi": set_("box_hi", inf_at),
+        "box_complex": set_("box_hi", lambda a: a + 1j),
+        "box_text": set_("box_lo", lambda a: a.astype(str)),
+        "box_hi_wrong_shape": set_("box_hi", lambda a: a[:, :1]),
+        "box_transposed": set_("box_lo", lambda a: a.T),
+        "box_1d": set_("box_hi", lambda a: a.ravel()),
+        "box_reversed": lambda arrs: {**arrs, "box_lo": arrs["box_hi"], "box_hi": arrs["box_lo"]},
+        "box_lo_alone": drop("box_hi"),
+        "box_hi_alone": drop("box_lo"),
+        "nan_domain_A": set_("domain_A", lambda a: a * np.nan),
+        "inf_domain_b": set_("domain_b", inf_at),
+        "domain_A_wrong_columns": set_("domain_A", lambda a: np.hstack([a, a[:, :1]])),
+        "domain_A_1d": set_("domain_A", lambda a: a.ravel()),
+        "domain_b_short": set_("domain_b", lambda a: a[:-1]),
+        "domain_b_2d": set_("domain_b", lambda a: a[:, None]),
+        "domain_complex": set_("domain_A", lambda a: a + 1j),
+        "domain_text": set_("domain_b", lambda a: a.astype(str)),
+        "domain_A_alone": drop("domain_b"),
+        "domain_b_alone": drop("domain_A"),
+    }
+
+
+MORE_MUTATIONS = _more_mutations()
+
+
+@pytest.mark.parametrize("name", list(MORE_MUTATIONS))
+def test_more_malformed_content_is_a_spec_error(tmp_path, name, good_file_with_domain):
+    arrays = MORE_MUTATIONS[name](arrays_of(good_file_with_domain))
+    path = write_npz(tmp_path / f"{name}.npz", arrays)
+    assert_spec_error(path)
+    with pytest.raises(ce.SpecError) as err:
+        ce.ExplicitLaw.load(path)
+    # one line, naming the file and the array
+    msg = str(err.value)
+    assert "\n" not in msg and str(path) in msg
+    assert err.value.field and err.value.field in arrays_of(good_file_with_domain)
+
+
+@pytest.fixture
+def good_file_with_domain(example_law) -> bytes:
+    """A valid law file (the double integrator) with bounding boxes and the domain."""
+    if "di_domain" not in _GOOD:
+        law = example_law("double_integrator.toml")[1]
+        assert law.domain_A is not None
+        fresh = ce.ExplicitLaw(A=law.A, b=law.b, F=law.F, G=law.G, states=law.states,
+                               inputs=law.inputs, fingerprint=law.fingerprint, meta=law.meta,
+                               domain_A=law.domain_A, domain_b=law.domain_b)
+        fresh.locate(np.zeros((1, 2)))
+        with tempfile.TemporaryDirectory() as d:
+            _GOOD["di_domain"] = fresh.save(Path(d) / "good.npz").read_bytes()
+    arrays = arrays_of(_GOOD["di_domain"])
+    assert {"box_lo", "box_hi", "domain_A", "domain_b"} <= set(arrays)
+    return _GOOD["di_domain"]
+
+
+def test_valid_variants_load(tmp_path, good_bytes):
+    """Integer arrays for numbers, unnamed states/inputs, no boxes / no domain: all fine."""
+    arrays = arrays_of(good_bytes)
+    law = ce.ExplicitLaw.load(write_npz(tmp_path / "good.npz", arrays))
+    X = np.random.default_rng(0).uniform(-10, 10, (500, 2))
+    variants = {
+        "int_G": {**arrays, "G": np.round(arrays["G"]).astype(np.int32)},
+        "uint_offsets": {**arrays, "offsets": arrays["offsets"].astype(np.uint16)},
+        "unnamed": {**arrays, "states": np.array([], dtype=str),
+                    "inputs": np.array([], dtype=str)},
+        "no_boxes": {k: v for k, v in arrays.items() if not k.startswith("box")},
+        "no_domain": {k: v for k, v in arrays.items() if not k.startswith("domain")},
+    }
+    for name, arrs in variants.items():
+        got = ce.ExplicitLaw.load(write_npz(tmp_path / f"{name}.npz", arrs))
+        assert got.num_regions == law.num_regions, name
+        np.testing.assert_array_equal(got.locate(X), law.locate(X))
+        if name == "unnamed":
+            assert got.states == () and got.inputs == ()
+        if name == "int_G":
+            np.testing.assert_array_equal(got.G, np.round(law.G))
+    # an unnamed law round-trips
+    unnamed = ce.ExplicitLaw(A=law.A, b=law.b, F=law.F, G=law.G)
+    again = ce.ExplicitLaw.load(unnamed.save(tmp_path / "unnamed2.npz"))
+    np.testing.assert_array_equal(again.locate(X), law.locate(X))
+
+
+def test_empty_law_with_boxes_round_trips(tmp_path):
+    law = ce.ExplicitLaw(A=[], b=[], F=np.zeros((0, 1, 2)), G=np.zeros((0, 1)),
+                         states=("a", "b"), inputs=("u",))
+    law.locate(np.zeros((1, 2)))  # computes (empty) boxes, saved too
+    loaded = ce.ExplicitLaw.load(law.save(tmp_path / "empty.npz"))
+    assert loaded.num_regions == 0 and loaded.states == ("a", "b")
+    assert np.all(loaded.locate(np.zeros((3, 2))) == -1)

@@ -379,3 +379,186 @@ def test_indefinite_weight_is_a_spec_error():
     assert err.value.field == "mpc.Q"
     # LP norms take any (even non-square) weights
     build_program(make_spec(1, "inf", [[1.0, 0.0], [0.0, -1.0], [1, 1]], np.eye(2)), model)
+
+
+# ---------------------------------------------------------------------------------------
+# OnlineMpc where Clarabel struggles: near the edge of the feasible set
+# ---------------------------------------------------------------------------------------
+
+
+def lp_feasible(spec: MpcSpec, model: LinearModel, x0: np.ndarray) -> bool:
+    """The non-condensed MPC constraints at ``x0``, written out here, solved by HiGHS."""
+    A, B = np.asarray(model.A, float), np.asarray(model.B, float)
+    n, m = B.shape
+    N = spec.horizon
+    nv = (N + 1) * n + N * m
+    Aeq = np.zeros((N * n, nv))
+    beq = np.zeros(N * n)
+    for k in range(N):
+        r = slice(k * n, (k + 1) * n)
+        Aeq[r, (k + 1) * n:(k + 2) * n] = np.eye(n)
+        Aeq[r, k * n:(k + 1) * n] = -A
+        Aeq[r, (N + 1) * n + k * m:(N + 1) * n + (k + 1) * m] = -B
+        beq[r] = model.c + model.x_op - A @ model.x_op - B @ model.u_op
+    if np.any(x0 < spec.x_min) or np.any(x0 > spec.x_max):
+        return False
+
+    def fin(v):
+        return float(v) if np.isfinite(v) else None
+
+    bounds = [(float(v), float(v)) for v in x0]
+    bounds += [(fin(spec.x_min[i]), fin(spec.x_max[i])) for _ in range(N) for i in range(n)]
+    bounds += [(fin(spec.u_min[j]), fin(spec.u_max[j])) for _ in range(N) for j in range(m)]
+    res = linprog(np.zeros(nv), A_eq=Aeq, b_eq=beq, bounds=bounds, method="highs")
+    assert res.status in (0, 2), res.message
+    return res.status == 0
+
+
+def tora(u_max: float):
+    import dataclasses
+    from pathlib import Path
+
+    from codev_engine.plant import discretize
+    from codev_engine.spec import load_spec
+
+    p = load_spec(Path(__file__).resolve().parents[2] / "examples" / "tora.toml")
+    mpc = dataclasses.replace(p.mpc, u_min=np.array([-u_max]), u_max=np.array([u_max]))
+    p = dataclasses.replace(p, mpc=mpc)
+    return p.mpc, discretize(p)
+
+
+def edge_points(spec, model, rng, rays: int, offsets) -> list[tuple[float, np.ndarray]]:
+    """Points ``offset`` (along a random ray from a feasible state) beyond the boundary of
+    the feasible set (negative: inside), the boundary found by bisection with HiGHS."""
+    n = model.n
+    out = []
+    while len(out) < rays * len(offsets):
+        a = rng.uniform(-1.0, 1.0, n) * np.where(np.isfinite(spec.x_max), spec.x_max, 2.5)
+        if not lp_feasible(spec, model, a):
+            continue
+        d = rng.normal(size=n)
+        d /= np.linalg.norm(d)
+        s0, s1 = 0.0, 1.0
+        while lp_feasible(spec, model, a + s1 * d):
+            s0, s1 = s1, 2 * s1
+        for _ in range(50):
+            mid = 0.5 * (s0 + s1)
+            s0, s1 = (mid, s1) if lp_feasible(spec, model, a + mid * d) else (s0, mid)
+        out += [(off, a + (s0 + off) * d) for off in offsets]
+    return out
+
+
+@pytest.mark.parametrize("u_max", [0.5, 0.65])
+def test_online_mpc_at_the_edge_of_the_feasible_set(u_max):
+    """TORA (examples/tora.toml, and with |u| <= 0.5): Clarabel at tight tolerances fails
+    (NumericalError, iteration limit, inaccurate) at states slightly outside -- and some
+    slightly inside -- the feasible set. ``solve`` must still answer: infeasible outside,
+    optimal inside, with first moves whose cost is the optimum."""
+    spec, model = tora(u_max)
+    online = OnlineMpc(spec, model)
+    rng = np.random.default_rng(2024)
+    offsets = (-1e-5, -1e-6, -1e-8, 0.0, 1e-8, 1e-6, 1e-5, 5e-5, 1e-4)
+    points = edge_points(spec, model, rng, rays=12, offsets=offsets)
+    X = np.array([x for _, x in points])
+    U0, cost, feas = online.solve_many(X)  # no SolverError
+    for (off, x), u0, J, f in zip(points, U0, cost, feas, strict=True):
+        if off >= 5e-5:
+            assert not f and np.isinf(J) and np.all(np.isnan(u0)), (off, x.tolist())
+        if off <= -1e-6:
+            assert f, (off, x.tolist())
+        if f:
+            assert np.all(np.isfinite(u0)) and np.isfinite(J)
+            assert close(online.first_move_cost(x, u0), J), (off, x.tolist())
+            worse = online.first_move_cost(x, u0 - 0.01 * np.sign(u0 + 1e-300))
+            assert worse >= J * (1 - RTOL) - RTOL, (off, x.tolist())
+        elif off >= 5e-5:  # (closer, Clarabel's tolerances may accept a fixed move)
+            assert online.first_move_cost(x, np.zeros(1)) == np.inf
+        sol = online.solve(x)
+        assert sol.feasible == f and (not f or close(sol.cost, J))
+
+
+class _Scripted:
+    """Replaces ``OnlineMpc._clarabel``: the first ``fail`` calls report ``status``
+    (without solving); the rest solve for real."""
+
+    def __init__(self, fail: int, status: str = "failed"):
+        self.fail, self.status, self.calls = fail, status, 0
+
+    def __call__(self, prob, options):
+        self.calls += 1
+        if self.calls <= self.fail:
+            return self.status, "scripted failure"
+        prob.solve(solver=cp.CLARABEL, **options)
+        return prob.status, ""
+
+
+@pytest.mark.parametrize("status", ["failed", "user_limit", "infeasible_inaccurate",
+                                    "optimal_inaccurate"])
+def test_online_mpc_falls_back_on_highs_and_retries(monkeypatch, status):
+    spec, model = double_integrator()
+    online = OnlineMpc(spec, model)
+    x_in, x_out = np.array([1.0, -0.5]), np.array([9.9, 9.9])  # feasible / not (HiGHS)
+    assert lp_feasible(spec, model, x_in) and not lp_feasible(spec, model, x_out)
+    ref = online.solve(x_in)
+    ref_fixed = online.first_move_cost(x_in, ref.u0)
+    assert ref.feasible
+
+    # infeasible per HiGHS: answered without any retry
+    script = _Scripted(fail=1, status=status)
+    monkeypatch.setattr(OnlineMpc, "_clarabel", staticmethod(script))
+    sol = online.solve(x_out)
+    assert sol.status == "infeasible" and sol.cost == np.inf and np.all(np.isnan(sol.u0))
+    assert script.calls == 1
+    # first_move_cost: infeasible because of u0 (out of bounds) or of the state
+    script.calls = 0
+    assert online.first_move_cost(x_in, np.array([1.5])) == np.inf
+    script.calls = 0
+    assert online.first_move_cost(x_out, np.array([0.0])) == np.inf
+
+    # feasible per HiGHS: Clarabel again (defaults), the same optimum
+    for fail in (1, 2, 3):
+        script = _Scripted(fail=fail, status=status)
+        monkeypatch.setattr(OnlineMpc, "_clarabel", staticmethod(script))
+        sol = online.solve(x_in)
+        assert sol.feasible and close(sol.cost, ref.cost), fail
+        assert np.allclose(sol.u0, ref.u0, atol=1e-6)
+        assert script.calls == fail + 1
+        script.calls = 0
+        assert close(online.first_move_cost(x_in, ref.u0), ref_fixed)
+    U0, cost, feas = online.solve_many(np.array([x_in, x_out]))
+    assert feas.tolist() == [True, False] and close(cost[0], ref.cost)
+
+
+def test_online_mpc_raises_only_when_every_retry_fails(monkeypatch):
+    from codev_engine.errors import SolverError
+    from codev_engine.mpc import RETRY_OPTIONS
+
+    spec, model = double_integrator()
+    online = OnlineMpc(spec, model)
+    script = _Scripted(fail=10**9)
+    monkeypatch.setattr(OnlineMpc, "_clarabel", staticmethod(script))
+    with pytest.raises(SolverError, match="HiGHS: feasible"):
+        online.solve(np.array([1.0, -0.5]))
+    assert script.calls == 1 + len(RETRY_OPTIONS)
+    with pytest.raises(SolverError):
+        online.first_move_cost(np.array([1.0, -0.5]), np.array([0.0]))
+    # an infeasible state never needs Clarabel to succeed
+    assert online.solve(np.array([9.9, 9.9])).status == "infeasible"
+    assert online.solve(np.array([10.5, 0.0])).status == "infeasible"  # outside x bounds
+
+
+@pytest.mark.parametrize("status", ["failed", "optimal_inaccurate"])
+def test_first_move_a_rounding_error_beyond_its_bound(monkeypatch, status):
+    """A law's first move on an input bound is often 1 ulp beyond it: when Clarabel needs
+    the HiGHS fallback there, the move still counts as feasible (and 1e-6 beyond does not)."""
+    spec, model = double_integrator()
+    online = OnlineMpc(spec, model)
+    x = np.array([6.0, -1.0])  # saturated: u0 = -1 (the lower bound)
+    sol = online.solve(x)
+    assert sol.feasible and np.isclose(sol.u0[0], -1.0, atol=1e-7)
+    u_ulp = np.array([np.nextafter(-1.0, -2.0)])
+    monkeypatch.setattr(OnlineMpc, "_clarabel", staticmethod(_Scripted(fail=1, status=status)))
+    J = online.first_move_cost(x, u_ulp)
+    assert np.isfinite(J) and J >= sol.cost * (1 - RTOL) - RTOL
+    monkeypatch.setattr(OnlineMpc, "_clarabel", staticmethod(_Scripted(fail=1, status=status)))
+    assert online.first_move_cost(x, np.array([-1.0 - 1e-6])) == np.inf

@@ -99,8 +99,46 @@ EXPECTED = {
 }
 
 
+#: examples added since the paper: nonlinear plants (``dynamics`` only, linearised at the
+#: origin), digital controllers (hold "zoh"), input bounds checked, terminal weights P
+NONLINEAR = {
+    "pendulum.toml": dict(
+        name="pendulum", states=("th", "w"), inputs=("T",),
+        dynamics=("w", "9.81*sin(th) - 0.5*w + T"), sample_time=0.05, horizon=8, norm="2",
+        Q=[[10.0, 0.0], [0.0, 1.0]], R=[[0.1]], P=[[228.6, 47.8], [47.8, 14.8]],
+        x_min=[-1.0, -5.0], x_max=[1.0, 5.0], u_min=[-6.0], u_max=[6.0], domain_bound=100.0,
+        time_horizon=3.0, initial=([0.55, -0.1], [0.6, 0.0]),
+        unsafe=[("box", [0.7, -np.inf], [np.inf, np.inf]), ("polytope", [[1.0, 0.5]], [-0.15])],
+        safe=[],
+    ),
+    "tora.toml": dict(
+        name="tora", states=("x1", "x2", "x3", "x4"), inputs=("u",),
+        dynamics=("x2", "-x1 + 0.1*sin(x3)", "x4", "u"), sample_time=0.5, horizon=3, norm="2",
+        Q=np.diag([1.0, 1.0, 0.1, 0.1]).tolist(), R=[[1.0]],
+        P=[[34.969, -0.5, -3.93, -2.52], [-0.5, 33.139, 1.061, -1.424],
+           [-3.93, 1.061, 1.116, 0.92], [-2.52, -1.424, 0.92, 2.084]],
+        x_min=[-np.inf, -np.inf, -2.0, -2.0], x_max=[np.inf, np.inf, 2.0, 2.0],
+        u_min=[-0.65], u_max=[0.65], domain_bound=2.5,
+        time_horizon=10.0, initial=([0.6, -0.7, -0.4, 0.5], [0.63, -0.67, -0.37, 0.53]),
+        unsafe=[], safe=[("box", [-2.0] * 4, [2.0] * 4)],
+    ),
+    "vanderpol.toml": dict(
+        name="vanderpol", states=("x1", "x2"), inputs=("u",),
+        dynamics=("x2", "(1 - x1**2)*x2 - x1 + u"), sample_time=0.1, horizon=5, norm="inf",
+        Q=[[1.0, 0.0], [0.0, 1.0]], R=[[0.5]], P=[[10.0, 0.0], [0.0, 10.0]],
+        x_min=[-3.0, -4.0], x_max=[3.0, 4.0], u_min=[-2.0], u_max=[2.0], domain_bound=100.0,
+        time_horizon=6.0, initial=([-1.55, 1.2], [-1.5, 1.25]),
+        unsafe=[("box", [-np.inf, 1.6], [np.inf, np.inf]),
+                ("box", [0.3, -np.inf], [np.inf, np.inf])],
+        safe=[("box", [-3.0, -4.0], [3.0, 4.0])],
+    ),
+}
+
+
 def test_all_examples_are_listed():
-    assert sorted(p.name for p in EXAMPLES.glob("*.toml")) == sorted(EXPECTED)
+    assert not set(EXPECTED) & set(NONLINEAR)
+    assert sorted(p.name for p in EXAMPLES.glob("*.toml")) == sorted({**EXPECTED, **NONLINEAR})
+    assert len(EXPECTED) == 6  # the paper's examples, all still there
 
 
 @pytest.mark.parametrize("fname", sorted(EXPECTED))
@@ -137,6 +175,55 @@ def test_examples_load(fname):
     else:
         assert p.plant.A.shape == (n, n) and p.plant.B.shape == (n, m)
         assert v.input_bounds is False
+
+
+@pytest.mark.parametrize("fname", sorted(NONLINEAR))
+def test_nonlinear_examples_load(fname):
+    want = NONLINEAR[fname]
+    path = EXAMPLES / fname
+    p = load_spec(path)
+    assert isinstance(p, Problem)
+    assert p.name == want["name"]
+    assert p.path == str(path)
+    assert p.source == path.read_text()
+    n, m = len(want["states"]), len(want["inputs"])
+    # plant: nonlinear dynamics only, no matrices
+    assert (p.plant.states, p.plant.inputs) == (want["states"], want["inputs"])
+    assert (p.plant.n, p.plant.m) == (n, m)
+    assert p.plant.dynamics == want["dynamics"]
+    assert p.plant.A is None and p.plant.B is None
+    # model: linearised at the origin, sampled with zoh
+    assert (p.model.method, p.model.sample_time) == ("zoh", want["sample_time"])
+    assert p.model.x_op.shape == (n,) and not p.model.x_op.any()
+    assert p.model.u_op.shape == (m,) and not p.model.u_op.any()
+    assert p.model.A is None and p.model.B is None
+    # mpc
+    mpc = p.mpc
+    assert (mpc.horizon, mpc.norm) == (want["horizon"], want["norm"])
+    for key in ("Q", "R", "P", "x_min", "x_max", "u_min", "u_max"):
+        got = getattr(mpc, key)
+        assert got.dtype == float and got.tolist() == want[key], key
+    assert mpc.domain_bound == want["domain_bound"]
+    assert mpc.simplify is False
+    if mpc.norm == "2":  # the terminal weight is a (rounded) Riccati solution: PD
+        assert np.array_equal(mpc.P, mpc.P.T) and np.linalg.eigvalsh(mpc.P).min() > 0
+    # verify: digital controller, input bounds checked
+    v = p.verify
+    assert isinstance(v, VerifySpec)
+    assert (v.hold, v.input_bounds, v.max_depth, v.step) == ("zoh", True, 6, 0.01)
+    assert v.time_horizon == want["time_horizon"]
+    assert (v.initial_lower.tolist(), v.initial_upper.tolist()) == want["initial"]
+    assert np.all(v.initial_lower < v.initial_upper)
+    # the initial set lies inside the MPC's state bounds
+    assert np.all(v.initial_lower >= mpc.x_min) and np.all(v.initial_upper <= mpc.x_max)
+    for sets, wanted in ((v.unsafe, want["unsafe"]), (v.safe, want["safe"])):
+        assert len(sets) == len(wanted)
+        for s, (kind, a, b) in zip(sets, wanted, strict=True):
+            assert s.kind == kind
+            if kind == "box":
+                assert (s.lower.tolist(), s.upper.tolist()) == (a, b)
+            else:
+                assert (s.A.tolist(), s.b.tolist()) == (a, b)
 
 
 def test_magnetic_pointer_matrices_exact():

@@ -1,0 +1,247 @@
+"""Point location when a bounding-box LP fails (codev_engine.locate).
+
+A thin sliver region -- two nearly opposite rows, width 1e-6, in a partition of a box of
+side 200 -- is reported infeasible by DAQP for some of its bounding-box LPs. The box must
+still be finite and contain the region (sound), and point location must still agree with
+brute force on every region (the sliver and all the others). The fallbacks (HiGHS, the
+enlarged region, the domain box, the overall box) and a locator given infinite / NaN boxes
+are tested directly too.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import linprog
+from scipy.spatial import Delaunay
+
+import codev_engine as ce
+import codev_engine.locate as locate_mod
+from codev_engine.locate import PointLocator, bounding_boxes
+from codev_engine.polytope import solve_lp
+
+LOC_TOL = 1e-9  # the locator's tolerance (unit-norm rows)
+S = 100.0  # half side of the partitioned box
+WIDTH = 1e-6  # the sliver's width
+
+
+def voronoi_regions(k: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The Voronoi cells of k random sites in [-S, S]^2, unit-norm rows."""
+    rng = np.random.default_rng(seed)
+    sites = rng.uniform(-S, S, size=(k, 2))
+    indptr, nbrs = Delaunay(sites).vertex_neighbor_vertices
+    eye = np.eye(2)
+    As, bs = [], []
+    for i in range(k):
+        J = nbrs[indptr[i]:indptr[i + 1]]
+        A = np.vstack([sites[J] - sites[i], eye, -eye])
+        b = np.concatenate([(np.sum(sites[J] ** 2, axis=1) - sites[i] @ sites[i]) / 2,
+                            np.full(4, S)])
+        nrm = np.linalg.norm(A, axis=1)
+        As.append(A / nrm[:, None])
+        bs.append(b / nrm)
+    return As, bs
+
+
+def sliver(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``a x <= c``, ``-a' x <= -c + WIDTH`` (a' = a up to 1e-7), and the box rows."""
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=2)
+    a /= np.linalg.norm(a)
+    a2 = a + rng.normal(scale=1e-7, size=2)
+    a2 /= np.linalg.norm(a2)
+    c = rng.uniform(-0.3, 0.3) * S
+    A = np.vstack([a, -a2, np.eye(2), -np.eye(2)])
+    b = np.concatenate([[c, -c + WIDTH], np.full(4, S)])
+    return A, b
+
+
+def daqp_fails(A: np.ndarray, b: np.ndarray) -> bool:
+    eye = np.eye(A.shape[1])
+    return any(solve_lp(s * eye[j], A, b)[1] != "optimal"
+               for j in range(A.shape[1]) for s in (1.0, -1.0))
+
+
+#: seeds of slivers on which DAQP fails (checked by test_the_sliver_defeats_daqp)
+SLIVER_SEEDS = [0, 1, 2]
+
+
+def brute_locate(As, bs, X: np.ndarray, near_tol: float = 1e-7):
+    """Lowest region index holding each point (within LOC_TOL), and the points within
+    ``near_tol`` of a boundary row of a region they (almost) belong to (rounding may
+    decide those)."""
+    idx = np.full(X.shape[0], -1)
+    near = np.zeros(X.shape[0], dtype=bool)
+    for i in reversed(range(len(As))):
+        nrm = np.linalg.norm(As[i], axis=1)
+        S_ = X @ (As[i] / nrm[:, None]).T - bs[i] / nrm
+        smax = S_.max(axis=1)
+        idx[smax <= LOC_TOL] = i
+        near |= (smax <= near_tol) & np.any(np.abs(S_) <= near_tol, axis=1)
+    return idx, near
+
+
+def inside_points(A: np.ndarray, b: np.ndarray, rng, count: int = 200) -> np.ndarray:
+    """Points of the region (strictly inside, found from its Chebyshev centre and the
+    HiGHS extreme points in random directions)."""
+    nrm = np.linalg.norm(A, axis=1)
+    res = linprog(np.r_[np.zeros(A.shape[1]), -1.0], A_ub=np.hstack([A, nrm[:, None]]),
+                  b_ub=b, bounds=(None, None), method="highs")
+    assert res.status == 0 and res.x[-1] > 0
+    centre = res.x[:-1]
+    pts = []
+    for _ in range(count):
+        r = linprog(rng.normal(size=A.shape[1]), A_ub=A, b_ub=b, bounds=(None, None),
+                    method="highs")
+        pts.append(centre + rng.uniform(0.0, 0.9) * (r.x - centre))
+    return np.array(pts)
+
+
+def check_agrees(As, bs, locator: PointLocator, X: np.ndarray) -> np.ndarray:
+    got = locator.locate(X)
+    want, near = brute_locate(As, bs, X)
+    differ = np.flatnonzero((got != want) & ~near)
+    assert differ.size == 0, (
+        f"{differ.size} of {X.shape[0]} points located differently from brute force, e.g. "
+        f"x={X[differ[0]].tolist()}: locate={got[differ[0]]}, brute={want[differ[0]]}")
+    return got
+
+
+def sample(rng, n_uniform: int = 20_000) -> np.ndarray:
+    return rng.uniform(-1.05 * S, 1.05 * S, size=(n_uniform, 2))
+
+
+# ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", SLIVER_SEEDS)
+def test_the_sliver_defeats_daqp(seed):
+    """Harness check: the slivers really exercise the fallback (DAQP fails on them)."""
+    A, b = sliver(seed)
+    if not daqp_fails(A, b):
+        pytest.skip("DAQP solves this sliver now (the fallback is tested below anyway)")
+
+
+@pytest.mark.parametrize("position", ["first", "middle", "last"])
+@pytest.mark.parametrize("seed", SLIVER_SEEDS)
+def test_sliver_region_keeps_point_location_exact(seed, position):
+    As, bs = voronoi_regions(300, seed=10 + seed)
+    A, b = sliver(seed)
+    at = {"first": 0, "middle": 150, "last": len(As)}[position]
+    As.insert(at, A)
+    bs.insert(at, b)
+    law = ce.ExplicitLaw(A=As, b=bs, F=np.zeros((len(As), 1, 2)), G=np.zeros((len(As), 1)))
+    lo, hi = law.boxes
+    assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
+    # sound: the sliver's box contains the sliver (its HiGHS extreme points)
+    rng = np.random.default_rng(seed)
+    pts = inside_points(A, b, rng)
+    assert np.all(pts >= lo[at] - 1e-9) and np.all(pts <= hi[at] + 1e-9)
+    X = sample(rng)
+    got = check_agrees(As, bs, law.locator, X)
+    assert np.count_nonzero(got >= 0) > 0.9 * X.shape[0]  # the partition covers the box
+    # points of the sliver: it wins where it is first, otherwise brute force decides
+    got = check_agrees(As, bs, law.locator, pts)
+    if position == "first":
+        assert np.all(got == 0)
+    assert np.all(got >= 0)
+
+
+@pytest.mark.parametrize("domain", [False, True])
+def test_every_lp_failing_falls_back_to_a_sound_finite_box(monkeypatch, domain):
+    """DAQP and HiGHS both fail (also on the enlarged sliver): the domain box or the
+    overall box of the other regions replaces the sliver's box, never infinity."""
+    As, bs = voronoi_regions(200, seed=21)
+    A, b = sliver(0)
+    As.insert(7, A)
+    bs.insert(7, b)
+    real_solve_lp, real_linprog = locate_mod.solve_lp, locate_mod.linprog
+
+    def is_sliver(M):
+        return M.shape == A.shape and np.allclose(M, A)
+
+    def failing_solve_lp(f, M, rhs, *args, **kw):
+        if is_sliver(M):
+            return None, "infeasible", None
+        return real_solve_lp(f, M, rhs, *args, **kw)
+
+    def failing_linprog(c, A_ub=None, b_ub=None, **kw):
+        res = real_linprog(c, A_ub=A_ub, b_ub=b_ub, **kw)
+        if A_ub is not None and is_sliver(A_ub):
+            res.status, res.x = 2, None
+        return res
+
+    monkeypatch.setattr(locate_mod, "solve_lp", failing_solve_lp)
+    monkeypatch.setattr(locate_mod, "linprog", failing_linprog)
+    box = (np.vstack([np.eye(2), -np.eye(2)]), np.full(4, S)) if domain else None
+    lo, hi = bounding_boxes(As, bs, domain=box)
+    assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
+    np.testing.assert_allclose(lo[7], -S, atol=1e-9)  # the whole partition's box
+    np.testing.assert_allclose(hi[7], S, atol=1e-9)
+    monkeypatch.undo()
+    ref_lo, ref_hi = bounding_boxes([A for i, A in enumerate(As) if i != 7],
+                                    [b for i, b in enumerate(bs) if i != 7])
+    np.testing.assert_array_equal(np.delete(lo, 7, axis=0), ref_lo)
+    np.testing.assert_array_equal(np.delete(hi, 7, axis=0), ref_hi)
+    rng = np.random.default_rng(5)
+    locator = PointLocator(As, bs, boxes=(lo, hi))
+    check_agrees(As, bs, locator, sample(rng))
+    assert np.all(check_agrees(As, bs, locator, inside_points(A, b, rng)) >= 0)
+
+
+def test_highs_backs_daqp_on_the_sliver():
+    """With DAQP failing, the sliver's box is its true box (HiGHS), not a fallback."""
+    A, b = sliver(0)
+    lo, hi = bounding_boxes([A], [b])
+    for j in range(2):
+        for s, bound in ((1.0, lo[0, j]), (-1.0, hi[0, j])):
+            r = linprog(s * np.eye(2)[j], A_ub=A, b_ub=b, bounds=(None, None), method="highs")
+            assert r.status == 0
+            assert bound == pytest.approx(r.x[j], abs=1e-6)
+
+
+@pytest.mark.parametrize("bad", [np.inf, np.nan])
+def test_locator_survives_non_finite_boxes(bad):
+    """Boxes with inf / NaN entries (an old law file, a failed LP): the grid is finite,
+    and location still agrees with brute force (also outside the other boxes)."""
+    As, bs = voronoi_regions(200, seed=22)
+    lo, hi = bounding_boxes(As, bs)
+    lo, hi = lo.copy(), hi.copy()
+    lo[3, 0] = -bad
+    hi[50, 1] = bad
+    lo[120] = bad  # a reversed / unknown box
+    # and a region that really is larger than every other box: the half-plane x0 >= 2S
+    # (bounded in x1 by the box rows), found beyond the grid by brute force
+    As.append(np.vstack([[-1.0, 0.0], [0.0, 1.0], [0.0, -1.0], [1.0, 0.0]]))
+    bs.append(np.array([-2 * S, S, S, 3 * S]))
+    lo = np.vstack([lo, [-np.inf, -S]])
+    hi = np.vstack([hi, [np.inf, S]])
+    locator = PointLocator(As, bs, boxes=(lo, hi))
+    assert np.all(np.isfinite(locator.lo)) and np.all(np.isfinite(locator.hi))
+    assert np.all(np.isfinite(locator.cell))
+    rng = np.random.default_rng(6)
+    X = np.vstack([sample(rng), rng.uniform([-S, -S], [3.2 * S, S], size=(5000, 2))])
+    got = check_agrees(As, bs, locator, X)
+    assert np.any(got == len(As) - 1) and np.any(got == 3) and np.any(got == 120)
+
+
+def test_law_boxes_use_the_domain_box(monkeypatch):
+    """``ExplicitLaw.boxes`` hands the law's domain to the fallback."""
+    As, bs = voronoi_regions(50, seed=23)
+    A, b = sliver(1)
+    As.append(A)
+    bs.append(b)
+    seen = {}
+    real = locate_mod.bounding_boxes
+
+    def spy(As_, bs_, domain=None):
+        seen["domain"] = domain
+        return real(As_, bs_, domain=domain)
+
+    monkeypatch.setattr("codev_engine.law.bounding_boxes", spy)
+    dA, db = np.vstack([np.eye(2), -np.eye(2)]), np.full(4, S)
+    law = ce.ExplicitLaw(A=As, b=bs, F=np.zeros((len(As), 1, 2)), G=np.zeros((len(As), 1)),
+                         domain_A=dA, domain_b=db)
+    lo, hi = law.boxes
+    assert seen["domain"][0] is dA and seen["domain"][1] is db
+    assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
