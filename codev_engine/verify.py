@@ -177,6 +177,18 @@ def verify(
         cex = _search(problem, law, hold)
         if cex is not None:
             verdict, reason = "unsafe", cex.kind
+    if verdict == "unsafe" and cex is not None and tube.num_boxes:
+        # exploration stopped at the counterexample: the tube is partial, keep what
+        # precedes it (docs/verification.md)
+        keep = tube.t_start <= cex.t
+        tube = Tube(
+            tube.t_start[keep],
+            tube.t_end[keep],
+            tube.lower[keep],
+            tube.upper[keep],
+            tube.branch[keep],
+        )
+        stats["boxes"] = tube.num_boxes
     stats["seconds"] = time.perf_counter() - t0
     return VerificationResult(verdict, reason, tube, hold, cex, stats)
 
