@@ -10,12 +10,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import write_npz
 from .errors import SpecError
 from .locate import PointLocator, bounding_boxes
 from .polytope import Polytope
@@ -165,16 +165,7 @@ class ExplicitLaw:
             arrays["box_lo"], arrays["box_hi"] = self._boxes
         if self.domain_A is not None:
             arrays["domain_A"], arrays["domain_b"] = self.domain_A, self.domain_b
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(fh, **arrays)
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        return path
+        return write_npz(path, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> ExplicitLaw:

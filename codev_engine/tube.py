@@ -8,12 +8,12 @@ one of the boxes ``[lower[k], upper[k]]`` whose interval contains ``t``.
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import write_npz
 from .errors import SpecError
 
 __all__ = ["Tube", "TUBE_FORMAT"]
@@ -89,25 +89,17 @@ class Tube:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write ``t_start``, ``t_end``, ``lower``, ``upper`` (and ``branch``) to an npz."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez_compressed(
-                    fh,
-                    format=np.array(TUBE_FORMAT),
-                    t_start=self.t_start,
-                    t_end=self.t_end,
-                    lower=self.lower,
-                    upper=self.upper,
-                    branch=self.branch,
-                )
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        return path
+        return write_npz(
+            path,
+            {
+                "format": np.array(TUBE_FORMAT),
+                "t_start": self.t_start,
+                "t_end": self.t_end,
+                "lower": self.lower,
+                "upper": self.upper,
+                "branch": self.branch,
+            },
+        )
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Tube:
