@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .locate import bounding_boxes
 from .polytope import chebyshev_ball, minimal_rows, solve_lp
 
 __all__ = ["merge_regions"]
@@ -100,13 +101,5 @@ def merge_regions(
 
 
 def _box(A, b):
-    d = A.shape[1]
-    lo, hi = np.empty(d), np.empty(d)
-    for j in range(d):
-        e = np.zeros(d)
-        e[j] = 1.0
-        x, _, _ = solve_lp(e, A, b)
-        lo[j] = x[j]
-        x, _, _ = solve_lp(-e, A, b)
-        hi[j] = x[j]
-    return lo, hi
+    lo, hi = bounding_boxes([A], [b])
+    return lo[0], hi[0]
