@@ -178,16 +178,19 @@ class NonlinearReach:
         flo, fhi = self._f(lo, hi, i, ulo, uhi)
         grow = np.maximum(np.abs(flo), np.abs(fhi)) * h
         lo, hi = lo - 1.5 * grow - 1e-12, hi + 1.5 * grow + 1e-12
-        for _ in range(12):
+        for _ in range(20):
             flo, fhi = self._f(lo, hi, i, ulo, uhi)
             dlo, dhi = h * np.minimum(flo, 0.0), h * np.maximum(fhi, 0.0)
             nlo = slo + dlo - _add_pad(slo, dlo)
             nhi = shi + dhi + _add_pad(shi, dhi)
             if np.all(nlo >= lo) and np.all(nhi <= hi):
                 return nlo, nhi  # contained: nlo/nhi is itself an enclosure
-            span = np.maximum(hi - lo, 1e-12)
-            lo = np.minimum(lo, nlo) - 0.5 * span
-            hi = np.maximum(hi, nhi) + 0.5 * span
+            # iterate the Picard operator with a little inflation (epsilon-inflation); a
+            # blanket widening of every axis feeds back through f and can diverge
+            span = nhi - nlo
+            pad = 0.1 * span + 1e-12 * (1.0 + np.abs(nlo) + np.abs(nhi))
+            lo = np.minimum(lo, nlo - pad)
+            hi = np.maximum(hi, nhi + pad)
         raise _EnclosureError
 
     def _f(self, lo, hi, i, ulo, uhi):
