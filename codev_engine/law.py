@@ -18,6 +18,12 @@ import numpy as np
 from .atomic import write_npz
 from .errors import SpecError
 from .locate import PointLocator, bounding_boxes
+from .npzfile import array as _array
+from .npzfile import names as _names
+from .npzfile import pair as _pair
+from .npzfile import read_npz
+from .npzfile import real as _real
+from .npzfile import text as _text
 from .polytope import Polytope
 
 __all__ = ["ExplicitLaw", "LAW_FORMAT"]
@@ -171,15 +177,7 @@ class ExplicitLaw:
     def load(cls, path: str | os.PathLike) -> ExplicitLaw:
         """Read a law written by ``save``; any malformed file raises ``SpecError``."""
         path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except FileNotFoundError:
-            raise SpecError("no such file", file=str(path)) from None
-        except Exception as exc:  # zip/npy errors of every kind: not a law file
-            raise SpecError(
-                f"not a readable law file ({exc.__class__.__name__})", file=str(path)
-            ) from None
+        data = read_npz(path, "law file")
         try:
             return cls._from_arrays(data)
         except SpecError as exc:
@@ -286,61 +284,3 @@ def _json_default(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     raise TypeError(type(obj).__name__)
-
-
-# ---- validation of law files ------------------------------------------------------------
-
-
-def _array(data: dict[str, np.ndarray], key: str) -> np.ndarray:
-    if key not in data:
-        raise SpecError("missing array", field=key)
-    return data[key]
-
-
-def _real(
-    data: dict[str, np.ndarray],
-    key: str,
-    *,
-    ndim: int | None = None,
-    shape: tuple[int, ...] | None = None,
-) -> np.ndarray:
-    """A finite real array (float or integer dtype) of the given ndim / shape, as float."""
-    arr = _array(data, key)
-    if arr.dtype.kind not in "fiu":
-        raise SpecError(f"must hold real numbers, got dtype {arr.dtype}", field=key)
-    if shape is not None and arr.shape != shape:
-        raise SpecError(f"must have shape {shape}, got {arr.shape}", field=key)
-    if ndim is not None and arr.ndim != ndim:
-        raise SpecError(f"must be {ndim}-dimensional, got shape {arr.shape}", field=key)
-    arr = arr.astype(float)
-    if not np.all(np.isfinite(arr)):
-        raise SpecError("non-finite numbers", field=key)
-    return arr
-
-
-def _text(data: dict[str, np.ndarray], key: str) -> str:
-    """A single string (0-d text array)."""
-    arr = _array(data, key)
-    if arr.dtype.kind != "U" or arr.ndim != 0:
-        raise SpecError(
-            f"must be a single string, got dtype {arr.dtype} shape {arr.shape}", field=key
-        )
-    return str(arr)
-
-
-def _names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str, ...]:
-    """A 1-D text array of ``count`` names (or none: unnamed); any count if ``None``."""
-    arr = _array(data, key)
-    if arr.ndim != 1 or (arr.dtype.kind != "U" and arr.size):
-        raise SpecError(
-            f"must be a list of names, got dtype {arr.dtype} shape {arr.shape}", field=key
-        )
-    if count is not None and arr.size not in (0, count):
-        raise SpecError(f"must have {count} names, got {arr.size}", field=key)
-    return tuple(str(s) for s in arr)
-
-
-def _pair(data: dict[str, np.ndarray], a: str, b: str) -> None:
-    """``a`` and ``b`` come together or not at all."""
-    if (a in data) != (b in data):
-        raise SpecError("missing array", field=b if a in data else a)

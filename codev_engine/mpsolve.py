@@ -29,14 +29,14 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import daqp
 import numpy as np
 
 from .errors import SolverError, SpecError
-from .locate import PointLocator
 from .mpprogram import MpProgram
+from .mpsolution import CriticalRegion, MpSolution
 from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp, vertices
 
 __all__ = ["CriticalRegion", "MpSolution", "mpsolve", "SolveOptions"]
@@ -66,89 +66,6 @@ class SolveOptions:
     lp_perturbation: float = 1e-5
     seed: int = 0
     max_regions: int = 200_000
-
-
-@dataclass(frozen=True)
-class CriticalRegion:
-    """A region ``{theta : A theta <= b}`` where ``z*(theta) = K theta + k``.
-
-    Attributes
-    ----------
-    A : (r, d) ndarray
-        Non-redundant, unit-norm rows.
-    b : (r,) ndarray
-    K : (nz, d) ndarray
-    k : (nz,) ndarray
-    active : tuple of int
-        The optimal active set (QP) or basis (LP), as row indices of the reduced program.
-    """
-
-    A: np.ndarray
-    b: np.ndarray
-    K: np.ndarray
-    k: np.ndarray
-    active: tuple[int, ...] = ()
-
-
-@dataclass
-class MpSolution:
-    """Explicit solution of an ``MpProgram``: a partition of its feasible parameter set.
-
-    Attributes
-    ----------
-    program : MpProgram
-    regions : list of CriticalRegion
-        In the original variables ``z`` (equalities eliminated internally are mapped back).
-    domain_A, domain_b : ndarray
-        The feasible parameter set (the union of the regions) as ``domain_A theta <=
-        domain_b``, non-redundant.
-    seconds : float
-        Wall time of the solve.
-    stats : dict
-        Counters (LPs solved, pieces, ...).
-    """
-
-    program: MpProgram
-    regions: list[CriticalRegion]
-    domain_A: np.ndarray | None = None
-    domain_b: np.ndarray | None = None
-    seconds: float = 0.0
-    stats: dict = field(default_factory=dict)
-    _locator: PointLocator | None = field(default=None, repr=False)
-
-    @property
-    def num_regions(self) -> int:
-        return len(self.regions)
-
-    @property
-    def locator(self) -> PointLocator:
-        if self._locator is None:
-            self._locator = PointLocator([r.A for r in self.regions], [r.b for r in self.regions])
-        return self._locator
-
-    def locate(self, Theta: np.ndarray) -> np.ndarray:
-        """Region index per row of ``Theta`` (P, d) -> (P,) int, -1 outside."""
-        return self.locator.locate(np.atleast_2d(np.asarray(Theta, dtype=float)))
-
-    def primal(self, Theta: np.ndarray) -> np.ndarray:
-        """Optimizer ``z*(theta)`` per row -> (P, nz), NaN outside the feasible set."""
-        Theta = np.atleast_2d(np.asarray(Theta, dtype=float))
-        idx = self.locate(Theta)
-        Z = np.full((Theta.shape[0], self.program.nz), np.nan)
-        if self.regions:
-            K = np.stack([r.K for r in self.regions])
-            k = np.stack([r.k for r in self.regions])
-            inside = idx >= 0
-            Z[inside] = np.einsum("pij,pj->pi", K[idx[inside]], Theta[inside]) + k[idx[inside]]
-        return Z
-
-    def value(self, Theta: np.ndarray) -> np.ndarray:
-        """Optimal value per row -> (P,), NaN outside the feasible set."""
-        Theta = np.atleast_2d(np.asarray(Theta, dtype=float))
-        Z = self.primal(Theta)
-        p = self.program
-        lin = p.c[None, :] + Theta @ p.C.T
-        return 0.5 * np.einsum("pi,ij,pj->p", Z, p.H, Z) + np.einsum("pi,pi->p", lin, Z)
 
 
 # --------------------------------------------------------------------------------------

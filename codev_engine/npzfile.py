@@ -1,0 +1,101 @@
+"""Reading ``.npz`` artifacts safely: no pickle, every array checked, errors name it.
+
+Writers live in ``atomic.py`` (temp file + rename). Readers call :func:`read_npz` and then
+the typed getters below, which raise ``SpecError`` naming the array (``field``) and what is
+wrong with it; the caller adds the file name.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SpecError
+
+__all__ = ["read_npz", "array", "real", "text", "names", "pair"]
+
+
+def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` file, loaded with ``allow_pickle=False``.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file should be ("law file", "tube file", ...), for the error message.
+
+    Raises
+    ------
+    SpecError
+        The file is missing or is not a readable npz (truncated, not a zip, object arrays).
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except FileNotFoundError:
+        raise SpecError("no such file", file=str(path)) from None
+    except IsADirectoryError:
+        raise SpecError(f"is a directory, not a {what}", file=str(path)) from None
+    except Exception as exc:  # zip/npy errors of every kind
+        raise SpecError(
+            f"not a readable {what} ({exc.__class__.__name__})", file=str(path)
+        ) from None
+
+
+def array(data: dict[str, np.ndarray], key: str) -> np.ndarray:
+    """The array ``key`` (``SpecError`` when missing)."""
+    if key not in data:
+        raise SpecError("missing array", field=key)
+    return data[key]
+
+
+def real(
+    data: dict[str, np.ndarray],
+    key: str,
+    *,
+    ndim: int | None = None,
+    shape: tuple[int, ...] | None = None,
+) -> np.ndarray:
+    """A finite real array (float or integer dtype) of the given ndim / shape, as float."""
+    arr = array(data, key)
+    if arr.dtype.kind not in "fiu":
+        raise SpecError(f"must hold real numbers, got dtype {arr.dtype}", field=key)
+    if shape is not None and arr.shape != shape:
+        raise SpecError(f"must have shape {shape}, got {arr.shape}", field=key)
+    if ndim is not None and arr.ndim != ndim:
+        raise SpecError(f"must be {ndim}-dimensional, got shape {arr.shape}", field=key)
+    arr = arr.astype(float)
+    if not np.all(np.isfinite(arr)):
+        raise SpecError("non-finite numbers (NaN or inf)", field=key)
+    return arr
+
+
+def text(data: dict[str, np.ndarray], key: str) -> str:
+    """A single string (0-d text array)."""
+    arr = array(data, key)
+    if arr.dtype.kind != "U" or arr.ndim != 0:
+        raise SpecError(
+            f"must be a single string, got dtype {arr.dtype} shape {arr.shape}", field=key
+        )
+    return str(arr)
+
+
+def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str, ...]:
+    """A 1-D text array of ``count`` names (or none: unnamed); any count if ``None``."""
+    arr = array(data, key)
+    if arr.ndim != 1 or (arr.dtype.kind != "U" and arr.size):
+        raise SpecError(
+            f"must be a list of names, got dtype {arr.dtype} shape {arr.shape}", field=key
+        )
+    if count is not None and arr.size not in (0, count):
+        raise SpecError(f"must have {count} names, got {arr.size}", field=key)
+    return tuple(str(s) for s in arr)
+
+
+def pair(data: dict[str, np.ndarray], a: str, b: str) -> None:
+    """``a`` and ``b`` come together or not at all."""
+    if (a in data) != (b in data):
+        raise SpecError("missing array", field=b if a in data else a)
