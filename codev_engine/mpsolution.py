@@ -176,10 +176,13 @@ class MpSolution:
             raise SpecError("not valid JSON", field="meta") from None
         if not isinstance(meta, dict):
             raise SpecError("must be a JSON object", field="meta")
+        for key in ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta"):
+            if key not in prog:
+                raise SpecError("missing array", field=f"program.{key}")
         try:
             program = MpProgram(**prog, name=str(meta.get("name", "")))
         except TypeError:
-            raise SpecError("missing or unknown program arrays", field="program") from None
+            raise SpecError("unknown program arrays", field="program") from None
         except SpecError as exc:
             raise SpecError(exc.reason, field=f"program.{exc.field}") from None
         d, nz = program.d, program.nz
