@@ -1,8 +1,9 @@
 """The ``codev`` command line: a thin shell over the engine.
 
-Exit status: 0 success (for ``verify``/``run``: robustly safe), 1 a verification outcome
-that is not a proof (unsafe or unknown), 2 bad input (one line on stderr: file, field,
-reason).
+Exit status: 0 success (for ``verify``/``run``: robustly safe), 1 an outcome that is not
+a success but not the input's fault either: a verification that is not a proof (unsafe or
+unknown), a solver breakdown (``SolverError``) or a ``--timeout`` reached; 2 bad input (one
+line on stderr: file, field, reason).
 """
 
 from __future__ import annotations
@@ -10,13 +11,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from .errors import CodevError
+from .errors import CodevError, SolverError, SpecError
 
 __all__ = ["main"]
 
@@ -167,6 +169,83 @@ def _cmd_verify(args: argparse.Namespace) -> int:
     return _verification(args, problem, law, synth_seconds)
 
 
+class _TimeLimitError(Exception):
+    """Raised (by SIGALRM) when ``--timeout`` seconds have passed."""
+
+
+@contextmanager
+def _time_limit(seconds: float | None) -> Iterator[None]:
+    """Interrupt the body after ``seconds`` of wall time (main thread, POSIX; else no limit)."""
+    if not seconds or not hasattr(signal, "setitimer"):
+        yield
+        return
+
+    def _expired(_signum, _frame):
+        raise _TimeLimitError
+
+    previous = signal.signal(signal.SIGALRM, _expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _cmd_mpsolve(args: argparse.Namespace) -> int:
+    from .mpprogram import MpProgram
+    from .mpsolve import mpsolve
+
+    if args.timeout is not None and not args.timeout > 0:
+        raise SpecError("must be a positive number of seconds", field="--timeout")
+    program = MpProgram.load(args.file)
+    try:
+        with (
+            _time_limit(args.timeout),
+            _progress(f"solving {program.name}", not args.json) as update,
+        ):
+            sol = mpsolve(program, progress=update)
+    except _TimeLimitError:
+        _err(f"{args.file}: no solution within the time limit ({args.timeout:g} s)")
+        return 1
+    except SolverError as exc:
+        _err(f"{args.file}: solver failed: {exc}")
+        return 1
+    except SpecError as exc:  # found by the solver (empty parameter set, unbounded, ...)
+        raise (exc if exc.file else exc.with_file(str(args.file))) from None
+    out = str(sol.save(args.out)) if args.out else None
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "name": program.name,
+                    "kind": program.kind,
+                    "nz": program.nz,
+                    "d": program.d,
+                    "regions": sol.num_regions,
+                    "seconds": round(sol.seconds, 6),
+                    "stats": {k: _jsonable(v) for k, v in sol.stats.items()},
+                    "out": out,
+                }
+            )
+        )
+        return 0
+    print(
+        f"{program.name}: {sol.num_regions} critical regions in {sol.seconds:.3f} s "
+        f"({program.kind}, nz={program.nz}, d={program.d})"
+    )
+    if out:
+        print(f"solution written to {out}")
+    return 0
+
+
+def _jsonable(v):
+    """Counters of ``stats`` as plain JSON numbers (numpy scalars included)."""
+    if hasattr(v, "item"):
+        v = v.item()
+    return v if isinstance(v, (int, float, str, bool, type(None))) else str(v)
+
+
 def _build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="codev",
@@ -194,6 +273,20 @@ def _build_parser() -> argparse.ArgumentParser:
         p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
         p.add_argument("--json", action="store_true", help="print a JSON summary only")
         p.set_defaults(func=_cmd_verify, law=None)
+
+    p = sub.add_parser(
+        "mpsolve", help="solve a multi-parametric LP/QP (.npz, the mp_testset convention)"
+    )
+    p.add_argument("file", metavar="FILE.npz", help="the program (arrays H, c, C, A, b, F, ...)")
+    p.add_argument("--out", metavar="SOLUTION.npz", help="write the explicit solution")
+    p.add_argument("--json", action="store_true", help="print a JSON summary only")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        metavar="S",
+        help="give up after S seconds of wall time (exit 1)",
+    )
+    p.set_defaults(func=_cmd_mpsolve)
     return parser
 
 
@@ -211,6 +304,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args))
+    except SolverError as exc:  # the engine's failure, not the input's
+        _err(str(exc))
+        return 1
     except CodevError as exc:
         _err(str(exc))
         return 2

@@ -33,16 +33,40 @@ def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
     """
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
+        z = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise SpecError("no such file", file=str(path)) from None
     except IsADirectoryError:
         raise SpecError(f"is a directory, not a {what}", file=str(path)) from None
-    except Exception as exc:  # zip/npy errors of every kind
+    except Exception as exc:  # not a zip / npy, or a pickle (refused)
         raise SpecError(
             f"not a readable {what} ({exc.__class__.__name__})", file=str(path)
         ) from None
+    if not isinstance(z, np.lib.npyio.NpzFile):  # a bare .npy array
+        raise SpecError(f"not a {what}: a single .npy array, not an .npz archive", file=str(path))
+    out: dict[str, np.ndarray] = {}
+    with z:
+        for k in z.files:
+            try:
+                out[k] = z[k]
+            except ValueError as exc:
+                if "pickle" in str(exc):  # an object array: never unpickled
+                    raise SpecError(
+                        "holds Python objects (pickled data), refused: must be a numeric "
+                        "or text array",
+                        file=str(path),
+                        field=k,
+                    ) from None
+                raise SpecError(
+                    f"unreadable array ({exc.__class__.__name__})", file=str(path), field=k
+                ) from None
+            except Exception as exc:  # a truncated / corrupt member
+                raise SpecError(
+                    f"unreadable array ({exc.__class__.__name__}): the {what} is damaged",
+                    file=str(path),
+                    field=k,
+                ) from None
+    return out
 
 
 def array(data: dict[str, np.ndarray], key: str) -> np.ndarray:

@@ -33,3 +33,21 @@ def example_law():
         return got
 
     return get
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    """Print the per-problem lines tests recorded with ``record_property("mp_testset", ...)``.
+
+    tests/engine/test_mp_testset.py records one line per problem (regions found, reference
+    count, time, verdict); they are listed, sorted, in an "mp_testset" section at the end.
+    """
+    lines: dict[str, str] = {}
+    for reports in terminalreporter.stats.values():
+        for rep in reports:
+            for key, value in getattr(rep, "user_properties", ()) or ():
+                if key == "mp_testset":
+                    lines[rep.nodeid] = str(value)
+    if lines:
+        terminalreporter.section("mp_testset: regions found (ref = reference count)")
+        for _, line in sorted(lines.items()):
+            terminalreporter.write_line(line)
