@@ -130,6 +130,10 @@ def explore_active_sets(
             tight = Ar @ centre - br >= -max(rho, 0.0) - 1e-7 * scale
             return "lower", None, None, src[tight]
         keep = minimal_rows(Ar, br)
+        # DAQP's minrep was seen dropping a parameter-set row that is not redundant
+        # (pop_mpqp_085: a region reaching theta_2 = 106 in a box of +-10); those rows
+        # are few and cheap to keep: every region stays inside the parameter set
+        keep = np.union1d(keep, np.flatnonzero(src == 0))
         # the neighbours: constraints of the facets, and of rows on a facet's hyperplane
         # (several constraints changing on one hyperplane: a degenerate facet)
         facets = np.hstack([Ar[keep], br[keep, None]])
@@ -189,50 +193,27 @@ def explore_active_sets(
 def _merge_equal_laws(
     regions: list[CriticalRegion], scale: float, stats: dict
 ) -> list[CriticalRegion]:
-    """One region per affine law.
+    """One region per affine law where the union is provably convex.
 
     Where LICQ fails on a full-dimensional set (more constraints tight than independent),
     several active sets give the same law on overlapping regions (the multipliers are not
-    unique). The set where one affine law is optimal is convex (a projection of the KKT
-    polyhedron), and it is the union of those regions, so it equals their envelope: the
-    rows of each member that hold on every other member.
+    unique). Regions with equal laws are merged pairwise while the union is convex
+    (``merge.merge_regions``, an exact envelope test), which removes the overlaps.
     """
-    from .polytope import solve_lp
+    from .merge import merge_regions
 
-    keys: dict[bytes, list[int]] = {}
-    for i, r in enumerate(regions):
-        key = np.round(np.hstack([r.K, r.k[:, None]]) / (1e-7 * max(scale, 1.0)), 0)
-        keys.setdefault(key.tobytes(), []).append(i)
-    out: list[CriticalRegion] = []
-    tol = 1e-9 * scale
-    for members in keys.values():
-        if len(members) == 1:
-            out.append(regions[members[0]])
-            continue
-        stats["merged_groups"] = stats.get("merged_groups", 0) + 1
-        rowsA, rowsb = [], []
-        for i in members:
-            P = regions[i]
-            for r in range(P.A.shape[0]):
-                ok = True
-                for j in members:
-                    if j == i:
-                        continue
-                    Q = regions[j]
-                    x, st, _ = solve_lp(-P.A[r], Q.A, Q.b)
-                    if st != "optimal" or P.A[r] @ x > P.b[r] + tol:
-                        ok = False
-                        break
-                if ok:
-                    rowsA.append(P.A[r])
-                    rowsb.append(P.b[r])
-        EA, Eb = np.array(rowsA), np.array(rowsb)
-        keep = minimal_rows(EA, Eb)
-        first = regions[members[0]]
-        out.append(
-            CriticalRegion(A=EA[keep], b=Eb[keep], K=first.K, k=first.k, active=first.active)
-        )
-    return out
+    keys = [
+        np.round(np.hstack([r.K, r.k[:, None]]) / (1e-7 * max(scale, 1.0)), 0).tobytes()
+        for r in regions
+    ]
+    if len(set(keys)) == len(keys):
+        return regions
+    As, bs, src = merge_regions([r.A for r in regions], [r.b for r in regions], keys)
+    stats["merged"] = len(regions) - len(As)
+    return [
+        CriticalRegion(A=a, b=b, K=regions[i].K, k=regions[i].k, active=regions[i].active)
+        for a, b, i in zip(As, bs, src, strict=True)
+    ]
 
 
 def _active_set_at(H, c, C, G, w, S, theta) -> tuple[int, ...]:
