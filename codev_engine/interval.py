@@ -11,7 +11,7 @@ over boxes. This module provides
   evaluating it is a loop of numpy calls, batched over boxes;
 - :func:`plant_enclosures`: the compiled ``f``, ``df/dx``, ``df/du`` of a plant.
 
-A compiled function evaluates one box (or each box of a batch of at most 16) with scalar
+A compiled function evaluates one box (or each box of a batch of at most 6) with scalar
 kernels on Python floats (``math``), about 0.5 us per operation, and larger batches with the
 array kernels (numpy), about 1 us per box for a cart-pole Jacobian. The two kernel sets
 implement the same formulas with the same margins.
@@ -98,6 +98,7 @@ __all__ = [
     "IntervalDomainError",
     "IntervalFunction",
     "PlantEnclosures",
+    "plant_hessian",
     "abs_",
     "acos",
     "asin",
@@ -164,7 +165,7 @@ _INV_2PI = 1.0 / (2.0 * math.pi)
 _INV_PI = 1.0 / math.pi
 _TRIG_MARGIN = 1e-9  # periods; >> the error of x/(2 pi) for |x| <= _TRIG_BIG
 _TRIG_BIG = 1e6  # beyond this |argument|, sin/cos give [-1, 1] and tan raises
-_SCALAR_MAX_BATCH = 16  # batches up to this size are evaluated box by box on Python floats
+_SCALAR_MAX_BATCH = 6  # batches up to this size are evaluated box by box on Python floats
 
 
 def _dn(x: Any) -> Any:
@@ -1261,7 +1262,7 @@ class IntervalFunction:
 
     Notes
     -----
-    A finite box, and each box of a batch of at most 16, is evaluated with scalar kernels on
+    A finite box, and each box of a batch of at most 6, is evaluated with scalar kernels on
     Python floats (``math``); larger batches with the array kernels (numpy). Both implement
     the same operations with the same margins. The scalar run falls back to the array
     kernels when a bound overflows or is infinite.
@@ -1587,3 +1588,27 @@ def plant_enclosures(problem_or_plant: Problem | PlantSpec) -> PlantEnclosures:
         jac_x_fn=compile_interval(sym.Jx, args),
         jac_u_fn=compile_interval(sym.Ju, args),
     )
+
+
+def plant_hessian(problem_or_plant: Problem | PlantSpec) -> IntervalFunction:
+    """Compile an interval enclosure of the second derivatives of a plant's ``f``.
+
+    Returns
+    -------
+    IntervalFunction
+        Over the symbols ``(*x, *u)`` (boxes of length ``k = n + m``); the output is the flat
+        list of ``d^2 f_i / dz_a dz_b`` (``z = (x, u)``) in the order ``(i, a, b)``, so it
+        reshapes to ``(n, k, k)`` (``(P, n, k, k)`` for a batch).
+
+    Notes
+    -----
+    For a non-smooth ``f`` the second derivatives hold ``DiracDelta`` terms, whose enclosure is
+    ``[0, inf]`` (or ``[-inf, inf]``) over a box meeting the kink: the bound then becomes
+    infinite, which callers must treat as "no second-order bound".
+    """
+    from .plant import symbolic_model
+
+    sym = symbolic_model(problem_or_plant)
+    args = (*sym.x, *sym.u)
+    exprs = [sympy.diff(fi, za, zb) for fi in sym.f for za in args for zb in args]
+    return compile_interval(exprs, args)

@@ -26,6 +26,7 @@ from codev_engine.interval import (
     IntervalDomainError,
     compile_interval,
     plant_enclosures,
+    plant_hessian,
 )
 from codev_engine.plant import numeric_dynamics
 from codev_engine.spec import load_spec, loads_spec
@@ -66,7 +67,8 @@ def samples(lo: np.ndarray, hi: np.ndarray, rng, n: int = 1000) -> np.ndarray:
 
 
 def on_arrays(f, lo, hi):
-    """Evaluate one box with the array kernels (batches of more than 16 boxes use them)."""
+    """Evaluate one box with the array kernels (larger batches than _SCALAR_MAX_BATCH use
+    them)."""
     n = iv._SCALAR_MAX_BATCH + 1
     lo, hi = f(np.tile(np.asarray(lo, float), (n, 1)), np.tile(np.asarray(hi, float), (n, 1)))
     return lo[0], hi[0]
@@ -511,7 +513,7 @@ def test_point_boxes_exact_elementary(text, dom):
     f = compile_interval([expr], SYMS)
     rng = np.random.default_rng(len(text))
     pts = rng.uniform(*dom, (40, 3))
-    batch = f(pts, pts)  # more than 16 boxes: array kernels
+    batch = f(pts, pts)  # more than _SCALAR_MAX_BATCH boxes: array kernels
     for i, p in enumerate(pts):
         v = exact(expr, p)
         for elo, ehi in (f(p, p), (batch[0][i], batch[1][i])):
@@ -703,6 +705,34 @@ def test_plant_enclosures_contain_samples(source):
         np.testing.assert_allclose(single[0], Jx[0][p], rtol=1e-13, atol=1e-13)
     with pytest.raises(ValueError, match="xlo"):
         enc.f(np.zeros(n + 1), np.zeros(n + 1), ulo, uhi)
+
+
+@pytest.mark.parametrize("source", ["cartpole", "pendulum.toml", "vanderpol.toml", "tora.toml"])
+def test_plant_hessian_contains_samples(source):
+    """The second derivatives of f (the nonlinear verifier's second-order remainder) are
+    enclosed over random boxes: compared with sympy's derivatives at sampled points."""
+    problem = loads_spec(CARTPOLE) if source == "cartpole" else load_spec(EXAMPLES / source)
+    from codev_engine.plant import symbolic_model
+
+    sym = symbolic_model(problem)
+    args = (*sym.x, *sym.u)
+    n, k = len(sym.x), len(args)
+    exact = sympy.lambdify(
+        args, [sympy.diff(fi, a, b) for fi in sym.f for a in args for b in args], "numpy"
+    )
+    H = plant_hessian(problem)
+    rng = np.random.default_rng(4)
+    P = 12
+    zc = rng.uniform(-2, 2, (P, k))
+    zr = 10.0 ** rng.uniform(-4, 0, (P, k))
+    lo, hi = H(zc - zr, zc + zr)
+    assert lo.shape == (P, n * k * k)
+    for p in range(P):
+        t = rng.random((200, k))
+        zs = np.vstack([zc[p] - zr[p] + 2 * zr[p] * t, zc[p] - zr[p], zc[p] + zr[p]])
+        vals = np.array([np.broadcast_to(v, zs.shape[:1]) for v in exact(*zs.T)]).T
+        tol = 1e-12 * (1 + np.abs(vals))
+        assert np.all(lo[p] - tol <= vals) and np.all(vals <= hi[p] + tol)
 
 
 def test_performance_report():
