@@ -38,7 +38,7 @@ from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
 from .mpqp import explore_active_sets
 from .mpsolution import CriticalRegion, MpSolution
-from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp, vertices
 
 __all__ = ["CriticalRegion", "MpSolution", "mpsolve", "SolveOptions"]
 
@@ -179,6 +179,7 @@ class _Explorer:
             self.c_pert = red.c + opts.lp_perturbation * self.cmag * self.pert
         self.regions: list[CriticalRegion] = []
         self.boundary: list[np.ndarray] = []  # facets beyond which the program is infeasible
+        self._verts: list[np.ndarray | None] = []
         self._done: list[np.ndarray] = []  # per region: facets already known to be covered
         # all regions' rows, contiguous per region, in growing buffers (for _find)
         self._bufA = np.zeros((1024, self.d))
@@ -476,6 +477,7 @@ class _Explorer:
 
     def _add(self, reg: CriticalRegion) -> int:
         self.regions.append(reg)
+        self._verts.append(vertices(reg.A, reg.b, tol=self.touch_tol))
         self._done.append(np.zeros(reg.A.shape[0], dtype=bool))
         k = reg.A.shape[0]
         if self._nrows + k > self._bufA.shape[0]:
@@ -530,253 +532,135 @@ class _Explorer:
                     queue.append(new)
         return self.regions
 
-    # ---- coverage of a facet, by recursion on faces --------------------------------------
-
-    def _cover_facet(self, i: int, j: int) -> list[int]:
-        """Make sure every point of facet j of region i has a region on its other side.
-
-        Returns the indices of regions found on the way (to be explored in turn).
-        """
-        reg = self.regions[i]
-        a, beta = reg.A[j], reg.b[j]
-        others = np.delete(np.arange(reg.A.shape[0]), j)
-        face = _Face.make(a[None, :], np.array([beta]), reg.A[others], reg.b[others], [a])
-        self._new: list[int] = []
-        self._budget = 20_000
-        tiles = self._cover(face, [face], level=1, owner=(i, j))
-        if tiles is None:  # the facet lies on the boundary of the feasible set
-            self.boundary.append(np.concatenate([a, [beta]]))
-        return self._new
-
-    def _cover(self, face: _Face, chain: list[_Face], level: int, owner) -> list[int] | None:
-        """Regions ("tiles") that together cover ``face`` from its far side.
-
-        ``face`` is a polytope of dimension d - L inside the hyperplanes h_1..h_L
-        (``face.E``); its far side is reached by stepping along ``face.dirs`` (h_L's outward
-        direction first, then tinier steps off h_{L-1}, ..., h_1). A tile is a region whose
-        trace on each face of the chain is full-dimensional there. The tiles are collected
-        by a breadth-first search over the face: a tile's facets inside the face are faces
-        one dimension lower, covered recursively; their tiles are tiles of this face too.
-        The union of the tiles has no relative boundary inside the face, so it is the face.
-
-        Returns None at level 1 when the program is infeasible across the face (the facet
-        is on the feasible-set boundary).
-        """
-        first = self._tile_at(face, chain, level)
-        if first is None:
+    def _facet_vertices(self, i: int, j: int) -> np.ndarray | None:
+        V = self._verts[i]
+        if V is None:
             return None
-        if first < 0:
-            return []  # out of the parameter set, or numerically flat: nothing to cover
-        if self._face_in(face, self.regions[first]):
-            if level == 1:
-                self._mark_twin(owner, first)
-            return [first]
-        tiles = [first]
-        seen = {first}
-        queue = deque([first])
-        while queue:
-            k = queue.popleft()
-            Rk = self.regions[k]
-            # the tile's trace on the face and its facets inside the face's relative interior
-            PA = np.vstack([face.A, Rk.A])
-            Pb = np.concatenate([face.b, Rk.b])
-            for r in range(Rk.A.shape[0]):
-                row, rhs = Rk.A[r], Rk.b[r]
-                t = face.project(row)
-                tn = np.linalg.norm(t)
-                if tn <= 1e-9:
-                    continue  # parallel to the face: not a facet inside it
-                sub = _Face.make(
-                    np.vstack([face.E, row[None, :]]),
-                    np.concatenate([face.e, [rhs]]),
-                    np.delete(PA, face.A.shape[0] + r, axis=0),
-                    np.delete(Pb, face.A.shape[0] + r),
-                    [t / tn] + face.dirs,
-                )
-                _, rho = chebyshev_ball(sub.A, sub.b, sub.E, sub.e)
-                if not rho > self.region_tol:
-                    continue  # not a facet of the trace, or on the face's boundary
-                if any(k2 != k and self._face_in(sub, self.regions[k2]) for k2 in tiles):
-                    continue  # another tile of this face lies across it already
-                if level + 1 >= self.d:
-                    # a point: covered by the single region found across it
-                    found = self._cover_point(sub, chain + [sub], level + 1)
-                else:
-                    found = self._cover(sub, chain + [sub], level + 1, None) or []
-                for k2 in found:
-                    if k2 not in seen:
-                        seen.add(k2)
-                        tiles.append(k2)
-                        queue.append(k2)
-                self._budget -= 1
-                if self._budget <= 0:
-                    raise SolverError("facet coverage did not converge (too many faces)")
-        return tiles
+        reg = self.regions[i]
+        Vf = V[np.abs(V @ reg.A[j] - reg.b[j]) <= self.touch_tol]
+        # a facet of a d-dimensional polytope has >= d vertices spanning d-1 dimensions;
+        # anything less means the enumeration lost a vertex: do not trust it
+        if Vf.shape[0] < self.d:
+            return None
+        if self.d > 1 and np.linalg.matrix_rank(Vf[1:] - Vf[0], tol=self.touch_tol) < self.d - 1:
+            return None
+        return Vf
 
-    def _cover_point(self, face: _Face, chain: list[_Face], level: int) -> list[int]:
-        k = self._tile_at(face, chain, level)
-        return [k] if k is not None and k >= 0 else []
+    def _covers_whole_facet(self, i: int, j: int, k: int) -> bool:
+        """Does region k contain all of facet j of region i (vertex test)?
 
-    def _tile_at(self, face: _Face, chain: list[_Face], level: int) -> int | None:
-        """The region across ``face`` at its Chebyshev centre.
-
-        Returns its index; None when the program is infeasible across (level 1 only:
-        beyond a relative-interior point of a facet, infeasibility means the facet
-        supports the convex feasible set); -1 when the face is numerically flat or the
-        step leaves the parameter set.
+        When it does and k has the opposite facet, that facet of k is covered by region i
+        as soon as its vertices lie in region i: mark it so it is not explored twice.
         """
-        p, rho = chebyshev_ball(face.A, face.b, face.E, face.e)
-        if not rho > self.region_tol and face.E.shape[0] < self.d:
-            self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
-            return -1
-        rho = max(rho, 0.0)
-        self.stats["pieces"] += 1
-        base = min(self.step, 0.5 * rho) if face.E.shape[0] < self.d else self.step
-        tried: set[int] = set()
-        # lexicographic steps: across h_L by eps, then ratio*eps across h_{L-1}, ... A region
-        # that is not a tile (a wedge touching the face from beyond an earlier hyperplane)
-        # calls for a smaller ratio; a thinner region in between calls for a smaller eps.
-        for eps, ratio in (
-            (base, 1e-2),
-            (0.1 * base, 1e-2),
-            (base, 1e-4),
-            (0.01 * base, 1e-3),
-            (min(1e3 * base, 0.5 * rho), 1e-5),
-            (0.001 * base, 1e-4),
-            (min(1e4 * base, 0.5 * rho), 1e-6),
-            (1e-4 * base, 1e-2),
-        ):
-            q = p.copy()
-            size = eps
-            for direction in face.dirs:
-                q = q + size * direction
-                size *= ratio
-            if not self._in_theta(q):
-                if level == 1:
-                    return -1
-                continue
-            k = self._find(q, 1e-12 * self.scale)
-            if k < 0:
-                try:
-                    nreg = self._region_at(q, 0.01 * size)
-                except _NoRegionError:
-                    continue
-                if nreg is None:
-                    if level == 1 and len(face.dirs) == 1:
-                        return None
-                    self.stats["step_refinements"] += 1
-                    continue
-                k = self._add(nreg)
-                self._new.append(k)
-            if k not in tried:
-                tried.add(k)
-                if self._is_tile(k, p, chain):
-                    return k
-            self.stats["step_refinements"] += 1
-        # every region known to touch p (found from elsewhere) is a candidate too
-        viol = self._bufA[: self._nrows] @ p - self._bufb[: self._nrows] > self.touch_tol
-        counts = np.add.reduceat(viol.astype(np.int32), self._starts)
-        for k in np.flatnonzero(counts == 0):
-            if int(k) not in tried and self._is_tile(int(k), p, chain):
-                return int(k)
-        self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
-        raise SolverError(
-            f"could not step across a face of dimension {self.d - face.E.shape[0]} "
-            "(numerical trouble)"
-        )
-
-    def _is_tile(self, k: int, p: np.ndarray, chain: list[_Face]) -> bool:
-        """Does region k touch p and have a full-dimensional trace on every chain face?"""
-        R = self.regions[k]
-        if not np.all(R.A @ p - R.b <= self.touch_tol):
+        Vf = self._facet_vertices(i, j)
+        if Vf is None or Vf.shape[0] == 0:
             return False
-        for f in chain:
-            if f.E.shape[0] >= self.d:
-                continue  # a point: touching it is all there is
-            _, common = chebyshev_ball(np.vstack([f.A, R.A]), np.concatenate([f.b, R.b]), f.E, f.e)
-            if not common > self.region_tol:
-                return False
-        return True
-
-    def _face_in(self, face: _Face, R: CriticalRegion) -> bool:
-        """Is the whole face inside region R?  Rows of R that restrict to a row of the face
-        (same hyperplane inside the face's affine hull) hold on it; the others by LP."""
-        Vn, beta = face.restrict(R.A, R.b)
-        Fn, fb = face.restricted_rows()
-        for r in range(R.A.shape[0]):
-            nrm = np.linalg.norm(Vn[r])
-            if nrm <= 1e-12:
-                if beta[r] < -self.touch_tol:
-                    return False
-                continue
-            u, ub = Vn[r] / nrm, beta[r] / nrm
-            if Fn.shape[0]:
-                hit = (np.abs(Fn - u).max(axis=1) <= 1e-9) & (fb <= ub + self.touch_tol)
-                if np.any(hit):
-                    continue
-            x, st, _ = solve_lp(-R.A[r], face.A, face.b, face.E, face.e)
-            if st != "optimal" or R.A[r] @ x - R.b[r] > self.touch_tol:
-                return False
-        return True
-
-    def _mark_twin(self, owner, k: int) -> None:
-        """Facet j of region i lies inside region k: if k's opposite facet on the same
-        hyperplane lies inside region i, that facet is covered too (skip it later)."""
-        i, j = owner
-        reg, Rk = self.regions[i], self.regions[k]
+        Rk = self.regions[k]
+        if not np.all(Vf @ Rk.A.T - Rk.b <= self.touch_tol):
+            return False
+        reg = self.regions[i]
         match = np.flatnonzero(
             (np.abs(Rk.A @ reg.A[j] + 1.0) <= 1e-9) & (np.abs(Rk.b + reg.b[j]) <= self.touch_tol)
         )
         for r in match:
-            if self._done[k][r]:
-                continue
-            others = np.delete(np.arange(Rk.A.shape[0]), r)
-            twin = _Face.make(Rk.A[r][None, :], Rk.b[r : r + 1], Rk.A[others], Rk.b[others], [])
-            if self._face_in(twin, reg):
+            Vk = self._facet_vertices(k, r)
+            if Vk is not None and Vk.shape[0] and np.all(Vk @ reg.A.T - reg.b <= self.touch_tol):
                 self._done[k][r] = True
+        return True
 
-
-@dataclass
-class _Face:
-    """``{theta : E theta = e, A theta <= b}`` with step directions ``dirs`` (see _cover).
-
-    ``V`` is an orthonormal basis of the null space of E and ``t0`` a point of the affine
-    hull, for restricting rows to the face's affine hull.
-    """
-
-    E: np.ndarray
-    e: np.ndarray
-    A: np.ndarray
-    b: np.ndarray
-    dirs: list
-    V: np.ndarray
-    t0: np.ndarray
-    _rows: tuple | None = None
-
-    @staticmethod
-    def make(E, e, A, b, dirs) -> _Face:
-        _, s, Vt = np.linalg.svd(E)
-        rank = int(np.sum(s > 1e-12))
-        V = Vt[rank:].T
-        t0 = np.linalg.lstsq(E, e, rcond=None)[0]
-        return _Face(E=E, e=e, A=A, b=b, dirs=list(dirs), V=V, t0=t0)
-
-    def project(self, row: np.ndarray) -> np.ndarray:
-        """The component of ``row`` inside the face's affine hull (a d-vector)."""
-        return self.V @ (self.V.T @ row)
-
-    def restrict(self, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rows ``A theta <= b`` in the face's coordinates ``theta = t0 + V y``."""
-        return A @ self.V, b - A @ self.t0
-
-    def restricted_rows(self) -> tuple[np.ndarray, np.ndarray]:
-        """The face's own rows, restricted and normalised (rows parallel to it dropped)."""
-        if self._rows is None:
-            An, bn = self.restrict(self.A, self.b)
-            nrm = np.linalg.norm(An, axis=1)
-            ok = nrm > 1e-12
-            self._rows = (An[ok] / nrm[ok, None], bn[ok] / nrm[ok])
-        return self._rows
+    def _cover_facet(self, i: int, j: int) -> list[int]:
+        """Make sure every point of facet j of region i has a region on its other side."""
+        reg = self.regions[i]
+        a, beta = reg.A[j], reg.b[j]
+        others = np.delete(np.arange(reg.A.shape[0]), j)
+        baseA, baseb = reg.A[others], reg.b[others]
+        new_regions: list[int] = []
+        # a piece: extra rows (EA, Eb), a step scale, and its Chebyshev ball if known
+        pieces: list = [(np.zeros((0, self.d)), np.zeros(0), 1.0, None)]
+        budget = 2000
+        whole = True  # the first piece is the whole facet
+        while pieces and budget:
+            budget -= 1
+            EA, Eb, scale, ball = pieces.pop()
+            self.stats["pieces"] += 1
+            if ball is None:
+                PA = np.vstack([baseA, EA])
+                Pb = np.concatenate([baseb, Eb])
+                ball = chebyshev_ball(PA, Pb, a[None, :], np.array([beta]))
+            p, rho = ball
+            if not rho > self.region_tol:
+                continue
+            if scale < 1e-6:
+                self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
+                continue
+            eps = min(self.step, 0.5 * rho) * scale
+            target = -1
+            for _ in range(6):
+                q = p + eps * a
+                if not self._in_theta(q):
+                    target = -2
+                    break
+                k = self._find(q, 1e-12 * self.scale)
+                if k < 0:
+                    try:
+                        nreg = self._region_at(q, 0.1 * eps)
+                    except _NoRegionError:
+                        # only regions thinner than region_tol live here: a numerically
+                        # flat piece; counted and reported, never silently
+                        self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
+                        target = -3
+                        break
+                    if nreg is None:
+                        target = -2  # infeasible beyond: this facet is on the boundary
+                        break
+                    k = self._add(nreg)
+                    new_regions.append(k)
+                R2 = self.regions[k]
+                if np.all(R2.A @ p - R2.b <= self.touch_tol):
+                    target = k
+                    break
+                eps *= 0.1  # a thinner region lies in between: step closer
+                self.stats["step_refinements"] += 1
+            if target == -3:
+                continue
+            if target == -2:
+                if not self._in_theta(q):
+                    continue
+                # whole facet is on the feasible-set boundary: it supports the domain
+                self.boundary.append(np.concatenate([a, [beta]]))
+                return new_regions
+            if target < 0:
+                raise SolverError("could not step across a facet (numerical trouble)")
+            if whole and self._covers_whole_facet(i, j, target):
+                return new_regions  # neighbour meets this facet facet-to-facet (or more)
+            whole = False
+            # subtract R2 from the piece, inside the facet's hyperplane
+            R2 = self.regions[target]
+            tang = R2.A - np.outer(R2.A @ a, a)
+            cut = np.linalg.norm(tang, axis=1) > 1e-9
+            prevA = np.zeros((0, self.d))
+            prevb = np.zeros(0)
+            # progress needs R2 to cover a relative-interior ball of the piece; when R2 only
+            # touches the piece (at p, in a lower-dimensional set), step again, closer
+            _, common = chebyshev_ball(
+                np.vstack([baseA, EA, R2.A]),
+                np.concatenate([baseb, Eb, R2.b]),
+                a[None, :],
+                np.array([beta]),
+            )
+            if not common > self.region_tol:
+                self.stats["step_refinements"] += 1
+                pieces.append((EA, Eb, scale * 0.1, ball))
+                continue
+            for row, rhs in zip(R2.A[cut], R2.b[cut], strict=True):
+                nEA = np.vstack([EA, prevA, -row[None, :]])
+                nEb = np.concatenate([Eb, prevb, [-rhs]])
+                pieces.append((nEA, nEb, 1.0, None))
+                prevA = np.vstack([prevA, row[None, :]])
+                prevb = np.concatenate([prevb, [rhs]])
+        if budget == 0:
+            raise SolverError("facet coverage did not converge (too many pieces)")
+        return new_regions
 
 
 def _complete_basis(G, act, tight, n):
