@@ -28,7 +28,7 @@ from scipy.linalg import cho_solve
 
 from .errors import SolverError
 from .mpsolution import CriticalRegion
-from .polytope import minimal_rows
+from .polytope import chebyshev_ball, minimal_rows
 
 __all__ = ["explore_active_sets"]
 
@@ -122,7 +122,7 @@ def explore_active_sets(
             return "empty", None, None, None
         Ar, br, src = Ar[~zero] / norms[~zero, None], br[~zero] / norms[~zero], src[~zero]
         stats["lps"] = stats.get("lps", 0) + 1
-        centre, rho = _chebyshev(Ar, br)
+        centre, rho = chebyshev_ball(Ar, br)
         if not rho >= -nonempty_tol:
             return "empty", None, None, None
         if not rho > region_tol:
@@ -233,40 +233,3 @@ def _active_set_at(H, c, C, G, w, S, theta) -> tuple[int, ...]:
         raise SolverError(f"could not solve the QP at the start parameter (DAQP flag {flag})")
     lam = np.asarray(info["lam"])
     return tuple(int(i) for i in np.flatnonzero(lam > 0))
-
-
-def _chebyshev(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
-    """Centre and radius of the largest ball in ``{A x <= b}`` (rows unit norm); the
-    radius is negative when the set is empty.
-
-    The hot loop's LP, straight to DAQP (variables ``(x, r)``, ``A x + r <= b``, ``r <= 1``
-    so that unbounded sets give a finite answer).
-    """
-    k, d = A.shape
-    M = np.empty((k + 1, d + 1))
-    M[:k, :d] = A
-    M[:k, d] = 1.0
-    M[k] = 0.0
-    M[k, d] = 1.0
-    upper = np.empty(k + 1)
-    upper[:k] = b
-    upper[k] = 1e6
-    f = np.zeros(d + 1)
-    f[d] = -1.0
-    x, _, flag, _ = daqp.solve(
-        np.zeros((d + 1, d + 1)),
-        f,
-        M,
-        upper,
-        np.full(k + 1, -1e30),
-        np.zeros(k + 1, dtype=np.int32),
-        eps_prox=1e-2,
-        primal_tol=1e-11,
-        dual_tol=1e-12,
-    )
-    if flag == 1:
-        return np.asarray(x[:d]), float(x[d])
-    from .polytope import chebyshev_ball
-
-    c, r = chebyshev_ball(A, b)
-    return c, float(r)

@@ -197,13 +197,20 @@ def chebyshev_ball(
         norms = np.linalg.norm(proj, axis=1)
     else:
         norms = np.linalg.norm(A, axis=1)
-    Ab = np.hstack([A, norms[:, None]])
+    # variables (x, r): A x + |a| r <= b, and the cap r <= _RADIUS_CAP as one more row (not
+    # as variable bounds, which would add d + 1 rows to every one of these hot-path LPs)
+    k = A.shape[0]
+    Ab = np.zeros((k + 1, d + 1))
+    Ab[:k, :d] = A
+    Ab[:k, d] = norms
+    Ab[k, d] = 1.0
+    bb = np.empty(k + 1)
+    bb[:k] = b
+    bb[k] = _RADIUS_CAP
     f = np.zeros(d + 1)
     f[-1] = -1.0
-    ub = np.full(d + 1, np.inf)
-    ub[-1] = _RADIUS_CAP
     Aeq_b = None if Aeq is None else np.hstack([Aeq, np.zeros((Aeq.shape[0], 1))])
-    x, status, _ = solve_lp(f, Ab, b, Aeq_b, beq, ub=ub)
+    x, status, _ = solve_lp(f, Ab, bb, Aeq_b, beq)
     if status != "optimal" or x is None:
         return np.full(d, np.nan), -np.inf
     return x[:d], float(x[d])
