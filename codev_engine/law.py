@@ -18,10 +18,9 @@ import numpy as np
 from .atomic import write_npz
 from .errors import SpecError
 from .locate import PointLocator, bounding_boxes
-from .npzfile import array as _array
+from .npzfile import load_checked, offsets
 from .npzfile import names as _names
 from .npzfile import pair as _pair
-from .npzfile import read_npz
 from .npzfile import real as _real
 from .npzfile import text as _text
 from .polytope import Polytope
@@ -176,12 +175,7 @@ class ExplicitLaw:
     @classmethod
     def load(cls, path: str | os.PathLike) -> ExplicitLaw:
         """Read a law written by ``save``; any malformed file raises ``SpecError``."""
-        path = Path(path)
-        data = read_npz(path, "law file")
-        try:
-            return cls._from_arrays(data)
-        except SpecError as exc:
-            raise exc.with_file(str(path)) from None
+        return load_checked(path, "law file", cls._from_arrays)
 
     @classmethod
     def _from_arrays(cls, data: dict[str, np.ndarray]) -> ExplicitLaw:
@@ -202,17 +196,7 @@ class ExplicitLaw:
         if k and A.shape[1] != n:
             raise SpecError(f"has {A.shape[1]} columns, F has {n}", field="A")
         b = _real(data, "b", shape=(A.shape[0],))
-        off = _array(data, "offsets")
-        if off.dtype.kind not in "iu":
-            raise SpecError(f"must be integers, got dtype {off.dtype}", field="offsets")
-        if off.shape != (k + 1,):
-            raise SpecError(f"must have shape ({k + 1},), got {off.shape}", field="offsets")
-        rows = A.shape[0]
-        if np.any(off < 0) or np.any(off > rows):
-            raise SpecError(f"must lie in [0, {rows}]", field="offsets")
-        off = off.astype(np.int64)
-        if off[0] != 0 or off[-1] != rows or np.any(np.diff(off) < 0):
-            raise SpecError(f"must increase from 0 to {rows} (the rows of A)", field="offsets")
+        off = offsets(data, "offsets", k, A.shape[0])
         states = _names(data, "states", n if k else None)
         inputs = _names(data, "inputs", m if k else None)
         cols = n if k else None  # the columns of domain_A and the boxes (any: no regions)

@@ -23,7 +23,7 @@ import numpy as np
 
 from .atomic import write_npz
 from .errors import SpecError
-from .npzfile import read_npz, real
+from .npzfile import load_checked, real
 
 __all__ = ["MpProgram"]
 
@@ -101,16 +101,15 @@ class MpProgram:
         SpecError
             Naming the file, the array and the reason.
         """
-        path = Path(path)
-        data = read_npz(path, "program file (.npz)")
-        try:
-            arrays = {k: data[k] for k in _ARRAYS + _EQ if k in data}
+        name = Path(path).stem
+
+        def build(data: dict) -> MpProgram:
             missing = [k for k in _ARRAYS if k not in data]
             if missing:
                 raise SpecError("missing array", field=missing[0])
-            return cls(**arrays, name=path.stem)
-        except SpecError as exc:
-            raise exc.with_file(str(path)) from None
+            return cls(**{k: data[k] for k in _ARRAYS + _EQ if k in data}, name=name)
+
+        return load_checked(path, "program file (.npz)", build)
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the program as an ``.npz`` in the same convention, atomically."""

@@ -18,7 +18,7 @@ from .atomic import write_npz
 from .errors import SpecError
 from .locate import PointLocator
 from .mpprogram import MpProgram
-from .npzfile import array, read_npz, real, text
+from .npzfile import array, load_checked, offsets, real, text
 
 __all__ = ["CriticalRegion", "MpSolution", "SOLUTION_FORMAT"]
 
@@ -157,12 +157,7 @@ class MpSolution:
     @classmethod
     def load(cls, path: str | os.PathLike) -> MpSolution:
         """Read a solution written by ``save``; a malformed file raises ``SpecError``."""
-        path = Path(path)
-        data = read_npz(path, "solution file")
-        try:
-            return cls._from_arrays(data)
-        except SpecError as exc:
-            raise exc.with_file(str(path)) from None
+        return load_checked(path, "solution file", cls._from_arrays)
 
     @classmethod
     def _from_arrays(cls, data: dict[str, np.ndarray]) -> MpSolution:
@@ -195,11 +190,11 @@ class MpSolution:
         if A.shape[1] != d:
             raise SpecError(f"must have {d} columns, got {A.shape}", field="A")
         b = real(data, "b", shape=(A.shape[0],))
-        off = _offsets(data, "offsets", R, A.shape[0])
+        off = offsets(data, "offsets", R, A.shape[0])
         act = array(data, "active")
         if act.dtype.kind not in "iu" or act.ndim != 1:
             raise SpecError("must be a 1-D integer array", field="active")
-        aoff = _offsets(data, "active_offsets", R, act.shape[0])
+        aoff = offsets(data, "active_offsets", R, act.shape[0])
         dA = real(data, "domain_A", ndim=2)
         if dA.shape[1] != d:
             raise SpecError(f"must have {d} columns, got {dA.shape}", field="domain_A")
@@ -221,15 +216,3 @@ class MpSolution:
             domain_b=db,
             seconds=float(meta.get("seconds", 0.0)),
         )
-
-
-def _offsets(data: dict[str, np.ndarray], key: str, count: int, rows: int) -> np.ndarray:
-    off = array(data, key)
-    if off.dtype.kind not in "iu":
-        raise SpecError(f"must be integers, got dtype {off.dtype}", field=key)
-    if off.shape != (count + 1,):
-        raise SpecError(f"must have shape ({count + 1},), got {off.shape}", field=key)
-    off = off.astype(np.int64)
-    if off[0] != 0 or off[-1] != rows or np.any(np.diff(off) < 0):
-        raise SpecError(f"must increase from 0 to {rows}", field=key)
-    return off

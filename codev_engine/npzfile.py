@@ -8,13 +8,17 @@ wrong with it; the caller adds the file name.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 
 from .errors import SpecError
 
-__all__ = ["read_npz", "array", "real", "text", "names", "pair"]
+T = TypeVar("T")
+
+__all__ = ["read_npz", "load_checked", "array", "real", "text", "names", "pair", "offsets"]
 
 
 def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
@@ -67,6 +71,35 @@ def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
                     field=k,
                 ) from None
     return out
+
+
+def load_checked(path: str | os.PathLike, what: str, build: Callable[[dict], T]) -> T:
+    """Read ``path`` with :func:`read_npz` and build the object with ``build(arrays)``.
+
+    ``build`` validates and raises ``SpecError`` naming the array; the error is returned
+    with the file name added.
+    """
+    data = read_npz(path, what)
+    try:
+        return build(data)
+    except SpecError as exc:
+        raise exc.with_file(str(path)) from None
+
+
+def offsets(data: dict[str, np.ndarray], key: str, count: int, rows: int) -> np.ndarray:
+    """Offsets of ``count`` consecutive blocks over ``rows`` rows: integers, shape
+    ``(count + 1,)``, rising from 0 to ``rows``."""
+    off = array(data, key)
+    if off.dtype.kind not in "iu":
+        raise SpecError(f"must be integers, got dtype {off.dtype}", field=key)
+    if off.shape != (count + 1,):
+        raise SpecError(f"must have shape ({count + 1},), got {off.shape}", field=key)
+    if np.any(off < 0) or np.any(off > rows):
+        raise SpecError(f"must lie in [0, {rows}]", field=key)
+    off = off.astype(np.int64)
+    if off[0] != 0 or off[-1] != rows or np.any(np.diff(off) < 0):
+        raise SpecError(f"must increase from 0 to {rows}", field=key)
+    return off
 
 
 def array(data: dict[str, np.ndarray], key: str) -> np.ndarray:
