@@ -90,8 +90,39 @@ class Finding:
     alpha: np.ndarray | None
 
 
+class ClosedLoopSetup:
+    """What both reach engines (linear and nonlinear) read from the problem and the law.
+
+    Sets ``n, m, Ts, T``, the normalised ``unsafe``/``safe`` sets, the input-bound check
+    (``check_u``, ``u_min``, ``u_max`` with a 1e-7 slack), the law's region boxes, the
+    initial box as centre ``c0`` and generator ``V0``, and empty ``tubes``/``findings``.
+    """
+
+    problem: Problem
+    law: ExplicitLaw
+
+    def _init_properties(self) -> None:
+        p = self.problem
+        vs = p.verify
+        self.n, self.m = p.plant.n, p.plant.m
+        self.Ts = float(p.model.sample_time)
+        self.T = float(vs.time_horizon)
+        self.unsafe = [normalize_rows(*s.halfspaces())[:2] for s in vs.unsafe]
+        self.safe = [normalize_rows(*s.halfspaces())[:2] for s in vs.safe]
+        self.check_u = bool(vs.input_bounds)
+        # the law meets its own input bounds only up to round-off and the 1e-9 tolerance of
+        # point location on region boundaries: input bounds are checked with 1e-7 slack
+        self.u_min = np.asarray(p.mpc.u_min, float) - 1e-7 * (1 + np.abs(p.mpc.u_min))
+        self.u_max = np.asarray(p.mpc.u_max, float) + 1e-7 * (1 + np.abs(p.mpc.u_max))
+        self.boxes_lo, self.boxes_hi = self.law.boxes
+        self.c0 = 0.5 * (vs.initial_lower + vs.initial_upper)
+        self.V0 = np.diag(0.5 * (vs.initial_upper - vs.initial_lower))
+        self.tubes: list[Tube] = []
+        self.findings: list[Finding] = []
+
+
 @dataclass
-class LinearReach:
+class LinearReach(ClosedLoopSetup):
     """Reachability engine for one problem, law and hold (see module docstring)."""
 
     problem: Problem
@@ -104,24 +135,9 @@ class LinearReach:
     def __post_init__(self) -> None:
         p = self.problem
         vs = p.verify
-        self.n = p.plant.n
-        self.m = p.plant.m
-        self.Ts = float(p.model.sample_time)
-        self.T = float(vs.time_horizon)
+        self._init_properties()
         self.step = float(vs.step)
-        self.unsafe = [normalize_rows(*s.halfspaces())[:2] for s in vs.unsafe]
-        self.safe = [normalize_rows(*s.halfspaces())[:2] for s in vs.safe]
-        self.check_u = bool(vs.input_bounds)
-        # the law meets its own input bounds only up to round-off and the 1e-9 tolerance of
-        # point location on region boundaries: input bounds are checked with 1e-7 slack
-        self.u_min = np.asarray(p.mpc.u_min, float) - 1e-7 * (1 + np.abs(p.mpc.u_min))
-        self.u_max = np.asarray(p.mpc.u_max, float) + 1e-7 * (1 + np.abs(p.mpc.u_max))
-        self.boxes_lo, self.boxes_hi = self.law.boxes
         self._flows: dict = {}
-        self.tubes: list[Tube] = []
-        self.findings: list[Finding] = []
-        self.c0 = 0.5 * (vs.initial_lower + vs.initial_upper)
-        self.V0 = np.diag(0.5 * (vs.initial_upper - vs.initial_lower))
 
     # ---- flows --------------------------------------------------------------------------
 

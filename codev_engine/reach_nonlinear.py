@@ -44,7 +44,7 @@ from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 from .law import ExplicitLaw
 from .plant import linearize
 from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
-from .reach_linear import Finding
+from .reach_linear import ClosedLoopSetup, Finding
 from .spec import Problem
 from .tube import Tube
 
@@ -110,7 +110,7 @@ class _Rec:
 
 
 @dataclass
-class NonlinearReach:
+class NonlinearReach(ClosedLoopSetup):
     """Reachability engine for a nonlinear plant (see module docstring)."""
 
     problem: Problem
@@ -137,7 +137,7 @@ class NonlinearReach:
         vs = p.verify
         self.enc = plant_enclosures(p)
         self.hess = plant_hessian(p)
-        self.n, self.m = p.plant.n, p.plant.m
+        self._init_properties()
         sym = symbolic_model(p)
         try:  # scalar point evaluation for the (non-rigorous) centre trajectory
             fm = sympy.lambdify((*sym.x, *sym.u), list(sym.f), modules="math")
@@ -149,19 +149,7 @@ class NonlinearReach:
             fp = _dynamics(p)[0]
             n = self.n
             self._fnum = lambda *z: fp(np.array(z[:n]), np.array(z[n:])).tolist()
-        self.Ts = float(p.model.sample_time)
-        self.T = float(vs.time_horizon)
         self.h = float(vs.step)
-        self.unsafe = [normalize_rows(*s.halfspaces())[:2] for s in vs.unsafe]
-        self.safe = [normalize_rows(*s.halfspaces())[:2] for s in vs.safe]
-        self.check_u = bool(vs.input_bounds)
-        # the law meets its own input bounds only up to round-off and the 1e-9 tolerance of
-        # point location on region boundaries: input bounds are checked with 1e-7 slack
-        self.u_min = np.asarray(p.mpc.u_min, float) - 1e-7 * (1 + np.abs(p.mpc.u_min))
-        self.u_max = np.asarray(p.mpc.u_max, float) + 1e-7 * (1 + np.abs(p.mpc.u_max))
-        self.boxes_lo, self.boxes_hi = self.law.boxes
-        self.c0 = 0.5 * (vs.initial_lower + vs.initial_upper)
-        self.V0 = np.diag(0.5 * (vs.initial_upper - vs.initial_lower))
         self.W, self.Winv = self._metric()
         cond = float(np.linalg.norm(self.W, 2) * np.linalg.norm(self.Winv, 2))
         # Winv is the inverse of W up to rounding: directions through Winv are inflated by
@@ -171,8 +159,6 @@ class NonlinearReach:
         self.absW, self.absWinv = np.abs(self.W), np.abs(self.Winv)
         # |x_i - y_i| <= wrow_i |x - y|_W
         self.wrow = np.linalg.norm(self.Winv, axis=1) * self.winv_pad
-        self.tubes: list[Tube] = []
-        self.findings: list[Finding] = []
         self._u_ok: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._rho_hint = 0.0
 
