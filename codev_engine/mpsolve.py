@@ -1,19 +1,20 @@
-"""Exact multi-parametric LP/QP solver: geometric exploration of the parameter space.
+"""Exact multi-parametric LP/QP solver, the front door of both.
 
-Algorithm (see ``docs/algorithm.md`` for the argument):
+Strictly convex mp-QPs (H > 0 after equality elimination) go to the active-set graph
+search of ``mpqp.py``. mp-LPs are explored geometrically here (see ``docs/algorithm.md``
+for the argument):
 
 1. **Reduce.** Eliminate equalities, move pure-parameter rows to the parameter set,
    normalise and de-duplicate the rows.
-2. **Unique selection.** The optimizer is made a single-valued function of theta:
-   for an mp-QP with H > 0 it is unique already; for an mp-LP the cost is perturbed by a
-   tiny generic vector (fixed seed) so that every LP has exactly one optimal vertex; the
-   optimal basis of the perturbed LP is checked to be optimal for the *original* cost
-   (its reduced costs are >= 0 under the original cost), so every law is exactly optimal.
+2. **Unique selection.** The optimizer is made a single-valued function of theta: the
+   cost is perturbed by a tiny generic vector (fixed seed) so that every LP has exactly one
+   optimal vertex; the optimal basis of the perturbed LP is checked to be optimal for the
+   *original* cost (its reduced costs are >= 0 under it), so every law is exactly optimal.
 3. **Critical region at a point.** Solve at theta (DAQP, exact active sets), take the
    optimal active set / basis, and write the affine optimizer ``z = K theta + k`` and the
-   polyhedron where it stays optimal (primal feasibility of every row plus, for QPs,
-   non-negative multipliers). For an LP the region of an affine law is the whole set where
-   that law is primal feasible, which makes regions of different laws interior-disjoint.
+   polyhedron where it stays optimal (primal feasibility of every row): the whole set
+   where that law is primal feasible, which makes regions of different laws
+   interior-disjoint.
 4. **Exploration with a non-facet-to-facet-safe step.** Every facet of every region is
    covered: a facet is split into *pieces*; for each piece, step a tiny distance across its
    Chebyshev centre, find (or compute) the region there, check it touches the piece, and
@@ -172,7 +173,7 @@ class _Explorer:
         self._hs_cost: np.ndarray | None = None
         self.pert = np.zeros(self.nw)
         self.cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
-        # the perturbation is also used, unperturbed in effect, for QP feasibility checks
+        # run() explores mp-LPs; for mp-QPs only the start point and the scale are used
         self.c_pert = red.c.copy()
         if self.is_lp:
             self.pert = self.rng.uniform(0.5, 1.0, self.nw) * self.rng.choice([-1.0, 1.0], self.nw)
@@ -224,31 +225,18 @@ class _Explorer:
         m = rhs.shape[0]
         sense = np.zeros(m, dtype=np.int32)
         lower = np.full(m, -1e30)
-        if self.is_lp:
-            x, _, flag, info = daqp.solve(
-                np.zeros((self.nw, self.nw)),
-                self.c_pert + r.C @ q,
-                r.G,
-                rhs,
-                lower,
-                sense,
-                eps_prox=1e-2,
-                iter_limit=10_000,
-                primal_tol=1e-11,
-                dual_tol=1e-12,
-            )
-        else:
-            x, _, flag, info = daqp.solve(
-                r.H,
-                r.c + r.C @ q,
-                r.G,
-                rhs,
-                lower,
-                sense,
-                iter_limit=10_000,
-                primal_tol=1e-11,
-                dual_tol=1e-12,
-            )
+        x, _, flag, info = daqp.solve(
+            np.zeros((self.nw, self.nw)),
+            self.c_pert + r.C @ q,
+            r.G,
+            rhs,
+            lower,
+            sense,
+            eps_prox=1e-2,
+            iter_limit=10_000,
+            primal_tol=1e-11,
+            dual_tol=1e-12,
+        )
         if flag == -1:
             return None if self._infeasible(q) else self._solve_at_fallback(q)
         if flag == -3:
@@ -266,8 +254,6 @@ class _Explorer:
         """HiGHS when DAQP reports trouble (cycling near the feasibility boundary)."""
         import highspy
 
-        if not self.is_lp:
-            return None if self._infeasible(q) else "fail"
         h = self._highs(q)
         status = h.getModelStatus()
         if status == highspy.HighsModelStatus.kInfeasible:
@@ -356,8 +342,7 @@ class _Explorer:
             h.setOptionValue("dual_feasibility_tolerance", 1e-10)
             lp = highspy.HighsLp()
             lp.num_col_, lp.num_row_ = nw, m
-            # QPs only ask HiGHS about feasibility: zero cost
-            lp.col_cost_ = self.c_pert.copy() if self.is_lp else np.zeros(nw)
+            lp.col_cost_ = self.c_pert.copy()
             lp.col_lower_ = np.full(nw, -inf)
             lp.col_upper_ = np.full(nw, inf)
             lp.row_lower_ = np.full(m, -inf)
@@ -420,46 +405,23 @@ class _Explorer:
 
     def _region_from_solution(self, q, x, lam):
         r = self.r
-        if self.is_lp:
-            act = self._lp_basis(q, lam)
-            if act is None:
-                return None
-            GB = r.G[act]
-            try:
-                # _lp_basis checked the basis is optimal for the ORIGINAL cost
-                Z = np.linalg.solve(GB, np.hstack([r.w[act, None], r.S[act]]))
-            except np.linalg.LinAlgError:
-                return None
-            k0, K = Z[:, 0], Z[:, 1:]
-            Ar = r.G @ K - r.S
-            br = r.w - r.G @ k0
-            if np.any(r.C):
-                # with a parameter-dependent cost the basis needs duals >= 0 as well
-                Dl = np.linalg.solve(GB.T, -np.hstack([r.c[:, None], r.C]))
-                Ar = np.vstack([Ar, -Dl[:, 1:]])
-                br = np.concatenate([br, Dl[:, 0]])
-        else:
-            act = np.flatnonzero(lam > 0)
-            GA = r.G[act]
-            na = act.size
-            KKT = np.block([[r.H, GA.T], [GA, np.zeros((na, na))]])
-            rhs = np.vstack(
-                [
-                    np.hstack([-r.c[:, None], -r.C]),
-                    np.hstack([r.w[act, None], r.S[act]]),
-                ]
-            )
-            try:
-                sol = np.linalg.solve(KKT, rhs)
-            except np.linalg.LinAlgError:
-                return None
-            if not np.all(np.isfinite(sol)):
-                return None
-            k0, K = sol[: self.nw, 0], sol[: self.nw, 1:]
-            mu0, M = sol[self.nw :, 0], sol[self.nw :, 1:]
-            inact = np.setdiff1d(np.arange(r.G.shape[0]), act)
-            Ar = np.vstack([r.G[inact] @ K - r.S[inact], -M])
-            br = np.concatenate([r.w[inact] - r.G[inact] @ k0, mu0])
+        act = self._lp_basis(q, lam)
+        if act is None:
+            return None
+        GB = r.G[act]
+        try:
+            # _lp_basis checked the basis is optimal for the ORIGINAL cost
+            Z = np.linalg.solve(GB, np.hstack([r.w[act, None], r.S[act]]))
+        except np.linalg.LinAlgError:
+            return None
+        k0, K = Z[:, 0], Z[:, 1:]
+        Ar = r.G @ K - r.S
+        br = r.w - r.G @ k0
+        if np.any(r.C):
+            # with a parameter-dependent cost the basis needs duals >= 0 as well
+            Dl = np.linalg.solve(GB.T, -np.hstack([r.c[:, None], r.C]))
+            Ar = np.vstack([Ar, -Dl[:, 1:]])
+            br = np.concatenate([br, Dl[:, 0]])
         Ar = np.vstack([Ar, r.At])
         br = np.concatenate([br, r.bt])
         Ar, br, ok = normalize_rows(Ar, br, tol=1e-10)
