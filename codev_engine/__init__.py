@@ -37,8 +37,7 @@ from .spec import Problem, load_spec, loads_spec
 from .synthesis import synthesize
 from .tube import Tube
 from .verify import Counterexample, VerificationResult, verify
-
-__version__ = "0.1.0"
+from .version import __version__ as __version__
 
 __all__ = [
     "CodevError",

@@ -104,25 +104,13 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
-def _verification(args: argparse.Namespace, problem, law, synth_seconds: float | None) -> int:
+def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
+    """The JSON summary of a verification (``codev verify --json``, ``codev run --json``)."""
     import numpy as np
 
-    from .verify import verify
-
-    if problem.verify is None:
-        raise CodevError(f"{problem.path}: verify: the spec has no [verify] section")
-    with _progress(f"verifying {problem.name}", not args.json) as update:
-        result = verify(
-            problem,
-            law,
-            hold=args.hold,
-            max_depth=args.max_depth,
-            progress=lambda st: update(st.get("branches", 0)),
-        )
-    tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
     width = result.width_at(problem.verify.time_horizon)
     cex = result.counterexample
-    payload = {
+    return {
         "problem": problem.name,
         "verdict": result.verdict,
         "reason": result.reason,
@@ -139,14 +127,55 @@ def _verification(args: argparse.Namespace, problem, law, synth_seconds: float |
         else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind, "index": cex.index},
         "tube": tube_path,
     }
+
+
+def _print_result(problem, law, result, tube_path) -> None:
+    import numpy as np
+
+    print(f"{problem.name}: {law.num_regions} regions; " + result.summary())
+    width = result.width_at(problem.verify.time_horizon)
+    print("  tube width at the horizon: " + np.array2string(width, precision=4))
+    if tube_path:
+        print(f"tube written to {tube_path}")
+
+
+def _verification(args: argparse.Namespace, problem, law, synth_seconds: float | None) -> int:
+    from .verify import verify
+
+    if problem.verify is None:
+        raise CodevError(f"{problem.path}: verify: the spec has no [verify] section")
+    with _progress(f"verifying {problem.name}", not args.json) as update:
+        result = verify(
+            problem,
+            law,
+            hold=args.hold,
+            max_depth=args.max_depth,
+            progress=lambda st: update(st.get("branches", 0)),
+        )
+    tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
+    if getattr(args, "record", None):
+        from .records import RecordingOptions, write_recording
+
+        write_recording(
+            args.record,
+            problem,
+            law,
+            result,
+            options=RecordingOptions(axes=args.axes, traces=args.traces),
+        )
     if args.json:
+        payload = _result_payload(problem, law, result, synth_seconds, tube_path)
+        payload["recording"] = getattr(args, "record", None)
         print(json.dumps(payload))
     else:
-        print(f"{problem.name}: {law.num_regions} regions; " + result.summary())
-        print("  tube width at the horizon: " + np.array2string(width, precision=4))
-        if tube_path:
-            print(f"tube written to {tube_path}")
+        _print_result(problem, law, result, tube_path)
+        if getattr(args, "record", None):
+            _say_recording(args.record)
     return 0 if result.verdict == "robustly_safe" else 1
+
+
+def _say_recording(path) -> None:
+    print(f"recording written to {path}\n  view it: codev view {path}")
 
 
 def _cmd_verify(args: argparse.Namespace) -> int:
@@ -167,6 +196,241 @@ def _cmd_verify(args: argparse.Namespace) -> int:
             law = synthesize(problem, progress=update)
         synth_seconds = law.meta["seconds"]
     return _verification(args, problem, law, synth_seconds)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    if args.session is None:
+        if args.fresh:
+            raise SpecError(
+                "--fresh needs --session (there is no cache without one)", field="--fresh"
+            )
+        return _cmd_verify(args)
+    from .session import RunOptions, Session
+    from .spec import load_spec
+
+    problem = load_spec(args.spec)  # bad input fails here, before the session is touched
+    session = Session.open_or_create(args.session)
+    options = RunOptions(
+        hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
+    )
+    with _stage_progress(not args.json) as on_event:
+        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn)
+    tube_path = None
+    if args.export_tube and report.result is not None:
+        tube_path = str(report.result.tube.save(args.export_tube))
+    record = None
+    if report.recording is not None:
+        record = (
+            str(session.export(report.recording, args.record))
+            if args.record
+            else str(report.recording)
+        )
+    stages = {
+        s.stage: {
+            "status": s.status,
+            "seconds": round(s.seconds, 6),
+            "key": s.key,
+            "artifact": s.artifact,
+            "outcome": s.outcome,
+        }
+        for s in report.stages
+    }
+    law, result = report.law, report.result
+    if args.json:
+        payload: dict = {"problem": problem.name, "regions": law.num_regions if law else None}
+        if result is not None:
+            synth = law.meta.get("seconds") if law else None
+            payload = _result_payload(problem, law, result, synth, tube_path)
+        payload["recording"] = record
+        payload["session"] = {
+            "dir": str(session.path),
+            "run": report.run,
+            "seconds": round(report.seconds, 6),
+            "stages": stages,
+        }
+        print(json.dumps(payload))
+    else:
+        print(f"session {session.path} (run {report.run})")
+        for s in report.stages:
+            print(f"  {s.stage:<13} {s.status:<9} {s.seconds:8.3f} s  {_outcome_text(s.outcome)}")
+        if result is not None:
+            _print_result(problem, law, result, tube_path)
+        if record:
+            _say_recording(record)
+    if result is None:
+        return 0
+    return 0 if result.verdict == "robustly_safe" else 1
+
+
+def _outcome_text(outcome: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in outcome.items() if v is not None)
+
+
+def _warn(msg: str) -> None:
+    print(f"codev: warning: {msg}", file=sys.stderr)
+
+
+@contextmanager
+def _stage_progress(enabled: bool) -> Iterator[Callable[[str, str, dict], None]]:
+    """One rich progress line per stage on a terminal (counts for long stages), else quiet."""
+    if not enabled or not sys.stderr.isatty():
+        yield lambda _stage, _event, _data: None
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    unit = {"synthesis": "regions", "verification": "branches"}
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("[bold]{task.description:<13}"),
+        TextColumn("{task.fields[info]}"),
+        TimeElapsedColumn(),
+        transient=True,
+    ) as prog:
+        tasks: dict[str, int] = {}
+        last = [0.0]
+
+        def on_event(stage: str, event: str, data: dict) -> None:
+            if event == "start":
+                tasks[stage] = prog.add_task(stage, info="")
+            elif event == "progress" and stage in tasks:
+                now = time.monotonic()
+                if now - last[0] > 0.1:  # ~10 Hz
+                    last[0] = now
+                    prog.update(tasks[stage], info=f"{data['count']} {unit.get(stage, '')}")
+            elif event == "done" and stage in tasks:
+                prog.update(tasks[stage], info=data["status"], completed=1, total=1)
+
+        yield on_event
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from .session import Session
+
+    session = Session.open(args.dir)
+    quiet = args.json
+
+    def on_run(run_no, rep, mismatches) -> None:
+        if quiet:
+            return
+        parts = ", ".join(f"{s.stage} {s.status}" for s in rep.stages)
+        verdict = f"; {rep.result.verdict}" if rep.result is not None else ""
+        state = "matches" if not mismatches else f"{len(mismatches)} MISMATCH(ES)"
+        print(f"run {run_no}: {parts}{verdict} -- {state}")
+        for _r, stage, want, got in mismatches:
+            print(f"  {stage}: recorded {_outcome_text(want)}; replayed {_outcome_text(got)}")
+        if rep.recording is not None:
+            print(f"  recording: {rep.recording}\n  view it: codev view {rep.recording}")
+
+    with _stage_progress(not quiet) as on_event:
+        rep = session.replay(on_event=on_event, warn=_warn, on_run=on_run)
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "dir": str(session.path),
+                    "runs": rep.runs,
+                    "checked": rep.checked,
+                    "cached": rep.cached,
+                    "match": rep.ok,
+                    "mismatches": [
+                        {"run": r, "stage": st, "recorded": a, "replayed": b}
+                        for r, st, a, b in rep.mismatches
+                    ],
+                    "seconds": round(rep.seconds, 6),
+                }
+            )
+        )
+    else:
+        verdict = "every outcome matches" if rep.ok else f"{len(rep.mismatches)} mismatch(es)"
+        print(
+            f"replay of {session.path}: {rep.runs} run(s), {rep.checked} stage(s) checked "
+            f"({rep.cached} cached): {verdict} in {rep.seconds:.2f} s"
+        )
+    return 0 if rep.ok else 1
+
+
+def _cmd_session(args: argparse.Namespace) -> int:
+    from .session import Session
+
+    session = Session.open(args.dir)
+    journal = session.journal()
+    status = session.status()
+    problem = session.problem()
+    runs = sorted({r["run"] for r in journal})
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "dir": str(session.path),
+                    "format": session.meta.get("format"),
+                    "engine": session.meta.get("engine"),
+                    "created": session.meta.get("created"),
+                    "problem": problem.name,
+                    "runs": len(runs),
+                    "records": len(journal),
+                    "last": journal[-1]["started"] if journal else None,
+                    "stages": [
+                        {
+                            "stage": s.stage,
+                            "status": s.status,
+                            "key": s.key,
+                            "artifact": s.artifact,
+                            "reason": s.reason,
+                        }
+                        for s in status
+                    ],
+                }
+            )
+        )
+        return 0
+    meta = session.meta
+    print(
+        f"session {session.path}: {problem.name}; created {meta.get('created', '?')} by "
+        f"codev {meta.get('engine', '?')}"
+    )
+    last = f", last at {journal[-1]['started']}" if journal else ""
+    print(f"journal: {len(runs)} run(s), {len(journal)} stage record(s){last}")
+    for s in status:
+        where = s.artifact or ""
+        why = f" ({s.reason})" if s.reason else ""
+        print(f"  {s.stage:<13} {s.status:<8} {where}{why}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    import shutil
+    import subprocess
+
+    from .records import check_recording
+
+    check_recording(args.file)
+    has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or (
+        sys.platform in ("darwin", "win32")
+    )
+    viewer = shutil.which("rerun")
+    cmd = [viewer] if viewer else [sys.executable, "-m", "rerun"]
+    if has_display and not args.print_only:
+        subprocess.Popen([*cmd, str(args.file)], start_new_session=True)
+        print(f"opening {args.file} in the Rerun viewer")
+        return 0
+    print(
+        f"{args.file} is a valid recording. There is no display here; to look at it:\n"
+        f"  on a machine with a display:  rerun {args.file}   "
+        f"(pip install 'rerun-sdk>=0.41,<0.42')\n"
+        f"  in a browser, served from here:  rerun --web-viewer {args.file}   "
+        f"(then open http://localhost:9090)"
+    )
+    return 0
+
+
+def _axes(text: str) -> tuple[int, int]:
+    try:
+        parts = tuple(int(p) for p in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError("must be two state indices, e.g. 0,1") from None
+    if len(parts) != 2 or parts[0] == parts[1] or min(parts) < 0:
+        raise argparse.ArgumentTypeError("must be two distinct state indices, e.g. 0,1")
+    return parts  # type: ignore[return-value]
 
 
 class _TimeLimitError(Exception):
@@ -272,7 +536,50 @@ def _build_parser() -> argparse.ArgumentParser:
         p.add_argument("--max-depth", type=int, help="override verify.max_depth")
         p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
         p.add_argument("--json", action="store_true", help="print a JSON summary only")
-        p.set_defaults(func=_cmd_verify, law=None)
+        p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording")
+        p.add_argument(
+            "--axes",
+            type=_axes,
+            default=(0, 1),
+            metavar="I,J",
+            help="state indices of the recording's plane view (default 0,1)",
+        )
+        p.add_argument(
+            "--traces",
+            type=int,
+            default=16,
+            metavar="K",
+            help="simulated traces in the recording (default 16)",
+        )
+        if name == "run":
+            p.add_argument(
+                "--session",
+                metavar="DIR",
+                help="keep the spec, a journal and cached artifacts in DIR (created if new)",
+            )
+            p.add_argument(
+                "--fresh", action="store_true", help="recompute every stage (with --session)"
+            )
+            p.set_defaults(func=_cmd_run, law=None)
+        else:
+            p.set_defaults(func=_cmd_verify, law=None, session=None)
+
+    p = sub.add_parser("replay", help="re-execute a session's journal and compare outcomes")
+    p.add_argument("dir", metavar="DIR", help="the session folder")
+    p.add_argument("--json", action="store_true", help="print a JSON summary only")
+    p.set_defaults(func=_cmd_replay)
+
+    p = sub.add_parser("session", help="show a session: journal and what is cached or stale")
+    p.add_argument("dir", metavar="DIR", help="the session folder")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_session)
+
+    p = sub.add_parser("view", help="open a Rerun recording (.rrd) in the viewer")
+    p.add_argument("file", metavar="FILE.rrd")
+    p.add_argument(
+        "--print-only", action="store_true", help="only print how to open it, even with a display"
+    )
+    p.set_defaults(func=_cmd_view)
 
     p = sub.add_parser(
         "mpsolve", help="solve a multi-parametric LP/QP (.npz, the mp_testset convention)"

@@ -5,22 +5,27 @@ Produces the discrete-time prediction model ``LinearModel`` used by the MPC.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import control
 import numpy as np
 import sympy
 
+from .atomic import write_npz
 from .errors import SpecError
 from .expr import make_symbol, parse_expression
+from .npzfile import load_checked, pair, real, text
 
 if TYPE_CHECKING:
     from .spec import PlantSpec, Problem
 
 __all__ = [
     "LinearModel",
+    "MODEL_FORMAT",
     "NumericDynamics",
     "SymbolicPlant",
     "discretize",
@@ -28,6 +33,9 @@ __all__ = [
     "numeric_dynamics",
     "symbolic_model",
 ]
+
+#: format tag of model files (session artifacts); bumped on incompatible changes
+MODEL_FORMAT = "codev-model/1"
 
 
 @dataclass(frozen=True)
@@ -66,6 +74,56 @@ class LinearModel:
     @property
     def m(self) -> int:
         return self.B.shape[1]
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the model to ``path`` (``.npz``, no pickle) atomically; returns the path."""
+        arrays = {
+            "format": np.array(MODEL_FORMAT),
+            "A": self.A,
+            "B": self.B,
+            "c": self.c,
+            "dt": np.array(self.dt),
+            "x_op": self.x_op,
+            "u_op": self.u_op,
+        }
+        if self.Ac is not None and self.Bc is not None:
+            arrays["Ac"], arrays["Bc"] = self.Ac, self.Bc
+        return write_npz(path, arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> LinearModel:
+        """Read a model written by ``save``; a malformed file raises ``SpecError``."""
+        return load_checked(path, "model file", cls._from_arrays)
+
+    @classmethod
+    def _from_arrays(cls, data: dict[str, np.ndarray]) -> LinearModel:
+        fmt = text(data, "format")
+        if fmt != MODEL_FORMAT:
+            raise SpecError(f"unsupported model format {fmt!r}", field="format")
+        A = real(data, "A", ndim=2)
+        n = A.shape[0]
+        if A.shape != (n, n):
+            raise SpecError(f"must be square, got shape {A.shape}", field="A")
+        B = real(data, "B", ndim=2)
+        if B.shape[0] != n:
+            raise SpecError(f"must have {n} rows, got shape {B.shape}", field="B")
+        m = B.shape[1]
+        dt = float(real(data, "dt", shape=()))
+        if not dt > 0:
+            raise SpecError("must be positive", field="dt")
+        pair(data, "Ac", "Bc")
+        Ac = real(data, "Ac", shape=(n, n)) if "Ac" in data else None
+        Bc = real(data, "Bc", shape=(n, m)) if "Bc" in data else None
+        return cls(
+            A=A,
+            B=B,
+            c=real(data, "c", shape=(n,)),
+            dt=dt,
+            x_op=real(data, "x_op", shape=(n,)),
+            u_op=real(data, "u_op", shape=(m,)),
+            Ac=Ac,
+            Bc=Bc,
+        )
 
 
 @dataclass(frozen=True)

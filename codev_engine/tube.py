@@ -15,6 +15,7 @@ import numpy as np
 
 from .atomic import write_npz
 from .errors import SpecError
+from .npzfile import array, load_checked, real
 
 __all__ = ["Tube", "TUBE_FORMAT"]
 
@@ -89,43 +90,43 @@ class Tube:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write ``t_start``, ``t_end``, ``lower``, ``upper`` (and ``branch``) to an npz."""
-        return write_npz(
-            path,
-            {
-                "format": np.array(TUBE_FORMAT),
-                "t_start": self.t_start,
-                "t_end": self.t_end,
-                "lower": self.lower,
-                "upper": self.upper,
-                "branch": self.branch,
-            },
-        )
+        return write_npz(path, {"format": np.array(TUBE_FORMAT), **self.arrays()})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Tube:
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                d = {k: z[k] for k in z.files}
-        except Exception as exc:
-            raise SpecError(
-                f"not a readable tube file ({exc.__class__.__name__})", file=str(path)
-            ) from None
-        try:
-            tube = cls(
-                d["t_start"],
-                d["t_end"],
-                d["lower"],
-                d["upper"],
-                d.get("branch", np.zeros(len(d["t_start"]), int)),
-            )
-        except KeyError as exc:
-            raise SpecError(f"missing array {exc.args[0]!r}", file=str(path)) from None
-        K = tube.t_start.shape[0]
-        if (
-            tube.t_end.shape != (K,)
-            or tube.lower.shape[0] != K
-            or tube.upper.shape != tube.lower.shape
-        ):
-            raise SpecError("inconsistent array shapes", file=str(path))
-        return tube
+        """Read a tube written by ``save``; a malformed file raises ``SpecError``."""
+        return load_checked(path, "tube file", cls.from_arrays)
+
+    @classmethod
+    def from_arrays(cls, data: dict[str, np.ndarray], prefix: str = "") -> Tube:
+        """Validate the arrays ``{prefix}t_start`` ... ``{prefix}branch`` and build the tube.
+
+        Every array is real and finite (``SpecError`` names the array), shapes agree and
+        ``t_start <= t_end``, ``lower <= upper`` hold.
+        """
+        ts = real(data, prefix + "t_start", ndim=1)
+        K = ts.shape[0]
+        te = real(data, prefix + "t_end", shape=(K,))
+        lo = real(data, prefix + "lower", ndim=2)
+        if lo.shape[0] != K:
+            raise SpecError(f"must have {K} rows, got shape {lo.shape}", field=prefix + "lower")
+        hi = real(data, prefix + "upper", shape=lo.shape)
+        key = prefix + "branch"
+        branch = array(data, key) if key in data else np.zeros(K, dtype=np.int64)
+        if branch.dtype.kind not in "iu" or branch.shape != (K,):
+            raise SpecError(f"must be {K} integers, got {branch.dtype} {branch.shape}", field=key)
+        if np.any(ts > te):
+            raise SpecError("a box ends before it starts", field=prefix + "t_end")
+        if np.any(lo > hi):
+            raise SpecError("a box has lower > upper", field=prefix + "upper")
+        return cls(ts, te, lo, hi, branch.astype(np.int64))
+
+    def arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
+        """The tube as named arrays (the inverse of :meth:`from_arrays`)."""
+        return {
+            prefix + "t_start": self.t_start,
+            prefix + "t_end": self.t_end,
+            prefix + "lower": self.lower,
+            prefix + "upper": self.upper,
+            prefix + "branch": self.branch,
+        }

@@ -17,19 +17,35 @@ Verdicts
 
 from __future__ import annotations
 
+import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
+from .atomic import write_npz
 from .errors import SpecError
 from .law import ExplicitLaw
+from .npzfile import array, load_checked, real, text
 from .reach_linear import LinearReach, affine_plant
 from .spec import Problem
 from .tube import Tube
 
-__all__ = ["VerificationResult", "Counterexample", "verify"]
+__all__ = ["VerificationResult", "Counterexample", "verify", "RESULT_FORMAT", "VERDICTS"]
+
+#: format tag of verification result files; bumped on incompatible changes
+RESULT_FORMAT = "codev-verification/1"
+VERDICTS = ("robustly_safe", "unsafe", "unknown")
+
+
+def _json_scalar(obj):
+    """numpy scalars and arrays in ``stats`` as plain JSON."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    return str(obj)
 
 
 @dataclass(frozen=True)
@@ -76,6 +92,97 @@ class VerificationResult:
         """Width (n,) of the hull of the tube's boxes active at ``t``."""
         lo, hi = self.tube.hull_at(t)
         return hi - lo
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the result (verdict, stats, tube, counterexample trace) to an ``.npz``.
+
+        Atomic and pickle-free; :meth:`load` reads it back.
+        """
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(RESULT_FORMAT),
+            "verdict": np.array(self.verdict),
+            "reason": np.array(self.reason or ""),
+            "hold": np.array(self.hold),
+            "stats": np.array(json.dumps(self.stats, default=_json_scalar)),
+            **self.tube.arrays("tube_"),
+        }
+        ce = self.counterexample
+        if ce is not None:
+            tr = ce.trace
+            undefined = getattr(tr, "undefined_at", None)
+            arrays.update(
+                cex_x0=np.asarray(ce.x0, dtype=float),
+                cex_t=np.array(float(ce.t)),
+                cex_kind=np.array(ce.kind),
+                cex_index=np.array(int(ce.index)),
+                trace_t=tr.t,
+                trace_x=tr.x,
+                trace_u=tr.u,
+                trace_region=np.asarray(tr.region, dtype=np.int64),
+                trace_undefined_at=np.array(np.nan if undefined is None else float(undefined)),
+            )
+        return write_npz(path, arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> VerificationResult:
+        """Read a result written by :meth:`save`; a malformed file raises ``SpecError``."""
+        return load_checked(path, "verification result", cls._from_arrays)
+
+    @classmethod
+    def _from_arrays(cls, data: dict[str, np.ndarray]) -> VerificationResult:
+        from .simulate import Trace
+
+        fmt = text(data, "format")
+        if fmt != RESULT_FORMAT:
+            raise SpecError(f"unsupported result format {fmt!r}", field="format")
+        verdict = text(data, "verdict")
+        if verdict not in VERDICTS:
+            raise SpecError(f"unknown verdict {verdict!r}", field="verdict")
+        hold = text(data, "hold")
+        if hold not in ("zoh", "continuous"):
+            raise SpecError(f"unknown hold {hold!r}", field="hold")
+        try:
+            stats = json.loads(text(data, "stats"))
+        except (ValueError, RecursionError):
+            raise SpecError("not valid JSON", field="stats") from None
+        if not isinstance(stats, dict):
+            raise SpecError("must be a JSON object", field="stats")
+        tube = Tube.from_arrays(data, "tube_")
+        n = tube.lower.shape[1]
+        cex = None
+        if "cex_x0" in data:
+            x0 = real(data, "cex_x0", shape=(n,))
+            t = real(data, "trace_t", ndim=1)
+            K = t.shape[0]
+            x = real(data, "trace_x", ndim=2)
+            if x.shape[0] != K or x.shape[1] != n:
+                raise SpecError(f"must have shape ({K}, {n}), got {x.shape}", field="trace_x")
+            u = array(data, "trace_u")  # NaN at the end of an undefined trajectory
+            if u.dtype.kind != "f" or u.ndim != 2 or u.shape[0] != K:
+                raise SpecError(f"must be ({K}, m) floats", field="trace_u")
+            region = array(data, "trace_region")
+            if region.dtype.kind not in "iu" or region.shape != (K,):
+                raise SpecError(f"must be {K} integers", field="trace_region")
+            undefined = float(array(data, "trace_undefined_at"))
+            trace = Trace(
+                t=t,
+                x=x,
+                u=u.astype(float),
+                region=region.astype(np.int64),
+                x0=x0,
+                hold=hold,
+                undefined_at=None if np.isnan(undefined) else undefined,
+            )
+            kind = text(data, "cex_kind")
+            cex = Counterexample(
+                x0=x0,
+                t=float(real(data, "cex_t", shape=())),
+                kind=kind,
+                index=int(real(data, "cex_index", shape=())),
+                trace=trace,
+            )
+        reason = text(data, "reason") or None
+        return cls(verdict, reason, tube, hold, cex, stats)
 
     def summary(self) -> str:
         line = f"verdict: {self.verdict}"
