@@ -1,0 +1,508 @@
+"""Rerun recordings (codev_engine.records): real .rrd files written and read back.
+
+Every recording here is read back with rerun's own ``RrdReader``: entity paths, instance
+counts, the ``time`` timeline against the tube's ``t_start``, the blueprint store; plus the
+file checks (``check_recording``), the atomic write, and the geometry helpers.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pytest
+import rerun as rr
+from rerun.chunk import RrdReader
+from rerun.error_utils import strict_mode
+from rerun_bindings import check_for_rrd_footer
+
+import codev_engine as ce
+from codev_engine import records
+from codev_engine.records import (
+    RecordingOptions,
+    RecordingSummary,
+    check_recording,
+    enumerate_vertices,
+    unsafe_margin,
+    write_recording,
+)
+from codev_engine.spec import SetSpec
+from codev_engine.tube import Tube
+from codev_engine.verify import VerificationResult
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+DI_TEXT = (EXAMPLES / "double_integrator.toml").read_text()
+# the double integrator with an unsafe box around the origin, which the loop converges to
+UNSAFE_TEXT = (
+    DI_TEXT.split("[[verify.safe]]")[0]
+    + "\n[[verify.unsafe]]\nlower = [-1.0, -1.0]\nupper = [1.0, 1.0]\n"
+)
+
+
+# ---------------------------------------------------------------------------------------
+# reading a recording back
+# ---------------------------------------------------------------------------------------
+
+
+class Entity:
+    """What a recording holds at one entity path (all its chunks)."""
+
+    def __init__(self) -> None:
+        self.static = False
+        self.rows = 0
+        self.times: list[np.ndarray] = []  # ns, one per temporal row
+        self.columns: dict[str, list[pa.Array]] = defaultdict(list)
+
+    def instances(self, column: str) -> int:
+        """Instances of a component over all rows (sum of the list lengths)."""
+        return int(sum(pc.sum(c.value_lengths()).as_py() or 0 for c in self.columns[column]))
+
+    def values(self, column: str) -> np.ndarray:
+        """All instances of a component, flattened to rows of numbers."""
+        parts = []
+        for c in self.columns[column]:
+            flat = c.flatten()
+            parts.append(np.asarray(flat.to_pylist(), dtype=float))
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    def per_row(self, column: str) -> list:
+        return [v for c in self.columns[column] for v in c.to_pylist()]
+
+    @property
+    def time(self) -> np.ndarray:
+        return np.concatenate(self.times) if self.times else np.zeros(0, dtype=np.int64)
+
+
+def read(path: Path) -> dict[str, Entity]:
+    """Entity path -> Entity, from the recording store of ``path``."""
+    out: dict[str, Entity] = defaultdict(Entity)
+    for chunk in RrdReader(path).stream().to_chunks():
+        e = out[chunk.entity_path]
+        rb = chunk.to_record_batch()
+        e.static |= chunk.is_static
+        e.rows += chunk.num_rows
+        if "time" in chunk.timeline_names:
+            e.times.append(rb.column("time").cast(pa.int64()).to_numpy())
+        for name in rb.schema.names:
+            if ":" in name:
+                e.columns[name].append(rb.column(name))
+    return dict(out)
+
+
+def view_names(path: Path) -> list[str]:
+    """Display names of the views of the blueprint store."""
+    reader = RrdReader(path)
+    names = []
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            rb = chunk.to_record_batch()
+            if "ViewBlueprint:display_name" in rb.schema.names:
+                for v in rb.column("ViewBlueprint:display_name").to_pylist():
+                    names += v or []
+    return names
+
+
+def ns(t: np.ndarray) -> np.ndarray:
+    return np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+
+
+def no_leftovers(folder: Path) -> bool:
+    return not any(p.name.startswith(".tmp-") for p in folder.iterdir())
+
+
+# ---------------------------------------------------------------------------------------
+# fixtures
+# ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def di():
+    problem = ce.loads_spec(DI_TEXT)
+    law = ce.synthesize(problem)
+    return problem, law, ce.verify(problem, law)
+
+
+@pytest.fixture(scope="module")
+def di_recording(di, tmp_path_factory):
+    problem, law, result = di
+    before = (rr.get_global_data_recording(), rr.get_thread_local_data_recording(), strict_mode())
+    path = tmp_path_factory.mktemp("di") / "sub" / "di.rrd"
+    summary = write_recording(path, problem, law, result)
+    after = (rr.get_global_data_recording(), rr.get_thread_local_data_recording(), strict_mode())
+    assert before == after  # no global rerun state changed
+    return summary, read(path)
+
+
+@pytest.fixture(scope="module")
+def magnetic():
+    problem = ce.load_spec(EXAMPLES / "magnetic_pointer_a.toml")
+    law = ce.synthesize(problem)  # ~1000 regions in 3-D, about a second
+    return problem, law
+
+
+@pytest.fixture(scope="module")
+def unsafe_case(tmp_path_factory):
+    problem = ce.loads_spec(UNSAFE_TEXT)
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    path = tmp_path_factory.mktemp("cex") / "cex.rrd"
+    summary = write_recording(path, problem, law, result, options=RecordingOptions(traces=4))
+    return problem, law, result, summary, read(path)
+
+
+# ---------------------------------------------------------------------------------------
+# the double integrator (2-D, robustly safe)
+# ---------------------------------------------------------------------------------------
+
+
+def test_summary_is_consistent(di, di_recording):
+    problem, law, result = di
+    summary, entities = di_recording
+    assert isinstance(summary, RecordingSummary)
+    assert summary.path.is_file() and summary.path.name == "di.rrd"
+    assert no_leftovers(summary.path.parent)
+    assert summary.boxes == result.tube.num_boxes > 0
+    assert summary.traces == RecordingOptions().traces == 16
+    assert summary.seconds > 0
+    assert set(summary.entities) <= set(entities)
+    check_recording(summary.path)
+    assert check_for_rrd_footer(str(summary.path))
+
+
+def test_entity_layout(di_recording):
+    summary, entities = di_recording
+    expected = {
+        "/plane/regions",
+        "/plane/initial",
+        "/plane/safe/0",
+        "/plane/tube",
+        "/plane/traces",
+        "/time/x1/tube",
+        "/time/x2/tube",
+        "/time/x1/traces",
+        "/time/x2/traces",
+        "/scalars/u/u/trace_0",
+        "/scalars/u/u/trace_15",
+        "/verdict",
+    }
+    assert expected <= set(entities)
+    assert not any(k.startswith("/space/") for k in entities)  # n == 2: no 3-D view
+    assert not any("counterexample" in k for k in entities)
+    # no unsafe sets: no margin series
+    assert not any(k.startswith("/scalars/unsafe_distance") for k in entities)
+    for k in ("/plane/regions", "/plane/traces", "/time/x1/tube", "/verdict"):
+        assert entities[k].static
+
+
+def test_tube_boxes_and_times(di, di_recording):
+    _, _, result = di
+    summary, entities = di_recording
+    tube = result.tube
+    e = entities["/plane/tube"]
+    assert not e.static
+    assert e.instances("Boxes2D:half_sizes") == tube.num_boxes == summary.entities["/plane/tube"]
+    assert e.instances("Boxes2D:centers") == tube.num_boxes
+    # one row per distinct t_start, each holding the boxes that start then
+    times = e.time
+    starts, counts = np.unique(tube.t_start, return_counts=True)
+    assert np.array_equal(np.sort(times), ns(starts))
+    per_row = dict(
+        zip(times.tolist(), (len(v) for v in e.per_row("Boxes2D:half_sizes")), strict=True)
+    )
+    assert [per_row[t] for t in ns(starts).tolist()] == counts.tolist()
+    # the boxes themselves: centres +- half sizes give back lower/upper on the plane axes
+    c = e.values("Boxes2D:centers").reshape(-1, 2)
+    h = e.values("Boxes2D:half_sizes").reshape(-1, 2)
+    got = np.unique(np.round(np.hstack([c - h, c + h]), 5), axis=0)
+    want = np.unique(np.round(np.hstack([tube.lower, tube.upper]), 5), axis=0)
+    assert np.allclose(got, want, atol=1e-4)  # float32 in the file
+    # per-state views: [t_start, t_end] x [lower_i, upper_i]
+    for i, s in enumerate(("x1", "x2")):
+        b = entities[f"/time/{s}/tube"]
+        assert b.instances("Boxes2D:half_sizes") == tube.num_boxes
+        c = b.values("Boxes2D:centers").reshape(-1, 2)
+        h = b.values("Boxes2D:half_sizes").reshape(-1, 2)
+        assert np.allclose(np.sort(c[:, 0] - h[:, 0]), np.sort(tube.t_start), atol=1e-5)
+        assert np.allclose(np.sort(c[:, 1] + h[:, 1]), np.sort(tube.upper[:, i]), atol=1e-4)
+
+
+def test_partition_strips(di, di_recording):
+    _, law, _ = di
+    summary, entities = di_recording
+    e = entities["/plane/regions"]
+    assert len(e.per_row("LineStrips2D:strips")[0]) == law.num_regions
+    assert summary.entities["/plane/regions"] == law.num_regions
+    labels = e.per_row("LineStrips2D:labels")[0]
+    assert labels == [f"R{i}" for i in range(law.num_regions)]
+    for i, strip in enumerate(e.per_row("LineStrips2D:strips")[0]):
+        P = np.array(strip, dtype=float)
+        assert P.shape[0] >= 4 and np.allclose(P[0], P[-1])  # closed, >= 3 corners
+        assert np.all(P @ law.A[i].T <= law.b[i] + 1e-4)  # the corners are in region i
+
+
+def test_traces_and_scalars(di_recording):
+    summary, entities = di_recording
+    strips = entities["/plane/traces"].per_row("LineStrips2D:strips")[0]
+    assert len(strips) == 16
+    assert np.allclose(np.array(strips[0])[0], [9.0, -5.0], atol=1e-6)  # the centre first
+    u = entities["/scalars/u/u/trace_0"]
+    assert len(u.time) == summary.entities["/scalars/u/u/trace_0"] > 0  # + 1 static row
+    assert np.all(np.diff(u.time) >= 0) and u.time[-1] == ns(9.0)
+    values = u.values("Scalars:scalars")
+    assert np.all(np.abs(values) <= 1.0 + 1e-6)  # u_min, u_max
+
+
+def test_verdict_and_blueprint(di, di_recording):
+    _, _, result = di
+    summary, entities = di_recording
+    text = entities["/verdict"].per_row("TextDocument:text")[0][0]
+    assert result.verdict in text and f"| tube boxes | {result.tube.num_boxes} |" in text
+    reader = RrdReader(summary.path)
+    assert len(reader.recordings()) == 1 and len(reader.blueprints()) == 1
+    names = view_names(summary.path)
+    assert any(n.startswith("plane") for n in names)
+    assert {"verdict", "u(t)", "x1(t) (↓ increasing)", "x2(t) (↓ increasing)"} <= set(names)
+
+
+# ---------------------------------------------------------------------------------------
+# other designs
+# ---------------------------------------------------------------------------------------
+
+
+def test_three_states_magnetic_pointer(magnetic, tmp_path):
+    problem, law = magnetic
+    result = ce.verify(problem, law)
+    summary = write_recording(tmp_path / "mpa.rrd", problem, law, result)
+    entities = read(summary.path)
+    mesh = entities["/space/regions"]
+    assert mesh.static
+    V = mesh.values("Mesh3D:vertex_positions").reshape(-1, 3)
+    T = mesh.values("Mesh3D:triangle_indices").reshape(-1, 3).astype(int)
+    assert T.size and T.max() < V.shape[0]
+    assert mesh.instances("Mesh3D:vertex_colors") == V.shape[0]
+    assert summary.entities["/space/regions"] == law.num_regions  # every region meshed
+    # the projection onto (x1, x2) keeps one outline per region
+    assert len(entities["/plane/regions"].per_row("LineStrips2D:strips")[0]) == law.num_regions
+    for k in ("/space/tube", "/space/traces", "/space/initial", "/space/safe/0", "/time/x3/tube"):
+        assert k in entities, k
+    assert entities["/space/tube"].instances("Boxes3D:half_sizes") == result.tube.num_boxes
+    assert any(n == "state space" for n in view_names(summary.path))
+
+
+def test_projection_axes(magnetic, tmp_path):
+    problem, law = magnetic
+    opts = RecordingOptions(axes=(2, 0), traces=0)
+    summary = write_recording(tmp_path / "p.rrd", problem, law, None, options=opts)
+    entities = read(summary.path)
+    box = np.array(entities["/plane/initial"].per_row("LineStrips2D:strips")[0][0])
+    lo, hi = problem.verify.initial_lower, problem.verify.initial_upper
+    assert np.allclose(box.min(axis=0), [lo[2], lo[0]], atol=1e-6)
+    assert np.allclose(box.max(axis=0), [hi[2], hi[0]], atol=1e-6)
+    assert "/plane/traces" not in entities and summary.traces == 0
+
+
+def test_counterexample(unsafe_case):
+    problem, _, result, summary, entities = unsafe_case
+    assert result.verdict == "unsafe" and result.counterexample is not None
+    cex = result.counterexample
+    e = entities["/plane/counterexample"]
+    strip = np.array(e.per_row("LineStrips2D:strips")[0][0], dtype=float)
+    x = np.asarray(cex.trace.x)
+    assert np.allclose(strip, x[np.all(np.isfinite(x), axis=1)], atol=1e-5)
+    for k in (
+        "/time/x1/counterexample",
+        "/time/x2/counterexample",
+        "/scalars/u/u/counterexample",
+        "/scalars/unsafe_distance/counterexample",
+        "/scalars/unsafe_distance/trace_0",
+        "/plane/unsafe/0",
+    ):
+        assert k in entities, k
+    margin = entities["/scalars/unsafe_distance/counterexample"]
+    m = margin.values("Scalars:scalars")
+    t = margin.time
+    assert m[0] > 0 and np.min(m) <= 0  # starts outside, enters the unsafe box
+    assert t[np.argmax(m <= 0)] == ns(cex.t)  # first at the counterexample's time
+    text = entities["/verdict"].per_row("TextDocument:text")[0][0]
+    assert "unsafe" in text and "counterexample" in text
+    assert summary.boxes == result.tube.num_boxes
+
+
+def test_without_result(di, tmp_path):
+    problem, law, _ = di
+    summary = write_recording(tmp_path / "law.rrd", problem, law)
+    entities = read(summary.path)
+    assert summary.boxes == 0 and summary.traces == 16
+    assert "/plane/regions" in entities and "/plane/initial" in entities
+    assert not any(k.endswith("/tube") for k in entities)
+    assert "not verified" in entities["/verdict"].per_row("TextDocument:text")[0][0]
+    check_recording(summary.path)
+
+
+def test_without_verify_section(tmp_path):
+    problem = ce.loads_spec(DI_TEXT.split("[verify]")[0])
+    assert problem.verify is None
+    law = ce.synthesize(problem)
+    summary = write_recording(tmp_path / "bare.rrd", problem, law)
+    assert set(summary.entities) == {"/plane/regions", "/verdict"}
+    assert summary.traces == 0
+    check_recording(summary.path)
+
+
+def test_one_state(tmp_path):
+    problem = ce.load_spec(EXAMPLES / "cruise_control.toml")
+    law = ce.synthesize(problem)
+    # axes are ignored for n == 1 (no plane view)
+    opts = RecordingOptions(axes=(0, 5), traces=3)
+    summary = write_recording(tmp_path / "cc.rrd", problem, law, None, options=opts)
+    entities = read(summary.path)
+    assert not any(k.startswith("/plane/") for k in entities)
+    regions = entities["/time/v/regions"]
+    assert regions.instances("Boxes2D:half_sizes") == law.num_regions
+    for k in ("/time/v/initial", "/time/v/unsafe/0", "/time/v/unsafe/1", "/time/v/traces"):
+        assert k in entities, k
+    assert summary.traces == 3
+
+
+# ---------------------------------------------------------------------------------------
+# file checks and atomicity
+# ---------------------------------------------------------------------------------------
+
+
+def test_check_recording(di_recording, tmp_path):
+    summary, _ = di_recording
+    check_recording(summary.path)
+    data = summary.path.read_bytes()
+    half = tmp_path / "half.rrd"
+    half.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ce.SpecError, match="incomplete|truncated") as err:
+        check_recording(half)
+    assert err.value.file == str(half)
+    with pytest.raises(ce.SpecError, match="not found"):
+        check_recording(tmp_path / "missing.rrd")
+    with pytest.raises(ce.SpecError, match="not a file"):
+        check_recording(tmp_path)
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    with pytest.raises(ce.SpecError, match=r"\.rrd"):
+        check_recording(text)
+    fake = tmp_path / "fake.rrd"
+    fake.write_bytes(b"not a recording at all")
+    with pytest.raises(ce.SpecError, match="not a Rerun recording"):
+        check_recording(fake)
+    empty = tmp_path / "empty.rrd"
+    empty.write_bytes(b"")
+    with pytest.raises(ce.SpecError):
+        check_recording(empty)
+
+
+@pytest.mark.parametrize("axes", [(0, 0), (0, 2), (-1, 1), (0,), (0.0, 1)])
+def test_bad_axes(di, tmp_path, axes):
+    problem, law, result = di
+    path = tmp_path / "bad.rrd"
+    with pytest.raises(ce.SpecError) as err:
+        write_recording(path, problem, law, result, options=RecordingOptions(axes=axes))
+    assert err.value.field == "axes"
+    assert not path.exists() and no_leftovers(tmp_path)
+
+
+def test_bad_arguments(di, tmp_path):
+    problem, law, result = di
+    with pytest.raises(ce.SpecError) as err:
+        write_recording(tmp_path / "x.rrd", problem, law, options=RecordingOptions(traces=-1))
+    assert err.value.field == "traces"
+    with pytest.raises(ce.SpecError, match=r"\.rrd"):
+        write_recording(tmp_path / "x.txt", problem, law)
+    other = ce.load_spec(EXAMPLES / "cruise_control.toml")
+    with pytest.raises(ce.SpecError, match="n=2"):
+        write_recording(tmp_path / "x.rrd", other, law)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_failure_midway_leaves_nothing(di, tmp_path, monkeypatch):
+    problem, law, result = di
+    path = tmp_path / "out.rrd"
+    write_recording(path, problem, law, result, options=RecordingOptions(traces=2))
+    old = path.read_bytes()
+    calls = []
+
+    def boom(writer, content):
+        calls.append(dict(writer.entities))
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(records, "_send_blueprint", boom)
+    with pytest.raises(RuntimeError, match="boom"):
+        write_recording(path, problem, law, result, options=RecordingOptions(traces=2))
+    assert calls and "/plane/tube" in calls[0]  # it failed after logging the data
+    assert path.read_bytes() == old  # the previous recording is untouched
+    assert no_leftovers(tmp_path)
+    fresh = tmp_path / "fresh.rrd"
+    with pytest.raises(RuntimeError, match="boom"):
+        write_recording(fresh, problem, law, result, options=RecordingOptions(traces=2))
+    assert not fresh.exists() and no_leftovers(tmp_path)
+    assert sorted(os.listdir(tmp_path)) == ["out.rrd"]
+
+
+def test_rerun_disabled(di, tmp_path, monkeypatch):
+    problem, law, result = di
+    monkeypatch.setenv("RERUN", "off")
+    with pytest.raises(ce.CodevError, match="RERUN=off"):
+        write_recording(tmp_path / "off.rrd", problem, law, result)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_many_boxes(di, tmp_path):
+    """1e4 tube boxes (the time is in docs/recordings.md; no timed assertion here)."""
+    problem, law, _ = di
+    K = 10_000
+    rng = np.random.default_rng(3)
+    t_start = np.repeat(np.arange(2_000) * 0.0045, 5)
+    lower = rng.uniform(-5.0, 5.0, (K, 2))
+    tube = Tube(t_start, t_start + 0.0045, lower, lower + 0.1, np.zeros(K, dtype=int))
+    result = VerificationResult("robustly_safe", None, tube, "continuous")
+    summary = write_recording(
+        tmp_path / "big.rrd", problem, law, result, options=RecordingOptions(traces=0)
+    )
+    assert summary.boxes == K and summary.entities["/plane/tube"] == K
+    entities = read(summary.path)
+    assert entities["/plane/tube"].instances("Boxes2D:half_sizes") == K
+    assert entities["/time/x1/tube"].instances("Boxes2D:half_sizes") == K
+    assert len(np.unique(entities["/plane/tube"].time)) == 2_000
+
+
+# ---------------------------------------------------------------------------------------
+# geometry helpers
+# ---------------------------------------------------------------------------------------
+
+
+def test_enumerate_vertices():
+    square_A = np.vstack([np.eye(2), -np.eye(2)])
+    square_b = np.array([1.0, 2.0, 0.0, 0.0])
+    tri_A = np.array([[-1.0, 0.0], [0.0, -1.0], [1.0, 1.0]])
+    tri_A[2] /= np.sqrt(2)
+    tri_b = np.array([0.0, 0.0, 1.0 / np.sqrt(2)])
+    cube_A = np.vstack([np.eye(3), -np.eye(3)])
+    V = enumerate_vertices([square_A, tri_A, square_A[:1]], [square_b, tri_b, square_b[:1]])
+    assert {tuple(v) for v in np.round(V[0], 9)} == {(0, 0), (1, 0), (0, 2), (1, 2)}
+    assert {tuple(v) for v in np.round(V[1], 9)} == {(0, 0), (1, 0), (0, 1)}
+    assert V[2].shape == (0, 2)  # one row: no vertex
+    (cube,) = enumerate_vertices([cube_A], [np.ones(6)])
+    assert cube.shape == (8, 3) and np.allclose(np.abs(cube), 1.0)
+    empty = enumerate_vertices([square_A], [np.array([-1.0, 0.0, 0.0, 0.0])])
+    assert empty[0].shape == (0, 2)
+
+
+def test_unsafe_margin():
+    box = SetSpec("box", lower=np.array([0.0, 0.0]), upper=np.array([1.0, np.inf]))
+    X = np.array([[0.5, 5.0], [3.0, 0.5], [-0.25, 10.0], [0.5, -2.0]])
+    assert np.allclose(unsafe_margin([box], X), [-0.5, 2.0, 0.25, 2.0])
+    # a polytope with rows of any norm: normalised, x1 + x2 <= 1 scaled by 10
+    half = SetSpec("polytope", A=np.array([[10.0, 10.0]]), b=np.array([10.0]))
+    assert np.allclose(unsafe_margin([half], np.array([[1.0, 1.0]])), [1.0 / np.sqrt(2)])
+    both = unsafe_margin([box, half], X)
+    assert np.allclose(both, np.minimum(unsafe_margin([box], X), unsafe_margin([half], X)))
+    assert np.all(unsafe_margin([], X) == np.inf)
