@@ -12,11 +12,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-## demo: set everything up, synthesise the bundled double integrator and verify its closed loop
+## demo: set everything up and replay the bundled session (synthesis, verification, recording)
 demo: $(STAMP)
-	$(BIN)/codev synth examples/double_integrator.toml --out out/double_integrator.law.npz
-	$(BIN)/codev verify examples/double_integrator.toml --law out/double_integrator.law.npz \
-		--export-tube out/double_integrator.tube.npz
+	$(BIN)/codev replay sessions/double_integrator
 
 ## test: the whole test suite (what CI runs)
 test: $(STAMP)
