@@ -208,7 +208,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .session import RunOptions, Session
     from .spec import load_spec
 
-    problem = load_spec(args.spec)  # bad input fails here, before the session is touched
+    # bad input fails here or in Session.run's own checks, before the session is touched;
+    # the MPC's feasibility LP (python-control, ~1 s of imports) only when not cached
+    problem = load_spec(args.spec, check_mpc=False)
     session = Session.open_or_create(args.session)
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces

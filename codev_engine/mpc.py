@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import cvxpy as cp
 import numpy as np
-from scipy.optimize import linprog
+
+if TYPE_CHECKING:
+    import cvxpy as cp
 
 from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
@@ -442,6 +444,8 @@ def check_feasible(problem: Problem, model: LinearModel | None = None) -> None:
     kw: dict = {}
     if prog.Aeq is not None:
         kw = {"A_eq": np.hstack([-prog.Feq, prog.Aeq]), "b_eq": prog.beq}
+    from scipy.optimize import linprog
+
     res = linprog(np.zeros(d + nz), A_ub=A_ub, b_ub=b_ub, bounds=(None, None),
                   method="highs", **kw)
     if res.status == 2:
@@ -524,6 +528,8 @@ class OnlineMpc:
         self.solver_options = dict(CLARABEL_OPTIONS if solver_options is None
                                    else solver_options)
 
+        import cvxpy as cp  # imported here: loading a spec or a law does not need it
+
         x = cp.Variable((N + 1, n), name="x")
         u = cp.Variable((N, m), name="u")
         self._x, self._u = x, u
@@ -594,6 +600,8 @@ class OnlineMpc:
 
         ``u0`` is the fixed first move of ``_prob_fixed`` (for the feasibility LP).
         """
+        import cvxpy as cp
+
         status, error = self._clarabel(prob, self.solver_options)
         attempts = [status]
         if status == cp.OPTIMAL:
@@ -632,6 +640,8 @@ class OnlineMpc:
     def _clarabel(prob: cp.Problem, options: dict) -> tuple[str, str]:
         """Solve with Clarabel -> (cvxpy status, error text); a solver failure is the
         status ``"failed"``."""
+        import cvxpy as cp
+
         try:
             with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore"):
                 # "Solution may be inaccurate": the status says so, and it is handled (as
@@ -663,6 +673,8 @@ class OnlineMpc:
                 return False
             lo[(N + 1) * n:(N + 1) * n + m] = u0
             hi[(N + 1) * n:(N + 1) * n + m] = u0
+        from scipy.optimize import linprog
+
         try:
             res = linprog(np.zeros(lo.shape[0]), A_eq=self._lp_Aeq, b_eq=self._lp_beq,
                           bounds=np.column_stack([lo, hi]), method="highs",

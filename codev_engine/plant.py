@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 import sympy
 
@@ -385,6 +384,8 @@ def discretize(problem: Problem) -> LinearModel:
         )
     affine = bool(np.any(f0 != 0.0))
     Bin = np.hstack([Bc, f0[:, None]]) if affine else Bc
+    import control  # ~0.4 s to import (matplotlib): only when discretising
+
     sys = control.ss(Ac, Bin, np.eye(n), np.zeros((n, Bin.shape[1])))
     sampled = sys.sample(dt, method=spec.method)
     A = np.array(sampled.A, dtype=float)

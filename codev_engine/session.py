@@ -47,7 +47,7 @@ from .atomic import atomic_path, write_text
 from .errors import CodevError, SpecError
 from .law import ExplicitLaw
 from .plant import LinearModel
-from .spec import Problem, loads_spec
+from .spec import Problem, check_mpc_feasible, loads_spec
 from .verify import VerificationResult
 from .version import __version__
 
@@ -410,14 +410,15 @@ class Session:
         path = Path(path)
         if path.exists() and not path.is_dir():
             raise SessionError("exists and is not a folder", file=str(path))
-        if path.is_dir() and any(path.iterdir()):
+        if path.is_dir() and not _empty(path):
             raise SessionError(
                 "not a codev session (no session.json) and not empty: refusing to write into it",
                 file=str(path),
             )
-        (path / "artifacts").mkdir(parents=True, exist_ok=True)
+        path.mkdir(parents=True, exist_ok=True)
         meta = {"format": SESSION_FORMAT, "engine": __version__, "created": _now()}
         write_text(path / "session.json", json.dumps(meta, indent=2) + "\n")
+        (path / "artifacts").mkdir(exist_ok=True)
         return cls(path, meta)
 
     @classmethod
@@ -461,15 +462,20 @@ class Session:
             records.append(rec)
         return records
 
-    def _append(self, records: list[dict[str, Any]]) -> None:
-        """Add records to the journal (whole-file atomic rewrite under the lock)."""
+    def _append(self, records: list[dict[str, Any]]) -> int:
+        """Add one run's records to the journal under the next run number; returns it.
+
+        The whole file is rewritten atomically under the lock, so concurrent runs get
+        distinct numbers and no record is lost.
+        """
         with _locked(self.path):
             old = self.journal()
+            run = max((r["run"] for r in old), default=0) + 1
+            for r in records:
+                r["run"] = run
             lines = [json.dumps(r, sort_keys=True) for r in old + records]
             write_text(self.path / "journal.jsonl", "\n".join(lines) + "\n")
-
-    def _next_run(self) -> int:
-        return max((r["run"] for r in self.journal()), default=0) + 1
+        return run
 
     def _save_spec(self, problem: Problem) -> str:
         if not problem.source.strip():
@@ -530,6 +536,8 @@ class Session:
         path = self.artifact_path(stage, key)
         if not path.exists():
             return path, "missing"
+        if not path.is_file():
+            return path, "not a regular file"
         entry = self._index().get(path.name)
         if not isinstance(entry, dict) or entry.get("key") != key:
             return path, "not in the artifact index (an interrupted write?)"
@@ -579,12 +587,12 @@ class Session:
                 out.append(StageStatus(stage, key, "corrupt", rel, why))
             elif any(r["stage"] == stage for r in journal):
                 last = next(r for r in reversed(journal) if r["stage"] == stage)
-                reason = (
-                    "inputs changed since the last run"
-                    if last["key"] != key
-                    else "artifact deleted"
-                )
-                out.append(StageStatus(stage, key, "stale", None, reason))
+                if last["key"] != key:
+                    out.append(
+                        StageStatus(stage, key, "stale", None, "inputs changed since the last run")
+                    )
+                else:
+                    out.append(StageStatus(stage, key, "missing", None, "artifact deleted"))
             else:
                 out.append(StageStatus(stage, key, "missing", None))
         return out
@@ -627,9 +635,13 @@ class Session:
         t_run = time.perf_counter()
         emit = on_event or (lambda _s, _e, _d: None)
         say = warn or (lambda _m: None)
-        spec_sha = self._save_spec(problem) if journal else _sha(problem.source.encode())
-        run_no = self._next_run() if journal else 0
+        self.journal()  # a malformed journal fails here, before anything is written
         keys = stage_keys(problem, options)
+        if fresh or self._check_artifact("synthesis", keys["synthesis"])[1] is not None:
+            # a cached law proves the MPC feasible; otherwise say so before writing anything
+            check_mpc_feasible(problem)
+        spec_sha = self._save_spec(problem) if journal else _sha(problem.source.encode())
+        run_no = 0  # numbered when appended to the journal, under the lock
         report = RunReport(run=run_no, stages=[], problem=problem)
         records: list[dict[str, Any]] = []
         try:
@@ -695,7 +707,7 @@ class Session:
                 emit(stage, "done", _report_json(sr))
         finally:
             if journal and records:
-                self._append(records)
+                report.run = self._append(records)
         report.seconds = time.perf_counter() - t_run
         return report
 
@@ -836,8 +848,8 @@ class Session:
         if foreign:
             raise SessionError(
                 f"the journal was recorded by codev {', '.join(foreign)}; this is codev "
-                f"{__version__}, whose outcomes may differ: re-record it with `codev run "
-                f"SPEC --session {self.path} --fresh`",
+                f"{__version__}, whose outcomes may differ: record a new session with `codev run "
+                f"{self.path / 'spec.toml'} --session NEW_DIR`",
                 file=str(self.path / "journal.jsonl"),
             )
         runs: dict[int, list[dict]] = {}
@@ -895,6 +907,18 @@ class Session:
         with atomic_path(dest) as tmp:
             shutil.copyfile(artifact, tmp)
         return Path(dest)
+
+
+def _empty(folder: Path) -> bool:
+    """Nothing in ``folder`` but what an interrupted :meth:`Session.create` leaves behind
+    (temporary files, an empty ``artifacts/``)."""
+    for p in folder.iterdir():
+        if p.name.startswith(".tmp-") and p.is_file():
+            continue
+        if p.name == "artifacts" and p.is_dir() and not any(p.iterdir()):
+            continue
+        return False
+    return True
 
 
 def _check_axes(problem: Problem, options: RunOptions) -> None:

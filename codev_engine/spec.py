@@ -184,13 +184,17 @@ _VERIFY = (
 )  # fmt: skip
 
 
-def load_spec(path: str | Path) -> Problem:
+def load_spec(path: str | Path, *, check_mpc: bool = True) -> Problem:
     """Read, parse and validate a spec TOML file.
 
     Parameters
     ----------
     path : str or Path
         The spec file.
+    check_mpc : bool
+        Also check that the MPC is feasible somewhere (an LP on the discretised model, which
+        imports python-control). Sessions pass False and check it only when synthesis is not
+        cached: a cached law proves it.
 
     Returns
     -------
@@ -216,10 +220,10 @@ def load_spec(path: str | Path) -> Problem:
         raise SpecError(
             f"the file is not UTF-8 text ({exc.reason} at byte {exc.start})", file=file
         ) from None
-    return loads_spec(text, path=file)
+    return loads_spec(text, path=file, check_mpc=check_mpc)
 
 
-def loads_spec(text: str, *, path: str = "<string>") -> Problem:
+def loads_spec(text: str, *, path: str = "<string>", check_mpc: bool = True) -> Problem:
     """Parse and validate a spec given as TOML text (see :func:`load_spec`).
 
     Parameters
@@ -228,6 +232,8 @@ def loads_spec(text: str, *, path: str = "<string>") -> Problem:
         The TOML document.
     path : str, optional
         Name used for ``Problem.path`` and in error messages.
+    check_mpc : bool
+        See :func:`load_spec`.
     """
     file = str(path)
     try:
@@ -245,16 +251,20 @@ def loads_spec(text: str, *, path: str = "<string>") -> Problem:
     except SpecError as exc:
         raise (exc.with_file(file) if exc.file is None else exc) from None
 
-    try:
-        from .mpc import check_feasible
-    except ImportError:  # mpc.py not there yet
-        check_feasible = None
-    if check_feasible is not None:
-        try:
-            check_feasible(problem)
-        except SpecError as exc:
-            raise (exc.with_file(file) if exc.file is None else exc) from None
+    if check_mpc:
+        check_mpc_feasible(problem)
     return problem
+
+
+def check_mpc_feasible(problem: Problem) -> None:
+    """``SpecError`` (naming the spec's file) when the MPC is infeasible for every state."""
+    from .mpc import check_feasible
+
+    try:
+        check_feasible(problem)
+    except SpecError as exc:
+        file = problem.path or "<string>"
+        raise (exc.with_file(file) if exc.file is None else exc) from None
 
 
 # --- building the problem -------------------------------------------------------------------
