@@ -608,6 +608,7 @@ class Session:
         on_event: EventCallback | None = None,
         warn: Callable[[str], None] | None = None,
         journal: bool = True,
+        raise_errors: bool = True,
     ) -> RunReport:
         """Run the stages up to ``options.upto``, loading valid cached artifacts.
 
@@ -624,6 +625,10 @@ class Session:
             Called with a message when an artifact is found unusable and is recomputed.
         journal : bool
             Append the run to the journal (``replay`` passes False).
+        raise_errors : bool
+            A stage failing with a ``CodevError`` (bad input, solver breakdown) is journaled
+            as "failed" and re-raised; with False the run stops there and the report ends
+            with that stage's "failed" StageReport (its outcome holds the error).
 
         Returns
         -------
@@ -665,22 +670,19 @@ class Session:
                     try:
                         value = self._compute(stage, problem, options, report, path, emit)
                     except CodevError as exc:
+                        seconds = time.perf_counter() - t0
+                        error = {"error": type(exc).__name__, "message": str(exc)}
                         records.append(
                             self._record(
-                                run_no,
-                                stage,
-                                key,
-                                spec_sha,
-                                options,
-                                started,
-                                time.perf_counter() - t0,
-                                "failed",
-                                {"error": type(exc).__name__, "message": str(exc)},
-                                {},
-                                None,
+                                run_no, stage, key, spec_sha, options, started, seconds,
+                                "failed", error, {}, None,
                             )
-                        )
-                        raise
+                        )  # fmt: skip
+                        if raise_errors:
+                            raise
+                        report.stages.append(StageReport(stage, "failed", key, seconds, error))
+                        emit(stage, "done", _report_json(report.stages[-1]))
+                        break
                     self._register(path, stage, key)
                 outcome, details = self._describe(stage, value, report)
                 _attach(report, stage, value)
@@ -863,35 +865,20 @@ class Session:
             options = RunOptions.from_json(recs[0]["options"], where=f"{where}.options")
             last = max(STAGES.index(r["stage"]) for r in recs)
             options = replace(options, upto=STAGES[last])
-            failed = next((r for r in recs if r["status"] == "failed"), None)
-            try:
-                rep = self.run(problem, options, on_event=on_event, warn=warn, journal=False)
-            except CodevError as exc:
-                if failed is None:
-                    raise
-                rep = None
-                got = {"error": type(exc).__name__, "message": str(exc)}
-                checked += 1
-                if got != failed["outcome"]:
-                    mismatches.append((run_no, failed["stage"], failed["outcome"], got))
+            rep = self.run(
+                problem, options, on_event=on_event, warn=warn, journal=False, raise_errors=False
+            )
             run_mismatches = []
-            if rep is not None:
-                for rec in recs:
-                    sr = rep.stage(rec["stage"])
-                    if rec["status"] == "failed":
-                        run_mismatches.append(
-                            (run_no, rec["stage"], rec["outcome"], sr.outcome if sr else {})
-                        )
-                        continue
-                    if sr is None:
-                        continue
-                    checked += 1
-                    cached += sr.status == "cached"
-                    if sr.outcome != rec["outcome"]:
-                        run_mismatches.append((run_no, rec["stage"], rec["outcome"], sr.outcome))
-                mismatches.extend(run_mismatches)
-                if on_run is not None:
-                    on_run(run_no, rep, run_mismatches)
+            for rec in recs:
+                sr = rep.stage(rec["stage"])
+                got = sr.outcome if sr is not None else {"error": "not reached"}
+                checked += 1
+                cached += sr is not None and sr.status == "cached"
+                if got != rec["outcome"]:
+                    run_mismatches.append((run_no, rec["stage"], rec["outcome"], got))
+            mismatches.extend(run_mismatches)
+            if on_run is not None:
+                on_run(run_no, rep, run_mismatches)
         return ReplayReport(
             runs=len(runs),
             checked=checked,
