@@ -767,6 +767,15 @@ def test_failing_stage_is_journaled_as_failed(sess, monkeypatch):
     assert [(m[0], m[1]) for m in replay.mismatches] == [(1, "recording")]
 
 
+def test_replay_of_a_stage_that_now_fails_is_a_mismatch(sess, monkeypatch):
+    sess.run(problem(), RunOptions(traces=0))
+    shutil.rmtree(sess.path / "artifacts")
+    monkeypatch.setenv("RERUN", "off")  # the recording stage cannot be recomputed now
+    rep = sess.replay()
+    assert [(m[0], m[1]) for m in rep.mismatches] == [(1, "recording")]
+    assert rep.mismatches[0][3]["error"] == "CodevError"
+
+
 # --------------------------------------------------------------------------------------------
 # 6. a run killed while writing
 # --------------------------------------------------------------------------------------------
