@@ -10,6 +10,8 @@ for the argument):
    cost is perturbed by a tiny generic vector (fixed seed) so that every LP has exactly one
    optimal vertex; the optimal basis of the perturbed LP is checked to be optimal for the
    *original* cost (its reduced costs are >= 0 under it), so every law is exactly optimal.
+   When it is not (costs of very different sizes, where no perturbation size suits every
+   dual), a primal simplex with the lexicographic rule finishes from that basis.
 3. **Critical region at a point.** Solve at theta (DAQP, exact active sets), take the
    optimal active set / basis, and write the affine optimizer ``z = K theta + k`` and the
    polyhedron where it stays optimal (primal feasibility of every row): the whole set
@@ -28,12 +30,14 @@ for the argument):
 from __future__ import annotations
 
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import daqp
 import numpy as np
+from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 
 from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
@@ -69,6 +73,10 @@ class SolveOptions:
     seed: int = 0
     max_regions: int = 200_000
 
+
+#: a dual is a tie (zero) below this times its componentwise rounding-error bound (the bound
+#: without its factor n; 1e-14 is about 50 units of roundoff)
+_TIE = 1e-14
 
 # --------------------------------------------------------------------------------------
 # reduction
@@ -284,45 +292,150 @@ class _Explorer:
         qn = q + self.rng.normal(size=q.shape) * size
         return qn if self._in_theta(qn) else q
 
-    def _lex_optimal(self, act: np.ndarray, q: np.ndarray) -> bool:
-        """Is the basis ``act`` lexicographically optimal at q?
+    def _lex_state(self, act, q: np.ndarray):
+        """Duals of the basis ``act`` at q -> (vertex, d0, d1, tie, inverse), or None when the
+        basis matrix is singular.
 
         The selection rule is lexicographic in (c, r), r the fixed generic direction of the
-        perturbation: duals for the original cost must be >= 0 (exactness of the law), and
-        on the ties (duals ~ 0, |d0| <= 1e-9 |c|) the duals for r must be >= 0. Among all
-        c-optimal vertices this picks the r-optimal one, which is unique for a generic r --
-        the same vertex whatever the perturbation size used to find it, so regions of
+        perturbation: a basis is lexicographically optimal when its duals for the original
+        cost, d0, are >= 0 and, on the ties (d0 ~ 0), its duals for r, d1, are >= 0. Among
+        all c-optimal vertices this picks the r-optimal one, which is unique for a generic r
+        -- the same vertex whatever the perturbation size used to find it, so regions of
         different laws cannot overlap.
+
+        A tie is a dual within a small multiple (``_TIE``) of its own rounding error, bounded
+        componentwise by ``|B^-T| (|c| + |B^T| |d0|) + max|c|`` (B the basis matrix), and
+        never more than ``1e-9 max|c|``. A fixed ``1e-9 max|c|`` is far above the rounding
+        error when costs have very different sizes (soft-constraint penalties): in
+        mpt3_mpqp_04_dat (costs 1e9 next to 10, max|c| 7e8 after the reduction) genuine
+        duals of the small costs are 0.03 to 0.2 and rounding errors 1e-7, and
+        ``1e-9 max|c|`` = 0.7 called those duals ties (wrong laws).
         """
         r = self.r
         GB = r.G[act]
-        try:
-            d0 = np.linalg.solve(GB.T, -(r.c + r.C @ q))
-            d1 = np.linalg.solve(GB.T, -self.pert)
-            zB = np.linalg.solve(GB, r.w[act] + r.S[act] @ q)
-        except np.linalg.LinAlgError:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LinAlgWarning)  # singular: checked below
+            lu, piv = lu_factor(GB, check_finite=False)
+        if not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) == 0.0:
+            return None
+        cq = r.c + r.C @ q
+        # LU solves (backward stable), not products with the inverse: a dual that is zero
+        # by the structure of the basis comes out zero, not as rounding noise of the inverse
+        d0 = lu_solve((lu, piv), -cq, trans=1, check_finite=False)
+        d1 = lu_solve((lu, piv), -self.pert, trans=1, check_finite=False)
+        x = lu_solve((lu, piv), r.w[act] + r.S[act] @ q, check_finite=False)
+        Binv = lu_solve((lu, piv), np.eye(self.nw), check_finite=False)
+        err0 = np.abs(Binv.T) @ (np.abs(cq) + np.abs(GB.T) @ np.abs(d0))
+        tie = np.abs(d0) <= np.minimum(_TIE * (err0 + self.cmag), 1e-9 * self.cmag)
+        return x, d0, d1, tie, Binv
+
+    def _lex_negative(self, d0, d1, tie) -> np.ndarray:
+        """Rows of a basis whose dual is lexicographically negative."""
+        return (~tie & (d0 < 0)) | (tie & (d1 < -1e-9 * np.max(np.abs(self.pert))))
+
+    def _lex_optimal(self, act: np.ndarray, q: np.ndarray) -> bool:
+        """Is the basis ``act`` lexicographically optimal (and primal feasible) at q?"""
+        st = self._lex_state(act, q)
+        if st is None:
             return False
-        tie = np.abs(d0) <= 1e-9 * self.cmag
-        if np.any(d0[~tie] < 0) or np.any(d1[tie] < -1e-9 * np.max(np.abs(self.pert))):
+        x, d0, d1, tie, _ = st
+        if np.any(self._lex_negative(d0, d1, tie)):
             return False
-        return bool(np.all(r.G @ zB <= r.w + r.S @ q + 1e-9 * self.scale))
+        r = self.r
+        return bool(np.all(r.G @ x <= r.w + r.S @ q + 1e-9 * self.scale))
+
+    def _lex_refine(self, act: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+        """Primal simplex from the primal-feasible basis ``act`` to the lexicographically
+        optimal one; None if ``act`` is not a primal-feasible basis or the pivots do not
+        settle.
+
+        The LP solvers find the optimal vertex of a perturbed cost ``c + delta r``; when
+        delta is not small against every genuine dual of c (costs of very different sizes)
+        their basis is not c-optimal, and no one perturbation size suits every program.
+        This finishes the job with the exact rule, in two phases, each by Bland's rule (the
+        lowest-numbered negative row leaves, the lowest-numbered first blocking row enters:
+        no cycling on degenerate vertices):
+
+        A. rows with a clearly negative d0 leave until the basis is c-optimal;
+        B. the rows with a clearly positive d0 are then held (every optimal point has them
+           active: this is the optimal face) and tied rows with a negative d1 leave: the
+           simplex for r on the optimal face, whose decisions do not depend on the
+           classification of ties.
+
+        A basis seen twice (ties classified differently at different bases) ends it.
+        """
+        r = self.r
+        h = r.w + r.S @ q
+        B = np.array(act, dtype=np.intp)
+        inB = np.zeros(r.G.shape[0], dtype=bool)
+        inB[B] = True
+        held: np.ndarray | None = None  # phase B: rows of the optimal face
+        seen: set[bytes] = set()
+        feas_tol = 1e-9 * self.scale
+        for _ in range(20 * self.nw + 100):
+            key = np.sort(B).tobytes()
+            if key in seen:
+                break
+            seen.add(key)
+            st = self._lex_state(B, q)
+            if st is None:
+                return None
+            x, d0, d1, tie, Binv = st
+            slack = h - r.G @ x
+            if np.any(slack < -feas_tol):
+                return None
+            neg = self._lex_negative(d0, d1, tie)
+            if not np.any(neg):
+                return np.sort(B)
+            if held is None:
+                cand = np.flatnonzero(~tie & (d0 < 0))
+                if cand.size == 0:
+                    held = np.zeros_like(inB)
+                    held[B[~tie & (d0 > 0)]] = True
+            if held is not None:
+                cand = np.flatnonzero(neg & ~held[B])
+                if cand.size == 0:
+                    break  # the face's r-optimum fails the test: not settled
+            self.stats["lex_pivots"] = self.stats.get("lex_pivots", 0) + 1
+            i = cand[np.argmin(B[cand])]
+            u = -Binv[:, i]  # G_B u = -e_i: off row i into its feasible side
+            Gu = r.G @ u
+            block = ~inB & (Gu > 1e-9 * np.linalg.norm(u))
+            if not np.any(block):
+                return None  # unbounded along the face (no lexicographic optimum)
+            rows = np.flatnonzero(block)
+            t = np.maximum(slack[rows], 0.0) / Gu[rows]
+            tmin = np.min(t)
+            j = int(np.min(rows[t <= tmin + 1e-12 * max(1.0, tmin)]))
+            inB[B[i]] = False
+            inB[j] = True
+            B[i] = j
+        self.stats["lex_refine_failed"] = self.stats.get("lex_refine_failed", 0) + 1
+        return None
 
     def _lp_basis(self, q: np.ndarray, lam: np.ndarray) -> np.ndarray | None:
         """The lexicographically optimal basis (row indices) of the LP at q.
 
         DAQP's working set is tried first. Otherwise (DAQP's proximal LP mode can stop on an
         edge when the cost slope along it is as small as the perturbation) HiGHS's dual
-        simplex solves the perturbed LP, with smaller perturbations if needed, until the
-        basis passes the lexicographic test.
+        simplex solves the perturbed LP, with smaller perturbations if needed. A basis that
+        fails the lexicographic test is finished by ``_lex_refine``.
         """
         act = np.flatnonzero(lam > 0)
-        if act.size == self.nw and self._lex_optimal(act, q):
-            return act
+        if act.size == self.nw:
+            if self._lex_optimal(act, q):
+                return act
+            act = self._lex_refine(act, q)
+            if act is not None:
+                return act
         for delta in (self.opts.lp_perturbation, 1e-3 * self.opts.lp_perturbation):
             act = self._highs_basis(q, delta)
             if act is None or (isinstance(act, str)):
                 return None
             if self._lex_optimal(act, q):
+                return act
+            act = self._lex_refine(act, q)
+            if act is not None:
                 return act
             self.stats["rejected_bases"] = self.stats.get("rejected_bases", 0) + 1
         return None
@@ -342,7 +455,9 @@ class _Explorer:
             h.setOptionValue("dual_feasibility_tolerance", 1e-10)
             lp = highspy.HighsLp()
             lp.num_col_, lp.num_row_ = nw, m
-            lp.col_cost_ = self.c_pert.copy()
+            # the objective divided by max|c| (the same optimizer): HiGHS refuses costs
+            # like 1e9 ("excessive dual values")
+            lp.col_cost_ = self.c_pert / self.cmag
             lp.col_lower_ = np.full(nw, -inf)
             lp.col_upper_ = np.full(nw, inf)
             lp.row_lower_ = np.full(m, -inf)
@@ -358,7 +473,7 @@ class _Explorer:
         h.changeRowsBounds(m, np.arange(m, dtype=np.int32), np.full(m, -inf), r.w + r.S @ q)
         if self.is_lp:
             delta = self.opts.lp_perturbation if delta is None else delta
-            cost = r.c + delta * self.cmag * self.pert + r.C @ q
+            cost = (r.c + r.C @ q) / self.cmag + delta * self.pert
             if self._hs_cost is None or np.any(cost != self._hs_cost):
                 h.changeColsCost(nw, np.arange(nw, dtype=np.int32), cost)
                 self._hs_cost = cost

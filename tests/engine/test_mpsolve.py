@@ -155,6 +155,22 @@ def lp_inf_norm():
                    theta_hi=[3, 3])
 
 
+def lp_soft_penalty():
+    """A soft constraint with a 1e9 penalty next to costs of 1, 0.5 and 3e-17 (noise).
+
+    ``z1 + z2 + z3 >= theta1 - s`` is softened by the slack ``s >= 0``, needed for
+    theta1 > 2 (mpt3_mpqp_04_dat in miniature). The duals of the small costs are 1e-9 of
+    max|c|: a tie tolerance or a cost perturbation relative to max|c| swamps them.
+    """
+    A = [[1, 0, 0, 0], [-1, 0, 0, 0], [0, 1, 0, 0], [0, -1, 0, 0], [0, 0, 1, 0],
+         [0, 0, -1, 0], [0, 0, 0, -1], [0, 0, 0, 1], [-1, -1, -1, -1], [1, -1, 0, 0],
+         [0, 1, -1, 0]]
+    b = [1, 1, 1, 1, 1, 1, 0, 10, 0, 0, 0.5]
+    F = [[0, 0]] * 8 + [[-1, 0], [0, 1], [0, 0]]
+    return program(c=[1.0, 3e-17, 0.5, 1e9], A=A, b=b, F=F, theta_lo=[-4, -2],
+                   theta_hi=[5, 2])
+
+
 def qp_triangle_theta():
     """mp-QP on a non-box parameter set (a triangle cut out of the box)."""
     A = [[1, 0], [0, 1], [-1, -1]]
@@ -197,6 +213,7 @@ PROGRAMS = {
     "lp_dual_degenerate": lp_dual_degenerate,
     "lp_primal_degenerate": lp_primal_degenerate,
     "lp_inf_norm": lp_inf_norm,
+    "lp_soft_penalty": lp_soft_penalty,
 }
 for _s in range(6):
     PROGRAMS[f"random_qp{_s}"] = functools.partial(random_program, _s, False)
