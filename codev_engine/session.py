@@ -646,8 +646,8 @@ class Session:
             # a cached law proves the MPC feasible; otherwise say so before writing anything
             check_mpc_feasible(problem)
         spec_sha = self._save_spec(problem) if journal else _sha(problem.source.encode())
-        run_no = 0  # numbered when appended to the journal, under the lock
-        report = RunReport(run=run_no, stages=[], problem=problem)
+        # run 0 until the records are appended: numbered then, under the lock
+        report = RunReport(run=0, stages=[], problem=problem)
         records: list[dict[str, Any]] = []
         try:
             for stage in _stages_for(problem, options):
@@ -670,18 +670,13 @@ class Session:
                     try:
                         value = self._compute(stage, problem, options, report, path, emit)
                     except CodevError as exc:
-                        seconds = time.perf_counter() - t0
                         error = {"error": type(exc).__name__, "message": str(exc)}
-                        records.append(
-                            self._record(
-                                run_no, stage, key, spec_sha, options, started, seconds,
-                                "failed", error, {}, None,
-                            )
-                        )  # fmt: skip
+                        sr = StageReport(stage, "failed", key, time.perf_counter() - t0, error)
+                        records.append(_record(sr, spec_sha, options, started))
                         if raise_errors:
                             raise
-                        report.stages.append(StageReport(stage, "failed", key, seconds, error))
-                        emit(stage, "done", _report_json(report.stages[-1]))
+                        report.stages.append(sr)
+                        emit(stage, "done", _report_json(sr))
                         break
                     self._register(path, stage, key)
                 outcome, details = self._describe(stage, value, report)
@@ -690,61 +685,13 @@ class Session:
                 rel = str(path.relative_to(self.path))
                 sr = StageReport(stage, status, key, seconds, outcome, details, rel, note)
                 report.stages.append(sr)
-                records.append(
-                    self._record(
-                        run_no,
-                        stage,
-                        key,
-                        spec_sha,
-                        options,
-                        started,
-                        seconds,
-                        status,
-                        outcome,
-                        details,
-                        rel,
-                        note,
-                    )
-                )
+                records.append(_record(sr, spec_sha, options, started))
                 emit(stage, "done", _report_json(sr))
         finally:
             if journal and records:
                 report.run = self._append(records)
         report.seconds = time.perf_counter() - t_run
         return report
-
-    def _record(
-        self,
-        run,
-        stage,
-        key,
-        spec_sha,
-        options,
-        started,
-        seconds,
-        status,
-        outcome,
-        details,
-        artifact,
-        note=None,
-    ) -> dict[str, Any]:
-        rec = {
-            "run": run,
-            "stage": stage,
-            "key": key,
-            "spec": spec_sha,
-            "options": options.to_json(),
-            "started": started,
-            "seconds": round(seconds, 6),
-            "status": status,
-            "outcome": outcome,
-            "details": details,
-            "artifact": artifact,
-            "engine": __version__,
-        }
-        if note:
-            rec["note"] = note
-        return rec
 
     def _compute(
         self,
@@ -926,6 +873,27 @@ def _attach(report: RunReport, stage: str, value: Any) -> None:
         report.result = value
     else:
         report.recording = Path(value)
+
+
+def _record(sr: StageReport, spec_sha: str, options: RunOptions, started: str) -> dict:
+    """The journal record of a stage (its ``run`` is set when appended)."""
+    rec = {
+        "run": 0,
+        "stage": sr.stage,
+        "key": sr.key,
+        "spec": spec_sha,
+        "options": options.to_json(),
+        "started": started,
+        "seconds": round(sr.seconds, 6),
+        "status": sr.status,
+        "outcome": sr.outcome,
+        "details": sr.details,
+        "artifact": sr.artifact,
+        "engine": __version__,
+    }
+    if sr.note:
+        rec["note"] = sr.note
+    return rec
 
 
 def _report_json(sr: StageReport) -> dict[str, Any]:
