@@ -462,20 +462,13 @@ def test_bad_spec_message_names_the_field(sdir, tmp_path, capsys):
     assert "spec.toml" in line and "mpc.R" in line
 
 
-def test_foreign_engine_message_says_what_to_do(sdir, tmp_path, capsys):
-    _engine(sdir, tmp_path)
-    code, _, err = cli(capsys, "replay", sdir)
-    assert code == 2
-    line = one_error_line(err)
-    assert "0.0.1" in line and "new session" in line
-
-
 def test_foreign_engine_advice_makes_the_session_replayable(sdir, tmp_path, capsys):
-    """The error's advice (a new session from the old one's spec) gives a replayable one."""
+    """The error names the engine and advises a new session from the old one's spec;
+    following the advice gives a replayable session."""
     _engine(sdir, tmp_path)
     code, _, err = cli(capsys, "replay", sdir)
     line = one_error_line(err)
-    assert code == 2 and "NEW_DIR" in line
+    assert code == 2 and "0.0.1" in line and "new session" in line and "NEW_DIR" in line
     spec = line.split("codev run ", 1)[1].split(" --session", 1)[0]
     new = tmp_path / "new"
     code, _, err = cli(capsys, *run_argv(spec, str(new)))
