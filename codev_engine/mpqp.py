@@ -20,17 +20,164 @@ one Chebyshev-ball LP per candidate active set.
 
 from __future__ import annotations
 
+import os
+from collections import deque
 from collections.abc import Callable
 
 import daqp
 import numpy as np
 from scipy.linalg import cho_solve
+from scipy.linalg.lapack import dgeqrf
 
 from .errors import SolverError
 from .mpsolution import CriticalRegion
-from .polytope import chebyshev_ball, minimal_rows
+from .polytope import chebyshev_ball, minimal_rows, solve_lp
 
 __all__ = ["explore_active_sets"]
+
+
+#: regions found before the search forks worker processes (small problems stay serial:
+#: forking costs ~20 ms)
+PARALLEL_AFTER = 400
+#: candidates handed to a worker per round trip
+_CHUNK = 16
+
+
+class _Kernel:
+    """Everything needed to evaluate one candidate active set (the problem's data,
+    precomputed). A module-level instance is inherited by forked workers."""
+
+    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float):
+        self.nz, self.d = G.shape[1], At.shape[1]
+        m = G.shape[0]
+        self.m = m
+        self.G = G
+        self.Hinv_Gt = np.linalg.solve(H, G.T)  # (nz, m)
+        self.M = G @ self.Hinv_Gt  # (m, m)
+        Hinv_c = np.linalg.solve(H, c)
+        Hinv_C = np.linalg.solve(H, C)
+        # d(theta) = D0 + D1 theta, as one (m, d+1) array
+        self.Dfull = np.hstack([(w + G @ Hinv_c)[:, None], S + G @ Hinv_C])
+        self.negZ0 = -np.hstack([Hinv_c[:, None], Hinv_C])
+        self.At, self.bt = At, bt
+        self.idx = np.arange(m)
+        self.zeros_t = np.zeros(At.shape[0], dtype=np.intp)
+        self.scale = scale
+        self.region_tol = region_tol
+        self.nonempty_tol = 1e-8 * scale
+        self.box = _bounding_box(At, bt)  # (centre, half-widths) or None
+
+    def evaluate(self, act: tuple[int, ...]):
+        """Classify the active set ``act``.
+
+        Returns
+        -------
+        (status, rows, law, moves, lp) : tuple
+            ``status`` is "licq" (rows dependent or too many), "empty", "lower" or "full";
+            ``rows = (A, b)`` and ``law = (K, k)`` for a full region; ``moves`` the signed
+            constraint ids of the neighbours (``+i+1``: i may leave, ``-(i+1)``: i may enter);
+            ``lp`` whether a Chebyshev LP was solved.
+        """
+        G, m, d, nz = self.G, self.m, self.d, self.nz
+        A = np.array(act, dtype=np.intp)
+        na = A.size
+        if na > nz:
+            return "licq", None, None, None, False
+        if na:
+            # rows of G_A (unit norm) dependent, or nearly: LICQ broken
+            # (LAPACK's QR straight: numpy's wrapper costs more than the factorisation)
+            Rq = dgeqrf(G[A].T)[0]
+            if np.min(np.abs(np.diagonal(Rq)[:na])) < 1e-9:
+                return "licq", None, None, None, False
+            MA = self.M[A]
+            try:
+                Lc = np.linalg.cholesky(MA[:, A])
+            except np.linalg.LinAlgError:
+                return "licq", None, None, None, False
+            Lam = cho_solve((Lc, True), -self.Dfull[A])  # (na, d+1)
+        else:
+            MA = np.zeros((0, m))
+            Lam = np.zeros((0, d + 1))
+        mask = np.ones(m, dtype=bool)
+        mask[A] = False
+        inact = self.idx[mask]
+        Sl = self.Dfull[inact] + MA[:, inact].T @ Lam
+        # lambda >= 0  <=>  -Lam1 theta <= Lam0 ;  slack >= 0  <=>  -Sl1 theta <= Sl0
+        Ar = np.vstack([-Lam[:, 1:], -Sl[:, 1:], self.At])
+        br = np.concatenate([Lam[:, 0], Sl[:, 0], self.bt])
+        src = np.concatenate([A + 1, -(inact + 1), self.zeros_t])
+        norms = np.sqrt(np.einsum("ij,ij->i", Ar, Ar))
+        zero = norms <= 1e-12
+        if np.any(br[zero] < -1e-12):
+            return "empty", None, None, None, False
+        keep_nz = ~zero
+        Ar, br, src = Ar[keep_nz] / norms[keep_nz, None], br[keep_nz] / norms[keep_nz], src[keep_nz]
+        centre, rho = chebyshev_ball(Ar, br)
+        if not rho >= -self.nonempty_tol:
+            return "empty", None, None, None, True
+        if not rho > self.region_tol:
+            # lower-dimensional: its neighbours are the constraints tight at a point of it
+            tight = Ar @ centre - br >= -max(rho, 0.0) - 1e-7 * self.scale
+            return "lower", None, None, src[tight], True
+        # rows that hold on the whole bounding box of the parameter set are implied by the
+        # parameter-set rows (always kept): only the others go to the LP-based minrep
+        maybe = src != 0
+        if self.box is not None:
+            reach = Ar @ self.box[0] + np.abs(Ar) @ self.box[1]  # max of each row on the box
+            maybe &= reach > br - 1e-9 * self.scale
+        maybe = np.flatnonzero(maybe)
+        keep = maybe[minimal_rows(Ar[maybe], br[maybe])]
+        # DAQP's minrep was seen dropping a parameter-set row that is not redundant
+        # (pop_mpqp_085: a region reaching theta_2 = 106 in a box of +-10); those rows
+        # are few and cheap to keep: every region stays inside the parameter set
+        keep = np.union1d(keep, np.flatnonzero(src == 0))
+        # the neighbours: constraints of the facets, and of rows on a facet's hyperplane
+        # (several constraints changing on one hyperplane: a degenerate facet)
+        bf = br[keep]
+        tol = 1e-9 * (1.0 + np.abs(bf))
+        i, j = np.nonzero(np.abs(br[:, None] - bf[None, :]) <= tol)  # offsets first: cheap
+        same = np.abs(Ar[i] - Ar[keep[j]]).max(axis=1) <= tol[j]
+        moves = src[np.unique(i[same])]
+        # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
+        Z = self.negZ0 - self.Hinv_Gt[:, A] @ Lam
+        return "full", (Ar[keep], br[keep]), (Z[:, 1:], Z[:, 0]), moves, True
+
+
+def _bounding_box(At: np.ndarray, bt: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The bounding box of the parameter set ``At theta <= bt`` as (centre, half-widths)
+    (2d LPs), widened by a relative 1e-9 so that it surely contains the set; None if an LP
+    fails (then no row is dropped on its account)."""
+    d = At.shape[1]
+    lo, hi = np.empty(d), np.empty(d)
+    for k in range(d):
+        e = np.zeros(d)
+        e[k] = 1.0
+        x_lo, st_lo, _ = solve_lp(e, At, bt)
+        x_hi, st_hi, _ = solve_lp(-e, At, bt)
+        if st_lo != "optimal" or st_hi != "optimal" or x_lo is None or x_hi is None:
+            return None
+        lo[k], hi[k] = x_lo[k], x_hi[k]
+    pad = 1e-9 * (1.0 + np.abs(lo) + np.abs(hi))
+    return 0.5 * (lo + hi), 0.5 * (hi - lo) + pad
+
+
+_KERNEL: _Kernel | None = None
+
+
+def _evaluate_chunk(acts: list[tuple[int, ...]]) -> list:
+    """Worker side: evaluate candidates with the kernel inherited from the parent."""
+    assert _KERNEL is not None
+    return [_KERNEL.evaluate(a) for a in acts]
+
+
+def _workers(requested: int | None) -> int:
+    if requested is not None:
+        return max(1, int(requested))
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cpus = os.cpu_count() or 1
+    return max(1, cpus)
 
 
 def explore_active_sets(
@@ -47,6 +194,7 @@ def explore_active_sets(
     scale: float,
     region_tol: float,
     max_regions: int,
+    workers: int | None = None,
     progress: Callable[[int], None] | None = None,
     stats: dict | None = None,
 ) -> list[CriticalRegion]:
@@ -59,103 +207,39 @@ def explore_active_sets(
         A feasible parameter (the search starts from the optimal active set there).
     scale : float
         Size of the parameter set (tolerances are relative to it).
+    workers : int, optional
+        Processes evaluating candidates once more than ``PARALLEL_AFTER`` regions are
+        found (default: the CPUs this process may use; 1 = serial). The graph is the same
+        whatever the order of evaluation, so the result is too.
 
     Returns
     -------
     list of CriticalRegion
-        In the variables z; ``active`` holds the active set.
+        In the variables z, sorted by active set; ``active`` holds the active set.
     """
+    global _KERNEL
     stats = {} if stats is None else stats
-    nz, d = G.shape[1], At.shape[1]
-    m = G.shape[0]
-    Hinv_Gt = np.linalg.solve(H, G.T)  # (nz, m)
-    M = G @ Hinv_Gt  # (m, m)
-    Hinv_c = np.linalg.solve(H, c)
-    Hinv_C = np.linalg.solve(H, C)
-    D0 = w + G @ Hinv_c  # d(theta) = D0 + D1 theta
-    D1 = S + G @ Hinv_C
+    kernel = _Kernel(H, c, C, G, w, S, At, bt, scale, region_tol)
+    nz, m = kernel.nz, kernel.m
     # rows that cannot be active together: exact opposites (a variable's two bounds)
     opposite = {}
     for i in range(m):
         j = np.flatnonzero(np.abs(G + G[i]).max(axis=1) <= 1e-12)
         opposite[i] = set(int(x) for x in j)
-    nonempty_tol = 1e-8 * scale
-    Dfull = np.hstack([D0[:, None], D1])  # (m, d+1)
-    negZ0 = -np.hstack([Hinv_c[:, None], Hinv_C])
-    idx = np.arange(m)
-    nt = At.shape[0]
-    zeros_t = np.zeros(nt, dtype=np.intp)
-
-    def region(act: tuple[int, ...]):
-        """(status, rows, law): status 'licq', 'empty', 'lower' or 'full'."""
-        A = np.array(act, dtype=np.intp)
-        na = A.size
-        if na > nz:
-            return "licq", None, None, None
-        if na:
-            # rows of G_A (unit norm) dependent, or nearly: LICQ broken
-            Rq = np.linalg.qr(G[A].T, mode="r")
-            if np.min(np.abs(np.diag(Rq))) < 1e-9:
-                return "licq", None, None, None
-            MA = M[A]
-            MAA = MA[:, A]
-            try:
-                Lc = np.linalg.cholesky(MAA)
-            except np.linalg.LinAlgError:
-                return "licq", None, None, None
-            Lam = cho_solve((Lc, True), -Dfull[A])  # (na, d+1)
-        else:
-            MA = np.zeros((0, m))
-            Lam = np.zeros((0, d + 1))
-        mask = np.ones(m, dtype=bool)
-        mask[A] = False
-        inact = idx[mask]
-        Sl = Dfull[inact] + MA[:, inact].T @ Lam
-        # lambda >= 0  <=>  -Lam1 theta <= Lam0 ;  slack >= 0  <=>  -Sl1 theta <= Sl0
-        Ar = np.vstack([-Lam[:, 1:], -Sl[:, 1:], At])
-        br = np.concatenate([Lam[:, 0], Sl[:, 0], bt])
-        # which constraint each row belongs to: +i+1 "i may leave", -(i+1) "i may enter"
-        src = np.concatenate([A + 1, -(inact + 1), zeros_t])
-        norms = np.linalg.norm(Ar, axis=1)
-        zero = norms <= 1e-12
-        if np.any(br[zero] < -1e-12):
-            return "empty", None, None, None
-        Ar, br, src = Ar[~zero] / norms[~zero, None], br[~zero] / norms[~zero], src[~zero]
-        stats["lps"] = stats.get("lps", 0) + 1
-        centre, rho = chebyshev_ball(Ar, br)
-        if not rho >= -nonempty_tol:
-            return "empty", None, None, None
-        if not rho > region_tol:
-            # lower-dimensional: its neighbours are the constraints tight at a point of it
-            tight = Ar @ centre - br >= -max(rho, 0.0) - 1e-7 * scale
-            return "lower", None, None, src[tight]
-        keep = minimal_rows(Ar, br)
-        # DAQP's minrep was seen dropping a parameter-set row that is not redundant
-        # (pop_mpqp_085: a region reaching theta_2 = 106 in a box of +-10); those rows
-        # are few and cheap to keep: every region stays inside the parameter set
-        keep = np.union1d(keep, np.flatnonzero(src == 0))
-        # the neighbours: constraints of the facets, and of rows on a facet's hyperplane
-        # (several constraints changing on one hyperplane: a degenerate facet)
-        facets = np.hstack([Ar[keep], br[keep, None]])
-        allrows = np.hstack([Ar, br[:, None]])
-        near = np.abs(allrows[:, None, :] - facets[None, :, :]).max(axis=2) <= 1e-9 * (
-            1.0 + np.abs(facets[None, :, -1])
-        )
-        moves = src[np.any(near, axis=1)]
-        # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
-        Z = negZ0 - Hinv_Gt[:, A] @ Lam
-        return "full", (Ar[keep], br[keep]), (Z[:, 1:], Z[:, 0]), moves
 
     act0 = _active_set_at(H, c, C, G, w, S, theta0)
     regions: list[CriticalRegion] = []
     explored = {act0}
     stack = [act0]
-    while stack:
-        act = stack.pop()
-        status, rows, law, moves = region(act)
+    nworkers = _workers(workers)
+    pool = None
+
+    def visit(act, result) -> None:
+        status, rows, law, moves, lp = result
         stats["candidates"] = stats.get("candidates", 0) + 1
-        if status in ("empty",):
-            continue
+        stats["lps"] = stats.get("lps", 0) + int(lp)
+        if status == "empty":
+            return
         if status == "full":
             regions.append(CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1], active=act))
             if progress is not None:
@@ -175,7 +259,7 @@ def explore_active_sets(
                 explored.add(new)
                 stack.append(new)
         if status == "licq" or len(act) >= nz + 1:
-            continue
+            return
         blocked = set(act)
         for i in act:
             blocked |= opposite[i]
@@ -186,8 +270,54 @@ def explore_active_sets(
             if new not in explored:
                 explored.add(new)
                 stack.append(new)
+
+    try:
+        inflight: deque = deque()  # (chunk, AsyncResult), oldest first
+        while stack or inflight:
+            if pool is None and nworkers > 1 and len(regions) >= PARALLEL_AFTER:
+                pool = _start_pool(kernel, nworkers - 1)  # this process works too
+                if pool is None:
+                    nworkers = 1
+            if pool is None:
+                act = stack.pop()
+                visit(act, kernel.evaluate(act))
+                continue
+            # the workers get chunks of the newest candidates (depth first, as in the
+            # serial search); this process evaluates candidates too while they work, and
+            # visits their results as they come
+            while len(stack) > _CHUNK and len(inflight) < 2 * nworkers:
+                chunk = stack[-_CHUNK:]
+                del stack[-_CHUNK:]
+                inflight.append((chunk, pool.apply_async(_evaluate_chunk, (chunk,))))
+            if inflight and (inflight[0][1].ready() or not stack):
+                chunk, pending = inflight.popleft()
+                for act, result in zip(chunk, pending.get(), strict=True):
+                    visit(act, result)
+            elif stack:
+                act = stack.pop()
+                visit(act, kernel.evaluate(act))
+    finally:
+        if pool is not None:
+            pool.terminate()
+            pool.join()
+            stats["workers"] = nworkers
+        _KERNEL = None
     stats["explored"] = len(explored)
+    regions.sort(key=lambda r: r.active)  # the same order however they were found
     return _merge_equal_laws(regions, scale, stats)
+
+
+def _start_pool(kernel: _Kernel, nworkers: int):
+    """A pool of forked workers sharing ``kernel`` (None where fork is unavailable)."""
+    global _KERNEL
+    import multiprocessing as mp
+
+    try:
+        ctx = mp.get_context("fork")
+    except ValueError:  # pragma: no cover - no fork on this platform: stay serial
+        return None
+    _KERNEL = kernel
+    return ctx.Pool(nworkers)
 
 
 def _merge_equal_laws(

@@ -43,7 +43,15 @@ from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
 from .mpqp import explore_active_sets
 from .mpsolution import CriticalRegion, MpSolution
-from .polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp, vertices
+from .polytope import (
+    chebyshev_ball,
+    minimal_rows,
+    normalize_rows,
+    row_keys,
+    solve_lp,
+    unique_rows,
+    vertices,
+)
 
 __all__ = ["CriticalRegion", "MpSolution", "mpsolve", "SolveOptions"]
 
@@ -65,6 +73,9 @@ class SolveOptions:
         Seed of that perturbation and of point jitter (results are reproducible).
     max_regions : int
         Safety stop.
+    workers : int or None
+        Processes that evaluate mp-QP candidates once the search is large (None: the CPUs
+        this process may use; 1: serial). The result does not depend on it.
     """
 
     region_tol: float = 1e-9
@@ -72,6 +83,7 @@ class SolveOptions:
     lp_perturbation: float = 1e-5
     seed: int = 0
     max_regions: int = 200_000
+    workers: int | None = None
 
 
 #: a dual is a tie (zero) below this times its componentwise rounding-error bound (the bound
@@ -801,6 +813,7 @@ def mpsolve(
                 scale=ex.scale,
                 region_tol=ex.region_tol,
                 max_regions=opts.max_regions,
+                workers=opts.workers,
                 progress=progress,
                 stats=ex.stats,
             )
@@ -852,12 +865,9 @@ def _domain_from_regions(
     lifted set ``{(w, theta) : G w - S theta <= w0, At theta <= bt}``).
     """
     rows = np.vstack([np.hstack([r.A, r.b[:, None]]) for r in regions])
-    key = np.round(rows, 7)
-    _, first = np.unique(key, axis=0, return_index=True)
-    cand = rows[np.sort(first)]
+    cand = rows[unique_rows(rows, 7)]
     # a facet between two regions appears with both signs: not on the boundary
-    neg = {tuple(r) for r in np.round(-rows, 7).tolist()}
-    cand = [r for r in cand if tuple(np.round(r, 7).tolist()) not in neg]
+    cand = cand[~np.isin(row_keys(cand, 7), row_keys(-rows, 7))]
     nw = red.G.shape[1]
     LA = np.vstack(
         [np.hstack([red.G, -red.S]), np.hstack([np.zeros((red.At.shape[0], nw)), red.At])]
