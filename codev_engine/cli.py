@@ -425,6 +425,23 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+#: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
+BENCHMARKS = ("mp", "synth", "session", "paper", "hylaa_peer")
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    import subprocess
+
+    folder = Path(__file__).resolve().parent.parent / "benchmarks"
+    script = folder / f"{args.name}.py"
+    if not script.is_file():
+        raise SpecError(
+            f"no benchmark script {script} (benchmarks live in the source checkout)",
+            field="bench",
+        )
+    return subprocess.call([sys.executable, str(script), *args.args])
+
+
 def _axes(text: str) -> tuple[int, int]:
     try:
         parts = tuple(int(p) for p in text.split(","))
@@ -575,6 +592,14 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", metavar="DIR", help="the session folder")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=_cmd_session)
+
+    p = sub.add_parser(
+        "bench",
+        help="run a benchmark against the peers (benchmarks/NAME.py; see benchmarks/README.md)",
+    )
+    p.add_argument("name", choices=BENCHMARKS)
+    p.add_argument("args", nargs=argparse.REMAINDER, help="passed to the script (--help)")
+    p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("view", help="open a Rerun recording (.rrd) in the viewer")
     p.add_argument("file", metavar="FILE.rrd")

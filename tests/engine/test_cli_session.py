@@ -528,3 +528,10 @@ def test_exit_status_of_real_processes(sdir, tmp_path):
     rep = json.loads(p.stdout)
     assert rep["match"] is False and [m["stage"] for m in rep["mismatches"]] == ["verification"]
     assert snapshot(sdir) == before
+
+
+def test_bench_runs_a_benchmark_script(capsys):
+    """``codev bench NAME ARGS`` runs benchmarks/NAME.py with ARGS (here: its --help)."""
+    from codev_engine.cli import main
+
+    assert main(["bench", "session", "--help"]) == 0
