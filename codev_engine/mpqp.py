@@ -31,7 +31,12 @@ from scipy.linalg.lapack import dgeqrf
 
 from .errors import SolverError
 from .mpsolution import CriticalRegion
-from .polytope import chebyshev_ball, minimal_rows, solve_lp
+from .polytope import (
+    certified_minimal_rows,
+    chebyshev_ball,
+    checked_minimal_rows,
+    solve_lp,
+)
 
 __all__ = ["explore_active_sets"]
 
@@ -39,6 +44,9 @@ __all__ = ["explore_active_sets"]
 #: regions found before the search forks worker processes (small problems stay serial:
 #: forking costs ~20 ms)
 PARALLEL_AFTER = 400
+#: a region whose largest row norm (before normalisation) exceeds this many times the median
+#: is ill-conditioned: its rows are only dropped with a certificate
+_ILL = 1e4
 #: candidates handed to a worker per round trip
 _CHUNK = 16
 
@@ -121,12 +129,25 @@ class _Kernel:
             return "lower", None, None, src[tight], True
         # rows that hold on the whole bounding box of the parameter set are implied by the
         # parameter-set rows (always kept): only the others go to the LP-based minrep
-        maybe = src != 0
+        # (the parameter-set rows go in too: minrep needs a bounded polytope, and dropped a
+        # needed row of pop_mpqp_084 without them)
+        maybe = np.ones(src.shape[0], dtype=bool)
         if self.box is not None:
             reach = Ar @ self.box[0] + np.abs(Ar) @ self.box[1]  # max of each row on the box
-            maybe &= reach > br - 1e-9 * self.scale
+            maybe = (reach > br - 1e-9 * self.scale) | (src == 0)
         maybe = np.flatnonzero(maybe)
-        keep = maybe[minimal_rows(Ar[maybe], br[maybe])]
+        nrm = norms[keep_nz]
+        sensitive = nrm > _ILL * np.median(nrm)
+        if self.box is not None and np.any(sensitive[maybe]):
+            # ill-conditioned: rows of gain ~1e9 (multipliers of a nearly dependent active
+            # set) next to rows of ~1; a violation of 5e-6 after normalisation is then a
+            # multiplier of -4e4. Such rows are dropped only with a certificate.
+            bound = float(np.max(np.abs(self.box[0]) + self.box[1]))
+            keep = maybe[
+                certified_minimal_rows(Ar[maybe], br[maybe], centre, rho, bound, sensitive[maybe])
+            ]
+        else:
+            keep = maybe[checked_minimal_rows(Ar[maybe], br[maybe], centre, rho)]
         # DAQP's minrep was seen dropping a parameter-set row that is not redundant
         # (pop_mpqp_085: a region reaching theta_2 = 106 in a box of +-10); those rows
         # are few and cheap to keep: every region stays inside the parameter set

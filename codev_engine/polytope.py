@@ -253,6 +253,79 @@ def minimal_rows(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     return first[~redundant]
 
 
+def checked_minimal_rows(
+    A: np.ndarray, b: np.ndarray, centre: np.ndarray, radius: float
+) -> np.ndarray:
+    """:func:`minimal_rows`, checked against the set's largest inscribed ball.
+
+    DAQP's minrep decides redundancy at its own tolerance and was seen dropping rows 1e-5
+    (normalised) from redundant: a sliver region of pop_mpqp_084 (inscribed radius 4e-6)
+    then stretched over its neighbours with a law of gain ~1e8. The kept rows' inscribed
+    ball must be the full set's (``centre``, ``radius``) and poke through no dropped row;
+    otherwise redundancy is decided row by row with tight LPs (:func:`exact_minimal_rows`).
+    Rows must be normalised.
+    """
+    keep = minimal_rows(A, b)
+    dropped = np.setdiff1d(np.arange(A.shape[0]), keep)
+    if dropped.size == 0:
+        return keep
+    c2, r2 = chebyshev_ball(A[keep], b[keep])
+    tol = 1e-9 * (1.0 + np.abs(b[dropped]))
+    same_ball = r2 <= radius + 1e-6 * abs(radius) + 1e-12
+    if same_ball and np.all(A[dropped] @ c2 + r2 <= b[dropped] + tol):
+        return keep
+    return exact_minimal_rows(A, b, centre)
+
+
+def certified_minimal_rows(
+    A: np.ndarray,
+    b: np.ndarray,
+    centre: np.ndarray,
+    radius: float,
+    bound: float,
+    sensitive: np.ndarray,
+) -> np.ndarray:
+    """Non-redundant rows, where a ``sensitive`` row is dropped only with a certificate.
+
+    A sensitive row ``a_i x <= b_i`` dropped by minrep is dropped here only when ``y >= 0``
+    (non-negative least squares) gives ``A_K' y ~ a_i`` over the kept rows ``K`` with
+    ``b_K' y + |a_i - A_K' y|_1 bound <= b_i`` (``bound`` >= max |x| over the set): then
+    every x in the set satisfies it. Otherwise it is kept (harmless: a redundant row only
+    costs a needless neighbour candidate). For ill-conditioned sets, where minrep's and
+    even a tight LP's redundancy decisions were seen wrong by 5e-6 (pop_mpqp_001).
+    """
+    from scipy.optimize import nnls
+
+    keep = checked_minimal_rows(A, b, centre, radius)
+    kept = np.zeros(A.shape[0], dtype=bool)
+    kept[keep] = True
+    for i in np.flatnonzero(~kept & sensitive):
+        AK = A[kept]
+        try:
+            y, _ = nnls(AK.T, A[i], maxiter=50 * AK.shape[0])
+        except RuntimeError:  # no convergence: no certificate
+            kept[i] = True
+            continue
+        resid = float(np.sum(np.abs(A[i] - AK.T @ y)))
+        if not b[kept] @ y + resid * bound <= b[i] - 1e-12 * (1.0 + abs(b[i])):
+            kept[i] = True
+    return np.flatnonzero(kept)
+
+
+def exact_minimal_rows(A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Non-redundant rows of ``A x <= b`` by one tight LP per row (``max a_i x`` over the
+    rows kept so far), rows farthest from ``centre`` (an interior point) first."""
+    k = A.shape[0]
+    keep = np.ones(k, dtype=bool)
+    for i in np.argsort(-(b - A @ centre)):
+        keep[i] = False
+        x, status, _ = solve_lp(-A[i], A[keep], b[keep])
+        redundant = status == "optimal" and x is not None
+        if not (redundant and A[i] @ x <= b[i] + 1e-9 * (1 + abs(b[i]))):
+            keep[i] = True
+    return np.flatnonzero(keep)
+
+
 def vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-9, max_combos: int = 20_000):
     """Vertices of a bounded polytope by enumerating d-subsets of its rows.
 

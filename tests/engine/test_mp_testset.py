@@ -57,6 +57,10 @@ TESTSET = Path(os.environ.get("CODEV_MP_TESTSET") or _DEFAULT)
 N_UNIFORM = 20
 N_FEASIBLE = 20
 N_OUTSIDE = 6  # just outside the parameter set: never located
+# probes inside the solution's own regions: the thinnest (largest bounding box for the
+# inscribed ball: where a wrongly dropped row shows, as on pop_mpqp_084) and random ones
+N_THIN = 16
+N_RANDOM_REGIONS = 8
 SEED = 20240917
 TIME_LIMIT = 60.0  # seconds for one solve; the subprocess is killed a little later
 RTOL = 1e-6
@@ -264,7 +268,10 @@ class Normalised:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                prob.solve(solver=solver)
+                # HiGHS' QP solver was seen looping for minutes at a point near a region's
+                # edge (pop_mpqp_081): a time limit makes that "unknown", then a fallback
+                opts = {"time_limit": 10.0} if solver == cp.HIGHS else {}
+                prob.solve(solver=solver, **opts)
         except Exception:  # noqa: BLE001 - a solver failure is "unknown", then a fallback
             return "unknown", None, None
         if prob.status == "optimal":
@@ -556,6 +563,51 @@ def conformance(sol: ce.MpSolution, N: Normalised, Theta: np.ndarray) -> tuple[l
     return problems, detail
 
 
+def region_probes(sol: ce.MpSolution, rng) -> np.ndarray:
+    """Points deep inside and near the edge of some of the solution's regions.
+
+    From each chosen region's Chebyshev centre a random ray to the region's boundary; the
+    points at 50% and 95% of it. A region whose H-representation lost a row reaches over
+    its neighbours with its own law: its far points get a wrong value. Regions are chosen
+    thinnest first (bounding-box diagonal over inscribed radius, over at most 2000
+    regions), then at random.
+    """
+    from codev_engine.polytope import chebyshev_ball
+
+    if not sol.regions:
+        return np.zeros((0, sol.domain_A.shape[1] if sol.domain_A is not None else 0))
+    k = sol.num_regions
+    pool = rng.choice(k, size=min(k, 2000), replace=False)
+    blo, bhi = sol.locator.box_lo, sol.locator.box_hi
+    balls = {}
+    ratio = np.empty(pool.size)
+    for n, i in enumerate(pool):
+        reg = sol.regions[i]
+        nrm = np.linalg.norm(reg.A, axis=1)
+        c, r = chebyshev_ball(reg.A / nrm[:, None], reg.b / nrm)
+        balls[i] = c
+        ratio[n] = np.linalg.norm(bhi[i] - blo[i]) / max(r, 1e-300)
+    thin = pool[np.argsort(-ratio)[:N_THIN]]
+    rest = np.setdiff1d(pool, thin)
+    chosen = np.concatenate([thin, rng.choice(rest, size=min(N_RANDOM_REGIONS, rest.size),
+                                              replace=False)])
+    out = []
+    for i in chosen:
+        reg = sol.regions[i]
+        c = balls[i]
+        if not np.all(np.isfinite(c)):
+            continue
+        v = rng.normal(size=c.size)
+        v /= np.linalg.norm(v)
+        Av = reg.A @ v
+        pos = Av > 1e-12
+        if not np.any(pos):
+            continue
+        t = float(np.min((reg.b[pos] - reg.A[pos] @ c) / Av[pos]))
+        out += [c + 0.5 * t * v, c + 0.95 * t * v]
+    return np.array(out).reshape(-1, sol.regions[0].A.shape[1])
+
+
 def sample(N: Normalised, seed: int = SEED) -> np.ndarray:
     """``N_UNIFORM`` uniform in the parameter set, ``N_FEASIBLE`` feasible, ``N_OUTSIDE``
     outside it."""
@@ -591,7 +643,8 @@ def test_mp_testset_conformance(name, tmp_path, request, record_property):
     print(line)
 
     N = Normalised(prog)
-    problems, detail = conformance(sol, N, sample(N))
+    Theta = np.vstack([sample(N), region_probes(sol, np.random.default_rng(SEED))])
+    problems, detail = conformance(sol, N, Theta)
     verdict = "ok" if not problems else "WRONG: " + "; ".join(problems)
     record_property("mp_testset", f"{line}  {verdict}")
     print(f"  {detail}; {verdict}")
