@@ -86,38 +86,33 @@ class _Kernel:
             constraint ids of the neighbours (``+i+1``: i may leave, ``-(i+1)``: i may enter);
             ``lp`` whether a Chebyshev LP was solved.
         """
-        G, m, d, nz = self.G, self.m, self.d, self.nz
         A = np.array(act, dtype=np.intp)
-        na = A.size
-        if na > nz:
+        if A.size > self.nz:
             return "licq", None, None, None, False
-        if na:
-            # rows of G_A (unit norm) dependent, or nearly: LICQ broken
-            # (LAPACK's QR straight: numpy's wrapper costs more than the factorisation)
-            Rq = dgeqrf(G[A].T)[0]
-            if np.min(np.abs(np.diagonal(Rq)[:na])) < 1e-9:
-                return "licq", None, None, None, False
-            MA = self.M[A]
-            try:
-                Lc = np.linalg.cholesky(MA[:, A])
-            except np.linalg.LinAlgError:
-                return "licq", None, None, None, False
-            Lam = cho_solve((Lc, True), -self.Dfull[A])  # (na, d+1)
-        else:
-            MA = np.zeros((0, m))
-            Lam = np.zeros((0, d + 1))
-        mask = np.ones(m, dtype=bool)
-        mask[A] = False
-        inact = self.idx[mask]
-        Sl = self.Dfull[inact] + MA[:, inact].T @ Lam
+        # rows of G_A (unit norm) dependent, or nearly: LICQ broken
+        # (LAPACK's QR straight: numpy's wrapper costs more than the factorisation)
+        if A.size and np.min(np.abs(np.diagonal(dgeqrf(self.G[A].T)[0])[: A.size])) < 1e-9:
+            return "licq", None, None, None, False
+        kkt = self._kkt(A)
+        if isinstance(kkt, str):
+            return kkt, None, None, None, False
+        Lam, Sl, inact, tie, Z = kkt
         # lambda >= 0  <=>  -Lam1 theta <= Lam0 ;  slack >= 0  <=>  -Sl1 theta <= Sl0
         Ar = np.vstack([-Lam[:, 1:], -Sl[:, 1:], self.At])
         br = np.concatenate([Lam[:, 0], Sl[:, 0], self.bt])
         src = np.concatenate([A + 1, -(inact + 1), self.zeros_t])
         norms = np.sqrt(np.einsum("ij,ij->i", Ar, Ar))
         zero = norms <= 1e-12
-        if np.any(br[zero] < -1e-12):
-            return "empty", None, None, None, False
+        if np.any(zero):
+            bz = br[zero]
+            bad = bz < -1e-12
+            if tie is not None:
+                # a multiplier or slack that is zero for every theta: the tie is broken by
+                # the perturbation direction (lexicographic selection, semi-definite H)
+                tz = np.concatenate([tie, np.zeros(self.At.shape[0])])[zero]
+                bad |= (bz <= 1e-10 * (1.0 + self.scale)) & (tz < -1e-12 * (1.0 + self.scale))
+            if np.any(bad):
+                return "empty", None, None, None, False
         keep_nz = ~zero
         Ar, br, src = Ar[keep_nz] / norms[keep_nz, None], br[keep_nz] / norms[keep_nz], src[keep_nz]
         centre, rho = chebyshev_ball(Ar, br)
@@ -159,9 +154,36 @@ class _Kernel:
         i, j = np.nonzero(np.abs(br[:, None] - bf[None, :]) <= tol)  # offsets first: cheap
         same = np.abs(Ar[i] - Ar[keep[j]]).max(axis=1) <= tol[j]
         moves = src[np.unique(i[same])]
-        # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
-        Z = self.negZ0 - self.Hinv_Gt[:, A] @ Lam
+        if Z is None:
+            # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
+            Z = self.negZ0 - self.Hinv_Gt[:, A] @ Lam
         return "full", (Ar[keep], br[keep]), (Z[:, 1:], Z[:, 0]), moves, True
+
+    def _kkt(self, A: np.ndarray):
+        """Multipliers and slacks of the active set ``A`` (LICQ holds), affine in theta.
+
+        Returns
+        -------
+        str or tuple
+            "licq" when ``M_AA`` is not positive definite; else ``(Lam (na, d+1),
+            Sl (m-na, d+1), inact, tie, Z)`` with columns (constant, theta), ``tie`` None
+            (H > 0: the optimizer is unique) and ``Z`` None (computed for full regions).
+        """
+        if A.size:
+            MA = self.M[A]
+            try:
+                Lc = np.linalg.cholesky(MA[:, A])
+            except np.linalg.LinAlgError:
+                return "licq"
+            Lam = cho_solve((Lc, True), -self.Dfull[A])  # (na, d+1)
+        else:
+            MA = np.zeros((0, self.m))
+            Lam = np.zeros((0, self.d + 1))
+        mask = np.ones(self.m, dtype=bool)
+        mask[A] = False
+        inact = self.idx[mask]
+        Sl = self.Dfull[inact] + MA[:, inact].T @ Lam
+        return Lam, Sl, inact, None, None
 
 
 def _bounding_box(At: np.ndarray, bt: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -180,6 +202,60 @@ def _bounding_box(At: np.ndarray, bt: np.ndarray) -> tuple[np.ndarray, np.ndarra
         lo[k], hi[k] = x_lo[k], x_hi[k]
     pad = 1e-9 * (1.0 + np.abs(lo) + np.abs(hi))
     return 0.5 * (lo + hi), 0.5 * (hi - lo) + pad
+
+
+class _KernelSemidefinite(_Kernel):
+    """The kernel for a positive semi-definite (singular, non-zero) H.
+
+    The optimizer need not be unique: the one selected is the limit, as eps -> 0+, of the
+    unique optimizer for the cost ``c + eps r`` with a fixed generic direction ``r`` (the
+    lexicographic rule of the mp-LP path). For an active set whose KKT matrix
+    ``[[H, G_A'], [G_A, 0]]`` is nonsingular (G_A independent, H definite on its null
+    space) the multipliers, slacks and optimizer are affine in theta plus eps times a
+    constant; a row that vanishes for every theta is decided by its eps part. Active sets
+    with a singular KKT matrix are "singular": the search goes on through their supersets
+    (across such a facet one constraint leaves and another enters, as in a simplex pivot).
+    The caller makes sure no direction of recession exists (the eps problem is bounded).
+    """
+
+    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float, r):
+        self.nz, self.d = G.shape[1], At.shape[1]
+        self.m = G.shape[0]
+        self.H, self.G, self.w, self.S = H, G, w, S
+        # right-hand sides (constant, theta, eps) of the stationarity rows
+        self.rhs_z = np.hstack([-c[:, None], -C, -r[:, None]])
+        self.At, self.bt = At, bt
+        self.idx = np.arange(self.m)
+        self.zeros_t = np.zeros(At.shape[0], dtype=np.intp)
+        self.scale = scale
+        self.region_tol = region_tol
+        self.nonempty_tol = 1e-8 * scale
+        self.box = _bounding_box(At, bt)
+        self.h_tol = 1e-9 * max(1.0, float(np.max(np.abs(H))))
+
+    def _kkt(self, A: np.ndarray):
+        nz, na, d = self.nz, A.size, self.d
+        GA = self.G[A]
+        # H definite on null(G_A)?  (else the KKT matrix is singular)
+        if na < nz:
+            Q = np.linalg.qr(GA.T, mode="complete")[0] if na else np.eye(nz)
+            N = Q[:, na:]
+            if np.linalg.eigvalsh(N.T @ self.H @ N).min() <= self.h_tol:
+                return "singular"
+        K = np.zeros((nz + na, nz + na))
+        K[:nz, :nz] = self.H
+        K[:nz, nz:] = GA.T
+        K[nz:, :nz] = GA
+        rhs = np.vstack([self.rhs_z, np.hstack([self.w[A, None], self.S[A], np.zeros((na, 1))])])
+        X = np.linalg.solve(K, rhs)  # (nz + na, d + 2): columns constant, theta, eps
+        Zf, Lf = X[:nz], X[nz:]
+        mask = np.ones(self.m, dtype=bool)
+        mask[A] = False
+        inact = self.idx[mask]
+        Sf = np.hstack([self.w[inact, None], self.S[inact], np.zeros((inact.size, 1))])
+        Sf -= self.G[inact] @ Zf
+        tie = np.concatenate([Lf[:, -1], Sf[:, -1]])
+        return Lf[:, : d + 1], Sf[:, : d + 1], inact, tie, Zf[:, : d + 1]
 
 
 _KERNEL: _Kernel | None = None
@@ -216,6 +292,7 @@ def explore_active_sets(
     region_tol: float,
     max_regions: int,
     workers: int | None = None,
+    semidefinite: bool = False,
     progress: Callable[[int], None] | None = None,
     stats: dict | None = None,
 ) -> list[CriticalRegion]:
@@ -232,6 +309,10 @@ def explore_active_sets(
         Processes evaluating candidates once more than ``PARALLEL_AFTER`` regions are
         found (default: the CPUs this process may use; 1 = serial). The graph is the same
         whatever the order of evaluation, so the result is too.
+    semidefinite : bool
+        H is only positive semi-definite (singular): the optimizer is selected
+        lexicographically (see ``_KernelSemidefinite``); the caller has checked that the
+        problem has no direction of recession.
 
     Returns
     -------
@@ -240,7 +321,13 @@ def explore_active_sets(
     """
     global _KERNEL
     stats = {} if stats is None else stats
-    kernel = _Kernel(H, c, C, G, w, S, At, bt, scale, region_tol)
+    if semidefinite:
+        r = np.random.default_rng(0).normal(size=G.shape[1])
+        kernel: _Kernel = _KernelSemidefinite(H, c, C, G, w, S, At, bt, scale, region_tol, r)
+        act0 = _active_set_at(H + 1e-9 * np.eye(H.shape[0]), c + 1e-7 * r, C, G, w, S, theta0)
+    else:
+        kernel = _Kernel(H, c, C, G, w, S, At, bt, scale, region_tol)
+        act0 = _active_set_at(H, c, C, G, w, S, theta0)
     nz, m = kernel.nz, kernel.m
     # rows that cannot be active together: exact opposites (a variable's two bounds)
     opposite = {}
@@ -248,7 +335,6 @@ def explore_active_sets(
         j = np.flatnonzero(np.abs(G + G[i]).max(axis=1) <= 1e-12)
         opposite[i] = set(int(x) for x in j)
 
-    act0 = _active_set_at(H, c, C, G, w, S, theta0)
     regions: list[CriticalRegion] = []
     explored = {act0}
     stack = [act0]
@@ -269,6 +355,8 @@ def explore_active_sets(
                 raise SolverError(f"more than {max_regions} regions")
         if status == "licq":
             leave, enter = list(act), []  # its subsets are the way on
+        elif status == "singular":
+            leave, enter = [], [i for i in range(m) if i not in act]  # its supersets
         else:
             # across the facets of a full-dimensional region, or the constraints tight
             # on a lower-dimensional one

@@ -1,7 +1,8 @@
 """Exact multi-parametric LP/QP solver, the front door of both.
 
-Strictly convex mp-QPs (H > 0 after equality elimination) go to the active-set graph
-search of ``mpqp.py``. mp-LPs are explored geometrically here (see ``docs/algorithm.md``
+mp-QPs (H != 0 after equality elimination; positive definite, or semi-definite with a
+lexicographic selection of the optimizer) go to the active-set graph search of
+``mpqp.py``. mp-LPs are explored geometrically here (see ``docs/algorithm.md``
 for the argument):
 
 1. **Reduce.** Eliminate equalities, move pure-parameter rows to the parameter set,
@@ -787,10 +788,11 @@ def mpsolve(
     opts = options or SolveOptions()
     t0 = time.perf_counter()
     red = _reduce(program)
-    if np.any(red.H) and np.min(np.linalg.eigvalsh(red.H)) <= 1e-12 * max(
+    semidefinite = bool(np.any(red.H)) and np.min(np.linalg.eigvalsh(red.H)) <= 1e-12 * max(
         1.0, np.max(np.abs(red.H))
-    ):
-        raise SolverError("semi-definite H is not supported yet by mpsolve (H must be > 0)")
+    )
+    if semidefinite:
+        _check_no_recession(red)
     ex = _Explorer(red, opts, progress)
     if ex.is_lp:
         regions = ex.run()
@@ -814,6 +816,7 @@ def mpsolve(
                 region_tol=ex.region_tol,
                 max_regions=opts.max_regions,
                 workers=opts.workers,
+                semidefinite=semidefinite,
                 progress=progress,
                 stats=ex.stats,
             )
@@ -849,6 +852,28 @@ def _domain(red: _Reduced, boundary: list[np.ndarray]) -> tuple[np.ndarray, np.n
     A, b = rows[:, :-1], rows[:, -1]
     keep = minimal_rows(A, b)
     return A[keep], b[keep]
+
+
+def _check_no_recession(red: _Reduced) -> None:
+    """Semi-definite H: refuse a program with a direction of recession ``d != 0``
+    (``H d = 0``, ``G d <= 0``), along which the optimizer is not unique or the cost is
+    unbounded below. Without one the optimizer set is bounded and the lexicographic
+    selection of the mp-QP search is well defined."""
+    lam, V = np.linalg.eigh(red.H)
+    N = V[:, lam <= 1e-9 * max(1.0, float(np.max(np.abs(lam))))]  # null space of H
+    k = N.shape[1]
+    GN = red.G @ N
+    for j in range(k):
+        for sign in (1.0, -1.0):
+            f = np.zeros(k)
+            f[j] = -sign
+            y, status, _ = solve_lp(f, GN, np.zeros(GN.shape[0]), lb=-np.ones(k), ub=np.ones(k))
+            if status == "optimal" and y is not None and sign * y[j] > 1e-9:
+                raise SolverError(
+                    "H is only semi-definite and the constraints leave a direction of "
+                    "recession in its null space (the optimizer is not unique or the cost "
+                    "is unbounded along it): bound those variables"
+                )
 
 
 def _empty_domain(red: _Reduced) -> tuple[np.ndarray, np.ndarray]:

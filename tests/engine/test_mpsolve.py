@@ -204,7 +204,26 @@ def random_program(seed: int, lp: bool):
                    theta_hi=np.full(d, 1.5))
 
 
+def random_semidefinite(seed: int) -> ce.MpProgram:
+    """A random mp-QP whose H has rank 1 or 2 below nz (bounded variables: no recession)."""
+    p = random_program(seed, False)
+    rng = np.random.default_rng(1000 + seed)
+    rank = max(1, p.nz - int(rng.integers(1, 3)))
+    L = rng.normal(size=(p.nz, rank))
+    return ce.MpProgram(H=L @ L.T, c=p.c, C=p.C, A=p.A, b=p.b, F=p.F, A_theta=p.A_theta,
+                        b_theta=p.b_theta)
+
+
+def qp_semidefinite_tie():
+    """min 0.5 (z1 - theta)^2 s.t. |z| <= 1 (box): z2 does not appear in the cost, so every
+    z2 in [-1, 1] is optimal; the selection must pick one, with no overlapping regions."""
+    return program(H=[[1.0, 0.0], [0.0, 0.0]], c=[0.0, 0.0], C=[[-1.0], [0.0]],
+                   A=[[1, 0], [-1, 0], [0, 1], [0, -1]], b=[1, 1, 1, 1], F=np.zeros((4, 1)),
+                   theta_lo=[-2.0], theta_hi=[2.0])
+
+
 PROGRAMS = {
+    "qp_semidefinite_tie": qp_semidefinite_tie,
     "qp_box_coupled": qp_box_coupled,
     "qp_equality": qp_equality,
     "qp_triangle_theta": qp_triangle_theta,
@@ -218,6 +237,8 @@ PROGRAMS = {
 for _s in range(6):
     PROGRAMS[f"random_qp{_s}"] = functools.partial(random_program, _s, False)
     PROGRAMS[f"random_lp{_s}"] = functools.partial(random_program, 100 + _s, True)
+for _s in range(6):
+    PROGRAMS[f"semidefinite_qp{_s}"] = functools.partial(random_semidefinite, _s)
 # found by the slow sweep: "facet coverage did not converge" (16) and a sliver region
 # whose bounding box comes out infinite, after which nothing is located (31)
 for _s in (16, 31):
@@ -554,3 +575,32 @@ def test_parallel_search_gives_the_serial_result(name, monkeypatch):
         assert a.active == b.active
         np.testing.assert_array_equal(a.A, b.A)
         np.testing.assert_array_equal(a.K, b.K)
+
+
+def test_semidefinite_ties_are_broken_one_way():
+    """In qp_semidefinite_tie z2 is free in the cost: the active sets {z2 <= 1} and
+    {z2 >= -1} both satisfy the KKT conditions everywhere with a zero multiplier. The
+    lexicographic rule must accept exactly one of them (else regions would overlap with
+    different laws), whichever r picks; and the solution's z2 is that bound."""
+    from codev_engine import mpqp
+
+    p = qp_semidefinite_tie()
+    for seed in range(4):
+        r = np.random.default_rng(seed).normal(size=2)
+        k = mpqp._KernelSemidefinite(p.H, p.c, p.C, p.A, p.b, p.F, p.A_theta, p.b_theta,
+                                     1.0, 1e-9, r)
+        upper, lower = k.evaluate((2,))[0], k.evaluate((3,))[0]  # rows z2 <= 1, -z2 <= 1
+        assert sorted([upper, lower]) == ["empty", "full"], (seed, upper, lower)
+        assert (upper == "full") == (r[1] < 0)  # min eps r2 z2: z2 = +1 when r2 < 0
+    sol = ce.mpsolve(p)
+    z = sol.primal(np.array([[0.3], [-1.7], [1.9]]))
+    assert np.allclose(np.abs(z[:, 1]), 1.0) and np.allclose(z[:, 0], [0.3, -1.0, 1.0])
+
+
+def test_semidefinite_with_a_recession_direction_is_refused():
+    """z2 unbounded and absent from H: the optimizer is not unique (or the cost unbounded)."""
+    p = program(H=[[1.0, 0.0], [0.0, 0.0]], c=[0.0, 0.0], C=[[-1.0], [0.0]],
+                A=[[1, 0], [-1, 0], [0, 1]], b=[1, 1, 1], F=np.zeros((3, 1)),
+                theta_lo=[-2.0], theta_hi=[2.0])
+    with pytest.raises(ce.SolverError, match="recession"):
+        ce.mpsolve(p)
