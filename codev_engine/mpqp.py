@@ -44,9 +44,6 @@ __all__ = ["explore_active_sets"]
 #: regions found before the search forks worker processes (small problems stay serial:
 #: forking costs ~20 ms)
 PARALLEL_AFTER = 400
-#: a region whose largest row norm (before normalisation) exceeds this many times the median
-#: is ill-conditioned: its rows are only dropped with a certificate
-_ILL = 1e4
 #: candidates handed to a worker per round trip
 _CHUNK = 16
 
@@ -131,16 +128,12 @@ class _Kernel:
             reach = Ar @ self.box[0] + np.abs(Ar) @ self.box[1]  # max of each row on the box
             maybe = (reach > br - 1e-9 * self.scale) | (src == 0)
         maybe = np.flatnonzero(maybe)
-        nrm = norms[keep_nz]
-        sensitive = nrm > _ILL * np.median(nrm)
-        if self.box is not None and np.any(sensitive[maybe]):
-            # ill-conditioned: rows of gain ~1e9 (multipliers of a nearly dependent active
-            # set) next to rows of ~1; a violation of 5e-6 after normalisation is then a
-            # multiplier of -4e4. Such rows are dropped only with a certificate.
+        if self.box is not None:
+            # minrep's redundancy decisions were seen wrong by 5e-6 (normalised), amplified by
+            # the rows' gains (pop_mpqp_084: a law off by 16; pop_mpqp_011, _017, _019:
+            # overlaps of 2e-5): a row is dropped only with a certificate
             bound = float(np.max(np.abs(self.box[0]) + self.box[1]))
-            keep = maybe[
-                certified_minimal_rows(Ar[maybe], br[maybe], centre, rho, bound, sensitive[maybe])
-            ]
+            keep = maybe[certified_minimal_rows(Ar[maybe], br[maybe], centre, rho, bound)]
         else:
             keep = maybe[checked_minimal_rows(Ar[maybe], br[maybe], centre, rho)]
         # DAQP's minrep was seen dropping a parameter-set row that is not redundant

@@ -283,11 +283,10 @@ def certified_minimal_rows(
     centre: np.ndarray,
     radius: float,
     bound: float,
-    sensitive: np.ndarray,
 ) -> np.ndarray:
-    """Non-redundant rows, where a ``sensitive`` row is dropped only with a certificate.
+    """Non-redundant rows, where a row is dropped only with a certificate.
 
-    A sensitive row ``a_i x <= b_i`` dropped by minrep is dropped here only when ``y >= 0``
+    A row ``a_i x <= b_i`` dropped by minrep is dropped here only when ``y >= 0``
     (non-negative least squares) gives ``A_K' y ~ a_i`` over the kept rows ``K`` with
     ``b_K' y + |a_i - A_K' y|_1 bound <= b_i`` (``bound`` >= max |x| over the set): then
     every x in the set satisfies it. Otherwise it is kept (harmless: a redundant row only
@@ -299,7 +298,7 @@ def certified_minimal_rows(
     keep = checked_minimal_rows(A, b, centre, radius)
     kept = np.zeros(A.shape[0], dtype=bool)
     kept[keep] = True
-    for i in np.flatnonzero(~kept & sensitive):
+    for i in np.flatnonzero(~kept):
         AK = A[kept]
         try:
             y, _ = nnls(AK.T, A[i], maxiter=50 * AK.shape[0])
