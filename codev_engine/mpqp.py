@@ -32,10 +32,10 @@ from scipy.linalg.lapack import dgeqrf
 from .errors import SolverError
 from .mpsolution import CriticalRegion
 from .polytope import (
+    bounding_box,
     certified_minimal_rows,
     chebyshev_ball,
     checked_minimal_rows,
-    solve_lp,
 )
 
 __all__ = ["explore_active_sets"]
@@ -52,11 +52,8 @@ class _Kernel:
     """Everything needed to evaluate one candidate active set (the problem's data,
     precomputed). A module-level instance is inherited by forked workers."""
 
-    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float):
-        self.nz, self.d = G.shape[1], At.shape[1]
-        m = G.shape[0]
-        self.m = m
-        self.G = G
+    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float, box):
+        self._setup(G, At, bt, scale, region_tol, box)
         self.Hinv_Gt = np.linalg.solve(H, G.T)  # (nz, m)
         self.M = G @ self.Hinv_Gt  # (m, m)
         Hinv_c = np.linalg.solve(H, c)
@@ -64,13 +61,18 @@ class _Kernel:
         # d(theta) = D0 + D1 theta, as one (m, d+1) array
         self.Dfull = np.hstack([(w + G @ Hinv_c)[:, None], S + G @ Hinv_C])
         self.negZ0 = -np.hstack([Hinv_c[:, None], Hinv_C])
+
+    def _setup(self, G, At, bt, scale: float, region_tol: float, box) -> None:
+        """What every kernel needs: sizes, the parameter set, tolerances, its box."""
+        self.nz, self.d, self.m = G.shape[1], At.shape[1], G.shape[0]
+        self.G = G
         self.At, self.bt = At, bt
-        self.idx = np.arange(m)
+        self.idx = np.arange(self.m)
         self.zeros_t = np.zeros(At.shape[0], dtype=np.intp)
         self.scale = scale
         self.region_tol = region_tol
         self.nonempty_tol = 1e-8 * scale
-        self.box = _bounding_box(At, bt)  # (centre, half-widths) or None
+        self.box = _padded_box(*box)  # (centre, half-widths) or None
 
     def evaluate(self, act: tuple[int, ...]):
         """Classify the active set ``act``.
@@ -179,20 +181,12 @@ class _Kernel:
         return Lam, Sl, inact, None, None
 
 
-def _bounding_box(At: np.ndarray, bt: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The bounding box of the parameter set ``At theta <= bt`` as (centre, half-widths)
-    (2d LPs), widened by a relative 1e-9 so that it surely contains the set; None if an LP
-    fails (then no row is dropped on its account)."""
-    d = At.shape[1]
-    lo, hi = np.empty(d), np.empty(d)
-    for k in range(d):
-        e = np.zeros(d)
-        e[k] = 1.0
-        x_lo, st_lo, _ = solve_lp(e, At, bt)
-        x_hi, st_hi, _ = solve_lp(-e, At, bt)
-        if st_lo != "optimal" or st_hi != "optimal" or x_lo is None or x_hi is None:
-            return None
-        lo[k], hi[k] = x_lo[k], x_hi[k]
+def _padded_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The parameter set's bounding box as (centre, half-widths), widened by a relative
+    1e-9 so that it surely contains the set; None when a side is infinite (then no row is
+    dropped on its account)."""
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        return None
     pad = 1e-9 * (1.0 + np.abs(lo) + np.abs(hi))
     return 0.5 * (lo + hi), 0.5 * (hi - lo) + pad
 
@@ -211,19 +205,11 @@ class _KernelSemidefinite(_Kernel):
     The caller makes sure no direction of recession exists (the eps problem is bounded).
     """
 
-    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float, r):
-        self.nz, self.d = G.shape[1], At.shape[1]
-        self.m = G.shape[0]
-        self.H, self.G, self.w, self.S = H, G, w, S
+    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float, box, r):
+        self._setup(G, At, bt, scale, region_tol, box)
+        self.H, self.w, self.S = H, w, S
         # right-hand sides (constant, theta, eps) of the stationarity rows
         self.rhs_z = np.hstack([-c[:, None], -C, -r[:, None]])
-        self.At, self.bt = At, bt
-        self.idx = np.arange(self.m)
-        self.zeros_t = np.zeros(At.shape[0], dtype=np.intp)
-        self.scale = scale
-        self.region_tol = region_tol
-        self.nonempty_tol = 1e-8 * scale
-        self.box = _bounding_box(At, bt)
         self.h_tol = 1e-9 * max(1.0, float(np.max(np.abs(H))))
 
     def _kkt(self, A: np.ndarray):
@@ -284,6 +270,7 @@ def explore_active_sets(
     scale: float,
     region_tol: float,
     max_regions: int,
+    theta_box: tuple[np.ndarray, np.ndarray] | None = None,
     workers: int | None = None,
     semidefinite: bool = False,
     progress: Callable[[int], None] | None = None,
@@ -298,6 +285,8 @@ def explore_active_sets(
         A feasible parameter (the search starts from the optimal active set there).
     scale : float
         Size of the parameter set (tolerances are relative to it).
+    theta_box : ((d,), (d,)) ndarrays, optional
+        The parameter set's bounding box (lo, hi), if the caller has it already.
     workers : int, optional
         Processes evaluating candidates once more than ``PARALLEL_AFTER`` regions are
         found (default: the CPUs this process may use; 1 = serial). The graph is the same
@@ -314,12 +303,13 @@ def explore_active_sets(
     """
     global _KERNEL
     stats = {} if stats is None else stats
+    box = theta_box if theta_box is not None else bounding_box(At, bt)
     if semidefinite:
         r = np.random.default_rng(0).normal(size=G.shape[1])
-        kernel: _Kernel = _KernelSemidefinite(H, c, C, G, w, S, At, bt, scale, region_tol, r)
+        kernel: _Kernel = _KernelSemidefinite(H, c, C, G, w, S, At, bt, scale, region_tol, box, r)
         act0 = _active_set_at(H + 1e-9 * np.eye(H.shape[0]), c + 1e-7 * r, C, G, w, S, theta0)
     else:
-        kernel = _Kernel(H, c, C, G, w, S, At, bt, scale, region_tol)
+        kernel = _Kernel(H, c, C, G, w, S, At, bt, scale, region_tol, box)
         act0 = _active_set_at(H, c, C, G, w, S, theta0)
     nz, m = kernel.nz, kernel.m
     # rows that cannot be active together: exact opposites (a variable's two bounds)

@@ -45,6 +45,7 @@ from .mpprogram import MpProgram
 from .mpqp import explore_active_sets
 from .mpsolution import CriticalRegion, MpSolution
 from .polytope import (
+    bounding_box,
     chebyshev_ball,
     minimal_rows,
     normalize_rows,
@@ -181,7 +182,8 @@ class _Explorer:
         _, st, _ = solve_lp(np.zeros(self.d), red.At, red.bt)
         if st == "infeasible":
             raise SpecError("the parameter set is empty", field="A_theta")
-        lo, hi = self._bounding_box(red.At, red.bt)
+        lo, hi = bounding_box(red.At, red.bt)
+        self.theta_box = (lo, hi)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise SpecError("the parameter set is unbounded", field="A_theta")
         if np.any(hi - lo < 0):
@@ -210,18 +212,6 @@ class _Explorer:
         self._starts = np.zeros(0, dtype=np.intp)
 
     # ---- small geometry helpers -------------------------------------------------------
-
-    def _bounding_box(self, A, b):
-        d = A.shape[1]
-        lo, hi = np.empty(d), np.empty(d)
-        for i in range(d):
-            e = np.zeros(d)
-            e[i] = 1.0
-            x, st, _ = solve_lp(e, A, b)
-            lo[i] = x[i] if st == "optimal" else -np.inf
-            x, st, _ = solve_lp(-e, A, b)
-            hi[i] = x[i] if st == "optimal" else np.inf
-        return lo, hi
 
     def _in_theta(self, q: np.ndarray) -> bool:
         return bool(np.all(self.r.At @ q <= self.r.bt + 1e-12 * self.scale))
@@ -814,6 +804,7 @@ def mpsolve(
                 q0,
                 scale=ex.scale,
                 region_tol=ex.region_tol,
+                theta_box=ex.theta_box,
                 max_regions=opts.max_regions,
                 workers=opts.workers,
                 semidefinite=semidefinite,

@@ -216,6 +216,23 @@ def chebyshev_ball(
     return x[:d], float(x[d])
 
 
+def bounding_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box ``(lo, hi)`` of ``{x : A x <= b}`` by 2d LPs; a side whose LP has no
+    optimum (unbounded or failed) is -inf / +inf."""
+    d = A.shape[1]
+    lo, hi = np.full(d, -np.inf), np.full(d, np.inf)
+    for i in range(d):
+        e = np.zeros(d)
+        e[i] = 1.0
+        x, st, _ = solve_lp(e, A, b)
+        if st == "optimal" and x is not None:
+            lo[i] = x[i]
+        x, st, _ = solve_lp(-e, A, b)
+        if st == "optimal" and x is not None:
+            hi[i] = x[i]
+    return lo, hi
+
+
 def row_keys(M: np.ndarray, decimals: int) -> np.ndarray:
     """One hashable, comparable key per row of ``M`` rounded to ``decimals`` -> (r,) void.
 

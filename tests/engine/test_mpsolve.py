@@ -583,12 +583,14 @@ def test_semidefinite_ties_are_broken_one_way():
     lexicographic rule must accept exactly one of them (else regions would overlap with
     different laws), whichever r picks; and the solution's z2 is that bound."""
     from codev_engine import mpqp
+    from codev_engine.polytope import bounding_box
 
     p = qp_semidefinite_tie()
     for seed in range(4):
         r = np.random.default_rng(seed).normal(size=2)
+        box = bounding_box(p.A_theta, p.b_theta)
         k = mpqp._KernelSemidefinite(p.H, p.c, p.C, p.A, p.b, p.F, p.A_theta, p.b_theta,
-                                     1.0, 1e-9, r)
+                                     1.0, 1e-9, box, r)
         upper, lower = k.evaluate((2,))[0], k.evaluate((3,))[0]  # rows z2 <= 1, -z2 <= 1
         assert sorted([upper, lower]) == ["empty", "full"], (seed, upper, lower)
         assert (upper == "full") == (r[1] < 0)  # min eps r2 z2: z2 = +1 when r2 < 0
