@@ -28,31 +28,12 @@ def _err(msg: str) -> None:
 
 
 @contextmanager
-def _progress(label: str, enabled: bool) -> Iterator[Callable[[int], None]]:
-    """A live 'regions found' counter on a terminal (rich), silent otherwise."""
-    if not enabled or not sys.stderr.isatty():
-        yield lambda _count: None
-        return
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
-
-    with Progress(
-        SpinnerColumn(),
-        TextColumn("[bold]{task.description}"),
-        TextColumn("{task.fields[count]} regions"),
-        TimeElapsedColumn(),
-        transient=True,
-        console=None,
-    ) as prog:
-        task = prog.add_task(label, count=0)
-        last = [0.0]
-
-        def update(count: int) -> None:
-            now = time.monotonic()
-            if now - last[0] > 0.1:  # keep terminal updates ~10 Hz
-                last[0] = now
-                prog.update(task, count=count)
-
-        yield update
+def _progress(label: str, enabled: bool, unit: str = "regions") -> Iterator[Callable[[int], None]]:
+    """A live counter (``unit`` found so far) for one long step: a one-stage
+    :func:`_stage_progress`."""
+    with _stage_progress(enabled, {label: unit}) as on_event:
+        on_event(label, "start", {})
+        yield lambda count: on_event(label, "progress", {"count": count})
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:
@@ -144,7 +125,7 @@ def _verification(args: argparse.Namespace, problem, law, synth_seconds: float |
 
     if problem.verify is None:
         raise CodevError(f"{problem.path}: verify: the spec has no [verify] section")
-    with _progress(f"verifying {problem.name}", not args.json) as update:
+    with _progress(f"verifying {problem.name}", not args.json, "branches") as update:
         result = verify(
             problem,
             law,
@@ -273,14 +254,17 @@ def _warn(msg: str) -> None:
 
 
 @contextmanager
-def _stage_progress(enabled: bool) -> Iterator[Callable[[str, str, dict], None]]:
-    """One rich progress line per stage on a terminal (counts for long stages), else quiet."""
+def _stage_progress(
+    enabled: bool, units: dict[str, str] | None = None
+) -> Iterator[Callable[[str, str, dict], None]]:
+    """One rich progress line per stage on a terminal (a live count of ``units[stage]`` for
+    long stages, ~10 Hz), quiet otherwise or when not ``enabled``."""
     if not enabled or not sys.stderr.isatty():
         yield lambda _stage, _event, _data: None
         return
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    unit = {"synthesis": "regions", "verification": "branches"}
+    unit = units or {"synthesis": "regions", "verification": "branches"}
     with Progress(
         SpinnerColumn(),
         TextColumn("[bold]{task.description:<13}"),
