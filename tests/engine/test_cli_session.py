@@ -16,10 +16,10 @@ import io
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_process import run_codev
 
 from codev_engine.cli import main
 
@@ -501,13 +501,7 @@ def test_view_bad_recording_exits_2(base, tmp_path, capsys, damage):
 
 
 def _codev(*args) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "codev_engine.cli", *map(str, args)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    return run_codev(*args, cwd=ROOT, timeout=120)
 
 
 def test_exit_status_of_real_processes(sdir, tmp_path):

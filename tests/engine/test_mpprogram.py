@@ -14,7 +14,6 @@ same regions and identical ``locate`` / ``primal`` / ``value``.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -22,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_process import run_codev
 
 import codev_engine as ce
 from codev_engine.cli import main
@@ -202,21 +202,14 @@ FILE_CASES = {
 
 
 @pytest.mark.parametrize("case", list(FILE_CASES))
-def test_program_load_bad_file(tmp_path, case):
+@pytest.mark.parametrize(
+    "load", [ce.MpProgram.load, ce.MpSolution.load], ids=["program", "solution"]
+)
+def test_load_bad_file(tmp_path, case, load):
     make, words = FILE_CASES[case]
     path = make(tmp_path)
     with pytest.raises(ce.SpecError) as info:
-        ce.MpProgram.load(path)
-    assert_spec_error(info.value, path, None, words)
-    assert not (tmp_path / "UNPICKLED").exists()
-
-
-@pytest.mark.parametrize("case", list(FILE_CASES))
-def test_solution_load_bad_file(tmp_path, case):
-    make, words = FILE_CASES[case]
-    path = make(tmp_path)
-    with pytest.raises(ce.SpecError) as info:
-        ce.MpSolution.load(path)
+        load(path)
     assert_spec_error(info.value, path, None, words)
     assert not (tmp_path / "UNPICKLED").exists()
 
@@ -589,15 +582,7 @@ def test_cli_bad_timeout_is_bad_input(tmp_path, capsys, value):
 
 
 def _codev(*args, cwd) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k != "CODEV_DEBUG"}
-    return subprocess.run(
-        [sys.executable, "-m", "codev_engine.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=120,
-    )
+    return run_codev(*args, cwd=cwd, timeout=120)
 
 
 def test_cli_process_bad_input_and_success(tmp_path):

@@ -34,12 +34,12 @@ import itertools
 import json
 import os
 import subprocess
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_process import run_codev
 
 import codev_engine as ce
 from codev_engine.errors import SpecError
@@ -743,16 +743,6 @@ def test_verify_rejects_an_unknown_hold(di_law):
         verify(ce.load_spec(DI_PATH), di_law, hold="foh")
 
 
-def _codev(*args, cwd) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k != "CODEV_DEBUG"}
-    return subprocess.run(
-        [sys.executable, "-m", "codev_engine.cli", *map(str, args)],
-        capture_output=True,
-        text=True,
-        cwd=cwd,
-        env=env,
-        timeout=300,
-    )
 
 
 def _assert_bad_input(proc: subprocess.CompletedProcess, *words: str) -> None:
@@ -773,16 +763,16 @@ def test_cli_initial_set_lower_above_upper(tmp_path):
     assert "[9.01, -5.01]" in text
     spec = tmp_path / "bad.toml"
     spec.write_text(text)
-    _assert_bad_input(_codev("verify", spec, cwd=tmp_path), "initial_set")
+    _assert_bad_input(run_codev("verify", spec, cwd=tmp_path), "initial_set")
 
 
 def test_cli_law_from_another_problem(tmp_path):
     """`codev synth A --out law.npz`, then `codev verify B --law law.npz`: refused."""
     law = tmp_path / "law.npz"
-    proc = _codev("synth", EXAMPLES / "cruise_control.toml", "--out", law, cwd=tmp_path)
+    proc = run_codev("synth", EXAMPLES / "cruise_control.toml", "--out", law, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert law.is_file()
-    _assert_bad_input(_codev("verify", DI_PATH, "--law", law, cwd=tmp_path))
+    _assert_bad_input(run_codev("verify", DI_PATH, "--law", law, cwd=tmp_path))
 
 
 def test_cli_law_of_the_same_shape_from_another_problem(tmp_path):
@@ -792,17 +782,17 @@ def test_cli_law_of_the_same_shape_from_another_problem(tmp_path):
     other = ce.loads_spec(text.replace("R = [[0.8]]", "R = [[2.0]]"))
     law = tmp_path / "law.npz"
     ce.synthesize(other).save(law)
-    _assert_bad_input(_codev("verify", DI_PATH, "--law", law, cwd=tmp_path), "law.npz")
+    _assert_bad_input(run_codev("verify", DI_PATH, "--law", law, cwd=tmp_path), "law.npz")
 
 
 def test_cli_missing_law_file(tmp_path):
     missing = tmp_path / "no_such_law.npz"
-    _assert_bad_input(_codev("verify", DI_PATH, "--law", missing, cwd=tmp_path))
+    _assert_bad_input(run_codev("verify", DI_PATH, "--law", missing, cwd=tmp_path))
 
 
 def test_cli_json_export_tube_and_exit_status(tmp_path):
     tube_file = tmp_path / "out" / "di.tube.npz"
-    proc = _codev("verify", DI_PATH, "--json", "--export-tube", tube_file, cwd=tmp_path)
+    proc = run_codev("verify", DI_PATH, "--json", "--export-tube", tube_file, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     payload = json.loads(proc.stdout)
     for key in ("verdict", "reason", "regions", "synthesis_seconds", "verification_seconds"):
@@ -839,7 +829,7 @@ def test_cli_exit_status_1_when_not_proved(tmp_path, section, verdict):
     text = DI_PATH.read_text()
     spec = tmp_path / "spec.toml"
     spec.write_text(text[: text.index("[verify]")] + section)
-    proc = _codev("verify", spec, "--json", "--max-depth", "0", cwd=tmp_path)
+    proc = run_codev("verify", spec, "--json", "--max-depth", "0", cwd=tmp_path)
     assert proc.returncode == 1, (proc.stdout, proc.stderr)
     payload = json.loads(proc.stdout)
     assert payload["verdict"] == verdict
@@ -851,4 +841,4 @@ def test_cli_without_a_verify_section(tmp_path):
     text = DI_PATH.read_text()
     spec = tmp_path / "noverify.toml"
     spec.write_text(text[: text.index("[verify]")])
-    _assert_bad_input(_codev("verify", spec, cwd=tmp_path), "verify")
+    _assert_bad_input(run_codev("verify", spec, cwd=tmp_path), "verify")
