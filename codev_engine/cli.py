@@ -409,6 +409,15 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_tui(args: argparse.Namespace) -> int:
+    if not (sys.stdin.isatty() and sys.stdout.isatty()):
+        raise SpecError("codev tui needs a terminal (for scripts use codev run / codev replay)")
+    # the workbench is a separate package on top of the engine: imported only here
+    from workbench import run_workbench
+
+    return run_workbench(args.target, session_dir=args.session)
+
+
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = ("mp", "synth", "session", "paper", "hylaa_peer")
 
@@ -584,6 +593,18 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("name", choices=BENCHMARKS)
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed to the script (--help)")
     p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser(
+        "tui", help="the design workbench: plant, MPC, synthesis, verification, session"
+    )
+    p.add_argument(
+        "target",
+        nargs="?",
+        metavar="SPEC.toml|SESSION_DIR",
+        help="a spec (its session is sessions/<name>, or --session) or a session folder",
+    )
+    p.add_argument("--session", metavar="DIR", help="the session folder for a spec")
+    p.set_defaults(func=_cmd_tui)
 
     p = sub.add_parser("view", help="open a Rerun recording (.rrd) in the viewer")
     p.add_argument("file", metavar="FILE.rrd")

@@ -477,16 +477,32 @@ class Session:
             write_text(self.path / "journal.jsonl", "\n".join(lines) + "\n")
         return run
 
-    def _save_spec(self, problem: Problem) -> str:
+    def save_spec(self, problem: Problem) -> str:
+        """Make ``problem``'s TOML the session's ``spec.toml``; returns its SHA-256.
+
+        Every spec that was ever ``spec.toml`` keeps a snapshot in ``specs/<sha>.toml``
+        (the one replaced included), so an edit saved by the workbench loses nothing.
+        """
         if not problem.source.strip():
             raise SessionError("the problem has no TOML source to store in the session")
         sha = _sha(problem.source.encode())
-        snap = self.path / "specs" / f"{sha[:16]}.toml"
-        if not snap.exists():
-            write_text(snap, problem.source)
-        if not self.spec_path().exists() or self.spec_path().read_text("utf-8") != problem.source:
-            write_text(self.spec_path(), problem.source)
+        self._snapshot(problem.source)
+        current = self.spec_path()
+        try:
+            old: str | None = current.read_text("utf-8")
+        except (OSError, UnicodeDecodeError):
+            old = None  # absent or unreadable: nothing worth keeping
+        if old == problem.source:
+            return sha
+        if old is not None and old.strip():
+            self._snapshot(old)
+        write_text(current, problem.source)
         return sha
+
+    def _snapshot(self, text: str) -> None:
+        snap = self.path / "specs" / f"{_sha(text.encode())[:16]}.toml"
+        if not snap.exists():
+            write_text(snap, text)
 
     def _spec_of(self, sha: str, where: str) -> Problem:
         snap = self.path / "specs" / f"{sha[:16]}.toml"
@@ -645,7 +661,7 @@ class Session:
         if fresh or self._check_artifact("synthesis", keys["synthesis"])[1] is not None:
             # a cached law proves the MPC feasible; otherwise say so before writing anything
             check_mpc_feasible(problem)
-        spec_sha = self._save_spec(problem) if journal else _sha(problem.source.encode())
+        spec_sha = self.save_spec(problem) if journal else _sha(problem.source.encode())
         # run 0 until the records are appended: numbered then, under the lock
         report = RunReport(run=0, stages=[], problem=problem)
         records: list[dict[str, Any]] = []

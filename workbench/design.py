@@ -1,0 +1,187 @@
+"""What the workbench shows about a design, computed from engine objects (no Textual).
+
+- :func:`plant_report`: the derived Jacobian, the linearisation at the operating point, the
+  discretised model, eigenvalues and controllability, as text;
+- :func:`mpc_preview`: a short closed loop of the *online* MPC on the prediction model, to
+  judge a tuning before paying for explicit synthesis;
+- :func:`region_rows` / :func:`locate_state`: the synthesis screen's table and state lookup.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codev_engine import ExplicitLaw, LinearModel, Problem, discretize
+
+__all__ = ["MpcPreview", "locate_state", "mpc_preview", "plant_report", "region_rows"]
+
+
+def _fmt(M: np.ndarray, indent: str = "  ") -> str:
+    M = np.atleast_2d(np.asarray(M, dtype=float))
+    cells = [[f"{v:.6g}" for v in row] for row in M]
+    w = max((len(c) for row in cells for c in row), default=1)
+    return "\n".join(indent + "[ " + "  ".join(c.rjust(w) for c in row) + " ]" for row in cells)
+
+
+def _eig(M: np.ndarray) -> str:
+    ev = np.linalg.eigvals(np.asarray(M, dtype=float))
+    ev = ev[np.lexsort((ev.imag, ev.real))]
+    parts = []
+    for v in ev:
+        if abs(v.imag) <= 1e-12 * max(1.0, abs(v)):
+            parts.append(f"{v.real:.6g}")
+        else:
+            parts.append(f"{v.real:.6g}{v.imag:+.6g}j")
+    return ", ".join(parts)
+
+
+def plant_report(problem: Problem) -> tuple[str, LinearModel]:
+    """The plant screen's derived view of a problem.
+
+    Returns
+    -------
+    text : str
+        Markdown: symbolic Jacobians, ``Ac``, ``Bc``, ``f(x_op, u_op)``, the discrete ``A``,
+        ``B``, ``c``, eigenvalues (continuous and discrete, with stability), the
+        controllability matrix's rank.
+    model : LinearModel
+    """
+    from codev_engine.plant import symbolic_model
+
+    model = discretize(problem)
+    plant, ms = problem.plant, problem.model
+    out: list[str] = []
+    if plant.dynamics is not None or plant.A is not None:
+        sym = symbolic_model(problem)
+        out.append("### Jacobian of f at (x, u)\n")
+        out.append("```")
+        for i, s in enumerate(plant.states):
+            row_x = ", ".join(str(sym.Jx[i, j]) for j in range(plant.n))
+            row_u = ", ".join(str(sym.Ju[i, j]) for j in range(plant.m))
+            out.append(f"d f_{s}:  ∂/∂x = [{row_x}]   ∂/∂u = [{row_u}]")
+        out.append("```")
+    op = ", ".join(f"{s}={v:.4g}" for s, v in zip(plant.states, ms.x_op, strict=True))
+    opu = ", ".join(f"{s}={v:.4g}" for s, v in zip(plant.inputs, ms.u_op, strict=True))
+    out.append(f"\n### Linearisation at x = ({op}), u = ({opu})\n")
+    out.append("```")
+    if model.Ac is not None:
+        out += ["Ac =", _fmt(model.Ac), "Bc =", _fmt(model.Bc)]
+        out.append(
+            f"eig(Ac) = {_eig(model.Ac)}"
+            + (
+                "   (stable)"
+                if np.all(np.linalg.eigvals(model.Ac).real < 0)
+                else "   (not asymptotically stable)"
+            )
+        )
+    else:
+        out.append("explicit discrete model: no continuous linearisation")
+    out.append("```")
+    out.append(
+        f"\n### Discretised ({ms.method if model.Ac is not None else 'given'}, "
+        f"dt = {model.dt:g} s): dx+ = A dx + B du + c\n"
+    )
+    out.append("```")
+    out += ["A =", _fmt(model.A), "B =", _fmt(model.B)]
+    if np.any(model.c != 0):
+        out += ["c =", _fmt(model.c[None, :]), "(the operating point is not an equilibrium)"]
+    rho = float(np.max(np.abs(np.linalg.eigvals(model.A))))
+    out.append(
+        f"eig(A)  = {_eig(model.A)}   spectral radius {rho:.6g}"
+        + ("  (stable)" if rho < 1 else "  (open loop not stable)")
+    )
+    n = model.n
+    ctrb = np.hstack([np.linalg.matrix_power(model.A, k) @ model.B for k in range(n)])
+    rank = int(np.linalg.matrix_rank(ctrb))
+    out.append(
+        f"controllability rank {rank} of {n}"
+        + ("  (controllable)" if rank == n else "  (NOT controllable)")
+    )
+    out.append("```")
+    return "\n".join(out), model
+
+
+@dataclass(frozen=True)
+class MpcPreview:
+    """A closed loop of the online MPC on the prediction model.
+
+    Attributes
+    ----------
+    t : (K+1,) ndarray
+        Sample times.
+    X : (K+1, n) ndarray
+        States (plant coordinates).
+    U : (K, m) ndarray
+        Applied inputs.
+    infeasible_at : int or None
+        The step at which the MPC became infeasible (the loop stops there).
+    seconds : float
+    """
+
+    t: np.ndarray
+    X: np.ndarray
+    U: np.ndarray
+    infeasible_at: int | None
+    seconds: float
+
+
+def mpc_preview(
+    problem: Problem, model: LinearModel, x0: np.ndarray, steps: int, should_stop=lambda: False
+) -> MpcPreview:
+    """Simulate ``steps`` samples of the online MPC (cvxpy + Clarabel) from ``x0``.
+
+    The loop runs on the discrete prediction model ``dx+ = A dx + B du + c`` (what the MPC
+    believes), not the nonlinear plant: the verification stage covers the true plant.
+    """
+    import time
+
+    from codev_engine import OnlineMpc
+
+    t0 = time.perf_counter()
+    mpc = OnlineMpc(problem.mpc, model)
+    x = np.asarray(x0, dtype=float).reshape(model.n)
+    X, U = [x.copy()], []
+    stop = None
+    for k in range(int(steps)):
+        if should_stop():
+            break
+        sol = mpc.solve(x)
+        if not sol.feasible:
+            stop = k
+            break
+        u = sol.u0
+        dx = model.A @ (x - model.x_op) + model.B @ (u - model.u_op) + model.c
+        x = model.x_op + dx
+        X.append(x.copy())
+        U.append(u.copy())
+    Xa = np.array(X)
+    Ua = np.array(U).reshape(len(U), model.m)
+    t = np.arange(Xa.shape[0]) * model.dt
+    return MpcPreview(t, Xa, Ua, stop, time.perf_counter() - t0)
+
+
+def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
+    """Rows of the region table: index, facets, law ``u = F x + G`` (first ``limit``)."""
+    rows = []
+    names = law.states or tuple(f"x{k}" for k in range(law.n))
+    lo, hi = law.boxes
+    for k in range(min(law.num_regions, limit)):
+        F, G = law.F[k], law.G[k]
+        laws = []
+        for i in range(law.m):
+            terms = " ".join(f"{F[i, j]:+.4g}·{names[j]}" for j in range(law.n) if F[i, j] != 0)
+            laws.append((terms + f" {G[i]:+.4g}").strip())
+        box = " × ".join(f"[{a:.3g}, {b:.3g}]" for a, b in zip(lo[k], hi[k], strict=True))
+        rows.append((str(k), str(len(law.b[k])), "; ".join(laws), box))
+    return rows
+
+
+def locate_state(law: ExplicitLaw, x: np.ndarray) -> tuple[int, np.ndarray | None]:
+    """(region index or -1, u or None) of one state."""
+    x = np.asarray(x, dtype=float).reshape(1, law.n)
+    k = int(law.locate(x)[0])
+    if k < 0:
+        return -1, None
+    return k, law.evaluate(x)[0]

@@ -1,0 +1,145 @@
+"""MPC pane: horizon, norm, weights, bounds; a closed-loop preview of the online MPC."""
+
+from __future__ import annotations
+
+import threading
+from typing import TYPE_CHECKING
+
+import numpy as np
+from textual import work
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.widgets import Button, Input, Label, Static
+
+from codev_engine import CodevError, discretize
+
+from ..design import MpcPreview, mpc_preview
+from ..form import FIELDS
+from ..views import series_text
+from ..widgets import FieldEntry, Plot
+
+if TYPE_CHECKING:
+    from ..app import CodevApp
+
+MPC_FIELDS = [f.name for f in FIELDS if f.section == "mpc"]
+
+
+def parse_state(text: str, n: int) -> np.ndarray:
+    """``"1, -2"`` or ``"1 -2"`` → (n,) array; ``ValueError`` with a message otherwise."""
+    parts = [p for p in text.replace(",", " ").replace(";", " ").split() if p]
+    try:
+        x = np.array([float(p) for p in parts])
+    except ValueError:
+        raise ValueError("expected numbers, e.g. 1.5, -2") from None
+    if x.size != n:
+        raise ValueError(f"expected {n} numbers, got {x.size}")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("the state must be finite")
+    return x
+
+
+class MpcPane(Horizontal):
+    """Left: the MPC fields. Right: the online MPC's closed loop from a chosen state."""
+
+    def __init__(self, values: dict[str, str]) -> None:
+        super().__init__()
+        self._values = values
+        self._stop = threading.Event()
+        self.last: MpcPreview | None = None
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll(classes="form"):
+            for name in MPC_FIELDS:
+                yield FieldEntry(name, self._values.get(name, ""))
+        with Vertical(classes="output"):
+            yield Static(
+                "Preview: the online MPC (cvxpy + Clarabel) in closed loop with its own "
+                "prediction model, before paying for explicit synthesis.",
+                classes="small",
+            )
+            with Horizontal(classes="bar"):
+                yield Label("x0 ")
+                yield Input(placeholder="initial state, e.g. 9, -5", id="preview-x0")
+                yield Label(" steps ")
+                yield Input("20", id="preview-steps", restrict=r"[0-9]*", max_length=4)
+                yield Button("Preview \\[ctrl+g]", id="preview-run", variant="primary")
+            yield Static("", id="preview-status", classes="status")
+            yield Plot("states appear here", id="preview-states")
+            yield Plot("inputs appear here", id="preview-inputs")
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        if event.button.id == "preview-run":
+            event.stop()
+            self.run_preview()
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        if event.input.id in ("preview-x0", "preview-steps"):
+            event.stop()
+            self.run_preview()
+
+    def cancel_preview(self) -> None:
+        self._stop.set()
+
+    def run_preview(self) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        status = self.query_one("#preview-status", Static)
+        chk = app.check
+        if chk is None or not chk.ok or chk.problem is None:
+            status.update("[red]✗ the spec is not valid yet (fields marked in red)[/red]")
+            return
+        problem = chk.problem
+        x_text = self.query_one("#preview-x0", Input).value
+        if not x_text.strip():
+            x0 = _default_state(problem)
+            self.query_one("#preview-x0", Input).value = ", ".join(f"{v:g}" for v in x0)
+        else:
+            try:
+                x0 = parse_state(x_text, problem.plant.n)
+            except ValueError as exc:
+                status.update(f"[red]✗ x0: {exc}[/red]")
+                return
+        steps_text = self.query_one("#preview-steps", Input).value or "20"
+        steps = max(1, min(int(steps_text), 2000))
+        status.update(f"solving the MPC online for {steps} steps…")
+        self._stop.clear()
+        self._preview(problem, x0, steps)
+
+    @work(thread=True, exclusive=True, group="preview")
+    def _preview(self, problem, x0: np.ndarray, steps: int) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        try:
+            model = discretize(problem)
+            prev = mpc_preview(problem, model, x0, steps, should_stop=self._stop.is_set)
+        except CodevError as exc:
+            app.call_from_thread(
+                self.query_one("#preview-status", Static).update, f"[red]✗ {exc}[/red]"
+            )
+            return
+        app.call_from_thread(self._show, prev, problem)
+
+    def _show(self, prev: MpcPreview, problem) -> None:
+        self.last = prev
+        k = prev.U.shape[0]
+        msg = f"{k} steps in {prev.seconds:.2f} s"
+        if prev.infeasible_at is not None:
+            msg += f" · [red]MPC infeasible at step {prev.infeasible_at}[/red]"
+        else:
+            msg += f" · final state ({', '.join(f'{v:.3g}' for v in prev.X[-1])})"
+        self.query_one("#preview-status", Static).update(msg)
+        states, inputs = problem.plant.states, problem.plant.inputs
+        self.query_one("#preview-states", Plot).set_draw(
+            lambda w, h: series_text(prev.t, prev.X, states, w, h)
+        )
+        if k:
+            self.query_one("#preview-inputs", Plot).set_draw(
+                lambda w, h: series_text(prev.t[:k], prev.U, inputs, w, h, steps=True)
+            )
+
+
+def _default_state(problem) -> np.ndarray:
+    """The centre of the initial set, else a point off the operating point."""
+    if problem.verify is not None:
+        return 0.5 * (problem.verify.initial_lower + problem.verify.initial_upper)
+    x = np.array(problem.model.x_op, dtype=float)
+    hi = np.where(np.isfinite(problem.mpc.x_max), problem.mpc.x_max, x + 1.0)
+    return x + 0.5 * (hi - x)

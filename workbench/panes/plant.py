@@ -1,0 +1,63 @@
+"""Plant pane: states, inputs, dynamics, sampling; the derived linear model beside them."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from rich.markdown import Markdown
+from textual import work
+from textual.app import ComposeResult
+from textual.containers import Horizontal, VerticalScroll
+from textual.widgets import Static
+
+from codev_engine import CodevError, Problem
+
+from ..design import plant_report
+from ..form import FIELDS, FormCheck
+from ..widgets import FieldEntry
+
+if TYPE_CHECKING:
+    from ..app import CodevApp
+
+PLANT_FIELDS = [f.name for f in FIELDS if f.section in ("", "plant", "model")]
+
+
+class PlantPane(Horizontal):
+    """Left: the plant and model fields. Right: Jacobian, linearisation, discrete model."""
+
+    def __init__(self, values: dict[str, str]) -> None:
+        super().__init__()
+        self._values = values
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll(classes="form"):
+            for name in PLANT_FIELDS:
+                yield FieldEntry(name, self._values.get(name, ""))
+        with VerticalScroll(classes="output"):
+            yield Static("checking the spec…", id="plant-report")
+
+    def show_invalid(self, chk: FormCheck) -> None:
+        plant_errors = [k for k in chk.errors if k in PLANT_FIELDS]
+        if plant_errors:
+            self.query_one("#plant-report", Static).update(
+                "The derived model appears once the fields marked in red are fixed."
+            )
+
+    def show_report(self, problem: Problem) -> None:
+        self.query_one("#plant-report", Static).update("deriving the linear model…")
+        self._report(problem)
+
+    @work(thread=True, exclusive=True, group="plant-report")
+    def _report(self, problem: Problem) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        try:
+            text, _model = plant_report(problem)
+            body: object = Markdown(text)
+        except CodevError as exc:
+            body = f"[red]✗ {exc}[/red]"
+        app.call_from_thread(self._show, body, problem)
+
+    def _show(self, body: object, problem: Problem) -> None:
+        self.query_one("#plant-report", Static).update(body)
+        app: CodevApp = self.app  # type: ignore[assignment]
+        app.plant_report_shown(problem)

@@ -1,0 +1,283 @@
+"""Pictures in the terminal: a pixel raster drawn with half blocks.
+
+A terminal cell shows two pixels stacked (``▀`` with a foreground and a background colour), so a
+W×H-cell plot has W×2H pixels. Everything is filled into an integer colour-index image with
+numpy (region membership on a pixel grid, box unions by 2-D prefix sums, polylines by
+resampling), then turned into one ``rich.text.Text``. No Textual import: the widgets wrap it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from rich.style import Style
+from rich.text import Text
+
+__all__ = ["PALETTE", "Raster", "nice_limits", "plot_text"]
+
+#: Region colours (distinct on dark and light themes); index -1 is the background.
+PALETTE: tuple[str, ...] = (
+    "#4e79a7",
+    "#f28e2b",
+    "#59a14f",
+    "#b07aa1",
+    "#edc948",
+    "#76b7b2",
+    "#ff9da7",
+    "#9c755f",
+    "#8cd17d",
+    "#86bcb6",
+    "#d37295",
+    "#a0cbe8",
+)
+#: Named colours for overlays.
+COLOURS = {
+    "tube": "#4e79a7",
+    "tube2": "#a0cbe8",
+    "unsafe": "#e15759",
+    "safe": "#59a14f",
+    "initial": "#edc948",
+    "trace": "#ffffff",
+    "cex": "#ff2d2d",
+    "marker": "#ffffff",
+    "axis": "#777777",
+}
+
+
+def nice_limits(lo: float, hi: float, pad: float = 0.05) -> tuple[float, float]:
+    """Padded, finite, non-empty axis limits."""
+    lo, hi = float(lo), float(hi)
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        lo, hi = -1.0, 1.0
+    if hi <= lo:
+        c = lo
+        w = max(abs(c) * 0.1, 1e-6)
+        return c - w, c + w
+    w = hi - lo
+    return lo - pad * w, hi + pad * w
+
+
+@dataclass
+class Raster:
+    """A W×2H pixel image over the data box ``xlim × ylim``.
+
+    Attributes
+    ----------
+    pixels : (2H, W) ndarray of int
+        Colour per pixel: an index into ``colours``; -1 is the background. Row 0 is the top
+        (``ylim[1]``).
+    colours : list of str
+    """
+
+    width: int
+    height: int
+    xlim: tuple[float, float]
+    ylim: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        self.width = max(int(self.width), 2)
+        self.height = max(int(self.height), 1)
+        self.pixels = np.full((2 * self.height, self.width), -1, dtype=np.int16)
+        self.colours: list[str] = []
+
+    # ---- coordinates -----------------------------------------------------------------
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.pixels.shape  # type: ignore[return-value]
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Data coordinates of the pixel centres: x (W,), y (2H,) (top row first)."""
+        rows, cols = self.shape
+        x0, x1 = self.xlim
+        y0, y1 = self.ylim
+        xs = x0 + (np.arange(cols) + 0.5) * (x1 - x0) / cols
+        ys = y1 - (np.arange(rows) + 0.5) * (y1 - y0) / rows
+        return xs, ys
+
+    def _col(self, x: np.ndarray) -> np.ndarray:
+        x0, x1 = self.xlim
+        return (np.asarray(x, dtype=float) - x0) / (x1 - x0) * self.shape[1]
+
+    def _row(self, y: np.ndarray) -> np.ndarray:
+        y0, y1 = self.ylim
+        return (y1 - np.asarray(y, dtype=float)) / (y1 - y0) * self.shape[0]
+
+    def colour(self, name: str) -> int:
+        """Index of a colour (added on first use)."""
+        if name not in self.colours:
+            self.colours.append(name)
+        return self.colours.index(name)
+
+    # ---- drawing ---------------------------------------------------------------------
+
+    def paint(self, index: np.ndarray, palette: tuple[str, ...] = PALETTE) -> None:
+        """Colour each pixel by an integer label (2H, W); negative labels stay unpainted."""
+        index = np.asarray(index)
+        ids = [self.colour(c) for c in palette]
+        lut = np.asarray(ids, dtype=np.int16)
+        ok = index >= 0
+        self.pixels[ok] = lut[index[ok] % len(palette)]
+
+    def boxes(
+        self, xlo: np.ndarray, xhi: np.ndarray, ylo: np.ndarray, yhi: np.ndarray, colour: str
+    ) -> None:
+        """Fill the union of K axis-aligned boxes (each at least one pixel), vectorised.
+
+        Coverage is counted with a 2-D difference array and prefix sums, so 1e5 boxes cost a
+        few milliseconds.
+        """
+        rows, cols = self.shape
+        xlo, xhi = np.asarray(xlo, float), np.asarray(xhi, float)
+        ylo, yhi = np.asarray(ylo, float), np.asarray(yhi, float)
+        if xlo.size == 0:
+            return
+        with np.errstate(invalid="ignore"):
+            c0 = np.floor(self._col(np.clip(xlo, *_wide(self.xlim))))
+            c1 = np.floor(self._col(np.clip(xhi, *_wide(self.xlim))))
+            r0 = np.floor(self._row(np.clip(yhi, *_wide(self.ylim))))
+            r1 = np.floor(self._row(np.clip(ylo, *_wide(self.ylim))))
+        keep = (c1 >= 0) & (c0 < cols) & (r1 >= 0) & (r0 < rows)
+        keep &= np.isfinite(c0) & np.isfinite(c1) & np.isfinite(r0) & np.isfinite(r1)
+        if not keep.any():
+            return
+        c0 = np.clip(c0[keep], 0, cols - 1).astype(int)
+        c1 = np.clip(c1[keep], 0, cols - 1).astype(int)
+        r0 = np.clip(r0[keep], 0, rows - 1).astype(int)
+        r1 = np.clip(r1[keep], 0, rows - 1).astype(int)
+        diff = np.zeros((rows + 1, cols + 1), dtype=np.int64)
+        np.add.at(diff, (r0, c0), 1)
+        np.add.at(diff, (r0, c1 + 1), -1)
+        np.add.at(diff, (r1 + 1, c0), -1)
+        np.add.at(diff, (r1 + 1, c1 + 1), 1)
+        cover = diff.cumsum(axis=0).cumsum(axis=1)[:rows, :cols] > 0
+        self.pixels[cover] = self.colour(colour)
+
+    def outline(self, xlo: float, xhi: float, ylo: float, yhi: float, colour: str) -> None:
+        """The border of one box (clipped to the view)."""
+        xlo, xhi = _clip_span(xlo, xhi, self.xlim)
+        ylo, yhi = _clip_span(ylo, yhi, self.ylim)
+        if xlo > xhi or ylo > yhi:
+            return
+        self.polyline([xlo, xhi, xhi, xlo, xlo], [ylo, ylo, yhi, yhi, ylo], colour)
+
+    def polyline(self, x: np.ndarray, y: np.ndarray, colour: str) -> None:
+        """A line through the points (resampled so consecutive pixels touch)."""
+        c = self._col(np.asarray(x, float))
+        r = self._row(np.asarray(y, float))
+        good = np.isfinite(c) & np.isfinite(r)
+        c, r = c[good], r[good]
+        if c.size == 0:
+            return
+        if c.size > 1:
+            steps = np.ceil(np.maximum(np.abs(np.diff(c)), np.abs(np.diff(r)))).astype(int)
+            steps = np.clip(steps, 1, 4 * sum(self.shape))
+            seg = np.repeat(np.arange(c.size - 1), steps)
+            frac = (
+                np.concatenate([np.arange(s) / s for s in steps])
+                if steps.size < 4096
+                else (np.arange(seg.size) - np.repeat(np.cumsum(steps) - steps, steps))
+                / np.repeat(steps, steps)
+            )
+            c = np.concatenate([c[seg] + frac * (c[seg + 1] - c[seg]), c[-1:]])
+            r = np.concatenate([r[seg] + frac * (r[seg + 1] - r[seg]), r[-1:]])
+        self.points_px(c, r, colour)
+
+    def points(self, x: np.ndarray, y: np.ndarray, colour: str) -> None:
+        """Single pixels at data points."""
+        self.points_px(self._col(np.asarray(x, float)), self._row(np.asarray(y, float)), colour)
+
+    def points_px(self, c: np.ndarray, r: np.ndarray, colour: str) -> None:
+        rows, cols = self.shape
+        ci, ri = np.floor(c).astype(int), np.floor(r).astype(int)
+        ok = (ci >= 0) & (ci < cols) & (ri >= 0) & (ri < rows)
+        self.pixels[ri[ok], ci[ok]] = self.colour(colour)
+
+    # ---- output ----------------------------------------------------------------------
+
+    def to_text(self, background: str | None = None) -> Text:
+        """The image as half-block text (H lines of W cells)."""
+        text = Text(no_wrap=True, overflow="crop")
+        styles: dict[tuple[int, int], Style] = {}
+        bg = background
+        for row in range(self.height):
+            top = self.pixels[2 * row]
+            bot = self.pixels[2 * row + 1]
+            start = 0
+            for col in range(1, self.width + 1):
+                if col < self.width and top[col] == top[start] and bot[col] == bot[start]:
+                    continue
+                t, b = int(top[start]), int(bot[start])
+                key = (t, b)
+                if key not in styles:
+                    styles[key] = self._style(t, b, bg)
+                char = " " if t < 0 and b < 0 else ("▀" if t >= 0 else "▄")
+                text.append(char * (col - start), styles[key])
+                start = col
+            if row < self.height - 1:
+                text.append("\n")
+        return text
+
+    def _style(self, t: int, b: int, bg: str | None) -> Style:
+        ct = self.colours[t] if t >= 0 else bg
+        cb = self.colours[b] if b >= 0 else bg
+        if t < 0 and b < 0:
+            return Style(bgcolor=bg) if bg else Style()
+        if t >= 0:
+            return Style(color=ct, bgcolor=cb)
+        return Style(color=cb, bgcolor=ct)
+
+
+def _wide(lim: tuple[float, float]) -> tuple[float, float]:
+    w = lim[1] - lim[0]
+    return lim[0] - w, lim[1] + w
+
+
+def _clip_span(lo: float, hi: float, lim: tuple[float, float]) -> tuple[float, float]:
+    return max(lo, lim[0]), min(hi, lim[1])
+
+
+def _tick(v: float) -> str:
+    return f"{v:.3g}"
+
+
+def plot_text(
+    raster: Raster,
+    *,
+    xlabel: str = "",
+    ylabel: str = "",
+    legend: list[tuple[str, str]] | None = None,
+    background: str | None = None,
+) -> Text:
+    """The raster with a y-axis (top, middle, bottom ticks), an x-axis and a legend line."""
+    y0, y1 = raster.ylim
+    ticks = {0: _tick(y1), raster.height // 2: _tick((y0 + y1) / 2), raster.height - 1: _tick(y0)}
+    margin = max(len(s) for s in ticks.values()) + 1
+    body = raster.to_text(background).split("\n")
+    out = Text(no_wrap=True, overflow="crop")
+    axis = Style(color=COLOURS["axis"])
+    for i, line in enumerate(body):
+        out.append(ticks.get(i, "").rjust(margin - 1) + "│", axis)
+        out.append_text(line)
+        out.append("\n")
+    x0, x1 = raster.xlim
+    left, mid, right = _tick(x0), _tick((x0 + x1) / 2), _tick(x1)
+    w = raster.width
+    row = [" "] * (w + 1)
+    for pos, s in ((0, left), (w // 2 - len(mid) // 2, mid), (w - len(right), right)):
+        for k, ch in enumerate(s):
+            if 0 <= pos + k < len(row):
+                row[pos + k] = ch
+    out.append(" " * margin + "".join(row).rstrip(), axis)
+    caption = "  ".join(
+        p for p in (f"x: {xlabel}" if xlabel else "", f"y: {ylabel}" if ylabel else "") if p
+    )
+    if caption or legend:
+        out.append("\n" + " " * margin)
+        if caption:
+            out.append(caption + "   ", axis)
+        for name, colour in legend or []:
+            out.append("■ ", Style(color=colour))
+            out.append(name + "  ")
+    return out

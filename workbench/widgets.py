@@ -1,0 +1,185 @@
+"""Widgets shared by the panes: a spec-field entry with its inline error, and a plot."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from rich.text import Text
+from textual import work
+from textual.app import ComposeResult
+from textual.containers import Vertical
+from textual.message import Message
+from textual.widgets import Input, Label, Select, Static, Switch, TextArea
+
+from .form import FIELD_BY_NAME, FieldDef
+
+__all__ = ["FieldEntry", "Plot"]
+
+
+def _dom_id(name: str) -> str:
+    return "f-" + name.replace(".", "-").replace("_", "-")
+
+
+class FieldEntry(Vertical):
+    """One spec field: label, editor (input, text area, select or switch), help / error line.
+
+    Posts :class:`FieldEntry.Edited` with the entry's text on every change.
+    """
+
+    DEFAULT_CSS = """
+    FieldEntry { height: auto; margin: 0 0 1 0; }
+    FieldEntry > Label { color: $text-muted; }
+    FieldEntry > .help { color: $text-muted; text-style: italic; height: auto; }
+    FieldEntry.-error > .help { color: $error; text-style: bold; }
+    FieldEntry.-error Input, FieldEntry.-error TextArea { border: tall $error; }
+    FieldEntry TextArea { height: 4; }
+    FieldEntry Switch { width: auto; }
+    """
+
+    class Edited(Message):
+        def __init__(self, entry: FieldEntry, name: str, text: str) -> None:
+            super().__init__()
+            self.entry = entry
+            self.name = name
+            self.text = text
+
+    def __init__(self, name: str, text: str = "") -> None:
+        super().__init__(id=_dom_id(name))
+        self.field: FieldDef = FIELD_BY_NAME[name]
+        self._text = text
+        self._loading = True
+
+    @property
+    def field_name(self) -> str:
+        return self.field.name
+
+    def compose(self) -> ComposeResult:
+        fd = self.field
+        star = " *" if fd.required else ""
+        yield Label(f"{fd.label}{star}  [dim]{fd.name}[/dim]")
+        if fd.kind in ("expressions", "sets"):
+            yield TextArea(self._text, id="editor", soft_wrap=False, show_line_numbers=False)
+        elif fd.kind == "choice":
+            options = [(c, c) for c in fd.choices]
+            value = self._text if self._text in fd.choices else Select.NULL
+            yield Select(
+                options,
+                value=value,
+                id="editor",
+                allow_blank=not fd.required,
+                prompt="(default)",
+                compact=True,
+            )
+        elif fd.kind == "bool":
+            yield Switch(value=self._text.strip().lower() == "true", id="editor")
+        else:
+            yield Input(
+                self._text,
+                id="editor",
+                compact=True,
+                placeholder="(default)" if not fd.required else "",
+            )
+        yield Static(fd.help, classes="help")
+
+    def on_mount(self) -> None:
+        self._loading = False
+
+    # ---- value -----------------------------------------------------------------------
+
+    @property
+    def text(self) -> str:
+        return self._text
+
+    def set_text(self, text: str) -> None:
+        """Show a new value (from a loaded spec) without posting Edited."""
+        self._text = text
+        editor = self.query_one("#editor")
+        self._loading = True
+        try:
+            if isinstance(editor, Input):
+                editor.value = text
+            elif isinstance(editor, TextArea):
+                editor.text = text
+            elif isinstance(editor, Select):
+                editor.value = text if text in self.field.choices else Select.NULL
+            elif isinstance(editor, Switch):
+                editor.value = text.strip().lower() == "true"
+        finally:
+            self.call_after_refresh(self._done_loading)
+
+    def _done_loading(self) -> None:
+        self._loading = False
+
+    def set_error(self, message: str | None) -> None:
+        """Show ``message`` under the entry (None: back to the help line)."""
+        self.set_class(message is not None, "-error")
+        self.query_one(".help", Static).update(
+            Text(f"✗ {message}") if message else Text(self.field.help)
+        )
+
+    def _changed(self, text: str) -> None:
+        if text == self._text:
+            return
+        self._text = text
+        if not self._loading:
+            self.post_message(self.Edited(self, self.field.name, text))
+
+    def on_input_changed(self, event: Input.Changed) -> None:
+        event.stop()
+        self._changed(event.value)
+
+    def on_text_area_changed(self, event: TextArea.Changed) -> None:
+        event.stop()
+        self._changed(event.text_area.text)
+
+    def on_select_changed(self, event: Select.Changed) -> None:
+        event.stop()
+        value = event.value
+        self._changed("" if value is Select.NULL or value is None else str(value))
+
+    def on_switch_changed(self, event: Switch.Changed) -> None:
+        event.stop()
+        self._changed("true" if event.value else "false")
+
+
+class Plot(Static):
+    """A picture drawn to the widget's size by ``draw(width, height) -> Text`` in a thread.
+
+    Redrawn on resize and on :meth:`set_draw`; the last picture stays up meanwhile, so a slow
+    partition never blocks the keyboard.
+    """
+
+    DEFAULT_CSS = """
+    Plot { height: 1fr; width: 1fr; min-height: 8; }
+    """
+
+    def __init__(self, placeholder: str = "", **kwargs) -> None:
+        super().__init__(placeholder, **kwargs)
+        self._draw: Callable[[int, int], Text] | None = None
+        self._placeholder = placeholder
+
+    def set_draw(self, draw: Callable[[int, int], Text] | None, placeholder: str = "") -> None:
+        self._draw = draw
+        if draw is None:
+            self.update(placeholder or self._placeholder)
+        else:
+            self._redraw()
+
+    def on_resize(self) -> None:
+        if self._draw is not None:
+            self._redraw()
+
+    def _redraw(self) -> None:
+        w, h = self.content_size.width, self.content_size.height
+        if w < 12 or h < 4 or self._draw is None:
+            return
+        self._render_in_thread(self._draw, w, h)
+
+    @work(thread=True, exclusive=True, group="plot")
+    def _render_in_thread(self, draw: Callable[[int, int], Text], w: int, h: int) -> None:
+        # leave room for the axes (margin ~7 cells, two caption lines)
+        try:
+            text = draw(max(w - 8, 4), max(h - 3, 2))
+        except Exception as exc:  # a picture must never take the app down
+            text = Text(f"(cannot draw: {type(exc).__name__}: {exc})", style="red")
+        self.app.call_from_thread(self.update, text)
