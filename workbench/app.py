@@ -16,10 +16,11 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from rich.markup import escape
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.widgets import Footer, Header, Static, TabbedContent, TabPane
+from textual.widgets import Footer, Static, TabbedContent, TabPane
 
 from codev_engine import CodevError, ExplicitLaw, LinearModel, Problem, VerificationResult
 from codev_engine.session import STAGES, RunOptions, RunReport, Session, StageStatus, stage_keys
@@ -53,7 +54,11 @@ class CodevApp(App):
 
     TITLE = "codev workbench"
     CSS = """
+    Screen { overflow: hidden; }
     #pipeline { height: 1; padding: 0 1; background: $boost; }
+    #tabs { height: 1fr; }
+    #tabs > ContentSwitcher { height: 1fr; }
+    #tabs TabPane { height: 1fr; padding: 0; }
     .form { width: 52; min-width: 40; border-right: vkey $primary 30%; padding: 0 1; }
     .output { padding: 0 1; }
     .bar { height: auto; padding: 0 0 1 0; }
@@ -84,6 +89,7 @@ class CodevApp(App):
         self.values: dict[str, str] = dict(opened.values)
         self.has_verify: bool = opened.has_verify
         self.start_note = opened.note
+        self._dirty = opened.save_now  # the form differs from the session's spec.toml
         self.options = RunOptions(traces=traces)
         self.check: FormCheck | None = None
         self.statuses: dict[str, StageStatus] = {}
@@ -106,7 +112,6 @@ class CodevApp(App):
     # ---- layout ----------------------------------------------------------------------
 
     def compose(self) -> ComposeResult:
-        yield Header()
         yield Static("", id="pipeline")
         with TabbedContent(initial="plant", id="tabs"):
             with TabPane("Plant \\[F1]", id="plant"):
@@ -122,7 +127,7 @@ class CodevApp(App):
         yield Footer()
 
     def on_mount(self) -> None:
-        self.sub_title = str(self.session.path)
+        self._show_pipeline()
         self.set_interval(0.1, self._tick)
         if self.start_note:
             self.notify(self.start_note, timeout=6)
@@ -132,10 +137,12 @@ class CodevApp(App):
 
     def on_field_entry_edited(self, event: FieldEntry.Edited) -> None:
         self.values[event.name] = event.text
+        self._dirty = True
         self._schedule_check()
 
     def set_verify_enabled(self, enabled: bool) -> None:
         self.has_verify = enabled
+        self._dirty = True
         self._schedule_check()
 
     def _schedule_check(self) -> None:
@@ -145,17 +152,18 @@ class CodevApp(App):
 
     def _run_check(self) -> None:
         self._check_timer = None
-        self._check_worker(dict(self.values), self.has_verify)
+        self._check_worker(dict(self.values), self.has_verify, self._dirty)
 
     @work(thread=True, exclusive=True, group="check")
-    def _check_worker(self, values: dict[str, str], has_verify: bool) -> None:
+    def _check_worker(self, values: dict[str, str], has_verify: bool, dirty: bool) -> None:
         chk = check_form(values, with_verify=has_verify, path=str(self.session.spec_path()))
         statuses: dict[str, StageStatus] = {}
         keys: dict[str, str] = {}
         try:
             if chk.ok:
                 assert chk.problem is not None
-                self.session.save_spec(chk.problem)
+                if dirty or not self.session.spec_path().exists():
+                    self.session.save_spec(chk.problem)
                 clear_draft(self.session)
                 keys = stage_keys(chk.problem, self.options)
                 statuses = {s.stage: s for s in self.session.status(chk.problem, self.options)}
@@ -230,14 +238,16 @@ class CodevApp(App):
         self._plant_key_shown = self._plant_key(problem)
 
     def _show_pipeline(self) -> None:
+        """The top line: the session and each stage's cache status for the current spec."""
         bar = self.query_one("#pipeline", Static)
+        head = f"[b]codev[/b] {escape(str(self.session.path))} │ "
         chk = self.check
         if chk is None:
-            bar.update("checking the spec…")
+            bar.update(head + "checking the spec…")
             return
         if not chk.ok:
             bad = ", ".join(sorted(chk.errors)) or chk.general or "?"
-            bar.update(f"[red]✗ spec not valid[/red] — fix: {bad}")
+            bar.update(head + f"[red]✗ spec not valid[/red] — fix: {escape(bad)}")
             return
         parts = []
         for stage in STAGES:
@@ -250,7 +260,7 @@ class CodevApp(App):
                 continue
             icon, colour = STATUS_STYLE.get(st.status, ("?", "white"))
             parts.append(f"[{colour}]{icon} {stage} {st.status}[/{colour}]")
-        bar.update("  ".join(parts) + "   [dim]✓ spec saved[/dim]")
+        bar.update(head + "  ".join(parts) + "   [dim]✓ spec saved[/dim]")
 
     def law_current(self) -> bool:
         return self.law is not None and self.law_key == self.keys.get("synthesis")
@@ -372,7 +382,20 @@ class CodevApp(App):
     # ---- actions ---------------------------------------------------------------------
 
     def action_show(self, tab: str) -> None:
-        self.query_one("#tabs", TabbedContent).active = tab
+        tabs = self.query_one("#tabs", TabbedContent)
+        if tabs.active == tab:
+            return
+        # drop the focus first: a focused widget left in the hidden pane would pull the tabs
+        # back to it (TabbedContent shows the pane holding the focus)
+        self.screen.set_focus(None)
+        tabs.active = tab
+        self.call_after_refresh(self._focus_first, tab)
+
+    def _focus_first(self, tab: str) -> None:
+        pane = self.query_one("#tabs", TabbedContent).get_pane(tab)
+        target = next((w for w in pane.query("*") if w.focusable), None)
+        if target is not None:
+            target.focus()
 
     def action_go(self) -> None:
         tab = self.query_one("#tabs", TabbedContent).active
@@ -416,12 +439,13 @@ class CodevApp(App):
         self.session = opened.session
         self.values = dict(opened.values)
         self.has_verify = opened.has_verify
+        self._dirty = opened.save_now
         self.model = self.law = self.result = None
         self.law_key = self.result_key = None
         self.recording = None
         self._report_source = None
         self._plant_key_shown = None
-        self.sub_title = str(self.session.path)
+        self._show_pipeline()
         for entry in self.query(FieldEntry):
             entry.set_text(self.values.get(entry.field_name, ""))
         self.query_one(VerificationPane).set_enabled(self.has_verify)

@@ -33,6 +33,10 @@ class Opened:
     values: dict[str, str]
     has_verify: bool
     note: str | None = None  # shown once at start (a restored draft, a new session)
+    #: write the form to the session's spec.toml at once (a spec file was opened into the
+    #: session); otherwise spec.toml is written on the first edit, so merely opening a
+    #: session never rewrites its spec
+    save_now: bool = False
 
 
 def _blank() -> tuple[dict[str, str], bool]:
@@ -81,7 +85,7 @@ def open_target(
             if existed
             else f"new session {folder} for {path}"
         )
-        return Opened(session, values, has_verify, note)
+        return Opened(session, values, has_verify, note, save_now=True)
     folder = Path(session_dir) if session_dir else root / "untitled"
     existed = (folder / "session.json").exists()
     session = Session.open_or_create(folder)
@@ -97,7 +101,9 @@ def open_target(
 
 
 def _safe(name: str) -> str:
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "untitled"
+    """A folder name for a spec name: never a path (``/``), never ``.``/``..`` or hidden."""
+    safe = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in name)
+    return safe.lstrip(".") or "untitled"
 
 
 def _from_session(session: Session) -> Opened:
@@ -137,7 +143,10 @@ def read_draft(session: Session) -> tuple[dict[str, str], bool] | None:
     values = {fd.name: entries.get(fd.name, "") for fd in FIELDS}
     if not all(isinstance(v, str) for v in values.values()):
         return None
-    return values, bool(data.get("has_verify", True))
+    has_verify = data.get("has_verify", True)
+    if not isinstance(has_verify, bool):
+        return None
+    return values, has_verify
 
 
 def write_draft(session: Session, values: dict[str, str], has_verify: bool) -> None:

@@ -120,7 +120,7 @@ class MpcPane(Horizontal):
     def _show(self, prev: MpcPreview, problem) -> None:
         self.last = prev
         k = prev.U.shape[0]
-        msg = f"{k} steps in {prev.seconds:.2f} s"
+        msg = f"{k} steps"
         if prev.infeasible_at is not None:
             msg += f" · [red]MPC infeasible at step {prev.infeasible_at}[/red]"
         else:

@@ -28,6 +28,7 @@ class PlantPane(Horizontal):
     def __init__(self, values: dict[str, str]) -> None:
         super().__init__()
         self._values = values
+        self.report_text = ""  # the markdown shown (tests and copy-paste read it)
 
     def compose(self) -> ComposeResult:
         with VerticalScroll(classes="form"):
@@ -54,10 +55,12 @@ class PlantPane(Horizontal):
             text, _model = plant_report(problem)
             body: object = Markdown(text)
         except CodevError as exc:
+            text = f"✗ {exc}"
             body = f"[red]✗ {exc}[/red]"
-        app.call_from_thread(self._show, body, problem)
+        app.call_from_thread(self._show, body, text, problem)
 
-    def _show(self, body: object, problem: Problem) -> None:
+    def _show(self, body: object, text: str, problem: Problem) -> None:
+        self.report_text = text
         self.query_one("#plant-report", Static).update(body)
         app: CodevApp = self.app  # type: ignore[assignment]
         app.plant_report_shown(problem)

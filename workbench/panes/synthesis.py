@@ -48,6 +48,8 @@ class SynthesisPane(Vertical):
     SynthesisPane #synth-main { height: 1fr; }
     """
 
+    _note = ""  # the last run's failure or cancellation, kept until a law arrives
+
     def compose(self) -> ComposeResult:
         with Horizontal(classes="bar"):
             yield Button("Synthesize \\[ctrl+g]", id="synth-run", variant="primary")
@@ -99,11 +101,15 @@ class SynthesisPane(Vertical):
 
     def run_finished(self, report: RunReport | None, error: object) -> None:
         if report is not None and report.law is not None:
+            self._note = ""
             self.refresh_law()
         elif error is not None:
-            self.query_one("#synth-status", Static).update(
-                f"[red]✗ {error}[/red]" if error != "cancelled" else "[yellow]cancelled[/yellow]"
+            self._note = (
+                f"[red]✗ {error}[/red]"
+                if error != "cancelled"
+                else "[yellow]cancelled: nothing was saved[/yellow]"
             )
+            self.query_one("#synth-status", Static).update(self._note)
             self.refresh_law(keep_status=True)
 
     def refresh_law(self, keep_status: bool = False) -> None:
@@ -114,7 +120,8 @@ class SynthesisPane(Vertical):
         table = self.query_one("#regions", DataTable)
         if law is None:
             if not keep_status and app.busy is None:
-                status.update("no law yet: press Synthesize (ctrl+g)")
+                note = f"{self._note} · " if self._note else ""
+                status.update(f"{note}no law yet: press Synthesize (ctrl+g)")
             plot.set_draw(None, "the partition appears here after synthesis")
             table.clear()
             return

@@ -120,7 +120,7 @@ class VerificationPane(Horizontal):
             if sr is not None and sr.status == "failed":
                 status.update(f"[red]✗ {sr.outcome.get('message', 'failed')}[/red]")
             elif sr is not None:
-                status.update(f"{sr.status} in {sr.seconds:.2f} s")
+                status.update(sr.status)  # the seconds are in the toast and the journal
             self.refresh_result()
 
     def refresh_result(self) -> None:

@@ -1,0 +1,237 @@
+"""The workbench driven through its UI (Textual's Pilot): a complete design session.
+
+Each test starts the real app on a real session folder, presses the keys a user would, and
+checks both the screen and the session folder (spec, journal, artifacts, replay).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import shutil
+import tomllib
+
+import numpy as np
+import pytest
+from pilot_tools import EXAMPLES, ROOT, SIZE, entry, run, settle, text_of, type_into
+from textual.widgets import Input, Static
+
+from codev_engine import load_spec
+from codev_engine.session import Session
+from workbench.app import CodevApp
+from workbench.panes.plant import PlantPane
+from workbench.state import DRAFT, open_target
+
+
+@pytest.fixture
+def di_session(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    return open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="sessions/di")
+
+
+def test_complete_design_session(di_session, tmp_path):
+    """Load the double integrator, synthesise, change Q (stale), re-synthesise, verify, save."""
+    app = CodevApp(di_session)
+    folder = tmp_path / "sessions" / "di"
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            assert "synthesis missing" in text_of(app, "#pipeline")
+            # plant screen: the derived model is shown
+            assert "controllability rank 2 of 2" in app.query_one(PlantPane).report_text
+
+            await pilot.press("f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.law is not None and app.law.num_regions == 10
+            assert "10 critical regions" in text_of(app, "#synth-status")
+            assert "current" in text_of(app, "#synth-status")
+
+            # change Q on the MPC screen: synthesis (and what follows) becomes stale
+            await pilot.press("f2")
+            await type_into(pilot, app, "mpc.Q", "1 1; 0 2")
+            await settle(pilot, app)
+            assert app.check is not None and app.check.ok
+            assert "synthesis stale" in text_of(app, "#pipeline")
+            assert "model cached" in text_of(app, "#pipeline")
+            await pilot.press("f3")
+            await settle(pilot, app)
+            assert "stale" in text_of(app, "#synth-status")
+
+            await pilot.press("ctrl+g")
+            await settle(pilot, app)
+            assert "current" in text_of(app, "#synth-status")
+            # locate a state through the side panel
+            app.query_one("#locate-x", Input).focus()
+            await pilot.press(*"9", "comma", "minus", "5", "enter")
+            await pilot.pause(0.1)
+            out = text_of(app, "#locate-out")
+            k = app.law.locate(np.array([[9.0, -5.0]]))[0]
+            assert f"region {k}" in out and "u = " in out
+
+            await pilot.press("f4", "ctrl+g")
+            await settle(pilot, app)
+            assert app.result is not None, [n.message for n in app._notifications]
+            banner = text_of(app, "#verdict")
+            assert "ROBUSTLY SAFE" in banner
+            assert app.query_one("#verdict").has_class("-safe")
+
+            await pilot.press("ctrl+s")
+            await settle(pilot, app)
+            await pilot.press("ctrl+q")
+
+    run(scenario())
+    # the session folder holds the edited spec, the journal of every stage, and replays
+    spec = load_spec(folder / "spec.toml")
+    assert spec.mpc.Q.tolist() == [[1.0, 1.0], [0.0, 2.0]]
+    session = Session.open(folder)
+    journal = session.journal()
+    synth = [r for r in journal if r["stage"] == "synthesis" and r["status"] == "computed"]
+    assert len({r["key"] for r in synth}) == 2
+    assert any(
+        r["stage"] == "verification" and r["outcome"]["verdict"] == "robustly_safe" for r in journal
+    )
+    assert (folder / "specs").is_dir() and len(list((folder / "specs").glob("*.toml"))) >= 2
+    replay = session.replay()
+    assert replay.ok and replay.checked == len(journal)
+
+
+def test_inline_errors_and_draft(di_session, tmp_path):
+    """A bad entry is marked next to the field, kept as a draft, and never crashes the app."""
+    app = CodevApp(di_session)
+    folder = tmp_path / "sessions" / "di"
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f2")
+            await type_into(pilot, app, "mpc.Q", "1 1; 0")
+            await settle(pilot, app)
+            q = entry(app, "mpc.Q")
+            assert q.has_class("-error")
+            assert "different lengths" in str(q.query_one(".help", Static).render())
+            assert "spec not valid" in text_of(app, "#pipeline")
+            assert (folder / DRAFT).is_file()
+            # a stage cannot run on an invalid spec: a message, not a crash
+            await pilot.press("f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.law is None
+            # a name the dynamics do not know, in the plant screen's text area
+            await pilot.press("f1")
+            await settle(pilot, app)
+            await pilot.press("f2")
+            await type_into(pilot, app, "mpc.Q", "1 1; 0 1")
+            await settle(pilot, app)
+            assert not entry(app, "mpc.Q").has_class("-error")
+            assert not (folder / DRAFT).exists()
+            await type_into(pilot, app, "model.sample_time", "-1")
+            await settle(pilot, app)
+            assert entry(app, "model.sample_time").has_class("-error")
+            await type_into(pilot, app, "model.sample_time", "1.0")
+            await settle(pilot, app)
+            assert app.check.ok
+
+    run(scenario())
+
+
+def test_draft_restored_after_a_crash(di_session, tmp_path):
+    """Entries typed but not valid yet survive the app's death (the draft is on disk)."""
+    app = CodevApp(di_session)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f2")
+            await type_into(pilot, app, "mpc.R", "0.8 x")
+            await settle(pilot, app)
+
+    run(scenario())  # the app is gone without a save
+    reopened = open_target(str(tmp_path / "sessions" / "di"))
+    assert reopened.values["mpc.R"] == "0.8 x"
+    assert "restored" in (reopened.note or "")
+
+
+def test_cancel_a_synthesis(tmp_path, monkeypatch):
+    """Esc stops a running synthesis: nothing is cached or journaled as computed for it."""
+    monkeypatch.chdir(tmp_path)
+    opened = open_target(str(EXAMPLES / "magnetic_pointer_a.toml"), session_dir="s")
+    app = CodevApp(opened)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f3")
+            # Pilot.press waits for the process to go idle, which it does not while the
+            # engine works: start the run as ctrl+g does, then watch without the pilot
+            app.action_go()
+            loop = asyncio.get_running_loop()
+            end = loop.time() + 30
+            while loop.time() < end and not (app.progress and app.progress[1] > 0):
+                await asyncio.sleep(0.005)
+            assert app.busy == "synthesis", [n.message for n in app._notifications]
+            await pilot.press("escape")
+            await settle(pilot, app)
+            assert app.law is None
+            assert "cancelled" in text_of(app, "#synth-status")
+
+    run(scenario())
+    session = Session.open(tmp_path / "s")
+    assert not any(r["stage"] == "synthesis" for r in session.journal())
+    assert not list((tmp_path / "s" / "artifacts").glob("synthesis-*"))
+
+
+def test_unsafe_verdict_shows_the_counterexample(tmp_path, monkeypatch):
+    """An unsafe spec: red banner, counterexample text, and the trace in the plots."""
+    monkeypatch.chdir(tmp_path)
+    text = (EXAMPLES / "double_integrator.toml").read_text()
+    text += "\n[[verify.unsafe]]\nlower = [4.0, -10.0]\nupper = [6.0, 0.0]\n"
+    spec = tmp_path / "di_unsafe.toml"
+    spec.write_text(text)
+    app = CodevApp(open_target(str(spec), session_dir="s"))
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f4", "ctrl+g")
+            await settle(pilot, app)
+            assert app.result is not None and app.result.verdict == "unsafe"
+            assert "UNSAFE" in text_of(app, "#verdict")
+            assert app.query_one("#verdict").has_class("-unsafe")
+            assert "counterexample" in text_of(app, "#cex")
+
+    run(scenario())
+
+
+def test_open_and_export_recording(tmp_path, monkeypatch):
+    """The Session screen opens a copy of the bundled session and exports its recording."""
+    monkeypatch.chdir(tmp_path)
+    src = ROOT / "sessions" / "double_integrator"
+    dst = tmp_path / "bundled"
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("artifacts", "tui-draft.json"))
+    first = open_target(str(EXAMPLES / "pendulum.toml"), session_dir="other")
+    app = CodevApp(first)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f5")
+            app.query_one("#open-path", Input).focus()
+            await pilot.press(*str(dst).replace("/", "/"))
+            await pilot.press("enter")
+            await settle(pilot, app)
+            assert app.session.path == dst
+            assert entry(app, "name").text == "double-integrator"
+            app.query_one("#export-path", Input).value = str(tmp_path / "out.rrd")
+            await pilot.press("ctrl+g")
+            await settle(pilot, app, timeout=120)
+            out = text_of(app, "#export-out")
+            assert "codev view" in out and "out.rrd" in out
+
+    run(scenario())
+    assert (tmp_path / "out.rrd").stat().st_size > 0
+    from codev_engine.records import check_recording
+
+    check_recording(tmp_path / "out.rrd")
+    # the journal of the opened session grew by this run, and still replays
+    session = Session.open(dst)
+    assert session.replay().ok
+    assert tomllib.loads((dst / "spec.toml").read_text())["name"] == "double-integrator"

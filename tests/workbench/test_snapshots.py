@@ -1,0 +1,72 @@
+"""Screen snapshots of the workbench, one per stage screen (pytest-textual-snapshot).
+
+The SVGs live in ``__snapshots__/``; after an intended change of a screen, look at the
+report and run ``pytest tests/workbench/test_snapshots.py --snapshot-update``. Screens are
+taken on sessions under a relative path (``sessions/...``) and after the notifications
+are cleared, so no temporary path or timing reaches a picture.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+from pilot_tools import EXAMPLES, ROOT, settle
+
+from workbench.app import CodevApp
+from workbench.state import open_target
+
+SIZE = (150, 44)
+
+
+@pytest.fixture
+def di_app(tmp_path, monkeypatch) -> CodevApp:
+    monkeypatch.chdir(tmp_path)
+    return CodevApp(
+        open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="sessions/di")
+    )
+
+
+def _steps(*keys: str):
+    async def run_before(pilot) -> None:
+        app = pilot.app
+        await settle(pilot, app)
+        for key in keys:
+            if key == "go":
+                app.action_go()  # ctrl+g, without the pilot's idle wait on busy workers
+            else:
+                await pilot.press(key)
+            await settle(pilot, app)
+        app.clear_notifications()
+        await pilot.pause(0.1)
+
+    return run_before
+
+
+def test_plant_screen(di_app, snap_compare):
+    assert snap_compare(di_app, terminal_size=SIZE, run_before=_steps())
+
+
+def test_mpc_screen_with_preview(di_app, snap_compare):
+    assert snap_compare(di_app, terminal_size=SIZE, run_before=_steps("f2", "go"))
+
+
+def test_synthesis_screen(di_app, snap_compare):
+    assert snap_compare(di_app, terminal_size=SIZE, run_before=_steps("f3", "go"))
+
+
+def test_verification_screen(di_app, snap_compare):
+    assert snap_compare(di_app, terminal_size=SIZE, run_before=_steps("f4", "go"))
+
+
+def test_session_screen(tmp_path, monkeypatch, snap_compare):
+    """The bundled session as committed: its journal (fixed timings), nothing cached yet."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(
+        ROOT / "sessions" / "double_integrator",
+        Path("sessions/double_integrator"),
+        ignore=shutil.ignore_patterns("artifacts", "tui-draft.json"),
+    )
+    app = CodevApp(open_target("sessions/double_integrator"))
+    assert snap_compare(app, terminal_size=SIZE, run_before=_steps("f5"))
