@@ -251,6 +251,26 @@ class ExplicitLaw:
     def __repr__(self) -> str:
         return f"ExplicitLaw(num_regions={self.num_regions}, n={self.n}, m={self.m})"
 
+    # ---- notebooks: codev_engine.figures draws (matplotlib is imported only there) ------
+
+    def _repr_png_(self) -> bytes:
+        """The partition picture (``figures.figure_law``) as PNG bytes."""
+        from .figures import figure_law, png_bytes
+
+        return png_bytes(figure_law(self))
+
+    def _repr_html_(self) -> str:
+        """A summary table (regions, n, m, norm, ...) with the partition picture."""
+        from .figures import law_html
+
+        return law_html(self)
+
+    def _repr_mimebundle_(self, include: object = None, exclude: object = None) -> dict[str, str]:
+        """Notebook display: HTML summary and PNG, the picture rendered once."""
+        from .figures import mimebundle
+
+        return mimebundle(self)
+
 
 def fingerprint_arrays(*arrays: np.ndarray | float | str) -> str:
     """A stable hash of numbers and strings (used for law/problem fingerprints)."""

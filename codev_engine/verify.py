@@ -198,6 +198,26 @@ class VerificationResult:
             )
         return line
 
+    # ---- notebooks: codev_engine.figures draws (matplotlib is imported only there) ------
+
+    def _repr_png_(self) -> bytes:
+        """Verdict, tubes against time and plane view (``figures.figure_result``) as PNG."""
+        from .figures import figure_result, png_bytes
+
+        return png_bytes(figure_result(self))
+
+    def _repr_html_(self) -> str:
+        """A coloured verdict banner, counterexample, timings and the tube picture."""
+        from .figures import result_html
+
+        return result_html(self)
+
+    def _repr_mimebundle_(self, include: object = None, exclude: object = None) -> dict[str, str]:
+        """Notebook display: HTML summary and PNG, the picture rendered once."""
+        from .figures import mimebundle
+
+        return mimebundle(self)
+
 
 def check_law_matches(problem: Problem, law: ExplicitLaw, *, file: str | None = None) -> None:
     """Refuse a law computed for a different problem (fingerprint mismatch)."""

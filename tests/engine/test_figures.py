@@ -1,0 +1,384 @@
+"""Pictures of laws and verification results (codev_engine.figures) and the notebook hooks.
+
+The geometry is checked against the engine itself: the polygons of a partition tile the
+law's domain (their areas add up to the domain's) and each polygon's centroid is located by
+``law.locate`` in the polygon's own region, for a 2-D law and for sections of a 3-D law with
+1008 regions. The drawings are checked through the artists they create (one polygon per
+region, the tube's boxes, the counterexample trace, the verify sets), the notebook hooks
+through IPython's own display formatter, and the import hygiene in a fresh interpreter.
+"""
+
+from __future__ import annotations
+
+import base64
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import codev_engine as ce
+from codev_engine import figures
+from codev_engine.tube import Tube
+from codev_engine.verify import VerificationResult
+
+matplotlib = pytest.importorskip("matplotlib")
+from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.patches import PathPatch, Polygon  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+DI_TEXT = (ROOT / "examples" / "double_integrator.toml").read_text()
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+# the nominal trajectory from (9, -5) passes (-0.375, -2.5) at t = 2.5 (test_verify.py)
+UNSAFE_ON_PATH = """
+[verify]
+time_horizon = 9.0
+step = 0.01
+initial_set = { lower = [8.99, -5.01], upper = [9.01, -4.99] }
+
+[[verify.unsafe]]
+lower = [-0.6, -2.7]
+upper = [-0.2, -2.3]
+
+[[verify.unsafe]]                 # a half-plane in the (x1, x2) plane, far from the tube
+A = [[1.0, 1.0]]
+b = [-7.0]
+"""
+# only the hull of the reach set meets the box: unknown without refinement (test_verify.py)
+HULL_CORNER = """
+[verify]
+time_horizon = 3.0
+step = 0.01
+initial_set = { lower = [8.99, -5.01], upper = [9.01, -4.99] }
+
+[[verify.unsafe]]
+lower = [4.51, -3.985]
+upper = [4.53, -3.975]
+"""
+
+
+def _di_spec(verify_section: str) -> ce.Problem:
+    return ce.loads_spec(DI_TEXT[: DI_TEXT.index("[verify]")] + verify_section, path="<test>")
+
+
+def _axes() -> matplotlib.axes.Axes:
+    return Figure().add_subplot()
+
+
+def _area(poly: np.ndarray) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _inside(poly: np.ndarray, X: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Points (P, 2) inside a counter-clockwise convex polygon."""
+    e = np.roll(poly, -1, axis=0) - poly
+    rel = X[:, None, :] - poly[None]
+    cross = e[None, :, 0] * rel[..., 1] - e[None, :, 1] * rel[..., 0]
+    return np.all(cross >= -tol, axis=1)
+
+
+@pytest.fixture(scope="module")
+def di(example_law):
+    return example_law("double_integrator.toml")
+
+
+@pytest.fixture(scope="module")
+def mp3(example_law):
+    """A 3-state law with 1008 regions (synthesis ~1 s)."""
+    return example_law("magnetic_pointer_a.toml")
+
+
+@pytest.fixture(scope="module")
+def results(di):
+    problem, law = di
+    safe = ce.verify(problem, law)
+    unsafe_problem = _di_spec(UNSAFE_ON_PATH)
+    unsafe = ce.verify(unsafe_problem, law)
+    unknown = ce.verify(_di_spec(HULL_CORNER), law, max_depth=0)
+    assert safe.verdict == "robustly_safe", safe.summary()
+    assert unsafe.verdict == "unsafe", unsafe.summary()
+    assert unknown.verdict == "unknown", unknown.summary()
+    return {"safe": safe, "unsafe": unsafe, "unknown": unknown, "unsafe_problem": unsafe_problem}
+
+
+# --------------------------------------------------------------------------------------------
+# import hygiene
+# --------------------------------------------------------------------------------------------
+
+
+def test_import_and_drawing_keep_matplotlib_lazy_and_pyplot_out(tmp_path):
+    """``import codev_engine`` (figures included) loads no matplotlib; drawing loads no pyplot
+    and picks no GUI backend."""
+    script = textwrap.dedent(
+        """
+        import sys
+        import codev_engine as ce
+        import codev_engine.figures, codev_engine.law, codev_engine.verify
+        assert "matplotlib" not in sys.modules, "matplotlib imported at import time"
+        law = ce.ExplicitLaw.load(sys.argv[1])
+        png = law._repr_png_()
+        assert png.startswith(b"\\x89PNG")
+        assert "matplotlib" in sys.modules
+        assert "matplotlib.pyplot" not in sys.modules, "pyplot imported by the drawing"
+        print("ok")
+        """
+    )
+    problem = ce.load_spec(ROOT / "examples" / "cruise_control.toml")
+    path = ce.synthesize(problem).save(tmp_path / "law.npz")
+    out = subprocess.run(
+        [sys.executable, "-c", script, str(path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
+
+
+# --------------------------------------------------------------------------------------------
+# partitions
+# --------------------------------------------------------------------------------------------
+
+
+def test_section_polygons_tile_the_2d_domain(di):
+    _, law = di
+    polys, index = figures.section_polygons(law.A, law.b)
+    assert list(index) == list(range(law.num_regions))
+    areas = np.array([_area(p) for p in polys])
+    assert np.all(areas > 0), "vertices must be counter-clockwise"
+    (domain,), _ = figures.section_polygons([law.domain_A], [law.domain_b])
+    assert areas.sum() == pytest.approx(_area(domain), rel=1e-9)
+    for k, poly in zip(index, polys, strict=True):
+        # every vertex satisfies its region's rows, and the centroid is located in it
+        assert np.all(poly @ law.A[k].T <= law.b[k] + 1e-7)
+        assert law.locate(poly.mean(axis=0))[0] == k
+    # random states: located in region k <=> inside polygon k
+    X = np.random.default_rng(1).uniform(-10, 10, (2000, 2))
+    where = law.locate(X)
+    for k, poly in zip(index, polys, strict=True):
+        inside = _inside(poly, X)
+        assert np.array_equal(inside[where == k], np.ones(np.sum(where == k), bool)), k
+
+
+def test_plot_partition_2d_one_polygon_per_region(di):
+    _, law = di
+    ax = figures.plot_partition(law, _axes())
+    (coll,) = [c for c in ax.collections if isinstance(c, PolyCollection)]
+    assert len(coll.get_paths()) == law.num_regions == 10
+    colours = np.unique(np.round(coll.get_facecolors(), 6), axis=0)
+    assert colours.shape[0] == law.num_regions, "regions must have distinct colours"
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x1", "x2")
+    assert "10 regions" in ax.get_title()
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert x0 <= -10 and x1 >= 10 and y0 <= -10 and y1 >= 10
+    swapped = figures.plot_partition(law, _axes(), axes=(1, 0))
+    assert (swapped.get_xlabel(), swapped.get_ylabel()) == ("x2", "x1")
+
+
+def test_plot_partition_rejects_bad_axes(di):
+    _, law = di
+    for bad in [(0, 0), (0, 2), (-1, 1)]:
+        with pytest.raises(ValueError, match="axes"):
+            figures.plot_partition(law, _axes(), axes=bad)
+
+
+def test_3d_law_sections_match_point_location(mp3):
+    _, law = mp3
+    assert law.n == 3 and law.num_regions > 1000
+    centre = figures.default_slice_point(law)
+    # deviation coordinates with symmetric bounds: the domain's box is centred on 0
+    np.testing.assert_allclose(centre, 0.0, atol=1e-6)
+    for axes, at in [((0, 1), centre), ((1, 2), np.array([0.7, 0.0, 0.0]))]:
+        polys, index = figures.section_polygons(law.A, law.b, axes=axes, at=at)
+        assert 20 < len(polys) < law.num_regions
+        (dom,), _ = figures.section_polygons([law.domain_A], [law.domain_b], axes=axes, at=at)
+        assert sum(_area(p) for p in polys) == pytest.approx(_area(dom), rel=1e-6)
+        other = ({0, 1, 2} - set(axes)).pop()
+        X = np.zeros((len(polys), 3))
+        X[:, list(axes)] = [p.mean(axis=0) for p in polys]
+        X[:, other] = at[other]
+        np.testing.assert_array_equal(law.locate(X), index)
+
+
+def test_plot_partition_3d_is_quick_and_titled(mp3):
+    _, law = mp3
+    t0 = time.perf_counter()
+    ax = figures.plot_partition(law, _axes(), axes=(0, 1), at=[0.0, 0.0, 1.0])
+    png = figures.png_bytes(ax.figure)
+    seconds = time.perf_counter() - t0
+    assert png.startswith(PNG_MAGIC)
+    assert seconds < 3.0, f"{law.num_regions} regions drawn in {seconds:.2f} s"
+    (coll,) = [c for c in ax.collections if isinstance(c, PolyCollection)]
+    polys, _ = figures.section_polygons(law.A, law.b, at=np.array([0.0, 0.0, 1.0]))
+    assert len(coll.get_paths()) == len(polys)
+    assert "1008 regions" in ax.get_title() and "x3 = 1" in ax.get_title()
+
+
+def test_plot_partition_one_state_draws_the_law(example_law):
+    problem, law = example_law("cruise_control.toml")
+    ax = figures.plot_partition(law, _axes())
+    (bands,) = [c for c in ax.collections if isinstance(c, PolyCollection)]
+    (lines,) = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert len(bands.get_paths()) == law.num_regions
+    for seg in lines.get_segments():
+        mid = seg.mean(axis=0)  # the line is u = F x + G over each region
+        assert law.evaluate([[mid[0]]])[0, 0] == pytest.approx(mid[1], rel=1e-9, abs=1e-9)
+    assert ax.get_xlabel() == problem.plant.states[0]
+
+
+# --------------------------------------------------------------------------------------------
+# tubes and results
+# --------------------------------------------------------------------------------------------
+
+
+def test_merge_bands_keeps_the_union():
+    rng = np.random.default_rng(3)
+    K = 4000
+    ts = rng.integers(0, 20, K) * 0.1
+    te = ts + 0.1
+    lo = rng.uniform(-1, 1, K)
+    hi = lo + rng.uniform(0, 0.3, K)
+    merged = figures.merge_bands(ts, te, lo, hi)
+    assert merged.shape[0] < K / 5
+    t = rng.integers(0, 20, 20000) * 0.1 + 0.05
+    y = rng.uniform(-1.2, 1.4, 20000)
+
+    def covered(ts, te, lo, hi):
+        out = np.zeros(t.shape, dtype=bool)
+        for a, b, c, d in zip(ts, te, lo, hi, strict=True):
+            out |= (a <= t) & (t <= b) & (c <= y) & (y <= d)
+        return out
+
+    np.testing.assert_array_equal(covered(ts, te, lo, hi), covered(*merged.T))
+
+
+def _boxes_patch(ax) -> PathPatch:
+    (patch,) = [p for p in ax.patches if isinstance(p, PathPatch)]
+    return patch
+
+
+def test_plot_tube_draws_the_boxes_and_the_safe_bound(di, results):
+    problem, _ = di
+    result = results["safe"]
+    ax = figures.plot_tube(result, _axes(), state=0, problem=problem)
+    tube = result.tube
+    bands = figures.merge_bands(tube.t_start, tube.t_end, tube.lower[:, 0], tube.upper[:, 0])
+    verts = _boxes_patch(ax).get_path().vertices.reshape(-1, 5, 2)
+    assert verts.shape[0] == bands.shape[0] > 0
+    np.testing.assert_allclose(verts[:, 0], bands[:, [0, 2]])
+    np.testing.assert_allclose(verts[:, 2], bands[:, [1, 3]])
+    assert ax.get_ylim()[0] <= tube.lower[:, 0].min() and ax.get_ylim()[1] >= 10.0
+    # the safe set's bound x1 <= 10 is in view: a horizontal line at 10
+    assert any(np.allclose(line.get_ydata(), 10.0) for line in ax.lines)
+    assert ax.get_ylabel() == "x1"
+    with pytest.raises(ValueError, match="state"):
+        figures.plot_tube(result, _axes(), state=2)
+
+
+def test_unsafe_result_shows_the_counterexample(results):
+    result, problem = results["unsafe"], results["unsafe_problem"]
+    cex = result.counterexample
+    fig = figures.figure_result(result, problem)
+    tube_ax, _, plane_ax = fig.axes
+    head = [ln for ln in tube_ax.lines if ln.get_alpha() is None and len(ln.get_xdata()) > 1]
+    t, x = head[0].get_xdata(), head[0].get_ydata()
+    assert t[-1] == pytest.approx(cex.t) and t[0] == 0.0
+    assert x[0] == pytest.approx(cex.x0[0])
+    marker = [ln for ln in tube_ax.lines if ln.get_marker() == "X"]
+    assert marker and marker[0].get_xdata()[0] == pytest.approx(cex.t)
+    title = fig._suptitle.get_text()
+    assert title.startswith("double-integrator: unsafe: enters unsafe set 0 at t = ")
+    assert fig._suptitle.get_color() == figures.VERDICT_COLOURS["unsafe"]
+    # the plane: the unsafe box and the half-plane x1 + x2 <= -7 (clipped to the view)
+    polys = [p for p in plane_ax.patches if isinstance(p, Polygon) and p.get_fill()]
+    assert len(polys) == 2
+    box = polys[0].get_xy()
+    assert box[:, 0].min() == pytest.approx(-0.6) and box[:, 1].max() == pytest.approx(-2.3)
+    assert np.all(polys[1].get_xy().sum(axis=1) <= -7.0 + 1e-9)
+
+
+def test_plane_of_a_3d_result_with_its_law(example_law):
+    problem, law = example_law("magnetic_pointer_c.toml")
+    result = ce.verify(problem, law)
+    assert result.verdict == "unsafe" and result.counterexample.kind == "undefined"
+    fig = figures.figure_result(result, problem, law=law)
+    assert len(fig.axes) == 4  # three states against time, one plane
+    ax = figures.plot_plane(result, _axes(), axes=(0, 2), problem=problem, law=law)
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x1", "x3")
+    verts = _boxes_patch(ax).get_path().vertices.reshape(-1, 5, 2)
+    lo = verts[:, 0]
+    assert np.isin(result.tube.lower[:, 0], lo[:, 0]).all()
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "initial set" in labels and any(s.startswith("counterexample") for s in labels)
+    with pytest.raises(ValueError, match="axes"):
+        figures.plot_plane(result, _axes(), axes=(1, 1))
+
+
+# --------------------------------------------------------------------------------------------
+# notebook hooks
+# --------------------------------------------------------------------------------------------
+
+
+def test_law_repr_png_and_html(di):
+    _, law = di
+    png = law._repr_png_()
+    assert png.startswith(PNG_MAGIC) and len(png) > 5000
+    html = law._repr_html_()
+    assert '<img src="data:image/png;base64,' in html
+    assert "<th style='text-align:left;padding-right:1em'>regions</th>" in html
+    assert ">10<" in html and "inf" in html and "x1, x2" in html
+
+
+@pytest.mark.parametrize(
+    ("key", "words"),
+    [
+        ("safe", ["robustly safe"]),
+        ("unsafe", ["unsafe: enters unsafe set 0", "counterexample x0", "[ 8.99"]),
+        ("unknown", ["unknown (max_depth)"]),
+    ],
+)
+def test_result_html_banner(results, key, words):
+    result = results[key]
+    html = result._repr_html_()
+    colour = figures.VERDICT_COLOURS[result.verdict]
+    assert f"background:{colour}" in html
+    for word in words:
+        assert word in html, word
+    assert f">{result.tube.num_boxes}<" in html
+    assert len(set(figures.VERDICT_COLOURS.values())) == 3
+
+
+def test_ipython_displays_html_and_png_rendered_once(di, results, monkeypatch):
+    formatters = pytest.importorskip("IPython.core.formatters")
+    _, law = di
+    calls = []
+    real = figures.png_bytes
+    monkeypatch.setattr(figures, "png_bytes", lambda fig, **kw: calls.append(1) or real(fig))
+    for obj in (law, results["unsafe"]):
+        calls.clear()
+        data, _ = formatters.DisplayFormatter().format(obj)
+        assert {"text/plain", "text/html", "image/png"} <= set(data)
+        assert base64.b64decode(data["image/png"]).startswith(PNG_MAGIC)
+        assert data["text/plain"] == obj.summary()
+        assert len(calls) == 1, "the picture must be rendered once per display"
+
+
+def test_result_repr_is_quick_for_a_large_tube():
+    rng = np.random.default_rng(0)
+    K = 100_000
+    ts = np.repeat(np.arange(K // 20) * 0.01, 20)
+    centre = np.stack([np.sin(ts), np.cos(ts), ts], axis=1) + rng.normal(0, 0.05, (K, 3))
+    tube = Tube(ts, ts + 0.01, centre - 0.01, centre + 0.01, np.zeros(K, dtype=int))
+    result = VerificationResult("unknown", "max_depth", tube, "zoh", None, {"seconds": 1.0})
+    t0 = time.perf_counter()
+    bundle = result._repr_mimebundle_()
+    seconds = time.perf_counter() - t0
+    assert "unknown (max_depth)" in bundle["text/html"]
+    assert seconds < 6.0, f"{K} boxes displayed in {seconds:.2f} s"
