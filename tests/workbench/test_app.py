@@ -153,7 +153,14 @@ def test_draft_restored_after_a_crash(di_session, tmp_path):
 def test_cancel_a_synthesis(tmp_path, monkeypatch):
     """Esc stops a running synthesis: nothing is cached or journaled as computed for it."""
     monkeypatch.chdir(tmp_path)
-    opened = open_target(str(EXAMPLES / "magnetic_pointer_a.toml"), session_dir="s")
+    # the magnetic pointer with horizon 6: ~3800 regions, seconds of work even on a fast
+    # machine, so the cancel lands mid-search however loaded the machine is
+    text = (EXAMPLES / "magnetic_pointer_a.toml").read_text()
+    text = text.replace("horizon = 4", "horizon = 6")
+    assert "horizon = 6" in text
+    spec = tmp_path / "pointer_n6.toml"
+    spec.write_text(text)
+    opened = open_target(str(spec), session_dir="s")
     app = CodevApp(opened)
 
     async def scenario():
