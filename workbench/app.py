@@ -11,7 +11,6 @@ responsive while the engine works.
 from __future__ import annotations
 
 import os
-import sys
 import threading
 import time
 from dataclasses import replace
@@ -128,14 +127,7 @@ class CodevApp(App):
                 yield SessionPane()
         yield Footer()
 
-    #: The GIL switch interval while the engine works in a thread: CPython's default (5 ms)
-    #: makes every hop of Textual's event loop wait up to 5 ms for the busy worker to let go
-    #: of the GIL (a key press takes dozens of hops: measured 145 ms median per key during a
-    #: synthesis). 0.5 ms keeps keys well under 100 ms for a few % of engine throughput.
-    SWITCH_INTERVAL = 0.0005
-
     def on_mount(self) -> None:
-        sys.setswitchinterval(self.SWITCH_INTERVAL)
         self._show_pipeline()
         self.set_interval(0.1, self._tick)
         if self.start_note:

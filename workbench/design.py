@@ -54,12 +54,17 @@ def plant_report(problem: Problem) -> tuple[str, LinearModel]:
     plant, ms = problem.plant, problem.model
     out: list[str] = []
     if plant.dynamics is not None or plant.A is not None:
+        from sympy import sstr
+
+        def expr(e) -> str:  # -0.5, not -0.500000000000000
+            return sstr(e, full_prec=False)
+
         sym = symbolic_model(problem)
         out.append("### Jacobian of f at (x, u)\n")
         out.append("```")
         for i, s in enumerate(plant.states):
-            row_x = ", ".join(str(sym.Jx[i, j]) for j in range(plant.n))
-            row_u = ", ".join(str(sym.Ju[i, j]) for j in range(plant.m))
+            row_x = ", ".join(expr(sym.Jx[i, j]) for j in range(plant.n))
+            row_u = ", ".join(expr(sym.Ju[i, j]) for j in range(plant.m))
             out.append(f"d f_{s}:  ∂/∂x = [{row_x}]   ∂/∂u = [{row_u}]")
         out.append("```")
     op = ", ".join(f"{s}={v:.4g}" for s, v in zip(plant.states, ms.x_op, strict=True))

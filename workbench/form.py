@@ -176,7 +176,7 @@ def toml_value(value: Any) -> str:
             return "inf" if value > 0 else "-inf"
         return repr(value)
     if isinstance(value, str):
-        return json.dumps(value, ensure_ascii=False)
+        return _toml_string(value)
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{_key(k)} = {toml_value(v)}" for k, v in value.items()) + " }"
     if isinstance(value, list):
@@ -186,8 +186,29 @@ def toml_value(value: Any) -> str:
     raise TypeError(f"no TOML literal for {type(value).__name__}")
 
 
+def _toml_string(s: str) -> str:
+    """A TOML basic string: JSON escapes are TOML escapes, but TOML also forbids a raw DEL."""
+    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
 def _key(k: str) -> str:
-    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_string(k)
+
+
+def _single_value(lit: str) -> None:
+    """``lit`` must be exactly one TOML value (not a value followed by more keys or tables
+    on further lines, which would inject fields into the composed document)."""
+    doc = tomllib.loads(f"v = {lit}")
+    if list(doc) != ["v"]:
+        raise ValueError("one value expected (the text goes on after the value)")
+
+
+def _parses(lit: str) -> bool:
+    try:
+        _single_value(lit)
+    except ValueError:
+        return False
+    return True
 
 
 def _number_token(tok: str) -> str:
@@ -208,7 +229,7 @@ def entry_to_toml(kind: str, text: str) -> str:
     if not s:
         return ""
     if kind == "string":
-        return s if s[0] in "\"'" else json.dumps(s, ensure_ascii=False)
+        return s if s[0] in "\"'" else _toml_string(s)
     if kind == "names":
         if s.startswith("["):
             return s
@@ -218,7 +239,7 @@ def entry_to_toml(kind: str, text: str) -> str:
             return s
         return toml_value([ln.strip() for ln in s.splitlines() if ln.strip()])
     if kind == "choice":
-        return s if s[0] in "\"'" else json.dumps(s)
+        return s if s[0] in "\"'" else _toml_string(s)
     if kind == "bool":
         low = s.lower()
         if low in ("true", "yes", "on", "1"):
@@ -226,11 +247,18 @@ def entry_to_toml(kind: str, text: str) -> str:
         if low in ("false", "no", "off", "0"):
             return "false"
         raise ValueError("expected true or false")
+    if kind == "number" and not _parses(s):
+        try:  # '.5', '5.', '1_000' (what Python reads as a number; nothing is evaluated)
+            return _number_token(s)
+        except ValueError:
+            return s  # the TOML error is reported
     if kind in ("number", "integer", "sets"):
         return s
     if kind in ("vector", "matrix"):
         if s.startswith("["):
-            return s
+            if _parses(s) or s.count("[") != 1 or not s.endswith("]"):
+                return s
+            s = s[1:-1]  # Matlab brackets: [1 1; 0 1]
         rows = [r for r in re.split(r"[;\n]", s) if r.strip()]
         try:
             parsed = [[_number_token(t) for t in re.split(r"[,\s]+", r.strip()) if t] for r in rows]
@@ -335,7 +363,7 @@ def compose(values: dict[str, str], *, with_verify: bool = True) -> tuple[str, d
         try:
             lit = entry_to_toml(fd.kind, raw)
             if lit:
-                tomllib.loads(f"v = {lit}")
+                _single_value(lit)
         except ValueError as exc:  # TOMLDecodeError is a ValueError
             msg = str(exc)
             errors[fd.name] = (
@@ -387,10 +415,17 @@ class FormCheck:
 
 
 def field_for_error(field: str | None) -> str | None:
-    """The entry an engine error's dotted field belongs to (``mpc.Q[0][1]`` → ``mpc.Q``)."""
+    """The entry an engine error's dotted field belongs to (``mpc.Q[0][1]`` → ``mpc.Q``).
+
+    A sub-table (``model.operating_point``, ``verify.initial_set``) maps to its first entry;
+    a whole section (``mpc``: the MPC is infeasible; ``verify``) or an unknown field maps to
+    None (a general error, not pinned on an arbitrary entry).
+    """
     if not field:
         return None
     base = re.sub(r"\[\d+\]", "", field)
+    if base in SECTIONS:
+        return None
     best = None
     for fd in FIELDS:
         if base == fd.name or base.startswith(fd.name + "."):

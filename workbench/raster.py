@@ -139,6 +139,9 @@ class Raster:
             r0 = np.floor(self._row(np.clip(yhi, *_wide(self.ylim))))
             r1 = np.floor(self._row(np.clip(ylo, *_wide(self.ylim))))
         keep = (c1 >= 0) & (c0 < cols) & (r1 >= 0) & (r0 < rows)
+        # an empty box (lower > upper, or NaN) draws nothing; with the difference array it
+        # would otherwise *subtract* coverage from the boxes it overlaps
+        keep &= (xlo <= xhi) & (ylo <= yhi)
         keep &= np.isfinite(c0) & np.isfinite(c1) & np.isfinite(r0) & np.isfinite(r1)
         if not keep.any():
             return
@@ -163,36 +166,46 @@ class Raster:
         self.polyline([xlo, xhi, xhi, xlo, xlo], [ylo, ylo, yhi, yhi, ylo], colour)
 
     def polyline(self, x: np.ndarray, y: np.ndarray, colour: str) -> None:
-        """A line through the points (resampled so consecutive pixels touch)."""
-        c = self._col(np.asarray(x, float))
-        r = self._row(np.asarray(y, float))
+        """A line through the points (resampled so consecutive pixels touch).
+
+        Each segment is first clipped to the view (with a one-pixel margin), so a segment
+        to a far-away point still draws its visible part as a connected line; points that
+        are not finite are dropped (the line joins their neighbours).
+        """
+        c = self._col(np.asarray(x, float).ravel())
+        r = self._row(np.asarray(y, float).ravel())
         good = np.isfinite(c) & np.isfinite(r)
         c, r = c[good], r[good]
-        if c.size == 0:
+        if c.size <= 1:
+            self.points_px(c, r, colour)
             return
-        if c.size > 1:
-            steps = np.ceil(np.maximum(np.abs(np.diff(c)), np.abs(np.diff(r)))).astype(int)
-            steps = np.clip(steps, 1, 4 * sum(self.shape))
-            seg = np.repeat(np.arange(c.size - 1), steps)
-            frac = (
-                np.concatenate([np.arange(s) / s for s in steps])
-                if steps.size < 4096
-                else (np.arange(seg.size) - np.repeat(np.cumsum(steps) - steps, steps))
-                / np.repeat(steps, steps)
-            )
-            c = np.concatenate([c[seg] + frac * (c[seg + 1] - c[seg]), c[-1:]])
-            r = np.concatenate([r[seg] + frac * (r[seg + 1] - r[seg]), r[-1:]])
-        self.points_px(c, r, colour)
+        rows, cols = self.shape
+        ca, cb, ra, rb = _clip_segments(c[:-1], c[1:], r[:-1], r[1:], cols, rows)
+        if ca.size == 0:
+            return
+        # samples at most half a pixel apart on each axis (both ends included): consecutive
+        # samples fall in the same or 8-adjacent pixels even when rounding moves a sample
+        # that sits on a pixel corner
+        steps = np.ceil(2 * np.maximum(np.abs(cb - ca), np.abs(rb - ra))).astype(int) + 1
+        seg = np.repeat(np.arange(ca.size), steps)
+        k = np.arange(seg.size) - np.repeat(np.cumsum(steps) - steps, steps)
+        frac = k / np.maximum(np.repeat(steps, steps) - 1, 1)
+        cc = ca[seg] + frac * (cb[seg] - ca[seg])
+        rr = ra[seg] + frac * (rb[seg] - ra[seg])
+        self.points_px(cc, rr, colour)
 
     def points(self, x: np.ndarray, y: np.ndarray, colour: str) -> None:
         """Single pixels at data points."""
         self.points_px(self._col(np.asarray(x, float)), self._row(np.asarray(y, float)), colour)
 
     def points_px(self, c: np.ndarray, r: np.ndarray, colour: str) -> None:
+        """Single pixels at pixel coordinates (column, row; not finite: skipped)."""
         rows, cols = self.shape
-        ci, ri = np.floor(c).astype(int), np.floor(r).astype(int)
-        ok = (ci >= 0) & (ci < cols) & (ri >= 0) & (ri < rows)
-        self.pixels[ri[ok], ci[ok]] = self.colour(colour)
+        c, r = np.asarray(c, float).ravel(), np.asarray(r, float).ravel()
+        ok = np.isfinite(c) & np.isfinite(r)
+        ok[ok] = (c[ok] >= 0) & (c[ok] < cols) & (r[ok] >= 0) & (r[ok] < rows)
+        ci, ri = np.floor(c[ok]).astype(int), np.floor(r[ok]).astype(int)
+        self.pixels[ri, ci] = self.colour(colour)
 
     # ---- output ----------------------------------------------------------------------
 
@@ -232,6 +245,30 @@ class Raster:
 def _wide(lim: tuple[float, float]) -> tuple[float, float]:
     w = lim[1] - lim[0]
     return lim[0] - w, lim[1] + w
+
+
+def _clip_segments(
+    c0: np.ndarray, c1: np.ndarray, r0: np.ndarray, r1: np.ndarray, cols: int, rows: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Segments (pixel coordinates) clipped to the view plus a one-pixel margin
+    (Liang-Barsky); segments that miss it are dropped."""
+    t0 = np.zeros(c0.shape)
+    t1 = np.ones(c0.shape)
+    for p0, p1, lo, hi in ((c0, c1, -1.0, cols + 1.0), (r0, r1, -1.0, rows + 1.0)):
+        d = p1 - p0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ta = (lo - p0) / d
+            tb = (hi - p0) / d
+        flat = d == 0
+        enter = np.where(flat, np.where((p0 >= lo) & (p0 <= hi), 0.0, np.inf), np.minimum(ta, tb))
+        leave = np.where(flat, np.where((p0 >= lo) & (p0 <= hi), 1.0, -np.inf), np.maximum(ta, tb))
+        t0 = np.maximum(t0, enter)
+        t1 = np.minimum(t1, leave)
+    ok = t0 <= t1
+    t0, t1 = t0[ok], t1[ok]
+    c0, c1, r0, r1 = c0[ok], c1[ok], r0[ok], r1[ok]
+    dc, dr = c1 - c0, r1 - r0
+    return c0 + t0 * dc, c0 + t1 * dc, r0 + t0 * dr, r0 + t1 * dr
 
 
 def _clip_span(lo: float, hi: float, lim: tuple[float, float]) -> tuple[float, float]:

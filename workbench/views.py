@@ -184,10 +184,13 @@ def series_text(
     steps: bool = False,
 ) -> Text:
     """Time series (K,) × (K, k) as coloured lines; ``steps`` draws a held signal."""
-    t = np.asarray(t, dtype=float)
-    Y = np.asarray(Y, dtype=float).reshape(t.size, -1)
+    t = np.asarray(t, dtype=float).ravel()
+    Y = np.asarray(Y, dtype=float)
+    if t.size == 0 or Y.size == 0:
+        return Text("(no data)")
+    Y = Y.reshape(t.size, -1)
     finite = Y[np.isfinite(Y)]
-    if t.size == 0 or finite.size == 0:
+    if finite.size == 0:
         return Text("(no data)")
     r = Raster(
         width, height, nice_limits(t.min(), t.max(), 0.0), nice_limits(finite.min(), finite.max())
