@@ -34,11 +34,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 
-def start_times(repeats: int) -> list[float] | None:
-    """Seconds from launching ``codev tui`` in tmux to the first status line."""
+def start_times(repeats: int) -> tuple[list[float], list[float]] | None:
+    """Seconds from launching ``codev tui`` in tmux to the first screen (the tabs drawn:
+    keys are taken from here on) and to the first status line (the spec checked)."""
     if shutil.which("tmux") is None:
         return None
-    out = []
+    out: list[float] = []
+    paint: list[float] = []
     for k in range(repeats):
         with tempfile.TemporaryDirectory() as tmp:
             name = f"codev-bench-{os.getpid()}-{k}"
@@ -70,6 +72,8 @@ def start_times(repeats: int) -> list[float] | None:
                     pane = subprocess.run(
                         ["tmux", "capture-pane", "-p", "-t", name], capture_output=True, text=True
                     ).stdout
+                    if len(paint) == k and "Plant [F1]" in pane:
+                        paint.append(time.perf_counter() - t0)
                     if "model missing" in pane or "model cached" in pane:
                         seen = time.perf_counter() - t0
                         break
@@ -78,7 +82,7 @@ def start_times(repeats: int) -> list[float] | None:
                     out.append(seen)
             finally:
                 subprocess.run(["tmux", "kill-session", "-t", name], capture_output=True)
-    return out
+    return paint, out
 
 
 async def _press(app, tabs, i: int) -> float:
@@ -154,9 +158,15 @@ def main() -> int:
     res = {"load_average": load, "start_s": starts, "keys": keys}
     print(f"load average {load:.2f}")
     if starts:
+        paint, status = starts
+        res["first_screen_s"], res["start_s"] = paint, status
         print(
-            f"start to first status line (tmux, real terminal): best {min(starts):.2f} s, "
-            f"median {statistics.median(starts):.2f} s over {len(starts)} (target < 1 s)"
+            f"start to first screen (tmux, real terminal): best {min(paint):.2f} s, "
+            f"median {statistics.median(paint):.2f} s over {len(paint)} (target < 1 s)"
+        )
+        print(
+            f"start to first status line (spec checked): best {min(status):.2f} s, "
+            f"median {statistics.median(status):.2f} s"
         )
     else:
         print("start: tmux not installed, skipped")
