@@ -242,3 +242,28 @@ def test_open_and_export_recording(tmp_path, monkeypatch):
     session = Session.open(dst)
     assert session.replay().ok
     assert tomllib.loads((dst / "spec.toml").read_text())["name"] == "double-integrator"
+
+
+def test_tui_without_a_terminal_is_a_clear_error(tmp_path):
+    """`codev tui` in a pipe: one line, exit status 2, and no session folder created."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "codev_engine.cli",
+            "tui",
+            str(EXAMPLES / "double_integrator.toml"),
+            "--session",
+            str(tmp_path / "s"),
+        ],
+        stdin=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert proc.returncode == 2
+    assert "needs a terminal" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "s").exists()
