@@ -39,16 +39,21 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, fields, is_dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .atomic import atomic_path, write_text
 from .errors import CodevError, SpecError
-from .law import ExplicitLaw
-from .plant import LinearModel
-from .spec import Problem, check_mpc_feasible, loads_spec
-from .verify import VerificationResult
+
+if TYPE_CHECKING:
+    # imported where used: the session's bookkeeping (keys, status of a cached folder, the
+    # journal) needs none of them, and the workbench draws its first screen before sympy
+    # and scipy are loaded
+    from .law import ExplicitLaw
+    from .plant import LinearModel
+    from .spec import Problem
+    from .verify import VerificationResult
 from .version import __version__
 
 __all__ = [
@@ -514,6 +519,8 @@ class Session:
             raise SessionError(f"unreadable spec ({exc})", file=str(snap)) from None
         if _sha(text.encode()) != sha:
             raise SessionError("the stored spec was edited (hash mismatch)", file=str(snap))
+        from .spec import loads_spec
+
         return loads_spec(text, path=str(snap))
 
     # ---- artifacts -------------------------------------------------------------------
@@ -563,10 +570,16 @@ class Session:
 
     def _load(self, stage: str, path: Path) -> Any:
         if stage == "model":
+            from .plant import LinearModel
+
             return LinearModel.load(path)
         if stage == "synthesis":
+            from .law import ExplicitLaw
+
             return ExplicitLaw.load(path)
         if stage == "verification":
+            from .verify import VerificationResult
+
             return VerificationResult.load(path)
         from .records import check_recording
 
@@ -660,6 +673,8 @@ class Session:
         keys = stage_keys(problem, options)
         if fresh or self._check_artifact("synthesis", keys["synthesis"])[1] is not None:
             # a cached law proves the MPC feasible; otherwise say so before writing anything
+            from .spec import check_mpc_feasible
+
             check_mpc_feasible(problem)
         spec_sha = self.save_spec(problem) if journal else _sha(problem.source.encode())
         # run 0 until the records are appended: numbered then, under the lock

@@ -15,7 +15,7 @@ import threading
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.markup import escape
 from textual import work
@@ -23,7 +23,7 @@ from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.widgets import Footer, Static, TabbedContent, TabPane
 
-from codev_engine import CodevError, ExplicitLaw, LinearModel, Problem, VerificationResult
+from codev_engine.errors import CodevError
 from codev_engine.session import STAGES, RunOptions, RunReport, Session, StageStatus, stage_keys
 
 from .form import FormCheck, check_form, field_for_error, form_from_text
@@ -34,6 +34,10 @@ from .panes.synthesis import SynthesisPane
 from .panes.verification import VerificationPane
 from .state import Opened, clear_draft, write_draft
 from .widgets import FieldEntry
+
+if TYPE_CHECKING:
+    # the numerical stack loads in the first check's worker, after the first screen
+    from codev_engine import ExplicitLaw, LinearModel, Problem, VerificationResult
 
 __all__ = ["CodevApp", "RunCancelledError"]
 
@@ -180,6 +184,8 @@ class CodevApp(App):
     ) -> dict[str, Any]:
         """Cached results for the current spec that the screens do not show yet (e.g. the
         user put Q back to a value synthesised before)."""
+        from codev_engine import ExplicitLaw, LinearModel, VerificationResult
+
         out: dict[str, Any] = {}
         for stage, cls, shown in (
             ("model", LinearModel, None),

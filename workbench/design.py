@@ -10,10 +10,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from codev_engine import ExplicitLaw, LinearModel, Problem, discretize
+if TYPE_CHECKING:
+    from codev_engine import ExplicitLaw, LinearModel, Problem
 
 __all__ = ["MpcPreview", "locate_state", "mpc_preview", "plant_report", "region_rows"]
 
@@ -48,6 +50,7 @@ def plant_report(problem: Problem) -> tuple[str, LinearModel]:
         controllability matrix's rank.
     model : LinearModel
     """
+    from codev_engine import discretize
     from codev_engine.plant import symbolic_model
 
     model = discretize(problem)

@@ -17,9 +17,12 @@ import math
 import re
 import tomllib
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from codev_engine import Problem, SpecError, loads_spec
+from codev_engine.errors import SpecError
+
+if TYPE_CHECKING:
+    from codev_engine import Problem
 
 __all__ = [
     "FIELDS",
@@ -449,6 +452,8 @@ def check_form(
     if errors:
         return FormCheck(text, None, errors)
     try:
+        from codev_engine.spec import loads_spec  # sympy: loaded on the first check
+
         problem = loads_spec(text, path=path, check_mpc=check_mpc)
     except SpecError as exc:
         entry = field_for_error(exc.field)

@@ -7,10 +7,13 @@ thread and only swap the finished text in.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 from rich.text import Text
 
-from codev_engine import ExplicitLaw, Problem, VerificationResult
+if TYPE_CHECKING:
+    from codev_engine import ExplicitLaw, Problem, VerificationResult
 
 from .raster import COLOURS, Raster, nice_limits, plot_text
 

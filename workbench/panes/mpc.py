@@ -11,7 +11,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.widgets import Button, Input, Label, Static
 
-from codev_engine import CodevError, discretize
+from codev_engine.errors import CodevError
 
 from ..design import MpcPreview, mpc_preview
 from ..form import FIELDS
@@ -107,6 +107,8 @@ class MpcPane(Horizontal):
     @work(thread=True, exclusive=True, group="preview")
     def _preview(self, problem, x0: np.ndarray, steps: int) -> None:
         app: CodevApp = self.app  # type: ignore[assignment]
+        from codev_engine import discretize
+
         try:
             model = discretize(problem)
             prev = mpc_preview(problem, model, x0, steps, should_stop=self._stop.is_set)

@@ -10,13 +10,15 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Static
 
-from codev_engine import CodevError, Problem
+from codev_engine.errors import CodevError
 
 from ..design import plant_report
 from ..form import FIELDS, FormCheck
 from ..widgets import FieldEntry
 
 if TYPE_CHECKING:
+    from codev_engine import Problem
+
     from ..app import CodevApp
 
 PLANT_FIELDS = [f.name for f in FIELDS if f.section in ("", "plant", "model")]

@@ -9,7 +9,6 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Button, DataTable, Input, Label, Static
 
-from codev_engine import ExplicitLaw
 from codev_engine.session import RunReport
 
 from ..design import locate_state, region_rows
@@ -18,6 +17,8 @@ from ..widgets import Plot
 from .mpc import parse_state
 
 if TYPE_CHECKING:
+    from codev_engine import ExplicitLaw
+
     from ..app import CodevApp
 
 
