@@ -20,6 +20,15 @@ from workbench.state import open_target
 SIZE = (150, 44)
 
 
+@pytest.fixture(autouse=True)
+def _plain_environment(monkeypatch):
+    """Screens must not depend on the terminal settings of the machine running the tests
+    (NO_COLOR drops every colour from the SVG; COLUMNS/LINES are ignored for the explicit
+    size but dropped too, for safety)."""
+    for var in ("NO_COLOR", "COLUMNS", "LINES", "TEXTUAL_THEME"):
+        monkeypatch.delenv(var, raising=False)
+
+
 @pytest.fixture
 def di_app(tmp_path, monkeypatch) -> CodevApp:
     monkeypatch.chdir(tmp_path)
