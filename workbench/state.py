@@ -66,16 +66,7 @@ def open_target(
         return _from_session(session)
     if target is not None:
         path = Path(target)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise SpecError("file not found", file=str(path)) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise SpecError(f"cannot read the spec: {exc}", file=str(path)) from None
-        try:
-            values, has_verify = form_from_text(text)
-        except SpecError as exc:
-            raise exc.with_file(str(path)) if exc.file is None else exc from None
+        values, has_verify = _read_form(path)
         name = values.get("name") or path.stem
         folder = Path(session_dir) if session_dir else root / _safe(name)
         existed = (folder / "session.json").exists()
@@ -106,6 +97,20 @@ def _safe(name: str) -> str:
     return safe.lstrip(".") or "untitled"
 
 
+def _read_form(path: Path) -> tuple[dict[str, str], bool]:
+    """The form entries of a spec file; ``SpecError`` naming the file otherwise."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError("file not found", file=str(path)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"cannot read the spec: {exc}", file=str(path)) from None
+    try:
+        return form_from_text(text)
+    except SpecError as exc:
+        raise exc.with_file(str(path)) if exc.file is None else exc from None
+
+
 def _from_session(session: Session) -> Opened:
     draft = read_draft(session)
     if draft is not None:
@@ -115,14 +120,7 @@ def _from_session(session: Session) -> Opened:
         )
     spec = session.spec_path()
     if spec.is_file():
-        try:
-            text = spec.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise SpecError(f"cannot read the spec: {exc}", file=str(spec)) from None
-        try:
-            values, has_verify = form_from_text(text)
-        except SpecError as exc:
-            raise exc.with_file(str(spec)) if exc.file is None else exc from None
+        values, has_verify = _read_form(spec)
         return Opened(session, values, has_verify, None)
     values, has_verify = _blank()
     return Opened(session, values, has_verify, "the session has no spec yet: fill in the form")

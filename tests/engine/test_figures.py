@@ -24,6 +24,7 @@ import codev_engine as ce
 from codev_engine import figures
 from codev_engine.tube import Tube
 from codev_engine.verify import VerificationResult
+from tests.di_variants import HULL_CORNER, UNSAFE_ON_PATH, di_spec
 
 matplotlib = pytest.importorskip("matplotlib")
 from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
@@ -34,36 +35,12 @@ ROOT = Path(__file__).resolve().parents[2]
 DI_TEXT = (ROOT / "examples" / "double_integrator.toml").read_text()
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
-# the nominal trajectory from (9, -5) passes (-0.375, -2.5) at t = 2.5 (test_verify.py)
-UNSAFE_ON_PATH = """
-[verify]
-time_horizon = 9.0
-step = 0.01
-initial_set = { lower = [8.99, -5.01], upper = [9.01, -4.99] }
-
+# plus a half-plane in the (x1, x2) plane, far from the tube (drawn, never entered)
+UNSAFE_AND_HALF_PLANE = UNSAFE_ON_PATH + """
 [[verify.unsafe]]
-lower = [-0.6, -2.7]
-upper = [-0.2, -2.3]
-
-[[verify.unsafe]]                 # a half-plane in the (x1, x2) plane, far from the tube
 A = [[1.0, 1.0]]
 b = [-7.0]
 """
-# only the hull of the reach set meets the box: unknown without refinement (test_verify.py)
-HULL_CORNER = """
-[verify]
-time_horizon = 3.0
-step = 0.01
-initial_set = { lower = [8.99, -5.01], upper = [9.01, -4.99] }
-
-[[verify.unsafe]]
-lower = [4.51, -3.985]
-upper = [4.53, -3.975]
-"""
-
-
-def _di_spec(verify_section: str) -> ce.Problem:
-    return ce.loads_spec(DI_TEXT[: DI_TEXT.index("[verify]")] + verify_section, path="<test>")
 
 
 def _axes() -> matplotlib.axes.Axes:
@@ -98,9 +75,9 @@ def mp3(example_law):
 def results(di):
     problem, law = di
     safe = ce.verify(problem, law)
-    unsafe_problem = _di_spec(UNSAFE_ON_PATH)
+    unsafe_problem = di_spec(UNSAFE_AND_HALF_PLANE)
     unsafe = ce.verify(unsafe_problem, law)
-    unknown = ce.verify(_di_spec(HULL_CORNER), law, max_depth=0)
+    unknown = ce.verify(di_spec(HULL_CORNER), law, max_depth=0)
     assert safe.verdict == "robustly_safe", safe.summary()
     assert unsafe.verdict == "unsafe", unsafe.summary()
     assert unknown.verdict == "unknown", unknown.summary()

@@ -47,10 +47,10 @@ from codev_engine.reach_linear import affine_plant
 from codev_engine.simulate import first_violation, simulate, simulate_many, violations_many
 from codev_engine.tube import Tube
 from codev_engine.verify import VerificationResult, verify
+from tests.di_variants import DI_PATH, HULL_CORNER, UNSAFE_ON_PATH, di_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
-DI_PATH = EXAMPLES / "double_integrator.toml"
 
 #: Absolute tolerance of tube membership (the RK4 oracle agrees with DOP853 to ~1e-12).
 TOL = 1e-9
@@ -500,30 +500,9 @@ def test_paper_verdicts_robustly_safe(verified, stem):
     assert result.hold == "continuous"
 
 
-def _di_spec(verify_section: str) -> ce.Problem:
-    """The double integrator's plant, model and MPC with another [verify] section."""
-    text = DI_PATH.read_text()
-    head = text[: text.index("[verify]")]
-    return ce.loads_spec(head + verify_section, path="<test>")
-
-
 @pytest.fixture(scope="module")
 def di_law(example_law):
     return example_law("double_integrator.toml")[1]
-
-
-# the nominal (centre) trajectory from (9, -5) with u = 1 passes (-0.375, -2.5) at t = 2.5
-UNSAFE_ON_PATH = """
-[verify]
-time_horizon = 9.0
-max_depth = 6
-step = 0.01
-initial_set = { lower = [8.99, -5.01], upper = [9.01, -4.99] }
-
-[[verify.unsafe]]
-lower = [-0.6, -2.7]
-upper = [-0.2, -2.3]
-"""
 
 
 def _assert_known_unsafe(problem, law, hold, kind, index, t_range):
@@ -540,7 +519,7 @@ def _assert_known_unsafe(problem, law, hold, kind, index, t_range):
 
 @pytest.mark.parametrize("hold", HOLDS)
 def test_unsafe_box_on_the_nominal_trajectory(di_law, hold):
-    problem = _di_spec(UNSAFE_ON_PATH)
+    problem = di_spec(UNSAFE_ON_PATH)
     # the oracle agrees that the centre's trajectory enters the box
     v = first_violation(problem, di_law, simulate(problem, di_law, [9.0, -5.0], hold=hold))
     assert v is not None and v.kind == "unsafe" and 2.0 < v.t < 3.0
@@ -552,7 +531,7 @@ def test_unsafe_box_on_the_nominal_trajectory(di_law, hold):
 def test_unsafe_tube_stops_at_the_counterexample(di_law, hold):
     """docs/verification.md: "When the verdict is unsafe the tube stops where the
     counterexample was found" -- no boxes (and no holes) beyond it."""
-    problem = _di_spec(UNSAFE_ON_PATH)
+    problem = di_spec(UNSAFE_ON_PATH)
     result = verify(problem, di_law, hold=hold)
     assert result.verdict == "unsafe", result.summary()
     t_cex = result.counterexample.t
@@ -567,7 +546,7 @@ def test_unsafe_tube_stops_at_the_counterexample(di_law, hold):
 def test_initial_set_partly_outside_the_domain(di_law, hold):
     # x1 <= 10 is a facet of the law's domain (the MPC's state bound); half the initial
     # set is beyond it, so the law is undefined at t = 0 for a concrete initial state
-    problem = _di_spec(
+    problem = di_spec(
         """
 [verify]
 time_horizon = 3.0
@@ -584,7 +563,7 @@ initial_set = { lower = [9.9, -5.01], upper = [10.1, -4.99] }
 @pytest.mark.parametrize("hold", HOLDS)
 def test_safe_set_left_by_the_nominal_trajectory(di_law, hold):
     # x1 reaches 0 at t ~ 2.35 on every trajectory (u = 1 saturated until t ~ 5)
-    problem = _di_spec(
+    problem = di_spec(
         """
 [verify]
 time_horizon = 9.0
@@ -672,25 +651,9 @@ def test_tora_continuous_hold_violates_input_bounds(verified):
     _assert_counterexample(problem, law, result, "tora hold=continuous")
 
 
-# A box that meets the hull of the tube's segment [1.0, 1.01] but no trajectory: at t = 1
-# the reach set is the parallelogram {x1 = a + b + 0.5, x2 = b + 1} (a in [8.99, 9.01],
-# b in [-5.01, -4.99]), so x1 >= 4.51 forces x2 <= -3.99 + s over [1, 1 + s]; the corner
-# (4.52, -3.98) of the segment box is ~0.04 from the reach set.
-HULL_CORNER = """
-[verify]
-time_horizon = 3.0
-step = 0.01
-initial_set = { lower = [8.99, -5.01], upper = [9.01, -4.99] }
-
-[[verify.unsafe]]
-lower = [4.51, -3.985]
-upper = [4.53, -3.975]
-"""
-
-
 @pytest.mark.parametrize("hold", HOLDS)
 def test_refinement_decides_what_only_the_hull_meets(di_law, hold):
-    problem = _di_spec(HULL_CORNER)
+    problem = di_spec(HULL_CORNER)
     vs = problem.verify
     X0 = _initial_states(vs.initial_lower, vs.initial_upper)
     bad, _ = violations_many(problem, *simulate_many(problem, di_law, X0, hold=hold))
@@ -741,8 +704,6 @@ def test_verify_without_a_verify_section_raises(di_law):
 def test_verify_rejects_an_unknown_hold(di_law):
     with pytest.raises(SpecError):
         verify(ce.load_spec(DI_PATH), di_law, hold="foh")
-
-
 
 
 def _assert_bad_input(proc: subprocess.CompletedProcess, *words: str) -> None:

@@ -9,26 +9,12 @@ import pytest
 from textcells import decode_pixels, plot_body
 
 import codev_engine as ce
+from tests.di_variants import UNSAFE_ON_PATH
 from workbench.raster import COLOURS, PALETTE
 from workbench.views import law_limits, partition_text, plane_text, series_text, tube_time_text
 
 ROOT = Path(__file__).resolve().parents[2]
 DI = ROOT / "examples" / "double_integrator.toml"
-
-# the nominal trajectory from (9, -5) with u = 1 passes (-0.375, -2.5) at t = 2.5
-# (tests/engine/test_verify.py): the box is entered, the verdict is unsafe
-UNSAFE_ON_PATH = """
-[verify]
-time_horizon = 9.0
-hold = "zoh"
-max_depth = 6
-step = 0.01
-initial_set = { lower = [8.99, -5.01], upper = [9.01, -4.99] }
-
-[[verify.unsafe]]
-lower = [-0.6, -2.7]
-upper = [-0.2, -2.3]
-"""
 
 TRIPLE = """
 name = "triple"
