@@ -39,6 +39,15 @@ __all__ = ["VerificationResult", "Counterexample", "verify", "RESULT_FORMAT", "V
 #: format tag of verification result files; bumped on incompatible changes
 RESULT_FORMAT = "codev-verification/1"
 VERDICTS = ("robustly_safe", "unsafe", "unknown")
+#: The reasons of a verdict, in words (``unsafe``: the counterexample's kind)
+REASON_WORDS = {
+    "unsafe": "enters an unsafe set",
+    "safe": "leaves a safe set",
+    "input_bounds": "input out of bounds",
+    "undefined": "reaches a state where the law is undefined",
+    "max_depth": "max_depth reached",
+    "infeasible_region": "the reach set leaves the law's domain",
+}
 
 
 def _json_scalar(obj):
@@ -187,7 +196,7 @@ class VerificationResult:
     def summary(self) -> str:
         line = f"verdict: {self.verdict}"
         if self.reason:
-            line += f" ({self.reason})"
+            line += f" ({REASON_WORDS.get(self.reason, self.reason)})"
         line += f"; hold {self.hold}; {self.tube.num_boxes} boxes"
         line += f"; {self.stats.get('branches', 0)} branches in {self.seconds:.3f} s"
         if self.counterexample is not None:
