@@ -104,6 +104,16 @@ def tube_time_text(
     if trace is not None:
         ymin = min(ymin, float(np.nanmin(trace.x[:, state])))
         ymax = max(ymax, float(np.nanmax(trace.x[:, state])))
+    if problem is not None and problem.verify is not None:
+        # show an unsafe bound that is near the tube (within half its range): the margin is
+        # what the user looks for
+        near = 0.5 * max(ymax - ymin, 1e-9)
+        for s in problem.verify.unsafe:
+            if s.kind != "box":
+                continue
+            for v in (float(s.lower[state]), float(s.upper[state])):
+                if np.isfinite(v) and ymin - near <= v <= ymax + near:
+                    ymin, ymax = min(ymin, v), max(ymax, v)
     r = Raster(width, height, nice_limits(0.0, t1, 0.0), nice_limits(ymin, ymax))
     legend = [("reachtube", COLOURS["tube"])]
     if problem is not None and problem.verify is not None:
