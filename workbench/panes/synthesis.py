@@ -50,6 +50,7 @@ class SynthesisPane(Vertical):
     """
 
     _note = ""  # the last run's failure or cancellation, kept until a law arrives
+    _law_shown: object = None  # the law whose picture and table are on screen
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="bar"):
@@ -89,7 +90,7 @@ class SynthesisPane(Vertical):
             self.locate()
         elif event.input.id in ("synth-axes", "synth-at"):
             event.stop()
-            self.refresh_law()
+            self.refresh_law(force=True)
 
     # ---- showing the law -------------------------------------------------------------
 
@@ -113,7 +114,7 @@ class SynthesisPane(Vertical):
             self.query_one("#synth-status", Static).update(self._note)
             self.refresh_law(keep_status=True)
 
-    def refresh_law(self, keep_status: bool = False) -> None:
+    def refresh_law(self, keep_status: bool = False, force: bool = False) -> None:
         app: CodevApp = self.app  # type: ignore[assignment]
         law = app.law
         status = self.query_one("#synth-status", Static)
@@ -125,6 +126,7 @@ class SynthesisPane(Vertical):
                 status.update(f"{note}no law yet: press Synthesize (ctrl+g)")
             plot.set_draw(None, "the partition appears here after synthesis")
             table.clear()
+            self._law_shown = None
             return
         if not keep_status and app.busy is None:
             state = (
@@ -137,10 +139,14 @@ class SynthesisPane(Vertical):
                 f"{law.num_regions} critical regions · n={law.n}, m={law.m}"
                 f"{f', norm {norm}' if norm else ''} · {state}"
             )
-        self._draw(law)
-        table.clear()
-        for row in region_rows(law):
-            table.add_row(*row)
+        if law is not self._law_shown or force:
+            # the picture and the table depend on the law only: a form check (every few
+            # keys) must not rebuild them
+            self._law_shown = law
+            self._draw(law)
+            table.clear()
+            for row in region_rows(law):
+                table.add_row(*row)
 
     def _draw(self, law: ExplicitLaw) -> None:
         plot = self.query_one("#partition", Plot)

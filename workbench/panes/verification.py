@@ -102,7 +102,7 @@ class VerificationPane(Horizontal):
     def on_input_submitted(self, event: Input.Submitted) -> None:
         if event.input.id in ("tube-state", "plane-axes"):
             event.stop()
-            self.refresh_result()
+            self.refresh_result(force=True)
 
     def show_progress(self, text: str) -> None:
         app: CodevApp = self.app  # type: ignore[assignment]
@@ -123,7 +123,9 @@ class VerificationPane(Horizontal):
                 status.update(sr.status)  # the seconds are in the toast and the journal
             self.refresh_result()
 
-    def refresh_result(self) -> None:
+    _result_shown: object = None  # the result whose pictures are on screen
+
+    def refresh_result(self, force: bool = False) -> None:
         app: CodevApp = self.app  # type: ignore[assignment]
         result = app.result
         banner = self.query_one("#verdict", Static)
@@ -136,6 +138,7 @@ class VerificationPane(Horizontal):
             tplot.set_draw(None, "the reachtube against time appears here")
             pplot.set_draw(None, "the reachtube in the state plane appears here")
             cex_out.update("")
+            self._result_shown = None
             return
         title, cls, meaning = VERDICT_TEXT.get(result.verdict, (result.verdict, "", ""))
         reason = REASONS.get(result.reason or "", result.reason or "")
@@ -150,6 +153,9 @@ class VerificationPane(Horizontal):
         banner.add_class(cls)
         banner.update("\n".join(lines))
         problem = app.result_problem
+        if result is self._result_shown and not force:
+            return  # the pictures depend on the result only (a form check must not redraw)
+        self._result_shown = result
         names = problem.plant.states if problem is not None else ()
         try:
             state = self._state(names)
