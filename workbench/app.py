@@ -210,13 +210,14 @@ class CodevApp(App):
         keys: dict[str, str],
         loaded: dict[str, Any],
     ) -> None:
-        self.check = chk
         self.statuses = statuses
         self.keys = keys
         for entry in self.query(FieldEntry):
             entry.set_error(chk.errors.get(entry.field_name))
-        if chk.general:
+        previous = self.check.general if self.check is not None else None
+        if chk.general and chk.general != previous:  # once, not at every key
             self.notify(chk.general, severity="error", timeout=8)
+        self.check = chk
         if "model" in loaded:
             self.model = loaded["model"]
         if "synthesis" in loaded:
