@@ -108,6 +108,11 @@ def _highs(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     return np.asarray(res.x, dtype=float)
 
 
+#: A region whose bounding box covers more grid cells than this is tested point by point
+#: instead of being entered in every cell (see PointLocator)
+WIDE_CELLS = 4096
+
+
 class PointLocator:
     """Locate points in the regions ``{x : A_i x <= b_i}``.
 
@@ -168,7 +173,16 @@ class PointLocator:
         chi = np.clip(np.floor((hi - self.lo) / self.cell + 1e-9), 0, g - 1).astype(int)
         lists: list[list[int]] = [[] for _ in range(g**d)]
         strides = g ** np.arange(d)
+        # a region whose box spans very many cells (thin and oblique, in 7-8 dimensions)
+        # would cost millions of cell entries: such "wide" regions are tested directly
+        # (pop_mpqp_0xx solutions spent over 15 minutes and 3.7 GB building the grid)
+        ncells = np.prod((chi - clo + 1).astype(float), axis=1)
+        self.wide = np.flatnonzero(ncells > WIDE_CELLS)
+        skip = np.zeros(R, dtype=bool)
+        skip[self.wide] = True
         for i in range(R):
+            if skip[i]:
+                continue
             ranges = [np.arange(clo[i, j], chi[i, j] + 1) for j in range(d)]
             mesh = np.stack(np.meshgrid(*ranges, indexing="ij"), axis=-1).reshape(-1, d)
             # drop cells that one of the region's rows separates from it entirely
@@ -219,4 +233,11 @@ class PointLocator:
             alive[sel[hit]] = False
             r += 1
             alive &= count > r
+        for i in self.wide:
+            # the lowest index wins, as in the grid: only points not in a lower region
+            sel = pts[(out[pts] < 0) | (out[pts] > i)]
+            if sel.size == 0:
+                continue
+            hit = np.all(X[sel] @ self.Apad[i].T - self.bpad[i] <= self.tol, axis=1)
+            out[sel[hit]] = i
         return out

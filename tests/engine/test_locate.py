@@ -33,10 +33,11 @@ def voronoi_regions(k: int, seed: int) -> tuple[list[np.ndarray], list[np.ndarra
     eye = np.eye(2)
     As, bs = [], []
     for i in range(k):
-        J = nbrs[indptr[i]:indptr[i + 1]]
+        J = nbrs[indptr[i] : indptr[i + 1]]
         A = np.vstack([sites[J] - sites[i], eye, -eye])
-        b = np.concatenate([(np.sum(sites[J] ** 2, axis=1) - sites[i] @ sites[i]) / 2,
-                            np.full(4, S)])
+        b = np.concatenate(
+            [(np.sum(sites[J] ** 2, axis=1) - sites[i] @ sites[i]) / 2, np.full(4, S)]
+        )
         nrm = np.linalg.norm(A, axis=1)
         As.append(A / nrm[:, None])
         bs.append(b / nrm)
@@ -58,8 +59,9 @@ def sliver(seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def daqp_fails(A: np.ndarray, b: np.ndarray) -> bool:
     eye = np.eye(A.shape[1])
-    return any(solve_lp(s * eye[j], A, b)[1] != "optimal"
-               for j in range(A.shape[1]) for s in (1.0, -1.0))
+    return any(
+        solve_lp(s * eye[j], A, b)[1] != "optimal" for j in range(A.shape[1]) for s in (1.0, -1.0)
+    )
 
 
 #: seeds of slivers on which DAQP fails (checked by test_the_sliver_defeats_daqp)
@@ -85,14 +87,20 @@ def inside_points(A: np.ndarray, b: np.ndarray, rng, count: int = 200) -> np.nda
     """Points of the region (strictly inside, found from its Chebyshev centre and the
     HiGHS extreme points in random directions)."""
     nrm = np.linalg.norm(A, axis=1)
-    res = linprog(np.r_[np.zeros(A.shape[1]), -1.0], A_ub=np.hstack([A, nrm[:, None]]),
-                  b_ub=b, bounds=(None, None), method="highs")
+    res = linprog(
+        np.r_[np.zeros(A.shape[1]), -1.0],
+        A_ub=np.hstack([A, nrm[:, None]]),
+        b_ub=b,
+        bounds=(None, None),
+        method="highs",
+    )
     assert res.status == 0 and res.x[-1] > 0
     centre = res.x[:-1]
     pts = []
     for _ in range(count):
-        r = linprog(rng.normal(size=A.shape[1]), A_ub=A, b_ub=b, bounds=(None, None),
-                    method="highs")
+        r = linprog(
+            rng.normal(size=A.shape[1]), A_ub=A, b_ub=b, bounds=(None, None), method="highs"
+        )
         pts.append(centre + rng.uniform(0.0, 0.9) * (r.x - centre))
     return np.array(pts)
 
@@ -103,7 +111,8 @@ def check_agrees(As, bs, locator: PointLocator, X: np.ndarray) -> np.ndarray:
     differ = np.flatnonzero((got != want) & ~near)
     assert differ.size == 0, (
         f"{differ.size} of {X.shape[0]} points located differently from brute force, e.g. "
-        f"x={X[differ[0]].tolist()}: locate={got[differ[0]]}, brute={want[differ[0]]}")
+        f"x={X[differ[0]].tolist()}: locate={got[differ[0]]}, brute={want[differ[0]]}"
+    )
     return got
 
 
@@ -179,8 +188,9 @@ def test_every_lp_failing_falls_back_to_a_sound_finite_box(monkeypatch, domain):
     np.testing.assert_allclose(lo[7], -S, atol=1e-9)  # the whole partition's box
     np.testing.assert_allclose(hi[7], S, atol=1e-9)
     monkeypatch.undo()
-    ref_lo, ref_hi = bounding_boxes([A for i, A in enumerate(As) if i != 7],
-                                    [b for i, b in enumerate(bs) if i != 7])
+    ref_lo, ref_hi = bounding_boxes(
+        [A for i, A in enumerate(As) if i != 7], [b for i, b in enumerate(bs) if i != 7]
+    )
     np.testing.assert_array_equal(np.delete(lo, 7, axis=0), ref_lo)
     np.testing.assert_array_equal(np.delete(hi, 7, axis=0), ref_hi)
     rng = np.random.default_rng(5)
@@ -240,8 +250,39 @@ def test_law_boxes_use_the_domain_box(monkeypatch):
 
     monkeypatch.setattr("codev_engine.law.bounding_boxes", spy)
     dA, db = np.vstack([np.eye(2), -np.eye(2)]), np.full(4, S)
-    law = ce.ExplicitLaw(A=As, b=bs, F=np.zeros((len(As), 1, 2)), G=np.zeros((len(As), 1)),
-                         domain_A=dA, domain_b=db)
+    law = ce.ExplicitLaw(
+        A=As, b=bs, F=np.zeros((len(As), 1, 2)), G=np.zeros((len(As), 1)), domain_A=dA, domain_b=db
+    )
     lo, hi = law.boxes
     assert seen["domain"][0] is dA and seen["domain"][1] is db
     assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
+
+
+def test_wide_regions_are_located_exactly():
+    """Thin oblique slabs in 7-D: every box spans the whole grid (the 'wide' path), and
+    located indices equal brute force, lowest index first on shared boundaries."""
+    from codev_engine.locate import WIDE_CELLS, PointLocator
+
+    rng = np.random.default_rng(7)
+    d, R = 7, 400
+    a = rng.normal(size=d)
+    a /= np.linalg.norm(a)
+    cuts = np.linspace(-np.abs(a).sum(), np.abs(a).sum(), R + 1)
+    box_A = np.vstack([np.eye(d), -np.eye(d)])
+    box_b = np.ones(2 * d)
+    As = [np.vstack([box_A, a, -a]) for _ in range(R)]
+    bs = [np.concatenate([box_b, [cuts[k + 1], -cuts[k]]]) for k in range(R)]
+    loc = PointLocator(As, bs, boxes=(-np.ones((R, d)), np.ones((R, d))))
+    assert loc.wide.size == R and loc.g**d > WIDE_CELLS
+    X = np.vstack([rng.uniform(-1, 1, size=(3000, d)), 1.5 * rng.uniform(-1, 1, size=(200, d))])
+    # points exactly on cuts: the lower region must win
+    on = rng.uniform(-0.2, 0.2, size=(50, d))
+    on += np.outer(cuts[R // 2] - on @ a, a)
+    X = np.vstack([X, on])
+    got = loc.locate(X)
+    inside = np.stack(
+        [np.all(X @ A.T - b <= 1e-9, axis=1) for A, b in zip(As, bs, strict=True)], axis=1
+    )
+    want = np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
+    np.testing.assert_array_equal(got, want)
+    assert np.all(got[-50:] == R // 2 - 1)
