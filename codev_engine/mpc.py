@@ -27,6 +27,7 @@ import numpy as np
 if TYPE_CHECKING:
     import cvxpy as cp
 
+from .choices import NORMS
 from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
 from .plant import LinearModel
@@ -40,7 +41,6 @@ __all__ = [
     "OnlineMpc",
 ]
 
-_NORMS = ("1", "inf", "2")
 
 # Clarabel settings of the reference solver: much tighter than the defaults (1e-8) so the
 # online optimum is an oracle at 1e-6 relative.
@@ -172,8 +172,8 @@ def _as2d(M: np.ndarray | None, cols: int) -> np.ndarray | None:
 
 
 def _check_dims(spec: MpcSpec, n: int, m: int) -> None:
-    if spec.norm not in _NORMS:
-        raise SpecError(f"norm must be one of {_NORMS}, got {spec.norm!r}", field="mpc.norm")
+    if spec.norm not in NORMS:
+        raise SpecError(f"norm must be one of {NORMS}, got {spec.norm!r}", field="mpc.norm")
     if spec.horizon < 1:
         raise SpecError("the horizon must be at least 1", field="mpc.horizon")
     for name, M, cols in (("Q", spec.Q, n), ("R", spec.R, m), ("P", spec.P, n)):

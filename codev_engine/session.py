@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .atomic import atomic_path, write_text
+from .choices import HOLDS
 from .errors import CodevError, SpecError
 
 if TYPE_CHECKING:
@@ -143,7 +144,7 @@ class RunOptions:
         """``SessionError`` naming the option that is out of range."""
         if self.upto not in STAGES:
             raise SessionError(f"must be one of {', '.join(STAGES)}", field=f"{field_prefix}.upto")
-        if self.hold not in (None, "zoh", "continuous"):
+        if self.hold is not None and self.hold not in HOLDS:
             raise SessionError("must be zoh or continuous", field=f"{field_prefix}.hold")
         if self.max_depth is not None and (
             not isinstance(self.max_depth, int)

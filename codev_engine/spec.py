@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from .choices import HOLDS, METHODS, NORMS
 from .errors import SpecError
 from .expr import RESERVED_NAMES, make_symbol, parse_expression
 
@@ -161,12 +162,6 @@ class Problem:
 # Loader
 # --------------------------------------------------------------------------------------------
 
-#: Accepted values of ``mpc.norm`` (after normalisation).
-NORMS: tuple[str, ...] = ("1", "inf", "2")
-#: Accepted values of ``model.method`` (python-control / scipy discretisation methods).
-METHODS: tuple[str, ...] = ("zoh", "foh", "tustin", "bilinear", "euler", "backward_diff", "impulse")
-#: Accepted values of ``verify.hold``.
-HOLDS: tuple[str, ...] = ("zoh", "continuous")
 
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 _IDENT_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")

@@ -19,6 +19,7 @@ import tomllib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from codev_engine.choices import HOLDS, METHODS, NORMS
 from codev_engine.errors import SpecError
 
 if TYPE_CHECKING:
@@ -36,7 +37,6 @@ __all__ = [
 ]
 
 SECTIONS = ("plant", "model", "mpc", "verify")
-METHODS = ("zoh", "foh", "tustin", "bilinear", "euler", "backward_diff", "impulse")
 
 
 @dataclass(frozen=True)
@@ -110,7 +110,7 @@ FIELDS: tuple[FieldDef, ...] = (
         "choice",
         "Norm",
         "1 and inf: mp-LP; 2: mp-QP",
-        choices=("1", "inf", "2"),
+        choices=NORMS,
         required=True,
     ),
     _f("mpc.Q", "matrix", "Q", "state weight (norm 2: n×n PSD; else q×n)", required=True),
@@ -141,7 +141,7 @@ FIELDS: tuple[FieldDef, ...] = (
         "choice",
         "Hold",
         "zoh: u held over each sample; continuous: u = F x(t) + G",
-        choices=("zoh", "continuous"),
+        choices=HOLDS,
     ),
     _f("verify.max_depth", "integer", "Max depth", "initial-set refinement depth (maxPart)"),
     _f("verify.step", "number", "Tube step (s)", "time step of the reachtube (default 0.01)"),

@@ -1,0 +1,16 @@
+"""The values a spec's choice fields accept (``mpc.norm``, ``model.method``, ``verify.hold``).
+
+A module of its own, with no imports, so that the workbench can offer the choices without
+loading the spec loader (which loads sympy).
+"""
+
+from __future__ import annotations
+
+__all__ = ["HOLDS", "METHODS", "NORMS"]
+
+#: Accepted values of ``mpc.norm`` (after normalisation).
+NORMS: tuple[str, ...] = ("1", "inf", "2")
+#: Accepted values of ``model.method`` (python-control / scipy discretisation methods).
+METHODS: tuple[str, ...] = ("zoh", "foh", "tustin", "bilinear", "euler", "backward_diff", "impulse")
+#: Accepted values of ``verify.hold``.
+HOLDS: tuple[str, ...] = ("zoh", "continuous")
