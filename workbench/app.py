@@ -14,7 +14,6 @@ import os
 import threading
 import time
 from dataclasses import replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rich.markup import escape
@@ -26,7 +25,7 @@ from textual.widgets import Footer, Static, TabbedContent, TabPane
 from codev_engine.errors import CodevError
 from codev_engine.session import STAGES, RunOptions, RunReport, Session, StageStatus, stage_keys
 
-from .form import FormCheck, check_form, field_for_error, form_from_text
+from .form import FormCheck, check_form, field_for_error
 from .panes.mpc import MpcPane
 from .panes.plant import PlantPane
 from .panes.session import SessionPane
@@ -37,7 +36,7 @@ from .widgets import FieldEntry
 
 if TYPE_CHECKING:
     # the numerical stack loads in the first check's worker, after the first screen
-    from codev_engine import ExplicitLaw, LinearModel, Problem, VerificationResult
+    from codev_engine import ExplicitLaw, Problem, VerificationResult
 
 __all__ = ["CodevApp", "RunCancelledError"]
 
@@ -100,19 +99,18 @@ class CodevApp(App):
         self.statuses: dict[str, StageStatus] = {}
         self.keys: dict[str, str] = {}
         # the values shown, and the stage keys they were computed for
-        self.model: LinearModel | None = None
         self.law: ExplicitLaw | None = None
         self.law_key: str | None = None
         self.result: VerificationResult | None = None
         self.result_key: str | None = None
         self.result_problem: Problem | None = None
-        self.recording: Path | None = None
         # the stage run in flight
         self.busy: str | None = None
         self.progress: tuple[str, int, float] | None = None  # (stage, count, started)
         self._cancel = threading.Event()
         self._check_timer: Any = None
-        self._report_source: str | None = None
+        # the model key of the plant report shown or being derived
+        self._plant_report_key: str | None = None
 
     # ---- layout ----------------------------------------------------------------------
 
@@ -184,18 +182,17 @@ class CodevApp(App):
     ) -> dict[str, Any]:
         """Cached results for the current spec that the screens do not show yet (e.g. the
         user put Q back to a value synthesised before)."""
-        from codev_engine import ExplicitLaw, LinearModel, VerificationResult
+        from codev_engine import ExplicitLaw, VerificationResult
 
         out: dict[str, Any] = {}
         for stage, cls, shown in (
-            ("model", LinearModel, None),
             ("synthesis", ExplicitLaw, self.law_key),
             ("verification", VerificationResult, self.result_key),
         ):
             st = statuses.get(stage)
             if st is None or st.status != "cached" or st.artifact is None:
                 continue
-            if stage != "model" and shown == keys.get(stage):
+            if shown == keys.get(stage):
                 continue
             try:
                 out[stage] = cls.load(self.session.path / st.artifact)
@@ -218,8 +215,6 @@ class CodevApp(App):
         if chk.general and chk.general != previous:  # once, not at every key
             self.notify(chk.general, severity="error", timeout=8)
         self.check = chk
-        if "model" in loaded:
-            self.model = loaded["model"]
         if "synthesis" in loaded:
             self.law, self.law_key = loaded["synthesis"], keys.get("synthesis")
         if "verification" in loaded:
@@ -229,21 +224,14 @@ class CodevApp(App):
         self.query_one(SynthesisPane).refresh_law()
         self.query_one(VerificationPane).refresh_result()
         self.query_one(SessionPane).refresh_session()
-        if chk.ok and chk.problem is not None and chk.problem.source != self._report_source:
-            plant_changed = self._plant_key(chk.problem) != self._plant_key_shown
-            if plant_changed:
-                self._report_source = chk.problem.source
-                self.query_one(PlantPane).show_report(chk.problem)
-        elif not chk.ok:
-            self.query_one(PlantPane).show_invalid(chk)
-
-    _plant_key_shown: str | None = None
-
-    def _plant_key(self, problem: Problem) -> str:
-        return stage_keys(problem, self.options)["model"]
-
-    def plant_report_shown(self, problem: Problem) -> None:
-        self._plant_key_shown = self._plant_key(problem)
+        plant = self.query_one(PlantPane)
+        if chk.ok and chk.problem is not None:
+            # the report depends on the model stage's inputs only: re-derived when they change
+            if keys.get("model") != self._plant_report_key:
+                self._plant_report_key = keys.get("model")
+                plant.show_report(chk.problem)
+        elif plant.show_invalid(chk):
+            self._plant_report_key = None  # the report was replaced by a message
 
     def _show_pipeline(self) -> None:
         """The top line: the session and each stage's cache status for the current spec."""
@@ -355,8 +343,6 @@ class CodevApp(App):
         self._schedule_check()  # statuses and the journal moved on
 
     def _take_report(self, report: RunReport) -> None:
-        if report.model is not None:
-            self.model = report.model
         if report.law is not None:
             sr = report.stage("synthesis")
             self.law, self.law_key = report.law, sr.key if sr else None
@@ -364,8 +350,6 @@ class CodevApp(App):
             sr = report.stage("verification")
             self.result, self.result_key = report.result, sr.key if sr else None
             self.result_problem = report.problem
-        if report.recording is not None:
-            self.recording = report.recording
         failed = next((s for s in report.stages if s.status == "failed"), None)
         if failed is not None:
             self.notify(
@@ -445,11 +429,9 @@ class CodevApp(App):
         self.values = dict(opened.values)
         self.has_verify = opened.has_verify
         self._dirty = opened.save_now
-        self.model = self.law = self.result = None
+        self.law = self.result = None
         self.law_key = self.result_key = None
-        self.recording = None
-        self._report_source = None
-        self._plant_key_shown = None
+        self._plant_report_key = None
         self._show_pipeline()
         for entry in self.query(FieldEntry):
             entry.set_text(self.values.get(entry.field_name, ""))
@@ -459,11 +441,6 @@ class CodevApp(App):
         if opened.note:
             self.notify(opened.note)
         self._run_check()
-
-    def load_text(self, text: str) -> None:
-        """Replace the form with a spec's text (kept in the current session)."""
-        values, has_verify = form_from_text(text)
-        self.load(Opened(self.session, values, has_verify, None))
 
 
 def _lower_priority(niceness: int = 10) -> None:

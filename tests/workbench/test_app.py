@@ -126,9 +126,12 @@ def test_inline_errors_and_draft(di_session, tmp_path):
             await type_into(pilot, app, "model.sample_time", "-1")
             await settle(pilot, app)
             assert entry(app, "model.sample_time").has_class("-error")
+            assert "once the fields marked in red are fixed" in app.query_one(PlantPane).report_text
+            # back to the spec whose report was shown before: the report comes back
             await type_into(pilot, app, "model.sample_time", "1.0")
             await settle(pilot, app)
             assert app.check.ok
+            assert "controllability rank 2 of 2" in app.query_one(PlantPane).report_text
 
     run(scenario())
 

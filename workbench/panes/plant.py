@@ -39,12 +39,13 @@ class PlantPane(Horizontal):
         with VerticalScroll(classes="output"):
             yield Static("checking the spec…", id="plant-report")
 
-    def show_invalid(self, chk: FormCheck) -> None:
-        plant_errors = [k for k in chk.errors if k in PLANT_FIELDS]
-        if plant_errors:
-            self.query_one("#plant-report", Static).update(
-                "The derived model appears once the fields marked in red are fixed."
-            )
+    def show_invalid(self, chk: FormCheck) -> bool:
+        """Replace the report by a message if a plant or model entry is wrong (-> True)."""
+        if not any(k in PLANT_FIELDS for k in chk.errors):
+            return False
+        self.report_text = "The derived model appears once the fields marked in red are fixed."
+        self.query_one("#plant-report", Static).update(self.report_text)
+        return True
 
     def show_report(self, problem: Problem) -> None:
         self.query_one("#plant-report", Static).update("deriving the linear model…")
@@ -59,10 +60,8 @@ class PlantPane(Horizontal):
         except CodevError as exc:
             text = f"✗ {exc}"
             body = f"[red]✗ {exc}[/red]"
-        app.call_from_thread(self._show, body, text, problem)
+        app.call_from_thread(self._show, body, text)
 
-    def _show(self, body: object, text: str, problem: Problem) -> None:
+    def _show(self, body: object, text: str) -> None:
         self.report_text = text
         self.query_one("#plant-report", Static).update(body)
-        app: CodevApp = self.app  # type: ignore[assignment]
-        app.plant_report_shown(problem)
