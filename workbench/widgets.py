@@ -110,8 +110,13 @@ class FieldEntry(Vertical):
     def _done_loading(self) -> None:
         self._loading = False
 
+    _error: str | None = None
+
     def set_error(self, message: str | None) -> None:
         """Show ``message`` under the entry (None: back to the help line)."""
+        if message == self._error:
+            return  # every form check calls this on every entry
+        self._error = message
         self.set_class(message is not None, "-error")
         self.query_one(".help", Static).update(
             Text(f"✗ {message}") if message else Text(self.field.help)

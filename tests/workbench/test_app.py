@@ -13,7 +13,7 @@ import tomllib
 import numpy as np
 import pytest
 from pilot_tools import EXAMPLES, ROOT, SIZE, entry, run, settle, text_of, type_into
-from textual.widgets import Input, Static
+from textual.widgets import DataTable, Input, Static
 
 from codev_engine import load_spec
 from codev_engine.session import Session
@@ -77,6 +77,11 @@ def test_complete_design_session(di_session, tmp_path):
 
             await pilot.press("ctrl+s")
             await settle(pilot, app)
+            # the Session screen's journal shows every record of this session's runs
+            await pilot.press("f5")
+            await settle(pilot, app)
+            rows = app.query_one("#journal", DataTable).row_count
+            assert rows == len(Session.open(folder).journal()) >= 7
             await pilot.press("ctrl+q")
 
     run(scenario())

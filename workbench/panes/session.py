@@ -28,6 +28,8 @@ class SessionPane(VerticalScroll):
     SessionPane #open-path, SessionPane #export-path { width: 1fr; }
     """
 
+    _journal_stamp: tuple | None = None  # (file, mtime, size) of the journal on screen
+
     def compose(self) -> ComposeResult:
         yield Static("", id="session-path", classes="small")
         with Horizontal(classes="bar"):
@@ -88,6 +90,16 @@ class SessionPane(VerticalScroll):
         stages.clear()
         for st in app.statuses.values():
             stages.add_row(st.stage, st.status, st.artifact or st.reason or "")
+        # the journal changes only when a stage runs, not at every form check
+        file = session.path / "journal.jsonl"
+        try:
+            st = file.stat()
+            stamp: tuple = (file, st.st_mtime_ns, st.st_size)
+        except OSError:
+            stamp = (file, None, None)
+        if stamp == self._journal_stamp:
+            return
+        self._journal_stamp = stamp
         journal = self.query_one("#journal", DataTable)
         journal.clear()
         try:
