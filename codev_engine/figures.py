@@ -744,21 +744,12 @@ def _fills_view(poly: np.ndarray, view: tuple[np.ndarray, np.ndarray]) -> bool:
     return bool(np.all(gap <= 1e-9 * (1.0 + np.abs(corners).max())))
 
 
-_VIOLATIONS = {
-    "unsafe": "enters unsafe set {index}",
-    "safe": "leaves safe set {index}",
-    "input_bounds": "input {index} leaves its bounds",
-    "undefined": "leaves the law's domain",
-}
-
-
 def _verdict_text(result: VerificationResult) -> str:
     """``robustly safe``, ``unsafe: enters unsafe set 0 at t = 2.47``, ``unknown (max_depth)``."""
     text = result.verdict.replace("_", " ")
     ce = result.counterexample
     if result.verdict == "unsafe" and ce is not None:
-        what = _VIOLATIONS.get(ce.kind, ce.kind).format(index=ce.index)
-        return f"{text}: {what} at t = {ce.t:.4g}"
+        return f"{text}: {ce.describe()} at t = {ce.t:.4g}"
     return f"{text} ({result.reason})" if result.reason else text
 
 

@@ -39,12 +39,15 @@ __all__ = ["VerificationResult", "Counterexample", "verify", "RESULT_FORMAT", "V
 #: format tag of verification result files; bumped on incompatible changes
 RESULT_FORMAT = "codev-verification/1"
 VERDICTS = ("robustly_safe", "unsafe", "unknown")
-#: The reasons of a verdict, in words (``unsafe``: the counterexample's kind)
-REASON_WORDS = {
-    "unsafe": "enters an unsafe set",
-    "safe": "leaves a safe set",
-    "input_bounds": "input out of bounds",
-    "undefined": "reaches a state where the law is undefined",
+#: What a counterexample does, by kind (``{index}``: which set or input)
+VIOLATION_WORDS = {
+    "unsafe": "enters unsafe set {index}",
+    "safe": "leaves safe set {index}",
+    "input_bounds": "input {index} leaves its bounds",
+    "undefined": "leaves the law's domain",
+}
+#: Why a verdict is unknown, in words
+UNKNOWN_WORDS = {
     "max_depth": "max_depth reached",
     "infeasible_region": "the reach set leaves the law's domain",
 }
@@ -80,6 +83,10 @@ class Counterexample:
     kind: str
     index: int
     trace: object
+
+    def describe(self) -> str:
+        """The violation in words: ``enters unsafe set 0``, ``input 1 leaves its bounds``."""
+        return VIOLATION_WORDS.get(self.kind, self.kind).format(index=self.index)
 
 
 @dataclass
@@ -195,8 +202,10 @@ class VerificationResult:
 
     def summary(self) -> str:
         line = f"verdict: {self.verdict}"
-        if self.reason:
-            line += f" ({REASON_WORDS.get(self.reason, self.reason)})"
+        if self.counterexample is not None and self.verdict == "unsafe":
+            line += f" ({self.counterexample.describe()})"
+        elif self.reason:
+            line += f" ({UNKNOWN_WORDS.get(self.reason, self.reason)})"
         line += f"; hold {self.hold}; {self.tube.num_boxes} boxes"
         line += f"; {self.stats.get('branches', 0)} branches in {self.seconds:.3f} s"
         if self.counterexample is not None:

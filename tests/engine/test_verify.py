@@ -525,6 +525,9 @@ def test_unsafe_box_on_the_nominal_trajectory(di_law, hold):
     assert v is not None and v.kind == "unsafe" and 2.0 < v.t < 3.0
     result = _assert_known_unsafe(problem, di_law, hold, "unsafe", 0, (2.0, 3.0))
     _assert_sound(problem, di_law, result, f"unsafe box, hold={hold}")
+    # the summary says what happened, with the set's index
+    assert result.counterexample.describe() == "enters unsafe set 0"
+    assert result.summary().startswith("verdict: unsafe (enters unsafe set 0); ")
 
 
 @pytest.mark.parametrize("hold", HOLDS)

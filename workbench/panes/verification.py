@@ -173,8 +173,8 @@ class VerificationPane(Horizontal):
         if cex is not None:
             x0 = ", ".join(f"{v:.6g}" for v in cex.x0)
             cex_out.update(
-                f"[red]counterexample[/red]: from x0 = ({x0}), violation "
-                f"'{cex.kind}' (set {cex.index}) at t = {cex.t:.4g} s — "
+                f"[red]counterexample[/red]: from x0 = ({x0}), {cex.describe()} "
+                f"at t = {cex.t:.4g} s — "
                 "drawn in red; replay it with `codev verify --json`"
             )
         else:
