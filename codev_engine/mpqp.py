@@ -70,6 +70,22 @@ class _Kernel:
         self.rhs_z = np.hstack([-c[:, None], -C])
         self.wS = np.hstack([w[:, None], S])
 
+    def _inactive(self, A: np.ndarray) -> np.ndarray:
+        """The constraints not in the active set ``A``, in order."""
+        mask = np.ones(self.m, dtype=bool)
+        mask[A] = False
+        return self.idx[mask]
+
+    def _solve_kkt(self, A: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``[[H, G_A'], [G_A, 0]] [Z; Lam] = rhs`` -> (Z (nz, k), Lam (na, k))."""
+        nz, GA = self.nz, self.G[A]
+        K = np.zeros((nz + A.size, nz + A.size))
+        K[:nz, :nz] = self.H
+        K[:nz, nz:] = GA.T
+        K[nz:, :nz] = GA
+        X = np.linalg.solve(K, rhs)
+        return X[:nz], X[nz:]
+
     def _setup(self, G, At, bt, scale: float, region_tol: float, box) -> None:
         """What every kernel needs: sizes, the parameter set, tolerances, its box."""
         self.nz, self.d, self.m = G.shape[1], At.shape[1], G.shape[0]
@@ -185,9 +201,7 @@ class _Kernel:
         else:
             MA = np.zeros((0, self.m))
             Lam = np.zeros((0, self.d + 1))
-        mask = np.ones(self.m, dtype=bool)
-        mask[A] = False
-        inact = self.idx[mask]
+        inact = self._inactive(A)
         Sl = self.Dfull[inact] + MA[:, inact].T @ Lam
         return Lam, Sl, inact, None, None
 
@@ -200,17 +214,8 @@ class _Kernel:
         the law it gave violated its own active constraints by 1e-5 and its value was off by
         5e-5 relative; the augmented system does not square it.
         """
-        nz, na = self.nz, A.size
-        GA = self.G[A]
-        K = np.zeros((nz + na, nz + na))
-        K[:nz, :nz] = self.H
-        K[:nz, nz:] = GA.T
-        K[nz:, :nz] = GA
-        X = np.linalg.solve(K, np.vstack([self.rhs_z, self.wS[A]]))  # (nz + na, d + 1)
-        Z, Lam = X[:nz], X[nz:]
-        mask = np.ones(self.m, dtype=bool)
-        mask[A] = False
-        inact = self.idx[mask]
+        Z, Lam = self._solve_kkt(A, np.vstack([self.rhs_z, self.wS[A]]))  # columns (1, theta)
+        inact = self._inactive(A)
         Sl = self.wS[inact] - self.G[inact] @ Z
         return Lam, Sl, inact, None, Z
 
@@ -255,16 +260,9 @@ class _KernelSemidefinite(_Kernel):
             N = Q[:, na:]
             if np.linalg.eigvalsh(N.T @ self.H @ N).min() <= self.h_tol:
                 return "singular"
-        K = np.zeros((nz + na, nz + na))
-        K[:nz, :nz] = self.H
-        K[:nz, nz:] = GA.T
-        K[nz:, :nz] = GA
         rhs = np.vstack([self.rhs_z, np.hstack([self.w[A, None], self.S[A], np.zeros((na, 1))])])
-        X = np.linalg.solve(K, rhs)  # (nz + na, d + 2): columns constant, theta, eps
-        Zf, Lf = X[:nz], X[nz:]
-        mask = np.ones(self.m, dtype=bool)
-        mask[A] = False
-        inact = self.idx[mask]
+        Zf, Lf = self._solve_kkt(A, rhs)  # columns constant, theta, eps
+        inact = self._inactive(A)
         Sf = np.hstack([self.w[inact, None], self.S[inact], np.zeros((inact.size, 1))])
         Sf -= self.G[inact] @ Zf
         tie = np.concatenate([Lf[:, -1], Sf[:, -1]])
