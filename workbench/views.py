@@ -15,6 +15,8 @@ from rich.text import Text
 if TYPE_CHECKING:
     from codev_engine import ExplicitLaw, Problem, VerificationResult
 
+from codev_engine.figures import default_slice_point
+
 from .raster import COLOURS, Raster, nice_limits, plot_text
 
 __all__ = ["law_limits", "partition_text", "plane_text", "series_text", "tube_time_text"]
@@ -50,7 +52,8 @@ def partition_text(
     axes : (2,) tuple of int
         The state axes shown.
     at : (n,) array_like, optional
-        The other states' values on the slice (default: the centre of the domain's box).
+        The other states' values on the slice (default: ``figures.default_slice_point``, the
+        centre of the domain's bounding box).
     marker : (n,) array_like, optional
         A state to mark (the located state).
     """
@@ -60,8 +63,7 @@ def partition_text(
     r = Raster(width, height, xlim, ylim)
     xs, ys = r.centres()
     if at is None:
-        lo, hi = law.boxes
-        at = 0.5 * (lo.min(axis=0) + hi.max(axis=0))
+        at = default_slice_point(law)  # the notebook pictures use the same slice
     base = np.asarray(at, dtype=float).reshape(n)
     gx, gy = np.meshgrid(xs, ys)
     X = np.tile(base, (gx.size, 1))
