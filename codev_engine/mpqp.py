@@ -154,18 +154,19 @@ class _Kernel:
             reach = Ar @ self.box[0] + np.abs(Ar) @ self.box[1]  # max of each row on the box
             maybe = (reach > br - 1e-9 * self.scale) | (src == 0)
         maybe = np.flatnonzero(maybe)
+        fixed = np.flatnonzero(src[maybe] == 0)
         if self.box is not None:
             # minrep's redundancy decisions were seen wrong by 5e-6 (normalised), amplified by
             # the rows' gains (pop_mpqp_084: a law off by 16; pop_mpqp_011, _017, _019:
-            # overlaps of 2e-5): a row is dropped only with a certificate
+            # overlaps of 2e-5): a row is dropped only with a certificate. DAQP's minrep was
+            # also seen dropping a parameter-set row that is not redundant (pop_mpqp_085: a
+            # region reaching theta_2 = 106 in a box of +-10); those rows are few and cheap to
+            # keep: every region stays inside the parameter set
             bound = float(np.max(np.abs(self.box[0]) + self.box[1]))
-            keep = maybe[certified_minimal_rows(Ar[maybe], br[maybe], centre, rho, bound)]
+            keep = maybe[certified_minimal_rows(Ar[maybe], br[maybe], bound, fixed)]
         else:
             keep = maybe[checked_minimal_rows(Ar[maybe], br[maybe], centre, rho)]
-        # DAQP's minrep was seen dropping a parameter-set row that is not redundant
-        # (pop_mpqp_085: a region reaching theta_2 = 106 in a box of +-10); those rows
-        # are few and cheap to keep: every region stays inside the parameter set
-        keep = np.union1d(keep, np.flatnonzero(src == 0))
+            keep = np.union1d(keep, maybe[fixed])
         # the neighbours: constraints of the facets, and of rows on a facet's hyperplane
         # (several constraints changing on one hyperplane: a degenerate facet)
         bf = br[keep]
