@@ -44,6 +44,9 @@ __all__ = ["explore_active_sets"]
 #: regions found before the search forks worker processes (small problems stay serial:
 #: forking costs ~20 ms)
 PARALLEL_AFTER = 400
+#: regions found before candidates go to the compiled kernel (mpqp_jit; importing numba
+#: and loading the kernel costs ~1 s, more than small problems take altogether)
+JIT_AFTER = 200
 #: candidates handed to a worker per round trip
 _CHUNK = 16
 
@@ -98,7 +101,45 @@ class _Kernel:
         self.nonempty_tol = 1e-8 * scale
         self.box = _padded_box(*box)  # (centre, half-widths) or None
 
+    def start_jit(self) -> bool:
+        """Evaluate candidates with the compiled kernel (``mpqp_jit``) from now on, where it
+        applies (H > 0 and a bounded parameter set); False when numba is unavailable."""
+        if self.box is None or type(self) is not _Kernel:
+            return False
+        try:
+            from . import mpqp_jit
+        except ImportError:  # pragma: no cover - numba is a dependency
+            return False
+        f = np.ascontiguousarray
+        self._jit_args = (
+            f(self.G), f(self.M), f(self.Dfull), f(self.negZ0), f(self.Hinv_Gt), f(self.H),
+            f(self.rhs_z), f(self.wS), f(self.At),
+            f(self.bt), f(self.box[0]), f(self.box[1]), float(self.scale),
+            float(self.region_tol), float(self.nonempty_tol), float(ILL_CONDITIONED),
+            int(50 * (self.m + self.At.shape[0] + self.d)),
+        )
+        self._jit = mpqp_jit
+        return True
+
     def evaluate(self, act: tuple[int, ...]):
+        """:meth:`evaluate_numpy`, by the compiled kernel once :meth:`start_jit` succeeded
+        (it hands back the candidates it cannot conclude on)."""
+        jit = getattr(self, "_jit", None)
+        if jit is not None:
+            status, Ak, bk, K, k, moves, lp = jit.evaluate(
+                np.array(act, dtype=np.int64), *self._jit_args
+            )
+            if status == jit.FULL:
+                return "full", (Ak, bk), (K, k), moves, lp
+            if status == jit.LICQ:
+                return "licq", None, None, None, lp
+            if status == jit.EMPTY:
+                return "empty", None, None, None, lp
+            if status == jit.LOWER:
+                return "lower", None, None, moves, lp
+        return self.evaluate_numpy(act)
+
+    def evaluate_numpy(self, act: tuple[int, ...]):
         """Classify the active set ``act``.
 
         Returns
@@ -356,6 +397,7 @@ def explore_active_sets(
     stack = [act0]
     nworkers = _workers(workers)
     pool = None
+    jit_tried = False
 
     def visit(act, result) -> None:
         status, rows, law, moves, lp = result
@@ -399,6 +441,9 @@ def explore_active_sets(
     try:
         inflight: deque = deque()  # (chunk, AsyncResult), oldest first
         while stack or inflight:
+            if not jit_tried and len(regions) >= JIT_AFTER:
+                jit_tried = True
+                stats["jit"] = kernel.start_jit()
             if pool is None and nworkers > 1 and len(regions) >= PARALLEL_AFTER:
                 pool = _start_pool(kernel, nworkers - 1)  # this process works too
                 if pool is None:

@@ -1,0 +1,638 @@
+"""The mp-QP candidate evaluation compiled with numba: KKT, Chebyshev ball and a certified
+minimal representation, with a small dense LP solver of its own.
+
+``mpqp._Kernel.evaluate`` does the same work in numpy, SciPy and DAQP calls; on the
+CDC-24 set (d = 5-8, tens of rows) each call costs 10-60 us of Python overhead for a few
+microseconds of arithmetic, and a critical region needs about 30 of them. Here one call
+per candidate does everything. Every decision that matters for exactness is proved, not
+trusted to the LP's accuracy:
+
+- a row is dropped from a region's description only with multipliers ``y >= 0`` that
+  prove it redundant by weak duality (the residual of the dual equation charged at the
+  parameter set's size), exactly as ``polytope.certified_minimal_rows``;
+- a region is "full" only with a centre whose ball of radius ``rho`` is verified inside
+  every row.
+
+Whenever the solver cannot conclude (iteration limit, an ill-conditioned active set, a
+degenerate spot), the status is ``FALLBACK`` and the caller evaluates the candidate with
+the numpy kernel instead.
+
+The LP solver is a primal active-set method (the simplex method started from a feasible
+point that need not be a vertex): move along the cost projected on the working set's null
+space to the first blocking row; at a vertex, drop the row with the most negative
+multiplier (Bland's rule after degenerate steps, against cycling). Problems here have
+d + 1 <= 10 variables and tens of rows, so the working set's basis is re-orthonormalised
+from scratch (modified Gram-Schmidt) at every step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: statuses returned by ``evaluate``
+LICQ, EMPTY, LOWER, FULL, FALLBACK = 0, 1, 2, 3, 4
+
+#: LP outcomes
+_OPTIMAL, _UNBOUNDED, _FAILED, _EXCEEDS = 0, 1, 2, 3
+
+_RADIUS_CAP = 1e6
+
+
+@njit(cache=True)
+def _append_row(a, Q, R, nw):
+    """Orthonormalise the row ``a`` against ``Q[:nw]`` (modified Gram-Schmidt, twice: that is
+    enough for orthogonality to rounding even for nearly dependent rows) and store it as
+    ``Q[nw]``, with ``R[nw, :nw + 1]`` such that ``a = R[nw] Q``. Returns the norm left."""
+    n = a.size
+    v = a.copy()
+    for i in range(nw):
+        R[nw, i] = 0.0
+    for _ in range(2):
+        for i in range(nw):
+            r = 0.0
+            for t in range(n):
+                r += Q[i, t] * v[t]
+            R[nw, i] += r
+            for t in range(n):
+                v[t] -= r * Q[i, t]
+    nv = 0.0
+    for t in range(n):
+        nv += v[t] * v[t]
+    nv = np.sqrt(nv)
+    R[nw, nw] = nv
+    for t in range(n):
+        Q[nw, t] = v[t] / nv if nv > 0.0 else 0.0
+    return nv
+
+
+@njit(cache=True)
+def _orthonormal_rows(A, W, nw, Q, R):
+    """``A[W[:nw]] = R Q`` with ``Q`` (nw, n) orthonormal rows and ``R`` (nw, nw) lower
+    triangular. Returns the smallest |R_ii|."""
+    smallest = np.inf
+    for j in range(nw):
+        smallest = min(smallest, _append_row(A[W[j]], Q, R, j))
+    return smallest
+
+
+@njit(cache=True)
+def lp_max(c, A, b, use, x0, W0, nw0, stop_value, maxit):
+    """``max c'x  s.t.  A_i x <= b_i`` for the rows with ``use[i]``, from the feasible point
+    ``x0`` with the rows ``W0[:nw0]`` (independent, tight at ``x0``) as working set.
+
+    Parameters
+    ----------
+    c : (n,) ndarray
+    A : (k, n) ndarray
+    b : (k,) ndarray
+    use : (k,) bool ndarray
+    x0 : (n,) ndarray
+        Feasible (``A x0 <= b`` up to rounding).
+    W0 : (n,) int ndarray
+    nw0 : int
+    stop_value : float
+        Stop early (status ``_EXCEEDS``) as soon as ``c'x > stop_value``.
+    maxit : int
+
+    Returns
+    -------
+    status : int
+    x : (n,) ndarray
+    y : (k,) ndarray
+        Multipliers (``A' y = c`` on the working set) at an optimum.
+    W, nw : (n,) int ndarray, int
+        The final working set.
+    """
+    k, n = A.shape
+    x = x0.copy()
+    y = np.zeros(k)
+    W = np.empty(n, dtype=np.int64)
+    inW = np.zeros(k, dtype=np.bool_)
+    Q = np.zeros((n, n))
+    R = np.zeros((n, n))
+    nw = 0
+    for j in range(nw0):
+        W[nw] = W0[j]
+        inW[W0[j]] = True
+        nw += 1
+    _orthonormal_rows(A, W, nw, Q, R)
+    p = np.empty(n)
+    steps = np.empty(k)
+    slopes = np.empty(k)
+    slack = np.empty(k)  # b - A x, kept up to date along the steps
+    for i in range(k):
+        if use[i]:
+            s = b[i]
+            for t in range(n):
+                s -= A[i, t] * x[t]
+            slack[i] = s
+    value = 0.0
+    cnorm = 0.0
+    for t in range(n):
+        cnorm += c[t] * c[t]
+        value += c[t] * x[t]
+    cnorm = np.sqrt(cnorm)
+    degenerate = 0
+    for _ in range(maxit):
+        if value > stop_value:
+            return _EXCEEDS, x, y, W, nw
+        # p = c projected on the null space of the working rows
+        for t in range(n):
+            p[t] = c[t]
+        for i in range(nw):
+            qc = 0.0
+            for t in range(n):
+                qc += Q[i, t] * c[t]
+            for t in range(n):
+                p[t] -= qc * Q[i, t]
+        pn = 0.0
+        for t in range(n):
+            pn += p[t] * p[t]
+        pn = np.sqrt(pn)
+        if nw == n or pn <= 1e-13 * (cnorm + 1.0):
+            # a stationary point of the working set: multipliers from R' lam = Q c
+            lam = np.empty(nw)
+            for i in range(nw - 1, -1, -1):
+                s = 0.0
+                for t in range(n):
+                    s += Q[i, t] * c[t]
+                for j in range(i + 1, nw):
+                    s -= R[j, i] * lam[j]
+                lam[i] = s / R[i, i]
+            drop = -1
+            worst = -1e-12 * (cnorm + 1.0)
+            for i in range(nw):
+                if degenerate > 2 * n:
+                    # Bland: the lowest row index among the negative multipliers
+                    if lam[i] < worst and (drop < 0 or W[i] < W[drop]):
+                        drop = i
+                elif lam[i] < worst:
+                    worst = lam[i]
+                    drop = i
+            if drop < 0:
+                for i in range(nw):
+                    y[W[i]] = lam[i]
+                return _OPTIMAL, x, y, W, nw
+            inW[W[drop]] = False
+            for i in range(drop, nw - 1):
+                W[i] = W[i + 1]
+            nw -= 1
+            _orthonormal_rows(A, W, nw, Q, R)
+            continue
+        # ratio test: the first row the step along p hits; among rows hit (nearly) at once
+        # (a degenerate vertex) the one most across p, which keeps the working set well
+        # conditioned
+        alpha = np.inf
+        for i in range(k):
+            steps[i] = np.inf
+            if inW[i] or not use[i]:
+                continue
+            ap = 0.0
+            for t in range(n):
+                ap += A[i, t] * p[t]
+            slopes[i] = ap
+            if ap > 1e-12 * pn:
+                steps[i] = max(slack[i], 0.0) / ap
+                if steps[i] < alpha:
+                    alpha = steps[i]
+        if alpha == np.inf:
+            return _UNBOUNDED, x, y, W, nw
+        block = -1
+        reach = alpha + 1e-12 * (1.0 + abs(alpha))
+        for i in range(k):
+            if steps[i] <= reach and (block < 0 or slopes[i] > slopes[block]):
+                block = i
+        if alpha <= 0.0:
+            degenerate += 1
+        else:
+            degenerate = 0
+        for t in range(n):
+            x[t] += alpha * p[t]
+            value += alpha * c[t] * p[t]
+        for i in range(k):
+            if use[i] and not inW[i]:
+                slack[i] -= alpha * slopes[i]
+        slack[block] = 0.0
+        W[nw] = block
+        _append_row(A[block], Q, R, nw)
+        nw += 1
+        inW[block] = True
+    return _FAILED, x, y, W, nw
+
+
+@njit(cache=True)
+def _chebyshev(Ar, br, x0, bound, maxit):
+    """Largest ball in ``{Ar x <= br}`` (unit rows, the set within ``|x|_inf <= bound``):
+    (status, centre, radius, y, an upper bound of the radius)."""
+    k, d = Ar.shape
+    A = np.zeros((k + 1, d + 1))
+    b = np.empty(k + 1)
+    A[:k, :d] = Ar
+    A[:k, d] = 1.0
+    b[:k] = br
+    A[k, d] = 1.0
+    b[k] = _RADIUS_CAP
+    start = np.empty(d + 1)
+    start[:d] = x0
+    r0 = _RADIUS_CAP
+    for i in range(k):
+        s = br[i]
+        for t in range(d):
+            s -= Ar[i, t] * x0[t]
+        if s < r0:
+            r0 = s
+    start[d] = r0
+    c = np.zeros(d + 1)
+    c[d] = 1.0
+    status, z, y, _, _ = lp_max(
+        c, A, b, np.ones(k + 1, dtype=np.bool_), start, np.empty(0, dtype=np.int64), 0, np.inf,
+        maxit,
+    )
+    # an upper bound of the largest radius by weak duality (y clipped at 0; the residual of
+    # A' y = c charged at max |x| <= bound, and at the radius cap for its own column)
+    upper = np.inf
+    if status == _OPTIMAL:
+        res = c.copy()
+        val = 0.0
+        for i in range(k + 1):
+            yi = max(y[i], 0.0)
+            if yi > 0.0:
+                val += b[i] * yi
+                for t in range(d + 1):
+                    res[t] -= A[i, t] * yi
+        rs = 0.0
+        for t in range(d):
+            rs += abs(res[t])
+        # (a point with radius r >= -1 lies within about bound + 1 of the origin: the
+        # generous 2 bound + 1 covers it; the residuals are ~1e-16 anyway)
+        upper = val + rs * (2.0 * bound + 1.0) + abs(res[d]) * _RADIUS_CAP
+    return status, z[:d].copy(), z[d], y[:k].copy(), upper
+
+
+@njit(cache=True)
+def _cholesky(M):
+    """Lower Cholesky factor, or an empty array when M is not positive definite."""
+    n = M.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = M[j, j]
+        for t in range(j):
+            s -= L[j, t] * L[j, t]
+        if not s > 0.0:
+            return np.zeros((0, 0))
+        L[j, j] = np.sqrt(s)
+        for i in range(j + 1, n):
+            s = M[i, j]
+            for t in range(j):
+                s -= L[i, t] * L[j, t]
+            L[i, j] = s / L[j, j]
+    return L
+
+
+@njit(cache=True)
+def _cho_solve(L, B):
+    """Solve ``L L' X = B`` (B (n, r))."""
+    n, r = B.shape
+    X = B.copy()
+    for col in range(r):
+        for i in range(n):
+            s = X[i, col]
+            for t in range(i):
+                s -= L[i, t] * X[t, col]
+            X[i, col] = s / L[i, i]
+        for i in range(n - 1, -1, -1):
+            s = X[i, col]
+            for t in range(i + 1, n):
+                s -= L[t, i] * X[t, col]
+            X[i, col] = s / L[i, i]
+    return X
+
+
+@njit(cache=True)
+def _certified_keep(A, b, fixed, centre, bound, maxit):
+    """Rows of the bounded polytope ``A x <= b`` (unit rows) to keep: every row not kept
+    is proved redundant by multipliers over kept rows (weak duality, residual charged at
+    ``bound``). ``fixed`` rows are always kept; ``centre`` is an interior point.
+    Returns (keep mask, ok); ok is False when an LP failed."""
+    k, d = A.shape
+    kept = np.ones(k, dtype=np.bool_)
+    margin = np.empty(k)
+    for i in range(k):
+        margin[i] = b[i] - 1e-12 * (1.0 + abs(b[i]))
+    # exact duplicates (same row, offset not smaller): the later one goes
+    for i in range(k):
+        if fixed[i] or not kept[i]:
+            continue
+        for j in range(k):
+            if j == i or not kept[j]:
+                continue
+            if b[j] > b[i] or (b[j] == b[i] and j > i):
+                continue
+            same = True
+            for t in range(d):
+                if A[i, t] != A[j, t]:
+                    same = False
+                    break
+            if same:
+                kept[i] = False
+                break
+    basis = np.empty(d, dtype=np.int64)
+    Qb = np.zeros((d, d))
+    Rb = np.zeros((d, d))
+    work = np.empty(d)
+    none = np.empty(0, dtype=np.int64)
+    # facets seen from the centre: along a row's normal, the ray that reaches that row's
+    # plane strictly before every other plane proves the row needed (the point it hits is
+    # inside all the others), with no LP
+    facet = np.zeros(k, dtype=np.bool_)
+    dist = np.empty(k)
+    for i in range(k):
+        s = b[i]
+        for t in range(d):
+            s -= A[i, t] * centre[t]
+        dist[i] = s
+    for i in range(k):
+        if fixed[i] or not kept[i]:
+            continue
+        first = dist[i]  # the ray c + s a_i meets row i at s = dist_i (unit rows)
+        ok = first > 0.0
+        for j in range(k):
+            if j == i or not kept[j] or not ok:
+                continue
+            aj = 0.0
+            for t in range(d):
+                aj += A[j, t] * A[i, t]
+            if aj > 0.0 and dist[j] <= aj * first * (1.0 + 1e-9) + 1e-12:
+                ok = False
+        facet[i] = ok
+    # the rest: one LP each, max a_i x over the other kept rows from the centre (it stops
+    # once past row i: then the row is needed)
+    for i in range(k):
+        if fixed[i] or not kept[i] or facet[i]:
+            continue
+        kept[i] = False  # the LP is over the others
+        status, x, y, W, nw = lp_max(
+            A[i].copy(), A, b, kept, centre, none, 0, b[i] + 1e-9 * (1.0 + abs(b[i])), maxit
+        )
+        kept[i] = True
+        if status != _OPTIMAL:
+            continue  # a point of the others outside row i (needed), or no answer: keep
+        val = 0.0
+        res = A[i].copy()
+        nb = 0
+        for j in range(nw):
+            yj = max(y[W[j]], 0.0)
+            if yj > 0.0:
+                val += b[W[j]] * yj
+                for t in range(d):
+                    res[t] -= A[W[j], t] * yj
+                basis[nb] = W[j]
+                nb += 1
+        rs = 0.0
+        for t in range(d):
+            rs += abs(res[t])
+        if val + rs * bound <= margin[i]:
+            kept[i] = False
+            # the optimal basis often proves rows still to come: a_j in the cone of its
+            # rows with a small enough offset (an O(d^2) solve each, no LP)
+            _orthonormal_rows(A, basis, nb, Qb, Rb)
+            for j in range(i + 1, k):
+                if fixed[j] or not kept[j] or facet[j]:
+                    continue
+                if _basis_proves(A, b, basis, nb, Qb, Rb, j, bound, margin[j], work):
+                    kept[j] = False
+    return kept, True
+
+
+@njit(cache=True)
+def _basis_proves(A, b, B, nb, Q, R, j, bound, beta, y):
+    """Whether the rows ``A[B[:nb]] = R Q`` prove ``a_j x <= beta`` (y from R' y = Q a_j,
+    clipped at 0; weak duality with the residual charged at ``bound``); ``y`` (>= nb,) is
+    work space."""
+    d = A.shape[1]
+    for i in range(nb - 1, -1, -1):
+        s = 0.0
+        for t in range(d):
+            s += Q[i, t] * A[j, t]
+        for r in range(i + 1, nb):
+            s -= R[r, i] * y[r]
+        y[i] = s / R[i, i]
+    val = 0.0
+    rs = 0.0
+    for t in range(d):
+        res = A[j, t]
+        for i in range(nb):
+            if y[i] > 0.0:
+                res -= A[B[i], t] * y[i]
+        rs += abs(res)
+    for i in range(nb):
+        if y[i] > 0.0:
+            val += b[B[i]] * y[i]
+    return val + rs * bound <= beta
+
+
+@njit(cache=True)
+def evaluate(
+    act, G, M, Dfull, negZ0, Hinv_Gt, H, rhs_z, wS, At, bt, box_c, box_h, scale, region_tol,
+    nonempty_tol, ill_conditioned, maxit,
+):
+    """One candidate active set ``act`` (sorted int64): see ``mpqp._Kernel.evaluate``.
+
+    Returns
+    -------
+    status : int
+        LICQ, EMPTY, LOWER, FULL or FALLBACK.
+    rows_A, rows_b : (r, d), (r,) ndarrays
+        The region's certified rows (FULL).
+    K, k : (nz, d), (nz,) ndarrays
+        The law (FULL).
+    moves : (q,) ndarray of int
+        Signed constraint ids of the neighbours (FULL, LOWER).
+    lp : bool
+        Whether an LP was solved.
+    """
+    m, nz = G.shape
+    d = At.shape[1]
+    na = act.size
+    e2 = np.zeros((0, d))
+    e1 = np.zeros(0)
+    ez = np.zeros((nz, d))
+    ek = np.zeros(nz)
+    em = np.zeros(0, dtype=np.int64)
+    if na > nz:
+        return LICQ, e2, e1, ez, ek, em, False
+    if na:
+        Qb = np.zeros((na, nz))
+        Rb = np.zeros((na, na))
+        if _orthonormal_rows(G, act, na, Qb, Rb) < 1e-9:
+            return LICQ, e2, e1, ez, ek, em, False
+    inact = np.empty(m - na, dtype=np.int64)
+    isact = np.zeros(m, dtype=np.bool_)
+    for i in range(na):
+        isact[act[i]] = True
+    r = 0
+    for i in range(m):
+        if not isact[i]:
+            inact[r] = i
+            r += 1
+    # multipliers and slacks, affine in theta: columns (constant, theta)
+    Lam = np.zeros((na, d + 1))
+    Zaug = np.zeros((nz, d + 1))
+    augmented = False
+    if na:
+        MAA = np.empty((na, na))
+        for i in range(na):
+            for j in range(na):
+                MAA[i, j] = M[act[i], act[j]]
+        L = _cholesky(MAA)
+        if L.shape[0] == 0:
+            return LICQ, e2, e1, ez, ek, em, False
+        dmax = 0.0
+        dmin = np.inf
+        for i in range(na):
+            dmax = max(dmax, L[i, i])
+            dmin = min(dmin, L[i, i])
+        if (dmax / dmin) ** 2 > ill_conditioned:
+            # nearly dependent active rows: M_AA squares their conditioning, the augmented
+            # KKT system does not (see mpqp._Kernel._kkt_augmented)
+            Kkt = np.zeros((nz + na, nz + na))
+            Kkt[:nz, :nz] = H
+            rhs = np.empty((nz + na, d + 1))
+            rhs[:nz] = rhs_z
+            for i in range(na):
+                Kkt[:nz, nz + i] = G[act[i]]
+                Kkt[nz + i, :nz] = G[act[i]]
+                rhs[nz + i] = wS[act[i]]
+            X = np.linalg.solve(Kkt, rhs)
+            augmented = True
+            Zaug = X[:nz].copy()
+            Lam = X[nz:].copy()
+        else:
+            B = np.empty((na, d + 1))
+            for i in range(na):
+                B[i] = -Dfull[act[i]]
+            Lam = _cho_solve(L, B)
+    ni = m - na
+    p = At.shape[0]
+    nr = na + ni + p
+    Ar = np.empty((nr, d))
+    br = np.empty(nr)
+    src = np.zeros(nr, dtype=np.int64)
+    for i in range(na):
+        Ar[i] = -Lam[i, 1:]
+        br[i] = Lam[i, 0]
+        src[i] = act[i] + 1
+    for q in range(ni):
+        if augmented:
+            # slack = w + S theta - G z
+            row = wS[inact[q]].copy()
+            for t in range(nz):
+                g = G[inact[q], t]
+                for s in range(d + 1):
+                    row[s] -= g * Zaug[t, s]
+        else:
+            row = Dfull[inact[q]].copy()
+            for i in range(na):
+                coef = M[act[i], inact[q]]
+                for t in range(d + 1):
+                    row[t] += coef * Lam[i, t]
+        Ar[na + q] = -row[1:]
+        br[na + q] = row[0]
+        src[na + q] = -(inact[q] + 1)
+    for q in range(p):
+        Ar[na + ni + q] = At[q]
+        br[na + ni + q] = bt[q]
+    # normalise; rows that vanish for every theta decide emptiness alone
+    keep_row = np.ones(nr, dtype=np.bool_)
+    for i in range(nr):
+        s = 0.0
+        for t in range(d):
+            s += Ar[i, t] * Ar[i, t]
+        s = np.sqrt(s)
+        if s <= 1e-12:
+            if br[i] < -1e-12:
+                return EMPTY, e2, e1, ez, ek, em, False
+            keep_row[i] = False
+        else:
+            Ar[i] /= s
+            br[i] /= s
+    Ar = Ar[keep_row]
+    br = br[keep_row]
+    src = src[keep_row]
+    nr = Ar.shape[0]
+    bound = 0.0
+    for t in range(d):
+        bound = max(bound, abs(box_c[t]) + box_h[t])
+    status, centre, rho, _, upper = _chebyshev(Ar, br, box_c, bound, maxit)
+    if status != _OPTIMAL:
+        return FALLBACK, e2, e1, ez, ek, em, True
+    # the radius the centre really has (the LP's steps drift off their rows by rounding):
+    # a region is full only if this one is large enough
+    true_rho = np.inf
+    for i in range(nr):
+        s = br[i]
+        for t in range(d):
+            s -= Ar[i, t] * centre[t]
+        true_rho = min(true_rho, s)
+    # each class needs its proof: empty and lower-dimensional an upper bound of the radius,
+    # full a ball (true_rho, from the rows themselves)
+    if upper < -nonempty_tol:
+        return EMPTY, e2, e1, ez, ek, em, True
+    if upper <= region_tol:
+        # lower-dimensional: its neighbours are the constraints tight at a point of it
+        tol = -max(rho, 0.0) - 1e-7 * scale
+        cnt = 0
+        tight = np.zeros(nr, dtype=np.bool_)
+        for i in range(nr):
+            s = -br[i]
+            for t in range(d):
+                s += Ar[i, t] * centre[t]
+            if s >= tol:
+                tight[i] = True
+                cnt += 1
+        return LOWER, e2, e1, ez, ek, src[tight], True
+    if true_rho <= region_tol or rho < -nonempty_tol:
+        return FALLBACK, e2, e1, ez, ek, em, True
+    # rows that hold on the whole box of the parameter set are implied by its rows
+    maybe = np.zeros(nr, dtype=np.bool_)
+    for i in range(nr):
+        reach = 0.0
+        for t in range(d):
+            reach += Ar[i, t] * box_c[t] + abs(Ar[i, t]) * box_h[t]
+        maybe[i] = reach > br[i] - 1e-9 * scale or src[i] == 0
+    Am = Ar[maybe]
+    bm = br[maybe]
+    sm = src[maybe]
+    fixed = sm == 0
+    kept, ok = _certified_keep(Am, bm, fixed, centre, bound, maxit)
+    if not ok:
+        return FALLBACK, e2, e1, ez, ek, em, True
+    Ak = Am[kept]
+    bk = bm[kept]
+    # the neighbours: constraints of the kept rows, and of rows on their hyperplanes
+    # (several constraints changing on one hyperplane: a degenerate facet)
+    on = np.zeros(nr, dtype=np.bool_)
+    for j in range(Ak.shape[0]):
+        tol = 1e-9 * (1.0 + abs(bk[j]))
+        for i in range(nr):
+            if on[i] or abs(br[i] - bk[j]) > tol:
+                continue
+            same = True
+            for t in range(d):
+                if abs(Ar[i, t] - Ak[j, t]) > tol:
+                    same = False
+                    break
+            if same:
+                on[i] = True
+    moves = np.unique(src[on])
+    # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
+    if augmented:
+        return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True
+    Z = negZ0.copy()
+    for i in range(na):
+        for t in range(nz):
+            h = Hinv_Gt[t, act[i]]
+            for s in range(d + 1):
+                Z[t, s] -= h * Lam[i, s]
+    return FULL, Ak, bk, Z[:, 1:].copy(), Z[:, 0].copy(), moves, True
