@@ -48,7 +48,7 @@ PARALLEL_AFTER = 400
 #: and loading the kernel costs ~1 s, more than small problems take altogether)
 JIT_AFTER = 200
 #: candidates handed to a worker per round trip
-_CHUNK = 16
+_CHUNK = 64
 
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
