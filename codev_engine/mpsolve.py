@@ -74,7 +74,8 @@ class SolveOptions:
     seed : int
         Seed of that perturbation and of point jitter (results are reproducible).
     max_regions : int
-        Safety stop.
+        Safety stop (a million regions of the CDC-24 set hold about 3 GB; pop_mpqp_002 has
+        315,056).
     workers : int or None
         Processes that evaluate mp-QP candidates once the search is large (None: the CPUs
         this process may use; 1: serial). The result does not depend on it.
@@ -84,7 +85,7 @@ class SolveOptions:
     step: float = 1e-6
     lp_perturbation: float = 1e-5
     seed: int = 0
-    max_regions: int = 200_000
+    max_regions: int = 1_000_000
     workers: int | None = None
 
 
