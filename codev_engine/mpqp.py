@@ -100,6 +100,7 @@ class _Kernel:
         self.region_tol = region_tol
         self.nonempty_tol = 1e-8 * scale
         self.box = _padded_box(*box)  # (centre, half-widths) or None
+        self._jit = None  # mpqp_jit once start_jit succeeded
 
     def start_jit(self) -> bool:
         """Evaluate candidates with the compiled kernel (``mpqp_jit``) from now on, where it
@@ -124,7 +125,7 @@ class _Kernel:
     def evaluate(self, act: tuple[int, ...]):
         """:meth:`evaluate_numpy`, by the compiled kernel once :meth:`start_jit` succeeded
         (it hands back the candidates it cannot conclude on)."""
-        jit = getattr(self, "_jit", None)
+        jit = self._jit
         if jit is not None:
             status, Ak, bk, K, k, moves, lp = jit.evaluate(
                 np.array(act, dtype=np.int64), *self._jit_args

@@ -67,6 +67,17 @@ def _append_row(a, Q, R, nw):
 
 
 @njit(cache=True)
+def _solve_rt(R, rhs, nw, out):
+    """``R[:nw, :nw]' out = rhs`` (R lower triangular, as from ``_append_row``), by back
+    substitution into ``out`` (which may be ``rhs`` itself)."""
+    for i in range(nw - 1, -1, -1):
+        s = rhs[i]
+        for j in range(i + 1, nw):
+            s -= R[j, i] * out[j]
+        out[i] = s / R[i, i]
+
+
+@njit(cache=True)
 def _orthonormal_rows(A, W, nw, Q, R):
     """``A[W[:nw]] = R Q`` with ``Q`` (nw, n) orthonormal rows and ``R`` (nw, nw) lower
     triangular. Returns the smallest |R_ii|."""
@@ -118,6 +129,7 @@ def lp_max(c, A, b, use, x0, W0, nw0, stop_value, maxit):
         nw += 1
     _orthonormal_rows(A, W, nw, Q, R)
     p = np.empty(n)
+    qc = np.empty(n)
     steps = np.empty(k)
     slopes = np.empty(k)
     slack = np.empty(k)  # b - A x, kept up to date along the steps
@@ -137,15 +149,17 @@ def lp_max(c, A, b, use, x0, W0, nw0, stop_value, maxit):
     for _ in range(maxit):
         if value > stop_value:
             return _EXCEEDS, x, y, W, nw
-        # p = c projected on the null space of the working rows
+        # p = c projected on the null space of the working rows (qc = Q c, kept for the
+        # multipliers)
         for t in range(n):
             p[t] = c[t]
         for i in range(nw):
-            qc = 0.0
+            s = 0.0
             for t in range(n):
-                qc += Q[i, t] * c[t]
+                s += Q[i, t] * c[t]
+            qc[i] = s
             for t in range(n):
-                p[t] -= qc * Q[i, t]
+                p[t] -= s * Q[i, t]
         pn = 0.0
         for t in range(n):
             pn += p[t] * p[t]
@@ -153,13 +167,7 @@ def lp_max(c, A, b, use, x0, W0, nw0, stop_value, maxit):
         if nw == n or pn <= 1e-13 * (cnorm + 1.0):
             # a stationary point of the working set: multipliers from R' lam = Q c
             lam = np.empty(nw)
-            for i in range(nw - 1, -1, -1):
-                s = 0.0
-                for t in range(n):
-                    s += Q[i, t] * c[t]
-                for j in range(i + 1, nw):
-                    s -= R[j, i] * lam[j]
-                lam[i] = s / R[i, i]
+            _solve_rt(R, qc, nw, lam)
             drop = -1
             worst = -1e-12 * (cnorm + 1.0)
             for i in range(nw):
@@ -224,7 +232,7 @@ def lp_max(c, A, b, use, x0, W0, nw0, stop_value, maxit):
 @njit(cache=True)
 def _chebyshev(Ar, br, x0, bound, maxit):
     """Largest ball in ``{Ar x <= br}`` (unit rows, the set within ``|x|_inf <= bound``):
-    (status, centre, radius, y, an upper bound of the radius)."""
+    (status, centre, radius, an upper bound of the radius)."""
     k, d = Ar.shape
     A = np.zeros((k + 1, d + 1))
     b = np.empty(k + 1)
@@ -267,7 +275,7 @@ def _chebyshev(Ar, br, x0, bound, maxit):
         # (a point with radius r >= -1 lies within about bound + 1 of the origin: the
         # generous 2 bound + 1 covers it; the residuals are ~1e-16 anyway)
         upper = val + rs * (2.0 * bound + 1.0) + abs(res[d]) * _RADIUS_CAP
-    return status, z[:d].copy(), z[d], y[:k].copy(), upper
+    return status, z[:d].copy(), z[d], upper
 
 
 @njit(cache=True)
@@ -313,8 +321,8 @@ def _cho_solve(L, B):
 def _certified_keep(A, b, fixed, centre, bound, maxit):
     """Rows of the bounded polytope ``A x <= b`` (unit rows) to keep: every row not kept
     is proved redundant by multipliers over kept rows (weak duality, residual charged at
-    ``bound``). ``fixed`` rows are always kept; ``centre`` is an interior point.
-    Returns (keep mask, ok); ok is False when an LP failed."""
+    ``bound``). ``fixed`` rows are always kept; ``centre`` is an interior point. An LP that
+    gives no answer keeps its row. Returns the keep mask."""
     k, d = A.shape
     kept = np.ones(k, dtype=np.bool_)
     margin = np.empty(k)
@@ -378,21 +386,13 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
         kept[i] = True
         if status != _OPTIMAL:
             continue  # a point of the others outside row i (needed), or no answer: keep
-        val = 0.0
-        res = A[i].copy()
         nb = 0
         for j in range(nw):
-            yj = max(y[W[j]], 0.0)
-            if yj > 0.0:
-                val += b[W[j]] * yj
-                for t in range(d):
-                    res[t] -= A[W[j], t] * yj
+            if y[W[j]] > 0.0:
                 basis[nb] = W[j]
+                work[nb] = y[W[j]]
                 nb += 1
-        rs = 0.0
-        for t in range(d):
-            rs += abs(res[t])
-        if val + rs * bound <= margin[i]:
+        if _proves(A, b, basis, nb, work, i, bound, margin[i]):
             kept[i] = False
             # the optimal basis often proves rows still to come: a_j in the cone of its
             # rows with a small enough offset (an O(d^2) solve each, no LP)
@@ -402,22 +402,29 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
                     continue
                 if _basis_proves(A, b, basis, nb, Qb, Rb, j, bound, margin[j], work):
                     kept[j] = False
-    return kept, True
+    return kept
 
 
 @njit(cache=True)
 def _basis_proves(A, b, B, nb, Q, R, j, bound, beta, y):
-    """Whether the rows ``A[B[:nb]] = R Q`` prove ``a_j x <= beta`` (y from R' y = Q a_j,
-    clipped at 0; weak duality with the residual charged at ``bound``); ``y`` (>= nb,) is
-    work space."""
+    """Whether the rows ``A[B[:nb]] = R Q`` prove ``a_j x <= beta`` with y from
+    ``R' y = Q a_j``; ``y`` (>= nb,) is work space."""
     d = A.shape[1]
-    for i in range(nb - 1, -1, -1):
+    for i in range(nb):
         s = 0.0
         for t in range(d):
             s += Q[i, t] * A[j, t]
-        for r in range(i + 1, nb):
-            s -= R[r, i] * y[r]
-        y[i] = s / R[i, i]
+        y[i] = s
+    _solve_rt(R, y, nb, y)  # in place: each entry is read before it is written
+    return _proves(A, b, B, nb, y, j, bound, beta)
+
+
+@njit(cache=True)
+def _proves(A, b, B, nb, y, j, bound, beta):
+    """Whether multipliers ``y[:nb]`` on the rows ``A[B[:nb]]`` (negative ones taken as 0)
+    prove ``a_j x <= beta`` over the set within ``|x|_inf <= bound``: weak duality, with
+    the residual of ``A_B' y = a_j`` charged at ``bound``."""
+    d = A.shape[1]
     val = 0.0
     rs = 0.0
     for t in range(d):
@@ -564,7 +571,7 @@ def evaluate(
     bound = 0.0
     for t in range(d):
         bound = max(bound, abs(box_c[t]) + box_h[t])
-    status, centre, rho, _, upper = _chebyshev(Ar, br, box_c, bound, maxit)
+    status, centre, rho, upper = _chebyshev(Ar, br, box_c, bound, maxit)
     if status != _OPTIMAL:
         return FALLBACK, e2, e1, ez, ek, em, True
     # the radius the centre really has (the LP's steps drift off their rows by rounding):
@@ -582,7 +589,6 @@ def evaluate(
     if upper <= region_tol:
         # lower-dimensional: its neighbours are the constraints tight at a point of it
         tol = -max(rho, 0.0) - 1e-7 * scale
-        cnt = 0
         tight = np.zeros(nr, dtype=np.bool_)
         for i in range(nr):
             s = -br[i]
@@ -590,7 +596,6 @@ def evaluate(
                 s += Ar[i, t] * centre[t]
             if s >= tol:
                 tight[i] = True
-                cnt += 1
         return LOWER, e2, e1, ez, ek, src[tight], True
     if true_rho <= region_tol or rho < -nonempty_tol:
         return FALLBACK, e2, e1, ez, ek, em, True
@@ -605,9 +610,7 @@ def evaluate(
     bm = br[maybe]
     sm = src[maybe]
     fixed = sm == 0
-    kept, ok = _certified_keep(Am, bm, fixed, centre, bound, maxit)
-    if not ok:
-        return FALLBACK, e2, e1, ez, ek, em, True
+    kept = _certified_keep(Am, bm, fixed, centre, bound, maxit)
     Ak = Am[kept]
     bk = bm[kept]
     # the neighbours: constraints of the kept rows, and of rows on their hyperplanes

@@ -340,7 +340,7 @@ def certified_minimal_rows(
     for i in pending:
         K = np.flatnonzero(kept)
         y = _lp_multipliers(A[K], b[K], A[i])
-        if y is None or not _certifies(A[K], b[K], y, A[i : i + 1], beta[i : i + 1], bound)[0]:
+        if y is None or not _certifies(A[K], b[K], y, A[i], beta[i], bound):
             kept[i] = True
     return np.flatnonzero(kept)
 
@@ -364,17 +364,17 @@ def _lp_multipliers(AK: np.ndarray, bK: np.ndarray, a: np.ndarray) -> np.ndarray
 
 
 def _certifies(
-    AK: np.ndarray, bK: np.ndarray, Y: np.ndarray, Arows: np.ndarray, beta: np.ndarray, bound: float
-) -> np.ndarray:
-    """Which rows ``Arows x <= beta`` the multipliers ``Y`` (k,) or (k, r) prove on
-    ``{x : AK x <= bK, |x|_inf <= bound}``: weak duality, with negative multipliers
-    clipped and the residual of the dual equation charged at ``bound``.
+    AK: np.ndarray, bK: np.ndarray, y: np.ndarray, a: np.ndarray, beta: float, bound: float
+) -> bool:
+    """Whether the multipliers ``y`` (k,) prove ``a x <= beta`` on ``{x : AK x <= bK,
+    |x|_inf <= bound}``: weak duality, with negative multipliers clipped and the residual
+    of the dual equation charged at ``bound``.
 
     For x in the set, ``a x = (AK' y) x + (a - AK' y) x <= bK' y + |a - AK' y|_1 bound``.
     """
-    Y = np.maximum(Y.reshape(AK.shape[0], -1), 0.0)
-    resid = np.abs(Arows.T - AK.T @ Y).sum(axis=0)
-    return bK @ Y + resid * bound <= beta
+    y = np.maximum(y, 0.0)
+    resid = float(np.abs(a - AK.T @ y).sum())
+    return float(bK @ y) + resid * bound <= beta
 
 
 def exact_minimal_rows(A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> np.ndarray:
