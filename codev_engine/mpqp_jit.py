@@ -394,15 +394,48 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
                 nb += 1
         if _proves(A, b, basis, nb, work, i, bound, margin[i]):
             kept[i] = False
+            if nb == d:
+                _mark_simple_vertex(A, b, kept, x, basis, facet)
             # the optimal basis often proves rows still to come: a_j in the cone of its
-            # rows with a small enough offset (an O(d^2) solve each, no LP)
+            # rows with a small enough offset (an O(d^2) solve each, no LP); a basis row
+            # is not offered its own basis (it would be proved by itself)
             _orthonormal_rows(A, basis, nb, Qb, Rb)
             for j in range(i + 1, k):
-                if fixed[j] or not kept[j] or facet[j]:
+                if fixed[j] or not kept[j] or facet[j] or _member(basis, nb, j):
                     continue
                 if _basis_proves(A, b, basis, nb, Qb, Rb, j, bound, margin[j], work):
                     kept[j] = False
     return kept
+
+
+@njit(cache=True)
+def _member(B, nb, j):
+    for q in range(nb):
+        if B[q] == j:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _mark_simple_vertex(A, b, kept, x, basis, facet):
+    """Mark the rows ``basis`` (d of them) as facets when ``x`` is a simple vertex of the
+    kept rows: no other kept row is tight there. (At a simple vertex each of its d planes
+    holds a facet: moving from ``x`` into that plane, away from the other d - 1, stays
+    inside every other row for a while.) A row marked needs no LP; the mark only ever
+    keeps a row, so a rounding slip here costs a neighbour candidate, never a facet."""
+    k, d = A.shape
+    ntight = 0
+    for j in range(k):
+        if not kept[j]:
+            continue
+        sl = b[j]
+        for t in range(d):
+            sl -= A[j, t] * x[t]
+        if sl <= 1e-9 * (1.0 + abs(b[j])):
+            ntight += 1
+    if ntight == d:
+        for q in range(d):
+            facet[basis[q]] = True
 
 
 @njit(cache=True)
