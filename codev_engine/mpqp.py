@@ -483,11 +483,17 @@ def _start_pool(kernel: _Kernel, nworkers: int):
     global _KERNEL
     import multiprocessing as mp
 
+    _KERNEL = kernel
+    if kernel._jit is not None:
+        # the compiled kernel releases the GIL: threads share everything, and nothing
+        # is pickled
+        from multiprocessing.pool import ThreadPool
+
+        return ThreadPool(nworkers)
     try:
         ctx = mp.get_context("fork")
     except ValueError:  # pragma: no cover - no fork on this platform: stay serial
         return None
-    _KERNEL = kernel
     return ctx.Pool(nworkers)
 
 

@@ -472,7 +472,7 @@ def _proves(A, b, B, nb, y, j, bound, beta):
     return val + rs * bound <= beta
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def evaluate(
     act, G, M, Dfull, negZ0, Hinv_Gt, H, rhs_z, wS, At, bt, box_c, box_h, scale, region_tol,
     nonempty_tol, ill_conditioned, maxit,
