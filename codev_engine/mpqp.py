@@ -439,12 +439,16 @@ def explore_active_sets(
                 explored.add(new)
                 stack.append(new)
 
+    compiled = False
     try:
         inflight: deque = deque()  # (chunk, AsyncResult), oldest first
         while stack or inflight:
             if not jit_tried and len(regions) >= JIT_AFTER:
                 jit_tried = True
                 stats["jit"] = kernel.start_jit()
+                if stats["jit"] and not inflight:
+                    compiled = True  # the compiled walk takes over (below)
+                    break
             if pool is None and nworkers > 1 and len(regions) >= PARALLEL_AFTER:
                 pool = _start_pool(kernel, nworkers - 1)  # this process works too
                 if pool is None:
@@ -467,15 +471,104 @@ def explore_active_sets(
             elif stack:
                 act = stack.pop()
                 visit(act, kernel.evaluate(act))
+        if compiled:
+            if pool is not None:  # pragma: no cover - the pool starts after the kernel
+                pool.terminate()
+            pool = None
+            graph = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
+            pool = graph.run(nworkers, max_regions, progress)
     finally:
         if pool is not None:
             pool.terminate()
             pool.join()
             stats["workers"] = nworkers
         _KERNEL = None
-    stats["explored"] = len(explored)
+    if not compiled:
+        stats["explored"] = len(explored)
     regions.sort(key=lambda r: r.active)  # the same order however they were found
     return _merge_equal_laws(regions, scale, stats)
+
+
+_STATUS = {"licq": 0, "empty": 1, "lower": 2, "full": 3}  # mpqp_jit's codes
+
+
+class _CompiledWalk:
+    """The rest of the search once the compiled kernel runs: the explored active sets and
+    the stack as bitmasks (``mpqp_graph``), candidates evaluated in batches by compiled
+    code (in threads: it releases the GIL); only the regions found and the candidates the
+    compiled kernel hands back come to Python."""
+
+    def __init__(
+        self,
+        kernel: _Kernel,
+        opposite: dict,
+        explored: set,
+        stack: list,
+        regions: list[CriticalRegion],
+        stats: dict,
+    ):
+        from . import mpqp_graph, mpqp_jit
+
+        self.kernel, self.regions, self.stats = kernel, regions, stats
+        self.jit = mpqp_jit
+        self.evaluate_batch = mpqp_graph.evaluate_batch
+        m = kernel.m
+        opp = np.zeros((m, m), dtype=bool)
+        for i, js in opposite.items():
+            opp[i, list(js)] = True
+        self.graph = mpqp_graph.ActiveSetGraph(m, kernel.nz, opp)
+        self.graph.seed(explored, stack)
+
+    def run(self, nworkers: int, max_regions: int, progress):
+        """Walk until the stack is empty; returns the thread pool it started (or None)."""
+        graph, args = self.graph, self.kernel._jit_args
+        pool = None
+        inflight: deque = deque()  # (keys, AsyncResult), oldest first
+        try:
+            while len(graph) or inflight:
+                if pool is None and nworkers > 1 and len(self.regions) >= PARALLEL_AFTER:
+                    from multiprocessing.pool import ThreadPool
+
+                    pool = ThreadPool(nworkers - 1)  # this thread works too
+                while pool is not None and len(graph) > _CHUNK and len(inflight) < 2 * nworkers:
+                    keys = graph.pop(_CHUNK)
+                    inflight.append((keys, pool.apply_async(self.evaluate_batch, (keys, *args))))
+                if inflight and (inflight[0][1].ready() or not len(graph)):
+                    keys, pending = inflight.popleft()
+                    self._take(keys, pending.get())
+                else:
+                    keys = graph.pop(_CHUNK)
+                    self._take(keys, self.evaluate_batch(keys, *args))
+                if progress is not None:
+                    progress(len(self.regions))
+                if len(self.regions) > max_regions:
+                    raise SolverError(f"more than {max_regions} regions")
+        finally:
+            self.stats["explored"] = graph.explored
+        return pool
+
+    def _take(self, keys: np.ndarray, result: tuple) -> None:
+        """Record a batch's regions and push its neighbours; the candidates the compiled
+        kernel could not conclude on go to the numpy kernel, one by one."""
+        status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off = result
+        jit, stats = self.jit, self.stats
+        stats["candidates"] = stats.get("candidates", 0) + status.size
+        stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
+        for c in np.flatnonzero(status == jit.FULL):
+            r0, r1 = rows_off[c], rows_off[c + 1]
+            act = tuple(acts[c, : sizes[c]].tolist())
+            self.regions.append(CriticalRegion(A=A[r0:r1], b=b[r0:r1], K=K[c], k=k[c], active=act))
+        self.graph.visit(keys, status, moves, moves_off)
+        for c in np.flatnonzero(status == jit.FALLBACK):
+            act = tuple(acts[c, : sizes[c]].tolist())
+            st, rows, law, mv, used_lp = self.kernel.evaluate_numpy(act)
+            stats["lps"] += int(used_lp)
+            if st == "full":
+                self.regions.append(
+                    CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1], active=act)
+                )
+            mv = np.zeros(0, dtype=np.int64) if mv is None else np.asarray(mv, dtype=np.int64)
+            self.graph.visit(keys[c : c + 1], np.array([_STATUS[st]]), mv, np.array([0, mv.size]))
 
 
 def _start_pool(kernel: _Kernel, nworkers: int):

@@ -1,0 +1,386 @@
+"""The bookkeeping of the mp-QP active-set graph search, compiled with numba.
+
+``mpqp.explore_active_sets`` walks a graph whose nodes are active sets. Once the compiled
+kernel (``mpqp_jit``) evaluates candidates, the Python side of the walk (a set of tuples
+for the explored sets, a list as the stack, a loop over each candidate's moves) costs as
+much as the evaluation of most candidates. Here an active set is a bitmask of ``W = ceil(m
+/ 64)`` words; the explored sets live in an open-addressing hash table and the stack in an
+array, and one call visits a whole batch of evaluated candidates.
+
+The graph and the rules for its edges are those of ``mpqp.explore_active_sets`` (its
+``visit``): the result does not depend on which of the two walks the search.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .mpqp_jit import EMPTY, FALLBACK, FULL, LICQ, evaluate
+
+__all__ = ["ActiveSetGraph", "evaluate_batch"]
+
+_ONE = np.uint64(1)
+
+
+@njit(cache=True)
+def _hash(key):
+    """A 64-bit mix of the words of ``key`` (splitmix64 steps)."""
+    h = np.uint64(0x9E3779B97F4A7C15)
+    for t in range(key.size):
+        h ^= key[t]
+        h *= np.uint64(0xBF58476D1CE4E5B9)
+        h ^= h >> np.uint64(31)
+        h *= np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(29)
+    return h
+
+
+@njit(cache=True)
+def _insert(table, used, key):
+    """Add ``key`` to the table; False when it was there already. The table (a power of
+    two in size) must have a free slot."""
+    mask = table.shape[0] - 1
+    i = np.int64(_hash(key) & np.uint64(mask))
+    W = key.size
+    while used[i]:
+        same = True
+        for t in range(W):
+            if table[i, t] != key[t]:
+                same = False
+                break
+        if same:
+            return False
+        i = (i + 1) & mask
+    used[i] = True
+    for t in range(W):
+        table[i, t] = key[t]
+    return True
+
+
+@njit(cache=True)
+def _rehash(table, used, size):
+    """The keys of ``table`` in a new table of ``size`` slots."""
+    new = np.zeros((size, table.shape[1]), dtype=np.uint64)
+    new_used = np.zeros(size, dtype=np.bool_)
+    for i in range(table.shape[0]):
+        if used[i]:
+            _insert(new, new_used, table[i])
+    return new, new_used
+
+
+@njit(cache=True)
+def _push_if_new(table, used, stack, meta, key):
+    if _insert(table, used, key):
+        meta[0] += 1  # explored
+        top = meta[1]
+        for t in range(key.size):
+            stack[top, t] = key[t]
+        meta[1] = top + 1
+
+
+@njit(cache=True)
+def _visit(table, used, stack, meta, keys, status, moves, moves_off, nz, opposite):
+    """Push the unexplored neighbours of a batch of evaluated candidates.
+
+    Parameters
+    ----------
+    table, used : (cap, W) uint64, (cap,) bool
+        The explored active sets.
+    stack : (scap, W) uint64
+        The active sets still to evaluate, ``meta[1]`` of them.
+    meta : (2,) int64
+        (explored count, stack top), updated.
+    keys : (B, W) uint64
+        The candidates.
+    status : (B,) int64
+        Their ``mpqp_jit`` status (EMPTY and FALLBACK ones are skipped).
+    moves, moves_off : (q,) int64, (B + 1,) int64
+        Signed constraint ids of each candidate's neighbours (``+i+1``: i may leave,
+        ``-(i+1)``: i may enter), candidate c's in ``moves[moves_off[c]:moves_off[c+1]]``.
+    nz : int
+        Number of variables (an active set of more rows breaks LICQ).
+    opposite : (m, W) uint64
+        Bitmasks of the rows that cannot be active together with each row.
+    """
+    W = keys.shape[1]
+    new = np.empty(W, dtype=np.uint64)
+    blocked = np.empty(W, dtype=np.uint64)
+    for c in range(keys.shape[0]):
+        st = status[c]
+        if st == EMPTY or st == FALLBACK:
+            continue
+        key = keys[c]
+        size = 0
+        for t in range(W):
+            w = key[t]
+            while w:
+                w &= w - _ONE
+                size += 1
+        if st == LICQ:
+            # its subsets are the way on
+            for t in range(W):
+                w = key[t]
+                while w:
+                    low = w & (~w + _ONE)
+                    w ^= low
+                    new[:] = key
+                    new[t] ^= low
+                    _push_if_new(table, used, stack, meta, new)
+            continue
+        for q in range(moves_off[c], moves_off[c + 1]):
+            v = moves[q]
+            if v > 0:
+                i = v - 1
+                new[:] = key
+                new[i >> 6] &= ~(_ONE << np.uint64(i & 63))
+                _push_if_new(table, used, stack, meta, new)
+        if size >= nz + 1:
+            continue
+        blocked[:] = key
+        for t in range(W):
+            w = key[t]
+            while w:
+                low = w & (~w + _ONE)
+                w ^= low
+                j = t * 64 + _bit_index(low)
+                for s in range(W):
+                    blocked[s] |= opposite[j, s]
+        for q in range(moves_off[c], moves_off[c + 1]):
+            v = moves[q]
+            if v < 0:
+                i = -v - 1
+                bit = _ONE << np.uint64(i & 63)
+                if blocked[i >> 6] & bit:
+                    continue
+                new[:] = key
+                new[i >> 6] |= bit
+                _push_if_new(table, used, stack, meta, new)
+
+
+@njit(cache=True)
+def _bit_index(low):
+    """The index of the single set bit of ``low``."""
+    i = 0
+    while low > _ONE:
+        low >>= _ONE
+        i += 1
+    return i
+
+
+@njit(cache=True)
+def decode(keys, width):
+    """Active sets of the bitmasks ``keys`` (B, W): (B, width) int64 rows, ascending, padded
+    with -1, and their sizes (B,)."""
+    B, W = keys.shape
+    acts = np.full((B, width), -1, dtype=np.int64)
+    sizes = np.zeros(B, dtype=np.int64)
+    for c in range(B):
+        n = 0
+        for t in range(W):
+            w = keys[c, t]
+            while w:
+                low = w & (~w + _ONE)
+                w ^= low
+                if n < width:
+                    acts[c, n] = t * 64 + _bit_index(low)
+                n += 1
+        sizes[c] = n
+    return acts, sizes
+
+
+@njit(cache=True, nogil=True)
+def evaluate_batch(
+    keys,
+    G,
+    M,
+    Dfull,
+    negZ0,
+    Hinv_Gt,
+    H,
+    rhs_z,
+    wS,
+    At,
+    bt,
+    box_c,
+    box_h,
+    scale,
+    region_tol,
+    nonempty_tol,
+    ill_conditioned,
+    maxit,
+):
+    """``mpqp_jit.evaluate`` on each candidate of ``keys`` (B, W), in one call.
+
+    Returns
+    -------
+    status, lp : (B,) int64, (B,) bool
+    acts, sizes : (B, nz + 1) int64, (B,) int64
+        The active sets (see ``decode``).
+    rows_off, rows_A, rows_b : (B + 1,), (R, d), (R,)
+        Candidate c's certified rows are ``rows_A[rows_off[c]:rows_off[c + 1]]`` (FULL).
+    K, k : (B, nz, d), (B, nz)
+        The laws (FULL).
+    moves, moves_off : (q,), (B + 1,) int64
+        The neighbours' signed constraint ids (FULL, LOWER), as in ``_visit``.
+    """
+    m, nz = G.shape
+    d = At.shape[1]
+    B = keys.shape[0]
+    acts, sizes = decode(keys, nz + 1)
+    status = np.empty(B, dtype=np.int64)
+    lp = np.zeros(B, dtype=np.bool_)
+    K = np.zeros((B, nz, d))
+    k = np.zeros((B, nz))
+    nr = m + At.shape[0]
+    Ab = np.empty((B * nr, d))
+    bb = np.empty(B * nr)
+    mv = np.empty(B * nr, dtype=np.int64)
+    rows_off = np.zeros(B + 1, dtype=np.int64)
+    moves_off = np.zeros(B + 1, dtype=np.int64)
+    for c in range(B):
+        r0 = rows_off[c]
+        q0 = moves_off[c]
+        rows_off[c + 1] = r0
+        moves_off[c + 1] = q0
+        if sizes[c] > nz:
+            status[c] = LICQ
+            continue
+        st, Ak, bk, Kc, kc, moves, used_lp = evaluate(
+            acts[c, : sizes[c]].copy(),
+            G,
+            M,
+            Dfull,
+            negZ0,
+            Hinv_Gt,
+            H,
+            rhs_z,
+            wS,
+            At,
+            bt,
+            box_c,
+            box_h,
+            scale,
+            region_tol,
+            nonempty_tol,
+            ill_conditioned,
+            maxit,
+        )
+        status[c] = st
+        lp[c] = used_lp
+        if st == FULL:
+            nk = Ak.shape[0]
+            Ab[r0 : r0 + nk] = Ak
+            bb[r0 : r0 + nk] = bk
+            rows_off[c + 1] = r0 + nk
+            K[c] = Kc
+            k[c] = kc
+        nm = moves.size
+        mv[q0 : q0 + nm] = moves
+        moves_off[c + 1] = q0 + nm
+    R = rows_off[B]
+    return (
+        status,
+        lp,
+        acts,
+        sizes,
+        rows_off,
+        Ab[:R].copy(),
+        bb[:R].copy(),
+        K,
+        k,
+        mv[: moves_off[B]].copy(),
+        moves_off,
+    )
+
+
+class ActiveSetGraph:
+    """Explored active sets and the stack of those still to evaluate, as bitmasks.
+
+    Parameters
+    ----------
+    m : int
+        Number of constraints.
+    nz : int
+        Number of variables.
+    opposite : (m, m) bool ndarray
+        ``opposite[i, j]``: rows i and j cannot be active together.
+    """
+
+    def __init__(self, m: int, nz: int, opposite: np.ndarray):
+        self.m, self.nz = m, nz
+        self.W = (m + 63) // 64
+        self.table = np.zeros((1 << 12, self.W), dtype=np.uint64)
+        self.used = np.zeros(1 << 12, dtype=np.bool_)
+        self.stack = np.zeros((1 << 10, self.W), dtype=np.uint64)
+        self.meta = np.zeros(2, dtype=np.int64)  # explored, stack top
+        self.opposite = np.stack([self.key(np.flatnonzero(row)) for row in opposite])
+
+    def key(self, act) -> np.ndarray:
+        """The bitmask (W,) of the active set ``act`` (constraint ids)."""
+        key = np.zeros(self.W, dtype=np.uint64)
+        for i in act:
+            key[int(i) >> 6] |= np.uint64(1) << np.uint64(int(i) & 63)
+        return key
+
+    @property
+    def explored(self) -> int:
+        return int(self.meta[0])
+
+    def __len__(self) -> int:
+        """Active sets on the stack."""
+        return int(self.meta[1])
+
+    def reserve(self, n: int) -> None:
+        """Room for ``n`` more explored sets (table at most half full) and stack entries."""
+        need = self.meta[0] + n
+        if 2 * need > self.table.shape[0]:
+            size = self.table.shape[0]
+            while 2 * need > size:
+                size *= 2
+            self.table, self.used = _rehash(self.table, self.used, size)
+        need = self.meta[1] + n
+        if need > self.stack.shape[0]:
+            size = self.stack.shape[0]
+            while need > size:
+                size *= 2
+            grown = np.zeros((size, self.W), dtype=np.uint64)
+            grown[: self.meta[1]] = self.stack[: self.meta[1]]
+            self.stack = grown
+
+    def seed(self, explored, stack) -> None:
+        """Take over a search begun elsewhere: the active sets ``explored`` (an iterable
+        of tuples, ``stack`` among them) are known, those of ``stack`` are still to
+        evaluate."""
+        explored = list(explored)
+        self.reserve(len(explored) + len(stack))
+        for act in explored:
+            _insert(self.table, self.used, self.key(act))
+        self.meta[0] = len(explored)
+        for i, act in enumerate(stack):
+            self.stack[i] = self.key(act)
+        self.meta[1] = len(stack)
+
+    def pop(self, n: int) -> np.ndarray:
+        """The newest ``n`` (or fewer) active sets of the stack, as (b, W) bitmasks."""
+        top = int(self.meta[1])
+        b = min(n, top)
+        keys = self.stack[top - b : top].copy()
+        self.meta[1] = top - b
+        return keys
+
+    def visit(self, keys, status, moves, moves_off) -> None:
+        """Push the unexplored neighbours of evaluated candidates (see ``_visit``)."""
+        self.reserve(keys.shape[0] * (self.m + 1))  # a move per constraint at most
+        _visit(
+            self.table,
+            self.used,
+            self.stack,
+            self.meta,
+            keys,
+            status,
+            moves,
+            moves_off,
+            self.nz,
+            self.opposite,
+        )

@@ -1,0 +1,160 @@
+"""The compiled walk of the mp-QP active-set graph (codev_engine/mpqp_graph.py).
+
+Its bookkeeping against a plain Python model of the same rules, and whole searches against
+the Python walk: serial, in threads, and with candidates handed back to the numpy kernel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import codev_engine as ce
+from codev_engine import mpqp, mpqp_graph, mpqp_jit
+
+
+def _reference_visit(explored: set, stack: list, act, status, moves, nz, opposite):
+    """explore_active_sets' visit rules, on Python tuples (the specification)."""
+
+    def push(new):
+        if new not in explored:
+            explored.add(new)
+            stack.append(new)
+
+    if status in (mpqp_jit.EMPTY, mpqp_jit.FALLBACK):
+        return
+    if status == mpqp_jit.LICQ:
+        for i in act:
+            push(tuple(x for x in act if x != i))
+        return
+    for v in moves:
+        if v > 0:
+            push(tuple(x for x in act if x != v - 1))
+    if len(act) >= nz + 1:
+        return
+    blocked = set(act)
+    for i in act:
+        blocked |= set(np.flatnonzero(opposite[i]).tolist())
+    for v in moves:
+        if v < 0 and -v - 1 not in blocked:
+            push(tuple(sorted(act + (-v - 1,))))
+
+
+@pytest.mark.parametrize("m", [10, 64, 130])
+def test_bitmask_walk_matches_the_python_rules(m):
+    """Random candidates, statuses and moves (m up to three words): the same explored sets,
+    the same stack contents, the keys decode to the active sets."""
+    rng = np.random.default_rng(m)
+    nz = 4
+    opposite = np.zeros((m, m), dtype=bool)
+    for i in range(0, m - 1, 2):
+        opposite[i, i + 1] = opposite[i + 1, i] = True
+    graph = mpqp_graph.ActiveSetGraph(m, nz, opposite)
+    seed = [tuple(sorted(rng.choice(m, size=int(rng.integers(0, nz + 1)), replace=False)))
+            for _ in range(5)]
+    explored, stack = set(seed), list(dict.fromkeys(seed))
+    graph.seed(explored, stack)
+    for _ in range(30):
+        keys = graph.pop(7)
+        acts, sizes = mpqp_graph.decode(keys, nz + 2)
+        batch = [tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)]
+        assert [stack.pop() for _ in batch][::-1] == batch
+        status = rng.integers(0, 5, size=len(batch))
+        moves, off = [], [0]
+        for act in batch:
+            mv = [i + 1 for i in act if rng.random() < 0.5]
+            mv += [-(i + 1) for i in rng.choice(m, size=3, replace=False) if i not in act]
+            moves += mv
+            off.append(len(moves))
+        for act, st, a, b in zip(batch, status, off[:-1], off[1:], strict=True):
+            _reference_visit(explored, stack, act, st, moves[a:b], nz, opposite)
+        graph.visit(keys, status.astype(np.int64), np.array(moves, dtype=np.int64),
+                    np.array(off, dtype=np.int64))
+        assert graph.explored == len(explored)
+        assert len(graph) == len(stack)
+        if not stack:
+            break
+    rest = graph.pop(len(graph))
+    acts, sizes = mpqp_graph.decode(rest, nz + 2)
+    assert sorted(tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)) == sorted(stack)
+
+
+def test_table_keeps_every_key_when_it_grows():
+    graph = mpqp_graph.ActiveSetGraph(100, 3, np.zeros((100, 100), dtype=bool))
+    acts = {tuple(sorted(c)) for c in np.random.default_rng(0).integers(0, 100, size=(20000, 3))}
+    acts = sorted(acts)
+    graph.seed(acts, [])
+    assert graph.explored == len(acts) and graph.table.shape[0] >= 2 * len(acts)
+    # every key is found again (a second insert is refused) and nothing else is
+    for act in acts[::97]:
+        assert not mpqp_graph._insert(graph.table, graph.used, graph.key(act))
+    assert mpqp_graph._insert(graph.table, graph.used, graph.key((1, 2, 99, 98)))
+
+
+def _program(seed: int = 2) -> ce.MpProgram:
+    """A random strictly convex mp-QP with some hundreds of regions (nz = 5, d = 4)."""
+    rng = np.random.default_rng(seed)
+    nz, d, m = 5, 4, 16
+    A = np.vstack([rng.normal(size=(m, nz)), np.eye(nz), -np.eye(nz)])
+    b = np.concatenate([rng.uniform(0.5, 1.5, m), np.full(2 * nz, 2.0)])
+    F = np.vstack([rng.normal(size=(m, d)), np.zeros((2 * nz, d))])
+    L = rng.normal(size=(nz, nz))
+    return ce.MpProgram(
+        H=L @ L.T + 0.1 * np.eye(nz), c=rng.normal(size=nz), C=rng.normal(size=(nz, d)),
+        A=A, b=b, F=F, A_theta=np.vstack([np.eye(d), -np.eye(d)]), b_theta=np.ones(2 * d),
+    )
+
+
+def _solve(monkeypatch, jit_after: int, workers: int = 1, parallel_after: int = 400):
+    monkeypatch.setattr(mpqp, "JIT_AFTER", jit_after)
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", parallel_after)
+    return ce.mpsolve(_program(), options=ce.SolveOptions(workers=workers))
+
+
+def _same(a: ce.MpSolution, b: ce.MpSolution) -> None:
+    assert a.num_regions == b.num_regions
+    for r, s in zip(a.regions, b.regions, strict=True):
+        assert r.active == s.active
+        np.testing.assert_array_equal(r.A, s.A)
+        np.testing.assert_array_equal(r.b, s.b)
+        np.testing.assert_array_equal(r.K, s.K)
+
+
+def test_compiled_walk_finds_the_python_walks_regions(monkeypatch):
+    python = _solve(monkeypatch, jit_after=10**9)
+    compiled = _solve(monkeypatch, jit_after=0)
+    assert "jit" not in python.stats and compiled.stats["jit"] is True
+    assert python.num_regions > 200
+    # (the kernels' moves may differ by a candidate or two; the regions may not)
+    assert [r.active for r in python.regions] == [r.active for r in compiled.regions]
+
+
+def test_compiled_walk_in_threads_gives_the_serial_result(monkeypatch):
+    serial = _solve(monkeypatch, jit_after=0)
+    threads = _solve(monkeypatch, jit_after=0, workers=2, parallel_after=1)
+    assert threads.stats.get("workers") == 2
+    assert threads.stats["explored"] == serial.stats["explored"]
+    _same(serial, threads)
+
+
+def test_candidates_handed_back_to_numpy_change_nothing(monkeypatch):
+    """The compiled kernel hands back what it cannot conclude on (FALLBACK); forced here on
+    every third candidate, the numpy kernel takes them and the walk goes on the same."""
+    ref = _solve(monkeypatch, jit_after=0)
+    batch = mpqp_graph.evaluate_batch
+    handed = []
+
+    def some_back(keys, *args):
+        out = batch(keys, *args)
+        status = out[0].copy()
+        status[::3] = mpqp_jit.FALLBACK
+        handed.append(int(np.count_nonzero(status == mpqp_jit.FALLBACK)))
+        return (status, *out[1:])
+
+    monkeypatch.setattr(mpqp_graph, "evaluate_batch", some_back)
+    got = _solve(monkeypatch, jit_after=0)
+    assert sum(handed) > 100
+    assert [r.active for r in ref.regions] == [r.active for r in got.regions]
+    for r, s in zip(ref.regions, got.regions, strict=True):
+        np.testing.assert_allclose(r.K, s.K, atol=1e-9)
+        np.testing.assert_allclose(r.k, s.k, atol=1e-9)
