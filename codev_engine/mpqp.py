@@ -36,6 +36,7 @@ from .polytope import (
     certified_minimal_rows,
     chebyshev_ball,
     checked_minimal_rows,
+    unique_rows,
 )
 
 __all__ = ["explore_active_sets"]
@@ -602,12 +603,15 @@ def _merge_equal_laws(
     """
     from .merge import merge_regions
 
-    keys = [
-        np.round(np.hstack([r.K, r.k[:, None]]) / (1e-7 * max(scale, 1.0)), 0).tobytes()
-        for r in regions
-    ]
-    if len(set(keys)) == len(keys):
+    if not regions:
         return regions
+    laws = np.concatenate(
+        [np.stack([r.K for r in regions]), np.stack([r.k for r in regions])[:, :, None]], axis=2
+    ).reshape(len(regions), -1)
+    laws = np.round(laws / (1e-7 * max(scale, 1.0)), 0) + 0.0  # (-0.0 made +0.0)
+    if unique_rows(laws, 0).size == len(regions):
+        return regions
+    keys = [row.tobytes() for row in laws]
     As, bs, src = merge_regions([r.A for r in regions], [r.b for r in regions], keys)
     stats["merged"] = len(regions) - len(As)
     return [

@@ -384,3 +384,72 @@ class ActiveSetGraph:
             self.nz,
             self.opposite,
         )
+
+
+@njit(cache=True)
+def unpaired_rows(A, b, decimals):
+    """The rows ``(A_i, b_i)`` that are the first of their kind and whose negation is no
+    row: the facets of a partition's regions that no neighbour shares. Rows are compared
+    rounded to ``decimals``.
+
+    Parameters
+    ----------
+    A : (n, d) ndarray
+    b : (n,) ndarray
+    decimals : int
+
+    Returns
+    -------
+    (n,) bool ndarray
+    """
+    n, d = A.shape
+    f = 10.0**decimals
+    R = np.empty((n, d + 1))
+    h = np.empty(n, dtype=np.uint64)
+    h_neg = np.empty(n, dtype=np.uint64)
+    key = np.empty(d + 1)
+    for i in range(n):
+        for t in range(d + 1):
+            v = A[i, t] if t < d else b[i]
+            R[i, t] = np.rint(v * f) / f + 0.0  # (-0.0 made +0.0)
+        h[i] = _hash(R[i].view(np.uint64))
+        for t in range(d + 1):
+            key[t] = -R[i, t] + 0.0
+        h_neg[i] = _hash(key.view(np.uint64))
+    cap = 1
+    while cap < 2 * n:
+        cap *= 2
+    slots = np.full(cap, -1, dtype=np.int64)
+    first = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        j = np.int64(h[i] & np.uint64(cap - 1))
+        while slots[j] >= 0:
+            s = slots[j]
+            if h[s] == h[i] and _rows_equal(R, s, i, 1.0):
+                break
+            j = (j + 1) & (cap - 1)
+        if slots[j] < 0:
+            slots[j] = i
+            first[i] = True
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        if not first[i]:
+            continue
+        j = np.int64(h_neg[i] & np.uint64(cap - 1))
+        paired = False
+        while slots[j] >= 0:
+            s = slots[j]
+            if h[s] == h_neg[i] and _rows_equal(R, s, i, -1.0):
+                paired = True
+                break
+            j = (j + 1) & (cap - 1)
+        out[i] = not paired
+    return out
+
+
+@njit(cache=True)
+def _rows_equal(R, s, i, sign):
+    for t in range(R.shape[1]):
+        if R[s, t] != sign * R[i, t]:
+            return False
+    return True

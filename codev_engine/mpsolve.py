@@ -49,7 +49,7 @@ from .polytope import (
     chebyshev_ball,
     minimal_rows,
     normalize_rows,
-    row_keys,
+    rows_in,
     solve_lp,
     unique_rows,
     vertices,
@@ -813,17 +813,19 @@ def mpsolve(
                 stats=ex.stats,
             )
         domain = _domain_from_regions(red, regions, ex.scale) if regions else _empty_domain(red)
-    # back to the original variables: z = Z0 + Z1 theta + Nz w
-    out = [
-        CriticalRegion(
-            A=reg.A,
-            b=reg.b,
-            K=red.Z1 + red.Nz @ reg.K,
-            k=red.Z0 + red.Nz @ reg.k,
-            active=reg.active,
-        )
-        for reg in regions
-    ]
+    # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
+    out = regions
+    if not (np.array_equal(red.Nz, np.eye(program.nz)) and not red.Z0.any() and not red.Z1.any()):
+        out = [
+            CriticalRegion(
+                A=reg.A,
+                b=reg.b,
+                K=red.Z1 + red.Nz @ reg.K,
+                k=red.Z0 + red.Nz @ reg.k,
+                active=reg.active,
+            )
+            for reg in regions
+        ]
     return MpSolution(
         program=program,
         regions=out,
@@ -872,6 +874,11 @@ def _empty_domain(red: _Reduced) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros((0, red.At.shape[1])), np.zeros(0)
 
 
+#: regions above which the domain's shared facets are paired by a compiled hash table
+#: (numba is loaded by then: the compiled kernel starts at mpqp.JIT_AFTER regions)
+_COMPILED_DOMAIN_AFTER = 1000
+
+
 def _domain_from_regions(
     red: _Reduced, regions: list[CriticalRegion], scale: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -881,10 +888,18 @@ def _domain_from_regions(
     remaining row is kept when it is valid for the whole feasible set (an LP over the
     lifted set ``{(w, theta) : G w - S theta <= w0, At theta <= bt}``).
     """
-    rows = np.vstack([np.hstack([r.A, r.b[:, None]]) for r in regions])
-    cand = rows[unique_rows(rows, 7)]
+    A = np.concatenate([r.A for r in regions])
+    b = np.concatenate([r.b for r in regions])
     # a facet between two regions appears with both signs: not on the boundary
-    cand = cand[~np.isin(row_keys(cand, 7), row_keys(-rows, 7))]
+    if len(regions) > _COMPILED_DOMAIN_AFTER:
+        from .mpqp_graph import unpaired_rows
+
+        unpaired = unpaired_rows(A, b, 7)
+        cand = np.hstack([A[unpaired], b[unpaired, None]])
+    else:
+        rows = np.hstack([A, b[:, None]])
+        cand = rows[unique_rows(rows, 7)]
+        cand = cand[~rows_in(cand, -rows, 7)]
     nw = red.G.shape[1]
     LA = np.vstack(
         [np.hstack([red.G, -red.S]), np.hstack([np.zeros((red.At.shape[0], nw)), red.At])]

@@ -158,3 +158,37 @@ def test_candidates_handed_back_to_numpy_change_nothing(monkeypatch):
     for r, s in zip(ref.regions, got.regions, strict=True):
         np.testing.assert_allclose(r.K, s.K, atol=1e-9)
         np.testing.assert_allclose(r.k, s.k, atol=1e-9)
+
+
+def _rows_with_twins(seed: int):
+    """Random unit rows with exact duplicates, negated copies and -0.0 entries."""
+    rng = np.random.default_rng(seed)
+    M = rng.normal(size=(300, 4))
+    M[rng.random(M.shape) < 0.2] = 0.0
+    M = np.vstack([M, M[:60], -M[40:100], -M[:5] * 0.0])
+    return M[rng.permutation(M.shape[0])]
+
+
+def _keys(M):
+    return [tuple(np.round(r, 7) + 0.0) for r in M]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_row_hashing_agrees_with_exact_comparison(seed):
+    """unique_rows, rows_in (numpy, hashed) and unpaired_rows (compiled) against sets of
+    rounded tuples."""
+    M = _rows_with_twins(seed)
+    keys = _keys(M)
+    first = ce.polytope.unique_rows(M, 7)
+    seen = {}
+    for i, k in enumerate(keys):
+        seen.setdefault(k, i)
+    assert first.tolist() == sorted(seen.values())
+    Q = np.vstack([M[:50], M[:50] + 1e-3])
+    assert ce.polytope.rows_in(Q, -M, 7).tolist() == [
+        k in set(_keys(-M)) for k in _keys(Q)
+    ]
+    got = mpqp_graph.unpaired_rows(np.ascontiguousarray(M[:, :-1]), M[:, -1].copy(), 7)
+    negs = set(_keys(-M))
+    want = [i in seen.values() and seen[k] == i and k not in negs for i, k in enumerate(keys)]
+    assert got.tolist() == want
