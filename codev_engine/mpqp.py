@@ -128,10 +128,12 @@ class _Kernel:
         (it hands back the candidates it cannot conclude on)."""
         jit = self._jit
         if jit is not None:
-            status, Ak, bk, K, k, moves, lp = jit.evaluate(
+            status, Ak, bk, K, k, moves, lp, swaps = jit.evaluate(
                 np.array(act, dtype=np.int64), *self._jit_args
             )
             if status == jit.FULL:
+                if swaps.size:  # this walk takes the plain moves (see mpqp_jit._swaps)
+                    moves = np.union1d(moves, -(swaps[:, 0] + 1))
                 return "full", (Ak, bk), (K, k), moves, lp
             if status == jit.LICQ:
                 return "licq", None, None, None, lp
@@ -512,7 +514,7 @@ class _CompiledWalk:
 
         self.kernel, self.regions, self.stats = kernel, regions, stats
         self.jit = mpqp_jit
-        self.evaluate_batch = mpqp_graph.evaluate_batch
+        self.evaluate_batch = mpqp_jit.evaluate_batch
         m = kernel.m
         opp = np.zeros((m, m), dtype=bool)
         for i, js in opposite.items():
@@ -551,7 +553,7 @@ class _CompiledWalk:
     def _take(self, keys: np.ndarray, result: tuple) -> None:
         """Record a batch's regions and push its neighbours; the candidates the compiled
         kernel could not conclude on go to the numpy kernel, one by one."""
-        status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off = result
+        status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off, swaps, swaps_off = result
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
@@ -559,7 +561,7 @@ class _CompiledWalk:
             r0, r1 = rows_off[c], rows_off[c + 1]
             act = tuple(acts[c, : sizes[c]].tolist())
             self.regions.append(CriticalRegion(A=A[r0:r1], b=b[r0:r1], K=K[c], k=k[c], active=act))
-        self.graph.visit(keys, status, moves, moves_off)
+        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off)
         for c in np.flatnonzero(status == jit.FALLBACK):
             act = tuple(acts[c, : sizes[c]].tolist())
             st, rows, law, mv, used_lp = self.kernel.evaluate_numpy(act)
@@ -569,7 +571,11 @@ class _CompiledWalk:
                     CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1], active=act)
                 )
             mv = np.zeros(0, dtype=np.int64) if mv is None else np.asarray(mv, dtype=np.int64)
-            self.graph.visit(keys[c : c + 1], np.array([_STATUS[st]]), mv, np.array([0, mv.size]))
+            none = np.zeros(2, dtype=np.int64)
+            self.graph.visit(
+                keys[c : c + 1], np.array([_STATUS[st]]), mv, np.array([0, mv.size]),
+                np.zeros((0, 2), dtype=np.int64), none,
+            )
 
 
 def _start_pool(kernel: _Kernel, nworkers: int):

@@ -16,9 +16,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .mpqp_jit import EMPTY, FALLBACK, FULL, LICQ, evaluate
+from .mpqp_jit import EMPTY, FALLBACK, LICQ
 
-__all__ = ["ActiveSetGraph", "evaluate_batch"]
+__all__ = ["ActiveSetGraph", "unpaired_rows"]
 
 _ONE = np.uint64(1)
 
@@ -80,7 +80,9 @@ def _push_if_new(table, used, stack, meta, key):
 
 
 @njit(cache=True)
-def _visit(table, used, stack, meta, keys, status, moves, moves_off, nz, opposite):
+def _visit(
+    table, used, stack, meta, keys, status, moves, moves_off, swaps, swaps_off, nz, opposite
+):
     """Push the unexplored neighbours of a batch of evaluated candidates.
 
     Parameters
@@ -98,6 +100,8 @@ def _visit(table, used, stack, meta, keys, status, moves, moves_off, nz, opposit
     moves, moves_off : (q,) int64, (B + 1,) int64
         Signed constraint ids of each candidate's neighbours (``+i+1``: i may leave,
         ``-(i+1)``: i may enter), candidate c's in ``moves[moves_off[c]:moves_off[c+1]]``.
+    swaps, swaps_off : (s, 2) int64, (B + 1,) int64
+        Pairs (i, j): i may enter as j leaves (``mpqp_jit._swaps``), laid out as moves.
     nz : int
         Number of variables (an active set of more rows breaks LICQ).
     opposite : (m, W) uint64
@@ -138,12 +142,8 @@ def _visit(table, used, stack, meta, keys, status, moves, moves_off, nz, opposit
         if size >= nz + 1:
             continue
         blocked[:] = key
-        for t in range(W):
-            w = key[t]
-            while w:
-                low = w & (~w + _ONE)
-                w ^= low
-                j = t * 64 + _bit_index(low)
+        for j in range(opposite.shape[0]):
+            if (key[j >> 6] >> np.uint64(j & 63)) & _ONE:
                 for s in range(W):
                     blocked[s] |= opposite[j, s]
         for q in range(moves_off[c], moves_off[c + 1]):
@@ -156,142 +156,15 @@ def _visit(table, used, stack, meta, keys, status, moves, moves_off, nz, opposit
                 new[:] = key
                 new[i >> 6] |= bit
                 _push_if_new(table, used, stack, meta, new)
-
-
-@njit(cache=True)
-def _bit_index(low):
-    """The index of the single set bit of ``low``."""
-    i = 0
-    while low > _ONE:
-        low >>= _ONE
-        i += 1
-    return i
-
-
-@njit(cache=True)
-def decode(keys, width):
-    """Active sets of the bitmasks ``keys`` (B, W): (B, width) int64 rows, ascending, padded
-    with -1, and their sizes (B,)."""
-    B, W = keys.shape
-    acts = np.full((B, width), -1, dtype=np.int64)
-    sizes = np.zeros(B, dtype=np.int64)
-    for c in range(B):
-        n = 0
-        for t in range(W):
-            w = keys[c, t]
-            while w:
-                low = w & (~w + _ONE)
-                w ^= low
-                if n < width:
-                    acts[c, n] = t * 64 + _bit_index(low)
-                n += 1
-        sizes[c] = n
-    return acts, sizes
-
-
-@njit(cache=True, nogil=True)
-def evaluate_batch(
-    keys,
-    G,
-    M,
-    Dfull,
-    negZ0,
-    Hinv_Gt,
-    H,
-    rhs_z,
-    wS,
-    At,
-    bt,
-    box_c,
-    box_h,
-    scale,
-    region_tol,
-    nonempty_tol,
-    ill_conditioned,
-    maxit,
-):
-    """``mpqp_jit.evaluate`` on each candidate of ``keys`` (B, W), in one call.
-
-    Returns
-    -------
-    status, lp : (B,) int64, (B,) bool
-    acts, sizes : (B, nz + 1) int64, (B,) int64
-        The active sets (see ``decode``).
-    rows_off, rows_A, rows_b : (B + 1,), (R, d), (R,)
-        Candidate c's certified rows are ``rows_A[rows_off[c]:rows_off[c + 1]]`` (FULL).
-    K, k : (B, nz, d), (B, nz)
-        The laws (FULL).
-    moves, moves_off : (q,), (B + 1,) int64
-        The neighbours' signed constraint ids (FULL, LOWER), as in ``_visit``.
-    """
-    m, nz = G.shape
-    d = At.shape[1]
-    B = keys.shape[0]
-    acts, sizes = decode(keys, nz + 1)
-    status = np.empty(B, dtype=np.int64)
-    lp = np.zeros(B, dtype=np.bool_)
-    K = np.zeros((B, nz, d))
-    k = np.zeros((B, nz))
-    nr = m + At.shape[0]
-    Ab = np.empty((B * nr, d))
-    bb = np.empty(B * nr)
-    mv = np.empty(B * nr, dtype=np.int64)
-    rows_off = np.zeros(B + 1, dtype=np.int64)
-    moves_off = np.zeros(B + 1, dtype=np.int64)
-    for c in range(B):
-        r0 = rows_off[c]
-        q0 = moves_off[c]
-        rows_off[c + 1] = r0
-        moves_off[c + 1] = q0
-        if sizes[c] > nz:
-            status[c] = LICQ
-            continue
-        st, Ak, bk, Kc, kc, moves, used_lp = evaluate(
-            acts[c, : sizes[c]].copy(),
-            G,
-            M,
-            Dfull,
-            negZ0,
-            Hinv_Gt,
-            H,
-            rhs_z,
-            wS,
-            At,
-            bt,
-            box_c,
-            box_h,
-            scale,
-            region_tol,
-            nonempty_tol,
-            ill_conditioned,
-            maxit,
-        )
-        status[c] = st
-        lp[c] = used_lp
-        if st == FULL:
-            nk = Ak.shape[0]
-            Ab[r0 : r0 + nk] = Ak
-            bb[r0 : r0 + nk] = bk
-            rows_off[c + 1] = r0 + nk
-            K[c] = Kc
-            k[c] = kc
-        nm = moves.size
-        mv[q0 : q0 + nm] = moves
-        moves_off[c + 1] = q0 + nm
-    R = rows_off[B]
-    return (
-        status,
-        lp,
-        acts,
-        sizes,
-        rows_off,
-        Ab[:R].copy(),
-        bb[:R].copy(),
-        K,
-        k,
-        mv[: moves_off[B]].copy(),
-        moves_off,
-    )
+        for q in range(swaps_off[c], swaps_off[c + 1]):
+            i, j = swaps[q, 0], swaps[q, 1]
+            bit = _ONE << np.uint64(i & 63)
+            if blocked[i >> 6] & bit:
+                continue  # (as the plain move: A + i is never explored then)
+            new[:] = key
+            new[i >> 6] |= bit
+            new[j >> 6] &= ~(_ONE << np.uint64(j & 63))
+            _push_if_new(table, used, stack, meta, new)
 
 
 class ActiveSetGraph:
@@ -369,9 +242,10 @@ class ActiveSetGraph:
         self.meta[1] = top - b
         return keys
 
-    def visit(self, keys, status, moves, moves_off) -> None:
+    def visit(self, keys, status, moves, moves_off, swaps, swaps_off) -> None:
         """Push the unexplored neighbours of evaluated candidates (see ``_visit``)."""
-        self.reserve(keys.shape[0] * (self.m + 1))  # a move per constraint at most
+        # a move per constraint at most, and nz swaps for each
+        self.reserve(keys.shape[0] * (self.m + 1) * (self.nz + 1))
         _visit(
             self.table,
             self.used,
@@ -381,6 +255,8 @@ class ActiveSetGraph:
             status,
             moves,
             moves_off,
+            swaps,
+            swaps_off,
             self.nz,
             self.opposite,
         )

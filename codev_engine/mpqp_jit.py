@@ -500,13 +500,13 @@ def evaluate(
     ez = np.zeros((nz, d))
     ek = np.zeros(nz)
     em = np.zeros(0, dtype=np.int64)
+    es = np.zeros((0, 2), dtype=np.int64)
     if na > nz:
-        return LICQ, e2, e1, ez, ek, em, False
-    if na:
-        Qb = np.zeros((na, nz))
-        Rb = np.zeros((na, na))
-        if _orthonormal_rows(G, act, na, Qb, Rb) < 1e-9:
-            return LICQ, e2, e1, ez, ek, em, False
+        return LICQ, e2, e1, ez, ek, em, False, es
+    Qb = np.zeros((na, nz))
+    Rb = np.zeros((na, na))
+    if na and _orthonormal_rows(G, act, na, Qb, Rb) < 1e-9:
+        return LICQ, e2, e1, ez, ek, em, False, es
     inact = np.empty(m - na, dtype=np.int64)
     isact = np.zeros(m, dtype=np.bool_)
     for i in range(na):
@@ -527,7 +527,7 @@ def evaluate(
                 MAA[i, j] = M[act[i], act[j]]
         L = _cholesky(MAA)
         if L.shape[0] == 0:
-            return LICQ, e2, e1, ez, ek, em, False
+            return LICQ, e2, e1, ez, ek, em, False, es
         dmax = 0.0
         dmin = np.inf
         for i in range(na):
@@ -585,6 +585,7 @@ def evaluate(
         br[na + ni + q] = bt[q]
     # normalise; rows that vanish for every theta decide emptiness alone
     keep_row = np.ones(nr, dtype=np.bool_)
+    vanished = False  # a multiplier or slack zero for every theta
     for i in range(nr):
         s = 0.0
         for t in range(d):
@@ -592,8 +593,9 @@ def evaluate(
         s = np.sqrt(s)
         if s <= 1e-12:
             if br[i] < -1e-12:
-                return EMPTY, e2, e1, ez, ek, em, False
+                return EMPTY, e2, e1, ez, ek, em, False, es
             keep_row[i] = False
+            vanished = True
         else:
             Ar[i] /= s
             br[i] /= s
@@ -606,7 +608,7 @@ def evaluate(
         bound = max(bound, abs(box_c[t]) + box_h[t])
     status, centre, rho, upper = _chebyshev(Ar, br, box_c, bound, maxit)
     if status != _OPTIMAL:
-        return FALLBACK, e2, e1, ez, ek, em, True
+        return FALLBACK, e2, e1, ez, ek, em, True, es
     # the radius the centre really has (the LP's steps drift off their rows by rounding):
     # a region is full only if this one is large enough
     true_rho = np.inf
@@ -618,7 +620,7 @@ def evaluate(
     # each class needs its proof: empty and lower-dimensional an upper bound of the radius,
     # full a ball (true_rho, from the rows themselves)
     if upper < -nonempty_tol:
-        return EMPTY, e2, e1, ez, ek, em, True
+        return EMPTY, e2, e1, ez, ek, em, True, es
     if upper <= region_tol:
         # lower-dimensional: its neighbours are the constraints tight at a point of it
         tol = -max(rho, 0.0) - 1e-7 * scale
@@ -629,9 +631,9 @@ def evaluate(
                 s += Ar[i, t] * centre[t]
             if s >= tol:
                 tight[i] = True
-        return LOWER, e2, e1, ez, ek, src[tight], True
+        return LOWER, e2, e1, ez, ek, src[tight], True, es
     if true_rho <= region_tol or rho < -nonempty_tol:
-        return FALLBACK, e2, e1, ez, ek, em, True
+        return FALLBACK, e2, e1, ez, ek, em, True, es
     # rows that hold on the whole box of the parameter set are implied by its rows
     maybe = np.zeros(nr, dtype=np.bool_)
     for i in range(nr):
@@ -662,13 +664,253 @@ def evaluate(
             if same:
                 on[i] = True
     moves = np.unique(src[on])
+    swaps = es
+    if not vanished:
+        moves, swaps = _swaps(moves, Ar, br, src, Ak, bk, sm[kept], G, act, Qb, Rb)
     # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
     if augmented:
-        return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True
+        return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True, swaps
     Z = negZ0.copy()
     for i in range(na):
         for t in range(nz):
             h = Hinv_Gt[t, act[i]]
             for s in range(d + 1):
                 Z[t, s] -= h * Lam[i, s]
-    return FULL, Ak, bk, Z[:, 1:].copy(), Z[:, 0].copy(), moves, True
+    return FULL, Ak, bk, Z[:, 1:].copy(), Z[:, 0].copy(), moves, True, swaps
+
+
+@njit(cache=True)
+def _swaps(moves, Ar, br, src, Ak, bk, src_kept, G, act, Q, R):
+    """Facets across which a constraint enters an active set that it makes dependent:
+    the constraints that may leave as it enters.
+
+    A facet of the region of ``A`` (rows ``Ak``, from ``src_kept``) where the slack of
+    constraint i vanishes, alone on its hyperplane, with ``g_i = sum_j c_j g_j`` over
+    ``A`` (so ``A + i`` breaks LICQ, with the one dependency ``(-c, 1)``). At a point of
+    the facet where every multiplier ``lambda_j`` of ``A`` is positive and no other
+    constraint is tight (all of it but a lower-dimensional part, since no other row
+    shares the hyperplane), the optimizer is that of ``A``, the tight constraints are
+    ``A + i``, and an active set optimal there is a subset of ``A + i`` that keeps LICQ,
+    so it leaves out some j with ``c_j != 0``. Its multipliers are then ``lambda - t c``
+    on ``A`` and ``t`` on i, with ``t = lambda_j / c_j``: ``t >= 0`` needs ``c_j > 0``,
+    and leaving out one more constraint l needs ``lambda_l = t c_l`` as well (a
+    lower-dimensional part again). So the regions across the facet are among ``A + i -
+    j`` with ``c_j > 0``, and the walk goes there directly instead of through ``A + i``
+    and all its subsets (most of them empty).
+
+    Returns
+    -------
+    moves : (q,) int64
+        ``moves`` without the entering moves replaced by swaps.
+    swaps : (s, 2) int64
+        Pairs (entering constraint, leaving constraint).
+    """
+    na, nz = Q.shape
+    d = Ar.shape[1]
+    out = np.empty((Ak.shape[0] * max(na, 1), 2), dtype=np.int64)
+    ns = 0
+    replaced = np.zeros(moves.size, dtype=np.bool_)
+    q = np.empty(max(na, 1))
+    c = np.empty(max(na, 1))
+    for r in range(Ak.shape[0]):
+        if src_kept[r] >= 0 or na == 0:
+            continue
+        i = -src_kept[r] - 1
+        # alone on its hyperplane?
+        count = 0
+        tol = 1e-9 * (1.0 + abs(bk[r]))
+        for a in range(Ar.shape[0]):
+            if abs(br[a] - bk[r]) > tol:
+                continue
+            same = True
+            for t in range(d):
+                if abs(Ar[a, t] - Ak[r, t]) > tol:
+                    same = False
+                    break
+            if same:
+                count += 1
+        if count != 1:
+            continue
+        # g_i in the span of G_A?  (rows unit norm: the residual of the projection)
+        res = 0.0
+        for l in range(na):
+            s = 0.0
+            for t in range(nz):
+                s += Q[l, t] * G[i, t]
+            q[l] = s
+        for t in range(nz):
+            v = G[i, t]
+            for l in range(na):
+                v -= q[l] * Q[l, t]
+            res += v * v
+        if np.sqrt(res) >= 1e-9:
+            continue  # A + i keeps LICQ: the plain move
+        _solve_rt(R, q, na, c)
+        cmax = 0.0
+        for l in range(na):
+            cmax = max(cmax, abs(c[l]))
+        for l in range(na):
+            # (c_l about 0: A + i - l still dependent, never a region; kept all the same,
+            # as a wrong sign judgement would cost a region)
+            if c[l] > -1e-9 * max(1.0, cmax):
+                out[ns, 0] = i
+                out[ns, 1] = act[l]
+                ns += 1
+        for u in range(moves.size):
+            if moves[u] == src_kept[r]:
+                replaced[u] = True
+    return moves[~replaced], out[:ns].copy()
+
+
+# Batches of candidates, as ``mpqp_graph`` walks them. They live here, with ``evaluate``:
+# numba's on-disk cache of a function is renewed when its own file changes, not when a
+# function it calls from another file does.
+
+_ONE = np.uint64(1)
+
+
+@njit(cache=True)
+def _bit_index(low):
+    """The index of the single set bit of ``low``."""
+    i = 0
+    while low > _ONE:
+        low >>= _ONE
+        i += 1
+    return i
+
+
+@njit(cache=True)
+def decode(keys, width):
+    """Active sets of the bitmasks ``keys`` (B, W): (B, width) int64 rows, ascending, padded
+    with -1, and their sizes (B,)."""
+    B, W = keys.shape
+    acts = np.full((B, width), -1, dtype=np.int64)
+    sizes = np.zeros(B, dtype=np.int64)
+    for c in range(B):
+        n = 0
+        for t in range(W):
+            w = keys[c, t]
+            while w:
+                low = w & (~w + _ONE)
+                w ^= low
+                if n < width:
+                    acts[c, n] = t * 64 + _bit_index(low)
+                n += 1
+        sizes[c] = n
+    return acts, sizes
+
+
+@njit(cache=True, nogil=True)
+def evaluate_batch(
+    keys,
+    G,
+    M,
+    Dfull,
+    negZ0,
+    Hinv_Gt,
+    H,
+    rhs_z,
+    wS,
+    At,
+    bt,
+    box_c,
+    box_h,
+    scale,
+    region_tol,
+    nonempty_tol,
+    ill_conditioned,
+    maxit,
+):
+    """``mpqp_jit.evaluate`` on each candidate of ``keys`` (B, W), in one call.
+
+    Returns
+    -------
+    status, lp : (B,) int64, (B,) bool
+    acts, sizes : (B, nz + 1) int64, (B,) int64
+        The active sets (see ``decode``).
+    rows_off, rows_A, rows_b : (B + 1,), (R, d), (R,)
+        Candidate c's certified rows are ``rows_A[rows_off[c]:rows_off[c + 1]]`` (FULL).
+    K, k : (B, nz, d), (B, nz)
+        The laws (FULL).
+    moves, moves_off : (q,), (B + 1,) int64
+        The neighbours' signed constraint ids (FULL, LOWER), as in ``_visit``.
+    swaps, swaps_off : (s, 2), (B + 1,) int64
+        Swaps (FULL), as in ``_visit``.
+    """
+    m, nz = G.shape
+    d = At.shape[1]
+    B = keys.shape[0]
+    acts, sizes = decode(keys, nz + 1)
+    status = np.empty(B, dtype=np.int64)
+    lp = np.zeros(B, dtype=np.bool_)
+    K = np.zeros((B, nz, d))
+    k = np.zeros((B, nz))
+    nr = m + At.shape[0]
+    Ab = np.empty((B * nr, d))
+    bb = np.empty(B * nr)
+    mv = np.empty(B * nr, dtype=np.int64)
+    sw = np.empty((B * m * max(nz, 1), 2), dtype=np.int64)
+    rows_off = np.zeros(B + 1, dtype=np.int64)
+    moves_off = np.zeros(B + 1, dtype=np.int64)
+    swaps_off = np.zeros(B + 1, dtype=np.int64)
+    for c in range(B):
+        r0 = rows_off[c]
+        q0 = moves_off[c]
+        s0 = swaps_off[c]
+        rows_off[c + 1] = r0
+        moves_off[c + 1] = q0
+        swaps_off[c + 1] = s0
+        if sizes[c] > nz:
+            status[c] = LICQ
+            continue
+        st, Ak, bk, Kc, kc, moves, used_lp, swaps = evaluate(
+            acts[c, : sizes[c]].copy(),
+            G,
+            M,
+            Dfull,
+            negZ0,
+            Hinv_Gt,
+            H,
+            rhs_z,
+            wS,
+            At,
+            bt,
+            box_c,
+            box_h,
+            scale,
+            region_tol,
+            nonempty_tol,
+            ill_conditioned,
+            maxit,
+        )
+        status[c] = st
+        lp[c] = used_lp
+        if st == FULL:
+            nk = Ak.shape[0]
+            Ab[r0 : r0 + nk] = Ak
+            bb[r0 : r0 + nk] = bk
+            rows_off[c + 1] = r0 + nk
+            K[c] = Kc
+            k[c] = kc
+        nm = moves.size
+        mv[q0 : q0 + nm] = moves
+        moves_off[c + 1] = q0 + nm
+        ns = swaps.shape[0]
+        sw[s0 : s0 + ns] = swaps
+        swaps_off[c + 1] = s0 + ns
+    R = rows_off[B]
+    return (
+        status,
+        lp,
+        acts,
+        sizes,
+        rows_off,
+        Ab[:R].copy(),
+        bb[:R].copy(),
+        K,
+        k,
+        mv[: moves_off[B]].copy(),
+        moves_off,
+        sw[: swaps_off[B]].copy(),
+        swaps_off,
+    )

@@ -13,7 +13,7 @@ import codev_engine as ce
 from codev_engine import mpqp, mpqp_graph, mpqp_jit
 
 
-def _reference_visit(explored: set, stack: list, act, status, moves, nz, opposite):
+def _reference_visit(explored: set, stack: list, act, status, moves, swaps, nz, opposite):
     """explore_active_sets' visit rules, on Python tuples (the specification)."""
 
     def push(new):
@@ -38,6 +38,9 @@ def _reference_visit(explored: set, stack: list, act, status, moves, nz, opposit
     for v in moves:
         if v < 0 and -v - 1 not in blocked:
             push(tuple(sorted(act + (-v - 1,))))
+    for i, j in swaps:
+        if i not in blocked:
+            push(tuple(sorted(set(act) - {j} | {i})))
 
 
 @pytest.mark.parametrize("m", [10, 64, 130])
@@ -56,26 +59,32 @@ def test_bitmask_walk_matches_the_python_rules(m):
     graph.seed(explored, stack)
     for _ in range(30):
         keys = graph.pop(7)
-        acts, sizes = mpqp_graph.decode(keys, nz + 2)
+        acts, sizes = mpqp_jit.decode(keys, nz + 2)
         batch = [tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)]
         assert [stack.pop() for _ in batch][::-1] == batch
         status = rng.integers(0, 5, size=len(batch))
-        moves, off = [], [0]
+        moves, off, swaps, soff = [], [0], [], [0]
         for act in batch:
             mv = [i + 1 for i in act if rng.random() < 0.5]
             mv += [-(i + 1) for i in rng.choice(m, size=3, replace=False) if i not in act]
             moves += mv
             off.append(len(moves))
-        for act, st, a, b in zip(batch, status, off[:-1], off[1:], strict=True):
-            _reference_visit(explored, stack, act, st, moves[a:b], nz, opposite)
+            out = [int(i) for i in rng.choice(m, size=2, replace=False) if i not in act]
+            swaps += [(i, j) for i in out for j in act if rng.random() < 0.5]
+            soff.append(len(swaps))
+        for c, (act, st) in enumerate(zip(batch, status, strict=True)):
+            _reference_visit(explored, stack, act, st, moves[off[c]:off[c + 1]],
+                             swaps[soff[c]:soff[c + 1]], nz, opposite)
         graph.visit(keys, status.astype(np.int64), np.array(moves, dtype=np.int64),
-                    np.array(off, dtype=np.int64))
+                    np.array(off, dtype=np.int64),
+                    np.array(swaps, dtype=np.int64).reshape(-1, 2),
+                    np.array(soff, dtype=np.int64))
         assert graph.explored == len(explored)
         assert len(graph) == len(stack)
         if not stack:
             break
     rest = graph.pop(len(graph))
-    acts, sizes = mpqp_graph.decode(rest, nz + 2)
+    acts, sizes = mpqp_jit.decode(rest, nz + 2)
     assert sorted(tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)) == sorted(stack)
 
 
@@ -141,7 +150,7 @@ def test_candidates_handed_back_to_numpy_change_nothing(monkeypatch):
     """The compiled kernel hands back what it cannot conclude on (FALLBACK); forced here on
     every third candidate, the numpy kernel takes them and the walk goes on the same."""
     ref = _solve(monkeypatch, jit_after=0)
-    batch = mpqp_graph.evaluate_batch
+    batch = mpqp_jit.evaluate_batch
     handed = []
 
     def some_back(keys, *args):
@@ -151,7 +160,7 @@ def test_candidates_handed_back_to_numpy_change_nothing(monkeypatch):
         handed.append(int(np.count_nonzero(status == mpqp_jit.FALLBACK)))
         return (status, *out[1:])
 
-    monkeypatch.setattr(mpqp_graph, "evaluate_batch", some_back)
+    monkeypatch.setattr(mpqp_jit, "evaluate_batch", some_back)
     got = _solve(monkeypatch, jit_after=0)
     assert sum(handed) > 100
     assert [r.active for r in ref.regions] == [r.active for r in got.regions]
