@@ -606,7 +606,18 @@ def evaluate(
     bound = 0.0
     for t in range(d):
         bound = max(bound, abs(box_c[t]) + box_h[t])
-    status, centre, rho, upper = _chebyshev(Ar, br, box_c, bound, maxit)
+    # rows that hold on the whole box of the parameter set are implied by its rows: every
+    # ball inside the parameter set is inside them, and any upper bound of the radius
+    # without them holds with them
+    maybe = np.zeros(nr, dtype=np.bool_)
+    for i in range(nr):
+        reach = 0.0
+        for t in range(d):
+            reach += Ar[i, t] * box_c[t] + abs(Ar[i, t]) * box_h[t]
+        maybe[i] = reach > br[i] - 1e-9 * scale or src[i] == 0
+    Am = Ar[maybe]
+    bm = br[maybe]
+    status, centre, rho, upper = _chebyshev(Am, bm, box_c, bound, maxit)
     if status != _OPTIMAL:
         return FALLBACK, e2, e1, ez, ek, em, True, es
     # the radius the centre really has (the LP's steps drift off their rows by rounding):
@@ -634,15 +645,6 @@ def evaluate(
         return LOWER, e2, e1, ez, ek, src[tight], True, es
     if true_rho <= region_tol or rho < -nonempty_tol:
         return FALLBACK, e2, e1, ez, ek, em, True, es
-    # rows that hold on the whole box of the parameter set are implied by its rows
-    maybe = np.zeros(nr, dtype=np.bool_)
-    for i in range(nr):
-        reach = 0.0
-        for t in range(d):
-            reach += Ar[i, t] * box_c[t] + abs(Ar[i, t]) * box_h[t]
-        maybe[i] = reach > br[i] - 1e-9 * scale or src[i] == 0
-    Am = Ar[maybe]
-    bm = br[maybe]
     sm = src[maybe]
     fixed = sm == 0
     kept = _certified_keep(Am, bm, fixed, centre, bound, maxit)
