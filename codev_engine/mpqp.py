@@ -611,9 +611,11 @@ def _merge_equal_laws(
 
     if not regions:
         return regions
-    laws = np.concatenate(
-        [np.stack([r.K for r in regions]), np.stack([r.k for r in regions])[:, :, None]], axis=2
-    ).reshape(len(regions), -1)
+    n, (nz, d) = len(regions), regions[0].K.shape
+    # (concatenating 2-D arrays: np.stack checks each of a million arrays in Python)
+    K = np.concatenate([r.K for r in regions]).reshape(n, nz, d)
+    k = np.concatenate([r.k for r in regions]).reshape(n, nz, 1)
+    laws = np.concatenate([K, k], axis=2).reshape(n, -1)
     laws = np.round(laws / (1e-7 * max(scale, 1.0)), 0) + 0.0  # (-0.0 made +0.0)
     if unique_rows(laws, 0).size == len(regions):
         return regions
