@@ -42,7 +42,7 @@ from .polytope import (
 __all__ = ["explore_active_sets"]
 
 
-#: regions found before the search forks worker processes (small problems stay serial:
+#: regions found before the search goes parallel (small problems stay serial:
 #: forking costs ~20 ms)
 PARALLEL_AFTER = 400
 #: regions found before candidates go to the compiled kernel (mpqp_jit; importing numba
@@ -366,9 +366,10 @@ def explore_active_sets(
     theta_box : ((d,), (d,)) ndarrays, optional
         The parameter set's bounding box (lo, hi), if the caller has it already.
     workers : int, optional
-        Processes evaluating candidates once more than ``PARALLEL_AFTER`` regions are
-        found (default: the CPUs this process may use; 1 = serial). The graph is the same
-        whatever the order of evaluation, so the result is too.
+        Threads (compiled kernel) or forked processes (numpy kernels) evaluating
+        candidates once more than ``PARALLEL_AFTER`` regions are found (default: the CPUs
+        this process may use; 1 = serial). The graph is the same whatever the order of
+        evaluation, so the result is too.
     semidefinite : bool
         H is only positive semi-definite (singular): the optimizer is selected
         lexicographically (see ``_KernelSemidefinite``); the caller has checked that the
@@ -579,7 +580,8 @@ class _CompiledWalk:
 
 
 def _start_pool(kernel: _Kernel, nworkers: int):
-    """A pool of forked workers sharing ``kernel`` (None where fork is unavailable)."""
+    """A pool of workers sharing ``kernel``: threads once the compiled kernel runs, forked
+    processes otherwise (None where fork is unavailable)."""
     global _KERNEL
     import multiprocessing as mp
 
