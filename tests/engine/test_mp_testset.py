@@ -68,67 +68,48 @@ FEAS_TOL = 1e-6
 STRICT = 1e-7
 ARTIFICIAL = 1e6  # |normalised rhs| of the source's "no bound" rows (POP: 1e7)
 
-# Measured (engine of 2026-11-22 on the shared 2-core machine, load ~4): the solve took
-# more than ~0.5 s or gave no answer within 60 s (before the active-set explorer).
+# Measured (benchmarks/mp.py --jobs 1 --timeout 60, engine of 2026-11-22 evening, 2-core
+# machine, load ~1.5): no answer within 60 s, or a solve over 0.5 s, or more than 10,000
+# regions to check.
 SLOW: frozenset[str] = frozenset(
     {
         # no answer within 60 s
-        "mpt3_mpqp_03_dat",
-        "mpt3_plcp_test12",
-        "pop_mpqp_002",
-        "pop_mpqp_005",
-        "pop_mpqp_019",
         "pop_mpqp_024",
-        "pop_mpqp_028",
-        "pop_mpqp_032",
         "pop_mpqp_033",
         "pop_mpqp_036",
-        "pop_mpqp_047",
         "pop_mpqp_051",
-        "pop_mpqp_088",
-        "pop_mpqp_091",
         "pop_mpqp_095",
-        # solved in 10-60 s (seconds of the solve alone)
-        "mpt3_enumplcp_01",  # 26
-        "pop_mpqp_001",  # 45
-        "pop_mpqp_006",  # 20
-        "pop_mpqp_007",  # 28
-        "pop_mpqp_008",  # 16
-        "pop_mpqp_018",  # 55
-        "pop_mpqp_037",  # 16
-        "pop_mpqp_049",  # 22
-        "pop_mpqp_061",  # 39 (and ~100 s to check 33k regions)
-        "pop_mpqp_062",  # 43
-        "pop_mpqp_076",  # 16
-        "pop_mpqp_083",  # 10
-        "pop_mpqp_097",  # 28
-        # solved in 0.5-10 s: kept out of the default run so CI stays short
-        "mpt3_plcp_03",
-        "pop_mpqp_011",
-        "pop_mpqp_012",
-        "pop_mpqp_013",
-        "pop_mpqp_016",
-        "pop_mpqp_017",
-        "pop_mpqp_021",
-        "pop_mpqp_023",
-        "pop_mpqp_025",
-        "pop_mpqp_027",
-        "pop_mpqp_040",
-        "pop_mpqp_041",
-        "pop_mpqp_043",
-        "pop_mpqp_053",
-        "pop_mpqp_060",
-        "pop_mpqp_065",
-        "pop_mpqp_070",
-        "pop_mpqp_077",
-        "pop_mpqp_078",
-        "pop_mpqp_080",
-        "pop_mpqp_084",
-        "pop_mpqp_086",
-        "pop_mpqp_087",
-        "pop_mpqp_090",
-        "pop_mpqp_096",
-        "pop_mpqp_098",
+        # seconds of the solve, regions
+        "mpt3_mpqp_04_dat",  # 0.8 s, 195
+        "mpt3_plcp_test12",  # 2.7 s, 675
+        "pop_mpqp_001",  # 0.7 s, 3523
+        "pop_mpqp_002",  # 41.9 s, 320259
+        "pop_mpqp_005",  # 2.3 s, 10288
+        "pop_mpqp_006",  # 0.6 s, 2375
+        "pop_mpqp_007",  # 3.0 s, 12223
+        "pop_mpqp_008",  # 1.8 s, 21290
+        "pop_mpqp_017",  # 0.7 s, 4129
+        "pop_mpqp_018",  # 2.2 s, 20789
+        "pop_mpqp_019",  # 1.3 s, 6854
+        "pop_mpqp_023",  # 0.6 s, 4728
+        "pop_mpqp_025",  # 0.8 s, 5440
+        "pop_mpqp_027",  # 0.6 s, 1472
+        "pop_mpqp_028",  # 13.5 s, 81962
+        "pop_mpqp_032",  # 40.6 s, 178799
+        "pop_mpqp_037",  # 1.9 s, 18613
+        "pop_mpqp_040",  # 0.6 s, 2005
+        "pop_mpqp_047",  # 10.8 s, 47900
+        "pop_mpqp_049",  # 1.2 s, 9339
+        "pop_mpqp_060",  # 0.6 s, 2626
+        "pop_mpqp_061",  # 3.7 s, 33548
+        "pop_mpqp_062",  # 3.2 s, 31714
+        "pop_mpqp_076",  # 1.9 s, 15006
+        "pop_mpqp_083",  # 1.3 s, 13265
+        "pop_mpqp_086",  # 1.0 s, 3625
+        "pop_mpqp_088",  # 6.6 s, 62283
+        "pop_mpqp_090",  # 0.5 s, 438
+        "pop_mpqp_091",  # 20.2 s, 144900
+        "pop_mpqp_097",  # 4.0 s, 20557
     }
 )
 
