@@ -269,9 +269,10 @@ def unique_rows(M: np.ndarray, decimals: int) -> np.ndarray:
     R = _rounded(M, decimals)
     h = row_hashes(R)
     order = np.argsort(h, kind="stable")
-    hs, Rs = h[order], R[order]
+    hs = h[order]
     same_h = hs[1:] == hs[:-1]
-    if np.any(same_h & np.any(Rs[1:] != Rs[:-1], axis=1)):  # a collision (or NaN)
+    i = np.flatnonzero(same_h)  # rows equal to the one before them, if the hash tells true
+    if np.any(R[order[i]] != R[order[i + 1]]):  # a collision (or NaN)
         _, first = np.unique(row_keys(M, decimals), return_index=True)
         return np.sort(first)
     return np.sort(order[np.concatenate([[True], ~same_h])])

@@ -201,3 +201,14 @@ def test_row_hashing_agrees_with_exact_comparison(seed):
     negs = set(_keys(-M))
     want = [i in seen.values() and seen[k] == i and k not in negs for i, k in enumerate(keys)]
     assert got.tolist() == want
+
+
+def test_row_hash_collisions_fall_back_to_exact_comparison(monkeypatch):
+    """Every row hashed alike: unique_rows and rows_in must notice and still be exact."""
+    M = _rows_with_twins(0)
+    want_first = ce.polytope.unique_rows(M, 7)
+    Q = np.vstack([M[:50], M[:50] + 1e-3])
+    want_in = ce.polytope.rows_in(Q, -M, 7)
+    monkeypatch.setattr(ce.polytope, "row_hashes", lambda R: np.zeros(R.shape[0], np.uint64))
+    np.testing.assert_array_equal(ce.polytope.unique_rows(M, 7), want_first)
+    np.testing.assert_array_equal(ce.polytope.rows_in(Q, -M, 7), want_in)
