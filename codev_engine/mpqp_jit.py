@@ -804,24 +804,8 @@ def decode(keys, width):
 
 @njit(cache=True, nogil=True)
 def evaluate_batch(
-    keys,
-    G,
-    M,
-    Dfull,
-    negZ0,
-    Hinv_Gt,
-    H,
-    rhs_z,
-    wS,
-    At,
-    bt,
-    box_c,
-    box_h,
-    scale,
-    region_tol,
-    nonempty_tol,
-    ill_conditioned,
-    maxit,
+    keys, G, M, Dfull, negZ0, Hinv_Gt, H, rhs_z, wS, At, bt, box_c, box_h, scale, region_tol,
+    nonempty_tol, ill_conditioned, maxit,
 ):
     """``mpqp_jit.evaluate`` on each candidate of ``keys`` (B, W), in one call.
 
@@ -866,24 +850,8 @@ def evaluate_batch(
             status[c] = LICQ
             continue
         st, Ak, bk, Kc, kc, moves, used_lp, swaps = evaluate(
-            acts[c, : sizes[c]].copy(),
-            G,
-            M,
-            Dfull,
-            negZ0,
-            Hinv_Gt,
-            H,
-            rhs_z,
-            wS,
-            At,
-            bt,
-            box_c,
-            box_h,
-            scale,
-            region_tol,
-            nonempty_tol,
-            ill_conditioned,
-            maxit,
+            acts[c, : sizes[c]].copy(), G, M, Dfull, negZ0, Hinv_Gt, H, rhs_z, wS, At, bt,
+            box_c, box_h, scale, region_tol, nonempty_tol, ill_conditioned, maxit,
         )
         status[c] = st
         lp[c] = used_lp
