@@ -162,6 +162,7 @@ class Plot(Static):
         super().__init__(placeholder, **kwargs)
         self._draw: Callable[[int, int], Text] | None = None
         self._placeholder = placeholder
+        self._drawn = 0  # the latest picture asked for (see _show)
 
     def set_draw(self, draw: Callable[[int, int], Text] | None, placeholder: str = "") -> None:
         self._draw = draw
@@ -178,13 +179,23 @@ class Plot(Static):
         w, h = self.content_size.width, self.content_size.height
         if w < 12 or h < 4 or self._draw is None:
             return
-        self._render_in_thread(self._draw, w, h)
+        self._drawn += 1
+        self._render_in_thread(self._draw, w, h, self._drawn)
 
     @work(thread=True, exclusive=True, group="plot")
-    def _render_in_thread(self, draw: Callable[[int, int], Text], w: int, h: int) -> None:
+    def _render_in_thread(
+        self, draw: Callable[[int, int], Text], w: int, h: int, request: int
+    ) -> None:
         # leave room for the axes (margin ~7 cells, two caption lines)
         try:
             text = draw(max(w - 8, 4), max(h - 3, 2))
         except Exception as exc:  # a picture must never take the app down
             text = Text(f"(cannot draw: {type(exc).__name__}: {exc})", style="red")
-        self.app.call_from_thread(self.update, text)
+        self.app.call_from_thread(self._show, request, text)
+
+    def _show(self, request: int, text: Text) -> None:
+        # a thread cannot be stopped: a picture for an older size or drawing may finish
+        # after the latest one, and must not replace it (seen as a plot one row short
+        # after the last resize)
+        if request == self._drawn:
+            self.update(text)

@@ -275,3 +275,39 @@ def test_tui_without_a_terminal_is_a_clear_error(tmp_path):
     assert proc.returncode == 2
     assert "needs a terminal" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "s").exists()
+
+
+def test_a_late_picture_does_not_replace_the_latest():
+    """Plots draw in threads that cannot be stopped: a picture asked for earlier (an older
+    size, an older drawing) that finishes last must not stay up."""
+    import threading
+
+    from rich.text import Text
+    from textual.app import App
+
+    from workbench.widgets import Plot
+
+    class One(App):
+        def compose(self):
+            yield Plot(id="plot")
+
+    release = threading.Event()
+
+    def old(w, h):
+        release.wait(10)
+        return Text("old picture")
+
+    async def scenario():
+        app = One()
+        async with app.run_test(size=(60, 20)) as pilot:
+            plot = app.query_one(Plot)
+            await pilot.pause(0.05)
+            plot.set_draw(old)
+            await pilot.pause(0.05)
+            plot.set_draw(lambda w, h: Text("new picture"))
+            await pilot.pause(0.3)
+            release.set()  # the old one finishes now, after the new one
+            await pilot.pause(0.3)
+            assert str(plot.render()) == "new picture"
+
+    run(scenario())
