@@ -135,12 +135,9 @@ class _Kernel:
                 if swaps.size:  # this walk takes the plain moves (see mpqp_jit._swaps)
                     moves = np.union1d(moves, -(swaps[:, 0] + 1))
                 return "full", (Ak, bk), (K, k), moves, lp
-            if status == jit.LICQ:
-                return "licq", None, None, None, lp
-            if status == jit.EMPTY:
-                return "empty", None, None, None, lp
-            if status == jit.LOWER:
-                return "lower", None, None, moves, lp
+            if status != jit.FALLBACK:
+                neighbours = moves if status == jit.LOWER else None
+                return jit.STATUS_NAMES[status], None, None, neighbours, lp
         return self.evaluate_numpy(act)
 
     def evaluate_numpy(self, act: tuple[int, ...]):
@@ -493,9 +490,6 @@ def explore_active_sets(
     return _merge_equal_laws(regions, scale, stats)
 
 
-_STATUS = {"licq": 0, "empty": 1, "lower": 2, "full": 3}  # mpqp_jit's codes
-
-
 class _CompiledWalk:
     """The rest of the search once the compiled kernel runs: the explored active sets and
     the stack as bitmasks (``mpqp_graph``), candidates evaluated in batches by compiled
@@ -516,6 +510,7 @@ class _CompiledWalk:
         self.kernel, self.regions, self.stats = kernel, regions, stats
         self.jit = mpqp_jit
         self.evaluate_batch = mpqp_jit.evaluate_batch
+        self.codes = {name: code for code, name in mpqp_jit.STATUS_NAMES.items()}
         m = kernel.m
         opp = np.zeros((m, m), dtype=bool)
         for i, js in opposite.items():
@@ -572,10 +567,10 @@ class _CompiledWalk:
                     CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1], active=act)
                 )
             mv = np.zeros(0, dtype=np.int64) if mv is None else np.asarray(mv, dtype=np.int64)
-            none = np.zeros(2, dtype=np.int64)
+            no_swaps = np.zeros((0, 2), dtype=np.int64)
             self.graph.visit(
-                keys[c : c + 1], np.array([_STATUS[st]]), mv, np.array([0, mv.size]),
-                np.zeros((0, 2), dtype=np.int64), none,
+                keys[c : c + 1], np.array([self.codes[st]]), mv, np.array([0, mv.size]),
+                no_swaps, np.zeros(2, dtype=np.int64),
             )
 
 

@@ -295,32 +295,32 @@ def unpaired_rows(A, b, decimals):
     cap = 1
     while cap < 2 * n:
         cap *= 2
-    slots = np.full(cap, -1, dtype=np.int64)
+    slots = np.full(cap, -1, dtype=np.int64)  # row indices, -1: free
     first = np.zeros(n, dtype=np.bool_)
     for i in range(n):
-        j = np.int64(h[i] & np.uint64(cap - 1))
-        while slots[j] >= 0:
-            s = slots[j]
-            if h[s] == h[i] and _rows_equal(R, s, i, 1.0):
-                break
-            j = (j + 1) & (cap - 1)
+        j = _probe(slots, R, h, h[i], i, 1.0)
         if slots[j] < 0:
             slots[j] = i
             first[i] = True
     out = np.zeros(n, dtype=np.bool_)
     for i in range(n):
-        if not first[i]:
-            continue
-        j = np.int64(h_neg[i] & np.uint64(cap - 1))
-        paired = False
-        while slots[j] >= 0:
-            s = slots[j]
-            if h[s] == h_neg[i] and _rows_equal(R, s, i, -1.0):
-                paired = True
-                break
-            j = (j + 1) & (cap - 1)
-        out[i] = not paired
+        if first[i]:
+            out[i] = slots[_probe(slots, R, h, h_neg[i], i, -1.0)] < 0
     return out
+
+
+@njit(cache=True)
+def _probe(slots, R, h, hq, i, sign):
+    """The slot of the table ``slots`` (row indices into ``R``, hashes ``h``) holding the
+    row ``sign * R[i]`` (hash ``hq``), or the free slot where it would go."""
+    mask = slots.size - 1
+    j = np.int64(hq & np.uint64(mask))
+    while slots[j] >= 0:
+        s = slots[j]
+        if h[s] == hq and _rows_equal(R, s, i, sign):
+            return j
+        j = (j + 1) & mask
+    return j
 
 
 @njit(cache=True)

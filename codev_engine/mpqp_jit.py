@@ -32,6 +32,8 @@ from numba import njit
 
 #: statuses returned by ``evaluate``
 LICQ, EMPTY, LOWER, FULL, FALLBACK = 0, 1, 2, 3, 4
+#: their names in ``mpqp._Kernel.evaluate_numpy`` (FALLBACK: it has none, it concludes)
+STATUS_NAMES = {LICQ: "licq", EMPTY: "empty", LOWER: "lower", FULL: "full"}
 
 #: LP outcomes
 _OPTIMAL, _UNBOUNDED, _FAILED, _EXCEEDS = 0, 1, 2, 3
@@ -439,15 +441,20 @@ def _mark_simple_vertex(A, b, kept, x, basis, facet):
 
 
 @njit(cache=True)
+def _project(Q, nq, a, out):
+    """``out[:nq] = Q[:nq] a``: the coordinates of ``a`` on orthonormal rows."""
+    for i in range(nq):
+        s = 0.0
+        for t in range(a.size):
+            s += Q[i, t] * a[t]
+        out[i] = s
+
+
+@njit(cache=True)
 def _basis_proves(A, b, B, nb, Q, R, j, bound, beta, y):
     """Whether the rows ``A[B[:nb]] = R Q`` prove ``a_j x <= beta`` with y from
     ``R' y = Q a_j``; ``y`` (>= nb,) is work space."""
-    d = A.shape[1]
-    for i in range(nb):
-        s = 0.0
-        for t in range(d):
-            s += Q[i, t] * A[j, t]
-        y[i] = s
+    _project(Q, nb, A[j], y)
     _solve_rt(R, y, nb, y)  # in place: each entry is read before it is written
     return _proves(A, b, B, nb, y, j, bound, beta)
 
@@ -653,10 +660,11 @@ def evaluate(
     # the neighbours: constraints of the kept rows, and of rows on their hyperplanes
     # (several constraints changing on one hyperplane: a degenerate facet)
     on = np.zeros(nr, dtype=np.bool_)
+    on_plane = np.zeros(Ak.shape[0], dtype=np.int64)  # rows on each kept row's hyperplane
     for j in range(Ak.shape[0]):
         tol = 1e-9 * (1.0 + abs(bk[j]))
         for i in range(nr):
-            if on[i] or abs(br[i] - bk[j]) > tol:
+            if abs(br[i] - bk[j]) > tol:
                 continue
             same = True
             for t in range(d):
@@ -665,10 +673,11 @@ def evaluate(
                     break
             if same:
                 on[i] = True
+                on_plane[j] += 1
     moves = np.unique(src[on])
     swaps = es
-    if not vanished:
-        moves, swaps = _swaps(moves, Ar, br, src, Ak, bk, sm[kept], G, act, Qb, Rb)
+    if not vanished and na:
+        moves, swaps = _swaps(moves, on_plane == 1, sm[kept], G, act, Qb, Rb)
     # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
     if augmented:
         return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True, swaps
@@ -682,12 +691,12 @@ def evaluate(
 
 
 @njit(cache=True)
-def _swaps(moves, Ar, br, src, Ak, bk, src_kept, G, act, Q, R):
+def _swaps(moves, alone, src_kept, G, act, Q, R):
     """Facets across which a constraint enters an active set that it makes dependent:
     the constraints that may leave as it enters.
 
-    A facet of the region of ``A`` (rows ``Ak``, from ``src_kept``) where the slack of
-    constraint i vanishes, alone on its hyperplane, with ``g_i = sum_j c_j g_j`` over
+    A facet of the region of ``A`` (a kept row, from ``src_kept``) where the slack of
+    constraint i vanishes, alone on its hyperplane (``alone``), with ``g_i = sum_j c_j g_j`` over
     ``A`` (so ``A + i`` breaks LICQ, with the one dependency ``(-c, 1)``). At a point of
     the facet where every multiplier ``lambda_j`` of ``A`` is positive and no other
     constraint is tight (all of it but a lower-dimensional part, since no other row
@@ -707,39 +716,19 @@ def _swaps(moves, Ar, br, src, Ak, bk, src_kept, G, act, Q, R):
     swaps : (s, 2) int64
         Pairs (entering constraint, leaving constraint).
     """
-    na, nz = Q.shape
-    d = Ar.shape[1]
-    out = np.empty((Ak.shape[0] * max(na, 1), 2), dtype=np.int64)
+    na, nz = Q.shape  # (na >= 1)
+    out = np.empty((src_kept.size * na, 2), dtype=np.int64)
     ns = 0
     replaced = np.zeros(moves.size, dtype=np.bool_)
-    q = np.empty(max(na, 1))
-    c = np.empty(max(na, 1))
-    for r in range(Ak.shape[0]):
-        if src_kept[r] >= 0 or na == 0:
+    q = np.empty(na)
+    c = np.empty(na)
+    for r in range(src_kept.size):
+        if src_kept[r] >= 0 or not alone[r]:
             continue
         i = -src_kept[r] - 1
-        # alone on its hyperplane?
-        count = 0
-        tol = 1e-9 * (1.0 + abs(bk[r]))
-        for a in range(Ar.shape[0]):
-            if abs(br[a] - bk[r]) > tol:
-                continue
-            same = True
-            for t in range(d):
-                if abs(Ar[a, t] - Ak[r, t]) > tol:
-                    same = False
-                    break
-            if same:
-                count += 1
-        if count != 1:
-            continue
         # g_i in the span of G_A?  (rows unit norm: the residual of the projection)
+        _project(Q, na, G[i], q)
         res = 0.0
-        for l in range(na):
-            s = 0.0
-            for t in range(nz):
-                s += Q[l, t] * G[i, t]
-            q[l] = s
         for t in range(nz):
             v = G[i, t]
             for l in range(na):

@@ -282,13 +282,13 @@ def rows_in(Q: np.ndarray, M: np.ndarray, decimals: int) -> np.ndarray:
     """Whether each row of ``Q``, rounded to ``decimals``, is a row of ``M`` rounded -> (q,)
     bool. Hashes first, every hit confirmed row by row (a collision falls back to the
     exact byte comparison)."""
+    if M.shape[0] == 0:
+        return np.zeros(Q.shape[0], dtype=bool)
     RQ, RM = _rounded(Q, decimals), _rounded(M, decimals)
     hq, hm = row_hashes(RQ), row_hashes(RM)
     order = np.argsort(hm, kind="stable")
     hm = hm[order]
-    pos = np.minimum(np.searchsorted(hm, hq), max(hm.size - 1, 0))
-    if hm.size == 0:
-        return np.zeros(RQ.shape[0], dtype=bool)
+    pos = np.minimum(np.searchsorted(hm, hq), hm.size - 1)
     hit = hm[pos] == hq
     same = np.all(RM[order[pos[hit]]] == RQ[hit], axis=1)
     if not np.all(same):  # a collision: the hash's first row is another row

@@ -444,10 +444,10 @@ class CodevApp(App):
 
 
 def _lower_priority(niceness: int = 10) -> None:
-    """Give the calling worker thread (and the processes it forks: the mp-QP pool) a lower
-    CPU priority than the UI thread, so keys are answered at once even when the engine's
-    workers keep every core busy. Linux schedules threads as tasks, so this does not touch
-    the UI thread; elsewhere it is a no-op."""
+    """Give the calling worker thread (and the threads and processes it starts: the mp-QP
+    pool) a lower CPU priority than the UI thread, so keys are answered at once even when
+    the engine's workers keep every core busy. Linux schedules threads as tasks, so this
+    does not touch the UI thread; elsewhere it is a no-op."""
     try:
         tid = threading.get_native_id()
         os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
