@@ -473,11 +473,13 @@ def explore_active_sets(
                 act = stack.pop()
                 visit(act, kernel.evaluate(act))
         if compiled:
-            if pool is not None:  # pragma: no cover - the pool starts after the kernel
+            if pool is not None:  # (started first when PARALLEL_AFTER < JIT_AFTER)
                 pool.terminate()
-            pool = None
-            graph = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
-            pool = graph.run(nworkers, max_regions, progress)
+                pool.join()
+                pool = None
+            _CompiledWalk(kernel, opposite, explored, stack, regions, stats).run(
+                nworkers, max_regions, progress
+            )
     finally:
         if pool is not None:
             pool.terminate()
@@ -518,8 +520,8 @@ class _CompiledWalk:
         self.graph = mpqp_graph.ActiveSetGraph(m, kernel.nz, opp)
         self.graph.seed(explored, stack)
 
-    def run(self, nworkers: int, max_regions: int, progress):
-        """Walk until the stack is empty; returns the thread pool it started (or None)."""
+    def run(self, nworkers: int, max_regions: int, progress) -> None:
+        """Walk until the stack is empty (with a pool of ``nworkers - 1`` threads)."""
         graph, args = self.graph, self.kernel._jit_args
         pool = None
         inflight: deque = deque()  # (keys, AsyncResult), oldest first
@@ -544,7 +546,10 @@ class _CompiledWalk:
                     raise SolverError(f"more than {max_regions} regions")
         finally:
             self.stats["explored"] = graph.explored
-        return pool
+            if pool is not None:
+                pool.terminate()
+                pool.join()
+                self.stats["workers"] = nworkers
 
     def _take(self, keys: np.ndarray, result: tuple) -> None:
         """Record a batch's regions and push its neighbours; the candidates the compiled
