@@ -533,13 +533,13 @@ class _CompiledWalk:
                     pool = ThreadPool(nworkers - 1)  # this thread works too
                 while pool is not None and len(graph) > _CHUNK and len(inflight) < 2 * nworkers:
                     keys = graph.pop(_CHUNK)
-                    inflight.append((keys, pool.apply_async(self.evaluate_batch, (keys, *args))))
+                    inflight.append((keys, pool.apply_async(self.evaluate_batch, (keys, args))))
                 if inflight and (inflight[0][1].ready() or not len(graph)):
                     keys, pending = inflight.popleft()
                     self._take(keys, pending.get())
                 else:
                     keys = graph.pop(_CHUNK)
-                    self._take(keys, self.evaluate_batch(keys, *args))
+                    self._take(keys, self.evaluate_batch(keys, args))
                 if progress is not None:
                     progress(len(self.regions))
                 if len(self.regions) > max_regions:

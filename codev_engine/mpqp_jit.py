@@ -792,11 +792,8 @@ def decode(keys, width):
 
 
 @njit(cache=True, nogil=True)
-def evaluate_batch(
-    keys, G, M, Dfull, negZ0, Hinv_Gt, H, rhs_z, wS, At, bt, box_c, box_h, scale, region_tol,
-    nonempty_tol, ill_conditioned, maxit,
-):
-    """``mpqp_jit.evaluate`` on each candidate of ``keys`` (B, W), in one call.
+def evaluate_batch(keys, args):
+    """``evaluate(act, *args)`` on each candidate ``act`` of ``keys`` (B, W), in one call.
 
     Returns
     -------
@@ -812,6 +809,7 @@ def evaluate_batch(
     swaps, swaps_off : (s, 2), (B + 1,) int64
         Swaps (FULL), as in ``_visit``.
     """
+    G, At = args[0], args[8]  # (in the order of evaluate's parameters after act)
     m, nz = G.shape
     d = At.shape[1]
     B = keys.shape[0]
@@ -838,10 +836,7 @@ def evaluate_batch(
         if sizes[c] > nz:
             status[c] = LICQ
             continue
-        st, Ak, bk, Kc, kc, moves, used_lp, swaps = evaluate(
-            acts[c, : sizes[c]].copy(), G, M, Dfull, negZ0, Hinv_Gt, H, rhs_z, wS, At, bt,
-            box_c, box_h, scale, region_tol, nonempty_tol, ill_conditioned, maxit,
-        )
+        st, Ak, bk, Kc, kc, moves, used_lp, swaps = evaluate(acts[c, : sizes[c]].copy(), *args)
         status[c] = st
         lp[c] = used_lp
         if st == FULL:
