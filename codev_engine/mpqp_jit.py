@@ -153,15 +153,12 @@ def lp_max(c, A, b, use, x0, W0, nw0, stop_value, maxit):
             return _EXCEEDS, x, y, W, nw
         # p = c projected on the null space of the working rows (qc = Q c, kept for the
         # multipliers)
+        _project(Q, nw, c, qc)
         for t in range(n):
             p[t] = c[t]
         for i in range(nw):
-            s = 0.0
             for t in range(n):
-                s += Q[i, t] * c[t]
-            qc[i] = s
-            for t in range(n):
-                p[t] -= s * Q[i, t]
+                p[t] -= qc[i] * Q[i, t]
         pn = 0.0
         for t in range(n):
             pn += p[t] * p[t]
