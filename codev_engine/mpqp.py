@@ -50,6 +50,11 @@ PARALLEL_AFTER = 400
 JIT_AFTER = 200
 #: candidates handed to a worker per round trip
 _CHUNK = 64
+#: batches in flight in the compiled walk, whatever the number of workers: batches are
+#: popped and their results taken at fixed points of the walk, never "when ready", so its
+#: order, and with it the point each candidate's LP starts from, depends on neither timing
+#: nor the worker count (the partition is the same, bit for bit)
+_DEPTH = 4
 
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
@@ -128,8 +133,8 @@ class _Kernel:
         (it hands back the candidates it cannot conclude on)."""
         jit = self._jit
         if jit is not None:
-            status, Ak, bk, K, k, moves, lp, swaps = jit.evaluate(
-                np.array(act, dtype=np.int64), *self._jit_args
+            status, Ak, bk, K, k, moves, lp, swaps, _ = jit.evaluate(
+                np.array(act, dtype=np.int64), self.box[0], *self._jit_args
             )
             if status == jit.FULL:
                 if swaps.size:  # this walk takes the plain moves (see mpqp_jit._swaps)
@@ -517,29 +522,30 @@ class _CompiledWalk:
         opp = np.zeros((m, m), dtype=bool)
         for i, js in opposite.items():
             opp[i, list(js)] = True
-        self.graph = mpqp_graph.ActiveSetGraph(m, kernel.nz, opp)
+        self.graph = mpqp_graph.ActiveSetGraph(m, kernel.nz, opp, kernel.box[0])
         self.graph.seed(explored, stack)
 
     def run(self, nworkers: int, max_regions: int, progress) -> None:
-        """Walk until the stack is empty (with a pool of ``nworkers - 1`` threads)."""
+        """Walk until the stack is empty (with a pool of ``nworkers`` threads; this one
+        takes the results)."""
         graph, args = self.graph, self.kernel._jit_args
         pool = None
-        inflight: deque = deque()  # (keys, AsyncResult), oldest first
+        inflight: deque = deque()  # (keys, starts, AsyncResult or None), oldest first
         try:
             while len(graph) or inflight:
                 if pool is None and nworkers > 1 and len(self.regions) >= PARALLEL_AFTER:
                     from multiprocessing.pool import ThreadPool
 
-                    pool = ThreadPool(nworkers - 1)  # this thread works too
-                while pool is not None and len(graph) > _CHUNK and len(inflight) < 2 * nworkers:
-                    keys = graph.pop(_CHUNK)
-                    inflight.append((keys, pool.apply_async(self.evaluate_batch, (keys, args))))
-                if inflight and (inflight[0][1].ready() or not len(graph)):
-                    keys, pending = inflight.popleft()
-                    self._take(keys, pending.get())
-                else:
-                    keys = graph.pop(_CHUNK)
-                    self._take(keys, self.evaluate_batch(keys, args))
+                    pool = ThreadPool(nworkers)
+                while len(graph) and len(inflight) < _DEPTH:
+                    keys, starts = graph.pop(_CHUNK)
+                    job = None
+                    if pool is not None:
+                        job = pool.apply_async(self.evaluate_batch, (keys, starts, args))
+                    inflight.append((keys, starts, job))
+                keys, starts, job = inflight.popleft()
+                result = self.evaluate_batch(keys, starts, args) if job is None else job.get()
+                self._take(keys, result)
                 if progress is not None:
                     progress(len(self.regions))
                 if len(self.regions) > max_regions:
@@ -554,7 +560,8 @@ class _CompiledWalk:
     def _take(self, keys: np.ndarray, result: tuple) -> None:
         """Record a batch's regions and push its neighbours; the candidates the compiled
         kernel could not conclude on go to the numpy kernel, one by one."""
-        status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off, swaps, swaps_off = result
+        (status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off, swaps, swaps_off,
+         points) = result
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
@@ -562,7 +569,7 @@ class _CompiledWalk:
             r0, r1 = rows_off[c], rows_off[c + 1]
             act = tuple(acts[c, : sizes[c]].tolist())
             self.regions.append(CriticalRegion(A=A[r0:r1], b=b[r0:r1], K=K[c], k=k[c], active=act))
-        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off)
+        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off, points)
         for c in np.flatnonzero(status == jit.FALLBACK):
             act = tuple(acts[c, : sizes[c]].tolist())
             st, rows, law, mv, used_lp = self.kernel.evaluate_numpy(act)
@@ -575,7 +582,7 @@ class _CompiledWalk:
             no_swaps = np.zeros((0, 2), dtype=np.int64)
             self.graph.visit(
                 keys[c : c + 1], np.array([self.codes[st]]), mv, np.array([0, mv.size]),
-                no_swaps, np.zeros(2, dtype=np.int64),
+                no_swaps, np.zeros(2, dtype=np.int64), points[c : c + 1],
             )
 
 

@@ -70,27 +70,31 @@ def _rehash(table, used, size):
 
 
 @njit(cache=True)
-def _push_if_new(table, used, stack, meta, key):
+def _push_if_new(table, used, stack, points, meta, key, point):
     if _insert(table, used, key):
         meta[0] += 1  # explored
         top = meta[1]
         for t in range(key.size):
             stack[top, t] = key[t]
+        for t in range(point.size):
+            points[top, t] = point[t]
         meta[1] = top + 1
 
 
 @njit(cache=True)
 def _visit(
-    table, used, stack, meta, keys, status, moves, moves_off, swaps, swaps_off, nz, opposite
+    table, used, stack, points, meta, keys, status, moves, moves_off, swaps, swaps_off, nz,
+    opposite, found,
 ):
-    """Push the unexplored neighbours of a batch of evaluated candidates.
+    """Push the unexplored neighbours of a batch of evaluated candidates, each with the
+    point its candidate found (where the neighbour's LPs start).
 
     Parameters
     ----------
     table, used : (cap, W) uint64, (cap,) bool
         The explored active sets.
-    stack : (scap, W) uint64
-        The active sets still to evaluate, ``meta[1]`` of them.
+    stack, points : (scap, W) uint64, (scap, d)
+        The active sets still to evaluate, ``meta[1]`` of them, and their start points.
     meta : (2,) int64
         (explored count, stack top), updated.
     keys : (B, W) uint64
@@ -106,6 +110,8 @@ def _visit(
         Number of variables (an active set of more rows breaks LICQ).
     opposite : (m, W) uint64
         Bitmasks of the rows that cannot be active together with each row.
+    found : (B, d)
+        The candidates' points (``mpqp_jit.evaluate``'s last result).
     """
     W = keys.shape[1]
     new = np.empty(W, dtype=np.uint64)
@@ -130,7 +136,7 @@ def _visit(
                     w ^= low
                     new[:] = key
                     new[t] ^= low
-                    _push_if_new(table, used, stack, meta, new)
+                    _push_if_new(table, used, stack, points, meta, new, found[c])
             continue
         for q in range(moves_off[c], moves_off[c + 1]):
             v = moves[q]
@@ -138,7 +144,7 @@ def _visit(
                 i = v - 1
                 new[:] = key
                 new[i >> 6] &= ~(_ONE << np.uint64(i & 63))
-                _push_if_new(table, used, stack, meta, new)
+                _push_if_new(table, used, stack, points, meta, new, found[c])
         if size >= nz + 1:
             continue
         blocked[:] = key
@@ -155,7 +161,7 @@ def _visit(
                     continue
                 new[:] = key
                 new[i >> 6] |= bit
-                _push_if_new(table, used, stack, meta, new)
+                _push_if_new(table, used, stack, points, meta, new, found[c])
         for q in range(swaps_off[c], swaps_off[c + 1]):
             i, j = swaps[q, 0], swaps[q, 1]
             bit = _ONE << np.uint64(i & 63)
@@ -164,7 +170,7 @@ def _visit(
             new[:] = key
             new[i >> 6] |= bit
             new[j >> 6] &= ~(_ONE << np.uint64(j & 63))
-            _push_if_new(table, used, stack, meta, new)
+            _push_if_new(table, used, stack, points, meta, new, found[c])
 
 
 class ActiveSetGraph:
@@ -178,14 +184,19 @@ class ActiveSetGraph:
         Number of variables.
     opposite : (m, m) bool ndarray
         ``opposite[i, j]``: rows i and j cannot be active together.
+    start : (d,) ndarray, optional
+        The start point of the sets seeded (each set pushed later carries the point of
+        the candidate that pushed it).
     """
 
-    def __init__(self, m: int, nz: int, opposite: np.ndarray):
+    def __init__(self, m: int, nz: int, opposite: np.ndarray, start: np.ndarray | None = None):
         self.m, self.nz = m, nz
         self.W = (m + 63) // 64
+        self.start = np.zeros(1) if start is None else np.asarray(start, dtype=float)
         self.table = np.zeros((1 << 12, self.W), dtype=np.uint64)
         self.used = np.zeros(1 << 12, dtype=np.bool_)
         self.stack = np.zeros((1 << 10, self.W), dtype=np.uint64)
+        self.points = np.zeros((1 << 10, self.start.size))
         self.meta = np.zeros(2, dtype=np.int64)  # explored, stack top
         self.opposite = np.stack([self.key(np.flatnonzero(row)) for row in opposite])
 
@@ -220,6 +231,9 @@ class ActiveSetGraph:
             grown = np.zeros((size, self.W), dtype=np.uint64)
             grown[: self.meta[1]] = self.stack[: self.meta[1]]
             self.stack = grown
+            points = np.zeros((size, self.start.size))
+            points[: self.meta[1]] = self.points[: self.meta[1]]
+            self.points = points
 
     def seed(self, explored, stack) -> None:
         """Take over a search begun elsewhere: the active sets ``explored`` (an iterable
@@ -232,24 +246,31 @@ class ActiveSetGraph:
         self.meta[0] = len(explored)
         for i, act in enumerate(stack):
             self.stack[i] = self.key(act)
+            self.points[i] = self.start
         self.meta[1] = len(stack)
 
-    def pop(self, n: int) -> np.ndarray:
-        """The newest ``n`` (or fewer) active sets of the stack, as (b, W) bitmasks."""
+    def pop(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The newest ``n`` (or fewer) active sets of the stack, as (b, W) bitmasks, and
+        their start points (b, d)."""
         top = int(self.meta[1])
         b = min(n, top)
         keys = self.stack[top - b : top].copy()
+        points = self.points[top - b : top].copy()
         self.meta[1] = top - b
-        return keys
+        return keys, points
 
-    def visit(self, keys, status, moves, moves_off, swaps, swaps_off) -> None:
-        """Push the unexplored neighbours of evaluated candidates (see ``_visit``)."""
+    def visit(self, keys, status, moves, moves_off, swaps, swaps_off, found=None) -> None:
+        """Push the unexplored neighbours of evaluated candidates (see ``_visit``; without
+        ``found``, they carry the seeds' start point)."""
+        if found is None:
+            found = np.broadcast_to(self.start, (keys.shape[0], self.start.size)).copy()
         # a move per constraint at most, and nz swaps for each
         self.reserve(keys.shape[0] * (self.m + 1) * (self.nz + 1))
         _visit(
             self.table,
             self.used,
             self.stack,
+            self.points,
             self.meta,
             keys,
             status,
@@ -259,6 +280,7 @@ class ActiveSetGraph:
             swaps_off,
             self.nz,
             self.opposite,
+            np.ascontiguousarray(found, dtype=float),
         )
 
 

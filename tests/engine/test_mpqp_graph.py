@@ -52,16 +52,20 @@ def test_bitmask_walk_matches_the_python_rules(m):
     opposite = np.zeros((m, m), dtype=bool)
     for i in range(0, m - 1, 2):
         opposite[i, i + 1] = opposite[i + 1, i] = True
-    graph = mpqp_graph.ActiveSetGraph(m, nz, opposite)
+    start = np.array([1.0, -2.0, 3.0])
+    graph = mpqp_graph.ActiveSetGraph(m, nz, opposite, start)
     seed = [tuple(sorted(rng.choice(m, size=int(rng.integers(0, nz + 1)), replace=False)))
             for _ in range(5)]
     explored, stack = set(seed), list(dict.fromkeys(seed))
     graph.seed(explored, stack)
+    origin = dict.fromkeys(stack, tuple(start))  # the point each set is pushed with
     for _ in range(30):
-        keys = graph.pop(7)
+        keys, points = graph.pop(7)
         acts, sizes = mpqp_jit.decode(keys, nz + 2)
         batch = [tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)]
         assert [stack.pop() for _ in batch][::-1] == batch
+        assert [tuple(p) for p in points] == [origin[act] for act in batch]
+        found = rng.normal(size=(len(batch), 3))
         status = rng.integers(0, 5, size=len(batch))
         moves, off, swaps, soff = [], [0], [], [0]
         for act in batch:
@@ -73,17 +77,19 @@ def test_bitmask_walk_matches_the_python_rules(m):
             swaps += [(i, j) for i in out for j in act if rng.random() < 0.5]
             soff.append(len(swaps))
         for c, (act, st) in enumerate(zip(batch, status, strict=True)):
+            before = len(stack)
             _reference_visit(explored, stack, act, st, moves[off[c]:off[c + 1]],
                              swaps[soff[c]:soff[c + 1]], nz, opposite)
+            origin.update(dict.fromkeys(stack[before:], tuple(found[c])))
         graph.visit(keys, status.astype(np.int64), np.array(moves, dtype=np.int64),
                     np.array(off, dtype=np.int64),
                     np.array(swaps, dtype=np.int64).reshape(-1, 2),
-                    np.array(soff, dtype=np.int64))
+                    np.array(soff, dtype=np.int64), found)
         assert graph.explored == len(explored)
         assert len(graph) == len(stack)
         if not stack:
             break
-    rest = graph.pop(len(graph))
+    rest, _ = graph.pop(len(graph))
     acts, sizes = mpqp_jit.decode(rest, nz + 2)
     assert sorted(tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)) == sorted(stack)
 
@@ -144,6 +150,28 @@ def test_compiled_walk_in_threads_gives_the_serial_result(monkeypatch):
     assert threads.stats.get("workers") == 2
     assert threads.stats["explored"] == serial.stats["explored"]
     _same(serial, threads)
+
+
+def test_compiled_walk_batches_do_not_depend_on_timing_or_workers(monkeypatch):
+    """Each candidate's Chebyshev LP starts from the point of the region that pushed it, so
+    the walk's order must not depend on which thread finishes first: every batch, and every
+    start point in it, is the same serially and in threads."""
+    batch = mpqp_jit.evaluate_batch
+
+    def run(workers: int) -> list:
+        seen = []
+
+        def recording(keys, starts, args):
+            seen.append((keys.tobytes(), starts.tobytes()))
+            return batch(keys, starts, args)
+
+        monkeypatch.setattr(mpqp_jit, "evaluate_batch", recording)
+        _solve(monkeypatch, jit_after=0, workers=workers, parallel_after=1)
+        return sorted(seen)
+
+    serial = run(1)
+    assert len(serial) > 10
+    assert run(2) == serial
 
 
 def test_candidates_handed_back_to_numpy_change_nothing(monkeypatch):

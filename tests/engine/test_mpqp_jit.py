@@ -128,7 +128,7 @@ def test_compiled_and_numpy_kernels_agree_on_a_real_problem():
     assert sol.stats.get("jit") is True
     for reg in sol.regions:
         act = np.array(reg.active, dtype=np.int64)
-        got = mpqp_jit.evaluate(act, *kernel._jit_args)
+        got = mpqp_jit.evaluate(act, kernel.box[0], *kernel._jit_args)
         ref = kernel.evaluate_numpy(reg.active)
         assert ref[0] == "full" and got[0] == mpqp_jit.FULL
         np.testing.assert_allclose(got[3], ref[2][0], atol=1e-8)
