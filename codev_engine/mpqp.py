@@ -36,6 +36,7 @@ from .polytope import (
     certified_minimal_rows,
     chebyshev_ball,
     checked_minimal_rows,
+    radius_upper_bound,
     unique_rows,
 )
 
@@ -185,7 +186,7 @@ class _Kernel:
                 return "empty", None, None, None, False
         keep_nz = ~zero
         Ar, br, src = Ar[keep_nz] / norms[keep_nz, None], br[keep_nz] / norms[keep_nz], src[keep_nz]
-        centre, rho = chebyshev_ball(Ar, br)
+        centre, rho = self._chebyshev(Ar, br)
         if not rho >= -self.nonempty_tol:
             return "empty", None, None, None, True
         if not rho > self.region_tol:
@@ -225,6 +226,38 @@ class _Kernel:
             # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
             Z = self.negZ0 - self.Hinv_Gt[:, A] @ Lam
         return "full", (Ar[keep], br[keep]), (Z[:, 1:], Z[:, 0]), moves, True
+
+    def _chebyshev(self, Ar: np.ndarray, br: np.ndarray) -> tuple[np.ndarray, float]:
+        """Chebyshev ball of a candidate's rows (unit rows, parameter-set rows among them).
+
+        With a bounded parameter set the radius decides nothing unproved, as in the
+        compiled kernel: a region is full only with a centre whose slack in every row
+        exceeds the region tolerance, empty or lower-dimensional only with an upper bound
+        of the radius from the LP's multipliers (:func:`radius_upper_bound`). DAQP's ball
+        comes first; where it proves nothing, HiGHS's decides, with a full region's ball
+        checked the same way (else lower-dimensional). DAQP's proximal LP was seen 1e-5
+        off: it judged empty regions of ``pop_mpqp_001`` and ``pop_mpqp_084`` of radius
+        1e-5, and the partitions had holes there.
+        """
+        centre, rho, y = chebyshev_ball(Ar, br, multipliers=True)
+        if self.box is None or self._proved(Ar, br, centre, rho, y):
+            return centre, rho
+        centre, rho = chebyshev_ball(Ar, br, solver="highs")
+        if rho > self.region_tol:
+            slack = float(np.min(br - Ar @ centre))
+            if slack <= self.region_tol:  # no ball checked: lower-dimensional, not empty
+                rho = max(slack, -self.nonempty_tol)
+        return centre, rho
+
+    def _proved(self, Ar, br, centre, rho: float, y) -> bool:
+        """Whether the ball (centre, rho) from multipliers ``y`` proves its class."""
+        if rho > self.region_tol:
+            return float(np.min(br - Ar @ centre)) > self.region_tol
+        if y is None:
+            return False
+        need = self.region_tol if rho >= -self.nonempty_tol else -self.nonempty_tol
+        bound = float(np.max(np.abs(self.box[0]) + self.box[1]))
+        return radius_upper_bound(Ar, br, y, bound) <= need
 
     def _kkt(self, A: np.ndarray):
         """Multipliers and slacks of the active set ``A`` (LICQ holds), affine in theta.

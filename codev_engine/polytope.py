@@ -178,17 +178,30 @@ def chebyshev_ball(
     b: np.ndarray,
     Aeq: np.ndarray | None = None,
     beq: np.ndarray | None = None,
-) -> tuple[np.ndarray, float]:
+    *,
+    solver: str = "daqp",
+    multipliers: bool = False,
+):
     """Largest ball inside ``{A x <= b}`` (within the affine set ``Aeq x = beq``).
 
     With equalities the radius is measured inside the affine set: each row's norm is the
     norm of its component orthogonal to the equality rows.
+
+    Parameters
+    ----------
+    solver : {"daqp", "highs"}
+        DAQP (fast; its proximal LP can be off by ~1e-5 on badly scaled rows) or HiGHS.
+    multipliers : bool
+        Also return the LP's multipliers.
 
     Returns
     -------
     centre : (d,) ndarray
     radius : float
         Negative when the set is empty; capped at 1e6 for unbounded sets.
+    y : (k + 1,) ndarray or None
+        With ``multipliers``: the multipliers (>= 0) of the rows and of the radius cap
+        (last), or None when the solver gives none (see :func:`radius_upper_bound`).
     """
     d = A.shape[1]
     if Aeq is not None and Aeq.shape[0]:
@@ -210,10 +223,37 @@ def chebyshev_ball(
     f = np.zeros(d + 1)
     f[-1] = -1.0
     Aeq_b = None if Aeq is None else np.hstack([Aeq, np.zeros((Aeq.shape[0], 1))])
-    x, status, _ = solve_lp(f, Ab, bb, Aeq_b, beq)
+    if solver == "highs":
+        res = linprog(f, A_ub=Ab, b_ub=bb, A_eq=Aeq_b, b_eq=beq,
+                      bounds=[(None, None)] * (d + 1), method="highs")
+        ok = res.status == 0
+        x, status = (res.x if ok else None), ("optimal" if ok else "failed")
+        y = -np.asarray(res.ineqlin.marginals, dtype=float) if ok else None
+    else:
+        x, status, y = solve_lp(f, Ab, bb, Aeq_b, beq)
+        y = None if y is None else y[: k + 1]
     if status != "optimal" or x is None:
-        return np.full(d, np.nan), -np.inf
-    return x[:d], float(x[d])
+        out = np.full(d, np.nan), -np.inf
+    else:
+        out = x[:d], float(x[d])
+    return (*out, y) if multipliers else out
+
+
+def radius_upper_bound(A: np.ndarray, b: np.ndarray, y: np.ndarray, bound: float) -> float:
+    """An upper bound of the radius of every ball inside ``{A x <= b}`` (unit rows, among
+    them rows that keep the set within ``|x|_inf <= bound``), from any multipliers ``y``
+    (k + 1,) of :func:`chebyshev_ball`'s LP, however inaccurate: weak duality.
+
+    For (x, r) feasible and ``y >= 0`` (negative entries clipped), ``(A' y) x + s r <= b' y
+    + cap y_cap`` with ``s = sum(y)``, so ``r <= b' y + cap y_cap + |A' y|_1 |x|_inf +
+    |1 - s| |r|``. A ball of radius r >= -1 has its centre within bound + 1 of the origin
+    (the bounding rows are among A), charged as 2 bound + 1; |r| is charged at the cap.
+    """
+    y = np.maximum(np.asarray(y, dtype=float), 0.0)
+    yr, yc = y[:-1], y[-1]
+    val = float(b @ yr) + _RADIUS_CAP * yc
+    resid = float(np.abs(A.T @ yr).sum())
+    return val + resid * (2.0 * bound + 1.0) + abs(1.0 - float(yr.sum()) - yc) * _RADIUS_CAP
 
 
 def bounding_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -155,3 +155,40 @@ def test_numpy_path_and_compiled_path_give_the_same_partition():
         mp.undo()
     assert a.stats.get("jit") is True and "jit" not in b.stats
     assert sorted(r.active for r in a.regions) == sorted(r.active for r in b.regions)
+
+
+def test_numpy_kernel_keeps_regions_daqps_ball_misjudges():
+    """pop_mpqp_084's active set (0, 1, 3, 4, 8) has a region of radius 1.1e-5 (the compiled
+    kernel's centre has that slack in every row) that DAQP's Chebyshev LP puts at -2.8e-6:
+    the numpy kernel, which the walk uses before the compiled one starts and for what that
+    one hands back, dropped it and left a hole. It needs proofs now, as the compiled one."""
+    kernel, sol = _kernel_of("pop_mpqp_084")
+    act = (0, 1, 3, 4, 8)
+    status, rows, *_ = kernel.evaluate_numpy(act)
+    assert status == "full"
+    A, b = rows
+    assert ce.polytope.chebyshev_ball(A, b)[1] < 0  # (DAQP's answer, still wrong)
+    got = mpqp_jit.evaluate(np.array(act), kernel.box[0], *kernel._jit_args)
+    assert got[0] == mpqp_jit.FULL
+    assert np.min(got[2] - got[1] @ got[8]) > 1e-5
+    assert act in {r.active for r in sol.regions}
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_radius_upper_bound_holds_for_any_multipliers(seed):
+    """The bound is >= the largest radius (HiGHS) whatever the multipliers, and tight with
+    the LP's own; an empty polytope gets a negative bound."""
+    rng = np.random.default_rng(300 + seed)
+    d = int(rng.integers(2, 7))
+    A, b = _random_polytope(rng, int(rng.integers(5, 30)), d)
+    if seed % 2:  # empty: a row that cuts everything off
+        A = np.vstack([A, A[-1:], -A[-1:]])
+        b = np.concatenate([b, [-0.5], [-0.5]])
+    _, radius, y = ce.polytope.chebyshev_ball(A, b, solver="highs", multipliers=True)
+    bound = 3.0
+    assert ce.polytope.radius_upper_bound(A, b, y, bound) == pytest.approx(radius, abs=1e-7)
+    for _ in range(5):
+        noisy = y + rng.normal(scale=1e-3, size=y.size)
+        assert ce.polytope.radius_upper_bound(A, b, noisy, bound) >= radius - 1e-12
+    if seed % 2:
+        assert radius < 0 and ce.polytope.radius_upper_bound(A, b, y, bound) < 0
