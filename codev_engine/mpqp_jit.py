@@ -41,6 +41,8 @@ _OPTIMAL, _UNBOUNDED, _FAILED, _EXCEEDS = 0, 1, 2, 3
 _RADIUS_CAP = 1e6
 #: vertices kept for warm starts in ``_certified_keep``
 _WARM_STARTS = 16
+#: pivots without gain after which an LP gives up (cycling by rounding)
+_STALL = 200
 
 
 @njit(cache=True)
@@ -49,7 +51,9 @@ def _append_row(a, Q, R, nw):
     enough for orthogonality to rounding even for nearly dependent rows) and store it as
     ``Q[nw]``, with ``R[nw, :nw + 1]`` such that ``a = R[nw] Q``. Returns the norm left."""
     n = a.size
-    v = a.copy()
+    v = Q[nw]  # built in place (no allocation: this runs at every pivot)
+    for t in range(n):
+        v[t] = a[t]
     for i in range(nw):
         R[nw, i] = 0.0
     for _ in range(2):
@@ -66,7 +70,7 @@ def _append_row(a, Q, R, nw):
     nv = np.sqrt(nv)
     R[nw, nw] = nv
     for t in range(n):
-        Q[nw, t] = v[t] / nv if nv > 0.0 else 0.0
+        v[t] = v[t] / nv if nv > 0.0 else 0.0
     return nv
 
 
@@ -201,7 +205,10 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
             for i in range(drop, nw - 1):
                 W[i] = W[i + 1]
             nw -= 1
-            _orthonormal_rows(A, W, nw, Q, R)
+            # the rows before the one dropped keep their orthonormal rows (Gram-Schmidt
+            # takes the rows in order): only the later ones are redone
+            for i in range(drop, nw):
+                _append_row(A[W[i]], Q, R, i)
             continue
         # ratio test: the first row the step along p hits; among rows hit (nearly) at once
         # (a degenerate vertex) the one most across p, which keeps the working set well
@@ -223,16 +230,24 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
             return _UNBOUNDED, x, y, W, nw
         block = -1
         reach = alpha + 1e-12 * (1.0 + abs(alpha))
+        bland = degenerate > 2 * n
         for i in range(k):
-            if steps[i] <= reach and (block < 0 or slopes[i] > slopes[block]):
-                block = i
-        if alpha <= 0.0:
-            degenerate += 1
-        else:
-            degenerate = 0
+            if steps[i] <= reach and (
+                block < 0 or (slopes[i] > slopes[block] and not bland)
+            ):
+                block = i  # (Bland: the lowest index among the rows hit at once)
+        before = value
         for t in range(n):
             x[t] += alpha * p[t]
             value += alpha * c[t] * p[t]
+        # a step that gains nothing counts as degenerate (rounding leaves some slacks at
+        # 1e-18 instead of 0: steps of that size cycled for thousands of pivots on slivers)
+        if value - before <= 1e-14 * (1.0 + abs(value)):
+            degenerate += 1
+            if degenerate > _STALL:
+                return _FAILED, x, y, W, nw  # cycling all the same: no answer
+        else:
+            degenerate = 0
         for i in range(k):
             if use[i] and not inW[i]:
                 slack[i] -= alpha * slopes[i]
