@@ -55,7 +55,7 @@ _CHUNK = 64
 #: popped and their results taken at fixed points of the walk, never "when ready", so its
 #: order, and with it the point each candidate's LP starts from, depends on neither timing
 #: nor the worker count (the partition is the same, bit for bit)
-_DEPTH = 4
+_DEPTH = 8
 
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
@@ -654,11 +654,16 @@ def _merge_equal_laws(
     if not regions:
         return regions
     n, (nz, d) = len(regions), regions[0].K.shape
-    # (concatenating 2-D arrays: np.stack checks each of a million arrays in Python)
-    K = np.concatenate([r.K for r in regions]).reshape(n, nz, d)
-    k = np.concatenate([r.k for r in regions]).reshape(n, nz, 1)
-    laws = np.concatenate([K, k], axis=2).reshape(n, -1)
-    laws = np.round(laws / (1e-7 * max(scale, 1.0)), 0) + 0.0  # (-0.0 made +0.0)
+    # (filled row by row: concatenating half a million small arrays took 3x as long, and
+    # np.round 30x as long as np.rint, on pop_mpqp_024)
+    laws = np.empty((n, nz * (d + 1)))
+    view = laws.reshape(n, nz, d + 1)
+    for i, r in enumerate(regions):
+        view[i, :, :d] = r.K
+        view[i, :, d] = r.k
+    laws *= 1.0 / (1e-7 * max(scale, 1.0))
+    np.rint(laws, out=laws)
+    laws += 0.0  # (-0.0 made +0.0)
     if unique_rows(laws, 0).size == len(regions):
         return regions
     keys = [row.tobytes() for row in laws]
