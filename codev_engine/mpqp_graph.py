@@ -290,6 +290,10 @@ def unpaired_rows(A, b, decimals):
     row: the facets of a partition's regions that no neighbour shares. Rows are compared
     rounded to ``decimals``.
 
+    The rounded rows are not stored but made again where hashes match: on
+    ``pop_mpqp_024``'s 10M rows storing them cost more in fresh memory (~600 MB) than
+    the rounding does.
+
     Parameters
     ----------
     A : (n, d) ndarray
@@ -302,52 +306,60 @@ def unpaired_rows(A, b, decimals):
     """
     n, d = A.shape
     f = 10.0**decimals
-    R = np.empty((n, d + 1))
-    h = np.empty(n, dtype=np.uint64)
-    h_neg = np.empty(n, dtype=np.uint64)
     key = np.empty(d + 1)
+    h = np.empty(n, dtype=np.uint64)
     for i in range(n):
-        for t in range(d + 1):
-            v = A[i, t] if t < d else b[i]
-            R[i, t] = np.rint(v * f) / f + 0.0  # (-0.0 made +0.0)
-        h[i] = _hash(R[i].view(np.uint64))
-        for t in range(d + 1):
-            key[t] = -R[i, t] + 0.0
-        h_neg[i] = _hash(key.view(np.uint64))
+        h[i] = _rounded_hash(A, b, i, f, 1.0, key)
+    # (at most 80% full, and far less as a rule: each shared facet is one entry for two
+    # rows and the parameter set's rows one for all regions; int32 indices, as 2**31 rows
+    # would take 100 GB: a smaller table is one that stays in cache)
     cap = 1
-    while cap < 2 * n:
+    while 4 * cap < 5 * n:
         cap *= 2
-    slots = np.full(cap, -1, dtype=np.int64)  # row indices, -1: free
+    slots = np.full(cap, -1, dtype=np.int32)
     first = np.zeros(n, dtype=np.bool_)
     for i in range(n):
-        j = _probe(slots, R, h, h[i], i, 1.0)
+        _rounded_hash(A, b, i, f, 1.0, key)
+        j = _probe(slots, A, b, f, h, h[i], key)
         if slots[j] < 0:
             slots[j] = i
             first[i] = True
     out = np.zeros(n, dtype=np.bool_)
     for i in range(n):
         if first[i]:
-            out[i] = slots[_probe(slots, R, h, h_neg[i], i, -1.0)] < 0
+            hq = _rounded_hash(A, b, i, f, -1.0, key)
+            out[i] = slots[_probe(slots, A, b, f, h, hq, key)] < 0
     return out
 
 
 @njit(cache=True)
-def _probe(slots, R, h, hq, i, sign):
-    """The slot of the table ``slots`` (row indices into ``R``, hashes ``h``) holding the
-    row ``sign * R[i]`` (hash ``hq``), or the free slot where it would go."""
-    mask = slots.size - 1
-    j = np.int64(hq & np.uint64(mask))
-    while slots[j] >= 0:
-        s = slots[j]
-        if h[s] == hq and _rows_equal(R, s, i, sign):
-            return j
-        j = (j + 1) & mask
-    return j
+def _rounded_hash(A, b, i, f, sign, key):
+    """``key`` = ``sign`` times row i rounded (times ``f``, to integers, and back; -0.0
+    made +0.0), and its hash."""
+    d = A.shape[1]
+    for t in range(d + 1):
+        v = A[i, t] if t < d else b[i]
+        key[t] = sign * (np.rint(v * f) / f) + 0.0
+    return _hash(key.view(np.uint64))
 
 
 @njit(cache=True)
-def _rows_equal(R, s, i, sign):
-    for t in range(R.shape[1]):
-        if R[s, t] != sign * R[i, t]:
-            return False
-    return True
+def _probe(slots, A, b, f, h, hq, key):
+    """The slot of the table ``slots`` (row indices, their hashes ``h``) holding the
+    rounded row ``key`` (hash ``hq``), or the free slot where it would go."""
+    mask = slots.size - 1
+    j = np.int64(hq & np.uint64(mask))
+    d = A.shape[1]
+    while slots[j] >= 0:
+        s = slots[j]
+        if h[s] == hq:
+            same = True
+            for t in range(d + 1):
+                v = A[s, t] if t < d else b[s]
+                if np.rint(v * f) / f != key[t]:
+                    same = False
+                    break
+            if same:
+                return j
+        j = (j + 1) & mask
+    return j
