@@ -249,7 +249,10 @@ class _Kernel:
                 rho = max(slack, -self.nonempty_tol)
         return centre, rho
 
-    def _proved(self, Ar, br, centre, rho: float, y) -> bool:
+    def _proved(
+        self, Ar: np.ndarray, br: np.ndarray, centre: np.ndarray, rho: float,
+        y: np.ndarray | None,
+    ) -> bool:
         """Whether the ball (centre, rho) from multipliers ``y`` proves its class."""
         if rho > self.region_tol:
             return float(np.min(br - Ar @ centre)) > self.region_tol

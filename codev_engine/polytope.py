@@ -181,7 +181,7 @@ def chebyshev_ball(
     *,
     solver: str = "daqp",
     multipliers: bool = False,
-):
+) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray | None]:
     """Largest ball inside ``{A x <= b}`` (within the affine set ``Aeq x = beq``).
 
     With equalities the radius is measured inside the affine set: each row's norm is the
@@ -237,7 +237,10 @@ def chebyshev_ball(
     return (*out, y) if multipliers else out
 
 
-def _highs_lp(f, A, b, Aeq=None, beq=None):
+def _highs_lp(
+    f: np.ndarray, A: np.ndarray, b: np.ndarray, Aeq: np.ndarray | None = None,
+    beq: np.ndarray | None = None,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
     """``min f'x  s.t.  A x <= b, Aeq x = beq`` by HiGHS through highspy (scipy's
     ``linprog`` costs ~2 ms of checks around a 0.2 ms solve here): (x, y) with the
     multipliers y >= 0 of the rows (``A' y = -f`` on the inequality part), or (None, None)."""
