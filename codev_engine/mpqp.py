@@ -107,6 +107,10 @@ class _Kernel:
         self.region_tol = region_tol
         self.nonempty_tol = 1e-8 * scale
         self.box = _padded_box(*box)  # (centre, half-widths) or None
+        # max |theta_i| over the box: where certificates charge their residuals
+        self.bound = (
+            None if self.box is None else float(np.max(np.abs(self.box[0]) + self.box[1]))
+        )
         self._jit = None  # mpqp_jit once start_jit succeeded
 
     def start_jit(self) -> bool:
@@ -210,8 +214,7 @@ class _Kernel:
             # also seen dropping a parameter-set row that is not redundant (pop_mpqp_085: a
             # region reaching theta_2 = 106 in a box of +-10); those rows are few and cheap to
             # keep: every region stays inside the parameter set
-            bound = float(np.max(np.abs(self.box[0]) + self.box[1]))
-            keep = maybe[certified_minimal_rows(Ar[maybe], br[maybe], bound, fixed)]
+            keep = maybe[certified_minimal_rows(Ar[maybe], br[maybe], self.bound, fixed)]
         else:
             keep = maybe[checked_minimal_rows(Ar[maybe], br[maybe], centre, rho)]
             keep = np.union1d(keep, maybe[fixed])
@@ -259,8 +262,7 @@ class _Kernel:
         if y is None:
             return False
         need = self.region_tol if rho >= -self.nonempty_tol else -self.nonempty_tol
-        bound = float(np.max(np.abs(self.box[0]) + self.box[1]))
-        return radius_upper_bound(Ar, br, y, bound) <= need
+        return radius_upper_bound(Ar, br, y, self.bound) <= need
 
     def _kkt(self, A: np.ndarray):
         """Multipliers and slacks of the active set ``A`` (LICQ holds), affine in theta.

@@ -432,15 +432,15 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
             if s > top:
                 top = s
                 start = v
-        if start < 0:
-            status, x, y, W, nw = _lp(A[i], A, b, kept, centre, W0, 0, stop, maxit, ws)
-        else:
-            nw0 = 0
+        x0 = centre
+        nw0 = 0
+        if start >= 0:
+            x0 = VX[start]
             for q in range(d):
                 if kept[VW[start, q]]:
                     W0[nw0] = VW[start, q]
                     nw0 += 1
-            status, x, y, W, nw = _lp(A[i], A, b, kept, VX[start], W0, nw0, stop, maxit, ws)
+        status, x, y, W, nw = _lp(A[i], A, b, kept, x0, W0, nw0, stop, maxit, ws)
         kept[i] = True
         if status != _OPTIMAL:
             continue  # a point of the others outside row i (needed), or no answer: keep
@@ -889,7 +889,7 @@ def evaluate_batch(keys, starts, args):
     points : (B, d)
         ``evaluate``'s points: where the neighbours' LPs should start.
     """
-    G, At = args[0], args[8]  # (in the order of evaluate's parameters after act)
+    G, At = args[0], args[8]  # (in the order of evaluate's parameters after act, start)
     m, nz = G.shape
     d = At.shape[1]
     B = keys.shape[0]

@@ -226,10 +226,9 @@ def chebyshev_ball(
     if solver == "highs":
         x, y = _highs_lp(f, Ab, bb, Aeq_b, beq)
         status = "failed" if x is None else "optimal"
-        y = None if y is None else y[: k + 1]
     else:
         x, status, y = solve_lp(f, Ab, bb, Aeq_b, beq)
-        y = None if y is None else y[: k + 1]
+    y = None if y is None else y[: k + 1]  # (the rows and the cap, not the equalities)
     if status != "optimal" or x is None:
         out = np.full(d, np.nan), -np.inf
     else:
