@@ -386,7 +386,8 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
     # starting from the centre
     VX = np.empty((_WARM_STARTS, d))
     VW = np.empty((_WARM_STARTS, d), dtype=np.int64)
-    nv = 0
+    nv = 0  # vertices in the buffer
+    stored = 0  # vertices ever stored (the next goes to stored % _WARM_STARTS)
     W0 = np.empty(d, dtype=np.int64)
     # facets seen from the centre: along a row's normal, the ray that reaches that row's
     # plane strictly before every other plane proves the row needed (the point it hits is
@@ -445,10 +446,10 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
         if status != _OPTIMAL:
             continue  # a point of the others outside row i (needed), or no answer: keep
         if nw == d:
-            slot = nv if nv < _WARM_STARTS else nv % _WARM_STARTS
-            VX[slot] = x
-            VW[slot] = W
-            nv = min(nv + 1, _WARM_STARTS)
+            VX[stored % _WARM_STARTS] = x
+            VW[stored % _WARM_STARTS] = W
+            stored += 1
+            nv = min(stored, _WARM_STARTS)
         nb = 0
         for j in range(nw):
             if y[W[j]] > 0.0:
