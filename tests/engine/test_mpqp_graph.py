@@ -240,3 +240,32 @@ def test_row_hash_collisions_fall_back_to_exact_comparison(monkeypatch):
     monkeypatch.setattr(ce.polytope, "row_hashes", lambda R: np.zeros(R.shape[0], np.uint64))
     np.testing.assert_array_equal(ce.polytope.unique_rows(M, 7), want_first)
     np.testing.assert_array_equal(ce.polytope.rows_in(Q, -M, 7), want_in)
+
+
+def test_equal_laws_are_merged_after_rounding():
+    """mpqp._merge_equal_laws rounds laws to 1e-7 of the scale (np.rint, -0.0 as +0.0):
+    two adjacent boxes whose laws differ by 1e-12 and a signed zero become one region; a
+    third with another law stays apart, and all-distinct laws leave the list as it is."""
+    from codev_engine.mpsolution import CriticalRegion
+
+    def box(lo, hi, K, k, act):
+        A = np.vstack([np.eye(2), -np.eye(2)])
+        b = np.r_[hi, -np.asarray(lo)].astype(float)
+        return CriticalRegion(A=A, b=b, K=K, k=k, active=act)
+
+    K = np.array([[1.0, 0.0], [2.0, -3.0]])
+    k = np.array([0.5, 0.0])
+    regions = [
+        box([0, 0], [1, 1], K, k, (0,)),
+        box([1, 0], [2, 1], K + 1e-12, np.array([0.5, -0.0]), (1,)),
+        box([2, 0], [3, 1], 2 * K, k, (2,)),
+    ]
+    stats: dict = {}
+    merged = mpqp._merge_equal_laws(regions, 1.0, stats)
+    assert len(merged) == 2 and stats["merged"] == 1
+    wide = [r for r in merged if np.array_equal(r.K, K)][0]
+    lo, hi = ce.polytope.bounding_box(wide.A, wide.b)
+    np.testing.assert_allclose(lo, [0, 0], atol=1e-9)
+    np.testing.assert_allclose(hi, [2, 1], atol=1e-9)
+    apart = [box([0, 0], [1, 1], K, k, (0,)), box([1, 0], [2, 1], K + 1e-3, k, (1,))]
+    assert mpqp._merge_equal_laws(apart, 1.0, {}) is apart
