@@ -121,8 +121,8 @@ class PointLocator:
     As, bs : lists of (k_i, d) and (k_i,) arrays
         The regions (bounded).
     tol : float
-        A point within ``tol`` of a region (row-wise, unit-norm rows) counts as inside;
-        on shared boundaries the lowest region index wins.
+        A point within ``tol`` of a region (row-wise, unit-norm rows) counts as near it:
+        see :meth:`locate` for the region a point gets.
     boxes : (lower, upper), optional
         Precomputed bounding boxes (R, d) each.
     """
@@ -198,12 +198,21 @@ class PointLocator:
         self.strides = strides
 
     def locate(self, X: np.ndarray) -> np.ndarray:
-        """Region index per row of ``X`` (P, d) -> (P,) int, -1 outside every region."""
+        """Region index per row of ``X`` (P, d) -> (P,) int, -1 outside every region.
+
+        A point inside regions (every row holds as computed) gets the lowest of them; a
+        point inside none but within ``tol`` of some gets the one whose rows it violates
+        least (the lowest index on ties). A region that a point is only near is never
+        preferred to one that holds it: a sliver's law extrapolated 4e-10 past its facet was
+        6e-6 (relative) off the optimum on ``pop_mpqp_002``, whose gains reach 1e7.
+        """
         X = np.atleast_2d(np.asarray(X, dtype=float))
         P = X.shape[0]
         out = np.full(P, -1, dtype=int)
         if self.num_regions == 0:
             return out
+        # the largest violation of the located region's rows: <= 0 inside, <= tol near
+        best = np.full(P, np.inf)
         finite = np.all(np.isfinite(X), axis=1)
         inbox = finite & np.all((X >= self.lo - self.tol) & (X <= self.hi + self.tol), axis=1)
         if self.loose.size:
@@ -212,10 +221,8 @@ class PointLocator:
             for i in self.loose:
                 if rest.size == 0:
                     break
-                viol = X[rest] @ self.Apad[i].T - self.bpad[i]
-                hit = np.all(viol <= self.tol, axis=1)
-                out[rest[hit]] = i
-                rest = rest[~hit]
+                self._offer(i, rest, X, out, best)
+                rest = rest[best[rest] > 0.0]
         pts = np.flatnonzero(inbox)
         cidx = np.clip(np.floor((X[pts] - self.lo) / self.cell), 0, self.g - 1).astype(int)
         cell = cidx @ self.strides
@@ -226,18 +233,31 @@ class PointLocator:
         while np.any(alive):
             sel = np.flatnonzero(alive)
             reg = self.cands[first[sel] + r]
-            xs = X[pts[sel]]
-            viol = np.einsum("pkd,pd->pk", self.Apad[reg], xs) - self.bpad[reg]
-            hit = np.all(viol <= self.tol, axis=1)
-            out[pts[sel[hit]]] = reg[hit]
-            alive[sel[hit]] = False
+            p = pts[sel]
+            viol = (np.einsum("pkd,pd->pk", self.Apad[reg], X[p]) - self.bpad[reg]).max(axis=1)
+            # a cell lists its regions in increasing order: the first that holds a point
+            # is the lowest, and a later one only near it never beats an earlier one
+            take = (viol <= self.tol) & (viol < best[p])
+            out[p[take]] = reg[take]
+            best[p[take]] = viol[take]
+            alive[sel[viol <= 0.0]] = False
             r += 1
             alive &= count > r
         for i in self.wide:
-            # the lowest index wins, as in the grid: only points not in a lower region
-            sel = pts[(out[pts] < 0) | (out[pts] > i)]
-            if sel.size == 0:
-                continue
-            hit = np.all(X[sel] @ self.Apad[i].T - self.bpad[i] <= self.tol, axis=1)
-            out[sel[hit]] = i
+            # only points not held by a lower region
+            self._offer(i, pts[(best[pts] > 0.0) | (out[pts] > i)], X, out, best)
         return out
+
+    def _offer(self, i: int, sel: np.ndarray, X: np.ndarray, out: np.ndarray, best: np.ndarray):
+        """Region ``i`` for the points ``sel`` (none held by a lower region than ``i``):
+        taken where it holds a point that no lower region holds, or is nearer than the
+        region found so far."""
+        if sel.size == 0:
+            return
+        viol = (X[sel] @ self.Apad[i].T - self.bpad[i]).max(axis=1)
+        cur = best[sel]
+        take = (viol <= 0.0) | (
+            (viol <= self.tol) & ((viol < cur) | ((viol == cur) & (out[sel] > i)))
+        )
+        out[sel[take]] = i
+        best[sel[take]] = viol[take]

@@ -1,7 +1,8 @@
 """ExplicitLaw: save/load round trip, malformed law files, point location and evaluation.
 
-Point location is checked against brute force (every region tested at every point, the
-lowest index wins within the locator's tolerance) on 1000-region laws: Voronoi partitions
+Point location is checked against brute force (every region tested at every point: the
+lowest index holding the point wins, else the region nearest within the locator's tolerance)
+on 1000-region laws: Voronoi partitions
 of a box in 2-D and 3-D, 1000 random overlapping simplices with gaps (where the
 lowest-index rule matters), and the 1008-region magnetic-pointer law.
 """
@@ -86,7 +87,8 @@ def brute_locate(law: ce.ExplicitLaw, X: np.ndarray, near_tol: float = 1e-7,
     Returns
     -------
     idx : (P,) int
-        Lowest index of a region holding each point (within LOC_TOL), -1 for none.
+        Lowest index of a region holding each point, else the region whose rows it violates
+        least (within LOC_TOL), -1 for none.
     near : (P,) bool
         Points within ``near_tol`` of a boundary row of a region they (almost) belong to:
         there rounding may legitimately decide (all False unless ``with_near``).
@@ -101,8 +103,10 @@ def brute_locate(law: ce.ExplicitLaw, X: np.ndarray, near_tol: float = 1e-7,
     for c0 in range(0, X.shape[0], chunk):
         S = X[c0:c0 + chunk] @ Aall.T - ball  # (c, all rows)
         smax = np.maximum.reduceat(S, starts, axis=1)  # (c, regions)
-        inside = smax <= LOC_TOL
-        idx[c0:c0 + chunk] = np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
+        inside = smax <= 0.0
+        nearest = np.where(smax <= LOC_TOL, smax, np.inf).argmin(axis=1)
+        found = np.where(np.any(smax <= LOC_TOL, axis=1), nearest, -1)
+        idx[c0:c0 + chunk] = np.where(inside.any(axis=1), inside.argmax(axis=1), found)
         if with_near:
             tight = np.maximum.reduceat((np.abs(S) <= near_tol).view(np.int8), starts, axis=1)
             near[c0:c0 + chunk] = np.any((smax <= near_tol) & (tight > 0), axis=1)

@@ -260,7 +260,8 @@ def test_law_boxes_use_the_domain_box(monkeypatch):
 
 def test_wide_regions_are_located_exactly():
     """Thin oblique slabs in 7-D: every box spans the whole grid (the 'wide' path), and
-    located indices equal brute force, lowest index first on shared boundaries."""
+    located indices equal brute force: the lowest region holding a point, else the
+    nearest within the tolerance."""
     from codev_engine.locate import WIDE_CELLS, PointLocator
 
     rng = np.random.default_rng(7)
@@ -275,14 +276,40 @@ def test_wide_regions_are_located_exactly():
     loc = PointLocator(As, bs, boxes=(-np.ones((R, d)), np.ones((R, d))))
     assert loc.wide.size == R and loc.g**d > WIDE_CELLS
     X = np.vstack([rng.uniform(-1, 1, size=(3000, d)), 1.5 * rng.uniform(-1, 1, size=(200, d))])
-    # points exactly on cuts: the lower region must win
+    # points on cuts: the region whose rows hold the point as computed must win
     on = rng.uniform(-0.2, 0.2, size=(50, d))
     on += np.outer(cuts[R // 2] - on @ a, a)
     X = np.vstack([X, on])
     got = loc.locate(X)
-    inside = np.stack(
-        [np.all(X @ A.T - b <= 1e-9, axis=1) for A, b in zip(As, bs, strict=True)], axis=1
-    )
-    want = np.where(inside.any(axis=1), inside.argmax(axis=1), -1)
+    viol = np.stack([(X @ A.T - b).max(axis=1) for A, b in zip(As, bs, strict=True)], axis=1)
+    inside = viol <= 0.0
+    near = np.where(viol <= 1e-9, viol, np.inf)
+    found = np.where(np.isfinite(near).any(axis=1), near.argmin(axis=1), -1)
+    want = np.where(inside.any(axis=1), inside.argmax(axis=1), found)
     np.testing.assert_array_equal(got, want)
-    assert np.all(got[-50:] == R // 2 - 1)
+    assert np.all((got[-50:] == R // 2 - 1) | (got[-50:] == R // 2))
+
+
+@pytest.mark.parametrize("wide", [False, True])
+def test_a_region_that_holds_a_point_beats_one_only_near_it(wide, monkeypatch):
+    """pop_mpqp_002: a sliver (lower index) whose facet passes 4e-10 short of a point of
+    its neighbour must not take the point (its law extrapolated there was 6e-6 off); in a
+    gap between regions the nearest one wins."""
+    if wide:  # every region tested directly instead of through the grid
+        monkeypatch.setattr(locate_mod, "WIDE_CELLS", 0)
+    # strips lo <= x0 <= hi of the square |x1| <= 1
+    strips = [(-1e-3, -4e-10), (0.0, 0.5), (0.5 + 5e-10, 1.0), (0.5 + 2e-10, 1.0)]
+    A = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    loc = PointLocator([A] * 4, [np.array([hi, -lo, 1.0, 1.0]) for lo, hi in strips])
+    assert (loc.wide.size == 4) == wide
+    x0 = [
+        1e-10,  # in 1; 0 is 5e-10 off
+        -1e-4,  # in 0
+        0.5 + 3e-10,  # in 3; 2 is 2e-10 off
+        0.5 + 1.5e-10,  # in none: 3 is 0.5e-10 off, 1 1.5e-10, 2 3.5e-10
+        0.5 + 0.8e-10,  # in none: 1 is 0.8e-10 off, 3 1.2e-10
+        0.5 + 2e-9,  # in 2 and 3: the lower wins
+        -2e-3,  # outside every region by more than the tolerance
+    ]
+    X = np.column_stack([x0, np.linspace(-0.9, 0.9, len(x0))])
+    np.testing.assert_array_equal(loc.locate(X), [1, 0, 3, 3, 1, 2, -1])
