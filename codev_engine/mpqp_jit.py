@@ -467,6 +467,13 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
             for j in range(k):
                 if done[j] or fixed[j] or not kept[j] or facet[j] or _member(basis, nb, j):
                     continue
+                # a_j in the cone of the basis rows (tight at x, slack at the centre)
+                # needs a_j (x - centre) > 0: d flops that spare ~30% of the d^2 tests
+                ax = 0.0
+                for t in range(d):
+                    ax += A[j, t] * (x[t] - centre[t])
+                if ax <= 0.0:
+                    continue
                 if _basis_proves(A, b, basis, nb, Qb, Rb, j, bound, margin[j], work):
                     kept[j] = False
     return kept
@@ -670,7 +677,10 @@ def evaluate(
         br[na + ni + q] = bt[q]
     # normalise; rows that vanish for every theta decide emptiness alone
     keep_row = np.ones(nr, dtype=np.bool_)
-    vanished = False  # a multiplier or slack zero for every theta
+    # a multiplier or slack that may be zero for every theta (the swaps' argument needs
+    # none); one constant and clearly positive is never zero (pop_mpqp_033's bounds
+    # +-z_i <= 1e7 with g_i in the span of G_A: slack 1e7 for every theta)
+    vanished = False
     for i in range(nr):
         s = 0.0
         for t in range(d):
@@ -680,7 +690,8 @@ def evaluate(
             if br[i] < -1e-12:
                 return EMPTY, e2, e1, ez, ek, em, False, es, start
             keep_row[i] = False
-            vanished = True
+            if br[i] <= 1e-6 * (1.0 + scale):
+                vanished = True
         else:
             Ar[i] /= s
             br[i] /= s
@@ -819,9 +830,10 @@ def _swaps(moves, alone, src_kept, G, act, Q, R):
         for l in range(na):
             cmax = max(cmax, abs(c[l]))
         for l in range(na):
-            # (c_l about 0: A + i - l still dependent, never a region; kept all the same,
-            # as a wrong sign judgement would cost a region)
-            if c[l] > -1e-9 * max(1.0, cmax):
+            # (c_l about 0: A + i - l still dependent, never a region; LICQ breaks at the
+            # same 1e-9 for unit rows, so such a candidate would only be LICQ, and its
+            # subsets leave out one more constraint: lower-dimensional on the facet)
+            if c[l] > 1e-9 * max(1.0, cmax):
                 out[ns, 0] = i
                 out[ns, 1] = act[l]
                 ns += 1

@@ -192,3 +192,53 @@ def test_radius_upper_bound_holds_for_any_multipliers(seed):
         assert ce.polytope.radius_upper_bound(A, b, noisy, bound) >= radius - 1e-12
     if seed % 2:
         assert radius < 0 and ce.polytope.radius_upper_bound(A, b, y, bound) < 0
+
+
+def _swap_problem():
+    """``min 0.5 |z|^2 - (2, 3, 0)'z`` over theta in [0, 1], s.t. (0) z1 <= theta, (1) z2 <=
+    theta, (2) (z1 + z2)/sqrt(2) <= 0.5 + (sqrt(2) - 1) theta, (3) z3 <= 1e7, (4) z3 <= -1.
+
+    The region of (0, 1, 4) is theta <= 0.5: there constraint 2 enters, with g_2 = (g_0 +
+    g_1)/sqrt(2), so 0 or 1 must leave (lambda_0 = 2 - theta is the smaller: 0 leaves).
+    Constraint 3's slack is 1e7 + 1 and lambda_4 is 1 for every theta: rows that vanish
+    with a positive constant.
+    """
+    r = np.sqrt(2.0)
+    G = np.array([[1, 0, 0], [0, 1, 0], [1 / r, 1 / r, 0], [0, 0, 1], [0, 0, 1]], dtype=float)
+    w = np.array([0.0, 0.0, 0.5, 1e7, -1.0])
+    S = np.array([[1.0], [1.0], [r - 1.0], [0.0], [0.0]])
+    return np.eye(3), np.array([-2.0, -3.0, 0.0]), np.zeros((3, 1)), G, w, S
+
+
+def test_swaps_are_taken_past_rows_that_vanish_with_a_positive_constant():
+    """pop_mpqp_033: bounds z_i <= 1e7 whose slack is constant on a region had switched the
+    swaps off, and every dependent entering constraint went through all subsets of the
+    dependent set: 4 LICQ and 1.4 empty candidates per region. A swap that leaves out a
+    constraint outside the dependency (c_l = 0) stays dependent and is not made."""
+    H, c, C, G, w, S = _swap_problem()
+    At, bt = np.array([[1.0], [-1.0]]), np.array([1.0, 0.0])
+    kernel = mpqp._Kernel(H, c, C, G, w, S, At, bt, 1.0, 1e-9, (np.zeros(1), np.ones(1)))
+    assert kernel.start_jit()
+    act = np.array([0, 1, 4], dtype=np.int64)
+    status, Ak, bk, K, k, moves, _, swaps, _ = mpqp_jit.evaluate(
+        act, np.array([0.5]), *kernel._jit_args
+    )
+    assert status == mpqp_jit.FULL
+    np.testing.assert_allclose(K @ [0.25] + k, [0.25, 0.25, -1.0])
+    # entering 2 is a swap (0 or 1 leaves), never a plain move into the dependent set
+    assert sorted(map(tuple, swaps.tolist())) == [(2, 0), (2, 1)]
+    assert -3 not in moves.tolist()
+    # the whole problem: the explicit law is the optimum on a grid of theta
+    prog = ce.MpProgram(
+        H=H, c=c, C=C, A=G, b=w, F=S, A_theta=At, b_theta=bt, name="swaps"
+    )
+    sol = ce.mpsolve(prog, options=ce.SolveOptions(workers=1))
+    theta = np.linspace(0.0, 1.0, 101)[:, None]
+    got = sol.value(theta)
+    for t, v in zip(theta[:, 0], got, strict=True):
+        z = np.array([min(t, 2.0), min(t, 3.0), -1.0])
+        # past theta = 0.5: (1, 2, 4) active (z2 = theta, z1 from constraint 2)
+        if z[:2].sum() / np.sqrt(2) > 0.5 + (np.sqrt(2) - 1) * t:
+            z[1] = t
+            z[0] = np.sqrt(2) * (0.5 + (np.sqrt(2) - 1) * t) - t
+        assert v == pytest.approx(0.5 * z @ z + c @ z, abs=1e-9), t
