@@ -68,8 +68,8 @@ FEAS_TOL = 1e-6
 STRICT = 1e-7
 ARTIFICIAL = 1e6  # |normalised rhs| of the source's "no bound" rows (POP: 1e7)
 
-# Measured (benchmarks/mp.py --jobs 1 --timeout 60, engine of 2026-11-22 night, 2-core
-# machine, load 0.8-1.9): no answer within 60 s, or a solve over 0.5 s, or more than 10,000
+# Measured (benchmarks/mp.py --jobs 1 --timeout 60, engine at 116c65f, 2-core
+# machine, load 1.4-2.2): no answer within 60 s, or a solve over 0.5 s, or more than 10,000
 # regions to check.
 SLOW: frozenset[str] = frozenset(
     {
@@ -82,33 +82,33 @@ SLOW: frozenset[str] = frozenset(
         "mpt3_mpqp_04_dat",  # 0.7 s, 195
         "mpt3_plcp_test12",  # 2.9 s, 675
         "pop_mpqp_001",  # 0.6 s, 3529
-        "pop_mpqp_002",  # 27.6 s, 320629
-        "pop_mpqp_005",  # 2.0 s, 10288
+        "pop_mpqp_002",  # 27.5 s, 320629
+        "pop_mpqp_005",  # 1.7 s, 10288
         "pop_mpqp_006",  # 0.5 s, 2375
-        "pop_mpqp_007",  # 2.4 s, 12232
-        "pop_mpqp_008",  # 1.5 s, 21290
+        "pop_mpqp_007",  # 2.3 s, 12232
+        "pop_mpqp_008",  # 1.4 s, 21290
         "pop_mpqp_017",  # 0.7 s, 4137
-        "pop_mpqp_018",  # 1.7 s, 20798
-        "pop_mpqp_019",  # 1.1 s, 6857
-        "pop_mpqp_023",  # 0.5 s, 4729
-        "pop_mpqp_024",  # 55.6 s, 429728
+        "pop_mpqp_018",  # 1.6 s, 20798
+        "pop_mpqp_019",  # 0.8 s, 6857
+        "pop_mpqp_023",  # 0.6 s, 4729
+        "pop_mpqp_024",  # 47.2 s, 429727
         "pop_mpqp_025",  # 0.7 s, 5441
         "pop_mpqp_027",  # 0.5 s, 1472
-        "pop_mpqp_028",  # 9.8 s, 82060
-        "pop_mpqp_032",  # 26.5 s, 178866
-        "pop_mpqp_037",  # 1.4 s, 18614
+        "pop_mpqp_028",  # 9.2 s, 82059
+        "pop_mpqp_032",  # 23.2 s, 178866
+        "pop_mpqp_037",  # 1.5 s, 18614
         "pop_mpqp_040",  # 0.6 s, 2006
-        "pop_mpqp_047",  # 9.1 s, 48074
-        "pop_mpqp_049",  # 1.1 s, 9340
+        "pop_mpqp_047",  # 9.0 s, 48070
+        "pop_mpqp_049",  # 1.0 s, 9340
         "pop_mpqp_060",  # 0.6 s, 2627
-        "pop_mpqp_061",  # 2.9 s, 33569
-        "pop_mpqp_062",  # 2.4 s, 31718
-        "pop_mpqp_076",  # 1.8 s, 15007
+        "pop_mpqp_061",  # 3.0 s, 33569
+        "pop_mpqp_062",  # 2.0 s, 31718
+        "pop_mpqp_076",  # 1.6 s, 15007
         "pop_mpqp_083",  # 1.1 s, 13266
         "pop_mpqp_086",  # 0.9 s, 3625
         "pop_mpqp_088",  # 5.0 s, 62304
         "pop_mpqp_090",  # 0.5 s, 438
-        "pop_mpqp_091",  # 15.6 s, 144983
+        "pop_mpqp_091",  # 15.4 s, 144984
         "pop_mpqp_097",  # 2.8 s, 20570
     }
 )
