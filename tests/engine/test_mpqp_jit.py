@@ -13,7 +13,7 @@ import pytest
 from scipy.optimize import linprog
 
 import codev_engine as ce
-from codev_engine import mpqp, mpqp_jit
+from codev_engine import mpqp, mpqp_graph, mpqp_jit
 
 TESTSET = Path(__file__).resolve().parents[3] / "shared" / "benchmarks" / "mp_testset"
 
@@ -242,3 +242,38 @@ def test_swaps_are_taken_past_rows_that_vanish_with_a_positive_constant():
             z[1] = t
             z[0] = np.sqrt(2) * (0.5 + (np.sqrt(2) - 1) * t) - t
         assert v == pytest.approx(0.5 * z @ z + c @ z, abs=1e-9), t
+
+
+def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
+    """pop_mpqp_047's (5, 7, 29, 33, 34, 35, 42) is a sliver (radius 1.1e-7). From the
+    centre of the region that pushed it, the Chebyshev LP ends where no centre checks; the
+    numpy kernel then judged it lower-dimensional, and the partition had a hole there. The
+    batch tries such a candidate again from the parameter box's centre, where it is full."""
+    path = TESTSET / "pop_mpqp_047.npz"
+    if not path.exists():
+        pytest.skip(f"{path} not present")
+    kernels = []
+    start = mpqp._Kernel.start_jit
+
+    def grab(self):
+        kernels.append(self)
+        return start(self)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(mpqp._Kernel, "start_jit", grab)
+    try:
+        with pytest.raises(ce.SolverError):
+            ce.mpsolve(ce.MpProgram.load(path), options=ce.SolveOptions(workers=1, max_regions=300))
+    finally:
+        mp.undo()
+    kernel = kernels[0]
+    act = np.array([5, 7, 29, 33, 34, 35, 42], dtype=np.int64)
+    pushed_from = np.array([
+        -7.427232366017716, -4.966641423987682, -8.799176218843456, 3.1102465240714032,
+        -9.94378840950449, 9.943788409504489, -9.943788409504391, 9.943788409504485,
+    ])
+    alone = mpqp_jit.evaluate(act, pushed_from, *kernel._jit_args)
+    assert alone[0] == mpqp_jit.FALLBACK
+    graph = mpqp_graph.ActiveSetGraph(kernel.m, kernel.nz, np.zeros((kernel.m,) * 2, dtype=bool))
+    status = mpqp_jit.evaluate_batch(graph.key(act)[None], pushed_from[None], kernel._jit_args)[0]
+    assert status[0] == mpqp_jit.FULL
