@@ -9,7 +9,9 @@ Per problem:
 1. **Solve** with ``codev mpsolve FILE --json --out SOL --timeout 60`` in a subprocess (a
    hard limit: a problem that hangs fails instead of hanging CI), then ``MpSolution.load``.
    ``$CODEV_MP_TIME_LIMIT`` (seconds) raises the limit, to check the partitions of the
-   problems that take longer (an opt-in run: the target is 60 s).
+   problems that take longer (an opt-in run: the target is 60 s). The checks' point
+   locator needs memory in proportion: ``pop_mpqp_033``'s 860k regions ran out of a 24 GB
+   machine (killed at 24 GB).
 2. **Parameters**: ``N_UNIFORM`` uniform in the parameter set (hit-and-run from its
    Chebyshev centre), ``N_FEASIBLE`` from the feasible parameter set (convex combinations
    of an interior point of the lifted set ``{(z, theta)}`` with LP vertices in random
