@@ -98,8 +98,9 @@ def test_certified_keep_drops_only_redundant_rows(seed):
             assert kept[i], f"facet {i} dropped"
 
 
-def _kernel_of(name: str):
-    """The numpy kernel of a test-set problem, as explore_active_sets builds it."""
+def _kernel_of(name: str, max_regions: int | None = None):
+    """The numpy kernel of a test-set problem, as explore_active_sets builds it, and the
+    solution (None when ``max_regions`` stops the solve early)."""
     path = TESTSET / f"{name}.npz"
     if not path.exists():
         pytest.skip(f"{path} not present")
@@ -113,8 +114,14 @@ def _kernel_of(name: str):
     mp = pytest.MonkeyPatch()
     mp.setattr(mpqp._Kernel, "start_jit", grab)
     mp.setattr(mpqp, "JIT_AFTER", 0)
+    options = ce.SolveOptions(workers=1, max_regions=max_regions or 10**7)
+    sol = None
     try:
-        sol = ce.mpsolve(ce.MpProgram.load(path), options=ce.SolveOptions(workers=1))
+        if max_regions is None:
+            sol = ce.mpsolve(ce.MpProgram.load(path), options=options)
+        else:
+            with pytest.raises(ce.SolverError):
+                ce.mpsolve(ce.MpProgram.load(path), options=options)
     finally:
         mp.undo()
     return kernels[0], sol
@@ -249,24 +256,7 @@ def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
     centre of the region that pushed it, the Chebyshev LP ends where no centre checks; the
     numpy kernel then judged it lower-dimensional, and the partition had a hole there. The
     batch tries such a candidate again from the parameter box's centre, where it is full."""
-    path = TESTSET / "pop_mpqp_047.npz"
-    if not path.exists():
-        pytest.skip(f"{path} not present")
-    kernels = []
-    start = mpqp._Kernel.start_jit
-
-    def grab(self):
-        kernels.append(self)
-        return start(self)
-
-    mp = pytest.MonkeyPatch()
-    mp.setattr(mpqp._Kernel, "start_jit", grab)
-    try:
-        with pytest.raises(ce.SolverError):
-            ce.mpsolve(ce.MpProgram.load(path), options=ce.SolveOptions(workers=1, max_regions=300))
-    finally:
-        mp.undo()
-    kernel = kernels[0]
+    kernel, _ = _kernel_of("pop_mpqp_047", max_regions=300)
     act = np.array([5, 7, 29, 33, 34, 35, 42], dtype=np.int64)
     pushed_from = np.array([
         -7.427232366017716, -4.966641423987682, -8.799176218843456, 3.1102465240714032,
