@@ -930,17 +930,14 @@ def evaluate_batch(keys, starts, args):
         if sizes[c] > nz:
             status[c] = LICQ
             continue
-        st, Ak, bk, Kc, kc, moves, used_lp, swaps, point = evaluate(
-            acts[c, : sizes[c]].copy(), starts[c], *args
-        )
+        act = acts[c, : sizes[c]].copy()
+        st, Ak, bk, Kc, kc, moves, used_lp, swaps, point = evaluate(act, starts[c], *args)
         if st == FALLBACK:
             # once more from the centre of the parameter box: on a sliver the LP from the
             # neighbour's centre can end where no centre checks, and the numpy kernel may
             # then judge it lower-dimensional (pop_mpqp_047's (5, 7, 29, 33, 34, 35, 42),
             # radius 1.1e-7, was left a hole that way); a class either start proves is sound
-            st, Ak, bk, Kc, kc, moves, used_lp, swaps, point = evaluate(
-                acts[c, : sizes[c]].copy(), box_c, *args
-            )
+            st, Ak, bk, Kc, kc, moves, used_lp, swaps, point = evaluate(act, box_c, *args)
         status[c] = st
         points[c] = point
         lp[c] = used_lp

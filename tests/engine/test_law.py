@@ -2,9 +2,9 @@
 
 Point location is checked against brute force (every region tested at every point: the
 lowest index holding the point wins, else the region nearest within the locator's tolerance)
-on 1000-region laws: Voronoi partitions
-of a box in 2-D and 3-D, 1000 random overlapping simplices with gaps (where the
-lowest-index rule matters), and the 1008-region magnetic-pointer law.
+on 1000-region laws: Voronoi partitions of a box in 2-D and 3-D, 1000 random overlapping
+simplices with gaps (where the lowest-index rule matters), and the 1008-region
+magnetic-pointer law.
 """
 
 from __future__ import annotations

@@ -114,12 +114,12 @@ def _kernel_of(name: str, max_regions: int | None = None):
     mp = pytest.MonkeyPatch()
     mp.setattr(mpqp._Kernel, "start_jit", grab)
     mp.setattr(mpqp, "JIT_AFTER", 0)
-    options = ce.SolveOptions(workers=1, max_regions=max_regions or 10**7)
     sol = None
     try:
         if max_regions is None:
-            sol = ce.mpsolve(ce.MpProgram.load(path), options=options)
+            sol = ce.mpsolve(ce.MpProgram.load(path), options=ce.SolveOptions(workers=1))
         else:
+            options = ce.SolveOptions(workers=1, max_regions=max_regions)
             with pytest.raises(ce.SolverError):
                 ce.mpsolve(ce.MpProgram.load(path), options=options)
     finally:
