@@ -1,10 +1,17 @@
 """Vectorised point location in a polyhedral partition.
 
-A uniform grid over the partition's bounding box lists, per cell, the regions whose
-bounding box meets the cell. A query finds its cell and tests the candidates of that cell
-in rounds: round r tests every still-unlocated point against its r-th candidate at once,
-so the work is numpy-vectorised over points and proportional to the (small) number of
-candidates per cell rather than to the number of regions.
+Two ways, one answer (see :meth:`PointLocator.locate` for the region a point gets):
+
+- **brute force**: every region's rows against every point, as one matrix product over all
+  rows (in chunks), then the largest violation per region. No set-up; the cost per point is
+  the number of rows. Used for few points in a large partition (a conformance check
+  locating a hundred points in 860,000 regions).
+- **grid**: a uniform grid over the partition's bounding box lists, per cell, the regions
+  whose bounding box meets the cell. A query finds its cell and tests the candidates of
+  that cell in rounds: round r tests every still-unlocated point against its r-th
+  candidate at once, so the work is proportional to the (small) number of candidates per
+  cell. Its set-up (a bounding box per region, the cell lists) pays once many points are
+  located.
 """
 
 from __future__ import annotations
@@ -24,9 +31,13 @@ def bounding_boxes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounding boxes of bounded polytopes -> lower (R, d), upper (R, d).
 
-    Each bound is an LP (DAQP, then HiGHS when DAQP gives no optimum). A thin sliver region
-    may defeat both (reported infeasible or unbounded); its bound then comes, in this
-    order, from
+    Each bound is an LP, all of them in one compiled call (``mpqp_jit.region_boxes``; its
+    multipliers must reproduce the cost, and each bound is widened by ``1e-9 (1 + |v|)``).
+    A region it gives no bound for is bounded by HiGHS with tight tolerances, then DAQP.
+    (On needles of radius 1e-7, with multipliers of 1e6, DAQP and HiGHS at their default
+    tolerances stopped short of the true bound by up to 0.01: a box that did not contain
+    its region.) A thin sliver may defeat them all (reported infeasible or unbounded); its
+    bound then comes, in this order, from
 
     1. the same LP on the region enlarged by ``1e-7 * (1 + |b|)`` on every row (which
        contains the region, so the bound stays sound),
@@ -38,10 +49,9 @@ def bounding_boxes(
     """
     R = len(As)
     d = As[0].shape[1] if R else 0
-    lo = np.full((R, d), np.nan)
-    hi = np.full((R, d), np.nan)
-    for i, (A, b) in enumerate(zip(As, bs, strict=True)):
-        lo[i], hi[i] = _box(A, b, d)
+    lo, hi, ok = _compiled_boxes(As, bs, d)
+    for i in np.flatnonzero(~ok):
+        lo[i], hi[i] = _box(As[i], bs[i], d)
     failed = ~(np.isfinite(lo) & np.isfinite(hi))
     if not np.any(failed):
         return lo, hi
@@ -78,6 +88,26 @@ def _finite_hull(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray
     )
 
 
+def _compiled_boxes(
+    As: list[np.ndarray], bs: list[np.ndarray], d: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``mpqp_jit.region_boxes`` on the regions: lower, upper (R, d) and ok (R,)."""
+    from . import mpqp_jit
+
+    R = len(As)
+    if R == 0:
+        return np.zeros((0, d)), np.zeros((0, d)), np.zeros(0, dtype=bool)
+    off = np.zeros(R + 1, dtype=np.int64)
+    np.cumsum([a.shape[0] for a in As], out=off[1:])
+    A = np.ascontiguousarray(np.vstack(As), dtype=float)
+    b = np.ascontiguousarray(np.concatenate(bs), dtype=float)
+    return mpqp_jit.region_boxes(A, b, off, 50 * (int(np.diff(off).max()) + d + 1))
+
+
+#: HiGHS tolerances for a bound (its defaults, 1e-7, stop short on needle regions)
+_TIGHT = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
+
+
 def _box(A: np.ndarray, b: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
     """Bounding box of ``{x : A x <= b}``; NaN where no LP gave a finite optimum."""
     lo = np.full(d, np.nan)
@@ -87,9 +117,11 @@ def _box(A: np.ndarray, b: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
     for j in range(d):
         for sign, out in ((1.0, lo), (-1.0, hi)):
             f = sign * eye[j]
-            x, st, _ = solve_lp(f, A, b)
-            if st != "optimal" or x is None or not np.isfinite(x[j]):
-                x = _highs(f, A, b)
+            x = _highs(f, A, b, _TIGHT)
+            if x is None:
+                x, st, _ = solve_lp(f, A, b)
+                if st != "optimal" or x is None or not np.isfinite(x[j]):
+                    x = None
             if x is None:
                 x = _highs(f, A, relaxed)
             if x is not None:
@@ -97,10 +129,14 @@ def _box(A: np.ndarray, b: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _highs(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+def _highs(
+    f: np.ndarray, A: np.ndarray, b: np.ndarray, options: dict | None = None
+) -> np.ndarray | None:
     """``argmin f'x s.t. A x <= b`` by HiGHS; None unless optimal (and finite)."""
     try:
-        res = linprog(f, A_ub=A, b_ub=b, bounds=(None, None), method="highs")
+        res = linprog(
+            f, A_ub=A, b_ub=b, bounds=(None, None), method="highs", options=options or {}
+        )
     except ValueError:  # non-finite input
         return None
     if res.status != 0 or res.x is None or not np.all(np.isfinite(res.x)):
@@ -108,9 +144,18 @@ def _highs(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     return np.asarray(res.x, dtype=float)
 
 
-#: A region whose bounding box covers more grid cells than this is tested point by point
+#: A region whose bounding box covers more grid cells than this is tested by brute force
 #: instead of being entered in every cell (see PointLocator)
 WIDE_CELLS = 4096
+#: The grid is built (when no boxes are given) once this many points have been located:
+#: its set-up costs about as much as brute force on ~4000 points, whatever the number of
+#: regions (on pop_mpqp_024's 430k regions in 6-D: boxes 35 s and cell lists 48 s, against
+#: 21 ms per point)
+GRID_POINTS = 2000
+#: Entries (rows x points) of one brute-force chunk: 2 MB of doubles, which stay in cache
+#: for the maximum per region (4x faster than 256 MB chunks: 21 vs 80 ms per point on 430k
+#: regions of 24 rows in 6-D)
+_CHUNK = 1 << 18
 
 
 class PointLocator:
@@ -124,7 +169,12 @@ class PointLocator:
         A point within ``tol`` of a region (row-wise, unit-norm rows) counts as near it:
         see :meth:`locate` for the region a point gets.
     boxes : (lower, upper), optional
-        Precomputed bounding boxes (R, d) each.
+        Precomputed bounding boxes (R, d) each (computed when the grid needs them).
+    grid : bool, optional
+        True: build the grid now; False: never (brute force only). By default it is built
+        at once when ``boxes`` are given, else once ``GRID_POINTS`` points have been
+        located (brute force until then). The answers are the same either way, but for
+        a point on a facet two regions share, which rounding may give to either.
     """
 
     def __init__(
@@ -133,21 +183,45 @@ class PointLocator:
         bs: list[np.ndarray],
         tol: float = 1e-9,
         boxes: tuple[np.ndarray, np.ndarray] | None = None,
+        grid: bool | None = None,
     ):
         self.num_regions = len(As)
         self.tol = tol
-        self.loose = np.zeros(0, dtype=int)
+        self._As, self._bs = As, bs
+        self._grid = False
+        self._located = 0
+        self._boxes = boxes
+        self._auto = grid is None
         if self.num_regions == 0:
             return
         self.d = As[0].shape[1]
-        kmax = max(a.shape[0] for a in As)
+        # every row, region after region (brute force, and the wide regions)
+        self.off = np.zeros(self.num_regions + 1, dtype=np.int64)
+        np.cumsum([a.shape[0] for a in As], out=self.off[1:])
+        self.rows_A = np.ascontiguousarray(np.vstack(As), dtype=float)
+        self.rows_b = np.ascontiguousarray(np.concatenate(bs), dtype=float)
+        if grid or (grid is None and boxes is not None):
+            self._build_grid()
+
+    @property
+    def box_lo(self) -> np.ndarray:
+        """Lower corners of the regions' bounding boxes (R, d), as the grid uses them."""
+        self._clip_boxes()
+        return self._box_lo
+
+    @property
+    def box_hi(self) -> np.ndarray:
+        """Upper corners of the regions' bounding boxes (R, d), as the grid uses them."""
+        self._clip_boxes()
+        return self._box_hi
+
+    def _clip_boxes(self) -> None:
+        """The boxes (given, or computed now), made finite."""
+        if hasattr(self, "_box_lo"):
+            return
         R, d = self.num_regions, self.d
-        self.Apad = np.zeros((R, kmax, d))
-        self.bpad = np.ones((R, kmax))
-        for i, (A, b) in enumerate(zip(As, bs, strict=True)):
-            self.Apad[i, : A.shape[0]] = A
-            self.bpad[i, : A.shape[0]] = b
-        lo, hi = boxes if boxes is not None else bounding_boxes(As, bs)
+        boxes = self._boxes
+        lo, hi = boxes if boxes is not None else bounding_boxes(self._As, self._bs)
         lo = np.array(lo, dtype=float).reshape(R, d)
         hi = np.array(hi, dtype=float).reshape(R, d)
         # A box that is not finite (an LP failed when it was computed, or it came so from
@@ -161,8 +235,23 @@ class PointLocator:
         lo = np.where(np.isfinite(lo) & ~loose[:, None], lo, flo)
         hi = np.where(np.isfinite(hi) & ~loose[:, None], hi, fhi)
         self.loose = np.flatnonzero(loose)
-        self.box_lo, self.box_hi = lo, hi
+        self._box_lo, self._box_hi = lo, hi
         self.lo, self.hi = flo, fhi
+
+    def _build_grid(self) -> None:
+        if self._grid or self.num_regions == 0:
+            return
+        self._grid = True
+        self._clip_boxes()
+        As, bs, tol = self._As, self._bs, self.tol
+        R, d = self.num_regions, self.d
+        lo, hi = self._box_lo, self._box_hi
+        kmax = max(a.shape[0] for a in As)
+        self.Apad = np.zeros((R, kmax, d))
+        self.bpad = np.ones((R, kmax))
+        for i, (A, b) in enumerate(zip(As, bs, strict=True)):
+            self.Apad[i, : A.shape[0]] = A
+            self.bpad[i, : A.shape[0]] = b
         span = np.maximum(self.hi - self.lo, 1e-12)
         # about 16 cells per region overall, at most 256 per axis
         g = int(np.clip(np.ceil((16 * R) ** (1.0 / d)), 1, 256))
@@ -171,18 +260,16 @@ class PointLocator:
         half = 0.5 * self.cell
         clo = np.clip(np.floor((lo - self.lo) / self.cell - 1e-9), 0, g - 1).astype(int)
         chi = np.clip(np.floor((hi - self.lo) / self.cell + 1e-9), 0, g - 1).astype(int)
-        lists: list[list[int]] = [[] for _ in range(g**d)]
         strides = g ** np.arange(d)
         # a region whose box spans very many cells (thin and oblique, in 7-8 dimensions)
-        # would cost millions of cell entries: such "wide" regions are tested directly
-        # (pop_mpqp_0xx solutions spent over 15 minutes and 3.7 GB building the grid)
+        # would cost millions of cell entries: such "wide" regions are tested by brute
+        # force (pop_mpqp_0xx solutions spent over 15 minutes and 3.7 GB building the grid)
         ncells = np.prod((chi - clo + 1).astype(float), axis=1)
         self.wide = np.flatnonzero(ncells > WIDE_CELLS)
         skip = np.zeros(R, dtype=bool)
         skip[self.wide] = True
-        for i in range(R):
-            if skip[i]:
-                continue
+        cells, regs = [], []
+        for i in np.flatnonzero(~skip):
             ranges = [np.arange(clo[i, j], chi[i, j] + 1) for j in range(d)]
             mesh = np.stack(np.meshgrid(*ranges, indexing="ij"), axis=-1).reshape(-1, d)
             # drop cells that one of the region's rows separates from it entirely
@@ -190,12 +277,29 @@ class PointLocator:
             A, b = As[i], bs[i]
             lowest = centres @ A.T - np.abs(A) @ half
             meets = np.all(lowest <= b + tol, axis=1)
-            for c in mesh[meets] @ strides:
-                lists[int(c)].append(i)
-        counts = np.array([len(x) for x in lists])
-        self.start = np.concatenate([[0], np.cumsum(counts)])
-        self.cands = np.array([r for x in lists for r in x], dtype=int)
+            c = mesh[meets] @ strides
+            cells.append(c)
+            regs.append(np.full(c.size, i, dtype=np.int64))
+        cell_of = np.concatenate(cells) if cells else np.zeros(0, dtype=np.int64)
+        reg_of = np.concatenate(regs) if regs else np.zeros(0, dtype=np.int64)
+        # a cell lists its regions in increasing order (a stable sort of entries made in
+        # region order)
+        order = np.argsort(cell_of, kind="stable")
+        self.cands = reg_of[order]
+        self.start = np.zeros(g**d + 1, dtype=np.int64)
+        np.cumsum(np.bincount(cell_of, minlength=g**d), out=self.start[1:])
         self.strides = strides
+        # the rows of the wide and the loose regions, for brute force
+        self._wide_rows = self._subset_rows(self.wide)
+        self._loose_rows = self._subset_rows(self.loose)
+
+    def _subset_rows(self, regions: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Rows, row offsets and indices of ``regions`` (ascending), for :meth:`_brute`."""
+        idx = [np.arange(self.off[i], self.off[i + 1]) for i in regions]
+        rows = np.concatenate(idx) if idx else np.zeros(0, dtype=np.int64)
+        off = np.zeros(regions.size + 1, dtype=np.int64)
+        np.cumsum(np.diff(self.off)[regions], out=off[1:])
+        return self.rows_A[rows], self.rows_b[rows], off, regions
 
     def locate(self, X: np.ndarray) -> np.ndarray:
         """Region index per row of ``X`` (P, d) -> (P,) int, -1 outside every region.
@@ -214,15 +318,17 @@ class PointLocator:
         # the largest violation of the located region's rows: <= 0 inside, <= tol near
         best = np.full(P, np.inf)
         finite = np.all(np.isfinite(X), axis=1)
+        self._located += P
+        if self._auto and not self._grid and self._located > GRID_POINTS:
+            self._build_grid()
+        if not self._grid:
+            every = (self.rows_A, self.rows_b, self.off, np.arange(self.num_regions))
+            self._brute(every, np.flatnonzero(finite), X, out, best)
+            return out
         inbox = finite & np.all((X >= self.lo - self.tol) & (X <= self.hi + self.tol), axis=1)
         if self.loose.size:
             # outside the grid only the regions without a proper box can hold a point
-            rest = np.flatnonzero(finite & ~inbox)
-            for i in self.loose:
-                if rest.size == 0:
-                    break
-                self._offer(i, rest, X, out, best)
-                rest = rest[best[rest] > 0.0]
+            self._brute(self._loose_rows, np.flatnonzero(finite & ~inbox), X, out, best)
         pts = np.flatnonzero(inbox)
         cidx = np.clip(np.floor((X[pts] - self.lo) / self.cell), 0, self.g - 1).astype(int)
         cell = cidx @ self.strides
@@ -243,21 +349,67 @@ class PointLocator:
             alive[sel[viol <= 0.0]] = False
             r += 1
             alive &= count > r
-        for i in self.wide:
-            # only points not held by a lower region
-            self._offer(i, pts[(best[pts] > 0.0) | (out[pts] > i)], X, out, best)
+        if self.wide.size:
+            self._brute(self._wide_rows, pts, X, out, best)
         return out
 
-    def _offer(self, i: int, sel: np.ndarray, X: np.ndarray, out: np.ndarray, best: np.ndarray):
-        """Region ``i`` for the points ``sel`` (none held by a lower region than ``i``):
-        taken where it holds a point that no lower region holds, or is nearer than the
-        region found so far."""
-        if sel.size == 0:
+    def _brute(
+        self,
+        rows: tuple[np.ndarray, ...],
+        sel: np.ndarray,
+        X: np.ndarray,
+        out: np.ndarray,
+        best: np.ndarray,
+    ) -> None:
+        """Offer the regions of ``rows`` (from :meth:`_subset_rows`) to the points ``sel``:
+        merged into ``out`` / ``best`` by the rule of :meth:`locate`.
+
+        The rows times the points is one matrix product per chunk of regions; the largest
+        violation per region is a ``maximum.reduceat`` over its rows.
+        """
+        A, b, off, regions = rows
+        if sel.size == 0 or regions.size == 0:
             return
-        viol = (X[sel] @ self.Apad[i].T - self.bpad[i]).max(axis=1)
-        cur = best[sel]
-        take = (viol <= 0.0) | (
-            (viol <= self.tol) & ((viol < cur) | ((viol == cur) & (out[sel] > i)))
-        )
-        out[sel[take]] = i
-        best[sel[take]] = viol[take]
+        Xs = X[sel]
+        step = max(1, _CHUNK // sel.size)
+        i = 0
+        while i < regions.size:
+            # whole regions, about ``step`` rows
+            j = int(np.searchsorted(off, off[i] + step, side="right")) - 1
+            j = min(max(j, i + 1), regions.size)
+            V = A[off[i] : off[j]] @ Xs.T - b[off[i] : off[j], None]
+            lens = np.diff(off[i : j + 1])
+            M = np.full((j - i, sel.size), -1.0)  # (regions, points); no rows: all space
+            has = lens > 0
+            if np.any(has):
+                M[has] = np.maximum.reduceat(V, (off[i:j] - off[i])[has], axis=0)
+            held = M <= 0.0
+            h = np.argmax(held, axis=0)  # the lowest region holding the point, if any
+            n = np.argmin(M, axis=0)  # the nearest (the lowest on ties)
+            cols = np.arange(sel.size)
+            idx = np.where(held[h, cols], h, n)
+            _merge(out, best, sel, regions[i + idx], M[idx, cols], self.tol)
+            i = j
+
+
+def _merge(
+    out: np.ndarray,
+    best: np.ndarray,
+    sel: np.ndarray,
+    reg: np.ndarray,
+    viol: np.ndarray,
+    tol: float,
+) -> None:
+    """Take region ``reg`` (violation ``viol``) for the points ``sel`` where it beats the
+    region found so far: held beats near, then the lower index among held, the smaller
+    violation among near (the lower index on ties); near means within ``tol``."""
+    cur, now = best[sel], out[sel]
+    held = viol <= 0.0
+    take = (held & ((cur > 0.0) | (reg < now))) | (
+        ~held
+        & (viol <= tol)
+        & (cur > 0.0)
+        & ((viol < cur) | ((viol == cur) & (reg < now)))
+    )
+    out[sel[take]] = reg[take]
+    best[sel[take]] = viol[take]

@@ -158,8 +158,9 @@ def test_sliver_region_keeps_point_location_exact(seed, position):
 
 @pytest.mark.parametrize("domain", [False, True])
 def test_every_lp_failing_falls_back_to_a_sound_finite_box(monkeypatch, domain):
-    """DAQP and HiGHS both fail (also on the enlarged sliver): the domain box or the
-    overall box of the other regions replaces the sliver's box, never infinity."""
+    """The compiled LPs, DAQP and HiGHS all fail (also on the enlarged sliver): the domain
+    box or the overall box of the other regions replaces the sliver's box, never
+    infinity."""
     As, bs = voronoi_regions(200, seed=21)
     A, b = sliver(0)
     As.insert(7, A)
@@ -180,6 +181,15 @@ def test_every_lp_failing_falls_back_to_a_sound_finite_box(monkeypatch, domain):
             res.status, res.x = 2, None
         return res
 
+    def failing_compiled(As_, bs_, d):
+        lo, hi, ok = real_compiled(As_, bs_, d)
+        for i, M in enumerate(As_):
+            if is_sliver(M):
+                lo[i], hi[i], ok[i] = np.nan, np.nan, False
+        return lo, hi, ok
+
+    real_compiled = locate_mod._compiled_boxes
+    monkeypatch.setattr(locate_mod, "_compiled_boxes", failing_compiled)
     monkeypatch.setattr(locate_mod, "solve_lp", failing_solve_lp)
     monkeypatch.setattr(locate_mod, "linprog", failing_linprog)
     box = (np.vstack([np.eye(2), -np.eye(2)]), np.full(4, S)) if domain else None
@@ -290,18 +300,21 @@ def test_wide_regions_are_located_exactly():
     assert np.all((got[-50:] == R // 2 - 1) | (got[-50:] == R // 2))
 
 
-@pytest.mark.parametrize("wide", [False, True])
-def test_a_region_that_holds_a_point_beats_one_only_near_it(wide, monkeypatch):
+@pytest.mark.parametrize("path", ["grid", "wide", "brute"])
+def test_a_region_that_holds_a_point_beats_one_only_near_it(path, monkeypatch):
     """pop_mpqp_002: a sliver (lower index) whose facet passes 4e-10 short of a point of
     its neighbour must not take the point (its law extrapolated there was 6e-6 off); in a
-    gap between regions the nearest one wins."""
-    if wide:  # every region tested directly instead of through the grid
+    gap between regions the nearest one wins. The same in the grid, for regions tested
+    directly beside it ("wide") and by brute force."""
+    if path == "wide":  # every region tested directly instead of through the grid
         monkeypatch.setattr(locate_mod, "WIDE_CELLS", 0)
     # strips lo <= x0 <= hi of the square |x1| <= 1
     strips = [(-1e-3, -4e-10), (0.0, 0.5), (0.5 + 5e-10, 1.0), (0.5 + 2e-10, 1.0)]
     A = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-    loc = PointLocator([A] * 4, [np.array([hi, -lo, 1.0, 1.0]) for lo, hi in strips])
-    assert (loc.wide.size == 4) == wide
+    bs = [np.array([hi, -lo, 1.0, 1.0]) for lo, hi in strips]
+    loc = PointLocator([A] * 4, bs, grid=path != "brute")
+    if path != "brute":
+        assert (loc.wide.size == 4) == (path == "wide")
     x0 = [
         1e-10,  # in 1; 0 is 5e-10 off
         -1e-4,  # in 0
@@ -313,3 +326,87 @@ def test_a_region_that_holds_a_point_beats_one_only_near_it(wide, monkeypatch):
     ]
     X = np.column_stack([x0, np.linspace(-0.9, 0.9, len(x0))])
     np.testing.assert_array_equal(loc.locate(X), [1, 0, 3, 3, 1, 2, -1])
+
+
+def random_polytopes(count: int, d: int, seed: int) -> tuple[list, list]:
+    """Random bounded polytopes around the origin (unit rows), every third one a thin
+    slab of width 1e-6 between nearly parallel rows (radius ~5e-7, multipliers ~1e3)."""
+    rng = np.random.default_rng(seed)
+    As, bs = [], []
+    for n in range(count):
+        A = np.vstack([rng.normal(size=(4 * d, d)), np.eye(d), -np.eye(d)])
+        b = np.concatenate([rng.uniform(0.5, 2.0, size=4 * d), np.full(2 * d, 3.0)])
+        if n % 3 == 0:
+            v = rng.normal(size=d)
+            A = np.vstack([A, v, -v + 1e-3 * rng.normal(size=d)])
+            b = np.concatenate([b, [5e-7, 5e-7]])
+        nrm = np.linalg.norm(A, axis=1)
+        As.append(A / nrm[:, None])
+        bs.append(b / nrm)
+    return As, bs
+
+
+@pytest.mark.parametrize("d", [2, 5, 8])
+def test_compiled_boxes_are_the_tight_bounds(d):
+    """``bounding_boxes``' compiled LPs: every bound within 1e-8 of HiGHS at tolerance
+    1e-10, and on the outer side of it (each is widened by 1e-9 (1 + |v|))."""
+    As, bs = random_polytopes(30, d, seed=40 + d)
+    lo, hi, ok = locate_mod._compiled_boxes(As, bs, d)
+    assert ok.sum() >= 25  # the compiled path answers nearly all of them
+    blo, bhi = bounding_boxes(As, bs)
+    np.testing.assert_array_equal(blo[ok], lo[ok])
+    for i in range(len(As)):
+        for j in range(d):
+            for s, bound in ((1.0, blo[i, j]), (-1.0, bhi[i, j])):
+                f = s * np.eye(d)[j]
+                r = linprog(f, A_ub=As[i], b_ub=bs[i], bounds=(None, None), method="highs",
+                            options=locate_mod._TIGHT)
+                assert r.status == 0
+                assert abs(bound - r.x[j]) <= 1e-8 * (1 + abs(r.x[j]))
+                assert s * bound <= s * r.x[j]  # outside or on the true bound
+
+
+@pytest.mark.parametrize("d", [2, 6])
+def test_brute_force_and_grid_agree(d, monkeypatch):
+    """The same index for every point by brute force, by the grid (with wide regions) and
+    by a locator that switches to the grid after ``GRID_POINTS`` points."""
+    if d == 2:
+        As, bs = voronoi_regions(300, seed=31)
+        A, b = sliver(2)
+        As.insert(100, A)
+        bs.insert(100, b)
+        rng = np.random.default_rng(8)
+        X = sample(rng, 5000)
+    else:  # thin oblique slabs in a box: all of them wide
+        rng = np.random.default_rng(9)
+        a = rng.normal(size=d)
+        a /= np.linalg.norm(a)
+        cuts = np.linspace(-np.abs(a).sum(), np.abs(a).sum(), 201)
+        box_A = np.vstack([np.eye(d), -np.eye(d)])
+        As = [np.vstack([box_A, a, -a]) for _ in range(200)]
+        bs = [np.concatenate([np.ones(2 * d), [cuts[k + 1], -cuts[k]]]) for k in range(200)]
+        X = rng.uniform(-1.05, 1.05, size=(3000, d))
+        # points on the cuts, held by two regions
+        X[:300] -= np.outer(X[:300] @ a - cuts[rng.integers(1, 200, 300)], a)
+    def same(got, want):
+        # a point on a facet shared by two regions may go either way by rounding (a matrix
+        # product here, einsum there): then it is on both regions' boundaries
+        for i in np.flatnonzero(got != want):
+            for r in (got[i], want[i]):
+                assert r >= 0 and np.max(As[r] @ X[i] - bs[r]) <= 1e-12, (i, got[i], want[i])
+        assert np.mean(got == want) > 0.97
+
+    brute = PointLocator(As, bs, grid=False)
+    grid = PointLocator(As, bs, grid=True)
+    want = brute.locate(X)
+    assert not brute._grid and grid._grid
+    same(grid.locate(X), want)
+    monkeypatch.setattr(locate_mod, "GRID_POINTS", 150)
+    auto = PointLocator(As, bs)
+    np.testing.assert_array_equal(auto.locate(X[:1]), want[:1])
+    assert not auto._grid  # one point: brute force
+    np.testing.assert_array_equal(auto.locate(X[:100]), want[:100])
+    same(auto.locate(X), want)
+    assert auto._grid  # past GRID_POINTS points: the grid pays
+    if d == 2:
+        check_agrees(As, bs, brute, X)
