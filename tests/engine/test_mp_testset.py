@@ -9,9 +9,7 @@ Per problem:
 1. **Solve** with ``codev mpsolve FILE --json --out SOL --timeout 60`` in a subprocess (a
    hard limit: a problem that hangs fails instead of hanging CI), then ``MpSolution.load``.
    ``$CODEV_MP_TIME_LIMIT`` (seconds) raises the limit, to check the partitions of the
-   problems that take longer (an opt-in run: the target is 60 s). The checks' point
-   locator needs memory in proportion: ``pop_mpqp_033``'s 860k regions ran out of a 24 GB
-   machine (killed at 24 GB).
+   problems that take longer (an opt-in run: the target is 60 s).
 2. **Parameters**: ``N_UNIFORM`` uniform in the parameter set (hit-and-run from its
    Chebyshev centre), ``N_FEASIBLE`` from the feasible parameter set (convex combinations
    of an interior point of the lifted set ``{(z, theta)}`` with LP vertices in random
@@ -441,10 +439,18 @@ def overlap_counts(sol: ce.MpSolution, Theta: np.ndarray) -> np.ndarray:
         return np.zeros(Theta.shape[0], dtype=int)
     A = np.vstack([r.A for r in sol.regions])
     b = np.concatenate([r.b for r in sol.regions])
-    starts = np.cumsum([0] + [r.A.shape[0] for r in sol.regions[:-1]])
-    viol = (Theta @ A.T - b > -STRICT).astype(np.int64)  # (P, rows)
-    inside = np.add.reduceat(viol, starts, axis=1) == 0
-    return inside.sum(axis=1)
+    starts = np.cumsum([0] + [r.A.shape[0] for r in sol.regions])
+    counts = np.zeros(Theta.shape[0], dtype=int)
+    # in chunks of whole regions, ~1M rows: (P, all rows) at once was 23 GB on 033
+    step = 1 << 20
+    i, R = 0, sol.num_regions
+    while i < R:
+        j = min(max(int(np.searchsorted(starts, starts[i] + step, side="right")) - 1, i + 1), R)
+        viol = Theta @ A[starts[i] : starts[j]].T - b[starts[i] : starts[j]] > -STRICT
+        out = np.add.reduceat(viol.astype(np.int64), starts[i:j] - starts[i], axis=1)
+        counts += np.sum(out == 0, axis=1)
+        i = j
+    return counts
 
 
 def parameter_box(N: Normalised) -> tuple[np.ndarray, np.ndarray]:
