@@ -20,7 +20,9 @@ the numpy kernel instead.
 The LP solver is a primal active-set method (the simplex method started from a feasible
 point that need not be a vertex): move along the cost projected on the working set's null
 space to the first blocking row; at a vertex, drop the row with the most negative
-multiplier (Bland's rule after degenerate steps, against cycling). Problems here have
+multiplier (Bland's rule after degenerate steps, against cycling; a row dropped at a point
+that blocks again at once is taken as rounding, the point as stationary for the rows
+left, since drop and add alternated there for hundreds of pivots). Problems here have
 d + 1 <= 10 variables and tens of rows, so the working set's basis is re-orthonormalised
 from scratch (modified Gram-Schmidt) at every step.
 """
@@ -168,6 +170,10 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
         value += c[t] * x[t]
     cnorm = np.sqrt(cnorm)
     degenerate = 0
+    # rows dropped since the last step that gained: one of them blocking again at once
+    # is rounding (see below)
+    dropped = np.zeros(k, dtype=np.bool_)
+    stationary = False
     for _ in range(maxit):
         if value > stop_value:
             return _EXCEEDS, x, y, W, nw
@@ -183,7 +189,7 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
         for t in range(n):
             pn += p[t] * p[t]
         pn = np.sqrt(pn)
-        if nw == n or pn <= 1e-13 * (cnorm + 1.0):
+        if nw == n or pn <= 1e-13 * (cnorm + 1.0) or stationary:
             # a stationary point of the working set: multipliers from R' lam = Q c
             lam = steps  # (free until the next ratio test)
             _solve_rt(R, qc, nw, lam)
@@ -198,9 +204,13 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                     worst = lam[i]
                     drop = i
             if drop < 0:
+                if stationary and pn > 1e-6 * (cnorm + 1.0):
+                    return _FAILED, x, y, W, nw  # not stationary after all: no answer
                 for i in range(nw):
                     y[W[i]] = lam[i]
                 return _OPTIMAL, x, y, W, nw
+            stationary = False
+            dropped[W[drop]] = True
             inW[W[drop]] = False
             for i in range(drop, nw - 1):
                 W[i] = W[i + 1]
@@ -236,6 +246,16 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                 block < 0 or (slopes[i] > slopes[block] and not bland)
             ):
                 block = i  # (Bland: the lowest index among the rows hit at once)
+        if dropped[block] and alpha <= 1e-12 * (1.0 + abs(value)):
+            # a row dropped at this point blocks at once: in exact arithmetic it cannot
+            # (its multiplier was negative), so p is rounding (|p| ~ 4e-10 at pop_mpqp_036's
+            # ill-conditioned degenerate vertices, where drop and add alternated for 400
+            # pivots): take the point as stationary for the rows left
+            stationary = True
+            degenerate += 1
+            if degenerate > _STALL:
+                return _FAILED, x, y, W, nw
+            continue
         before = value
         for t in range(n):
             x[t] += alpha * p[t]
@@ -248,6 +268,8 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                 return _FAILED, x, y, W, nw  # cycling all the same: no answer
         else:
             degenerate = 0
+            for i in range(k):
+                dropped[i] = False
         for i in range(k):
             if use[i] and not inW[i]:
                 slack[i] -= alpha * slopes[i]

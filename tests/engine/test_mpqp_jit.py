@@ -252,18 +252,45 @@ def test_swaps_are_taken_past_rows_that_vanish_with_a_positive_constant():
 
 
 def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
-    """pop_mpqp_047's (5, 7, 29, 33, 34, 35, 42) is a sliver (radius 1.1e-7). From the
-    centre of the region that pushed it, the Chebyshev LP ends where no centre checks; the
-    numpy kernel then judged it lower-dimensional, and the partition had a hole there. The
-    batch tries such a candidate again from the parameter box's centre, where it is full."""
+    """A candidate the compiled kernel hands back from the start point the walk gives it
+    is evaluated once more from the parameter box's centre before the numpy kernel:
+    pop_mpqp_036's (3, 26, 30, 31, 34, 38, 40, 47), a sliver whose Chebyshev LP from the
+    centre of the region that pushed it ends where no class is proved, is lower-dimensional
+    from the box centre. (pop_mpqp_047's sliver (5, 7, 29, 33, 34, 35, 42), radius 1.1e-7,
+    was left a hole when the numpy kernel judged it; since the LP stops taking a dropped
+    row back at once, it is full from both points.)"""
+    kernel, _ = _kernel_of("pop_mpqp_036", max_regions=300)
+    act = np.array([3, 26, 30, 31, 34, 38, 40, 47], dtype=np.int64)
+    pushed_from = np.array([
+        -4.723129842630359, 3.9426458815635277, 0.778939684603324, 0.8009440276682488,
+        6.6037038362022615, -1.5330459492445925, -4.267572052062844, -6.867831724062033,
+    ])
+    alone = mpqp_jit.evaluate(act, pushed_from, *kernel._jit_args)
+    assert alone[0] == mpqp_jit.FALLBACK
+    graph = mpqp_graph.ActiveSetGraph(kernel.m, kernel.nz, np.zeros((kernel.m,) * 2, dtype=bool))
+    status = mpqp_jit.evaluate_batch(graph.key(act)[None], pushed_from[None], kernel._jit_args)[0]
+    assert status[0] == mpqp_jit.LOWER
+
     kernel, _ = _kernel_of("pop_mpqp_047", max_regions=300)
     act = np.array([5, 7, 29, 33, 34, 35, 42], dtype=np.int64)
     pushed_from = np.array([
         -7.427232366017716, -4.966641423987682, -8.799176218843456, 3.1102465240714032,
         -9.94378840950449, 9.943788409504489, -9.943788409504391, 9.943788409504485,
     ])
-    alone = mpqp_jit.evaluate(act, pushed_from, *kernel._jit_args)
-    assert alone[0] == mpqp_jit.FALLBACK
-    graph = mpqp_graph.ActiveSetGraph(kernel.m, kernel.nz, np.zeros((kernel.m,) * 2, dtype=bool))
-    status = mpqp_jit.evaluate_batch(graph.key(act)[None], pushed_from[None], kernel._jit_args)[0]
-    assert status[0] == mpqp_jit.FULL
+    for start in (pushed_from, kernel._jit_args[10]):
+        got = mpqp_jit.evaluate(act, start, *kernel._jit_args)
+        assert got[0] == mpqp_jit.FULL and np.min(got[2] - got[1] @ got[8]) > 5e-8
+
+
+def test_a_row_dropped_and_blocking_at_once_does_not_stall_the_lp():
+    """pop_mpqp_036's candidate (18, 24, 26, 37, 38, 42, 45, 47): at a degenerate vertex
+    of its Chebyshev LP the projected cost has norm 4e-10 once a row is dropped, and the
+    row blocked again at once (a slope of rounding size): drop and add alternated until
+    the stall limit, and the numpy kernel had to decide. Now the point is taken as
+    stationary for the rows left, and the compiled kernel proves the class the numpy
+    kernel finds."""
+    kernel, _ = _kernel_of("pop_mpqp_036", max_regions=300)
+    act = (18, 24, 26, 37, 38, 42, 45, 47)
+    got = mpqp_jit.evaluate(np.array(act, dtype=np.int64), np.zeros(8), *kernel._jit_args)
+    assert got[0] == mpqp_jit.LOWER
+    assert kernel.evaluate_numpy(act)[0] == "lower"
