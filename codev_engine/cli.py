@@ -16,6 +16,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 from .errors import CodevError, SolverError, SpecError
@@ -470,17 +471,22 @@ def _time_limit(seconds: float | None) -> Iterator[None]:
 
 def _cmd_mpsolve(args: argparse.Namespace) -> int:
     from .mpprogram import MpProgram
-    from .mpsolve import mpsolve
+    from .mpsolve import SolveOptions, mpsolve
 
     if args.timeout is not None and not args.timeout > 0:
         raise SpecError("must be a positive number of seconds", field="--timeout")
+    if args.max_regions is not None and not args.max_regions > 0:
+        raise SpecError("must be a positive number of regions", field="--max-regions")
+    options = SolveOptions()
+    if args.max_regions is not None:
+        options = replace(options, max_regions=args.max_regions)
     program = MpProgram.load(args.file)
     try:
         with (
             _time_limit(args.timeout),
             _progress(f"solving {program.name}", not args.json) as update,
         ):
-            sol = mpsolve(program, progress=update)
+            sol = mpsolve(program, options=options, progress=update)
     except _TimeLimitError:
         _err(f"{args.file}: no solution within the time limit ({args.timeout:g} s)")
         return 1
@@ -624,6 +630,12 @@ def _build_parser() -> argparse.ArgumentParser:
         type=float,
         metavar="S",
         help="give up after S seconds of wall time (exit 1)",
+    )
+    p.add_argument(
+        "--max-regions",
+        type=int,
+        metavar="N",
+        help="give up past N critical regions (exit 1; default 1,000,000, ~6 GB)",
     )
     p.set_defaults(func=_cmd_mpsolve)
     return parser

@@ -9,7 +9,9 @@ Per problem:
 1. **Solve** with ``codev mpsolve FILE --json --out SOL --timeout 60`` in a subprocess (a
    hard limit: a problem that hangs fails instead of hanging CI), then ``MpSolution.load``.
    ``$CODEV_MP_TIME_LIMIT`` (seconds) raises the limit, to check the partitions of the
-   problems that take longer (an opt-in run: the target is 60 s).
+   problems that take longer (an opt-in run: the target is 60 s), and
+   ``$CODEV_MP_MAX_REGIONS`` the solver's region limit (``pop_mpqp_036`` and ``095`` have
+   more than the default million).
 2. **Parameters**: ``N_UNIFORM`` uniform in the parameter set (hit-and-run from its
    Chebyshev centre), ``N_FEASIBLE`` from the feasible parameter set (convex combinations
    of an interior point of the lifted set ``{(z, theta)}`` with LP vertices in random
@@ -66,6 +68,8 @@ N_RANDOM_REGIONS = 8
 SEED = 20240917
 # seconds for one solve; the subprocess is killed a little later
 TIME_LIMIT = float(os.environ.get("CODEV_MP_TIME_LIMIT") or 60.0)
+# the solver's region limit (default: the solver's own, 1,000,000)
+MAX_REGIONS = int(os.environ.get("CODEV_MP_MAX_REGIONS") or 0)
 RTOL = 1e-6
 FEAS_TOL = 1e-6
 STRICT = 1e-7
@@ -420,6 +424,8 @@ def solve_in_subprocess(path: Path, out: Path) -> tuple[ce.MpSolution | None, st
         "--timeout",
         str(TIME_LIMIT),
     ]
+    if MAX_REGIONS:
+        cmd += ["--max-regions", str(MAX_REGIONS)]
     try:
         proc = subprocess.run(
             cmd, capture_output=True, text=True, env=env, timeout=TIME_LIMIT + 30, cwd=ROOT

@@ -581,6 +581,26 @@ def test_cli_bad_timeout_is_bad_input(tmp_path, capsys, value):
     assert_one_line_error(code, err, 2, "--timeout")
 
 
+@pytest.mark.parametrize("value", ["0", "-5"])
+def test_cli_bad_max_regions_is_bad_input(tmp_path, capsys, value):
+    path = program_file(tmp_path)
+    code, _, err = cli(capsys, "mpsolve", path, "--max-regions", value)
+    assert_one_line_error(code, err, 2, "--max-regions")
+
+
+def test_cli_max_regions_stops_the_solve(tmp_path, capsys):
+    """Past ``--max-regions`` the solver gives up (exit 1, the count in the message); with
+    room enough it solves."""
+    path = program_file(tmp_path)
+    code, out, _ = cli(capsys, "mpsolve", path, "--json")
+    regions = json.loads(out)["regions"]
+    assert code == 0 and regions > 1
+    code, out, err = cli(capsys, "mpsolve", path, "--max-regions", str(regions - 1))
+    assert_one_line_error(code, err, 1, str(path), f"more than {regions - 1} regions")
+    code, out, _ = cli(capsys, "mpsolve", path, "--json", "--max-regions", str(regions))
+    assert code == 0 and json.loads(out)["regions"] == regions
+
+
 def _codev(*args, cwd) -> subprocess.CompletedProcess:
     return run_codev(*args, cwd=cwd, timeout=120)
 
