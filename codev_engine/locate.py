@@ -32,7 +32,8 @@ def bounding_boxes(
     """Axis-aligned bounding boxes of bounded polytopes -> lower (R, d), upper (R, d).
 
     Each bound is an LP, all of them in one compiled call (``mpqp_jit.region_boxes``; its
-    multipliers must reproduce the cost, and each bound is widened by ``1e-9 (1 + |v|)``).
+    multipliers must reproduce the cost). The bounds are the LPs' vertices: the grid of
+    ``PointLocator`` widens them by ``1e-9 (1 + |v|)`` against their rounding.
     A region it gives no bound for is bounded by HiGHS with tight tolerances, then DAQP.
     (On needles of radius 1e-7, with multipliers of 1e6, DAQP and HiGHS at their default
     tolerances stopped short of the true bound by up to 0.01: a box that did not contain
@@ -258,8 +259,11 @@ class PointLocator:
         self.g = g
         self.cell = span / g
         half = 0.5 * self.cell
-        clo = np.clip(np.floor((lo - self.lo) / self.cell - 1e-9), 0, g - 1).astype(int)
-        chi = np.clip(np.floor((hi - self.lo) / self.cell + 1e-9), 0, g - 1).astype(int)
+        # (the boxes widened against the rounding of the LPs' vertices)
+        wlo = lo - 1e-9 * (1.0 + np.abs(lo))
+        whi = hi + 1e-9 * (1.0 + np.abs(hi))
+        clo = np.clip(np.floor((wlo - self.lo) / self.cell - 1e-9), 0, g - 1).astype(int)
+        chi = np.clip(np.floor((whi - self.lo) / self.cell + 1e-9), 0, g - 1).astype(int)
         strides = g ** np.arange(d)
         # a region whose box spans very many cells (thin and oblique, in 7-8 dimensions)
         # would cost millions of cell entries: such "wide" regions are tested by brute

@@ -1005,8 +1005,8 @@ def region_boxes(A, b, off, maxit):
     b[off[i]:off[i+1]]``.
 
     Per region: a Chebyshev centre (a feasible start), then ``2 d`` LPs, each started
-    from the vertex where the last one ended. Each bound is widened by ``1e-9 (1 + |v|)``
-    against the rounding of the LP's vertex.
+    from the vertex where the last one ended; a bound counts only when the LP's
+    multipliers reproduce its cost (to 1e-9).
 
     Parameters
     ----------
@@ -1078,12 +1078,10 @@ def region_boxes(A, b, off, maxit):
                 if res > 1e-9:
                     good = False
                     break
-                v = x[j]
-                pad = 1e-9 * (1.0 + abs(v))
                 if sign > 0.0:
-                    hi[r, j] = v + pad
+                    hi[r, j] = x[j]
                 else:
-                    lo[r, j] = v - pad
+                    lo[r, j] = x[j]
                 for t in range(d):
                     x0[t] = x[t]
                 for q in range(nw):

@@ -175,13 +175,20 @@ def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
     rows = []
     names = law.states or tuple(f"x{k}" for k in range(law.n))
     lo, hi = law.boxes
+    # bounds that are rounding next to the partition's size show as 0 (an LP's vertex at
+    # 5.55e-17 for a corner at 0)
+    tiny = 1e-12 * max(1.0, float(np.max(np.abs(np.r_[lo.ravel(), hi.ravel()]), initial=0.0)))
+
+    def bound(v: float) -> str:
+        return f"{0.0 if abs(v) <= tiny else v:.3g}"
+
     for k in range(min(law.num_regions, limit)):
         F, G = law.F[k], law.G[k]
         laws = []
         for i in range(law.m):
             terms = " ".join(f"{F[i, j]:+.4g}·{names[j]}" for j in range(law.n) if F[i, j] != 0)
             laws.append((terms + f" {G[i]:+.4g}").strip())
-        box = " × ".join(f"[{a:.3g}, {b:.3g}]" for a, b in zip(lo[k], hi[k], strict=True))
+        box = " × ".join(f"[{bound(a)}, {bound(b)}]" for a, b in zip(lo[k], hi[k], strict=True))
         rows.append((str(k), str(len(law.b[k])), "; ".join(laws), box))
     return rows
 

@@ -348,8 +348,8 @@ def random_polytopes(count: int, d: int, seed: int) -> tuple[list, list]:
 
 @pytest.mark.parametrize("d", [2, 5, 8])
 def test_compiled_boxes_are_the_tight_bounds(d):
-    """``bounding_boxes``' compiled LPs: every bound within 1e-8 of HiGHS at tolerance
-    1e-10, and on the outer side of it (each is widened by 1e-9 (1 + |v|))."""
+    """``bounding_boxes``' compiled LPs: every bound within 1e-9 of HiGHS at tolerance
+    1e-10 (the grid widens them against rounding, not the boxes themselves)."""
     As, bs = random_polytopes(30, d, seed=40 + d)
     lo, hi, ok = locate_mod._compiled_boxes(As, bs, d)
     assert ok.sum() >= 25  # the compiled path answers nearly all of them
@@ -362,8 +362,7 @@ def test_compiled_boxes_are_the_tight_bounds(d):
                 r = linprog(f, A_ub=As[i], b_ub=bs[i], bounds=(None, None), method="highs",
                             options=locate_mod._TIGHT)
                 assert r.status == 0
-                assert abs(bound - r.x[j]) <= 1e-8 * (1 + abs(r.x[j]))
-                assert s * bound <= s * r.x[j]  # outside or on the true bound
+                assert abs(bound - r.x[j]) <= 1e-9 * (1 + abs(r.x[j]))
 
 
 @pytest.mark.parametrize("d", [2, 6])

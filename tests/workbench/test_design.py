@@ -211,6 +211,21 @@ def test_region_rows_double_integrator(di):
     assert len(region_rows(law, limit=3)) == 3
 
 
+def test_region_rows_show_rounding_bounds_as_zero():
+    """A box corner the LP puts at 5.55e-17 (a vertex at 0, rounded) reads 0; a small
+    bound that is not rounding next to the partition's size keeps its value."""
+    A = np.vstack([np.eye(2), -np.eye(2)])
+    law = ce.ExplicitLaw(
+        A=[A, A], b=[np.array([5.55e-17, 4.0, 10.0, 1.78e-15]), np.array([1e-6, 2, 1, 1])],
+        F=np.zeros((2, 1, 2)), G=np.zeros((2, 1)),
+    )
+    lo = np.array([[-10.0, -1.78e-15], [-1.0, -1.0]])
+    law._boxes = (lo, np.array([[5.55e-17, 4.0], [1e-6, 2]]))
+    rows = region_rows(law)
+    assert rows[0][3] == "[-10, 0] × [0, 4]"
+    assert rows[1][3] == "[-1, 1e-06] × [-1, 2]"
+
+
 def test_region_rows_zero_gain_region(di):
     # a saturated region (u = +-1) shows just the constant
     _, law = di
