@@ -31,14 +31,16 @@ def bounding_boxes(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounding boxes of bounded polytopes -> lower (R, d), upper (R, d).
 
-    Each bound is an LP, all of them in one compiled call (``mpqp_jit.region_boxes``; its
-    multipliers must reproduce the cost). The bounds are the LPs' vertices: the grid of
-    ``PointLocator`` widens them by ``1e-9 (1 + |v|)`` against their rounding.
-    A region it gives no bound for is bounded by HiGHS with tight tolerances, then DAQP.
-    (On needles of radius 1e-7, with multipliers of 1e6, DAQP and HiGHS at their default
+    Each bound is an LP. From ``COMPILED_BOXES`` regions on, all of them are one compiled
+    call (``mpqp_jit.region_boxes``; its multipliers must reproduce the cost; loading the
+    compiled code costs ~0.3 s once per process, too much for a few regions). A region it
+    gives no bound for, and each region of fewer, is bounded by DAQP when DAQP's multipliers
+    prove its optimum (dual feasible, no gap), else by HiGHS with tight tolerances. (On
+    needles of radius 1e-7, with multipliers of 1e6, DAQP and HiGHS at their default
     tolerances stopped short of the true bound by up to 0.01: a box that did not contain
-    its region.) A thin sliver may defeat them all (reported infeasible or unbounded); its
-    bound then comes, in this order, from
+    its region.) The bounds are the LPs' vertices: the grid of ``PointLocator`` widens them
+    by ``1e-9 (1 + |v|)`` against their rounding. A thin sliver may defeat every LP
+    (reported infeasible or unbounded); its bound then comes, in this order, from
 
     1. the same LP on the region enlarged by ``1e-7 * (1 + |b|)`` on every row (which
        contains the region, so the bound stays sound),
@@ -50,7 +52,10 @@ def bounding_boxes(
     """
     R = len(As)
     d = As[0].shape[1] if R else 0
-    lo, hi, ok = _compiled_boxes(As, bs, d)
+    if R >= COMPILED_BOXES:
+        lo, hi, ok = _compiled_boxes(As, bs, d)
+    else:
+        lo, hi, ok = np.full((R, d), np.nan), np.full((R, d), np.nan), np.zeros(R, dtype=bool)
     for i in np.flatnonzero(~ok):
         lo[i], hi[i] = _box(As[i], bs[i], d)
     failed = ~(np.isfinite(lo) & np.isfinite(hi))
@@ -105,6 +110,8 @@ def _compiled_boxes(
     return mpqp_jit.region_boxes(A, b, off, 50 * (int(np.diff(off).max()) + d + 1))
 
 
+#: From this many regions on, bounding boxes come from one compiled call
+COMPILED_BOXES = 64
 #: HiGHS tolerances for a bound (its defaults, 1e-7, stop short on needle regions)
 _TIGHT = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
 
@@ -118,16 +125,32 @@ def _box(A: np.ndarray, b: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
     for j in range(d):
         for sign, out in ((1.0, lo), (-1.0, hi)):
             f = sign * eye[j]
-            x = _highs(f, A, b, _TIGHT)
-            if x is None:
-                x, st, _ = solve_lp(f, A, b)
-                if st != "optimal" or x is None or not np.isfinite(x[j]):
-                    x = None
+            x, st, lam = solve_lp(f, A, b)
+            if st != "optimal" or not _proved(f, A, b, x, lam):
+                x = _highs(f, A, b, _TIGHT)
             if x is None:
                 x = _highs(f, A, relaxed)
             if x is not None:
                 out[j] = x[j]
     return lo, hi
+
+
+def _proved(
+    f: np.ndarray, A: np.ndarray, b: np.ndarray, x: np.ndarray | None, lam: np.ndarray | None
+) -> bool:
+    """Whether DAQP's ``x`` minimises ``f'x`` over ``A x <= b``, by its multipliers: ``lam
+    >= 0`` with ``f + A' lam = 0`` and no gap between ``f'x`` and the dual bound ``-b' lam``
+    (to 1e-9)."""
+    if x is None or lam is None or not np.all(np.isfinite(x)):
+        return False
+    y = np.asarray(lam, dtype=float)[: A.shape[0]]
+    if not np.all(np.isfinite(y)) or np.any(y < -1e-9):
+        return False
+    y = np.maximum(y, 0.0)
+    value = float(f @ x)
+    return bool(
+        np.sum(np.abs(f + A.T @ y)) <= 1e-9 and abs(value + b @ y) <= 1e-9 * (1.0 + abs(value))
+    )
 
 
 def _highs(

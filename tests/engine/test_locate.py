@@ -353,8 +353,9 @@ def test_compiled_boxes_are_the_tight_bounds(d):
     As, bs = random_polytopes(30, d, seed=40 + d)
     lo, hi, ok = locate_mod._compiled_boxes(As, bs, d)
     assert ok.sum() >= 25  # the compiled path answers nearly all of them
-    blo, bhi = bounding_boxes(As, bs)
-    np.testing.assert_array_equal(blo[ok], lo[ok])
+    blo, bhi = bounding_boxes(As, bs)  # (30 regions: DAQP, proved by its multipliers)
+    np.testing.assert_allclose(blo[ok], lo[ok], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(bhi[ok], hi[ok], rtol=1e-9, atol=1e-9)
     for i in range(len(As)):
         for j in range(d):
             for s, bound in ((1.0, blo[i, j]), (-1.0, bhi[i, j])):
@@ -409,3 +410,24 @@ def test_brute_force_and_grid_agree(d, monkeypatch):
     assert auto._grid  # past GRID_POINTS points: the grid pays
     if d == 2:
         check_agrees(As, bs, brute, X)
+
+
+def test_an_unproved_daqp_bound_goes_to_highs(monkeypatch):
+    """DAQP's answer counts only with multipliers that prove it: a point short of the true
+    bound (as DAQP gave on needle regions of pop_mpqp_024) is replaced by HiGHS's."""
+    A = np.vstack([np.eye(2), -np.eye(2)])
+    b = np.array([1.0, 2.0, 3.0, 4.0])  # the box [-3, 1] x [-4, 2]
+    real = locate_mod.solve_lp
+
+    def short(f, M, rhs, *args, **kw):
+        x, st, lam = real(f, M, rhs, *args, **kw)
+        return 0.5 * x, st, lam  # feasible, not optimal; the multipliers do not fit it
+
+    monkeypatch.setattr(locate_mod, "solve_lp", short)
+    lo, hi = bounding_boxes([A], [b])
+    np.testing.assert_allclose(lo, [[-3.0, -4.0]], atol=1e-9)
+    np.testing.assert_allclose(hi, [[1.0, 2.0]], atol=1e-9)
+    monkeypatch.undo()
+    x, st, lam = real(np.array([1.0, 0.0]), A, b)
+    assert locate_mod._proved(np.array([1.0, 0.0]), A, b, x, lam)
+    assert not locate_mod._proved(np.array([1.0, 0.0]), A, b, 0.5 * x, lam)
