@@ -1006,7 +1006,7 @@ def region_boxes(A, b, off, maxit):
 
     Per region: a Chebyshev centre (a feasible start), then ``2 d`` LPs, each started
     from the vertex where the last one ended; a bound counts only when the LP's
-    multipliers reproduce its cost (to 1e-9).
+    multipliers reproduce its cost and its vertex holds every row (to 1e-9).
 
     Parameters
     ----------
@@ -1077,6 +1077,17 @@ def region_boxes(A, b, off, maxit):
                     res += abs(rt)
                 if res > 1e-9:
                     good = False
+                    break
+                # and the vertex must be a point of the region: where the projected cost is
+                # ~1e-12 its rounding (~1e-16) is a large part of p, and a step of 1e13
+                # along it left the working rows by 3e-4 (pop_mpqp_016)
+                for i in range(k):
+                    s = -br[i]
+                    for t in range(d):
+                        s += Ar[i, t] * x[t]
+                    if s > 1e-9 * (1.0 + abs(br[i])):
+                        good = False
+                if not good:
                     break
                 if sign > 0.0:
                     hi[r, j] = x[j]

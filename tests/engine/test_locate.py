@@ -431,3 +431,21 @@ def test_an_unproved_daqp_bound_goes_to_highs(monkeypatch):
     x, st, lam = real(np.array([1.0, 0.0]), A, b)
     assert locate_mod._proved(np.array([1.0, 0.0]), A, b, x, lam)
     assert not locate_mod._proved(np.array([1.0, 0.0]), A, b, 0.5 * x, lam)
+
+
+def test_compiled_boxes_stay_in_the_parameter_set_of_pop_mpqp_016():
+    """On a region of pop_mpqp_016 the compiled LP took a step of 9e12 along a projected
+    cost of norm 1e-12 (mostly rounding) and ended 3e-4 outside its working rows: the box
+    reached 10.00012 past the parameter set's bound 10. A bound now counts only if its
+    vertex holds every row; every box stays inside the parameter set's."""
+    from test_mpqp_jit import TESTSET
+
+    path = TESTSET / "pop_mpqp_016.npz"
+    if not path.exists():
+        pytest.skip(f"{path} not present")
+    prog = ce.MpProgram.load(path)
+    sol = ce.mpsolve(prog)
+    As, bs = [r.A for r in sol.regions], [r.b for r in sol.regions]
+    lo, hi = bounding_boxes(As, bs)
+    plo, phi = bounding_boxes([prog.A_theta], [prog.b_theta])
+    assert np.all(lo >= plo - 1e-9) and np.all(hi <= phi + 1e-9)
