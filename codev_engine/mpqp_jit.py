@@ -173,6 +173,7 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
     # rows dropped since the last step that gained: one of them blocking again at once
     # is rounding (see below)
     dropped = np.zeros(k, dtype=np.bool_)
+    ndropped = 0
     stationary = False
     for _ in range(maxit):
         if value > stop_value:
@@ -211,6 +212,7 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                 return _OPTIMAL, x, y, W, nw
             stationary = False
             dropped[W[drop]] = True
+            ndropped += 1
             inW[W[drop]] = False
             for i in range(drop, nw - 1):
                 W[i] = W[i + 1]
@@ -268,8 +270,10 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                 return _FAILED, x, y, W, nw  # cycling all the same: no answer
         else:
             degenerate = 0
-            for i in range(k):
-                dropped[i] = False
+            if ndropped:  # (not a pass over the rows at every step)
+                for i in range(k):
+                    dropped[i] = False
+                ndropped = 0
         for i in range(k):
             if use[i] and not inW[i]:
                 slack[i] -= alpha * slopes[i]
