@@ -28,8 +28,12 @@ def bounding_boxes(
     As: list[np.ndarray],
     bs: list[np.ndarray],
     domain: tuple[np.ndarray, np.ndarray] | None = None,
+    rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounding boxes of bounded polytopes -> lower (R, d), upper (R, d).
+
+    ``rows``, optional, is ``_stack(As, bs)`` when the caller has it already (a second
+    copy of 860k regions' rows is 2 GB).
 
     Each bound is an LP. From ``COMPILED_BOXES`` regions on, all of them are one compiled
     call (``mpqp_jit.region_boxes``; its multipliers must reproduce the cost; loading the
@@ -53,7 +57,7 @@ def bounding_boxes(
     R = len(As)
     d = As[0].shape[1] if R else 0
     if R >= COMPILED_BOXES:
-        lo, hi, ok = _compiled_boxes(As, bs, d)
+        lo, hi, ok = _compiled_boxes(As, bs, d, rows)
     else:
         lo, hi, ok = np.full((R, d), np.nan), np.full((R, d), np.nan), np.zeros(R, dtype=bool)
     for i in np.flatnonzero(~ok):
@@ -94,19 +98,31 @@ def _finite_hull(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray
     )
 
 
-def _compiled_boxes(
-    As: list[np.ndarray], bs: list[np.ndarray], d: int
+def _stack(
+    As: list[np.ndarray], bs: list[np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``mpqp_jit.region_boxes`` on the regions: lower, upper (R, d) and ok (R,)."""
-    from . import mpqp_jit
-
-    R = len(As)
-    if R == 0:
-        return np.zeros((0, d)), np.zeros((0, d)), np.zeros(0, dtype=bool)
-    off = np.zeros(R + 1, dtype=np.int64)
+    """Every row, region after region: A (N, d), b (N,) and the offsets (R + 1,) (at
+    least one region)."""
+    off = np.zeros(len(As) + 1, dtype=np.int64)
     np.cumsum([a.shape[0] for a in As], out=off[1:])
     A = np.ascontiguousarray(np.vstack(As), dtype=float)
     b = np.ascontiguousarray(np.concatenate(bs), dtype=float)
+    return A, b, off
+
+
+def _compiled_boxes(
+    As: list[np.ndarray],
+    bs: list[np.ndarray],
+    d: int,
+    rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``mpqp_jit.region_boxes`` on the regions (``rows``: their ``_stack``, if at hand):
+    lower, upper (R, d) and ok (R,)."""
+    from . import mpqp_jit
+
+    if len(As) == 0:
+        return np.zeros((0, d)), np.zeros((0, d)), np.zeros(0, dtype=bool)
+    A, b, off = rows if rows is not None else _stack(As, bs)
     return mpqp_jit.region_boxes(A, b, off, 50 * (int(np.diff(off).max()) + d + 1))
 
 
@@ -219,11 +235,8 @@ class PointLocator:
         if self.num_regions == 0:
             return
         self.d = As[0].shape[1]
-        # every row, region after region (brute force, and the wide regions)
-        self.off = np.zeros(self.num_regions + 1, dtype=np.int64)
-        np.cumsum([a.shape[0] for a in As], out=self.off[1:])
-        self.rows_A = np.ascontiguousarray(np.vstack(As), dtype=float)
-        self.rows_b = np.ascontiguousarray(np.concatenate(bs), dtype=float)
+        # every row, region after region (brute force, the wide regions, the boxes)
+        self.rows_A, self.rows_b, self.off = _stack(As, bs)
         if grid or (grid is None and boxes is not None):
             self._build_grid()
 
@@ -245,7 +258,10 @@ class PointLocator:
             return
         R, d = self.num_regions, self.d
         boxes = self._boxes
-        lo, hi = boxes if boxes is not None else bounding_boxes(self._As, self._bs)
+        if boxes is None:
+            rows = (self.rows_A, self.rows_b, self.off)
+            boxes = bounding_boxes(self._As, self._bs, rows=rows)
+        lo, hi = boxes
         lo = np.array(lo, dtype=float).reshape(R, d)
         hi = np.array(hi, dtype=float).reshape(R, d)
         # A box that is not finite (an LP failed when it was computed, or it came so from

@@ -181,8 +181,8 @@ def test_every_lp_failing_falls_back_to_a_sound_finite_box(monkeypatch, domain):
             res.status, res.x = 2, None
         return res
 
-    def failing_compiled(As_, bs_, d):
-        lo, hi, ok = real_compiled(As_, bs_, d)
+    def failing_compiled(As_, bs_, d, rows=None):
+        lo, hi, ok = real_compiled(As_, bs_, d, rows)
         for i, M in enumerate(As_):
             if is_sliver(M):
                 lo[i], hi[i], ok[i] = np.nan, np.nan, False
