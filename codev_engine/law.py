@@ -50,7 +50,7 @@ class ExplicitLaw:
         Free-form JSON-able metadata (problem name, norm, seconds, solver stats).
     domain_A, domain_b : ndarray
         The law's domain (the MPC's feasible set, the union of the regions) as
-        ``domain_A x <= domain_b``, non-redundant.
+        ``domain_A x <= domain_b`` (see ``MpSolution``).
     """
 
     A: list[np.ndarray]

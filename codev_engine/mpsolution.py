@@ -59,7 +59,8 @@ class MpSolution:
         In the original variables ``z`` (equalities eliminated internally are mapped back).
     domain_A, domain_b : ndarray
         The feasible parameter set (the union of the regions) as ``domain_A theta <=
-        domain_b``, non-redundant.
+        domain_b``: its facets, non-redundant up to 5,000 rows (above that a row may
+        also only touch the set; see docs/algorithm.md).
     seconds : float
         Wall time of the solve.
     stats : dict

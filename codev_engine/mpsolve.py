@@ -878,15 +878,24 @@ def _empty_domain(red: _Reduced) -> tuple[np.ndarray, np.ndarray]:
 #: (numba is loaded by then: the compiled kernel starts at mpqp.JIT_AFTER regions)
 _COMPILED_DOMAIN_AFTER = 1000
 
+#: up to this many rows the feasible set's rows go through DAQP's minrep (0.4 s for 5,000
+#: rows in 7-D, growing about as the square): rows that only touch the set go too
+_MINREP_ROWS = 5000
+
 
 def _domain_from_regions(
     red: _Reduced, regions: list[CriticalRegion], scale: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """H-representation of the feasible parameter set from the regions' rows.
+    """Non-redundant H-representation of the feasible parameter set from the regions' rows.
 
     A facet between two regions appears in both with opposite signs and is dropped; each
-    remaining row is kept when it is valid for the whole feasible set (an LP over the
-    lifted set ``{(w, theta) : G w - S theta <= w0, At theta <= bt}``).
+    remaining row is kept when it is valid for the whole feasible set ``D`` (an LP over the
+    lifted set ``{(w, theta) : G w - S theta <= w0, At theta <= bt}``). Such a row is a
+    facet of its region lying on the boundary of ``D``, so it is a facet of ``D``: no
+    redundancy test among them (DAQP's minrep over the ~100k such rows of
+    ``pop_mpqp_051`` ran for over ten minutes). The parameter set's rows are in every
+    region whether they bound it or not (and region rows equal to one are not told
+    apart from it): each is kept unless the other rows imply it (an LP).
     """
     A = np.concatenate([r.A for r in regions])
     b = np.concatenate([r.b for r in regions])
@@ -900,19 +909,30 @@ def _domain_from_regions(
         rows = np.hstack([A, b[:, None]])
         cand = rows[unique_rows(rows, 7)]
         cand = cand[~rows_in(cand, -rows, 7)]
+    p, d = red.At.shape
+    theta_rows = np.hstack([red.At, red.bt[:, None]])
+    cand = cand[~rows_in(cand, theta_rows, 7)]
     nw = red.G.shape[1]
-    LA = np.vstack(
-        [np.hstack([red.G, -red.S]), np.hstack([np.zeros((red.At.shape[0], nw)), red.At])]
-    )
+    LA = np.vstack([np.hstack([red.G, -red.S]), np.hstack([np.zeros((p, nw)), red.At])])
     Lb = np.concatenate([red.w, red.bt])
-    keep = [np.hstack([red.At, red.bt[:, None]])]
-    for row in cand:
-        a, beta = row[:-1], row[-1]
-        f = np.concatenate([np.zeros(nw), -a])
-        x, st, _ = solve_lp(f, LA, Lb)
-        if st == "optimal" and a @ x[nw:] <= beta + 1e-9 * scale:
-            keep.append(row[None, :])
-    allrows = np.vstack(keep)
-    A, b = allrows[:, :-1], allrows[:, -1]
-    idx = minimal_rows(A, b)
-    return A[idx], b[idx]
+    tol = 1e-9 * scale
+    valid = np.zeros(cand.shape[0], dtype=bool)
+    for j, row in enumerate(cand):
+        x, st, _ = solve_lp(np.concatenate([np.zeros(nw), -row[:-1]]), LA, Lb)
+        valid[j] = st == "optimal" and row[:-1] @ x[nw:] <= row[-1] + tol
+    facets = cand[valid].reshape(-1, d + 1)
+    # a parameter-set row goes if the other rows imply it: one at a time, each without
+    # the ones dropped before (of two equal rows one stays)
+    needed = np.ones(p, dtype=bool)
+    for i in range(p):
+        needed[i] = False
+        rows = np.vstack([theta_rows[needed], facets])
+        x, st, _ = solve_lp(-red.At[i], rows[:, :-1], rows[:, -1])
+        needed[i] = st != "optimal" or red.At[i] @ x > red.bt[i] + tol
+    allrows = np.vstack([theta_rows[needed], facets])
+    if allrows.shape[0] <= _MINREP_ROWS:
+        # a region's row that only touches it (through a vertex, say: its redundancy is
+        # not proved with a margin, so the region keeps it) may only touch the feasible
+        # set too
+        allrows = allrows[minimal_rows(allrows[:, :-1], allrows[:, -1])]
+    return allrows[:, :-1], allrows[:, -1]

@@ -29,7 +29,9 @@ Per problem:
    * no overlaps: no parameter lies in the interior (margin ``STRICT``) of two regions;
    * value: ``sol.value`` equals the online optimum within ``RTOL * max(1, |v*|)``;
    * primal: ``sol.primal`` satisfies every (normalised) constraint within
-     ``FEAS_TOL * max(1, |z|_inf)``.
+     ``FEAS_TOL * max(1, |z|_inf)``;
+   * domain: every feasible parameter satisfies ``sol.domain_A theta <= sol.domain_b``
+     (within ``FEAS_TOL``), and no infeasible one satisfies it with margin ``STRICT``.
 
 Region counts are not asserted (the reference counts of the README are what MPT3 / PPOPT
 returned, not an oracle); they are printed next to ``ref_regions`` in the session summary
@@ -518,6 +520,23 @@ def conformance(sol: ce.MpSolution, N: Normalised, Theta: np.ndarray) -> tuple[l
                 f"{beyond.size} regions reach out of the parameter set, e.g. region {i} with "
                 f"bounding box {_fmt(blo[i])} .. {_fmt(bhi[i])}"
             )
+    if sol.domain_A is not None:
+        # the feasible set's H-representation: every feasible parameter in it, no
+        # infeasible one strictly inside (margin STRICT)
+        reach = np.max(Theta @ sol.domain_A.T - sol.domain_b, axis=1, initial=-np.inf)
+        dscale = max(1.0, float(np.max(np.abs(Theta))))
+        out = np.flatnonzero(feasible & (reach > FEAS_TOL * dscale))
+        if out.size:
+            problems.append(
+                f"{out.size} feasible parameters outside the domain, e.g. theta = "
+                f"{_fmt(Theta[out[0]])} by {reach[out[0]]:.3g}"
+            )
+        within = np.flatnonzero((status == "infeasible") & (reach < -STRICT * dscale))
+        if within.size:
+            problems.append(
+                f"{within.size} infeasible parameters inside the domain, e.g. theta = "
+                f"{_fmt(Theta[within[0]])}"
+            )
     inside = overlap_counts(sol, Theta)
     overlaps = np.flatnonzero(inside > 1)
     if overlaps.size:
@@ -683,13 +702,27 @@ def test_harness_accepts_a_correct_solution_and_catches_wrong_ones():
     status = np.array([N.online(th)[0] for th in Theta])
     assert (status == "optimal").sum() >= N_FEASIBLE and (status == "infeasible").any()
 
-    def wrong(regions) -> str:
-        bad = ce.MpSolution(program=prog, regions=regions)
+    def wrong(regions, domain=None) -> str:
+        dA, db = (None, None) if domain is None else domain
+        bad = ce.MpSolution(program=prog, regions=regions, domain_A=dA, domain_b=db)
         found, _ = conformance(bad, N, Theta)
         return "; ".join(found)
 
     regs = list(sol.regions)
     busiest = np.bincount(sol.locate(Theta)[sol.locate(Theta) >= 0]).argmax()
+    # the feasible set without one of its rows, or cut by a row through its centre
+    dA, db = sol.domain_A, sol.domain_b
+    assert dA is not None and dA.shape[0] >= 3
+    for i in range(dA.shape[0]):
+        msg = wrong(regs, (np.delete(dA, i, 0), np.delete(db, i)))
+        if msg:
+            assert "infeasible parameters inside the domain" in msg, msg
+            break
+    else:
+        raise AssertionError("no infeasible sample next to any facet of the domain")
+    centre = np.mean(Theta[(status == "optimal")], axis=0)
+    cut = (np.vstack([dA, dA[:1]]), np.concatenate([db, [dA[0] @ centre]]))
+    assert "feasible parameters outside the domain" in wrong(regs, cut)
     assert "holes" in wrong(regs[:busiest] + regs[busiest + 1 :])
     assert "several regions" in wrong(regs + [regs[busiest]])
     shifted = ce.CriticalRegion(

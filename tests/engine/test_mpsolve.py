@@ -606,3 +606,43 @@ def test_semidefinite_with_a_recession_direction_is_refused():
                 theta_lo=[-2.0], theta_hi=[2.0])
     with pytest.raises(ce.SolverError, match="recession"):
         ce.mpsolve(p)
+
+
+def _implies(A: np.ndarray, b: np.ndarray, A2: np.ndarray, b2: np.ndarray) -> bool:
+    """Every row of ``A2 x <= b2`` holds on ``{A x <= b}`` (LPs, HiGHS; 1e-9 slack)."""
+    for a, beta in zip(A2, b2, strict=True):
+        res = linprog(-a, A_ub=A, b_ub=b, bounds=(None, None), method="highs")
+        if res.status != 0 or -res.fun > beta + 1e-9 * max(1.0, abs(beta)):
+            return False
+    return True
+
+
+def test_domain_keeps_a_parameter_row_the_constraints_also_imply():
+    """min z^2 s.t. z <= 1, z >= theta, theta in [-2, 1]: feasible for every theta in the
+    box. The constraints alone imply theta <= 1 too, so the parameter-set row theta <= 1 is
+    redundant in the lifted set; it is still the domain's facet (ppopt_portfolio_mpqp had
+    lost both of its bounds that way)."""
+    p = program(H=[[2.0]], A=[[1.0], [-1.0]], b=[1.0, 0.0], F=[[0.0], [-1.0]],
+                theta_lo=[-2.0], theta_hi=[1.0])
+    sol = ce.mpsolve(p)
+    inside = sol.domain_A @ np.array([[0.999], [-1.999]]).T <= sol.domain_b[:, None]
+    assert inside.all()
+    for th in (1.001, -2.001):
+        assert np.any(sol.domain_A @ [th] > sol.domain_b)
+
+
+@pytest.mark.parametrize(
+    "name", ["qp_box_coupled", "qp_triangle_theta", "qp_equality", "random_qp1", "random_qp3"]
+)
+def test_domain_without_minrep_is_the_same_set(name, monkeypatch):
+    """Above ``_MINREP_ROWS`` boundary rows the feasible set is not passed through DAQP's
+    minrep (minutes on pop_mpqp_051's 100k rows): the rows left describe the same set."""
+    import importlib
+
+    mpsolve_module = importlib.import_module("codev_engine.mpsolve")
+    small = ce.mpsolve(PROGRAMS[name]())
+    monkeypatch.setattr(mpsolve_module, "_MINREP_ROWS", 0)
+    large = ce.mpsolve(PROGRAMS[name]())
+    assert large.domain_A.shape[0] >= small.domain_A.shape[0] > 0
+    assert _implies(small.domain_A, small.domain_b, large.domain_A, large.domain_b)
+    assert _implies(large.domain_A, large.domain_b, small.domain_A, small.domain_b)
