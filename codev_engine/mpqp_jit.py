@@ -417,6 +417,8 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
     nv = 0  # vertices in the buffer
     stored = 0  # vertices ever stored (the next goes to stored % _WARM_STARTS)
     W0 = np.empty(d, dtype=np.int64)
+    X0 = np.empty(d)
+    crow = np.empty(d)
     # facets seen from the centre: along a row's normal, the ray that reaches that row's
     # plane strictly before every other plane proves the row needed (the point it hits is
     # inside all the others), with no LP
@@ -461,21 +463,28 @@ def _certified_keep(A, b, fixed, centre, bound, maxit):
             if s > top:
                 top = s
                 start = v
-        x0 = centre
         nw0 = 0
         if start >= 0:
-            x0 = VX[start]
+            for t in range(d):
+                X0[t] = VX[start, t]
             for q in range(d):
                 if kept[VW[start, q]]:
                     W0[nw0] = VW[start, q]
                     nw0 += 1
-        status, x, y, W, nw = _lp(A[i], A, b, kept, x0, W0, nw0, stop, maxit, ws)
+        else:
+            for t in range(d):
+                X0[t] = centre[t]
+        for t in range(d):
+            crow[t] = A[i, t]
+        status, x, y, W, nw = _lp(crow, A, b, kept, X0, W0, nw0, stop, maxit, ws)
         kept[i] = True
         if status != _OPTIMAL:
             continue  # a point of the others outside row i (needed), or no answer: keep
         if nw == d:
-            VX[stored % _WARM_STARTS] = x
-            VW[stored % _WARM_STARTS] = W
+            slot = stored % _WARM_STARTS
+            for t in range(d):
+                VX[slot, t] = x[t]
+                VW[slot, t] = W[t]
             stored += 1
             nv = min(stored, _WARM_STARTS)
         nb = 0
@@ -676,7 +685,8 @@ def evaluate(
         else:
             B = np.empty((na, d + 1))
             for i in range(na):
-                B[i] = -Dfull[act[i]]
+                for u in range(d + 1):
+                    B[i, u] = -Dfull[act[i], u]
             Lam = _cho_solve(L, B)
     ni = m - na
     p = At.shape[0]
@@ -685,7 +695,8 @@ def evaluate(
     br = np.empty(nr)
     src = np.zeros(nr, dtype=np.int64)
     for i in range(na):
-        Ar[i] = -Lam[i, 1:]
+        for t in range(d):
+            Ar[i, t] = -Lam[i, t + 1]
         br[i] = Lam[i, 0]
         src[i] = act[i] + 1
     row = np.empty(d + 1)
@@ -711,7 +722,8 @@ def evaluate(
         br[na + q] = row[0]
         src[na + q] = -(iq + 1)
     for q in range(p):
-        Ar[na + ni + q] = At[q]
+        for t in range(d):
+            Ar[na + ni + q, t] = At[q, t]
         br[na + ni + q] = bt[q]
     # normalise; rows that vanish for every theta decide emptiness alone
     keep_row = np.ones(nr, dtype=np.bool_)
@@ -731,7 +743,8 @@ def evaluate(
             if br[i] <= 1e-6 * (1.0 + scale):
                 vanished = True
         else:
-            Ar[i] /= s
+            for t in range(d):
+                Ar[i, t] /= s
             br[i] /= s
     Ar = Ar[keep_row]
     br = br[keep_row]
