@@ -810,7 +810,10 @@ def mpsolve(
                 progress=progress,
                 stats=ex.stats,
             )
-    domain = _domain_from_regions(red, regions, ex.scale) if regions else _empty_domain(red)
+    domain = (
+        _domain_from_regions(red, regions, ex.scale, ex.theta_box) if regions
+        else _empty_domain(red)
+    )
     # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
     out = regions
     if not (np.array_equal(red.Nz, np.eye(program.nz)) and not red.Z0.any() and not red.Z1.any()):
@@ -873,7 +876,10 @@ _SEEN = 256
 
 
 def _domain_from_regions(
-    red: _Reduced, regions: list[CriticalRegion], scale: float
+    red: _Reduced,
+    regions: list[CriticalRegion],
+    scale: float,
+    box: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
     """Non-redundant H-representation of the feasible parameter set from the regions' rows.
 
@@ -929,11 +935,16 @@ def _domain_from_regions(
     facets = cand[valid].reshape(-1, d + 1)
     # a parameter-set row goes if the other rows imply it: one at a time, each without
     # the ones dropped before (of two equal rows one stays)
+    # (within the parameter box grown by its size: the set without row i goes past row i
+    # within it if at all, as the rest of it is the feasible set, inside the box; an
+    # unbounded LP made DAQP hand over to HiGHS, ~1 ms each on problems solved in 2 ms)
+    lo, hi = box
+    grow = max(scale, 1.0)
     needed = np.ones(p, dtype=bool)
     for i in range(p):
         needed[i] = False
         rows = np.vstack([theta_rows[needed], facets])
-        x, st, _ = solve_lp(-red.At[i], rows[:, :-1], rows[:, -1])
+        x, st, _ = solve_lp(-red.At[i], rows[:, :-1], rows[:, -1], lb=lo - grow, ub=hi + grow)
         needed[i] = st != "optimal" or red.At[i] @ x > red.bt[i] + tol
     allrows = np.vstack([theta_rows[needed], facets])
     if allrows.shape[0] <= _MINREP_ROWS:
