@@ -881,7 +881,9 @@ def _domain_from_regions(
     scale: float,
     box: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Non-redundant H-representation of the feasible parameter set from the regions' rows.
+    """H-representation of the feasible parameter set from the regions' rows: its facets,
+    non-redundant up to ``_MINREP_ROWS`` rows (above that, rows that only touch the set may
+    stay).
 
     A facet between two regions appears in both with opposite signs and is dropped; each
     remaining row is kept when it is valid for the whole feasible set ``D`` (an LP over the
@@ -934,9 +936,9 @@ def _domain_from_regions(
                 nseen += 1
     facets = cand[valid].reshape(-1, d + 1)
     # a parameter-set row goes if the other rows imply it: one at a time, each without
-    # the ones dropped before (of two equal rows one stays)
-    # (within the parameter box grown by its size: the set without row i goes past row i
-    # within it if at all, as the rest of it is the feasible set, inside the box; an
+    # the ones dropped before (of two equal rows one stays). The LPs run inside the
+    # parameter box grown by its size: the set without row i goes past row i, if at all,
+    # next to where it meets row i, which is in the feasible set and so in the box (an
     # unbounded LP made DAQP hand over to HiGHS, ~1 ms each on problems solved in 2 ms)
     lo, hi = box
     grow = max(scale, 1.0)
