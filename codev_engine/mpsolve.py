@@ -889,10 +889,10 @@ def _domain_from_regions(
     remaining row is kept when it is valid for the whole feasible set ``D`` (an LP over the
     lifted set ``{(w, theta) : G w - S theta <= w0, At theta <= bt}``). Such a row is a
     facet of its region lying on the boundary of ``D``, so it is a facet of ``D``: no
-    redundancy test among them (DAQP's minrep over the ~100k such rows of
-    ``pop_mpqp_051`` took minutes: about 230 of its ~400 s). The parameter set's rows are in every
-    region whether they bound it or not (and region rows equal to one are not told
-    apart from it): each is kept unless the other rows imply it (an LP).
+    redundancy test among them (DAQP's minrep over the ~100k such rows of ``pop_mpqp_051``
+    took about 230 of its ~400 s). The parameter set's rows are in every region whether
+    they bound it or not (and region rows equal to one are not told apart from it): each
+    is kept unless the other rows imply it (an LP).
     """
     A = np.concatenate([r.A for r in regions])
     b = np.concatenate([r.b for r in regions])

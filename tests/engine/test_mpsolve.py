@@ -632,7 +632,9 @@ def test_domain_keeps_a_parameter_row_the_constraints_also_imply():
 
 
 @pytest.mark.parametrize(
-    "name", ["qp_box_coupled", "qp_triangle_theta", "qp_equality", "random_qp1", "random_qp3"]
+    "name",
+    ["qp_box_coupled", "qp_triangle_theta", "qp_equality", "random_qp1", "random_qp3",
+     "lp_param_cost", "lp_equality", "random_lp1", "random_lp4"],
 )
 def test_domain_without_minrep_is_the_same_set(name, monkeypatch):
     """Above ``_MINREP_ROWS`` boundary rows the feasible set is not passed through DAQP's
