@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from .locate import bounding_boxes
-from .polytope import chebyshev_ball, minimal_rows, solve_lp
+from .polytope import certified_minimal_rows, chebyshev_ball, solve_lp
 
 __all__ = ["merge_regions"]
 
@@ -27,8 +27,9 @@ def _valid_on(
     return out
 
 
-def _union_if_convex(PA, Pb, QA, Qb, tol):
-    """Envelope of P and Q when P u Q is convex, else None."""
+def _union_if_convex(PA, Pb, QA, Qb, tol, bound):
+    """Envelope of P and Q when P u Q is convex, else None. ``bound`` >= max |x|_inf over
+    P and Q."""
     vp = _valid_on(PA, Pb, QA, Qb, tol)
     vq = _valid_on(QA, Qb, PA, Pb, tol)
     EA = np.vstack([PA[vp], QA[vq]])
@@ -44,7 +45,9 @@ def _union_if_convex(PA, Pb, QA, Qb, tol):
             x, st, _ = solve_lp(-QA[j], SA, Sb)
             if st != "optimal" or QA[j] @ x > Qb[j] + tol:
                 return None
-    keep = minimal_rows(EA, Eb)
+    # a row minrep drops goes only with a proof: a needed row dropped would stretch the
+    # merged region over its neighbours, with this law
+    keep = certified_minimal_rows(EA, Eb, bound)
     return EA[keep], Eb[keep]
 
 
@@ -85,7 +88,10 @@ def merge_regions(
                     (li, hi_), (lj, hj) = lo_hi[i], lo_hi[j]
                     if np.any(li > hj + tol) or np.any(lj > hi_ + tol):
                         continue  # boxes apart: cannot touch
-                    u = _union_if_convex(polys[i][0], polys[i][1], polys[j][0], polys[j][1], tol)
+                    bound = float(np.max(np.abs([li, hi_, lj, hj])))
+                    u = _union_if_convex(
+                        polys[i][0], polys[i][1], polys[j][0], polys[j][1], tol, bound
+                    )
                     if u is not None:
                         polys[i] = (u[0], u[1], polys[i][2])
                         del polys[j]
