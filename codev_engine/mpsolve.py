@@ -22,12 +22,11 @@ for the argument):
    covered: a facet is split into *pieces*; for each piece, step a tiny distance across its
    Chebyshev centre, find (or compute) the region there, check it touches the piece, and
    subtract it from the piece (set difference by reversing its rows one at a time). A piece
-   is done when it is empty, lies on the parameter-set boundary, or the problem is
-   infeasible across it (then, by convexity of the feasible set, the whole facet is on its
-   boundary). So the union of the regions is the whole feasible set: no holes even when
-   neighbouring regions do not meet facet to facet. (Up to the step: "infeasible across" is
-   decided at one point, which can miss a sliver beyond the facet; see the known limit in
-   ``docs/algorithm.md``.)
+   is done when it is empty, or its hyperplane supports the feasible set (an LP, asked when
+   the step lands outside the set; when the set goes on past the hyperplane but is thinner
+   than the step there, the step goes towards a feasible point past it instead). So the
+   union of the regions is the whole feasible set: no holes even when neighbouring regions
+   do not meet facet to facet.
 """
 
 from __future__ import annotations
@@ -45,6 +44,7 @@ from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
 from .mpqp import explore_active_sets
+from .mpqp_jit import certified_keep
 from .mpsolution import CriticalRegion, MpSolution
 from .polytope import (
     bounding_box,
@@ -192,6 +192,7 @@ class _Explorer:
         if np.any(hi - lo < 0):
             raise SpecError("the parameter set is empty", field="A_theta")
         self.scale = float(max(np.max(hi - lo), 1e-12))
+        self.bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))  # of |theta|_inf
         self.region_tol = opts.region_tol * self.scale
         self.step = opts.step * self.scale
         self.touch_tol = 1e-11 * self.scale
@@ -212,6 +213,7 @@ class _Explorer:
         self._bufb = np.zeros(1024)
         self._nrows = 0
         self._starts = np.zeros(0, dtype=np.intp)
+        self._far: dict[bytes, np.ndarray | None] = {}  # see _past
 
     # ---- small geometry helpers -------------------------------------------------------
 
@@ -552,7 +554,9 @@ class _Explorer:
             return None
         if np.any(Ar @ q - br > 1e-7 * self.scale):
             return None
-        keep = minimal_rows(Ar, br)
+        # redundant rows dropped only with a proof: DAQP's minrep dropped a parameter-set row
+        # that a sliver region (radius 3e-5) crossed by 0.7 (an MPC of the oracle tests)
+        keep = _certified_rows(Ar, br, centre, self.bound)
         return CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=tuple(int(i) for i in act))
 
     # ---- exploration --------------------------------------------------------------------
@@ -576,13 +580,18 @@ class _Explorer:
             raise SolverError(f"more than {self.opts.max_regions} regions")
         return len(self.regions) - 1
 
+    def _lifted(self) -> tuple[np.ndarray, np.ndarray]:
+        """The feasible set lifted to (w, theta): rows ``G w - S theta <= w`` and
+        ``At theta <= bt``, (m + p, nw + d) and (m + p,)."""
+        r = self.r
+        zero = np.zeros((r.At.shape[0], self.nw))
+        return np.block([[r.G, -r.S], [zero, r.At]]), np.concatenate([r.w, r.bt])
+
     def start_point(self) -> np.ndarray | None:
         """A parameter well inside the feasible set (lifted Chebyshev centre), or None."""
         r = self.r
         d, nw = self.d, self.nw
-        # rows over (w, theta):  G w - S theta <= w ;  At theta <= bt
-        A = np.vstack([np.hstack([r.G, -r.S]), np.hstack([np.zeros((r.At.shape[0], nw)), r.At])])
-        b = np.concatenate([r.w, r.bt])
+        A, b = self._lifted()
         # radius measured in theta only: ball of theta's, any w
         norms = np.concatenate([np.linalg.norm(r.S, axis=1), np.linalg.norm(r.At, axis=1)])
         f = np.zeros(nw + d + 1)
@@ -613,6 +622,31 @@ class _Explorer:
                 for new in self._cover_facet(i, j):
                     queue.append(new)
         return self.regions
+
+    def _past(self, a: np.ndarray, beta: float) -> np.ndarray | None:
+        """A feasible parameter farthest along ``a``, when it is past ``a theta = beta`` by
+        more than ``region_tol`` (else None: the hyperplane supports the feasible set, and
+        a facet on it is on the set's boundary). One LP over the lifted set per direction
+        (many facets share a boundary hyperplane)."""
+        key = a.tobytes()
+        if key not in self._far:
+            nw = self.nw
+            A, b = self._lifted()
+            x, st, _ = solve_lp(np.concatenate([np.zeros(nw), -a]), A, b)
+            self._far[key] = x[nw:] if st == "optimal" and x is not None else None
+        z = self._far[key]
+        if z is None or a @ z <= beta + self.region_tol:
+            return None
+        return z
+
+    def _known(self, reg: CriticalRegion) -> int:
+        """Index of a found region that ``reg`` is a copy of (a degenerate vertex reached
+        by another basis gives the same region), else -1: one of its inner points (the
+        mean of its vertices) strictly inside a found region means an overlap."""
+        V = vertices(reg.A, reg.b, tol=self.touch_tol)
+        if V is None or V.shape[0] == 0:
+            return -1
+        return self._find(V.mean(axis=0), -1e-9 * self.scale)
 
     def _facet_vertices(self, i: int, j: int) -> np.ndarray | None:
         V = self._verts[i]
@@ -677,26 +711,61 @@ class _Explorer:
                 continue
             eps = min(self.step, 0.5 * rho) * scale
             target = -1
-            for _ in range(6):
-                q = p + eps * a
-                if not self._in_theta(q):
-                    target = -2
+            # across the facet (eps: the distance past its hyperplane): along its normal,
+            # unless the feasible set is thinner than that there
+            direction = a
+            tries = 0
+            while tries < 6:
+                tries += 1
+                q = p + eps * direction
+                # past the hyperplane, outside the parameter set or where the program is
+                # infeasible: the facet is on the feasible set's boundary only if that is
+                # so along all of the hyperplane
+                beyond = not self._in_theta(q)
+                if not beyond:
+                    k = self._find(q, 1e-12 * self.scale)
+                    if k < 0:
+                        try:
+                            nreg = self._region_at(q, 0.1 * eps)
+                        except _NoRegionError:
+                            # only regions thinner than region_tol live here: a numerically
+                            # flat piece; counted and reported, never silently
+                            self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
+                            target = -3
+                            break
+                        beyond = nreg is None
+                        if not beyond:
+                            k = self._known(nreg)
+                            if k >= 0:
+                                self.stats["copies"] = self.stats.get("copies", 0) + 1
+                            else:
+                                k = self._add(nreg)
+                                new_regions.append(k)
+                if beyond:
+                    if direction is not a:
+                        # on the segment from p to a feasible point: rounding at a
+                        # boundary point of the set; step closer
+                        eps *= 0.1
+                        self.stats["step_refinements"] += 1
+                        continue
+                    z = self._past(a, beta)
+                    if z is None:
+                        target = -2  # the set ends at this hyperplane: boundary
+                        break
+                    # the set goes on past the hyperplane, but by less than eps at p (a
+                    # thin wedge): step towards a feasible point z past it instead, eps
+                    # past the hyperplane as before (the segment from p, a point of the
+                    # set, to z lies in the set)
+                    past = float(a @ (z - p))
+                    direction = (z - p) / past
+                    eps = min(eps, 0.5 * past)
+                    self.stats["wedges"] = self.stats.get("wedges", 0) + 1
+                    tries -= 1
+                    continue
+                if k == i:
+                    # rounding put q in the region stepped from: taking it as the neighbour
+                    # would mark the piece covered and leave a hole; refuse loudly
                     break
-                k = self._find(q, 1e-12 * self.scale)
-                if k < 0:
-                    try:
-                        nreg = self._region_at(q, 0.1 * eps)
-                    except _NoRegionError:
-                        # only regions thinner than region_tol live here: a numerically
-                        # flat piece; counted and reported, never silently
-                        self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
-                        target = -3
-                        break
-                    if nreg is None:
-                        target = -2  # infeasible beyond: this facet is on the boundary
-                        break
-                    k = self._add(nreg)
-                    new_regions.append(k)
                 R2 = self.regions[k]
                 if np.all(R2.A @ p - R2.b <= self.touch_tol):
                     target = k
@@ -706,8 +775,6 @@ class _Explorer:
             if target == -3:
                 continue
             if target == -2:
-                if not self._in_theta(q):
-                    continue
                 return new_regions  # the facet is on the feasible set's boundary
             if target < 0:
                 raise SolverError("could not step across a facet (numerical trouble)")
@@ -741,6 +808,18 @@ class _Explorer:
         if budget == 0:
             raise SolverError("facet coverage did not converge (too many pieces)")
         return new_regions
+
+
+def _certified_rows(A: np.ndarray, b: np.ndarray, centre: np.ndarray, bound: float) -> np.ndarray:
+    """Keep mask (k,) of the normalised rows ``A x <= b``: DAQP's minrep proposes the rows
+    to drop and each goes only if multipliers over the kept rows prove it redundant
+    (``mpqp_jit.certified_keep``; ``centre`` an interior point, ``bound`` >= max |x|_inf
+    over the set). minrep alone dropped a parameter-set row that a sliver region (radius
+    3e-5) of an MPC crossed by 0.7."""
+    A, b = np.ascontiguousarray(A), np.ascontiguousarray(b)
+    fixed = np.zeros(b.shape[0], dtype=bool)
+    fixed[minimal_rows(A, b)] = True
+    return certified_keep(A, b, fixed, centre, bound, 50 * (b.shape[0] + A.shape[1]))
 
 
 def _complete_basis(G, act, tight, n):
@@ -868,7 +947,7 @@ def _empty_domain(red: _Reduced) -> tuple[np.ndarray, np.ndarray]:
 _COMPILED_DOMAIN_AFTER = 1000
 
 #: up to this many rows the feasible set's rows go through DAQP's minrep (0.4 s for 5,000
-#: rows in 7-D, growing about as the square): rows that only touch the set go too
+#: rows in 7-D, growing about as the square), each row it drops checked by a proof
 _MINREP_ROWS = 5000
 
 #: points of the feasible set kept to rule out boundary candidates without an LP
@@ -882,8 +961,8 @@ def _domain_from_regions(
     box: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
     """H-representation of the feasible parameter set from the regions' rows: its facets,
-    non-redundant up to ``_MINREP_ROWS`` rows (above that, rows that only touch the set may
-    stay).
+    and possibly rows that only touch it (up to ``_MINREP_ROWS`` rows, every other
+    redundant row is dropped).
 
     A facet between two regions appears in both with opposite signs and is dropped; each
     remaining row is kept when it is valid for the whole feasible set ``D`` (an LP over the
@@ -950,8 +1029,11 @@ def _domain_from_regions(
         needed[i] = st != "optimal" or red.At[i] @ x > red.bt[i] + tol
     allrows = np.vstack([theta_rows[needed], facets])
     if allrows.shape[0] <= _MINREP_ROWS:
-        # a region's row that only touches it (through a vertex, say: its redundancy is
-        # not proved with a margin, so the region keeps it) may only touch the feasible
-        # set too
-        allrows = allrows[minimal_rows(allrows[:, :-1], allrows[:, -1])]
+        # redundant rows go, each with a proof (a row that only touches the set, through
+        # a vertex, say, has no proof with a margin and stays)
+        A, b = allrows[:, :-1], allrows[:, -1]
+        centre, radius = chebyshev_ball(A, b)
+        if radius > 0:
+            bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+            allrows = allrows[_certified_rows(A, b, centre, bound)]
     return allrows[:, :-1], allrows[:, -1]

@@ -779,16 +779,12 @@ def test_oracle_agrees_with_itself_across_solvers():
 
 @pytest.mark.skipif(not (TESTSET / "mpt3_mpqp_04_dat.npz").is_file(),
                     reason=f"no mpt3_mpqp_04_dat.npz in {TESTSET}")
-@pytest.mark.xfail(strict=True, reason="known: the mp-LP explorer takes a facet as the "
-                   "boundary when the step across lands outside the feasible set, though the "
-                   "set goes on past its hyperplane (two sliver holes, radius 7e-6)")
 def test_mp_lp_leaves_no_sliver_beyond_a_facet_it_steps_out_of():
     """mpt3_mpqp_04_dat (an mp-LP, 98 variables): stepping 1e-6 across some facets lands
     outside the feasible set although the set goes on past the facet's hyperplane (by up
-    to 2e-3, away from the point stepped from). These two parameters, the centres of
-    sliver regions found by stepping closer, are feasible and not located. (Stepping
-    closer found them, but also made two overlapping copies of a degenerate region: not
-    done yet.)"""
+    to 2e-3, away from the point stepped from). Taking such a facet as the boundary left
+    two sliver holes, whose centres are these two parameters: the explorer must step into
+    the thin wedge instead (towards a feasible point past the hyperplane)."""
     prog = ce.MpProgram.load(TESTSET / "mpt3_mpqp_04_dat.npz")
     sol = ce.mpsolve(prog)
     N = Normalised(prog)

@@ -63,7 +63,7 @@ def test_lp_max_stops_once_past_the_stop_value():
 
 
 @pytest.mark.parametrize("seed", range(30))
-def test_certified_keep_drops_only_redundant_rows(seed):
+def testcertified_keep_drops_only_redundant_rows(seed):
     """Every dropped row is redundant (an exact LP over the kept rows does not pass it) and
     every row that is a facet is kept."""
     rng = np.random.default_rng(100 + seed)
@@ -80,7 +80,7 @@ def test_certified_keep_drops_only_redundant_rows(seed):
         bounds=[(None, None)] * d + [(0, None)], method="highs",
     )
     centre = res.x[:d]
-    kept = mpqp_jit._certified_keep(A, b, fixed, centre, 3.0, 10_000)
+    kept = mpqp_jit.certified_keep(A, b, fixed, centre, 3.0, 10_000)
     assert np.all(kept[fixed])
     for i in range(k):
         others = kept.copy()

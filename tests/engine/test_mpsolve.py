@@ -522,6 +522,31 @@ def test_parametric_cost_picks_the_best_vertex():
         assert abs(res.sol.value(th[None])[0] - best) <= 1e-9 * max(1, abs(best))
 
 
+def test_mp_lp_steps_into_a_wedge_thinner_than_its_step():
+    """min z s.t. z >= 0, z >= theta2 - 1, z <= 1 + s (1 + theta1) - theta2: past the
+    facet theta2 = 1 of the region z = 0 the feasible set is a wedge, 0 thick at theta1 =
+    -1 and s = 2e-6 at theta1 = 1, and at the facet's centre (0, 1) thinner (1e-6) than
+    the step across (2e-6). Taking the facet as the boundary there left the wedge's region
+    z = theta2 - 1 out: a hole, and a feasible set of theta2 <= 2."""
+    s = 2e-6
+    prog = ce.MpProgram(
+        H=np.zeros((1, 1)), c=np.array([1.0]), C=np.zeros((1, 2)),
+        A=np.array([[-1.0], [-1.0], [1.0]]), b=np.array([0.0, 1.0, 1.0 + s]),
+        F=np.array([[0.0, 0.0], [0.0, -1.0], [s, -1.0]]),
+        A_theta=np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]]),
+        b_theta=np.array([1.0, 1.0, 2.0, 0.0]),
+    )
+    sol = ce.mpsolve(prog)
+    assert sol.num_regions == 2
+    inside = np.array([[0.5, 1 + 0.5e-6], [0.9, 1 + 1.8e-6], [-0.5, 1 + 0.2e-6]])
+    assert np.all(sol.locate(inside) >= 0)
+    np.testing.assert_allclose(sol.primal(inside)[:, 0], inside[:, 1] - 1.0, atol=1e-12)
+    # past the wedge: infeasible, outside the regions and the domain
+    outside = np.array([[0.5, 1 + 2e-6], [0.0, 1.5]])
+    assert np.all(sol.locate(outside) == -1)
+    assert np.all(np.any(outside @ sol.domain_A.T > sol.domain_b + 1e-9, axis=1))
+
+
 def test_outside_the_parameter_set_is_not_located():
     p = qp_triangle_theta()
     sol = ce.mpsolve(p)
