@@ -561,9 +561,10 @@ class _Explorer:
 
     # ---- exploration --------------------------------------------------------------------
 
-    def _add(self, reg: CriticalRegion) -> int:
+    def _add(self, reg: CriticalRegion, verts: np.ndarray | None = None) -> int:
+        """Append ``reg`` (with its vertices, if already enumerated); its index."""
         self.regions.append(reg)
-        self._verts.append(vertices(reg.A, reg.b, tol=self.touch_tol))
+        self._verts.append(vertices(reg.A, reg.b, tol=self.touch_tol) if verts is None else verts)
         self._done.append(np.zeros(reg.A.shape[0], dtype=bool))
         k = reg.A.shape[0]
         if self._nrows + k > self._bufA.shape[0]:
@@ -639,11 +640,11 @@ class _Explorer:
             return None
         return z
 
-    def _known(self, reg: CriticalRegion) -> int:
-        """Index of a found region that ``reg`` is a copy of (a degenerate vertex reached
-        by another basis gives the same region), else -1: one of its inner points (the
-        mean of its vertices) strictly inside a found region means an overlap."""
-        V = vertices(reg.A, reg.b, tol=self.touch_tol)
+    def _known(self, V: np.ndarray | None) -> int:
+        """Index of a found region that a new region (vertices ``V``) is a copy of (a
+        degenerate vertex reached by another basis gives the same region), else -1: one of
+        its inner points (the mean of its vertices) strictly inside a found region means
+        an overlap."""
         if V is None or V.shape[0] == 0:
             return -1
         return self._find(V.mean(axis=0), -1e-9 * self.scale)
@@ -735,11 +736,12 @@ class _Explorer:
                             break
                         beyond = nreg is None
                         if not beyond:
-                            k = self._known(nreg)
+                            V = vertices(nreg.A, nreg.b, tol=self.touch_tol)
+                            k = self._known(V)
                             if k >= 0:
                                 self.stats["copies"] = self.stats.get("copies", 0) + 1
                             else:
-                                k = self._add(nreg)
+                                k = self._add(nreg, V)
                                 new_regions.append(k)
                 if beyond:
                     if direction is not a:
