@@ -156,7 +156,11 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
         W[nw] = W0[j]
         inW[W0[j]] = True
         nw += 1
-    _orthonormal_rows(A, W, nw, Q, R)
+    if nw and not _orthonormal_rows(A, W, nw, Q, R) > 0.0:
+        # dependent start rows: start from x0 alone
+        for j in range(nw):
+            inW[W[j]] = False
+        nw = 0
     # slack = b - A x, kept up to date along the steps
     for i in range(k):
         if use[i]:
@@ -281,7 +285,10 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                 slack[i] -= alpha * slopes[i]
         slack[block] = 0.0
         W[nw] = block
-        _append_row(A, block, Q, R, nw)
+        if not _append_row(A, block, Q, R, nw) > 0.0:
+            # the blocking row is (to rounding) a copy of working rows: seen with exact
+            # duplicates through one vertex; R would be singular (a division by zero)
+            return _FAILED, x, y, W, nw
         nw += 1
         inW[block] = True
     return _FAILED, x, y, W, nw

@@ -453,7 +453,14 @@ def certified_minimal_rows(
     kept[minimal_rows(A, b)] = True
     if fixed is not None:
         kept[fixed] = True
-    pending = np.flatnonzero(~kept)
+    # an exact copy of an earlier row is the same half-space: it goes without a proof (one
+    # would fail, by the margin; merged regions share rows, and copies through one vertex
+    # made the compiled LP's working set singular)
+    copy = np.ones(A.shape[0], dtype=bool)
+    copy[np.unique(np.hstack([A, b[:, None]]), axis=0, return_index=True)[1]] = False
+    if fixed is not None:
+        copy[fixed] = False
+    pending = np.flatnonzero(~kept & ~copy)
     beta = b - 1e-12 * (1.0 + np.abs(b))  # a margin for the rounding of the check
     for i in pending:
         K = np.flatnonzero(kept)

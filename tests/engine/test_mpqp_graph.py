@@ -242,6 +242,22 @@ def test_row_hash_collisions_fall_back_to_exact_comparison(monkeypatch):
     np.testing.assert_array_equal(ce.polytope.rows_in(Q, -M, 7), want_in)
 
 
+def test_a_merged_region_keeps_one_copy_of_a_shared_row():
+    """[0,1]x[0,1] and [1,2]x[0,1] merge into [0,2]x[0,1], whose envelope holds y <= 1 and
+    y >= 0 from both boxes. The copy's redundancy has no certificate with a margin (it is
+    the same half-space), so it used to stay: 6 rows instead of 4 (and copies through one
+    vertex later made the compiled LP's working set singular)."""
+    from codev_engine.merge import merge_regions
+
+    A = np.vstack([np.eye(2), -np.eye(2)])
+    As, bs, src = merge_regions([A, A], [np.array([1.0, 1, 0, 0]), np.array([2.0, 1, -1, 0])],
+                                [b"k", b"k"])
+    assert len(As) == 1 and As[0].shape == (4, 2)
+    lo, hi = ce.polytope.bounding_box(As[0], bs[0])
+    np.testing.assert_allclose(lo, [0, 0], atol=1e-12)
+    np.testing.assert_allclose(hi, [2, 1], atol=1e-12)
+
+
 def test_equal_laws_are_merged_after_rounding():
     """mpqp._merge_equal_laws rounds laws to 1e-7 of the scale (np.rint, -0.0 as +0.0):
     two adjacent boxes whose laws differ by 1e-12 and a signed zero become one region; a

@@ -294,3 +294,40 @@ def test_a_row_dropped_and_blocking_at_once_does_not_stall_the_lp():
     got = mpqp_jit.evaluate(np.array(act, dtype=np.int64), np.zeros(8), *kernel._jit_args)
     assert got[0] == mpqp_jit.LOWER
     assert kernel.evaluate_numpy(act)[0] == "lower"
+
+
+def test_lp_with_a_blocking_row_dependent_on_its_working_set_gives_up_without_raising():
+    """A merged sliver region of a random norm-inf MPC (the oracle sweep's rand145): rows
+    through the origin in near-copies. In the Chebyshev LP a blocking row was, to the last
+    bit, a copy of the working rows: Gram-Schmidt left it norm 0 and the multipliers
+    divided by it (numba raises ZeroDivisionError: the synthesis crashed). The LP gives
+    up instead; the box falls back to HiGHS and still holds the region."""
+    rows = np.array([
+        [-0.4563219618068808, -0.7063034100240011, 0.54120768671665, 0.0],
+        [-0.45632196180688067, -0.7063034100240009, 0.54120768671665, 0.0],
+        [0.4471286407631589, 0.7087621696383684, -0.5456483899901134, 0.0],
+        [0.4471286407631589, 0.7087621696383682, -0.5456483899901133, 0.0],
+        [-0.44772217946183507, -0.7086061794566614, 0.5453642199977721, 0.0],
+        [0.4467730153566052, 0.7088554519327811, -0.5458184872412617, 0.0],
+        [-0.4475789842102189, -0.708643847742125, 0.5454328097489043, 0.0],
+        [-0.4474519464112698, -0.708677247303576, 0.5454936432324325, 0.0],
+        [-0.4474393007908286, -0.708680571021447, 0.5454996978592473, 0.0],
+        [-0.4474502159617575, -0.7086777021372563, 0.545494471767803, 0.0],
+        [0.4553317097793248, 0.661557013845265, -0.5958316469453202, 0.0],
+        [-0.46225573752327187, -0.7046676017877633, 0.5382965763568428, 0.0],
+        [1.0, 0.0, 0.0, 5.0],
+        [0.0, 0.0, 1.0, 5.0],
+    ])
+    A, b = rows[:, :3].copy(), rows[:, 3].copy()
+    lo, hi, ok = mpqp_jit.region_boxes(A, b, np.array([0, len(b)]), 1000)
+    if ok[0]:
+        assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
+    from codev_engine.locate import bounding_boxes
+
+    lo, hi = bounding_boxes([A] * 70, [b] * 70)  # 70 regions: the compiled path first
+    for j in range(3):
+        for sign in (1.0, -1.0):
+            res = linprog(-sign * np.eye(3)[j], A_ub=A, b_ub=b, bounds=[(None, None)] * 3,
+                          method="highs")
+            top = sign * -res.fun
+            assert lo[0, j] - 1e-9 <= top <= hi[0, j] + 1e-9
