@@ -44,12 +44,11 @@ from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
 from .mpqp import explore_active_sets
-from .mpqp_jit import certified_keep
 from .mpsolution import CriticalRegion, MpSolution
 from .polytope import (
     bounding_box,
+    certified_minimal_rows,
     chebyshev_ball,
-    minimal_rows,
     normalize_rows,
     rows_in,
     solve_lp,
@@ -556,7 +555,7 @@ class _Explorer:
             return None
         # redundant rows dropped only with a proof: DAQP's minrep dropped a parameter-set row
         # that a sliver region (radius 3e-5) crossed by 0.7 (an MPC of the oracle tests)
-        keep = _certified_rows(Ar, br, centre, self.bound)
+        keep = _certified_rows(Ar, br, self.bound)
         return CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=tuple(int(i) for i in act))
 
     # ---- exploration --------------------------------------------------------------------
@@ -812,16 +811,16 @@ class _Explorer:
         return new_regions
 
 
-def _certified_rows(A: np.ndarray, b: np.ndarray, centre: np.ndarray, bound: float) -> np.ndarray:
-    """Keep mask (k,) of the normalised rows ``A x <= b``: DAQP's minrep proposes the rows
-    to drop and each goes only if multipliers over the kept rows prove it redundant
-    (``mpqp_jit.certified_keep``; ``centre`` an interior point, ``bound`` >= max |x|_inf
-    over the set). minrep alone dropped a parameter-set row that a sliver region (radius
-    3e-5) of an MPC crossed by 0.7."""
-    A, b = np.ascontiguousarray(A), np.ascontiguousarray(b)
-    fixed = np.zeros(b.shape[0], dtype=bool)
-    fixed[minimal_rows(A, b)] = True
-    return certified_keep(A, b, fixed, centre, bound, 50 * (b.shape[0] + A.shape[1]))
+def _certified_rows(A: np.ndarray, b: np.ndarray, bound: float) -> np.ndarray:
+    """Keep mask (k,) of the normalised rows ``A x <= b`` (``bound`` >= max |x|_inf over
+    the set): DAQP's minrep proposes the rows to drop and each goes only if multipliers
+    over the kept rows prove it redundant (``polytope.certified_minimal_rows``; exact
+    copies go without). minrep alone dropped a parameter-set row that a sliver region
+    (radius 3e-5) of an MPC crossed by 0.7. (Not the compiled ``certified_keep``: loading
+    numba costs ~0.5 s, 100 times the whole solve of a small program.)"""
+    keep = np.zeros(b.shape[0], dtype=bool)
+    keep[certified_minimal_rows(A, b, bound)] = True
+    return keep
 
 
 def _complete_basis(G, act, tight, n):
@@ -1033,9 +1032,6 @@ def _domain_from_regions(
     if allrows.shape[0] <= _MINREP_ROWS:
         # redundant rows go, each with a proof (a row that only touches the set, through
         # a vertex, say, has no proof with a margin and stays)
-        A, b = allrows[:, :-1], allrows[:, -1]
-        centre, radius = chebyshev_ball(A, b)
-        if radius > 0:
-            bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
-            allrows = allrows[_certified_rows(A, b, centre, bound)]
+        bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+        allrows = allrows[_certified_rows(allrows[:, :-1], allrows[:, -1], bound)]
     return allrows[:, :-1], allrows[:, -1]
