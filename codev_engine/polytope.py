@@ -453,21 +453,43 @@ def certified_minimal_rows(
     kept[minimal_rows(A, b)] = True
     if fixed is not None:
         kept[fixed] = True
-    # an exact copy of an earlier row is the same half-space: it goes without a proof (one
-    # would fail, by the margin; merged regions share rows, and copies through one vertex
-    # made the compiled LP's working set singular)
-    copy = np.ones(A.shape[0], dtype=bool)
-    copy[np.unique(np.hstack([A, b[:, None]]), axis=0, return_index=True)[1]] = False
-    if fixed is not None:
-        copy[fixed] = False
-    pending = np.flatnonzero(~kept & ~copy)
+    pending = np.flatnonzero(~kept)
+    if pending.size:
+        # a row with the same normal as a kept row and no smaller offset is implied by it:
+        # it goes without a proof (a copy's would fail, by the margin; merged regions share
+        # rows, and copies through one vertex made the compiled LP's working set singular)
+        K = np.flatnonzero(kept)
+        same = np.all(A[pending, None, :] == A[None, K, :], axis=2)
+        pending = pending[~np.any(same & (b[pending, None] >= b[None, K]), axis=1)]
     beta = b - 1e-12 * (1.0 + np.abs(b))  # a margin for the rounding of the check
-    for i in pending:
+    proved = np.zeros(A.shape[0], dtype=bool)
+    for n, i in enumerate(pending):
+        if proved[i]:
+            continue
         K = np.flatnonzero(kept)
         y = _lp_multipliers(A[K], b[K], A[i])
         if y is None or not _certifies(A[K], b[K], y, A[i], beta[i], bound):
             kept[i] = True
+            continue
+        # the optimal basis often proves rows still to come (their normals in its cone):
+        # least-squares multipliers on its rows, checked as any (no LP for them)
+        rest = pending[n + 1 :]
+        rest = rest[~proved[rest]]
+        B = K[y > 0.0]
+        if rest.size and B.size:
+            proved[rest[_cone_proofs(A[B], b[B], A[rest], beta[rest], bound)]] = True
     return np.flatnonzero(kept)
+
+
+def _cone_proofs(
+    AB: np.ndarray, bB: np.ndarray, Ar: np.ndarray, beta: np.ndarray, bound: float
+) -> np.ndarray:
+    """Which rows ``Ar x <= beta`` (r,) the rows ``AB x <= bB`` prove on ``|x|_inf <=
+    bound``, with least-squares multipliers (negative ones clipped): the weak-duality check
+    of :func:`_certifies`, for all rows at once."""
+    Y = np.maximum(np.linalg.lstsq(AB.T, Ar.T, rcond=None)[0], 0.0)  # (|B|, r)
+    resid = np.abs(Ar.T - AB.T @ Y).sum(axis=0)
+    return bB @ Y + resid * bound <= beta
 
 
 def _lp_multipliers(AK: np.ndarray, bK: np.ndarray, a: np.ndarray) -> np.ndarray | None:

@@ -62,10 +62,13 @@ def test_lp_max_stops_once_past_the_stop_value():
     assert status == mpqp_jit._EXCEEDS and x[0] > 0.5
 
 
+@pytest.mark.parametrize("how", ["compiled", "numpy"])
 @pytest.mark.parametrize("seed", range(30))
-def testcertified_keep_drops_only_redundant_rows(seed):
+def test_certified_reduction_drops_only_redundant_rows(seed, how):
     """Every dropped row is redundant (an exact LP over the kept rows does not pass it) and
-    every row that is a facet is kept."""
+    every row that is a facet is kept: ``mpqp_jit.certified_keep`` and
+    ``polytope.certified_minimal_rows`` (minrep's proposals, each proved by an LP's
+    multipliers or by the cone of an earlier LP's optimal basis)."""
     rng = np.random.default_rng(100 + seed)
     d = int(rng.integers(2, 8))
     A, b = _random_polytope(rng, int(rng.integers(5, 50)), d)
@@ -80,7 +83,11 @@ def testcertified_keep_drops_only_redundant_rows(seed):
         bounds=[(None, None)] * d + [(0, None)], method="highs",
     )
     centre = res.x[:d]
-    kept = mpqp_jit.certified_keep(A, b, fixed, centre, 3.0, 10_000)
+    if how == "compiled":
+        kept = mpqp_jit.certified_keep(A, b, fixed, centre, 3.0, 10_000)
+    else:
+        kept = np.zeros(k, dtype=bool)
+        kept[ce.polytope.certified_minimal_rows(A, b, 3.0, np.flatnonzero(fixed))] = True
     assert np.all(kept[fixed])
     for i in range(k):
         others = kept.copy()
@@ -331,3 +338,19 @@ def test_lp_with_a_blocking_row_dependent_on_its_working_set_gives_up_without_ra
                           method="highs")
             top = sign * -res.fun
             assert lo[0, j] - 1e-9 <= top <= hi[0, j] + 1e-9
+
+
+def test_cone_proofs_prove_only_what_the_rows_imply():
+    """x <= 1 and y <= 1 prove x + y <= 2 (multipliers (1, 1)), not x + y <= 1.9 and not
+    2x <= 1 (multipliers (2, 0) give 2). x - y <= 3.5 needs a negative multiplier: clipped
+    to (1, 0), the residual (0, -1) is charged at the bound, 1 + bound: no proof on |x|_inf
+    <= 3, a proof on |x|_inf <= 1."""
+    from codev_engine.polytope import _cone_proofs
+
+    AB, bB = np.eye(2), np.ones(2)
+    Ar = np.array([[1.0, 1.0], [1.0, 1.0], [2.0, 0.0], [1.0, -1.0]])
+    beta = np.array([2.0, 1.9, 1.0, 3.5])
+    np.testing.assert_array_equal(_cone_proofs(AB, bB, Ar, beta, 3.0),
+                                  [True, False, False, False])
+    np.testing.assert_array_equal(_cone_proofs(AB, bB, Ar, beta, 1.0),
+                                  [True, False, False, True])
