@@ -41,7 +41,7 @@ STATUS_NAMES = {LICQ: "licq", EMPTY: "empty", LOWER: "lower", FULL: "full"}
 _OPTIMAL, _UNBOUNDED, _FAILED, _EXCEEDS = 0, 1, 2, 3
 
 _RADIUS_CAP = 1e6
-#: vertices kept for warm starts in ``certified_keep``
+#: vertices kept for warm starts in ``_certified_keep``
 _WARM_STARTS = 16
 #: pivots without gain after which an LP gives up (cycling by rounding)
 _STALL = 200
@@ -383,7 +383,7 @@ def _cho_solve(L, B):
 
 
 @njit(cache=True)
-def certified_keep(A, b, fixed, centre, bound, maxit):
+def _certified_keep(A, b, fixed, centre, bound, maxit):
     """Rows of the bounded polytope ``A x <= b`` (unit rows) to keep: every row not kept
     is proved redundant by multipliers over kept rows (weak duality, residual charged at
     ``bound``). ``fixed`` rows are always kept; ``centre`` is an interior point. An LP that
@@ -801,7 +801,7 @@ def evaluate(
         return FALLBACK, e2, e1, ez, ek, em, True, es, start
     sm = src[maybe]
     fixed = sm == 0
-    kept = certified_keep(Am, bm, fixed, centre, bound, maxit)
+    kept = _certified_keep(Am, bm, fixed, centre, bound, maxit)
     Ak = Am[kept]
     bk = bm[kept]
     # the neighbours: constraints of the kept rows, and of rows on their hyperplanes

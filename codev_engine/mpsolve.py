@@ -213,6 +213,7 @@ class _Explorer:
         self._nrows = 0
         self._starts = np.zeros(0, dtype=np.intp)
         self._far: dict[bytes, np.ndarray | None] = {}  # see _past
+        self._lifted = _lifted(red)
 
     # ---- small geometry helpers -------------------------------------------------------
 
@@ -553,9 +554,11 @@ class _Explorer:
             return None
         if np.any(Ar @ q - br > 1e-7 * self.scale):
             return None
-        # redundant rows dropped only with a proof: DAQP's minrep dropped a parameter-set row
-        # that a sliver region (radius 3e-5) crossed by 0.7 (an MPC of the oracle tests)
-        keep = _certified_rows(Ar, br, self.bound)
+        # redundant rows dropped only with a proof: DAQP's minrep alone dropped a
+        # parameter-set row that a sliver region (radius 3e-5) crossed by 0.7 (an MPC of
+        # the oracle tests). (Not the compiled mpqp_jit kernel: loading numba's cached code
+        # costs ~0.2 s, far more than the whole solve of a small program.)
+        keep = certified_minimal_rows(Ar, br, self.bound)
         return CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=tuple(int(i) for i in act))
 
     # ---- exploration --------------------------------------------------------------------
@@ -580,18 +583,11 @@ class _Explorer:
             raise SolverError(f"more than {self.opts.max_regions} regions")
         return len(self.regions) - 1
 
-    def _lifted(self) -> tuple[np.ndarray, np.ndarray]:
-        """The feasible set lifted to (w, theta): rows ``G w - S theta <= w`` and
-        ``At theta <= bt``, (m + p, nw + d) and (m + p,)."""
-        r = self.r
-        zero = np.zeros((r.At.shape[0], self.nw))
-        return np.block([[r.G, -r.S], [zero, r.At]]), np.concatenate([r.w, r.bt])
-
     def start_point(self) -> np.ndarray | None:
         """A parameter well inside the feasible set (lifted Chebyshev centre), or None."""
         r = self.r
         d, nw = self.d, self.nw
-        A, b = self._lifted()
+        A, b = self._lifted
         # radius measured in theta only: ball of theta's, any w
         norms = np.concatenate([np.linalg.norm(r.S, axis=1), np.linalg.norm(r.At, axis=1)])
         f = np.zeros(nw + d + 1)
@@ -631,8 +627,7 @@ class _Explorer:
         key = a.tobytes()
         if key not in self._far:
             nw = self.nw
-            A, b = self._lifted()
-            x, st, _ = solve_lp(np.concatenate([np.zeros(nw), -a]), A, b)
+            x, st, _ = solve_lp(np.concatenate([np.zeros(nw), -a]), *self._lifted)
             self._far[key] = x[nw:] if st == "optimal" and x is not None else None
         z = self._far[key]
         if z is None or a @ z <= beta + self.region_tol:
@@ -811,16 +806,11 @@ class _Explorer:
         return new_regions
 
 
-def _certified_rows(A: np.ndarray, b: np.ndarray, bound: float) -> np.ndarray:
-    """Keep mask (k,) of the normalised rows ``A x <= b`` (``bound`` >= max |x|_inf over
-    the set): DAQP's minrep proposes the rows to drop and each goes only if multipliers
-    over the kept rows prove it redundant (``polytope.certified_minimal_rows``; exact
-    copies go without). minrep alone dropped a parameter-set row that a sliver region
-    (radius 3e-5) of an MPC crossed by 0.7. (Not the compiled ``certified_keep``: loading
-    numba costs ~0.5 s, 100 times the whole solve of a small program.)"""
-    keep = np.zeros(b.shape[0], dtype=bool)
-    keep[certified_minimal_rows(A, b, bound)] = True
-    return keep
+def _lifted(red: _Reduced) -> tuple[np.ndarray, np.ndarray]:
+    """The feasible set lifted to (w, theta): rows ``G w - S theta <= w`` and ``At theta
+    <= bt``, (m + p, nw + d) and (m + p,)."""
+    zero = np.zeros((red.At.shape[0], red.G.shape[1]))
+    return np.block([[red.G, -red.S], [zero, red.At]]), np.concatenate([red.w, red.bt])
 
 
 def _complete_basis(G, act, tight, n):
@@ -990,8 +980,7 @@ def _domain_from_regions(
     theta_rows = np.hstack([red.At, red.bt[:, None]])
     cand = cand[~rows_in(cand, theta_rows, 7)]
     nw = red.G.shape[1]
-    LA = np.vstack([np.hstack([red.G, -red.S]), np.hstack([np.zeros((p, nw)), red.At])])
-    Lb = np.concatenate([red.w, red.bt])
+    LA, Lb = _lifted(red)
     tol = 1e-9 * scale
     # a row is valid if max a'theta over the lifted set is at most its offset; a point of
     # the set found by an earlier LP clearly beyond it (by far more than the tolerance, so
@@ -1033,5 +1022,5 @@ def _domain_from_regions(
         # redundant rows go, each with a proof (a row that only touches the set, through
         # a vertex, say, has no proof with a margin and stays)
         bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
-        allrows = allrows[_certified_rows(allrows[:, :-1], allrows[:, -1], bound)]
+        allrows = allrows[certified_minimal_rows(allrows[:, :-1], allrows[:, -1], bound)]
     return allrows[:, :-1], allrows[:, -1]

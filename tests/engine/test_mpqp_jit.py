@@ -66,7 +66,7 @@ def test_lp_max_stops_once_past_the_stop_value():
 @pytest.mark.parametrize("seed", range(30))
 def test_certified_reduction_drops_only_redundant_rows(seed, how):
     """Every dropped row is redundant (an exact LP over the kept rows does not pass it) and
-    every row that is a facet is kept: ``mpqp_jit.certified_keep`` and
+    every row that is a facet is kept: ``mpqp_jit._certified_keep`` and
     ``polytope.certified_minimal_rows`` (minrep's proposals, each proved by an LP's
     multipliers or by the cone of an earlier LP's optimal basis)."""
     rng = np.random.default_rng(100 + seed)
@@ -84,7 +84,7 @@ def test_certified_reduction_drops_only_redundant_rows(seed, how):
     )
     centre = res.x[:d]
     if how == "compiled":
-        kept = mpqp_jit.certified_keep(A, b, fixed, centre, 3.0, 10_000)
+        kept = mpqp_jit._certified_keep(A, b, fixed, centre, 3.0, 10_000)
     else:
         kept = np.zeros(k, dtype=bool)
         kept[ce.polytope.certified_minimal_rows(A, b, 3.0, np.flatnonzero(fixed))] = True
