@@ -128,6 +128,8 @@ def _compiled_boxes(
 
 #: From this many regions on, bounding boxes come from one compiled call
 COMPILED_BOXES = 64
+#: Regions per call of ``bounding_boxes`` when their rows must be put together first
+_BOX_CHUNK = 1 << 16
 #: HiGHS tolerances for a bound (its defaults, 1e-7, stop short on needle regions)
 _TIGHT = {"primal_feasibility_tolerance": 1e-10, "dual_feasibility_tolerance": 1e-10}
 
@@ -225,20 +227,67 @@ class PointLocator:
         boxes: tuple[np.ndarray, np.ndarray] | None = None,
         grid: bool | None = None,
     ):
-        self.num_regions = len(As)
+        rows = _stack(As, bs) if len(As) else (np.zeros((0, 0)), np.zeros(0), np.zeros(1, int))
+        self._setup(*rows, None, None, tol, boxes, grid)
+
+    @classmethod
+    def packed(
+        cls,
+        A: np.ndarray,
+        b: np.ndarray,
+        offsets: np.ndarray,
+        shared: tuple[np.ndarray, np.ndarray] | None = None,
+        implied: np.ndarray | None = None,
+        tol: float = 1e-9,
+        boxes: tuple[np.ndarray, np.ndarray] | None = None,
+        grid: bool | None = None,
+    ) -> PointLocator:
+        """A locator on regions packed as in ``mpsolution.RegionArrays``: region ``i`` is
+        ``A[offsets[i]:offsets[i + 1]]`` and, where ``implied[i]``, the ``shared`` rows."""
+        self = cls.__new__(cls)
+        if implied is None or shared is None or not np.any(implied):
+            shared = implied = None
+        self._setup(
+            np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(b, dtype=float),
+            np.asarray(offsets, dtype=np.int64), shared, implied, tol, boxes, grid,
+        )
+        return self
+
+    def _setup(self, A, b, off, shared, implied, tol, boxes, grid) -> None:
+        self.num_regions = off.size - 1
         self.tol = tol
-        self._As, self._bs = As, bs
         self._grid = False
         self._located = 0
         self._boxes = boxes
         self._auto = grid is None
+        # shared rows: held once; a point's largest violation of them is computed once
+        self._shared = shared
+        self._implied = implied
         if self.num_regions == 0:
             return
-        self.d = As[0].shape[1]
+        self.d = A.shape[1]
         # every row, region after region (brute force, the wide regions, the boxes)
-        self.rows_A, self.rows_b, self.off = _stack(As, bs)
+        self.rows_A, self.rows_b, self.off = A, b, off
         if grid or (grid is None and boxes is not None):
             self._build_grid()
+
+    def _region(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Region ``i``'s rows, the shared ones included."""
+        r0, r1 = self.off[i], self.off[i + 1]
+        if self._implied is None or not self._implied[i]:
+            return self.rows_A[r0:r1], self.rows_b[r0:r1]
+        SA, Sb = self._shared
+        return np.vstack([self.rows_A[r0:r1], SA]), np.concatenate([self.rows_b[r0:r1], Sb])
+
+    def _shared_violation(self, X: np.ndarray) -> np.ndarray | None:
+        """Per point of ``X`` (P, d), the largest violation of the shared rows (None
+        without shared rows)."""
+        if self._implied is None:
+            return None
+        SA, Sb = self._shared
+        if Sb.size == 0:
+            return np.full(X.shape[0], -np.inf)
+        return (X @ SA.T - Sb).max(axis=1)
 
     @property
     def box_lo(self) -> np.ndarray:
@@ -258,9 +307,20 @@ class PointLocator:
             return
         R, d = self.num_regions, self.d
         boxes = self._boxes
-        if boxes is None:
+        if boxes is None and self._implied is None:
             rows = (self.rows_A, self.rows_b, self.off)
-            boxes = bounding_boxes(self._As, self._bs, rows=rows)
+            As = [self.rows_A[self.off[i] : self.off[i + 1]] for i in range(R)]
+            bs = [self.rows_b[self.off[i] : self.off[i + 1]] for i in range(R)]
+            boxes = bounding_boxes(As, bs, rows=rows)
+        elif boxes is None:
+            # with the shared rows, a chunk of regions at a time (not a second copy of all)
+            los, his = [], []
+            for c0 in range(0, R, _BOX_CHUNK):
+                regs = [self._region(i) for i in range(c0, min(R, c0 + _BOX_CHUNK))]
+                lo_c, hi_c = bounding_boxes([r[0] for r in regs], [r[1] for r in regs])
+                los.append(lo_c)
+                his.append(hi_c)
+            boxes = np.concatenate(los), np.concatenate(his)
         lo, hi = boxes
         lo = np.array(lo, dtype=float).reshape(R, d)
         hi = np.array(hi, dtype=float).reshape(R, d)
@@ -283,15 +343,18 @@ class PointLocator:
             return
         self._grid = True
         self._clip_boxes()
-        As, bs, tol = self._As, self._bs, self.tol
+        tol, off = self.tol, self.off
         R, d = self.num_regions, self.d
         lo, hi = self._box_lo, self._box_hi
-        kmax = max(a.shape[0] for a in As)
+        # own rows only, padded (the shared ones are tested once per point)
+        sizes = np.diff(off)
+        kmax = max(1, int(sizes.max()))  # (a padding row 0 <= 1 never binds)
         self.Apad = np.zeros((R, kmax, d))
         self.bpad = np.ones((R, kmax))
-        for i, (A, b) in enumerate(zip(As, bs, strict=True)):
-            self.Apad[i, : A.shape[0]] = A
-            self.bpad[i, : A.shape[0]] = b
+        slot = np.arange(off[-1]) - np.repeat(off[:-1], sizes)
+        reg = np.repeat(np.arange(R), sizes)
+        self.Apad[reg, slot] = self.rows_A
+        self.bpad[reg, slot] = self.rows_b
         span = np.maximum(self.hi - self.lo, 1e-12)
         # about 16 cells per region overall, at most 256 per axis
         g = int(np.clip(np.ceil((16 * R) ** (1.0 / d)), 1, 256))
@@ -317,7 +380,7 @@ class PointLocator:
             mesh = np.stack(np.meshgrid(*ranges, indexing="ij"), axis=-1).reshape(-1, d)
             # drop cells that one of the region's rows separates from it entirely
             centres = self.lo + (mesh + 0.5) * self.cell
-            A, b = As[i], bs[i]
+            A, b = self.rows_A[off[i] : off[i + 1]], self.rows_b[off[i] : off[i + 1]]
             lowest = centres @ A.T - np.abs(A) @ half
             meets = np.all(lowest <= b + tol, axis=1)
             c = mesh[meets] @ strides
@@ -361,17 +424,18 @@ class PointLocator:
         # the largest violation of the located region's rows: <= 0 inside, <= tol near
         best = np.full(P, np.inf)
         finite = np.all(np.isfinite(X), axis=1)
+        sv = self._shared_violation(X)
         self._located += P
         if self._auto and not self._grid and self._located > GRID_POINTS:
             self._build_grid()
         if not self._grid:
             every = (self.rows_A, self.rows_b, self.off, np.arange(self.num_regions))
-            self._brute(every, np.flatnonzero(finite), X, out, best)
+            self._brute(every, np.flatnonzero(finite), X, out, best, sv)
             return out
         inbox = finite & np.all((X >= self.lo - self.tol) & (X <= self.hi + self.tol), axis=1)
         if self.loose.size:
             # outside the grid only the regions without a proper box can hold a point
-            self._brute(self._loose_rows, np.flatnonzero(finite & ~inbox), X, out, best)
+            self._brute(self._loose_rows, np.flatnonzero(finite & ~inbox), X, out, best, sv)
         pts = np.flatnonzero(inbox)
         cidx = np.clip(np.floor((X[pts] - self.lo) / self.cell), 0, self.g - 1).astype(int)
         cell = cidx @ self.strides
@@ -384,6 +448,8 @@ class PointLocator:
             reg = self.cands[first[sel] + r]
             p = pts[sel]
             viol = (np.einsum("pkd,pd->pk", self.Apad[reg], X[p]) - self.bpad[reg]).max(axis=1)
+            if sv is not None:
+                viol = np.where(self._implied[reg], np.maximum(viol, sv[p]), viol)
             # a cell lists its regions in increasing order: the first that holds a point
             # is the lowest, and a later one only near it never beats an earlier one
             take = (viol <= self.tol) & (viol < best[p])
@@ -393,7 +459,7 @@ class PointLocator:
             r += 1
             alive &= count > r
         if self.wide.size:
-            self._brute(self._wide_rows, pts, X, out, best)
+            self._brute(self._wide_rows, pts, X, out, best, sv)
         return out
 
     def _brute(
@@ -403,9 +469,11 @@ class PointLocator:
         X: np.ndarray,
         out: np.ndarray,
         best: np.ndarray,
+        sv: np.ndarray | None = None,
     ) -> None:
         """Offer the regions of ``rows`` (from :meth:`_subset_rows`) to the points ``sel``:
-        merged into ``out`` / ``best`` by the rule of :meth:`locate`.
+        merged into ``out`` / ``best`` by the rule of :meth:`locate` (``sv``: the points'
+        violations of the shared rows, from :meth:`_shared_violation`).
 
         The rows times the points is one matrix product per chunk of regions; the largest
         violation per region is a ``maximum.reduceat`` over its rows.
@@ -426,6 +494,9 @@ class PointLocator:
             has = lens > 0
             if np.any(has):
                 M[has] = np.maximum.reduceat(V, (off[i:j] - off[i])[has], axis=0)
+            if sv is not None:
+                imp = self._implied[regions[i:j]]
+                M[imp] = np.maximum(M[imp], sv[None, sel])
             held = M <= 0.0
             h = np.argmax(held, axis=0)  # the lowest region holding the point, if any
             n = np.argmin(M, axis=0)  # the nearest (the lowest on ties)

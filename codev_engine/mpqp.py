@@ -30,14 +30,14 @@ from scipy.linalg import cho_solve
 from scipy.linalg.lapack import dgeqrf
 
 from .errors import SolverError
-from .mpsolution import CriticalRegion
+from .mpsolution import CriticalRegion, RegionArrays
 from .polytope import (
     bounding_box,
     certified_minimal_rows,
     chebyshev_ball,
     checked_minimal_rows,
     radius_upper_bound,
-    unique_rows,
+    row_hashes,
 )
 
 __all__ = ["explore_active_sets"]
@@ -484,6 +484,7 @@ def explore_active_sets(
                 stack.append(new)
 
     compiled = False
+    walk = None
     try:
         inflight: deque = deque()  # (chunk, AsyncResult), oldest first
         while stack or inflight:
@@ -520,9 +521,8 @@ def explore_active_sets(
                 pool.terminate()
                 pool.join()
                 pool = None
-            _CompiledWalk(kernel, opposite, explored, stack, regions, stats).run(
-                nworkers, max_regions, progress
-            )
+            walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
+            walk.run(nworkers, max_regions, progress)
     finally:
         if pool is not None:
             pool.terminate()
@@ -531,8 +531,12 @@ def explore_active_sets(
         _KERNEL = None
     if not compiled:
         stats["explored"] = len(explored)
-    regions.sort(key=lambda r: r.active)  # the same order however they were found
-    return _merge_equal_laws(regions, scale, stats)
+    packed = walk.result() if compiled else RegionArrays.from_regions(regions, nz, kernel.d)
+    walk = None  # (its batches: the packed regions are all that is left of them)
+    order = packed.active_order()  # the same order however they were found
+    if np.any(order != np.arange(order.size)):
+        packed = packed.take(order)
+    return _merge_equal_laws(packed, scale, stats)
 
 
 class _CompiledWalk:
@@ -553,6 +557,9 @@ class _CompiledWalk:
         from . import mpqp_graph, mpqp_jit
 
         self.kernel, self.regions, self.stats = kernel, regions, stats
+        self.parts: list[RegionArrays] = []  # the batches' regions
+        self.found = len(regions)  # regions in both
+        self.shared: tuple[np.ndarray, np.ndarray] | None = None  # the kernel's At rows
         self.jit = mpqp_jit
         self.evaluate_batch = mpqp_jit.evaluate_batch
         self.codes = {name: code for code, name in mpqp_jit.STATUS_NAMES.items()}
@@ -571,7 +578,7 @@ class _CompiledWalk:
         inflight: deque = deque()  # (keys, starts, AsyncResult or None), oldest first
         try:
             while len(graph) or inflight:
-                if pool is None and nworkers > 1 and len(self.regions) >= PARALLEL_AFTER:
+                if pool is None and nworkers > 1 and self.found >= PARALLEL_AFTER:
                     from multiprocessing.pool import ThreadPool
 
                     pool = ThreadPool(nworkers)
@@ -585,8 +592,8 @@ class _CompiledWalk:
                 result = self.evaluate_batch(keys, starts, args) if job is None else job.get()
                 self._take(keys, result)
                 if progress is not None:
-                    progress(len(self.regions))
-                if len(self.regions) > max_regions:
+                    progress(self.found)
+                if self.found > max_regions:
                     raise SolverError(f"more than {max_regions} regions")
         finally:
             self.stats["explored"] = graph.explored
@@ -603,10 +610,9 @@ class _CompiledWalk:
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
-        for c in np.flatnonzero(status == jit.FULL):
-            r0, r1 = rows_off[c], rows_off[c + 1]
-            act = tuple(acts[c, : sizes[c]].tolist())
-            self.regions.append(CriticalRegion(A=A[r0:r1], b=b[r0:r1], K=K[c], k=k[c], active=act))
+        full = np.flatnonzero(status == jit.FULL)
+        if full.size:
+            self._pack(full, acts, sizes, rows_off, A, b, K, k)
         self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off, points)
         for c in np.flatnonzero(status == jit.FALLBACK):
             act = tuple(acts[c, : sizes[c]].tolist())
@@ -616,6 +622,7 @@ class _CompiledWalk:
                 self.regions.append(
                     CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1], active=act)
                 )
+                self.found += 1
             mv = np.zeros(0, dtype=np.int64) if mv is None else np.asarray(mv, dtype=np.int64)
             no_swaps = np.zeros((0, 2), dtype=np.int64)
             self.graph.visit(
@@ -623,6 +630,40 @@ class _CompiledWalk:
                 no_swaps, np.zeros(2, dtype=np.int64), points[c : c + 1],
             )
 
+
+    def _pack(self, full, acts, sizes, rows_off, A, b, K, k) -> None:
+        """Keep the regions ``full`` of a batch as packed arrays (copies: a view would keep
+        the whole batch alive), without the parameter set's rows, which the compiled kernel
+        puts last in every region: they are held once (``RegionArrays.shared_A``)."""
+        r0, r1 = rows_off[full], rows_off[full + 1]
+        p = self.kernel.At.shape[0]
+        implied = np.zeros(full.size, dtype=bool)
+        if p and self.shared is None:
+            self.shared = (A[r1[0] - p : r1[0]].copy(), b[r1[0] - p : r1[0]].copy())
+        if p:
+            tail = r1[:, None] - p + np.arange(p)
+            implied = (r1 - r0 >= p) & np.all(
+                np.all(A[tail] == self.shared[0], axis=2) & (b[tail] == self.shared[1]), axis=1
+            )
+        own = r1 - r0 - p * implied
+        off = np.zeros(full.size + 1, dtype=np.int64)
+        np.cumsum(own, out=off[1:])
+        rows = np.arange(off[-1]) - np.repeat(off[:-1] - r0, own)
+        n = sizes[full]
+        aoff = np.zeros(full.size + 1, dtype=np.int64)
+        np.cumsum(n, out=aoff[1:])
+        part = acts[full]
+        active = part[np.arange(part.shape[1])[None, :] < n[:, None]]
+        shared = self.shared or (None, None)
+        self.parts.append(
+            RegionArrays(A[rows], b[rows], off, K[full], k[full], active, aoff, implied, *shared)
+        )
+        self.found += full.size
+
+    def result(self) -> RegionArrays:
+        """Every region found, packed."""
+        parts = [RegionArrays.from_regions(self.regions, self.kernel.nz, self.kernel.d)]
+        return RegionArrays.concat(parts + self.parts)
 
 def _start_pool(kernel: _Kernel, nworkers: int):
     """A pool of workers sharing ``kernel``: threads once the compiled kernel runs, forked
@@ -644,40 +685,63 @@ def _start_pool(kernel: _Kernel, nworkers: int):
     return ctx.Pool(nworkers)
 
 
-def _merge_equal_laws(
-    regions: list[CriticalRegion], scale: float, stats: dict
-) -> list[CriticalRegion]:
+def _merge_equal_laws(regions: RegionArrays, scale: float, stats: dict) -> RegionArrays:
     """One region per affine law where the union is provably convex.
 
     Where LICQ fails on a full-dimensional set (more constraints tight than independent),
     several active sets give the same law on overlapping regions (the multipliers are not
     unique). Regions with equal laws are merged pairwise while the union is convex
-    (``merge.merge_regions``, an exact envelope test), which removes the overlaps.
+    (``merge.merge_regions``, an exact envelope test), which removes the overlaps. Regions
+    whose law no other has stay as they are, in their place.
     """
     from .merge import merge_regions
 
-    if not regions:
+    n = len(regions)
+    if not n:
         return regions
-    n, (nz, d) = len(regions), regions[0].K.shape
-    # (filled row by row: concatenating half a million small arrays took 3x as long, and
-    # np.round 30x as long as np.rint, on pop_mpqp_024)
-    laws = np.empty((n, nz * (d + 1)))
-    view = laws.reshape(n, nz, d + 1)
-    for i, r in enumerate(regions):
-        view[i, :, :d] = r.K
-        view[i, :, d] = r.k
+    nz, d = regions.K.shape[1:]
+    laws = np.concatenate([regions.K, regions.k[:, :, None]], axis=2).reshape(n, nz * (d + 1))
     laws *= 1.0 / (1e-7 * max(scale, 1.0))
-    np.rint(laws, out=laws)
+    np.rint(laws, out=laws)  # (np.round took 30x as long on pop_mpqp_024)
     laws += 0.0  # (-0.0 made +0.0)
-    if unique_rows(laws, 0).size == len(regions):
+    h = row_hashes(laws)
+    _, hinv, hcount = np.unique(h, return_inverse=True, return_counts=True)
+    cand = np.flatnonzero(hcount[hinv.reshape(-1)] > 1)  # (a hash shared: maybe a law)
+    if cand.size == 0:
         return regions
-    keys = [row.tobytes() for row in laws]
-    As, bs, src = merge_regions([r.A for r in regions], [r.b for r in regions], keys)
-    stats["merged"] = len(regions) - len(As)
-    return [
-        CriticalRegion(A=a, b=b, K=regions[i].K, k=regions[i].k, active=regions[i].active)
-        for a, b, i in zip(As, bs, src, strict=True)
-    ]
+    _, cfirst, cinv, ccount = np.unique(
+        laws[cand], axis=0, return_index=True, return_inverse=True, return_counts=True
+    )
+    cinv = cinv.reshape(-1)
+    if np.all(ccount == 1):
+        return regions
+    # the groups with a shared law, in the order of their first region; each is merged on
+    # its own (merge_regions keeps a group's order) and put where its first region was
+    lone = np.ones(n, dtype=bool)
+    pieces: dict[int, RegionArrays] = {}
+    for g in np.flatnonzero(ccount > 1):
+        idx = cand[cinv == g]  # ascending
+        lone[idx] = False
+        rows = [regions.rows(int(i)) for i in idx]
+        As, bs, src = merge_regions([r[0] for r in rows], [r[1] for r in rows], [b""] * idx.size)
+        sub = regions.take(idx[np.asarray(src, dtype=np.int64)])
+        off = np.zeros(len(As) + 1, dtype=np.int64)
+        np.cumsum([a.shape[0] for a in As], out=off[1:])
+        pieces[int(idx[0])] = RegionArrays(
+            np.vstack(As), np.concatenate(bs), off, sub.K, sub.k, sub.active,
+            sub.active_offsets, None, regions.shared_A, regions.shared_b,
+        )
+    # the regions in order: runs of regions of their own law, and each group at its first
+    parts: list[RegionArrays] = []
+    start = 0
+    for f in sorted(pieces):
+        run = np.flatnonzero(lone[start:f]) + start
+        parts += [regions.take(run), pieces[f]]
+        start = f + 1
+    parts.append(regions.take(np.flatnonzero(lone[start:]) + start))
+    out = RegionArrays.concat(parts)
+    stats["merged"] = n - len(out)
+    return out
 
 
 def _active_set_at(H, c, C, G, w, S, theta) -> tuple[int, ...]:

@@ -1,16 +1,20 @@
 """The explicit solution of an ``MpProgram``: critical regions with affine optimizers.
 
-Saved as a plain ``.npz`` (format tag ``codev-mp-solution/1``, no pickle): the program's
-own arrays under a ``program.`` prefix, the regions' rows concatenated with an offset
-array, the affine laws stacked.
+Saved as a plain ``.npz`` (format tag ``codev-mp-solution/2``, no pickle): the program's
+own arrays under a ``program.`` prefix, the regions' own rows concatenated with an offset
+array, the rows they share (the parameter set's) once with a flag per region, the affine
+laws stacked. Format 1 files (every row in its region, no shared rows) are still read.
 """
 
 from __future__ import annotations
 
 import json
+import operator
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import overload
 
 import numpy as np
 
@@ -20,10 +24,13 @@ from .locate import PointLocator
 from .mpprogram import MpProgram
 from .npzfile import array, load_checked, offsets, real, text
 
-__all__ = ["CriticalRegion", "MpSolution", "SOLUTION_FORMAT"]
+__all__ = ["CriticalRegion", "MpSolution", "RegionArrays", "SOLUTION_FORMAT"]
 
 #: format tag of solution files; bumped on incompatible changes
-SOLUTION_FORMAT = "codev-mp-solution/1"
+SOLUTION_FORMAT = "codev-mp-solution/2"
+#: format 1: every region with all its rows (no shared rows); still read
+_FORMAT_1 = "codev-mp-solution/1"
+_READABLE = (_FORMAT_1, SOLUTION_FORMAT)
 
 
 @dataclass(frozen=True)
@@ -48,6 +55,175 @@ class CriticalRegion:
     active: tuple[int, ...] = ()
 
 
+class RegionArrays(Sequence[CriticalRegion]):
+    """Critical regions packed in flat arrays (what a solution of millions of regions holds).
+
+    A sequence of ``CriticalRegion``: ``ra[i]`` builds region ``i`` (views of the arrays,
+    plus a copy of its rows when it has shared ones). Bulk code (locating, saving, the
+    domain) reads the arrays themselves.
+
+    Parameters
+    ----------
+    A, b : (q, d), (q,) ndarrays
+        The regions' own rows, region after region.
+    offsets : (R + 1,) int64
+        Region ``i``'s own rows are ``A[offsets[i]:offsets[i + 1]]``.
+    K, k : (R, nz, d), (R, nz) ndarrays
+        The laws.
+    active, active_offsets : (s,), (R + 1,) int64
+        The active sets, laid out as the rows.
+    implied : (R,) bool, optional
+        Regions whose rows go on with ``shared_A theta <= shared_b`` (the parameter set's
+        rows, which every region of an mp-QP has: held once, not a million times).
+    shared_A, shared_b : (p, d), (p,) ndarrays, optional
+    """
+
+    def __init__(
+        self,
+        A: np.ndarray,
+        b: np.ndarray,
+        offsets: np.ndarray,
+        K: np.ndarray,
+        k: np.ndarray,
+        active: np.ndarray,
+        active_offsets: np.ndarray,
+        implied: np.ndarray | None = None,
+        shared_A: np.ndarray | None = None,
+        shared_b: np.ndarray | None = None,
+    ):
+        R, d = K.shape[0], A.shape[1]
+        self.A, self.b, self.offsets = A, b, np.asarray(offsets, dtype=np.int64)
+        self.K, self.k = K, k
+        self.active = np.asarray(active, dtype=np.int64)
+        self.active_offsets = np.asarray(active_offsets, dtype=np.int64)
+        self.implied = np.zeros(R, dtype=bool) if implied is None else np.asarray(implied, bool)
+        self.shared_A = np.zeros((0, d)) if shared_A is None else shared_A
+        self.shared_b = np.zeros(0) if shared_b is None else shared_b
+
+    @classmethod
+    def from_regions(
+        cls, regions: Sequence[CriticalRegion], nz: int = 0, d: int = 0
+    ) -> RegionArrays:
+        """Pack ``regions`` (``nz``, ``d`` give the shapes when there are none)."""
+        if isinstance(regions, RegionArrays):
+            return regions
+        n = len(regions)
+        if n:
+            nz, d = regions[0].K.shape
+        off = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum([r.A.shape[0] for r in regions], out=off[1:])
+        aoff = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum([len(r.active) for r in regions], out=aoff[1:])
+        return cls(
+            np.vstack([r.A for r in regions]) if n else np.zeros((0, d)),
+            np.concatenate([r.b for r in regions]) if n else np.zeros(0),
+            off,
+            np.stack([r.K for r in regions]) if n else np.zeros((0, nz, d)),
+            np.stack([r.k for r in regions]) if n else np.zeros((0, nz)),
+            np.fromiter((i for r in regions for i in r.active), np.int64, int(aoff[-1])),
+            aoff,
+        )
+
+    def __len__(self) -> int:
+        return self.K.shape[0]
+
+    @overload
+    def __getitem__(self, i: int) -> CriticalRegion: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[CriticalRegion]: ...
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        n = len(self)
+        i = operator.index(i)
+        if not -n <= i < n:
+            raise IndexError(f"region {i} of {n}")
+        i %= n
+        A, b = self.rows(i)
+        a0, a1 = self.active_offsets[i], self.active_offsets[i + 1]
+        return CriticalRegion(
+            A=A, b=b, K=self.K[i], k=self.k[i], active=tuple(self.active[a0:a1].tolist())
+        )
+
+    def rows(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Region ``i``'s rows, the shared ones included: (r, d), (r,)."""
+        r0, r1 = self.offsets[i], self.offsets[i + 1]
+        if not self.implied[i]:
+            return self.A[r0:r1], self.b[r0:r1]
+        return (
+            np.vstack([self.A[r0:r1], self.shared_A]),
+            np.concatenate([self.b[r0:r1], self.shared_b]),
+        )
+
+    def num_rows(self) -> np.ndarray:
+        """Rows per region, the shared ones included: (R,) int."""
+        return np.diff(self.offsets) + self.implied * self.shared_b.size
+
+    def take(self, idx: np.ndarray) -> RegionArrays:
+        """The regions ``idx`` (an index array), in that order."""
+        idx = np.asarray(idx, dtype=np.int64)
+        rows, off = _ranges(self.offsets, idx)
+        acts, aoff = _ranges(self.active_offsets, idx)
+        return RegionArrays(
+            self.A[rows], self.b[rows], off, self.K[idx], self.k[idx], self.active[acts], aoff,
+            self.implied[idx], self.shared_A, self.shared_b,
+        )
+
+    @classmethod
+    def concat(cls, parts: Sequence[RegionArrays]) -> RegionArrays:
+        """The regions of ``parts`` one after the other (their shared rows must agree
+        where they have implied regions)."""
+        parts = [p for p in parts if len(p)] or list(parts[:1])
+        shared = [p for p in parts if p.implied.any()]
+        for p in shared[1:]:
+            if not (
+                np.array_equal(p.shared_A, shared[0].shared_A)
+                and np.array_equal(p.shared_b, shared[0].shared_b)
+            ):
+                raise ValueError("regions with different shared rows")
+        src = shared[0] if shared else parts[0]
+
+        def offs(key: str) -> np.ndarray:
+            sizes = np.concatenate([np.diff(getattr(p, key)) for p in parts])
+            out = np.zeros(sizes.size + 1, dtype=np.int64)
+            np.cumsum(sizes, out=out[1:])
+            return out
+
+        return cls(
+            np.concatenate([p.A for p in parts]),
+            np.concatenate([p.b for p in parts]),
+            offs("offsets"),
+            np.concatenate([p.K for p in parts]),
+            np.concatenate([p.k for p in parts]),
+            np.concatenate([p.active for p in parts]),
+            offs("active_offsets"),
+            np.concatenate([p.implied for p in parts]),
+            src.shared_A,
+            src.shared_b,
+        )
+
+    def active_order(self) -> np.ndarray:
+        """The permutation that sorts the regions by active set (as tuples sort)."""
+        n = len(self)
+        sizes = np.diff(self.active_offsets)
+        width = int(sizes.max(initial=0))
+        pad = np.full((n, width), -1, dtype=np.int64)  # a prefix sorts first, as in tuples
+        cols = np.arange(self.active.size) - np.repeat(self.active_offsets[:-1], sizes)
+        pad[np.repeat(np.arange(n), sizes), cols] = self.active
+        return np.lexsort(pad.T[::-1]) if width else np.arange(n)
+
+
+def _ranges(offsets: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The entries of the segments ``idx`` of an offset array, and their new offsets."""
+    sizes = offsets[idx + 1] - offsets[idx]
+    off = np.zeros(idx.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=off[1:])
+    entries = np.arange(off[-1]) - np.repeat(off[:-1] - offsets[idx], sizes)
+    return entries, off
+
+
 @dataclass
 class MpSolution:
     """Explicit solution of an ``MpProgram``: a partition of its feasible parameter set.
@@ -68,13 +244,17 @@ class MpSolution:
     """
 
     program: MpProgram
-    regions: list[CriticalRegion]
+    regions: RegionArrays
     domain_A: np.ndarray | None = None
     domain_b: np.ndarray | None = None
     seconds: float = 0.0
     stats: dict = field(default_factory=dict)
     _locator: PointLocator | None = field(default=None, repr=False)
-    _laws: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        # (a list of regions is packed: the solution holds flat arrays)
+        if not isinstance(self.regions, RegionArrays):
+            self.regions = RegionArrays.from_regions(self.regions, self.program.nz, self.program.d)
 
     @property
     def num_regions(self) -> int:
@@ -83,7 +263,10 @@ class MpSolution:
     @property
     def locator(self) -> PointLocator:
         if self._locator is None:
-            self._locator = PointLocator([r.A for r in self.regions], [r.b for r in self.regions])
+            ra = self.regions
+            self._locator = PointLocator.packed(
+                ra.A, ra.b, ra.offsets, shared=(ra.shared_A, ra.shared_b), implied=ra.implied
+            )
         return self._locator
 
     def _theta(self, Theta: np.ndarray) -> np.ndarray:
@@ -103,15 +286,9 @@ class MpSolution:
         Theta = self._theta(Theta)
         idx = self.locate(Theta)
         Z = np.full((Theta.shape[0], self.program.nz), np.nan)
-        if self.regions:
-            if self._laws is None:  # (stacked once: 860k regions of 8 x 8 are 440 MB)
-                self._laws = (
-                    np.stack([r.K for r in self.regions]),
-                    np.stack([r.k for r in self.regions]),
-                )
-            K, k = self._laws
-            inside = idx >= 0
-            Z[inside] = np.einsum("pij,pj->pi", K[idx[inside]], Theta[inside]) + k[idx[inside]]
+        K, k = self.regions.K, self.regions.k
+        inside = idx >= 0
+        Z[inside] = np.einsum("pij,pj->pi", K[idx[inside]], Theta[inside]) + k[idx[inside]]
         return Z
 
     def value(self, Theta: np.ndarray) -> np.ndarray:
@@ -139,17 +316,20 @@ class MpSolution:
     def save(self, path: str | os.PathLike) -> Path:
         """Write the solution (and its program) to ``path`` (``.npz``) atomically."""
         p = self.program
-        d, nz = p.d, p.nz
-        regs = self.regions
+        d = p.d
+        ra = self.regions
         arrays: dict[str, np.ndarray] = {
             "format": np.array(SOLUTION_FORMAT),
-            "A": np.vstack([r.A for r in regs]) if regs else np.zeros((0, d)),
-            "b": np.concatenate([r.b for r in regs]) if regs else np.zeros(0),
-            "offsets": np.cumsum([0] + [r.A.shape[0] for r in regs]).astype(np.int64),
-            "K": np.stack([r.K for r in regs]) if regs else np.zeros((0, nz, d)),
-            "k": np.stack([r.k for r in regs]) if regs else np.zeros((0, nz)),
-            "active": np.array([i for r in regs for i in r.active], dtype=np.int64),
-            "active_offsets": np.cumsum([0] + [len(r.active) for r in regs]).astype(np.int64),
+            "A": ra.A,
+            "b": ra.b,
+            "offsets": ra.offsets,
+            "K": ra.K,
+            "k": ra.k,
+            "active": ra.active,
+            "active_offsets": ra.active_offsets,
+            "implied": ra.implied,
+            "shared_A": ra.shared_A,
+            "shared_b": ra.shared_b,
             "domain_A": self.domain_A if self.domain_A is not None else np.zeros((0, d)),
             "domain_b": self.domain_b if self.domain_b is not None else np.zeros(0),
             "meta": np.array(json.dumps({"seconds": self.seconds, "name": p.name})),
@@ -168,7 +348,7 @@ class MpSolution:
     @classmethod
     def _from_arrays(cls, data: dict[str, np.ndarray]) -> MpSolution:
         fmt = text(data, "format")
-        if fmt != SOLUTION_FORMAT:
+        if fmt not in _READABLE:
             raise SpecError(f"unsupported solution format {fmt!r}", field="format")
         prog = {k[len("program.") :]: v for k, v in data.items() if k.startswith("program.")}
         try:
@@ -205,16 +385,19 @@ class MpSolution:
         if dA.shape[1] != d:
             raise SpecError(f"must have {d} columns, got {dA.shape}", field="domain_A")
         db = real(data, "domain_b", shape=(dA.shape[0],))
-        regions = [
-            CriticalRegion(
-                A=A[off[i] : off[i + 1]],
-                b=b[off[i] : off[i + 1]],
-                K=K[i],
-                k=k[i],
-                active=tuple(int(j) for j in act[aoff[i] : aoff[i + 1]]),
-            )
-            for i in range(R)
-        ]
+        implied = shared_A = shared_b = None
+        if fmt != _FORMAT_1:  # (format 1 has every row in its region)
+            implied = array(data, "implied")
+            if implied.dtype != np.bool_ or implied.shape != (R,):
+                raise SpecError(f"must be a boolean array of shape ({R},)", field="implied")
+            shared_A = real(data, "shared_A", ndim=2)
+            if shared_A.shape[1] != d:
+                raise SpecError(f"must have {d} columns, got {shared_A.shape}", field="shared_A")
+            shared_b = real(data, "shared_b", shape=(shared_A.shape[0],))
+        regions = RegionArrays(
+            np.ascontiguousarray(A), b, off, K, k, act.astype(np.int64), aoff, implied,
+            shared_A, shared_b,
+        )
         return cls(
             program=program,
             regions=regions,

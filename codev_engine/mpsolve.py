@@ -44,7 +44,7 @@ from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 from .errors import SolverError, SpecError
 from .mpprogram import MpProgram
 from .mpqp import explore_active_sets
-from .mpsolution import CriticalRegion, MpSolution
+from .mpsolution import CriticalRegion, MpSolution, RegionArrays
 from .polytope import (
     bounding_box,
     certified_minimal_rows,
@@ -854,12 +854,13 @@ def mpsolve(
     if semidefinite:
         _check_no_recession(red)
     ex = _Explorer(red, opts, progress)
+    nz, d = red.G.shape[1], red.At.shape[1]
     if ex.is_lp:
-        regions = ex.run()
+        regions = RegionArrays.from_regions(ex.run(), nz, d)
     else:
         # strictly convex QP: combinatorial adjacency over active sets (mpqp.py)
         q0 = ex.start_point()
-        regions = []
+        regions = RegionArrays.from_regions([], nz, d)
         if q0 is not None:
             regions = explore_active_sets(
                 red.H,
@@ -881,25 +882,16 @@ def mpsolve(
                 stats=ex.stats,
             )
     domain = (
-        _domain_from_regions(red, regions, ex.scale, ex.theta_box) if regions
+        _domain_from_regions(red, regions, ex.scale, ex.theta_box) if len(regions)
         else _empty_domain(red)
     )
     # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
-    out = regions
     if not (np.array_equal(red.Nz, np.eye(program.nz)) and not red.Z0.any() and not red.Z1.any()):
-        out = [
-            CriticalRegion(
-                A=reg.A,
-                b=reg.b,
-                K=red.Z1 + red.Nz @ reg.K,
-                k=red.Z0 + red.Nz @ reg.k,
-                active=reg.active,
-            )
-            for reg in regions
-        ]
+        regions.K = red.Z1 + np.einsum("ij,rjk->rik", red.Nz, regions.K)
+        regions.k = red.Z0 + regions.k @ red.Nz.T
     return MpSolution(
         program=program,
-        regions=out,
+        regions=regions,
         domain_A=domain[0],
         domain_b=domain[1],
         seconds=time.perf_counter() - t0,
@@ -947,7 +939,7 @@ _SEEN = 256
 
 def _domain_from_regions(
     red: _Reduced,
-    regions: list[CriticalRegion],
+    regions: RegionArrays,
     scale: float,
     box: tuple[np.ndarray, np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -964,8 +956,8 @@ def _domain_from_regions(
     they bound it or not (and region rows equal to one are not told apart from it): each
     is kept unless the other rows imply it (an LP).
     """
-    A = np.concatenate([r.A for r in regions])
-    b = np.concatenate([r.b for r in regions])
+    # (the rows the regions share are the parameter set's, dealt with below)
+    A, b = regions.A, regions.b
     # a facet between two regions appears with both signs: not on the boundary
     if len(regions) > _COMPILED_DOMAIN_AFTER:
         from .mpqp_graph import unpaired_rows

@@ -445,9 +445,10 @@ def overlap_counts(sol: ce.MpSolution, Theta: np.ndarray) -> np.ndarray:
     """Per parameter: how many regions hold it strictly inside (every row by STRICT)."""
     if not sol.regions:
         return np.zeros(Theta.shape[0], dtype=int)
-    A = np.vstack([r.A for r in sol.regions])
-    b = np.concatenate([r.b for r in sol.regions])
-    starts = np.cumsum([0] + [r.A.shape[0] for r in sol.regions])
+    # the packed rows: each region's own, and the rows implied regions share (held once)
+    ra = sol.regions
+    A, b, starts = ra.A, ra.b, ra.offsets
+    shared_ok = np.all(Theta @ ra.shared_A.T - ra.shared_b <= -STRICT, axis=1)
     counts = np.zeros(Theta.shape[0], dtype=int)
     # in chunks of whole regions, ~1M rows: (P, all rows) at once was 23 GB on 033
     step = 1 << 20
@@ -455,8 +456,13 @@ def overlap_counts(sol: ce.MpSolution, Theta: np.ndarray) -> np.ndarray:
     while i < R:
         j = min(max(int(np.searchsorted(starts, starts[i] + step, side="right")) - 1, i + 1), R)
         viol = Theta @ A[starts[i] : starts[j]].T - b[starts[i] : starts[j]] > -STRICT
-        out = np.add.reduceat(viol.astype(np.int64), starts[i:j] - starts[i], axis=1)
-        counts += np.sum(out == 0, axis=1)
+        inside = np.ones((Theta.shape[0], j - i), dtype=bool)  # (a region with no own rows)
+        has = np.diff(starts[i : j + 1]) > 0
+        if viol.shape[1]:
+            out = np.add.reduceat(viol.astype(np.int64), (starts[i:j] - starts[i])[has], axis=1)
+            inside[:, has] = out == 0
+        inside[:, ra.implied[i:j]] &= shared_ok[:, None]
+        counts += np.sum(inside, axis=1)
         i = j
     return counts
 

@@ -649,6 +649,9 @@ def _solution_cases(arrays: dict[str, np.ndarray]) -> dict[str, tuple[str, dict]
         "active_offsets",
         "domain_A",
         "domain_b",
+        "implied",
+        "shared_A",
+        "shared_b",
     ):
         cases[f"missing_{k}"] = (k, {k: None})
     for k in REQUIRED:
@@ -675,6 +678,12 @@ def _solution_cases(arrays: dict[str, np.ndarray]) -> dict[str, tuple[str, dict]
         "active_offsets",
         {"active_offsets": arrays["active_offsets"][:-1]},
     )
+    cases["implied_not_bool"] = ("implied", {"implied": np.zeros(R, dtype=int)})
+    cases["implied_count"] = ("implied", {"implied": np.zeros(R + 1, dtype=bool)})
+    cases["shared_A_columns"] = ("shared_A", {"shared_A": np.zeros((2, d + 1))})
+    cases["shared_b_length"] = ("shared_b", {"shared_b": np.zeros(1)})
+    nan_row = {"shared_A": np.full((1, d), np.nan), "shared_b": np.ones(1)}
+    cases["nan_shared_A"] = ("shared_A", nan_row)
     cases["domain_A_columns"] = ("domain_A", {"domain_A": np.zeros((4, d + 1))})
     cases["domain_b_length"] = ("domain_b", {"domain_b": np.zeros(arrays["domain_A"].shape[0] + 1)})
     for k in ("K", "k", "A", "b", "domain_A", "domain_b", "program.c", "program.F"):
@@ -704,6 +713,9 @@ SOLUTION_CASE_NAMES = list(
             "k": np.zeros((3, 3)),
             "b": np.zeros(9),
             "domain_b": np.zeros(4),
+            "implied": np.zeros(3, dtype=bool),
+            "shared_A": np.zeros((0, 2)),
+            "shared_b": np.zeros(0),
             "program.c": np.zeros(3),
             "program.F": np.zeros((6, 2)),
             "program.H": np.eye(3),

@@ -262,7 +262,7 @@ def test_equal_laws_are_merged_after_rounding():
     """mpqp._merge_equal_laws rounds laws to 1e-7 of the scale (np.rint, -0.0 as +0.0):
     two adjacent boxes whose laws differ by 1e-12 and a signed zero become one region; a
     third with another law stays apart, and all-distinct laws leave the list as it is."""
-    from codev_engine.mpsolution import CriticalRegion
+    from codev_engine.mpsolution import CriticalRegion, RegionArrays
 
     def box(lo, hi, K, k, act):
         A = np.vstack([np.eye(2), -np.eye(2)])
@@ -277,11 +277,13 @@ def test_equal_laws_are_merged_after_rounding():
         box([2, 0], [3, 1], 2 * K, k, (2,)),
     ]
     stats: dict = {}
-    merged = mpqp._merge_equal_laws(regions, 1.0, stats)
+    merged = mpqp._merge_equal_laws(RegionArrays.from_regions(regions), 1.0, stats)
     assert len(merged) == 2 and stats["merged"] == 1
     wide = [r for r in merged if np.array_equal(r.K, K)][0]
     lo, hi = ce.polytope.bounding_box(wide.A, wide.b)
     np.testing.assert_allclose(lo, [0, 0], atol=1e-9)
     np.testing.assert_allclose(hi, [2, 1], atol=1e-9)
-    apart = [box([0, 0], [1, 1], K, k, (0,)), box([1, 0], [2, 1], K + 1e-3, k, (1,))]
+    apart = RegionArrays.from_regions(
+        [box([0, 0], [1, 1], K, k, (0,)), box([1, 0], [2, 1], K + 1e-3, k, (1,))]
+    )
     assert mpqp._merge_equal_laws(apart, 1.0, {}) is apart
