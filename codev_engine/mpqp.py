@@ -49,6 +49,8 @@ PARALLEL_AFTER = 400
 #: regions found before candidates go to the compiled kernel (mpqp_jit; importing numba
 #: and loading the kernel costs ~1 s, more than small problems take altogether)
 JIT_AFTER = 200
+#: batches' regions put together into one chunk of arrays during the compiled walk
+_PARTS_PER_CHUNK = 256
 #: candidates handed to a worker per round trip
 _CHUNK = 64
 #: batches in flight in the compiled walk, whatever the number of workers: batches are
@@ -417,8 +419,10 @@ def explore_active_sets(
 
     Returns
     -------
-    list of CriticalRegion
-        In the variables z, sorted by active set; ``active`` holds the active set.
+    RegionArrays
+        In the variables z; ``active`` holds the active set. Sorted by active set, but for
+        the regions of the compiled walk, which stay in the order it found them (neither
+        timing nor the worker count changes that order).
     """
     global _KERNEL
     stats = {} if stats is None else stats
@@ -531,11 +535,14 @@ def explore_active_sets(
         _KERNEL = None
     if not compiled:
         stats["explored"] = len(explored)
-    packed = walk.result() if compiled else RegionArrays.from_regions(regions, nz, kernel.d)
-    walk = None  # (its batches: the packed regions are all that is left of them)
-    order = packed.active_order()  # the same order however they were found
-    if np.any(order != np.arange(order.size)):
-        packed = packed.take(order)
+    if compiled:
+        # the compiled walk's order depends on neither timing nor the worker count; not
+        # sorting it spares a second copy of every row (5M regions of pop_mpqp_095: 10 GB)
+        packed = walk.result()
+        walk = None  # (the walk's hash table and stack)
+    else:
+        regions.sort(key=lambda r: r.active)  # the same order however they were found
+        packed = RegionArrays.from_regions(regions, nz, kernel.d)
     return _merge_equal_laws(packed, scale, stats)
 
 
@@ -557,7 +564,8 @@ class _CompiledWalk:
         from . import mpqp_graph, mpqp_jit
 
         self.kernel, self.regions, self.stats = kernel, regions, stats
-        self.parts: list[RegionArrays] = []  # the batches' regions
+        self.parts: list[RegionArrays] = []  # the latest batches' regions
+        self.chunks: list[RegionArrays] = []  # the earlier ones, in larger arrays
         self.found = len(regions)  # regions in both
         self.shared: tuple[np.ndarray, np.ndarray] | None = None  # the kernel's At rows
         self.jit = mpqp_jit
@@ -610,19 +618,32 @@ class _CompiledWalk:
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
-        full = np.flatnonzero(status == jit.FULL)
-        if full.size:
-            self._pack(full, acts, sizes, rows_off, A, b, K, k)
-        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off, points)
-        for c in np.flatnonzero(status == jit.FALLBACK):
+        # the candidates handed back, through the numpy kernel (it does not depend on the
+        # walk's state); their regions are kept in their place among the batch's
+        back = np.flatnonzero(status == jit.FALLBACK)
+        results = []
+        for c in back:
             act = tuple(acts[c, : sizes[c]].tolist())
-            st, rows, law, mv, used_lp = self.kernel.evaluate_numpy(act)
-            stats["lps"] += int(used_lp)
-            if st == "full":
-                self.regions.append(
-                    CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1], active=act)
-                )
-                self.found += 1
+            results.append(self.kernel.evaluate_numpy(act))
+            stats["lps"] += int(results[-1][4])
+        full = np.flatnonzero(status == jit.FULL)
+        mine = self._pack(full, acts, sizes, rows_off, A, b, K, k) if full.size else None
+        handed = [
+            (int(c), CriticalRegion(A=r[1][0], b=r[1][1], K=r[2][0], k=r[2][1],
+                                    active=tuple(acts[c, : sizes[c]].tolist())))
+            for c, r in zip(back, results, strict=True) if r[0] == "full"
+        ]
+        if handed:
+            theirs = RegionArrays.from_regions([reg for _, reg in handed])
+            at = np.array([c for c, _ in handed])
+            if mine is not None:
+                theirs = RegionArrays.concat([mine, theirs])
+                at = np.concatenate([full, at])
+            mine = theirs.take(np.argsort(at, kind="stable"))
+        if mine is not None:
+            self._keep(mine)
+        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off, points)
+        for c, (st, _, _, mv, _) in zip(back, results, strict=True):
             mv = np.zeros(0, dtype=np.int64) if mv is None else np.asarray(mv, dtype=np.int64)
             no_swaps = np.zeros((0, 2), dtype=np.int64)
             self.graph.visit(
@@ -630,9 +651,8 @@ class _CompiledWalk:
                 no_swaps, np.zeros(2, dtype=np.int64), points[c : c + 1],
             )
 
-
-    def _pack(self, full, acts, sizes, rows_off, A, b, K, k) -> None:
-        """Keep the regions ``full`` of a batch as packed arrays (copies: a view would keep
+    def _pack(self, full, acts, sizes, rows_off, A, b, K, k) -> RegionArrays:
+        """The regions ``full`` of a batch as packed arrays (copies: a view would keep
         the whole batch alive), without the parameter set's rows, which the compiled kernel
         puts last in every region: they are held once (``RegionArrays.shared_A``)."""
         r0, r1 = rows_off[full], rows_off[full + 1]
@@ -655,15 +675,26 @@ class _CompiledWalk:
         part = acts[full]
         active = part[np.arange(part.shape[1])[None, :] < n[:, None]]
         shared = self.shared or (None, None)
-        self.parts.append(
-            RegionArrays(A[rows], b[rows], off, K[full], k[full], active, aoff, implied, *shared)
+        return RegionArrays(
+            A[rows], b[rows], off, K[full], k[full], active, aoff, implied, *shared
         )
-        self.found += full.size
+
+    def _keep(self, part: RegionArrays) -> None:
+        self.parts.append(part)
+        self.found += len(part)
+        if len(self.parts) >= _PARTS_PER_CHUNK:
+            # (large arrays are given back to the system when freed; a million small ones
+            # fragment the heap)
+            self.chunks.append(RegionArrays.concat(self.parts))
+            self.parts = []
 
     def result(self) -> RegionArrays:
-        """Every region found, packed."""
+        """Every region found, packed, in the order found (the walk's copies are freed as
+        they are copied)."""
         parts = [RegionArrays.from_regions(self.regions, self.kernel.nz, self.kernel.d)]
-        return RegionArrays.concat(parts + self.parts)
+        parts += self.chunks + self.parts
+        self.regions, self.chunks, self.parts = [], [], []
+        return RegionArrays.concat(parts, consume=True)
 
 def _start_pool(kernel: _Kernel, nworkers: int):
     """A pool of workers sharing ``kernel``: threads once the compiled kernel runs, forked

@@ -172,37 +172,58 @@ class RegionArrays(Sequence[CriticalRegion]):
         )
 
     @classmethod
-    def concat(cls, parts: Sequence[RegionArrays]) -> RegionArrays:
+    def concat(cls, parts: list[RegionArrays], consume: bool = False) -> RegionArrays:
         """The regions of ``parts`` one after the other (their shared rows must agree
-        where they have implied regions)."""
-        parts = [p for p in parts if len(p)] or list(parts[:1])
-        shared = [p for p in parts if p.implied.any()]
+        where they have implied regions). ``consume``: each part is dropped from the list
+        once copied, so that the copy and the parts are not all held at once (the result
+        is allocated empty, and its pages are touched only as they are filled)."""
+        live = [p for p in parts if len(p)] or list(parts[:1])
+        shared = [p for p in live if p.implied.any()]
         for p in shared[1:]:
             if not (
                 np.array_equal(p.shared_A, shared[0].shared_A)
                 and np.array_equal(p.shared_b, shared[0].shared_b)
             ):
                 raise ValueError("regions with different shared rows")
-        src = shared[0] if shared else parts[0]
-
-        def offs(key: str) -> np.ndarray:
-            sizes = np.concatenate([np.diff(getattr(p, key)) for p in parts])
-            out = np.zeros(sizes.size + 1, dtype=np.int64)
-            np.cumsum(sizes, out=out[1:])
-            return out
-
-        return cls(
-            np.concatenate([p.A for p in parts]),
-            np.concatenate([p.b for p in parts]),
-            offs("offsets"),
-            np.concatenate([p.K for p in parts]),
-            np.concatenate([p.k for p in parts]),
-            np.concatenate([p.active for p in parts]),
-            offs("active_offsets"),
-            np.concatenate([p.implied for p in parts]),
-            src.shared_A,
-            src.shared_b,
+        src = shared[0] if shared else live[0]
+        shared = []  # (no reference to the parts but the list's)
+        R = sum(len(p) for p in live)
+        q = sum(p.A.shape[0] for p in live)
+        s = sum(p.active.size for p in live)
+        (nz, d), dt = src.K.shape[1:], src.A.dtype
+        out = cls(
+            np.empty((q, d), dt), np.empty(q), np.zeros(R + 1, np.int64),
+            np.empty((R, nz, d)), np.empty((R, nz)), np.empty(s, np.int64),
+            np.zeros(R + 1, np.int64), np.empty(R, bool), src.shared_A, src.shared_b,
         )
+        r = i = a = 0
+        if consume:
+            parts[:] = live
+            live = parts
+        freed = 0
+        for n in range(len(live)):
+            p = live[n]
+            nr, ni, na = len(p), p.A.shape[0], p.active.size
+            out.A[i : i + ni] = p.A
+            out.b[i : i + ni] = p.b
+            out.offsets[r + 1 : r + nr + 1] = p.offsets[1:] + i
+            out.K[r : r + nr] = p.K
+            out.k[r : r + nr] = p.k
+            out.active[a : a + na] = p.active
+            out.active_offsets[r + 1 : r + nr + 1] = p.active_offsets[1:] + a
+            out.implied[r : r + nr] = p.implied
+            r, i, a = r + nr, i + ni, a + na
+            if consume:
+                live[n] = None  # type: ignore[call-overload]
+                freed += p.A.nbytes + p.K.nbytes
+                del p
+                if freed > _TRIM_BYTES:
+                    freed = 0
+                    _trim_heap()
+        if consume:
+            parts.clear()
+            _trim_heap()
+        return out
 
     def active_order(self) -> np.ndarray:
         """The permutation that sorts the regions by active set (as tuples sort)."""
@@ -213,6 +234,31 @@ class RegionArrays(Sequence[CriticalRegion]):
         cols = np.arange(self.active.size) - np.repeat(self.active_offsets[:-1], sizes)
         pad[np.repeat(np.arange(n), sizes), cols] = self.active
         return np.lexsort(pad.T[::-1]) if width else np.arange(n)
+
+
+#: bytes of parts freed between two heap trims in ``RegionArrays.concat(consume=True)``
+_TRIM_BYTES = 1 << 28
+
+
+def _trim_heap() -> None:
+    """Give the heap's free pages back to the system (glibc's ``malloc_trim``; nothing
+    elsewhere). Arrays under glibc's mmap threshold (up to 32 MB) live on the heap: the
+    walk's parts, freed as they are copied, would otherwise stay resident beside the copy
+    (3.7 instead of 2.1 GB at the end of pop_mpqp_033)."""
+    global _LIBC
+    if _LIBC is None:
+        try:
+            import ctypes
+
+            _LIBC = ctypes.CDLL("libc.so.6")
+            _LIBC.malloc_trim.argtypes = [ctypes.c_size_t]
+        except (OSError, AttributeError):
+            _LIBC = False
+    if _LIBC:
+        _LIBC.malloc_trim(0)
+
+
+_LIBC = None
 
 
 def _ranges(offsets: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
