@@ -629,9 +629,9 @@ class _CompiledWalk:
         full = np.flatnonzero(status == jit.FULL)
         mine = self._pack(full, acts, sizes, rows_off, A, b, K, k) if full.size else None
         handed = [
-            (int(c), CriticalRegion(A=r[1][0], b=r[1][1], K=r[2][0], k=r[2][1],
+            (int(c), CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1],
                                     active=tuple(acts[c, : sizes[c]].tolist())))
-            for c, r in zip(back, results, strict=True) if r[0] == "full"
+            for c, (st, rows, law, _, _) in zip(back, results, strict=True) if st == "full"
         ]
         if handed:
             theirs = RegionArrays.from_regions([reg for _, reg in handed])
@@ -695,6 +695,7 @@ class _CompiledWalk:
         parts += self.chunks + self.parts
         self.regions, self.chunks, self.parts = [], [], []
         return RegionArrays.concat(parts, consume=True)
+
 
 def _start_pool(kernel: _Kernel, nworkers: int):
     """A pool of workers sharing ``kernel``: threads once the compiled kernel runs, forked
