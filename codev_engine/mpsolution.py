@@ -236,6 +236,9 @@ class RegionArrays(Sequence[CriticalRegion]):
         return np.lexsort(pad.T[::-1]) if width else np.arange(n)
 
 
+#: solutions of more bytes are saved uncompressed
+_COMPRESS_BELOW = 1 << 26
+
 #: bytes of parts freed between two heap trims in ``RegionArrays.concat(consume=True)``
 _TRIM_BYTES = 1 << 28
 
@@ -384,7 +387,9 @@ class MpSolution:
             val = getattr(p, key)
             if val is not None:
                 arrays[f"program.{key}"] = val
-        return write_npz(path, arrays)
+        # (large solutions uncompressed: deflating 10 GB of rows took 5 minutes)
+        size = sum(a.nbytes for a in arrays.values())
+        return write_npz(path, arrays, compress=size < _COMPRESS_BELOW)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> MpSolution:

@@ -144,3 +144,22 @@ def test_locating_with_shared_rows_is_locating_with_all_rows(compiled_solution, 
     for r, s in zip(old.regions, regs, strict=True):
         _same_region(r, s)
     np.testing.assert_array_equal(old.locate(X), ref)
+
+
+def test_large_solutions_are_saved_uncompressed(compiled_solution, tmp_path, monkeypatch):
+    """Above ``_COMPRESS_BELOW`` bytes a solution is written without deflate (zlib took
+    minutes on gigabytes of rows); it reads back the same."""
+    import zipfile
+
+    from codev_engine import mpsolution
+
+    small = compiled_solution.save(tmp_path / "small.npz")
+    monkeypatch.setattr(mpsolution, "_COMPRESS_BELOW", 0)
+    large = compiled_solution.save(tmp_path / "large.npz")
+    with zipfile.ZipFile(small) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_DEFLATED}
+    with zipfile.ZipFile(large) as z:
+        assert {i.compress_type for i in z.infolist()} == {zipfile.ZIP_STORED}
+    back = ce.MpSolution.load(large)
+    for r, s in zip(back.regions, compiled_solution.regions, strict=True):
+        _same_region(r, s)
