@@ -635,7 +635,7 @@ def _build_parser() -> argparse.ArgumentParser:
         "--max-regions",
         type=int,
         metavar="N",
-        help="give up past N critical regions (exit 1; default 1,000,000, ~6 GB)",
+        help="give up past N critical regions (exit 1; default 1,000,000, ~2.5 GB)",
     )
     p.set_defaults(func=_cmd_mpsolve)
     return parser

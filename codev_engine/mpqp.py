@@ -30,7 +30,7 @@ from scipy.linalg import cho_solve
 from scipy.linalg.lapack import dgeqrf
 
 from .errors import SolverError
-from .mpsolution import CriticalRegion, RegionArrays
+from .mpsolution import CriticalRegion, RegionArrays, too_many_regions
 from .polytope import (
     bounding_box,
     certified_minimal_rows,
@@ -459,7 +459,7 @@ def explore_active_sets(
             if progress is not None:
                 progress(len(regions))
             if len(regions) > max_regions:
-                raise SolverError(f"more than {max_regions} regions")
+                raise SolverError(too_many_regions(max_regions))
         if status == "licq":
             leave, enter = list(act), []  # its subsets are the way on
         elif status == "singular":
@@ -602,7 +602,7 @@ class _CompiledWalk:
                 if progress is not None:
                     progress(self.found)
                 if self.found > max_regions:
-                    raise SolverError(f"more than {max_regions} regions")
+                    raise SolverError(too_many_regions(max_regions))
         finally:
             self.stats["explored"] = graph.explored
             if pool is not None:

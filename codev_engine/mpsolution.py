@@ -24,7 +24,7 @@ from .locate import PointLocator
 from .mpprogram import MpProgram
 from .npzfile import array, load_checked, offsets, real, text
 
-__all__ = ["CriticalRegion", "MpSolution", "RegionArrays", "SOLUTION_FORMAT"]
+__all__ = ["CriticalRegion", "MpSolution", "RegionArrays", "SOLUTION_FORMAT", "too_many_regions"]
 
 #: format tag of solution files; bumped on incompatible changes
 SOLUTION_FORMAT = "codev-mp-solution/2"
@@ -238,6 +238,14 @@ class RegionArrays(Sequence[CriticalRegion]):
 
 #: solutions of more bytes are saved uncompressed
 _COMPRESS_BELOW = 1 << 26
+
+def too_many_regions(limit: int) -> str:
+    """The message of the solver's safety stop on the number of regions."""
+    return (
+        f"more than {limit:,} regions: the safety stop (raise it with --max-regions or "
+        "SolveOptions.max_regions; a region of the CDC-24 set holds ~2.5 KB)"
+    )
+
 
 #: bytes of parts freed between two heap trims in ``RegionArrays.concat(consume=True)``
 _TRIM_BYTES = 1 << 28
