@@ -454,7 +454,7 @@ class MpSolution:
                 raise SpecError(f"must have {d} columns, got {shared_A.shape}", field="shared_A")
             shared_b = real(data, "shared_b", shape=(shared_A.shape[0],))
         regions = RegionArrays(
-            np.ascontiguousarray(A), b, off, K, k, act.astype(np.int64), aoff, implied,
+            np.ascontiguousarray(A), b, off, K, k, act.astype(np.int64, copy=False), aoff, implied,
             shared_A, shared_b,
         )
         return cls(
