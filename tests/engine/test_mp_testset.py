@@ -10,8 +10,10 @@ Per problem:
    hard limit: a problem that hangs fails instead of hanging CI), then ``MpSolution.load``.
    ``$CODEV_MP_TIME_LIMIT`` (seconds) raises the limit, to check the partitions of the
    problems that take longer (an opt-in run: the target is 60 s), and
-   ``$CODEV_MP_MAX_REGIONS`` the solver's region limit (``pop_mpqp_036`` and ``095`` have
-   more than the default million).
+   ``$CODEV_MP_MAX_REGIONS`` the solver's region limit (``pop_mpqp_036`` has 6,649,670
+   regions, ``095`` 5,008,776: over the default million; RSS up to ~15 and ~11 GB during
+   the solve, 23 and 18 minutes on this 2-core machine beside other work, their checks
+   ~30 minutes more).
 2. **Parameters**: ``N_UNIFORM`` uniform in the parameter set (hit-and-run from its
    Chebyshev centre), ``N_FEASIBLE`` from the feasible parameter set (convex combinations
    of an interior point of the lifted set ``{(z, theta)}`` with LP vertices in random
