@@ -10,6 +10,7 @@ import codev_engine as ce
 from codev_engine import mpqp
 from codev_engine.locate import PointLocator
 from codev_engine.mpsolution import CriticalRegion, RegionArrays
+from tests.engine.test_mpqp_graph import _program
 
 
 def _random_regions(rng, n: int = 40, d: int = 3, nz: int = 2) -> list[CriticalRegion]:
@@ -72,20 +73,6 @@ def test_implied_regions_give_back_their_shared_rows():
                          implied, SA + 1.0, Sb)
     with pytest.raises(ValueError, match="shared rows"):
         RegionArrays.concat([ra, other])
-
-
-def _program(seed: int = 2) -> ce.MpProgram:
-    """A random strictly convex mp-QP with some hundreds of regions (nz = 5, d = 4)."""
-    rng = np.random.default_rng(seed)
-    nz, d, m = 5, 4, 16
-    A = np.vstack([rng.normal(size=(m, nz)), np.eye(nz), -np.eye(nz)])
-    b = np.concatenate([rng.uniform(0.5, 1.5, m), np.full(2 * nz, 2.0)])
-    F = np.vstack([rng.normal(size=(m, d)), np.zeros((2 * nz, d))])
-    L = rng.normal(size=(nz, nz))
-    return ce.MpProgram(
-        H=L @ L.T + 0.1 * np.eye(nz), c=rng.normal(size=nz), C=rng.normal(size=(nz, d)),
-        A=A, b=b, F=F, A_theta=np.vstack([np.eye(d), -np.eye(d)]), b_theta=np.ones(2 * d),
-    )
 
 
 @pytest.fixture(scope="module")
