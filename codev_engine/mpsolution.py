@@ -288,8 +288,9 @@ class MpSolution:
     Attributes
     ----------
     program : MpProgram
-    regions : list of CriticalRegion
-        In the original variables ``z`` (equalities eliminated internally are mapped back).
+    regions : RegionArrays
+        A sequence of ``CriticalRegion``, packed (a list given here is packed), in the
+        original variables ``z`` (equalities eliminated internally are mapped back).
     domain_A, domain_b : ndarray
         The feasible parameter set (the union of the regions) as ``domain_A theta <=
         domain_b``: its facets, non-redundant up to 5,000 rows (above that a row may
