@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 from collections import deque
 from collections.abc import Callable
+from dataclasses import replace
 
 import daqp
 import numpy as np
@@ -30,7 +31,7 @@ from scipy.linalg import cho_solve
 from scipy.linalg.lapack import dgeqrf
 
 from .errors import SolverError
-from .mpsolution import CriticalRegion, RegionArrays, too_many_regions
+from .mpsolution import CriticalRegion, RegionArrays, segment_indices, too_many_regions
 from .polytope import (
     bounding_box,
     certified_minimal_rows,
@@ -665,15 +666,12 @@ class _CompiledWalk:
             implied = (r1 - r0 >= p) & np.all(
                 np.all(A[tail] == self.shared[0], axis=2) & (b[tail] == self.shared[1]), axis=1
             )
-        own = r1 - r0 - p * implied
-        off = np.zeros(full.size + 1, dtype=np.int64)
-        np.cumsum(own, out=off[1:])
-        rows = np.arange(off[-1]) - np.repeat(off[:-1] - r0, own)
+        rows, off = segment_indices(r0, r1 - r0 - p * implied)
         n = sizes[full]
-        aoff = np.zeros(full.size + 1, dtype=np.int64)
-        np.cumsum(n, out=aoff[1:])
         part = acts[full]
         active = part[np.arange(part.shape[1])[None, :] < n[:, None]]
+        aoff = np.zeros(full.size + 1, dtype=np.int64)
+        np.cumsum(n, out=aoff[1:])
         shared = self.shared or (None, None)
         return RegionArrays(
             A[rows], b[rows], off, K[full], k[full], active, aoff, implied, *shared
@@ -754,14 +752,10 @@ def _merge_equal_laws(regions: RegionArrays, scale: float, stats: dict) -> Regio
     for g in np.flatnonzero(ccount > 1):
         idx = cand[cinv == g]  # ascending
         lone[idx] = False
-        rows = [regions.rows(int(i)) for i in idx]
-        As, bs, src = merge_regions([r[0] for r in rows], [r[1] for r in rows], [b""] * idx.size)
-        sub = regions.take(idx[np.asarray(src, dtype=np.int64)])
-        off = np.zeros(len(As) + 1, dtype=np.int64)
-        np.cumsum([a.shape[0] for a in As], out=off[1:])
-        pieces[int(idx[0])] = RegionArrays(
-            np.vstack(As), np.concatenate(bs), off, sub.K, sub.k, sub.active,
-            sub.active_offsets, None, regions.shared_A, regions.shared_b,
+        group = [regions[int(i)] for i in idx]
+        As, bs, src = merge_regions([r.A for r in group], [r.b for r in group], [b""] * idx.size)
+        pieces[int(idx[0])] = RegionArrays.from_regions(
+            [replace(group[i], A=a, b=b) for a, b, i in zip(As, bs, src, strict=True)]
         )
     # the regions in order: runs of regions of their own law, and each group at its first
     parts: list[RegionArrays] = []

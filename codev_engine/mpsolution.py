@@ -31,6 +31,8 @@ SOLUTION_FORMAT = "codev-mp-solution/2"
 #: format 1: every region with all its rows (no shared rows); still read
 _FORMAT_1 = "codev-mp-solution/1"
 _READABLE = (_FORMAT_1, SOLUTION_FORMAT)
+#: solutions of more bytes are saved uncompressed
+_COMPRESS_BELOW = 1 << 26
 
 
 @dataclass(frozen=True)
@@ -164,8 +166,9 @@ class RegionArrays(Sequence[CriticalRegion]):
     def take(self, idx: np.ndarray) -> RegionArrays:
         """The regions ``idx`` (an index array), in that order."""
         idx = np.asarray(idx, dtype=np.int64)
-        rows, off = _ranges(self.offsets, idx)
-        acts, aoff = _ranges(self.active_offsets, idx)
+        o, a = self.offsets, self.active_offsets
+        rows, off = segment_indices(o[idx], o[idx + 1] - o[idx])
+        acts, aoff = segment_indices(a[idx], a[idx + 1] - a[idx])
         return RegionArrays(
             self.A[rows], self.b[rows], off, self.K[idx], self.k[idx], self.active[acts], aoff,
             self.implied[idx], self.shared_A, self.shared_b,
@@ -178,15 +181,13 @@ class RegionArrays(Sequence[CriticalRegion]):
         once copied, so that the copy and the parts are not all held at once (the result
         is allocated empty, and its pages are touched only as they are filled)."""
         live = [p for p in parts if len(p)] or list(parts[:1])
-        shared = [p for p in live if p.implied.any()]
-        for p in shared[1:]:
-            if not (
-                np.array_equal(p.shared_A, shared[0].shared_A)
-                and np.array_equal(p.shared_b, shared[0].shared_b)
+        src = next((p for p in live if p.implied.any()), live[0])
+        for p in live:
+            if p.implied.any() and not (
+                np.array_equal(p.shared_A, src.shared_A)
+                and np.array_equal(p.shared_b, src.shared_b)
             ):
                 raise ValueError("regions with different shared rows")
-        src = shared[0] if shared else live[0]
-        shared = []  # (no reference to the parts but the list's)
         R = sum(len(p) for p in live)
         q = sum(p.A.shape[0] for p in live)
         s = sum(p.active.size for p in live)
@@ -236,9 +237,6 @@ class RegionArrays(Sequence[CriticalRegion]):
         return np.lexsort(pad.T[::-1]) if width else np.arange(n)
 
 
-#: solutions of more bytes are saved uncompressed
-_COMPRESS_BELOW = 1 << 26
-
 def too_many_regions(limit: int) -> str:
     """The message of the solver's safety stop on the number of regions."""
     return (
@@ -272,13 +270,12 @@ def _trim_heap() -> None:
 _LIBC = None
 
 
-def _ranges(offsets: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The entries of the segments ``idx`` of an offset array, and their new offsets."""
-    sizes = offsets[idx + 1] - offsets[idx]
-    off = np.zeros(idx.size + 1, dtype=np.int64)
+def segment_indices(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The indices ``starts[i] .. starts[i] + sizes[i] - 1`` of consecutive segments, one
+    after the other (q,), and where each begins in them (n + 1,)."""
+    off = np.zeros(sizes.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=off[1:])
-    entries = np.arange(off[-1]) - np.repeat(off[:-1] - offsets[idx], sizes)
-    return entries, off
+    return np.arange(off[-1]) - np.repeat(off[:-1] - starts, sizes), off
 
 
 @dataclass
@@ -311,8 +308,7 @@ class MpSolution:
 
     def __post_init__(self) -> None:
         # (a list of regions is packed: the solution holds flat arrays)
-        if not isinstance(self.regions, RegionArrays):
-            self.regions = RegionArrays.from_regions(self.regions, self.program.nz, self.program.d)
+        self.regions = RegionArrays.from_regions(self.regions, self.program.nz, self.program.d)
 
     @property
     def num_regions(self) -> int:
