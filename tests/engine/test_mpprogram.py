@@ -589,14 +589,15 @@ def test_cli_bad_max_regions_is_bad_input(tmp_path, capsys, value):
 
 
 def test_cli_max_regions_stops_the_solve(tmp_path, capsys):
-    """Past ``--max-regions`` the solver gives up (exit 1, the count in the message); with
-    room enough it solves."""
+    """Past ``--max-regions`` the solver gives up (exit 1, the count in the message, and how
+    to raise the limit); with room enough it solves."""
     path = program_file(tmp_path)
     code, out, _ = cli(capsys, "mpsolve", path, "--json")
     regions = json.loads(out)["regions"]
     assert code == 0 and regions > 1
     code, out, err = cli(capsys, "mpsolve", path, "--max-regions", str(regions - 1))
     assert_one_line_error(code, err, 1, str(path), f"more than {regions - 1} regions")
+    assert "--max-regions" in err and "SolveOptions.max_regions" in err, err
     code, out, _ = cli(capsys, "mpsolve", path, "--json", "--max-regions", str(regions))
     assert code == 0 and json.loads(out)["regions"] == regions
 
