@@ -20,7 +20,7 @@ import numpy as np
 
 from .atomic import write_npz
 from .errors import SpecError
-from .locate import PointLocator
+from .locate import PointLocator, segment_indices
 from .mpprogram import MpProgram
 from .npzfile import array, load_checked, offsets, real, text
 
@@ -268,14 +268,6 @@ def _trim_heap() -> None:
 
 
 _LIBC = None
-
-
-def segment_indices(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The indices ``starts[i] .. starts[i] + sizes[i] - 1`` of consecutive segments, one
-    after the other (q,), and where each begins in them (n + 1,)."""
-    off = np.zeros(sizes.size + 1, dtype=np.int64)
-    np.cumsum(sizes, out=off[1:])
-    return np.arange(off[-1]) - np.repeat(off[:-1] - starts, sizes), off
 
 
 @dataclass
