@@ -453,6 +453,7 @@ def explore_active_sets(
         status, rows, law, moves, lp = result
         stats["candidates"] = stats.get("candidates", 0) + 1
         stats["lps"] = stats.get("lps", 0) + int(lp)
+        _count_class(stats, status)
         if status == "empty":
             return
         if status == "full":
@@ -619,14 +620,19 @@ class _CompiledWalk:
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
+        counts = np.bincount(status, minlength=len(jit.STATUS_NAMES) + 1)
+        for code, name in jit.STATUS_NAMES.items():
+            _count_class(stats, name, int(counts[code]))
         # the candidates handed back, through the numpy kernel (it does not depend on the
         # walk's state); their regions are kept in their place among the batch's
         back = np.flatnonzero(status == jit.FALLBACK)
+        stats["handed_back"] = stats.get("handed_back", 0) + back.size
         results = []
         for c in back:
             act = tuple(acts[c, : sizes[c]].tolist())
             results.append(self.kernel.evaluate_numpy(act))
             stats["lps"] += int(results[-1][4])
+            _count_class(stats, results[-1][0])
         full = np.flatnonzero(status == jit.FULL)
         mine = self._pack(full, acts, sizes, rows_off, A, b, K, k) if full.size else None
         handed = [
@@ -693,6 +699,14 @@ class _CompiledWalk:
         parts += self.chunks + self.parts
         self.regions, self.chunks, self.parts = [], [], []
         return RegionArrays.concat(parts, consume=True)
+
+
+def _count_class(stats: dict, status: str, n: int = 1) -> None:
+    """Count ``n`` candidates of class ``status`` ("full", "empty", "lower", "licq" or
+    "singular") as ``stats["candidates_<status>"]`` (only once there is one)."""
+    if n:
+        key = f"candidates_{status}"
+        stats[key] = stats.get(key, 0) + n
 
 
 def _start_pool(kernel: _Kernel, nworkers: int):

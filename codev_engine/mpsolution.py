@@ -287,7 +287,16 @@ class MpSolution:
     seconds : float
         Wall time of the solve.
     stats : dict
-        Counters (LPs solved, pieces, ...).
+        Counters of the solve, for reports (``codev mpsolve --json`` prints them). mp-QP:
+        ``candidates`` (active sets evaluated), split by class into ``candidates_full``,
+        ``candidates_empty``, ``candidates_lower`` (lower-dimensional), ``candidates_licq``
+        (dependent constraints) and ``candidates_singular`` (semi-definite H only);
+        ``lps`` (candidates that took an LP), ``explored`` (active sets pushed), ``jit``
+        (whether the compiled kernel ran), ``handed_back`` (candidates it left to the numpy kernel),
+        ``workers`` (threads or processes, when parallel), ``merged`` (regions merged
+        into others by equal laws). mp-LP: ``solves``, ``pieces``, ``jitters``,
+        ``step_refinements`` and counters of rarer steps (``highs``, ``wedges``, ...).
+        Keys appear once they count something; none of them is part of the result.
     """
 
     program: MpProgram

@@ -194,12 +194,30 @@ def test_candidates_handed_back_to_numpy_change_nothing(monkeypatch):
     monkeypatch.setattr(mpqp_jit, "evaluate_batch", some_back)
     got = _solve(monkeypatch, jit_after=0)
     assert sum(handed) > 100
+    assert got.stats["handed_back"] == sum(handed)
+    assert _classes(got.stats) == got.stats["candidates"]
     ref_regions = sorted(ref.regions, key=lambda r: r.active)
     got_regions = sorted(got.regions, key=lambda r: r.active)
     assert [r.active for r in ref_regions] == [r.active for r in got_regions]
     for r, s in zip(ref_regions, got_regions, strict=True):
         np.testing.assert_allclose(r.K, s.K, atol=1e-9)
         np.testing.assert_allclose(r.k, s.k, atol=1e-9)
+
+
+def _classes(stats: dict) -> int:
+    return sum(v for k, v in stats.items() if k.startswith("candidates_"))
+
+
+def test_candidates_are_counted_by_class(monkeypatch):
+    """``stats`` splits the candidates by class, in both walks; a full candidate is a
+    region (before the merge of equal laws)."""
+    for jit_after in (10**9, 0):
+        sol = _solve(monkeypatch, jit_after=jit_after)
+        st = sol.stats
+        assert st["candidates_full"] == sol.num_regions + st.get("merged", 0)
+        assert st["candidates_empty"] > 0
+        assert _classes(st) == st["candidates"]
+    assert st.get("handed_back", 0) == 0
 
 
 def _rows_with_twins(seed: int):
