@@ -620,7 +620,7 @@ class _CompiledWalk:
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
-        counts = np.bincount(status, minlength=len(jit.STATUS_NAMES) + 1)
+        counts = np.bincount(status, minlength=jit.FALLBACK + 1)
         for code, name in jit.STATUS_NAMES.items():
             _count_class(stats, name, int(counts[code]))
         # the candidates handed back, through the numpy kernel (it does not depend on the
