@@ -11,25 +11,33 @@ Two ways, one answer (see :meth:`PointLocator.locate` for the region a point get
   that cell in rounds: round r tests every still-unlocated point against its r-th
   candidate at once, so the work is proportional to the (small) number of candidates per
   cell. Its set-up (a bounding box per region, the cell lists) pays once many points are
-  located.
+  located. A region whose box spans too many cells (thin and oblique, in 7-8 dimensions)
+  goes to a coarser grid instead (half as many cells per axis, as often as needed): every
+  point is offered the candidates of its cell in each grid.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linprog
 
 from .polytope import solve_lp
 
-__all__ = ["PointLocator", "bounding_boxes", "segment_indices"]
+__all__ = ["PointLocator", "bounding_boxes"]
 
 
-def segment_indices(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The indices ``starts[i] .. starts[i] + sizes[i] - 1`` of consecutive segments, one
-    after the other (q,), and where each begins in them (n + 1,)."""
-    off = np.zeros(sizes.size + 1, dtype=np.int64)
-    np.cumsum(sizes, out=off[1:])
-    return np.arange(off[-1]) - np.repeat(off[:-1] - starts, sizes), off
+class _Grid(NamedTuple):
+    """One grid of :class:`PointLocator`: ``g`` cells per axis of size ``cell`` (d,); the
+    regions of cell ``c`` (``cidx @ strides``) are ``cands[start[c]:start[c + 1]]``,
+    ascending."""
+
+    g: int
+    cell: np.ndarray
+    strides: np.ndarray
+    start: np.ndarray
+    cands: np.ndarray
 
 
 def bounding_boxes(
@@ -194,14 +202,17 @@ def _highs(
     return np.asarray(res.x, dtype=float)
 
 
-#: A region whose bounding box covers more grid cells than this is tested by brute force
+#: A region whose bounding box covers more grid cells than this goes to a coarser grid
 #: instead of being entered in every cell (see PointLocator)
 WIDE_CELLS = 4096
 #: The grid is built (when no boxes are given) once this many points have been located:
-#: its set-up costs about as much as brute force on ~4000 points, whatever the number of
-#: regions (on pop_mpqp_024's 430k regions in 6-D: boxes 35 s and cell lists 48 s, against
-#: 21 ms per point)
+#: its set-up costs about as much as brute force on ~3000 points, whatever the number of
+#: regions (on pop_mpqp_024's 430k regions in 6-D: boxes 41 s and cell lists 17 s, against
+#: 18 ms per point; then 0.1 ms per point)
 GRID_POINTS = 2000
+#: With fewer regions than this, no grid unless asked for: brute force costs a few rows per
+#: point, and loading the grid's compiled code ~0.25 s once per process
+GRID_REGIONS = 64
 #: Entries (rows x points) of one brute-force chunk: 2 MB of doubles, which stay in cache
 #: for the maximum per region (4x faster than 256 MB chunks: 21 vs 80 ms per point on 430k
 #: regions of 24 rows in 6-D)
@@ -221,9 +232,10 @@ class PointLocator:
     boxes : (lower, upper), optional
         Precomputed bounding boxes (R, d) each (computed when the grid needs them).
     grid : bool, optional
-        True: build the grid now; False: never (brute force only). By default it is built
-        at once when ``boxes`` are given, else once ``GRID_POINTS`` points have been
-        located (brute force until then). The answers are the same either way, but for
+        True: build the grid now; False: never (brute force only). By default, from
+        ``GRID_REGIONS`` regions on, it is built at once when ``boxes`` are given, else once
+        ``GRID_POINTS`` points have been located (brute force until then); with fewer
+        regions, never. The answers are the same either way, but for
         a point on a facet two regions share, which rounding may give to either.
     """
 
@@ -267,7 +279,9 @@ class PointLocator:
         self._grid = False
         self._located = 0
         self._boxes = boxes
-        self._auto = grid is None
+        # below GRID_REGIONS regions brute force is as fast, and the grid's compiled code
+        # would cost more to load than it saves
+        self._auto = grid is None and off.size - 1 >= GRID_REGIONS
         # shared rows: held once; a point's largest violation of them is computed once
         self._shared = shared
         self._implied = implied
@@ -276,7 +290,7 @@ class PointLocator:
         self.d = A.shape[1]
         # every row, region after region (brute force, the wide regions, the boxes)
         self.rows_A, self.rows_b, self.off = A, b, off
-        if grid or (grid is None and boxes is not None):
+        if grid or (self._auto and boxes is not None):
             self._build_grid()
 
     def _region(self, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -351,68 +365,52 @@ class PointLocator:
             return
         self._grid = True
         self._clip_boxes()
-        tol, off = self.tol, self.off
         R, d = self.num_regions, self.d
         lo, hi = self._box_lo, self._box_hi
         span = np.maximum(self.hi - self.lo, 1e-12)
         # about 16 cells per region overall, at most 256 per axis
         g = int(np.clip(np.ceil((16 * R) ** (1.0 / d)), 1, 256))
         self.g = g
-        self.cell = span / g
-        half = 0.5 * self.cell
         # (the boxes widened against the rounding of the LPs' vertices)
         wlo = lo - 1e-9 * (1.0 + np.abs(lo))
         whi = hi + 1e-9 * (1.0 + np.abs(hi))
-        clo = np.clip(np.floor((wlo - self.lo) / self.cell - 1e-9), 0, g - 1).astype(int)
-        chi = np.clip(np.floor((whi - self.lo) / self.cell + 1e-9), 0, g - 1).astype(int)
-        strides = g ** np.arange(d)
         # a region whose box spans very many cells (thin and oblique, in 7-8 dimensions)
-        # would cost millions of cell entries: such "wide" regions are tested by brute
-        # force (pop_mpqp_0xx solutions spent over 15 minutes and 3.7 GB building the grid)
-        ncells = np.prod((chi - clo + 1).astype(float), axis=1)
-        self.wide = np.flatnonzero(ncells > WIDE_CELLS)
-        skip = np.zeros(R, dtype=bool)
-        skip[self.wide] = True
-        cells, regs = [], []
-        for i in np.flatnonzero(~skip):
-            ranges = [np.arange(clo[i, j], chi[i, j] + 1) for j in range(d)]
-            mesh = np.stack(np.meshgrid(*ranges, indexing="ij"), axis=-1).reshape(-1, d)
-            # drop cells that one of the region's rows separates from it entirely
-            centres = self.lo + (mesh + 0.5) * self.cell
-            A, b = self.rows_A[off[i] : off[i + 1]], self.rows_b[off[i] : off[i + 1]]
-            lowest = centres @ A.T - np.abs(A) @ half
-            meets = np.all(lowest <= b + tol, axis=1)
-            c = mesh[meets] @ strides
-            cells.append(c)
-            regs.append(np.full(c.size, i, dtype=np.int64))
-        cell_of = np.concatenate(cells) if cells else np.zeros(0, dtype=np.int64)
-        reg_of = np.concatenate(regs) if regs else np.zeros(0, dtype=np.int64)
-        # a cell lists its regions in increasing order (a stable sort of entries made in
-        # region order)
-        order = np.argsort(cell_of, kind="stable")
-        self.cands = reg_of[order]
-        self.start = np.zeros(g**d + 1, dtype=np.int64)
-        np.cumsum(np.bincount(cell_of, minlength=g**d), out=self.start[1:])
-        self.strides = strides
-        # the rows of the wide and the loose regions, for brute force
-        self._wide_rows = self._subset_rows(self.wide)
+        # would cost millions of cell entries (pop_mpqp_0xx solutions spent over 15 minutes
+        # and 3.7 GB building a single grid): it goes to a coarser grid, halved until the
+        # region spans at most WIDE_CELLS cells (the coarsest grid, one cell, takes any).
+        # Testing such regions against every point instead took 97% of locating 50,000
+        # points in pop_mpqp_088's 62,304 regions (4,627 of them wide; 15.6 s).
+        level = np.full(R, -1, dtype=np.int64)
+        self.levels = []
+        gl = g
+        while np.any(level < 0):
+            cell = span / gl
+            clo = np.clip(np.floor((wlo - self.lo) / cell - 1e-9), 0, gl - 1).astype(np.int64)
+            chi = np.clip(np.floor((whi - self.lo) / cell + 1e-9), 0, gl - 1).astype(np.int64)
+            ncells = np.prod((chi - clo + 1).astype(float), axis=1)
+            mine = (level < 0) & ((ncells <= WIDE_CELLS) | (gl == 1))
+            level[mine] = len(self.levels)
+            self.levels.append(self._cell_lists(np.flatnonzero(mine), gl, cell, clo, chi))
+            gl = (gl + 1) // 2 if gl > 1 else 1
+        self.wide = np.flatnonzero(level > 0)
+        self.cell = self.levels[0].cell
+        # the rows of the loose regions, for brute force
         self._loose_rows = self._subset_rows(self.loose)
 
-    def _own_violation(self, reg: np.ndarray, X: np.ndarray) -> np.ndarray:
-        """The largest violation of region ``reg[j]``'s own rows at ``X[j]`` (q,), (q, d)
-        -> (q,); -1 for a region without own rows. The rows are gathered region by region,
-        not kept padded to the longest region: that second copy of every row would take
-        ~15 GB for ``pop_mpqp_036``'s 6.6M regions (an estimate)."""
-        r0 = self.off[reg]
-        sizes = self.off[reg + 1] - r0
-        out = np.full(reg.size, -1.0)
-        has = np.flatnonzero(sizes > 0)
-        if has.size:
-            rows, seg = segment_indices(r0[has], sizes[has])
-            Xr = np.repeat(X[has], sizes[has], axis=0)
-            v = np.einsum("rd,rd->r", self.rows_A[rows], Xr) - self.rows_b[rows]
-            out[has] = np.maximum.reduceat(v, seg[:-1])
-        return out
+    def _cell_lists(
+        self, regs: np.ndarray, g: int, cell: np.ndarray, clo: np.ndarray, chi: np.ndarray
+    ) -> _Grid:
+        """The grid of ``g`` cells per axis listing the regions ``regs`` (ascending) in the
+        cells ``clo[i] .. chi[i]`` (R, d) of their boxes that none of their rows separates
+        from them."""
+        from .locate_jit import cell_lists
+
+        start, cands = cell_lists(
+            self.rows_A, self.rows_b, self.off, regs.astype(np.int64), clo, chi,
+            np.ascontiguousarray(self.lo, dtype=float), np.ascontiguousarray(cell, dtype=float),
+            float(self.tol), g,
+        )
+        return _Grid(g, cell, g ** np.arange(self.d), start, cands)
 
     def _subset_rows(self, regions: np.ndarray) -> tuple[np.ndarray, ...]:
         """Rows, row offsets and indices of ``regions`` (ascending), for :meth:`_brute`."""
@@ -452,30 +450,34 @@ class PointLocator:
             # outside the grid only the regions without a proper box can hold a point
             self._brute(self._loose_rows, np.flatnonzero(finite & ~inbox), X, out, best, sv)
         pts = np.flatnonzero(inbox)
-        cidx = np.clip(np.floor((X[pts] - self.lo) / self.cell), 0, self.g - 1).astype(int)
-        cell = cidx @ self.strides
-        first = self.start[cell]
-        count = self.start[cell + 1] - first
-        r = 0
-        alive = count > 0
-        while np.any(alive):
-            sel = np.flatnonzero(alive)
-            reg = self.cands[first[sel] + r]
-            p = pts[sel]
-            viol = self._own_violation(reg, X[p])
-            if sv is not None:
-                viol = np.where(self._implied[reg], np.maximum(viol, sv[p]), viol)
-            # a cell lists its regions in increasing order: the first that holds a point
-            # is the lowest, and a later one only near it never beats an earlier one
-            take = (viol <= self.tol) & (viol < best[p])
-            out[p[take]] = reg[take]
-            best[p[take]] = viol[take]
-            alive[sel[viol <= 0.0]] = False
-            r += 1
-            alive &= count > r
-        if self.wide.size:
-            self._brute(self._wide_rows, pts, X, out, best, sv)
+        for grid in self.levels:
+            self._walk(grid, pts, X, out, best, sv)
         return out
+
+    def _walk(
+        self,
+        grid: _Grid,
+        pts: np.ndarray,
+        X: np.ndarray,
+        out: np.ndarray,
+        best: np.ndarray,
+        sv: np.ndarray | None,
+    ) -> None:
+        """Offer the points ``pts`` the regions listed in their cells of ``grid``, merged
+        into ``out`` / ``best`` as in :meth:`_brute` (a compiled loop over the points:
+        ~300 candidates a point in the coarser grid of ``pop_mpqp_024``'s thin regions)."""
+        from .locate_jit import walk
+
+        implied = self._implied
+        if implied is None:
+            implied = np.zeros(self.num_regions, dtype=bool)
+        origin = np.ascontiguousarray(self.lo, dtype=float)
+        shared = sv if sv is not None else np.zeros(X.shape[0])
+        walk(
+            np.ascontiguousarray(X), pts.astype(np.int64), origin, grid.cell, grid.g,
+            grid.start, grid.cands, self.rows_A, self.rows_b, self.off, implied, shared,
+            float(self.tol), out, best,
+        )
 
     def _brute(
         self,

@@ -20,7 +20,7 @@ import numpy as np
 
 from .atomic import write_npz
 from .errors import SpecError
-from .locate import PointLocator, segment_indices
+from .locate import PointLocator
 from .mpprogram import MpProgram
 from .npzfile import array, load_checked, offsets, real, text
 
@@ -235,6 +235,14 @@ class RegionArrays(Sequence[CriticalRegion]):
         cols = np.arange(self.active.size) - np.repeat(self.active_offsets[:-1], sizes)
         pad[np.repeat(np.arange(n), sizes), cols] = self.active
         return np.lexsort(pad.T[::-1]) if width else np.arange(n)
+
+
+def segment_indices(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The indices ``starts[i] .. starts[i] + sizes[i] - 1`` of consecutive segments, one
+    after the other (q,), and where each begins in them (n + 1,)."""
+    off = np.zeros(sizes.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=off[1:])
+    return np.arange(off[-1]) - np.repeat(off[:-1] - starts, sizes), off
 
 
 def too_many_regions(limit: int) -> str:
