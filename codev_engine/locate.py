@@ -1,4 +1,4 @@
-"""Vectorised point location in a polyhedral partition.
+"""Point location in a polyhedral partition.
 
 Two ways, one answer (see :meth:`PointLocator.locate` for the region a point gets):
 
@@ -7,13 +7,12 @@ Two ways, one answer (see :meth:`PointLocator.locate` for the region a point get
   the number of rows. Used for few points in a large partition (a conformance check
   locating a hundred points in 860,000 regions).
 - **grid**: a uniform grid over the partition's bounding box lists, per cell, the regions
-  whose bounding box meets the cell. A query finds its cell and tests the candidates of
-  that cell in rounds: round r tests every still-unlocated point against its r-th
-  candidate at once, so the work is proportional to the (small) number of candidates per
-  cell. Its set-up (a bounding box per region, the cell lists) pays once many points are
-  located. A region whose box spans too many cells (thin and oblique, in 7-8 dimensions)
-  goes to a coarser grid instead (half as many cells per axis, as often as needed): every
-  point is offered the candidates of its cell in each grid.
+  whose bounding box meets the cell. A query finds its cell and tests that cell's
+  candidates (a compiled loop, ``locate_jit.walk``), so the work is proportional to the
+  (small) number of candidates per cell. Its set-up (a bounding box per region, the cell
+  lists) pays once many points are located. A region whose box spans too many cells (thin
+  and oblique, in 5-8 dimensions) goes to a coarser grid instead (half as many cells per
+  axis, as often as needed): every point is offered the candidates of its cell in each grid.
 """
 
 from __future__ import annotations
