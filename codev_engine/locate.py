@@ -29,12 +29,11 @@ __all__ = ["PointLocator", "bounding_boxes"]
 
 class _Grid(NamedTuple):
     """One grid of :class:`PointLocator`: ``g`` cells per axis of size ``cell`` (d,); the
-    regions of cell ``c`` (``cidx @ strides``) are ``cands[start[c]:start[c + 1]]``,
-    ascending."""
+    regions of the cell of index vector ``c`` (number ``sum(c[t] g^t)``) are
+    ``cands[start[n]:start[n + 1]]``, ascending."""
 
     g: int
     cell: np.ndarray
-    strides: np.ndarray
     start: np.ndarray
     cands: np.ndarray
 
@@ -393,6 +392,11 @@ class PointLocator:
             gl = (gl + 1) // 2 if gl > 1 else 1
         self.wide = np.flatnonzero(level > 0)
         self.cell = self.levels[0].cell
+        # what every walk passes to the compiled loop, made once
+        self._origin = np.ascontiguousarray(self.lo, dtype=float)
+        self._implied_mask = (
+            self._implied if self._implied is not None else np.zeros(R, dtype=bool)
+        )
         # the rows of the loose regions, for brute force
         self._loose_rows = self._subset_rows(self.loose)
 
@@ -409,7 +413,7 @@ class PointLocator:
             np.ascontiguousarray(self.lo, dtype=float), np.ascontiguousarray(cell, dtype=float),
             float(self.tol), g,
         )
-        return _Grid(g, cell, g ** np.arange(self.d), start, cands)
+        return _Grid(g, cell, start, cands)
 
     def _subset_rows(self, regions: np.ndarray) -> tuple[np.ndarray, ...]:
         """Rows, row offsets and indices of ``regions`` (ascending), for :meth:`_brute`."""
@@ -449,8 +453,10 @@ class PointLocator:
             # outside the grid only the regions without a proper box can hold a point
             self._brute(self._loose_rows, np.flatnonzero(finite & ~inbox), X, out, best, sv)
         pts = np.flatnonzero(inbox)
+        Xc = np.ascontiguousarray(X)
+        shared = sv if sv is not None else np.zeros(P)
         for grid in self.levels:
-            self._walk(grid, pts, X, out, best, sv)
+            self._walk(grid, pts, Xc, out, best, shared)
         return out
 
     def _walk(
@@ -460,22 +466,18 @@ class PointLocator:
         X: np.ndarray,
         out: np.ndarray,
         best: np.ndarray,
-        sv: np.ndarray | None,
+        sv: np.ndarray,
     ) -> None:
-        """Offer the points ``pts`` the regions listed in their cells of ``grid``, merged
-        into ``out`` / ``best`` as in :meth:`_brute` (a compiled loop over the points:
-        ~300 candidates a point in the coarser grid of ``pop_mpqp_024``'s thin regions)."""
+        """Offer the points ``pts`` of ``X`` (C-contiguous) the regions listed in their
+        cells of ``grid``, merged into ``out`` / ``best`` as in :meth:`_brute` (``sv``: the
+        points' violations of the shared rows, zeros without them). A compiled loop over the
+        points: ~300 candidates a point in the coarser grid of ``pop_mpqp_024``'s thin
+        regions."""
         from .locate_jit import walk
 
-        implied = self._implied
-        if implied is None:
-            implied = np.zeros(self.num_regions, dtype=bool)
-        origin = np.ascontiguousarray(self.lo, dtype=float)
-        shared = sv if sv is not None else np.zeros(X.shape[0])
         walk(
-            np.ascontiguousarray(X), pts.astype(np.int64), origin, grid.cell, grid.g,
-            grid.start, grid.cands, self.rows_A, self.rows_b, self.off, implied, shared,
-            float(self.tol), out, best,
+            X, pts, self._origin, grid.cell, grid.g, grid.start, grid.cands, self.rows_A,
+            self.rows_b, self.off, self._implied_mask, sv, float(self.tol), out, best,
         )
 
     def _brute(
