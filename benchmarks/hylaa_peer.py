@@ -53,7 +53,7 @@ from hylaa.hybrid_automaton import HybridAutomaton
 from hylaa.settings import HylaaSettings
 from hylaa.stateset import StateSet
 
-from codev_engine.reach_linear import affine_plant
+from codev_engine.reach.linear import affine_plant
 
 try:  # versions for the report
     from importlib.metadata import version as _version

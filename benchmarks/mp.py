@@ -59,13 +59,13 @@ def _arrays(path: str) -> dict[str, np.ndarray]:
 
 def worker_ours(path: str) -> dict:
     import codev_engine as ce
+    import codev_engine.mp.mpqp_kernel
 
     # imports are not charged: codev_engine loads its modules lazily, on first use (this
     # includes numba, which the compiled mp-QP kernel needs; loading the compiled code
     # itself, at the first candidate it evaluates, is charged)
-    import codev_engine.mpprogram
-    import codev_engine.mpqp_jit
-    import codev_engine.mpsolve  # noqa: F401
+    import codev_engine.mp.program
+    import codev_engine.mp.solve  # noqa: F401
 
     data = _arrays(path)
     keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta", "Aeq", "beq", "Feq")

@@ -12,7 +12,7 @@ Usage::
 Per benchmark (``examples/<name>.toml``) and hold (``continuous`` and ``zoh``):
 
 * **ours**: ``ce.synthesize`` (regions, ``law.meta["seconds"]``; best of ``--repeats``) and
-  ``codev_engine.verify.verify(problem, law, hold=...)`` (verdict, reason, ``r.seconds``,
+  ``ce.verify(problem, law, hold=...)`` (verdict, reason, ``r.seconds``,
   best of ``--repeats``), the tube's width at the horizon ``r.width_at(T)`` per state and
   its max. ``width_at(T)`` is the hull of the tube boxes active at ``T``, i.e. the box of the
   last grid segment ``[T - step, T]``: it contains the motion over one step as well;
@@ -64,9 +64,9 @@ EXAMPLES = ROOT / "examples"
 HERE = Path(__file__).resolve().parent
 
 import codev_engine as ce  # noqa: E402
-from codev_engine.reach_linear import affine_plant  # noqa: E402
-from codev_engine.simulate import simulate_many  # noqa: E402
-from codev_engine.verify import verify  # noqa: E402
+from codev_engine.reach.linear import affine_plant  # noqa: E402
+from codev_engine.reach.simulate import simulate_many  # noqa: E402
+from codev_engine.reach.verification import verify  # noqa: E402
 
 BENCHMARKS = [
     "double_integrator",

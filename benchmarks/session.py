@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import codev_engine as ce  # noqa: E402
-from codev_engine.session import RunOptions, Session  # noqa: E402
+from codev_engine.session.session import RunOptions, Session  # noqa: E402
 
 DEFAULT_SPECS = ["examples/magnetic_pointer_a.toml", "examples/double_integrator.toml"]
 
@@ -67,7 +67,7 @@ def in_process(spec: Path, repeats: int) -> dict:
 def cli(spec: Path) -> dict:
     """Wall time of two ``codev run --session`` processes (imports included)."""
     exe = Path(sys.executable).parent / "codev"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "codev_engine.cli"]
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "workbench.cli"]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = {}
     with tempfile.TemporaryDirectory() as tmp:

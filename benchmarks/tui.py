@@ -45,7 +45,7 @@ def start_times(repeats: int) -> tuple[list[float], list[float]] | None:
         with tempfile.TemporaryDirectory() as tmp:
             name = f"codev-bench-{os.getpid()}-{k}"
             cmd = (
-                f"{sys.executable} -m codev_engine.cli tui examples/double_integrator.toml "
+                f"{sys.executable} -m workbench.cli tui examples/double_integrator.toml "
                 f"--session {tmp}/s"
             )
             t0 = time.perf_counter()
@@ -104,8 +104,8 @@ async def key_latencies(keys: int, horizon: int) -> dict:
     """Latency of F1/F3 presses while a synthesis runs in the app's worker."""
     from textual.widgets import TabbedContent
 
-    from workbench.app import CodevApp
-    from workbench.state import open_target
+    from workbench.tui.app import CodevApp
+    from workbench.tui.state import open_target
 
     text = (ROOT / "examples" / "magnetic_pointer_a.toml").read_text()
     text = text.replace("horizon = 4", f"horizon = {horizon}")

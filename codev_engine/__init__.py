@@ -13,8 +13,6 @@ The engine never imports UI code.
 from __future__ import annotations
 
 import os as _os
-import sys as _sys
-import types as _types
 
 # The engine's linear algebra is on tiny matrices, thousands of times: a multi-threaded
 # BLAS only adds thread contention (measured: a batch of 101 4x4 expm took 1.5 s with
@@ -29,8 +27,8 @@ try:
 except ImportError:  # pragma: no cover - threadpoolctl is a dependency
     pass
 
-from .errors import CodevError, SolverError, SpecError
-from .version import __version__ as __version__
+from codev_engine.errors import CodevError, SolverError, SpecError
+from codev_engine.version import __version__ as __version__
 
 # The public names, imported from their modules on first use (PEP 562): `import
 # codev_engine` stays cheap (no numpy, scipy or sympy), so a command or the workbench can
@@ -40,37 +38,29 @@ _LAZY: dict[str, str] = {
     "MpcProgram": "mpc",
     "OnlineMpc": "mpc",
     "build_program": "mpc",
-    "MpProgram": "mpprogram",
-    "CriticalRegion": "mpsolve",
-    "MpSolution": "mpsolve",
-    "SolveOptions": "mpsolve",
-    "mpsolve": "mpsolve",
+    "MpProgram": "mp.program",
+    "CriticalRegion": "mp.solution",
+    "MpSolution": "mp.solution",
+    "SolveOptions": "mp.solve",
+    "mpsolve": "mp.solve",
     "LinearModel": "plant",
     "discretize": "plant",
-    "Problem": "spec",
-    "load_spec": "spec",
-    "loads_spec": "spec",
+    "Problem": "spec.problem",
+    "load_spec": "pipeline",
+    "loads_spec": "pipeline",
     "synthesize": "synthesis",
-    "Tube": "tube",
-    "Counterexample": "verify",
-    "VerificationResult": "verify",
-    "verify": "verify",
+    "Tube": "reach.tube",
+    "Counterexample": "reach.verification",
+    "VerificationResult": "reach.verification",
+    "verify": "reach.verification",
+    "RunOptions": "session.session",
+    "Session": "session.session",
 }
 
 
 def __getattr__(name: str):
     module = _LAZY.get(name)
     if module is None:
-        # submodules (codev_engine.figures, .session, ...) as attributes, like a package
-        # that imported them
-        if name.isidentifier() and not name.startswith("_"):
-            import importlib
-
-            try:
-                return importlib.import_module(f"{__name__}.{name}")
-            except ModuleNotFoundError as exc:
-                if exc.name != f"{__name__}.{name}":
-                    raise
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     import importlib
 
@@ -81,24 +71,6 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
-
-
-class _Package(_types.ModuleType):
-    """``codev_engine.verify`` and ``codev_engine.mpsolve`` are functions that share their
-    name with their modules. The import system sets a package attribute to the submodule
-    once that submodule is imported; with lazy imports this can happen after the function
-    was fetched, or before. Refusing that assignment keeps ``ce.verify`` / ``ce.mpsolve``
-    the functions whatever the import order (as when this file imported them eagerly);
-    the modules stay available as ``sys.modules["codev_engine.verify"]`` and through
-    ``from codev_engine.verify import ...``."""
-
-    def __setattr__(self, name: str, value: object) -> None:
-        if name in ("verify", "mpsolve") and isinstance(value, _types.ModuleType):
-            return
-        super().__setattr__(name, value)
-
-
-_sys.modules[__name__].__class__ = _Package
 
 
 __all__ = [
@@ -124,4 +96,6 @@ __all__ = [
     "Counterexample",
     "VerificationResult",
     "verify",
+    "RunOptions",
+    "Session",
 ]

@@ -15,15 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .atomic import write_npz
-from .errors import SpecError
-from .locate import PointLocator, bounding_boxes
-from .npzfile import load_checked, offsets
-from .npzfile import names as _names
-from .npzfile import pair as _pair
-from .npzfile import real as _real
-from .npzfile import text as _text
-from .polytope import Polytope
+from codev_engine.errors import SpecError
+from codev_engine.geometry.locate import PointLocator, bounding_boxes
+from codev_engine.geometry.polytope import Polytope
+from codev_engine.io.atomic import write_npz
+from codev_engine.io.npz import load_checked, offsets
+from codev_engine.io.npz import names as _names
+from codev_engine.io.npz import pair as _pair
+from codev_engine.io.npz import real as _real
+from codev_engine.io.npz import text as _text
 
 __all__ = ["ExplicitLaw", "LAW_FORMAT"]
 
@@ -255,19 +255,19 @@ class ExplicitLaw:
 
     def _repr_png_(self) -> bytes:
         """The partition picture (``figures.figure_law``) as PNG bytes."""
-        from .figures import figure_law, png_bytes
+        from codev_engine.view.figures import figure_law, png_bytes
 
         return png_bytes(figure_law(self))
 
     def _repr_html_(self) -> str:
         """A summary table (regions, n, m, norm, ...) with the partition picture."""
-        from .figures import law_html
+        from codev_engine.view.figures import law_html
 
         return law_html(self)
 
     def _repr_mimebundle_(self, include: object = None, exclude: object = None) -> dict[str, str]:
         """Notebook display: HTML summary and PNG, the picture rendered once."""
-        from .figures import mimebundle
+        from codev_engine.view.figures import mimebundle
 
         return mimebundle(self)
 

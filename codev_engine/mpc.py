@@ -27,11 +27,11 @@ import numpy as np
 if TYPE_CHECKING:
     import cvxpy as cp
 
-from .choices import NORMS
-from .errors import SolverError, SpecError
-from .mpprogram import MpProgram
-from .plant import LinearModel
-from .spec import MpcSpec, Problem
+from codev_engine.errors import SolverError, SpecError
+from codev_engine.mp.program import MpProgram
+from codev_engine.plant import LinearModel
+from codev_engine.spec.choices import NORMS
+from codev_engine.spec.problem import MpcSpec, Problem
 
 __all__ = [
     "MpcProgram",
@@ -431,7 +431,7 @@ def check_feasible(problem: Problem, model: LinearModel | None = None) -> None:
         When HiGHS fails.
     """
     if model is None:
-        from .plant import discretize
+        from codev_engine.plant import discretize
 
         model = discretize(problem)
     prog = build_program(problem.mpc, model).program

@@ -14,13 +14,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 import sympy
 
-from .atomic import write_npz
-from .errors import SpecError
-from .expr import make_symbol, parse_expression
-from .npzfile import load_checked, pair, real, text
+from codev_engine.errors import SpecError
+from codev_engine.io.atomic import write_npz
+from codev_engine.io.npz import load_checked, pair, real, text
+from codev_engine.spec.expr import make_symbol, parse_expression
 
 if TYPE_CHECKING:
-    from .spec import PlantSpec, Problem
+    from codev_engine.spec.problem import PlantSpec, Problem
 
 __all__ = [
     "LinearModel",

@@ -7,12 +7,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .law import ExplicitLaw, fingerprint_arrays
-from .merge import merge_regions
-from .mpc import MpcProgram, build_program
-from .mpsolve import MpSolution, SolveOptions, mpsolve
-from .plant import LinearModel, discretize
-from .spec import Problem
+from codev_engine.law import ExplicitLaw, fingerprint_arrays
+from codev_engine.mp.merge import merge_regions
+from codev_engine.mp.solve import MpSolution, SolveOptions, mpsolve
+from codev_engine.mpc import MpcProgram, build_program
+from codev_engine.plant import LinearModel, discretize
+from codev_engine.spec.problem import Problem
 
 __all__ = ["synthesize", "law_from_solution", "problem_fingerprint"]
 

@@ -6,8 +6,8 @@ import json
 import shutil
 from pathlib import Path
 
-from codev_engine.cli import main
-from codev_engine.session import Session
+from codev_engine.session.session import Session
+from workbench.cli import main
 
 BUNDLED = Path(__file__).resolve().parents[2] / "sessions" / "double_integrator"
 

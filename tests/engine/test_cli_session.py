@@ -1,6 +1,6 @@
 """The session commands of the CLI: ``codev run --session``, ``replay``, ``session``, ``view``.
 
-Through ``codev_engine.cli.main(argv)`` (stdout/stderr captured), plus real subprocesses for
+Through ``workbench.cli.main(argv)`` (stdout/stderr captured), plus real subprocesses for
 the exit status. Exit codes: 0 success / robustly safe; 1 a verdict that is not a proof or a
 replay mismatch; 2 bad input, with exactly one line ``codev: error: ...`` on stderr and
 every file of the session left byte for byte as it was.
@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from cli_process import run_codev
 
-from codev_engine.cli import main
+from workbench.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 DI_PATH = ROOT / "examples" / "double_integrator.toml"
@@ -526,6 +526,6 @@ def test_exit_status_of_real_processes(sdir, tmp_path):
 
 def test_bench_runs_a_benchmark_script(capsys):
     """``codev bench NAME ARGS`` runs benchmarks/NAME.py with ARGS (here: its --help)."""
-    from codev_engine.cli import main
+    from workbench.cli import main
 
     assert main(["bench", "session", "--help"]) == 0

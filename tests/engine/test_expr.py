@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import sympy
 
-from codev_engine import expr as expr_module
 from codev_engine.errors import SpecError
-from codev_engine.expr import FUNCTIONS, RESERVED_NAMES, make_symbol, parse_expression
+from codev_engine.spec import expr as expr_module
+from codev_engine.spec.expr import FUNCTIONS, RESERVED_NAMES, make_symbol, parse_expression
 
 X1, X2, U = make_symbol("x1"), make_symbol("x2"), make_symbol("u")
 NAMES = {"x1": X1, "x2": X2, "u": U}

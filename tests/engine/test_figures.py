@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 import codev_engine as ce
-from codev_engine import figures
-from codev_engine.tube import Tube
-from codev_engine.verify import VerificationResult
+from codev_engine.reach.tube import Tube
+from codev_engine.reach.verification import VerificationResult
+from codev_engine.view import figures
 from tests.di_variants import HULL_CORNER, UNSAFE_ON_PATH, di_spec
 
 matplotlib = pytest.importorskip("matplotlib")
@@ -96,7 +96,7 @@ def test_import_and_drawing_keep_matplotlib_lazy_and_pyplot_out(tmp_path):
         """
         import sys
         import codev_engine as ce
-        import codev_engine.figures, codev_engine.law, codev_engine.verify
+        import codev_engine.view.figures, codev_engine.law, codev_engine.reach.verification
         assert "matplotlib" not in sys.modules, "matplotlib imported at import time"
         law = ce.ExplicitLaw.load(sys.argv[1])
         png = law._repr_png_()

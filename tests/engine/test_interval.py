@@ -19,17 +19,17 @@ import numpy as np
 import pytest
 import sympy
 
-from codev_engine import interval as iv
-from codev_engine.expr import make_symbol, parse_expression
-from codev_engine.interval import (
+from codev_engine.pipeline import load_spec, loads_spec
+from codev_engine.plant import numeric_dynamics
+from codev_engine.reach import interval as iv
+from codev_engine.reach.interval import (
     Interval,
     IntervalDomainError,
     compile_interval,
     plant_enclosures,
     plant_hessian,
 )
-from codev_engine.plant import numeric_dynamics
-from codev_engine.spec import load_spec, loads_spec
+from codev_engine.spec.expr import make_symbol, parse_expression
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 A, B, C = make_symbol("a"), make_symbol("b"), make_symbol("c")

@@ -16,9 +16,9 @@ from scipy.optimize import linprog
 from scipy.spatial import Delaunay
 
 import codev_engine as ce
-import codev_engine.locate as locate_mod
-from codev_engine.locate import PointLocator, bounding_boxes
-from codev_engine.polytope import solve_lp
+import codev_engine.geometry.locate as locate_mod
+from codev_engine.geometry.locate import PointLocator, bounding_boxes
+from codev_engine.geometry.polytope import solve_lp
 
 LOC_TOL = 1e-9  # the locator's tolerance (unit-norm rows)
 S = 100.0  # half side of the partitioned box
@@ -272,7 +272,7 @@ def test_wide_regions_are_located_exactly():
     """Thin oblique slabs in 7-D: every box spans the whole grid, so they go to the
     coarsest grid, and located indices equal brute force: the lowest region holding a
     point, else the nearest within the tolerance."""
-    from codev_engine.locate import WIDE_CELLS, PointLocator
+    from codev_engine.geometry.locate import WIDE_CELLS, PointLocator
 
     rng = np.random.default_rng(7)
     d, R = 7, 400

@@ -419,7 +419,7 @@ def solve_in_subprocess(path: Path, out: Path) -> tuple[ce.MpSolution | None, st
     cmd = [
         sys.executable,
         "-m",
-        "codev_engine.cli",
+        "workbench.cli",
         "mpsolve",
         str(path),
         "--json",
@@ -597,7 +597,7 @@ def region_probes(sol: ce.MpSolution, rng) -> np.ndarray:
     thinnest first (bounding-box diagonal over inscribed radius, over at most 2000
     regions), then at random.
     """
-    from codev_engine.polytope import chebyshev_ball
+    from codev_engine.geometry.polytope import chebyshev_ball
 
     if not sol.regions:
         return np.zeros((0, sol.domain_A.shape[1] if sol.domain_A is not None else 0))
@@ -811,7 +811,7 @@ def test_domain_candidates_ruled_out_without_an_lp_are_those_the_lp_rules_out(mo
     the points spare ~130 of ~950 LPs."""
     import importlib
 
-    mpsolve_module = importlib.import_module("codev_engine.mpsolve")
+    mpsolve_module = importlib.import_module("codev_engine.mp.solve")
     prog = ce.MpProgram.load(TESTSET / "pop_mpqp_017.npz")
     solve_lp = mpsolve_module.solve_lp
     calls = []

@@ -10,7 +10,7 @@ from scipy.optimize import linprog
 from codev_engine.errors import SpecError
 from codev_engine.mpc import MpcProgram, OnlineMpc, build_program, check_feasible
 from codev_engine.plant import LinearModel
-from codev_engine.spec import ModelSpec, MpcSpec, PlantSpec, Problem
+from codev_engine.spec.problem import ModelSpec, MpcSpec, PlantSpec, Problem
 
 RTOL = 1e-6
 INF = np.inf
@@ -418,8 +418,8 @@ def tora(u_max: float):
     import dataclasses
     from pathlib import Path
 
+    from codev_engine.pipeline import load_spec
     from codev_engine.plant import discretize
-    from codev_engine.spec import load_spec
 
     p = load_spec(Path(__file__).resolve().parents[2] / "examples" / "tora.toml")
     mpc = dataclasses.replace(p.mpc, u_min=np.array([-u_max]), u_max=np.array([u_max]))

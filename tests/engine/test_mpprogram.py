@@ -24,7 +24,7 @@ import pytest
 from cli_process import run_codev
 
 import codev_engine as ce
-from codev_engine.cli import main
+from workbench.cli import main
 
 # ---------------------------------------------------------------------------------------
 # a valid program: mp-QP, nz = 3, d = 2, 6 bound rows, one equality (10 regions; LP: 6)
@@ -544,7 +544,7 @@ def test_cli_mpsolve_lp_kind(tmp_path, capsys):
 
 
 def _mpsolve_module():
-    return sys.modules["codev_engine.mpsolve"]
+    return sys.modules["codev_engine.mp.solve"]
 
 
 def test_cli_solver_error_is_exit_1_not_bad_input(tmp_path, capsys, monkeypatch):

@@ -10,7 +10,10 @@ import numpy as np
 import pytest
 
 import codev_engine as ce
-from codev_engine import mpqp, mpqp_graph, mpqp_jit
+from codev_engine.geometry import polytope
+from codev_engine.mp import active_sets as mpqp_graph
+from codev_engine.mp import mpqp
+from codev_engine.mp import mpqp_kernel as mpqp_jit
 
 
 def _reference_visit(explored: set, stack: list, act, status, moves, swaps, nz, opposite):
@@ -239,13 +242,13 @@ def test_row_hashing_agrees_with_exact_comparison(seed):
     rounded tuples."""
     M = _rows_with_twins(seed)
     keys = _keys(M)
-    first = ce.polytope.unique_rows(M, 7)
+    first = polytope.unique_rows(M, 7)
     seen = {}
     for i, k in enumerate(keys):
         seen.setdefault(k, i)
     assert first.tolist() == sorted(seen.values())
     Q = np.vstack([M[:50], M[:50] + 1e-3])
-    assert ce.polytope.rows_in(Q, -M, 7).tolist() == [
+    assert polytope.rows_in(Q, -M, 7).tolist() == [
         k in set(_keys(-M)) for k in _keys(Q)
     ]
     got = mpqp_graph.unpaired_rows(np.ascontiguousarray(M[:, :-1]), M[:, -1].copy(), 7)
@@ -257,12 +260,12 @@ def test_row_hashing_agrees_with_exact_comparison(seed):
 def test_row_hash_collisions_fall_back_to_exact_comparison(monkeypatch):
     """Every row hashed alike: unique_rows and rows_in must notice and still be exact."""
     M = _rows_with_twins(0)
-    want_first = ce.polytope.unique_rows(M, 7)
+    want_first = polytope.unique_rows(M, 7)
     Q = np.vstack([M[:50], M[:50] + 1e-3])
-    want_in = ce.polytope.rows_in(Q, -M, 7)
-    monkeypatch.setattr(ce.polytope, "row_hashes", lambda R: np.zeros(R.shape[0], np.uint64))
-    np.testing.assert_array_equal(ce.polytope.unique_rows(M, 7), want_first)
-    np.testing.assert_array_equal(ce.polytope.rows_in(Q, -M, 7), want_in)
+    want_in = polytope.rows_in(Q, -M, 7)
+    monkeypatch.setattr(polytope, "row_hashes", lambda R: np.zeros(R.shape[0], np.uint64))
+    np.testing.assert_array_equal(polytope.unique_rows(M, 7), want_first)
+    np.testing.assert_array_equal(polytope.rows_in(Q, -M, 7), want_in)
 
 
 def test_a_merged_region_keeps_one_copy_of_a_shared_row():
@@ -270,13 +273,13 @@ def test_a_merged_region_keeps_one_copy_of_a_shared_row():
     y >= 0 from both boxes. The copy's redundancy has no certificate with a margin (it is
     the same half-space), so it used to stay: 6 rows instead of 4 (and copies through one
     vertex later made the compiled LP's working set singular)."""
-    from codev_engine.merge import merge_regions
+    from codev_engine.mp.merge import merge_regions
 
     A = np.vstack([np.eye(2), -np.eye(2)])
     As, bs, src = merge_regions([A, A], [np.array([1.0, 1, 0, 0]), np.array([2.0, 1, -1, 0])],
                                 [b"k", b"k"])
     assert len(As) == 1 and As[0].shape == (4, 2)
-    lo, hi = ce.polytope.bounding_box(As[0], bs[0])
+    lo, hi = polytope.bounding_box(As[0], bs[0])
     np.testing.assert_allclose(lo, [0, 0], atol=1e-12)
     np.testing.assert_allclose(hi, [2, 1], atol=1e-12)
 
@@ -285,7 +288,7 @@ def test_equal_laws_are_merged_after_rounding():
     """mpqp._merge_equal_laws rounds laws to 1e-7 of the scale (np.rint, -0.0 as +0.0):
     two adjacent boxes whose laws differ by 1e-12 and a signed zero become one region; a
     third with another law stays apart, and all-distinct laws leave the list as it is."""
-    from codev_engine.mpsolution import CriticalRegion, RegionArrays
+    from codev_engine.mp.solution import CriticalRegion, RegionArrays
 
     def box(lo, hi, K, k, act):
         A = np.vstack([np.eye(2), -np.eye(2)])
@@ -303,7 +306,7 @@ def test_equal_laws_are_merged_after_rounding():
     merged = mpqp._merge_equal_laws(RegionArrays.from_regions(regions), 1.0, stats)
     assert len(merged) == 2 and stats["merged"] == 1
     wide = [r for r in merged if np.array_equal(r.K, K)][0]
-    lo, hi = ce.polytope.bounding_box(wide.A, wide.b)
+    lo, hi = polytope.bounding_box(wide.A, wide.b)
     np.testing.assert_allclose(lo, [0, 0], atol=1e-9)
     np.testing.assert_allclose(hi, [2, 1], atol=1e-9)
     apart = RegionArrays.from_regions(

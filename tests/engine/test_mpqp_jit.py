@@ -13,7 +13,10 @@ import pytest
 from scipy.optimize import linprog
 
 import codev_engine as ce
-from codev_engine import mpqp, mpqp_graph, mpqp_jit
+from codev_engine.geometry import polytope
+from codev_engine.mp import active_sets as mpqp_graph
+from codev_engine.mp import mpqp
+from codev_engine.mp import mpqp_kernel as mpqp_jit
 
 TESTSET = Path(__file__).resolve().parents[3] / "shared" / "benchmarks" / "mp_testset"
 
@@ -87,7 +90,7 @@ def test_certified_reduction_drops_only_redundant_rows(seed, how):
         kept = mpqp_jit._certified_keep(A, b, fixed, centre, 3.0, 10_000)
     else:
         kept = np.zeros(k, dtype=bool)
-        kept[ce.polytope.certified_minimal_rows(A, b, 3.0, np.flatnonzero(fixed))] = True
+        kept[polytope.certified_minimal_rows(A, b, 3.0, np.flatnonzero(fixed))] = True
     assert np.all(kept[fixed])
     for i in range(k):
         others = kept.copy()
@@ -148,7 +151,7 @@ def test_compiled_and_numpy_kernels_agree_on_a_real_problem():
         np.testing.assert_allclose(got[3], ref[2][0], atol=1e-8)
         np.testing.assert_allclose(got[4], ref[2][1], atol=1e-8)
         for (A1, b1), (A2, b2) in (((got[1], got[2]), ref[1]), (ref[1], (got[1], got[2]))):
-            centre, radius = ce.polytope.chebyshev_ball(A1, b1)
+            centre, radius = polytope.chebyshev_ball(A1, b1)
             assert radius > 0 and np.all(A2 @ centre <= b2 + 1e-9)
 
 
@@ -181,7 +184,7 @@ def test_numpy_kernel_keeps_regions_daqps_ball_misjudges():
     status, rows, *_ = kernel.evaluate_numpy(act)
     assert status == "full"
     A, b = rows
-    assert ce.polytope.chebyshev_ball(A, b)[1] < 0  # (DAQP's answer, still wrong)
+    assert polytope.chebyshev_ball(A, b)[1] < 0  # (DAQP's answer, still wrong)
     got = mpqp_jit.evaluate(np.array(act), kernel.box[0], *kernel._jit_args)
     assert got[0] == mpqp_jit.FULL
     assert np.min(got[2] - got[1] @ got[8]) > 1e-5
@@ -198,14 +201,14 @@ def test_radius_upper_bound_holds_for_any_multipliers(seed):
     if seed % 2:  # empty: a row that cuts everything off
         A = np.vstack([A, A[-1:], -A[-1:]])
         b = np.concatenate([b, [-0.5], [-0.5]])
-    _, radius, y = ce.polytope.chebyshev_ball(A, b, solver="highs", multipliers=True)
+    _, radius, y = polytope.chebyshev_ball(A, b, solver="highs", multipliers=True)
     bound = 3.0
-    assert ce.polytope.radius_upper_bound(A, b, y, bound) == pytest.approx(radius, abs=1e-7)
+    assert polytope.radius_upper_bound(A, b, y, bound) == pytest.approx(radius, abs=1e-7)
     for _ in range(5):
         noisy = y + rng.normal(scale=1e-3, size=y.size)
-        assert ce.polytope.radius_upper_bound(A, b, noisy, bound) >= radius - 1e-12
+        assert polytope.radius_upper_bound(A, b, noisy, bound) >= radius - 1e-12
     if seed % 2:
-        assert radius < 0 and ce.polytope.radius_upper_bound(A, b, y, bound) < 0
+        assert radius < 0 and polytope.radius_upper_bound(A, b, y, bound) < 0
 
 
 def _swap_problem():
@@ -329,7 +332,7 @@ def test_lp_with_a_blocking_row_dependent_on_its_working_set_gives_up_without_ra
     lo, hi, ok = mpqp_jit.region_boxes(A, b, np.array([0, len(b)]), 1000)
     if ok[0]:
         assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
-    from codev_engine.locate import bounding_boxes
+    from codev_engine.geometry.locate import bounding_boxes
 
     lo, hi = bounding_boxes([A] * 70, [b] * 70)  # 70 regions: the compiled path first
     for j in range(3):
@@ -345,7 +348,7 @@ def test_cone_proofs_prove_only_what_the_rows_imply():
     2x <= 1 (multipliers (2, 0) give 2). x - y <= 3.5 needs a negative multiplier: clipped
     to (1, 0), the residual (0, -1) is charged at the bound, 1 + bound: no proof on |x|_inf
     <= 3, a proof on |x|_inf <= 1."""
-    from codev_engine.polytope import _cone_proofs
+    from codev_engine.geometry.polytope import _cone_proofs
 
     AB, bB = np.eye(2), np.ones(2)
     Ar = np.array([[1.0, 1.0], [1.0, 1.0], [2.0, 0.0], [1.0, -1.0]])

@@ -589,7 +589,7 @@ def test_regions_are_reported_in_original_variables():
 def test_parallel_search_gives_the_serial_result(name, monkeypatch):
     """The mp-QP search forks workers on large problems; forced on from the start here,
     it must give exactly the serial regions (same active sets, rows and laws, same order)."""
-    from codev_engine import mpqp
+    from codev_engine.mp import mpqp
 
     serial = ce.mpsolve(PROGRAMS[name](), options=ce.SolveOptions(workers=1))
     monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
@@ -607,8 +607,8 @@ def test_semidefinite_ties_are_broken_one_way():
     {z2 >= -1} both satisfy the KKT conditions everywhere with a zero multiplier. The
     lexicographic rule must accept exactly one of them (else regions would overlap with
     different laws), whichever r picks; and the solution's z2 is that bound."""
-    from codev_engine import mpqp
-    from codev_engine.polytope import bounding_box
+    from codev_engine.geometry.polytope import bounding_box
+    from codev_engine.mp import mpqp
 
     p = qp_semidefinite_tie()
     for seed in range(4):
@@ -666,7 +666,7 @@ def test_domain_without_minrep_is_the_same_set(name, monkeypatch):
     minrep (minutes on pop_mpqp_051's 100k rows): the rows left describe the same set."""
     import importlib
 
-    mpsolve_module = importlib.import_module("codev_engine.mpsolve")
+    mpsolve_module = importlib.import_module("codev_engine.mp.solve")
     small = ce.mpsolve(PROGRAMS[name]())
     monkeypatch.setattr(mpsolve_module, "_MINREP_ROWS", 0)
     large = ce.mpsolve(PROGRAMS[name]())

@@ -11,7 +11,7 @@ import scipy.linalg
 import sympy
 
 from codev_engine.errors import SpecError
-from codev_engine.expr import make_symbol
+from codev_engine.pipeline import load_spec, loads_spec
 from codev_engine.plant import (
     LinearModel,
     SymbolicPlant,
@@ -20,7 +20,9 @@ from codev_engine.plant import (
     numeric_dynamics,
     symbolic_model,
 )
-from codev_engine.spec import METHODS, PlantSpec, load_spec, loads_spec
+from codev_engine.spec.choices import METHODS
+from codev_engine.spec.expr import make_symbol
+from codev_engine.spec.problem import PlantSpec
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

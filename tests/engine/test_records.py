@@ -21,8 +21,11 @@ from rerun.error_utils import strict_mode
 from rerun_bindings import check_for_rrd_footer
 
 import codev_engine as ce
-from codev_engine import records
-from codev_engine.records import (
+from codev_engine.reach.tube import Tube
+from codev_engine.reach.verification import VerificationResult
+from codev_engine.spec.problem import SetSpec
+from codev_engine.view import records
+from codev_engine.view.records import (
     RecordingOptions,
     RecordingSummary,
     check_recording,
@@ -30,9 +33,6 @@ from codev_engine.records import (
     unsafe_margin,
     write_recording,
 )
-from codev_engine.spec import SetSpec
-from codev_engine.tube import Tube
-from codev_engine.verify import VerificationResult
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 DI_TEXT = (EXAMPLES / "double_integrator.toml").read_text()

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import codev_engine as ce
-from codev_engine import mpqp
-from codev_engine.locate import PointLocator
-from codev_engine.mpsolution import CriticalRegion, RegionArrays
+from codev_engine.geometry.locate import PointLocator
+from codev_engine.mp import mpqp
+from codev_engine.mp.solution import CriticalRegion, RegionArrays
 from tests.engine.test_mpqp_graph import _program
 
 
@@ -138,7 +138,7 @@ def test_large_solutions_are_saved_uncompressed(compiled_solution, tmp_path, mon
     minutes on gigabytes of rows); it reads back the same."""
     import zipfile
 
-    from codev_engine import mpsolution
+    from codev_engine.mp import solution as mpsolution
 
     small = compiled_solution.save(tmp_path / "small.npz")
     monkeypatch.setattr(mpsolution, "_COMPRESS_BELOW", 0)
@@ -155,7 +155,7 @@ def test_large_solutions_are_saved_uncompressed(compiled_solution, tmp_path, mon
 def test_reading_a_float_array_makes_no_second_copy(monkeypatch):
     """Loading a solution checks its arrays in place: ``astype`` copied every one, which
     doubled a 13 GB solution (pop_mpqp_036) in memory; NaN is still found, chunk by chunk."""
-    from codev_engine import npzfile
+    from codev_engine.io import npz as npzfile
 
     monkeypatch.setattr(npzfile, "_FINITE_CHUNK", 7)
     A = np.arange(60.0).reshape(20, 3)

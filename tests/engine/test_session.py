@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import codev_engine.session as session_mod
+import codev_engine.session.session as session_mod
 from codev_engine import load_spec, loads_spec
 from codev_engine.errors import CodevError, SpecError
-from codev_engine.session import RunOptions, Session, SessionError, stage_keys
+from codev_engine.session.session import RunOptions, Session, SessionError, stage_keys
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
@@ -501,7 +501,7 @@ def test_damaged_recording_is_recomputed(sess, warned):
     rep = sess.run(problem(), opts, warn=warned.append)
     assert statuses(rep) == {**{s: "cached" for s in ALL}, "recording": "computed"}
     assert len(warned) == 1 and rrd.name in warned[0]
-    from codev_engine.records import check_recording
+    from codev_engine.view.records import check_recording
 
     check_recording(rep.recording)
 
@@ -785,7 +785,7 @@ def _kill_when(d: Path, condition, deadline: float = 30.0) -> tuple[bool, list[s
     """Start ``codev run DI --session d`` and SIGKILL it when ``condition(names)`` holds for
     the names in ``d/artifacts``. Returns (killed before it finished, names at the kill)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "codev_engine.cli", "run", str(DI_PATH), "--session", str(d)],
+        [sys.executable, "-m", "workbench.cli", "run", str(DI_PATH), "--session", str(d)],
         cwd=ROOT,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

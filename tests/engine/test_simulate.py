@@ -22,7 +22,7 @@ import scipy.linalg
 from scipy.optimize import brentq
 
 import codev_engine as ce
-from codev_engine.simulate import (
+from codev_engine.reach.simulate import (
     ManyTraces,
     Trace,
     Violation,

@@ -9,15 +9,9 @@ import numpy as np
 import pytest
 
 from codev_engine.errors import SpecError
-from codev_engine.spec import (
-    METHODS,
-    MpcSpec,
-    Problem,
-    SetSpec,
-    VerifySpec,
-    load_spec,
-    loads_spec,
-)
+from codev_engine.pipeline import load_spec, loads_spec
+from codev_engine.spec.choices import METHODS
+from codev_engine.spec.problem import MpcSpec, Problem, SetSpec, VerifySpec
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 

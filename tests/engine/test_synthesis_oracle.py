@@ -53,7 +53,7 @@ from scipy.optimize import linprog
 
 import codev_engine as ce
 from codev_engine.plant import LinearModel, discretize
-from codev_engine.spec import ModelSpec, MpcSpec, PlantSpec, Problem
+from codev_engine.spec.problem import ModelSpec, MpcSpec, PlantSpec, Problem
 
 INF = np.inf
 RTOL = 1e-6  # optimality: relative, with an absolute floor of the same size

@@ -9,7 +9,7 @@ import pytest
 
 import codev_engine as ce
 from codev_engine.errors import SpecError
-from codev_engine.tube import TUBE_FORMAT, Tube
+from codev_engine.reach.tube import TUBE_FORMAT, Tube
 
 
 def _tube() -> Tube:
@@ -88,7 +88,7 @@ def test_save_overwrites(tmp_path):
 
 
 def test_verify_tube_round_trip(tmp_path, example_law):
-    from codev_engine.verify import verify
+    from codev_engine.reach.verification import verify
 
     problem, law = example_law("double_integrator.toml")
     tube = verify(problem, law).tube

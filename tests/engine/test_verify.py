@@ -43,10 +43,10 @@ from cli_process import run_codev
 
 import codev_engine as ce
 from codev_engine.errors import SpecError
-from codev_engine.reach_linear import affine_plant
-from codev_engine.simulate import first_violation, simulate, simulate_many, violations_many
-from codev_engine.tube import Tube
-from codev_engine.verify import VerificationResult, verify
+from codev_engine.reach.linear import affine_plant
+from codev_engine.reach.simulate import first_violation, simulate, simulate_many, violations_many
+from codev_engine.reach.tube import Tube
+from codev_engine.reach.verification import VerificationResult, verify
 from tests.di_variants import DI_PATH, HULL_CORNER, UNSAFE_ON_PATH, di_spec
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -389,7 +389,7 @@ def _frontier_membership(problem, law, hold: str, n_random: int = 300) -> dict:
     of the piece being reached lies in the star + ellipsoid of a frontier set whose
     deviation polytope holds its own initial deviation d0: ``x(t_k) = y + D d0 + M e`` with
     ``|e|_2 <= 1`` (before and after the sets of the sample are merged)."""
-    from codev_engine.reach_nonlinear import NonlinearReach
+    from codev_engine.reach.nonlinear import NonlinearReach
 
     vs = problem.verify
     X0 = _initial_states(vs.initial_lower, vs.initial_upper, n_random, 0, seed=3)

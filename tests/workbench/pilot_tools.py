@@ -7,8 +7,8 @@ from pathlib import Path
 
 from textual.widgets import Input, Static
 
-from workbench.app import CodevApp
-from workbench.widgets import FieldEntry
+from workbench.tui.app import CodevApp
+from workbench.tui.widgets import FieldEntry
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"

@@ -16,10 +16,10 @@ from pilot_tools import EXAMPLES, ROOT, SIZE, entry, run, settle, text_of, type_
 from textual.widgets import DataTable, Input, Static
 
 from codev_engine import load_spec
-from codev_engine.session import Session
-from workbench.app import CodevApp
-from workbench.panes.plant import PlantPane
-from workbench.state import DRAFT, open_target
+from codev_engine.session.session import Session
+from workbench.tui.app import CodevApp
+from workbench.tui.panes.plant import PlantPane
+from workbench.tui.state import DRAFT, open_target
 
 
 @pytest.fixture
@@ -243,7 +243,7 @@ def test_open_and_export_recording(tmp_path, monkeypatch):
 
     run(scenario())
     assert (tmp_path / "out.rrd").stat().st_size > 0
-    from codev_engine.records import check_recording
+    from codev_engine.view.records import check_recording
 
     check_recording(tmp_path / "out.rrd")
     # the journal of the opened session grew by this run, and still replays
@@ -261,7 +261,7 @@ def test_tui_without_a_terminal_is_a_clear_error(tmp_path):
         [
             sys.executable,
             "-m",
-            "codev_engine.cli",
+            "workbench.cli",
             "tui",
             str(EXAMPLES / "double_integrator.toml"),
             "--session",
@@ -285,7 +285,7 @@ def test_a_late_picture_does_not_replace_the_latest():
     from rich.text import Text
     from textual.app import App
 
-    from workbench.widgets import Plot
+    from workbench.tui.widgets import Plot
 
     class One(App):
         def compose(self):

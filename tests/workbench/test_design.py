@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import codev_engine as ce
-from workbench.design import locate_state, mpc_preview, plant_report, region_rows
+from workbench.tui.design import locate_state, mpc_preview, plant_report, region_rows
 
 ROOT = Path(__file__).resolve().parents[2]
 PENDULUM = ROOT / "examples" / "pendulum.toml"

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from textcells import decode_cells, decode_pixels, plot_body
 
-from workbench.raster import Raster, nice_limits, plot_text
+from workbench.tui.raster import Raster, nice_limits, plot_text
 
 # --------------------------------------------------------------------------------------------
 # Boxes

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 from pilot_tools import EXAMPLES, ROOT, settle
 
-from workbench.app import CodevApp
-from workbench.state import open_target
+from workbench.tui.app import CodevApp
+from workbench.tui.state import open_target
 
 SIZE = (150, 44)
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 
 import codev_engine as ce
-from codev_engine.session import RunOptions, Session, SessionError, stage_keys
-from workbench.form import FIELDS, check_form, form_from_text
-from workbench.state import DRAFT, clear_draft, open_target, read_draft, write_draft
+from codev_engine.session.session import RunOptions, Session, SessionError, stage_keys
+from workbench.tui.form import FIELDS, check_form, form_from_text
+from workbench.tui.state import DRAFT, clear_draft, open_target, read_draft, write_draft
 
 ROOT = Path(__file__).resolve().parents[2]
 DI = ROOT / "examples" / "double_integrator.toml"

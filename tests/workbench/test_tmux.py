@@ -1,6 +1,6 @@
 """Smoke test of the real workbench in a real terminal (tmux): open a spec, synthesise, quit.
 
-Runs ``python -m codev_engine.cli tui examples/double_integrator.toml --session DIR`` in a
+Runs ``python -m workbench.cli tui examples/double_integrator.toml --session DIR`` in a
 detached tmux session on a private tmux server (``-L``), reads the screen with
 ``capture-pane`` and types with ``send-keys``. Skipped when tmux is not installed.
 """
@@ -87,7 +87,7 @@ def test_workbench_in_tmux(tmux, tmp_path):
             "LINES",
             sys.executable,
             "-m",
-            "codev_engine.cli",
+            "workbench.cli",
             "tui",
             "examples/double_integrator.toml",
             "--session",

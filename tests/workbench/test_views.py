@@ -10,8 +10,8 @@ from textcells import decode_pixels, plot_body
 
 import codev_engine as ce
 from tests.di_variants import UNSAFE_ON_PATH
-from workbench.raster import COLOURS, PALETTE
-from workbench.views import law_limits, partition_text, plane_text, series_text, tube_time_text
+from workbench.tui.raster import COLOURS, PALETTE
+from workbench.tui.views import law_limits, partition_text, plane_text, series_text, tube_time_text
 
 ROOT = Path(__file__).resolve().parents[2]
 DI = ROOT / "examples" / "double_integrator.toml"
@@ -241,7 +241,7 @@ def test_plane_text_tube_pixels_are_inside_the_hull(safe_result):
     xl = (tube.lower[:, 0].min(), tube.upper[:, 0].max())
     yl = (tube.lower[:, 1].min(), tube.upper[:, 1].max())
     # the axis ticks give the limits: recompute the view as plane_text does
-    from workbench.raster import nice_limits
+    from workbench.tui.raster import nice_limits
 
     vs = problem.verify
     xlim = nice_limits(min(xl[0], vs.initial_lower[0]), max(xl[1], vs.initial_upper[0]))
@@ -287,7 +287,7 @@ def test_series_text_one_series_hits_its_samples():
     width, height = 47, 12  # no sample on a pixel boundary
     text = series_text(t, y[:, None], ("y",), width, height)
     pix = _pixels(text, height)
-    from workbench.raster import nice_limits
+    from workbench.tui.raster import nice_limits
 
     xlim = nice_limits(t.min(), t.max(), 0.0)
     ylim = nice_limits(y.min(), y.max())

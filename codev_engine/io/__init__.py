@@ -1,0 +1,1 @@
+"""Files the engine writes and reads: atomic writes and checked ``.npz`` archives."""

@@ -1,0 +1,164 @@
+"""Reading ``.npz`` artifacts safely: no pickle, every array checked, errors name it.
+
+Writers live in ``atomic.py`` (temp file + rename). Readers call :func:`read_npz` and then
+the typed getters below, which raise ``SpecError`` naming the array (``field``) and what is
+wrong with it; the caller adds the file name.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import TypeVar
+
+import numpy as np
+
+from codev_engine.errors import SpecError
+
+T = TypeVar("T")
+
+__all__ = ["read_npz", "load_checked", "array", "real", "text", "names", "pair", "offsets"]
+
+
+def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
+    """All arrays of an ``.npz`` file, loaded with ``allow_pickle=False``.
+
+    Parameters
+    ----------
+    path : path-like
+    what : str
+        What the file should be ("law file", "tube file", ...), for the error message.
+
+    Raises
+    ------
+    SpecError
+        The file is missing or is not a readable npz (truncated, not a zip, object arrays).
+    """
+    path = Path(path)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise SpecError("no such file", file=str(path)) from None
+    except IsADirectoryError:
+        raise SpecError(f"is a directory, not a {what}", file=str(path)) from None
+    except Exception as exc:  # not a zip / npy, or a pickle (refused)
+        raise SpecError(
+            f"not a readable {what} ({exc.__class__.__name__})", file=str(path)
+        ) from None
+    if not isinstance(z, np.lib.npyio.NpzFile):  # a bare .npy array
+        raise SpecError(f"not a {what}: a single .npy array, not an .npz archive", file=str(path))
+    out: dict[str, np.ndarray] = {}
+    with z:
+        for k in z.files:
+            try:
+                out[k] = z[k]
+            except ValueError as exc:
+                if "pickle" in str(exc):  # an object array: never unpickled
+                    raise SpecError(
+                        "holds Python objects (pickled data), refused: must be a numeric "
+                        "or text array",
+                        file=str(path),
+                        field=k,
+                    ) from None
+                raise SpecError(
+                    f"unreadable array ({exc.__class__.__name__})", file=str(path), field=k
+                ) from None
+            except Exception as exc:  # a truncated / corrupt member
+                raise SpecError(
+                    f"unreadable array ({exc.__class__.__name__}): the {what} is damaged",
+                    file=str(path),
+                    field=k,
+                ) from None
+    return out
+
+
+def load_checked(path: str | os.PathLike, what: str, build: Callable[[dict], T]) -> T:
+    """Read ``path`` with :func:`read_npz` and build the object with ``build(arrays)``.
+
+    ``build`` validates and raises ``SpecError`` naming the array; the error is returned
+    with the file name added.
+    """
+    data = read_npz(path, what)
+    try:
+        return build(data)
+    except SpecError as exc:
+        raise exc.with_file(str(path)) from None
+
+
+def offsets(data: dict[str, np.ndarray], key: str, count: int, rows: int) -> np.ndarray:
+    """Offsets of ``count`` consecutive blocks over ``rows`` rows: integers, shape
+    ``(count + 1,)``, rising from 0 to ``rows``."""
+    off = array(data, key)
+    if off.dtype.kind not in "iu":
+        raise SpecError(f"must be integers, got dtype {off.dtype}", field=key)
+    if off.shape != (count + 1,):
+        raise SpecError(f"must have shape ({count + 1},), got {off.shape}", field=key)
+    if np.any(off < 0) or np.any(off > rows):
+        raise SpecError(f"must lie in [0, {rows}]", field=key)
+    off = off.astype(np.int64, copy=False)
+    if off[0] != 0 or off[-1] != rows or np.any(np.diff(off) < 0):
+        raise SpecError(f"must increase from 0 to {rows}", field=key)
+    return off
+
+
+def array(data: dict[str, np.ndarray], key: str) -> np.ndarray:
+    """The array ``key`` (``SpecError`` when missing)."""
+    if key not in data:
+        raise SpecError("missing array", field=key)
+    return data[key]
+
+
+def real(
+    data: dict[str, np.ndarray],
+    key: str,
+    *,
+    ndim: int | None = None,
+    shape: tuple[int, ...] | None = None,
+) -> np.ndarray:
+    """A finite real array (float or integer dtype) of the given ndim / shape, as float."""
+    arr = array(data, key)
+    if arr.dtype.kind not in "fiu":
+        raise SpecError(f"must hold real numbers, got dtype {arr.dtype}", field=key)
+    if shape is not None and arr.shape != shape:
+        raise SpecError(f"must have shape {shape}, got {arr.shape}", field=key)
+    if ndim is not None and arr.ndim != ndim:
+        raise SpecError(f"must be {ndim}-dimensional, got shape {arr.shape}", field=key)
+    arr = arr.astype(float, copy=False)  # (no second copy of a solution's gigabytes of rows)
+    flat = arr.reshape(-1)
+    for i in range(0, flat.size, _FINITE_CHUNK):  # (a bool per entry at once: 1 GB on 036)
+        if not np.all(np.isfinite(flat[i : i + _FINITE_CHUNK])):
+            raise SpecError("non-finite numbers (NaN or inf)", field=key)
+    return arr
+
+
+#: entries checked for NaN / inf at a time by :func:`real`
+_FINITE_CHUNK = 1 << 22
+
+
+def text(data: dict[str, np.ndarray], key: str) -> str:
+    """A single string (0-d text array)."""
+    arr = array(data, key)
+    if arr.dtype.kind != "U" or arr.ndim != 0:
+        raise SpecError(
+            f"must be a single string, got dtype {arr.dtype} shape {arr.shape}", field=key
+        )
+    return str(arr)
+
+
+def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str, ...]:
+    """A 1-D text array of ``count`` names (or none: unnamed); any count if ``None``."""
+    arr = array(data, key)
+    if arr.ndim != 1 or (arr.dtype.kind != "U" and arr.size):
+        raise SpecError(
+            f"must be a list of names, got dtype {arr.dtype} shape {arr.shape}", field=key
+        )
+    if count is not None and arr.size not in (0, count):
+        raise SpecError(f"must have {count} names, got {arr.size}", field=key)
+    return tuple(str(s) for s in arr)
+
+
+def pair(data: dict[str, np.ndarray], a: str, b: str) -> None:
+    """``a`` and ``b`` come together or not at all."""
+    if (a in data) != (b in data):
+        raise SpecError("missing array", field=b if a in data else a)

@@ -1,0 +1,804 @@
+"""Strictly convex mp-QP by combinatorial adjacency: a graph search over active sets.
+
+For ``H > 0`` the optimizer is unique and, for an active set ``A`` with linearly
+independent rows, the KKT conditions give affine multipliers and slacks (the least-distance
+form, ``M = G H^-1 G'`` and ``d(theta) = w + S theta + G H^-1 (c + C theta)``)::
+
+    lambda_A(theta) = -M_AA^-1 d_A(theta)          (must be >= 0)
+    slack_I(theta)  = d_I(theta) + M_IA lambda_A    (must be >= 0, I the other rows)
+
+``A`` is *optimal* when that polyhedron (intersected with the parameter set) is non-empty;
+it is a critical region of the partition when it is full-dimensional. The optimal active
+sets, lower-dimensional ones included, are connected by adding or removing one constraint;
+where LICQ breaks (dependent rows, or more rows than variables) the subsets of the set are
+explored instead. Exploring that graph from one optimal active set reaches every critical
+region, degenerate facets included (several constraints changing on one hyperplane, which
+defeats exploration "across the facet"). This is the combinatorial-adjacency idea of
+Arnstroem & Axehill (CDC 2024, ParametricDAQP), written here for numpy: one small solve and
+one Chebyshev-ball LP per candidate active set.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from collections.abc import Callable
+from dataclasses import replace
+
+import daqp
+import numpy as np
+from scipy.linalg import cho_solve
+from scipy.linalg.lapack import dgeqrf
+
+from codev_engine.errors import SolverError
+from codev_engine.geometry.polytope import (
+    bounding_box,
+    certified_minimal_rows,
+    chebyshev_ball,
+    checked_minimal_rows,
+    radius_upper_bound,
+    row_hashes,
+)
+from codev_engine.mp.solution import CriticalRegion, RegionArrays, segment_indices, too_many_regions
+
+__all__ = ["explore_active_sets"]
+
+
+#: regions found before the search goes parallel (small problems stay serial:
+#: forking costs ~20 ms)
+PARALLEL_AFTER = 400
+#: regions found before candidates go to the compiled kernel (mpqp_jit; importing numba
+#: and loading the kernel costs ~1 s, more than small problems take altogether)
+JIT_AFTER = 200
+#: batches' regions put together into one chunk of arrays during the compiled walk
+_PARTS_PER_CHUNK = 256
+#: candidates handed to a worker per round trip
+_CHUNK = 64
+#: batches in flight in the compiled walk, whatever the number of workers: batches are
+#: popped and their results taken at fixed points of the walk, never "when ready", so its
+#: order, and with it the point each candidate's LP starts from, depends on neither timing
+#: nor the worker count (the partition is the same, bit for bit)
+_DEPTH = 8
+
+#: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
+#: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
+ILL_CONDITIONED = 1e6
+
+
+class _Kernel:
+    """Everything needed to evaluate one candidate active set (the problem's data,
+    precomputed). A module-level instance is inherited by forked workers."""
+
+    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float, box):
+        self._setup(G, At, bt, scale, region_tol, box)
+        self.Hinv_Gt = np.linalg.solve(H, G.T)  # (nz, m)
+        self.M = G @ self.Hinv_Gt  # (m, m)
+        Hinv_c = np.linalg.solve(H, c)
+        Hinv_C = np.linalg.solve(H, C)
+        # d(theta) = D0 + D1 theta, as one (m, d+1) array
+        self.Dfull = np.hstack([(w + G @ Hinv_c)[:, None], S + G @ Hinv_C])
+        self.negZ0 = -np.hstack([Hinv_c[:, None], Hinv_C])
+        # for the KKT system of ill-conditioned active sets (see _kkt)
+        self.H = H
+        self.rhs_z = np.hstack([-c[:, None], -C])
+        self.wS = np.hstack([w[:, None], S])
+
+    def _inactive(self, A: np.ndarray) -> np.ndarray:
+        """The constraints not in the active set ``A``, in order."""
+        mask = np.ones(self.m, dtype=bool)
+        mask[A] = False
+        return self.idx[mask]
+
+    def _solve_kkt(self, A: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``[[H, G_A'], [G_A, 0]] [Z; Lam] = rhs`` -> (Z (nz, k), Lam (na, k))."""
+        nz, GA = self.nz, self.G[A]
+        K = np.zeros((nz + A.size, nz + A.size))
+        K[:nz, :nz] = self.H
+        K[:nz, nz:] = GA.T
+        K[nz:, :nz] = GA
+        X = np.linalg.solve(K, rhs)
+        return X[:nz], X[nz:]
+
+    def _setup(self, G, At, bt, scale: float, region_tol: float, box) -> None:
+        """What every kernel needs: sizes, the parameter set, tolerances, its box."""
+        self.nz, self.d, self.m = G.shape[1], At.shape[1], G.shape[0]
+        self.G = G
+        self.At, self.bt = At, bt
+        self.idx = np.arange(self.m)
+        self.zeros_t = np.zeros(At.shape[0], dtype=np.intp)
+        self.scale = scale
+        self.region_tol = region_tol
+        self.nonempty_tol = 1e-8 * scale
+        self.box = _padded_box(*box)  # (centre, half-widths) or None
+        # max |theta_i| over the box: where certificates charge their residuals
+        self.bound = (
+            None if self.box is None else float(np.max(np.abs(self.box[0]) + self.box[1]))
+        )
+        self._jit = None  # mpqp_jit once start_jit succeeded
+
+    def start_jit(self) -> bool:
+        """Evaluate candidates with the compiled kernel (``mpqp_jit``) from now on, where it
+        applies (H > 0 and a bounded parameter set); False when numba is unavailable."""
+        if self.box is None or type(self) is not _Kernel:
+            return False
+        try:
+            from codev_engine.mp import mpqp_kernel as mpqp_jit
+        except ImportError:  # pragma: no cover - numba is a dependency
+            return False
+        f = np.ascontiguousarray
+        self._jit_args = (
+            f(self.G), f(self.M), f(self.Dfull), f(self.negZ0), f(self.Hinv_Gt), f(self.H),
+            f(self.rhs_z), f(self.wS), f(self.At),
+            f(self.bt), f(self.box[0]), f(self.box[1]), float(self.scale),
+            float(self.region_tol), float(self.nonempty_tol), float(ILL_CONDITIONED),
+            int(50 * (self.m + self.At.shape[0] + self.d)),
+        )
+        self._jit = mpqp_jit
+        return True
+
+    def evaluate(self, act: tuple[int, ...]):
+        """:meth:`evaluate_numpy`, by the compiled kernel once :meth:`start_jit` succeeded
+        (it hands back the candidates it cannot conclude on)."""
+        jit = self._jit
+        if jit is not None:
+            status, Ak, bk, K, k, moves, lp, swaps, _ = jit.evaluate(
+                np.array(act, dtype=np.int64), self.box[0], *self._jit_args
+            )
+            if status == jit.FULL:
+                if swaps.size:  # this walk takes the plain moves (see mpqp_jit._swaps)
+                    moves = np.union1d(moves, -(swaps[:, 0] + 1))
+                return "full", (Ak, bk), (K, k), moves, lp
+            if status != jit.FALLBACK:
+                neighbours = moves if status == jit.LOWER else None
+                return jit.STATUS_NAMES[status], None, None, neighbours, lp
+        return self.evaluate_numpy(act)
+
+    def evaluate_numpy(self, act: tuple[int, ...]):
+        """Classify the active set ``act``.
+
+        Returns
+        -------
+        (status, rows, law, moves, lp) : tuple
+            ``status`` is "licq" (rows dependent or too many), "empty", "lower" or "full";
+            ``rows = (A, b)`` and ``law = (K, k)`` for a full region; ``moves`` the signed
+            constraint ids of the neighbours (``+i+1``: i may leave, ``-(i+1)``: i may enter);
+            ``lp`` whether a Chebyshev LP was solved.
+        """
+        A = np.array(act, dtype=np.intp)
+        if A.size > self.nz:
+            return "licq", None, None, None, False
+        # rows of G_A (unit norm) dependent, or nearly: LICQ broken
+        # (LAPACK's QR straight: numpy's wrapper costs more than the factorisation)
+        if A.size and np.min(np.abs(np.diagonal(dgeqrf(self.G[A].T)[0])[: A.size])) < 1e-9:
+            return "licq", None, None, None, False
+        kkt = self._kkt(A)
+        if isinstance(kkt, str):
+            return kkt, None, None, None, False
+        Lam, Sl, inact, tie, Z = kkt
+        # lambda >= 0  <=>  -Lam1 theta <= Lam0 ;  slack >= 0  <=>  -Sl1 theta <= Sl0
+        Ar = np.vstack([-Lam[:, 1:], -Sl[:, 1:], self.At])
+        br = np.concatenate([Lam[:, 0], Sl[:, 0], self.bt])
+        src = np.concatenate([A + 1, -(inact + 1), self.zeros_t])
+        norms = np.sqrt(np.einsum("ij,ij->i", Ar, Ar))
+        zero = norms <= 1e-12
+        if np.any(zero):
+            bz = br[zero]
+            bad = bz < -1e-12
+            if tie is not None:
+                # a multiplier or slack that is zero for every theta: the tie is broken by
+                # the perturbation direction (lexicographic selection, semi-definite H)
+                tz = np.concatenate([tie, np.zeros(self.At.shape[0])])[zero]
+                bad |= (bz <= 1e-10 * (1.0 + self.scale)) & (tz < -1e-12 * (1.0 + self.scale))
+            if np.any(bad):
+                return "empty", None, None, None, False
+        keep_nz = ~zero
+        Ar, br, src = Ar[keep_nz] / norms[keep_nz, None], br[keep_nz] / norms[keep_nz], src[keep_nz]
+        centre, rho = self._chebyshev(Ar, br)
+        if not rho >= -self.nonempty_tol:
+            return "empty", None, None, None, True
+        if not rho > self.region_tol:
+            # lower-dimensional: its neighbours are the constraints tight at a point of it
+            tight = Ar @ centre - br >= -max(rho, 0.0) - 1e-7 * self.scale
+            return "lower", None, None, src[tight], True
+        # rows that hold on the whole bounding box of the parameter set are implied by the
+        # parameter-set rows (always kept): only the others go to the LP-based minrep
+        # (the parameter-set rows go in too: minrep needs a bounded polytope, and dropped a
+        # needed row of pop_mpqp_084 without them)
+        maybe = np.ones(src.shape[0], dtype=bool)
+        if self.box is not None:
+            reach = Ar @ self.box[0] + np.abs(Ar) @ self.box[1]  # max of each row on the box
+            maybe = (reach > br - 1e-9 * self.scale) | (src == 0)
+        maybe = np.flatnonzero(maybe)
+        fixed = np.flatnonzero(src[maybe] == 0)
+        if self.box is not None:
+            # minrep's redundancy decisions were seen wrong by 5e-6 (normalised), amplified by
+            # the rows' gains (pop_mpqp_084: a law off by 16; pop_mpqp_011, _017, _019:
+            # overlaps of 2e-5): a row is dropped only with a certificate. DAQP's minrep was
+            # also seen dropping a parameter-set row that is not redundant (pop_mpqp_085: a
+            # region reaching theta_2 = 106 in a box of +-10); those rows are few and cheap to
+            # keep: every region stays inside the parameter set
+            keep = maybe[certified_minimal_rows(Ar[maybe], br[maybe], self.bound, fixed)]
+        else:
+            keep = maybe[checked_minimal_rows(Ar[maybe], br[maybe], centre, rho)]
+            keep = np.union1d(keep, maybe[fixed])
+        # the neighbours: constraints of the facets, and of rows on a facet's hyperplane
+        # (several constraints changing on one hyperplane: a degenerate facet)
+        bf = br[keep]
+        tol = 1e-9 * (1.0 + np.abs(bf))
+        i, j = np.nonzero(np.abs(br[:, None] - bf[None, :]) <= tol)  # offsets first: cheap
+        same = np.abs(Ar[i] - Ar[keep[j]]).max(axis=1) <= tol[j]
+        moves = src[np.unique(i[same])]
+        if Z is None:
+            # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
+            Z = self.negZ0 - self.Hinv_Gt[:, A] @ Lam
+        return "full", (Ar[keep], br[keep]), (Z[:, 1:], Z[:, 0]), moves, True
+
+    def _chebyshev(self, Ar: np.ndarray, br: np.ndarray) -> tuple[np.ndarray, float]:
+        """Chebyshev ball of a candidate's rows (unit rows, parameter-set rows among them).
+
+        With a bounded parameter set the radius decides nothing unproved, as in the
+        compiled kernel: a region is full only with a centre whose slack in every row
+        exceeds the region tolerance, empty or lower-dimensional only with an upper bound
+        of the radius from the LP's multipliers (:func:`radius_upper_bound`). DAQP's ball
+        comes first; where it proves nothing, HiGHS's decides, with a full region's ball
+        checked the same way (else lower-dimensional). DAQP's proximal LP was seen 1e-5
+        off: it judged empty regions of ``pop_mpqp_001`` and ``pop_mpqp_084`` of radius
+        1e-5, and the partitions had holes there.
+        """
+        centre, rho, y = chebyshev_ball(Ar, br, multipliers=True)
+        if self.box is None or self._proved(Ar, br, centre, rho, y):
+            return centre, rho
+        centre, rho = chebyshev_ball(Ar, br, solver="highs")
+        if rho > self.region_tol:
+            slack = float(np.min(br - Ar @ centre))
+            if slack <= self.region_tol:  # no ball checked: lower-dimensional, not empty
+                rho = max(slack, -self.nonempty_tol)
+        return centre, rho
+
+    def _proved(
+        self, Ar: np.ndarray, br: np.ndarray, centre: np.ndarray, rho: float,
+        y: np.ndarray | None,
+    ) -> bool:
+        """Whether the ball (centre, rho) from multipliers ``y`` proves its class."""
+        if rho > self.region_tol:
+            return float(np.min(br - Ar @ centre)) > self.region_tol
+        if y is None:
+            return False
+        need = self.region_tol if rho >= -self.nonempty_tol else -self.nonempty_tol
+        return radius_upper_bound(Ar, br, y, self.bound) <= need
+
+    def _kkt(self, A: np.ndarray):
+        """Multipliers and slacks of the active set ``A`` (LICQ holds), affine in theta.
+
+        Returns
+        -------
+        str or tuple
+            "licq" when ``M_AA`` is not positive definite; else ``(Lam (na, d+1),
+            Sl (m-na, d+1), inact, tie, Z)`` with columns (constant, theta), ``tie`` None
+            (H > 0: the optimizer is unique) and ``Z`` None (computed for full regions).
+        """
+        if A.size:
+            MA = self.M[A]
+            try:
+                Lc = np.linalg.cholesky(MA[:, A])
+            except np.linalg.LinAlgError:
+                return "licq"
+            diag = np.diag(Lc)
+            if (diag.max() / diag.min()) ** 2 > ILL_CONDITIONED:
+                return self._kkt_augmented(A)
+            Lam = cho_solve((Lc, True), -self.Dfull[A])  # (na, d+1)
+        else:
+            MA = np.zeros((0, self.m))
+            Lam = np.zeros((0, self.d + 1))
+        inact = self._inactive(A)
+        Sl = self.Dfull[inact] + MA[:, inact].T @ Lam
+        return Lam, Sl, inact, None, None
+
+    def _kkt_augmented(self, A: np.ndarray):
+        """The KKT system ``[[H, G_A'], [G_A, 0]] [z; lambda] = [-(c + C theta); w_A + S_A
+        theta]`` solved as it stands, for nearly dependent active rows.
+
+        The dual Schur complement ``M_AA = G_A H^-1 G_A'`` squares their conditioning: on
+        pop_mpqp_021 (active rows with singular values 856 and 0.088, cond(M_AA) = 6e10)
+        the law it gave violated its own active constraints by 1e-5 and its value was off by
+        5e-5 relative; the augmented system does not square it.
+        """
+        Z, Lam = self._solve_kkt(A, np.vstack([self.rhs_z, self.wS[A]]))  # columns (1, theta)
+        inact = self._inactive(A)
+        Sl = self.wS[inact] - self.G[inact] @ Z
+        return Lam, Sl, inact, None, Z
+
+
+def _padded_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The parameter set's bounding box as (centre, half-widths), widened by a relative
+    1e-9 so that it surely contains the set; None when a side is infinite (then no row is
+    dropped on its account)."""
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        return None
+    pad = 1e-9 * (1.0 + np.abs(lo) + np.abs(hi))
+    return 0.5 * (lo + hi), 0.5 * (hi - lo) + pad
+
+
+class _KernelSemidefinite(_Kernel):
+    """The kernel for a positive semi-definite (singular, non-zero) H.
+
+    The optimizer need not be unique: the one selected is the limit, as eps -> 0+, of the
+    unique optimizer for the cost ``c + eps r`` with a fixed generic direction ``r`` (the
+    lexicographic rule of the mp-LP path). For an active set whose KKT matrix
+    ``[[H, G_A'], [G_A, 0]]`` is nonsingular (G_A independent, H definite on its null
+    space) the multipliers, slacks and optimizer are affine in theta plus eps times a
+    constant; a row that vanishes for every theta is decided by its eps part. Active sets
+    with a singular KKT matrix are "singular": the search goes on through their supersets
+    (across such a facet one constraint leaves and another enters, as in a simplex pivot).
+    The caller makes sure no direction of recession exists (the eps problem is bounded).
+    """
+
+    def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float, box, r):
+        self._setup(G, At, bt, scale, region_tol, box)
+        self.H, self.w, self.S = H, w, S
+        # right-hand sides (constant, theta, eps) of the stationarity rows
+        self.rhs_z = np.hstack([-c[:, None], -C, -r[:, None]])
+        self.h_tol = 1e-9 * max(1.0, float(np.max(np.abs(H))))
+
+    def _kkt(self, A: np.ndarray):
+        nz, na, d = self.nz, A.size, self.d
+        GA = self.G[A]
+        # H definite on null(G_A)?  (else the KKT matrix is singular)
+        if na < nz:
+            Q = np.linalg.qr(GA.T, mode="complete")[0] if na else np.eye(nz)
+            N = Q[:, na:]
+            if np.linalg.eigvalsh(N.T @ self.H @ N).min() <= self.h_tol:
+                return "singular"
+        rhs = np.vstack([self.rhs_z, np.hstack([self.w[A, None], self.S[A], np.zeros((na, 1))])])
+        Zf, Lf = self._solve_kkt(A, rhs)  # columns constant, theta, eps
+        inact = self._inactive(A)
+        Sf = np.hstack([self.w[inact, None], self.S[inact], np.zeros((inact.size, 1))])
+        Sf -= self.G[inact] @ Zf
+        tie = np.concatenate([Lf[:, -1], Sf[:, -1]])
+        return Lf[:, : d + 1], Sf[:, : d + 1], inact, tie, Zf[:, : d + 1]
+
+
+_KERNEL: _Kernel | None = None
+
+
+def _evaluate_chunk(acts: list[tuple[int, ...]]) -> list:
+    """Worker side: evaluate candidates with the kernel inherited from the parent."""
+    assert _KERNEL is not None
+    return [_KERNEL.evaluate(a) for a in acts]
+
+
+def _workers(requested: int | None) -> int:
+    if requested is not None:
+        return max(1, int(requested))
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cpus = os.cpu_count() or 1
+    return max(1, cpus)
+
+
+def explore_active_sets(
+    H: np.ndarray,
+    c: np.ndarray,
+    C: np.ndarray,
+    G: np.ndarray,
+    w: np.ndarray,
+    S: np.ndarray,
+    At: np.ndarray,
+    bt: np.ndarray,
+    theta0: np.ndarray,
+    *,
+    scale: float,
+    region_tol: float,
+    max_regions: int,
+    theta_box: tuple[np.ndarray, np.ndarray] | None = None,
+    workers: int | None = None,
+    semidefinite: bool = False,
+    progress: Callable[[int], None] | None = None,
+    stats: dict | None = None,
+) -> list[CriticalRegion]:
+    """All full-dimensional critical regions of ``min 0.5 z'Hz + (c + C theta)'z s.t.
+    G z <= w + S theta, At theta <= bt`` (H positive definite, rows of G unit norm).
+
+    Parameters
+    ----------
+    theta0 : (d,) ndarray
+        A feasible parameter (the search starts from the optimal active set there).
+    scale : float
+        Size of the parameter set (tolerances are relative to it).
+    theta_box : ((d,), (d,)) ndarrays, optional
+        The parameter set's bounding box (lo, hi), if the caller has it already.
+    workers : int, optional
+        Threads (compiled kernel) or forked processes (numpy kernels) evaluating
+        candidates once more than ``PARALLEL_AFTER`` regions are found (default: the CPUs
+        this process may use; 1 = serial). The graph is the same whatever the order of
+        evaluation, so the result is too.
+    semidefinite : bool
+        H is only positive semi-definite (singular): the optimizer is selected
+        lexicographically (see ``_KernelSemidefinite``); the caller has checked that the
+        problem has no direction of recession.
+
+    Returns
+    -------
+    RegionArrays
+        In the variables z; ``active`` holds the active set. Sorted by active set, but for
+        the regions of the compiled walk, which stay in the order it found them (neither
+        timing nor the worker count changes that order).
+    """
+    global _KERNEL
+    stats = {} if stats is None else stats
+    box = theta_box if theta_box is not None else bounding_box(At, bt)
+    if semidefinite:
+        r = np.random.default_rng(0).normal(size=G.shape[1])
+        kernel: _Kernel = _KernelSemidefinite(H, c, C, G, w, S, At, bt, scale, region_tol, box, r)
+        act0 = _active_set_at(H + 1e-9 * np.eye(H.shape[0]), c + 1e-7 * r, C, G, w, S, theta0)
+    else:
+        kernel = _Kernel(H, c, C, G, w, S, At, bt, scale, region_tol, box)
+        act0 = _active_set_at(H, c, C, G, w, S, theta0)
+    nz, m = kernel.nz, kernel.m
+    # rows that cannot be active together: exact opposites (a variable's two bounds)
+    opposite = {}
+    for i in range(m):
+        j = np.flatnonzero(np.abs(G + G[i]).max(axis=1) <= 1e-12)
+        opposite[i] = set(int(x) for x in j)
+
+    regions: list[CriticalRegion] = []
+    explored = {act0}
+    stack = [act0]
+    nworkers = _workers(workers)
+    pool = None
+    jit_tried = False
+
+    def visit(act, result) -> None:
+        status, rows, law, moves, lp = result
+        stats["candidates"] = stats.get("candidates", 0) + 1
+        stats["lps"] = stats.get("lps", 0) + int(lp)
+        _count_class(stats, status)
+        if status == "empty":
+            return
+        if status == "full":
+            regions.append(CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1], active=act))
+            if progress is not None:
+                progress(len(regions))
+            if len(regions) > max_regions:
+                raise SolverError(too_many_regions(max_regions))
+        if status == "licq":
+            leave, enter = list(act), []  # its subsets are the way on
+        elif status == "singular":
+            leave, enter = [], [i for i in range(m) if i not in act]  # its supersets
+        else:
+            # across the facets of a full-dimensional region, or the constraints tight
+            # on a lower-dimensional one
+            leave = [int(v) - 1 for v in moves if v > 0]
+            enter = [int(-v) - 1 for v in moves if v < 0]
+        for i in leave:
+            new = tuple(x for x in act if x != i)
+            if new not in explored:
+                explored.add(new)
+                stack.append(new)
+        if status == "licq" or len(act) >= nz + 1:
+            return
+        blocked = set(act)
+        for i in act:
+            blocked |= opposite[i]
+        for i in enter:
+            if i in blocked:
+                continue
+            new = tuple(sorted(act + (i,)))
+            if new not in explored:
+                explored.add(new)
+                stack.append(new)
+
+    compiled = False
+    walk = None
+    try:
+        inflight: deque = deque()  # (chunk, AsyncResult), oldest first
+        while stack or inflight:
+            if not jit_tried and len(regions) >= JIT_AFTER:
+                jit_tried = True
+                stats["jit"] = kernel.start_jit()
+                if stats["jit"] and not inflight:
+                    compiled = True  # the compiled walk takes over (below)
+                    break
+            if pool is None and nworkers > 1 and len(regions) >= PARALLEL_AFTER:
+                pool = _start_pool(kernel, nworkers - 1)  # this process works too
+                if pool is None:
+                    nworkers = 1
+            if pool is None:
+                act = stack.pop()
+                visit(act, kernel.evaluate(act))
+                continue
+            # the workers get chunks of the newest candidates (depth first, as in the
+            # serial search); this process evaluates candidates too while they work, and
+            # visits their results as they come
+            while len(stack) > _CHUNK and len(inflight) < 2 * nworkers:
+                chunk = stack[-_CHUNK:]
+                del stack[-_CHUNK:]
+                inflight.append((chunk, pool.apply_async(_evaluate_chunk, (chunk,))))
+            if inflight and (inflight[0][1].ready() or not stack):
+                chunk, pending = inflight.popleft()
+                for act, result in zip(chunk, pending.get(), strict=True):
+                    visit(act, result)
+            elif stack:
+                act = stack.pop()
+                visit(act, kernel.evaluate(act))
+        if compiled:
+            if pool is not None:  # (started first when PARALLEL_AFTER < JIT_AFTER)
+                pool.terminate()
+                pool.join()
+                pool = None
+            walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
+            walk.run(nworkers, max_regions, progress)
+    finally:
+        if pool is not None:
+            pool.terminate()
+            pool.join()
+            stats["workers"] = nworkers
+        _KERNEL = None
+    if not compiled:
+        stats["explored"] = len(explored)
+    if compiled:
+        # the compiled walk's order depends on neither timing nor the worker count; not
+        # sorting it spares a second copy of every row (5M regions of pop_mpqp_095: 10 GB)
+        packed = walk.result()
+        walk = None  # (the walk's hash table and stack)
+    else:
+        regions.sort(key=lambda r: r.active)  # the same order however they were found
+        packed = RegionArrays.from_regions(regions, nz, kernel.d)
+    return _merge_equal_laws(packed, scale, stats)
+
+
+class _CompiledWalk:
+    """The rest of the search once the compiled kernel runs: the explored active sets and
+    the stack as bitmasks (``mpqp_graph``), candidates evaluated in batches by compiled
+    code (in threads: it releases the GIL); only the regions found and the candidates the
+    compiled kernel hands back come to Python."""
+
+    def __init__(
+        self,
+        kernel: _Kernel,
+        opposite: dict,
+        explored: set,
+        stack: list,
+        regions: list[CriticalRegion],
+        stats: dict,
+    ):
+        from codev_engine.mp import active_sets as mpqp_graph
+        from codev_engine.mp import mpqp_kernel as mpqp_jit
+
+        self.kernel, self.regions, self.stats = kernel, regions, stats
+        self.parts: list[RegionArrays] = []  # the latest batches' regions
+        self.chunks: list[RegionArrays] = []  # the earlier ones, in larger arrays
+        self.found = len(regions)  # regions in both
+        self.shared: tuple[np.ndarray, np.ndarray] | None = None  # the kernel's At rows
+        self.jit = mpqp_jit
+        self.evaluate_batch = mpqp_jit.evaluate_batch
+        self.codes = {name: code for code, name in mpqp_jit.STATUS_NAMES.items()}
+        m = kernel.m
+        opp = np.zeros((m, m), dtype=bool)
+        for i, js in opposite.items():
+            opp[i, list(js)] = True
+        self.graph = mpqp_graph.ActiveSetGraph(m, kernel.nz, opp, kernel.box[0])
+        self.graph.seed(explored, stack)
+
+    def run(self, nworkers: int, max_regions: int, progress) -> None:
+        """Walk until the stack is empty (with a pool of ``nworkers`` threads; this one
+        takes the results)."""
+        graph, args = self.graph, self.kernel._jit_args
+        pool = None
+        inflight: deque = deque()  # (keys, starts, AsyncResult or None), oldest first
+        try:
+            while len(graph) or inflight:
+                if pool is None and nworkers > 1 and self.found >= PARALLEL_AFTER:
+                    from multiprocessing.pool import ThreadPool
+
+                    pool = ThreadPool(nworkers)
+                while len(graph) and len(inflight) < _DEPTH:
+                    keys, starts = graph.pop(_CHUNK)
+                    job = None
+                    if pool is not None:
+                        job = pool.apply_async(self.evaluate_batch, (keys, starts, args))
+                    inflight.append((keys, starts, job))
+                keys, starts, job = inflight.popleft()
+                result = self.evaluate_batch(keys, starts, args) if job is None else job.get()
+                self._take(keys, result)
+                if progress is not None:
+                    progress(self.found)
+                if self.found > max_regions:
+                    raise SolverError(too_many_regions(max_regions))
+        finally:
+            self.stats["explored"] = graph.explored
+            if pool is not None:
+                pool.terminate()
+                pool.join()
+                self.stats["workers"] = nworkers
+
+    def _take(self, keys: np.ndarray, result: tuple) -> None:
+        """Record a batch's regions and push its neighbours; the candidates the compiled
+        kernel could not conclude on go to the numpy kernel, one by one."""
+        (status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off, swaps, swaps_off,
+         points) = result
+        jit, stats = self.jit, self.stats
+        stats["candidates"] = stats.get("candidates", 0) + status.size
+        stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
+        counts = np.bincount(status, minlength=jit.FALLBACK + 1)
+        for code, name in jit.STATUS_NAMES.items():
+            _count_class(stats, name, int(counts[code]))
+        # the candidates handed back, through the numpy kernel (it does not depend on the
+        # walk's state); their regions are kept in their place among the batch's
+        back = np.flatnonzero(status == jit.FALLBACK)
+        stats["handed_back"] = stats.get("handed_back", 0) + back.size
+        results = []
+        for c in back:
+            act = tuple(acts[c, : sizes[c]].tolist())
+            results.append(self.kernel.evaluate_numpy(act))
+            stats["lps"] += int(results[-1][4])
+            _count_class(stats, results[-1][0])
+        full = np.flatnonzero(status == jit.FULL)
+        mine = self._pack(full, acts, sizes, rows_off, A, b, K, k) if full.size else None
+        handed = [
+            (int(c), CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1],
+                                    active=tuple(acts[c, : sizes[c]].tolist())))
+            for c, (st, rows, law, _, _) in zip(back, results, strict=True) if st == "full"
+        ]
+        if handed:
+            theirs = RegionArrays.from_regions([reg for _, reg in handed])
+            at = np.array([c for c, _ in handed])
+            if mine is not None:
+                theirs = RegionArrays.concat([mine, theirs])
+                at = np.concatenate([full, at])
+            mine = theirs.take(np.argsort(at, kind="stable"))
+        if mine is not None:
+            self._keep(mine)
+        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off, points)
+        for c, (st, _, _, mv, _) in zip(back, results, strict=True):
+            mv = np.zeros(0, dtype=np.int64) if mv is None else np.asarray(mv, dtype=np.int64)
+            no_swaps = np.zeros((0, 2), dtype=np.int64)
+            self.graph.visit(
+                keys[c : c + 1], np.array([self.codes[st]]), mv, np.array([0, mv.size]),
+                no_swaps, np.zeros(2, dtype=np.int64), points[c : c + 1],
+            )
+
+    def _pack(self, full, acts, sizes, rows_off, A, b, K, k) -> RegionArrays:
+        """The regions ``full`` of a batch as packed arrays (copies: a view would keep
+        the whole batch alive), without the parameter set's rows, which the compiled kernel
+        puts last in every region: they are held once (``RegionArrays.shared_A``)."""
+        r0, r1 = rows_off[full], rows_off[full + 1]
+        p = self.kernel.At.shape[0]
+        implied = np.zeros(full.size, dtype=bool)
+        if p and self.shared is None:
+            self.shared = (A[r1[0] - p : r1[0]].copy(), b[r1[0] - p : r1[0]].copy())
+        if p:
+            tail = r1[:, None] - p + np.arange(p)
+            implied = (r1 - r0 >= p) & np.all(
+                np.all(A[tail] == self.shared[0], axis=2) & (b[tail] == self.shared[1]), axis=1
+            )
+        rows, off = segment_indices(r0, r1 - r0 - p * implied)
+        n = sizes[full]
+        part = acts[full]
+        active = part[np.arange(part.shape[1])[None, :] < n[:, None]]
+        aoff = np.zeros(full.size + 1, dtype=np.int64)
+        np.cumsum(n, out=aoff[1:])
+        shared = self.shared or (None, None)
+        return RegionArrays(
+            A[rows], b[rows], off, K[full], k[full], active, aoff, implied, *shared
+        )
+
+    def _keep(self, part: RegionArrays) -> None:
+        self.parts.append(part)
+        self.found += len(part)
+        if len(self.parts) >= _PARTS_PER_CHUNK:
+            # (large arrays are given back to the system when freed; a million small ones
+            # fragment the heap)
+            self.chunks.append(RegionArrays.concat(self.parts))
+            self.parts = []
+
+    def result(self) -> RegionArrays:
+        """Every region found, packed, in the order found (the walk's copies are freed as
+        they are copied)."""
+        parts = [RegionArrays.from_regions(self.regions, self.kernel.nz, self.kernel.d)]
+        parts += self.chunks + self.parts
+        self.regions, self.chunks, self.parts = [], [], []
+        return RegionArrays.concat(parts, consume=True)
+
+
+def _count_class(stats: dict, status: str, n: int = 1) -> None:
+    """Count ``n`` candidates of class ``status`` ("full", "empty", "lower", "licq" or
+    "singular") as ``stats["candidates_<status>"]`` (only once there is one)."""
+    if n:
+        key = f"candidates_{status}"
+        stats[key] = stats.get(key, 0) + n
+
+
+def _start_pool(kernel: _Kernel, nworkers: int):
+    """A pool of workers sharing ``kernel``: threads once the compiled kernel runs, forked
+    processes otherwise (None where fork is unavailable)."""
+    global _KERNEL
+    import multiprocessing as mp
+
+    _KERNEL = kernel
+    if kernel._jit is not None:
+        # the compiled kernel releases the GIL: threads share everything, and nothing
+        # is pickled
+        from multiprocessing.pool import ThreadPool
+
+        return ThreadPool(nworkers)
+    try:
+        ctx = mp.get_context("fork")
+    except ValueError:  # pragma: no cover - no fork on this platform: stay serial
+        return None
+    return ctx.Pool(nworkers)
+
+
+def _merge_equal_laws(regions: RegionArrays, scale: float, stats: dict) -> RegionArrays:
+    """One region per affine law where the union is provably convex.
+
+    Where LICQ fails on a full-dimensional set (more constraints tight than independent),
+    several active sets give the same law on overlapping regions (the multipliers are not
+    unique). Regions with equal laws are merged pairwise while the union is convex
+    (``merge.merge_regions``, an exact envelope test), which removes the overlaps. Regions
+    whose law no other has stay as they are, in their place.
+    """
+    from codev_engine.mp.merge import merge_regions
+
+    n = len(regions)
+    if not n:
+        return regions
+    nz, d = regions.K.shape[1:]
+    laws = np.concatenate([regions.K, regions.k[:, :, None]], axis=2).reshape(n, nz * (d + 1))
+    laws *= 1.0 / (1e-7 * max(scale, 1.0))
+    np.rint(laws, out=laws)  # (np.round took 30x as long on pop_mpqp_024)
+    laws += 0.0  # (-0.0 made +0.0)
+    h = row_hashes(laws)
+    _, hinv, hcount = np.unique(h, return_inverse=True, return_counts=True)
+    cand = np.flatnonzero(hcount[hinv.reshape(-1)] > 1)  # (a hash shared: maybe a law)
+    if cand.size == 0:
+        return regions
+    _, cfirst, cinv, ccount = np.unique(
+        laws[cand], axis=0, return_index=True, return_inverse=True, return_counts=True
+    )
+    cinv = cinv.reshape(-1)
+    if np.all(ccount == 1):
+        return regions
+    # the groups with a shared law, in the order of their first region; each is merged on
+    # its own (merge_regions keeps a group's order) and put where its first region was
+    lone = np.ones(n, dtype=bool)
+    pieces: dict[int, RegionArrays] = {}
+    for g in np.flatnonzero(ccount > 1):
+        idx = cand[cinv == g]  # ascending
+        lone[idx] = False
+        group = [regions[int(i)] for i in idx]
+        As, bs, src = merge_regions([r.A for r in group], [r.b for r in group], [b""] * idx.size)
+        pieces[int(idx[0])] = RegionArrays.from_regions(
+            [replace(group[i], A=a, b=b) for a, b, i in zip(As, bs, src, strict=True)]
+        )
+    # the regions in order: runs of regions of their own law, and each group at its first
+    parts: list[RegionArrays] = []
+    start = 0
+    for f in sorted(pieces):
+        run = np.flatnonzero(lone[start:f]) + start
+        parts += [regions.take(run), pieces[f]]
+        start = f + 1
+    parts.append(regions.take(np.flatnonzero(lone[start:]) + start))
+    out = RegionArrays.concat(parts)
+    stats["merged"] = n - len(out)
+    return out
+
+
+def _active_set_at(H, c, C, G, w, S, theta) -> tuple[int, ...]:
+    m = G.shape[0]
+    x, _, flag, info = daqp.solve(
+        H,
+        c + C @ theta,
+        G,
+        w + S @ theta,
+        np.full(m, -1e30),
+        np.zeros(m, dtype=np.int32),
+        iter_limit=10_000,
+        primal_tol=1e-11,
+        dual_tol=1e-12,
+    )
+    if flag != 1:
+        raise SolverError(f"could not solve the QP at the start parameter (DAQP flag {flag})")
+    lam = np.asarray(info["lam"])
+    return tuple(int(i) for i in np.flatnonzero(lam > 0))

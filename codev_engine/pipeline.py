@@ -1,0 +1,148 @@
+"""The pipeline's front: a spec file read, parsed and checked for the stages that follow.
+
+The stages of codev run in this order::
+
+    spec (parse) -> plant (linearise, discretise) -> mpc (condense) -> mp (solve)
+        -> law -> reach (verify) -> view (figures, recordings) / session (cache, replay)
+
+The parser (:mod:`codev_engine.spec.parse`) only validates fields. The two checks that need
+a later stage belong to that stage and are run here, after parsing, by :func:`load_spec`:
+
+* :func:`check_model`: a nonlinear plant must be linearisable (finite ``f`` and Jacobians)
+  at the operating point -- the model stage's precondition;
+* :func:`check_mpc_feasible`: the MPC must be feasible for some state in the state bounds --
+  the synthesis stage's precondition (an LP; it loads python-control, so sessions run it only
+  when the synthesis is not cached).
+
+Both raise the same ``SpecError`` as a field error would: naming the file and the field.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from codev_engine import mpc as _mpc
+from codev_engine.errors import SpecError
+from codev_engine.spec.parse import parse_spec, read_spec
+from codev_engine.spec.problem import Problem
+
+__all__ = ["load_spec", "loads_spec", "check_model", "check_mpc_feasible"]
+
+
+def load_spec(path: str | Path, *, check_mpc: bool = True) -> Problem:
+    """Read, parse and check a spec TOML file: the problem every stage can run.
+
+    Parameters
+    ----------
+    path : str or Path
+        The spec file.
+    check_mpc : bool
+        Also check that the MPC is feasible somewhere (an LP on the discretised model, which
+        imports python-control). Sessions pass False and check it only when synthesis is not
+        cached: a cached law proves it.
+
+    Returns
+    -------
+    Problem
+        The validated problem; ``source`` is the file text and ``path`` is ``str(path)``.
+
+    Raises
+    ------
+    SpecError
+        The first problem found in the file (unreadable file, TOML syntax, unknown or missing
+        field, wrong type, shape or value, a plant not linearisable at the operating point,
+        an infeasible MPC), naming the file and the dotted field.
+    """
+    return _checked(read_spec(path), check_mpc=check_mpc)
+
+
+def loads_spec(text: str, *, path: str = "<string>", check_mpc: bool = True) -> Problem:
+    """Parse and check a spec given as TOML text (see :func:`load_spec`).
+
+    Parameters
+    ----------
+    text : str
+        The TOML document.
+    path : str, optional
+        Name used for ``Problem.path`` and in error messages.
+    check_mpc : bool
+        See :func:`load_spec`.
+
+    Returns
+    -------
+    Problem
+        The validated problem.
+
+    Raises
+    ------
+    SpecError
+        As :func:`load_spec`.
+    """
+    return _checked(parse_spec(text, path=path), check_mpc=check_mpc)
+
+
+def _checked(problem: Problem, *, check_mpc: bool) -> Problem:
+    check_model(problem)
+    if check_mpc:
+        check_mpc_feasible(problem)
+    return problem
+
+
+def check_model(problem: Problem) -> None:
+    """Check that a nonlinear plant is linearisable at the operating point.
+
+    Parameters
+    ----------
+    problem : Problem
+        A parsed problem. Plants given by matrices, and explicit discrete models, pass.
+
+    Raises
+    ------
+    SpecError
+        ``field="model.operating_point"`` when ``f(x_op, u_op)`` or a Jacobian there has
+        non-finite entries; the error names the spec's file.
+    """
+    plant, model = problem.plant, problem.model
+    if plant.dynamics is None or model.A is not None:
+        return
+    from codev_engine.plant import linearize
+
+    with np.errstate(all="ignore"):
+        Ac, Bc, f0 = linearize(plant, model.x_op, model.u_op)
+    for label, arr in (
+        ("f(x_op, u_op)", f0),
+        ("the state Jacobian", Ac),
+        ("the input Jacobian", Bc),
+    ):
+        if not np.all(np.isfinite(arr)):
+            raise SpecError(
+                f"the dynamics cannot be linearised at the operating point: {label} has "
+                "non-finite entries",
+                field="model.operating_point",
+                file=problem.path or "<string>",
+            )
+
+
+def check_mpc_feasible(problem: Problem) -> None:
+    """Check that the MPC is feasible for some initial state in the state bounds.
+
+    Parameters
+    ----------
+    problem : Problem
+        A parsed problem.
+
+    Raises
+    ------
+    SpecError
+        ``field="mpc"`` when the MPC is infeasible for every state; the error names the spec's
+        file.
+    SolverError
+        When the LP solver fails.
+    """
+    try:
+        _mpc.check_feasible(problem)
+    except SpecError as exc:
+        file = problem.path or "<string>"
+        raise (exc.with_file(file) if exc.file is None else exc) from None

@@ -1,0 +1,491 @@
+"""Exact-flow reachability of an affine plant in closed loop with an explicit law.
+
+Reach sets are *star sets* ``{c + V alpha : alpha in P}`` over the initial box's
+coordinates ``alpha`` (``P`` starts as ``[-1, 1]^n``). Between samples the closed loop of
+one region is an affine ODE, so the star at any time ``tau`` after the sample is the exact
+affine image ``Phi(tau) (c + V alpha) + g(tau)`` (matrix exponentials). At a sample the
+star is split exactly by the regions it meets: the child for region ``i`` adds the rows
+``A_i (c + V alpha) <= b_i`` to ``P``. So the only over-approximation is between grid
+points, where it is bounded as follows (the soundness argument, see docs/verification.md):
+
+* Every trajectory is C^2 on a segment ``[tau_j, tau_j + h]`` and its second derivative
+  obeys ``d/dt xdd = M xdd`` (``M = A`` for zoh, ``A + B F_i`` for continuous hold), so
+  ``|xdd(tau_j + s)| <= expm(|M| h) |xdd(tau_j)|`` element-wise, and ``|xdd(tau_j)|`` is
+  maximised at a vertex of the star (it is affine in ``alpha``).
+* Linear interpolation error of a C^2 function on a segment of length ``h`` is at most
+  ``h^2 / 8 max |xdd|`` per component; the interpolant lies in the hull of the boxes of the
+  two end stars. Hence segment box = hull(end boxes) +- E_j.
+* Floating point: stars carry an error bound ``err`` (n,) propagated as
+  ``|Phi| err + 1e-12 (|Phi||c| + |Phi V| 1 + |g|)``: the matrix exponentials and the short
+  products here are accurate to ~1e-15 relative, so 1e-12 is a wide margin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import expm
+
+from codev_engine.geometry.polytope import (
+    chebyshev_ball,
+    minimal_rows,
+    normalize_rows,
+    solve_lp,
+    vertices,
+)
+from codev_engine.law import ExplicitLaw
+from codev_engine.plant import symbolic_model
+from codev_engine.reach.tube import Tube
+from codev_engine.spec.problem import Problem
+
+__all__ = ["AffinePlant", "affine_plant", "LinearReach", "Finding"]
+
+_REL = 1e-12  # relative floating-point margin per propagated quantity
+
+
+@dataclass(frozen=True)
+class AffinePlant:
+    """``dx/dt = Ac x + Bc u + f0`` in plant coordinates."""
+
+    Ac: np.ndarray
+    Bc: np.ndarray
+    f0: np.ndarray
+
+
+def affine_plant(problem: Problem) -> AffinePlant | None:
+    """The plant as an affine ODE, or None when it is nonlinear."""
+    pl = problem.plant
+    if pl.A is not None and pl.B is not None:
+        return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
+    if pl.dynamics is None:
+        return None
+    sym = symbolic_model(problem)
+    if sym.Jx.free_symbols or sym.Ju.free_symbols:
+        return None
+    zero = {s: 0 for s in (*sym.x, *sym.u)}
+    f0 = np.array([float(e.subs(zero)) for e in sym.f], dtype=float)
+    return AffinePlant(
+        np.array(sym.Jx.tolist(), dtype=float), np.array(sym.Ju.tolist(), dtype=float), f0
+    )
+
+
+@dataclass
+class _Star:
+    c: np.ndarray  # (n,)
+    V: np.ndarray  # (n, na)
+    H: np.ndarray  # (r, na)  alpha-polytope rows
+    h: np.ndarray  # (r,)
+    verts: np.ndarray  # (nv, na)
+    err: np.ndarray  # (n,)
+    k: int  # sample index
+    path: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A property violation found on the over-approximation.
+
+    ``alpha`` is set when the violation is *exact* (a concrete initial state reaches it:
+    ``x0 = c0 + V0 alpha``); otherwise it is only a possible violation.
+    """
+
+    kind: str  # "unsafe", "safe", "input_bounds", "undefined"
+    index: int
+    t: float
+    alpha: np.ndarray | None
+
+
+class ClosedLoopSetup:
+    """What both reach engines (linear and nonlinear) read from the problem and the law.
+
+    Sets ``n, m, Ts, T``, the normalised ``unsafe``/``safe`` sets, the input-bound check
+    (``check_u``, ``u_min``, ``u_max`` with a 1e-7 slack), the law's region boxes, the
+    initial box as centre ``c0`` and generator ``V0``, and empty ``tubes``/``findings``.
+    """
+
+    problem: Problem
+    law: ExplicitLaw
+
+    def _init_properties(self) -> None:
+        p = self.problem
+        vs = p.verify
+        self.n, self.m = p.plant.n, p.plant.m
+        self.Ts = float(p.model.sample_time)
+        self.T = float(vs.time_horizon)
+        self.unsafe = [normalize_rows(*s.halfspaces())[:2] for s in vs.unsafe]
+        self.safe = [normalize_rows(*s.halfspaces())[:2] for s in vs.safe]
+        self.check_u = bool(vs.input_bounds)
+        # the law meets its own input bounds only up to round-off and the 1e-9 tolerance of
+        # point location on region boundaries: input bounds are checked with 1e-7 slack
+        self.u_min = np.asarray(p.mpc.u_min, float) - 1e-7 * (1 + np.abs(p.mpc.u_min))
+        self.u_max = np.asarray(p.mpc.u_max, float) + 1e-7 * (1 + np.abs(p.mpc.u_max))
+        self.boxes_lo, self.boxes_hi = self.law.boxes
+        self.c0 = 0.5 * (vs.initial_lower + vs.initial_upper)
+        self.V0 = np.diag(0.5 * (vs.initial_upper - vs.initial_lower))
+        self.tubes: list[Tube] = []
+        self.findings: list[Finding] = []
+
+
+@dataclass
+class LinearReach(ClosedLoopSetup):
+    """Reachability engine for one problem, law and hold (see module docstring)."""
+
+    problem: Problem
+    law: ExplicitLaw
+    plant: AffinePlant
+    hold: str
+    max_depth: int
+    stats: dict = field(default_factory=lambda: {"branches": 0, "refinements": 0, "boxes": 0})
+
+    def __post_init__(self) -> None:
+        p = self.problem
+        vs = p.verify
+        self._init_properties()
+        self.step = float(vs.step)
+        self._flows: dict = {}
+
+    # ---- flows --------------------------------------------------------------------------
+
+    def _mode(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """(M, v) of the affine ODE in region i for continuous hold; (Ac, f0) for zoh."""
+        pl = self.plant
+        if self.hold == "zoh":
+            return pl.Ac, pl.f0
+        F, G = self.law.F[i], self.law.G[i]
+        return pl.Ac + pl.Bc @ F, pl.Bc @ G + pl.f0
+
+    def _flow(self, i: int, taus: np.ndarray):
+        """Flow of region i's closed loop: x(tau) = Phi x_k + g.
+
+        Returns Phi (J, n, n), g (J, n) and the *magnitudes* Pm (J, n, n), gm (J, n) that
+        bound the rounding error of Phi and g relative to the terms they are computed from
+        (``|E11| + |E12||F|`` for zoh: the sum can cancel, e.g. for a deadbeat law, and
+        its error scales with the terms, not with the result).
+        """
+        key = (i if self.hold == "continuous" else -1, taus.tobytes())
+        hit = self._flows.get(key)
+        if hit is None:
+            n, m = self.n, self.m
+            pl = self.plant
+            if self.hold == "zoh":
+                # state (x, u, 1): xdot = Ac x + Bc u + f0, udot = 0
+                Ma = np.zeros((n + m + 1, n + m + 1))
+                Ma[:n, :n] = pl.Ac
+                Ma[:n, n : n + m] = pl.Bc
+                Ma[:n, -1] = pl.f0
+            else:
+                M, v = self._mode(i)
+                Ma = np.zeros((n + 1, n + 1))
+                Ma[:n, :n] = M
+                Ma[:n, -1] = v
+            E = expm(taus[:, None, None] * Ma[None])
+            # scaling-and-squaring error grows with expm(|Ma| tau), not with |expm(Ma tau)|
+            Emag = expm(taus[:, None, None] * np.abs(Ma)[None])
+            hit = (E, Emag)
+            self._flows[key] = hit
+        E, Emag = hit
+        n = self.n
+        if self.hold == "zoh":
+            F, G = self.law.F[i], self.law.G[i]
+            E11, E12, E13 = E[:, :n, :n], E[:, :n, n : n + self.m], E[:, :n, -1]
+            M11, M12, M13 = Emag[:, :n, :n], Emag[:, :n, n : n + self.m], Emag[:, :n, -1]
+            Phi = E11 + E12 @ F
+            g = np.einsum("jnm,m->jn", E12, G) + E13
+            Pm = M11 + M12 @ np.abs(F)
+            gm = np.einsum("jnm,m->jn", M12, np.abs(G)) + M13
+            return Phi, g, Pm, gm
+        return E[:, :n, :n], E[:, :n, -1], Emag[:, :n, :n], Emag[:, :n, -1]
+
+    # ---- one period of one branch ----------------------------------------------------
+
+    def _images(self, s: _Star, i: int, taus: np.ndarray):
+        Phi, g, Pm, gm = self._flow(i, taus)
+        X = Phi @ s.c + g  # (J, n)
+        W = Phi @ s.V  # (J, n, na)
+        Y = X[:, None, :] + np.einsum("jna,va->jvn", W, s.verts)  # (J, nv, n)
+        # the true Phi is within _REL * Pm of the computed one (element-wise), likewise g
+        bound = np.abs(Phi) + _REL * Pm
+        err = (
+            bound @ s.err + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm) + 1e-300
+        )
+        return X, W, Y, err
+
+    def _segments(self, s: _Star, i: int, taus: np.ndarray):
+        """Boxes of the segments between consecutive taus, and the input boxes."""
+        X, W, Y, err = self._images(s, i, taus)
+        lo = Y.min(axis=1) - err
+        hi = Y.max(axis=1) + err
+        pl = self.plant
+        F, G = self.law.F[i], self.law.G[i]
+        M, _ = self._mode(i)
+        if self.hold == "zoh":
+            xk = s.c[None, :] + s.verts @ s.V.T  # (nv, n) states at the sample
+            uv = xk @ F.T + G  # (nv, m)
+            acc = Y @ (pl.Ac @ pl.Ac).T + ((uv @ pl.Bc.T + pl.f0) @ pl.Ac.T)[None]
+            u_lo = np.repeat((uv.min(axis=0) - np.abs(F) @ s.err)[None], len(taus) - 1, 0)
+            u_hi = np.repeat((uv.max(axis=0) + np.abs(F) @ s.err)[None], len(taus) - 1, 0)
+        else:
+            _, v = self._mode(i)
+            acc = Y @ (M @ M).T + (M @ v)[None, None]
+        amax = np.abs(acc).max(axis=1)  # (J, n)
+        amax = amax * (1 + 1e-9) + err @ (np.abs(M) @ np.abs(M)).T
+        hseg = np.diff(taus)
+        growth = expm(hseg[:, None, None] * np.abs(M)[None])
+        E = (hseg**2 / 8.0)[:, None] * np.einsum("jab,jb->ja", growth, amax[:-1])
+        slo = np.minimum(lo[:-1], lo[1:]) - E
+        shi = np.maximum(hi[:-1], hi[1:]) + E
+        if self.hold == "continuous":
+            U = Y @ F.T + G  # (J, nv, m)
+            ue = np.abs(F) @ err.T  # (m, J)
+            ulo = U.min(axis=1) - ue.T
+            uhi = U.max(axis=1) + ue.T
+            uE = E @ np.abs(F).T
+            u_lo = np.minimum(ulo[:-1], ulo[1:]) - uE
+            u_hi = np.maximum(uhi[:-1], uhi[1:]) + uE
+        return X, W, err, slo, shi, u_lo, u_hi
+
+    def _bad_segments(self, slo, shi, u_lo, u_hi) -> np.ndarray:
+        """(J-1,) mask of segments whose box may violate a property."""
+        bad = np.zeros(slo.shape[0], dtype=bool)
+        for A, b in self.unsafe:
+            # box meets {A x <= b} unless one row separates them
+            low = np.where(A > 0, A, 0) @ slo.T + np.where(A < 0, A, 0) @ shi.T  # (r, J)
+            maybe = ~np.any(low > b[:, None], axis=0)
+            for j in np.flatnonzero(maybe & ~bad):
+                if _box_meets(A, b, slo[j], shi[j]):
+                    bad[j] = True
+        for A, b in self.safe:
+            high = np.where(A > 0, A, 0) @ shi.T + np.where(A < 0, A, 0) @ slo.T
+            bad |= np.any(high > b[:, None], axis=0)
+        if self.check_u:
+            bad |= np.any(u_lo < self.u_min, axis=1) | np.any(u_hi > self.u_max, axis=1)
+        return bad
+
+    def _exact_violation(self, s: _Star, i: int, tau: float, t: float) -> Finding | None:
+        """Is there alpha in P whose exact trajectory violates a property at tau?"""
+        X, W, _, err = self._images(s, i, np.array([tau]))
+        X, W, err = X[0], W[0], err[0]
+        margin = float(np.max(err)) * 10 + 1e-12
+        for idx, (A, b) in enumerate(self.unsafe):
+            # maximise r s.t. A (X + W a) + r <= b, a in P
+            na = W.shape[1]
+            Aa = np.vstack(
+                [
+                    np.hstack([A @ W, np.ones((A.shape[0], 1))]),
+                    np.hstack([s.H, np.zeros((s.H.shape[0], 1))]),
+                ]
+            )
+            ba = np.concatenate([b - A @ X, s.h])
+            f = np.zeros(na + 1)
+            f[-1] = -1.0
+            ub = np.full(na + 1, np.inf)
+            ub[-1] = 1.0
+            x, st, _ = solve_lp(f, Aa, ba, ub=ub)
+            if st == "optimal" and x[-1] >= margin:
+                return Finding("unsafe", idx, t, x[:na])
+        for idx, (A, b) in enumerate(self.safe):
+            for r in range(A.shape[0]):
+                x, st, _ = solve_lp(-(A[r] @ W), s.H, s.h)
+                if st == "optimal" and A[r] @ (X + W @ x) > b[r] + margin:
+                    return Finding("safe", idx, t, x)
+        if self.check_u:
+            F, G = self.law.F[i], self.law.G[i]
+            if self.hold == "zoh":
+                Xu, Wu = s.c, s.V
+            else:
+                Xu, Wu = X, W
+            for r in range(self.m):
+                for sign, bound in ((1.0, self.u_max[r]), (-1.0, -self.u_min[r])):
+                    if not np.isfinite(bound):
+                        continue
+                    row = sign * F[r]
+                    x, st, _ = solve_lp(-(row @ Wu), s.H, s.h)
+                    if st == "optimal" and row @ (Xu + Wu @ x) + sign * G[r] > bound + margin:
+                        return Finding("input_bounds", r, t, x)
+        return None
+
+    def _period(self, s: _Star, i: int) -> _Star | None:
+        """Propagate star s (at sample k, in region i) through one period; check it."""
+        t_k = s.k * self.Ts
+        tau_end = min(self.Ts, self.T - t_k)
+        taus = _grid(tau_end, self.step)
+        X, W, err, slo, shi, u_lo, u_hi = self._segments(s, i, taus)
+        bad = self._bad_segments(slo, shi, u_lo, u_hi)
+        t0 = np.full(len(taus) - 1, t_k) + taus[:-1]
+        t1 = np.full(len(taus) - 1, t_k) + taus[1:]
+        keep = ~bad
+        branch = self.stats["branches"]
+        self.tubes.append(
+            Tube(t0[keep], t1[keep], slo[keep], shi[keep], np.full(int(keep.sum()), branch))
+        )
+        for j in np.flatnonzero(bad):
+            if not self._resolve(s, i, taus[j], taus[j + 1], 0, slo[j], shi[j], branch):
+                return None
+        if t_k + tau_end >= self.T - 1e-12:
+            return None
+        return _Star(X[-1], W[-1], s.H, s.h, s.verts, err[-1], s.k + 1, s.path)
+
+    def _resolve(self, s, i, ta, tb, depth, blo, bhi, branch) -> bool:
+        """Decide a suspicious segment: exact violation, or refine it in time.
+
+        Returns False when a concrete violation was found (the branch stops).
+        """
+        t_k = s.k * self.Ts
+        for tau in (ta, tb):
+            f = self._exact_violation(s, i, tau, t_k + tau)
+            if f is not None:
+                self.findings.append(f)
+                self.tubes.append(
+                    Tube(
+                        np.array([t_k + ta]),
+                        np.array([t_k + tb]),
+                        blo[None],
+                        bhi[None],
+                        np.array([branch]),
+                    )
+                )
+                return False
+        if depth >= self.max_depth:
+            self.findings.append(Finding("max_depth", -1, t_k + ta, None))
+            self.tubes.append(
+                Tube(
+                    np.array([t_k + ta]),
+                    np.array([t_k + tb]),
+                    blo[None],
+                    bhi[None],
+                    np.array([branch]),
+                )
+            )
+            return True
+        self.stats["refinements"] += 1
+        taus = np.linspace(ta, tb, 5)
+        _, _, _, slo, shi, u_lo, u_hi = self._segments(s, i, taus)
+        bad = self._bad_segments(slo, shi, u_lo, u_hi)
+        keep = ~bad
+        self.tubes.append(
+            Tube(
+                t_k + taus[:-1][keep],
+                t_k + taus[1:][keep],
+                slo[keep],
+                shi[keep],
+                np.full(int(keep.sum()), branch),
+            )
+        )
+        for j in np.flatnonzero(bad):
+            if not self._resolve(s, i, taus[j], taus[j + 1], depth + 1, slo[j], shi[j], branch):
+                return False
+        return True
+
+    # ---- samples: domain check and split --------------------------------------------
+
+    def _split(self, s: _Star) -> list[tuple[int, _Star]] | Finding:
+        """Children of s, one per region it meets, or a Finding if it leaves the domain."""
+        Y = s.c[None, :] + s.verts @ s.V.T
+        lo = Y.min(axis=0) - s.err
+        hi = Y.max(axis=0) + s.err
+        law = self.law
+        t = s.k * self.Ts
+        if law.domain_A is not None and law.domain_A.shape[0]:
+            A, b = law.domain_A, law.domain_b
+            viol = Y @ A.T + (np.abs(A) @ s.err)[None, :] - b[None, :]  # (nv, r)
+            if np.max(viol) > 0:
+                v = int(np.argmax(np.max(viol, axis=1)))
+                exact = np.max(Y[v] @ A.T - b) > 10 * np.max(s.err) + 1e-12
+                if exact:
+                    return Finding("undefined", -1, t, s.verts[v])
+                # only the over-approximation leaves the domain: say so, and go on with the
+                # part inside the regions so the tube still holds every trajectory for as
+                # long as its law is defined
+                self.findings.append(Finding("undefined", -1, t, None))
+        cand = np.flatnonzero(
+            np.all(self.boxes_lo <= hi + 1e-9, axis=1) & np.all(self.boxes_hi >= lo - 1e-9, axis=1)
+        )
+        children = []
+        for r in cand:
+            A, b = law.A[r], law.b[r]
+            Hn = A @ s.V
+            hn = b - A @ s.c + np.abs(A) @ s.err + 1e-9
+            H = np.vstack([s.H, Hn])
+            h = np.concatenate([s.h, hn])
+            H, h, ok = normalize_rows(H, h)
+            if not ok:
+                continue
+            _, radius = chebyshev_ball(H, h)
+            if not radius > 0:
+                continue
+            keep = minimal_rows(H, h)
+            H, h = H[keep], h[keep]
+            verts = _checked_vertices(H, h)
+            children.append((int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),))))
+        if not children:
+            self.findings.append(Finding("undefined", -1, t, None))
+        return children
+
+    def run(self) -> None:
+        """Explore every branch; results in ``self.tubes`` and ``self.findings``."""
+        n = self.n
+        H0 = np.vstack([np.eye(n), -np.eye(n)])
+        h0 = np.ones(2 * n)
+        verts0 = _box_vertices(H0, h0)
+        stack = [_Star(self.c0.copy(), self.V0.copy(), H0, h0, verts0, np.zeros(n), 0)]
+        while stack:
+            s = stack.pop()
+            out = self._split(s)
+            if isinstance(out, Finding):
+                self.findings.append(out)
+                if out.alpha is not None:
+                    return
+                continue
+            for i, child in out:
+                self.stats["branches"] += 1
+                nxt = self._period(child, i)
+                if any(f.alpha is not None for f in self.findings):
+                    return
+                if nxt is not None:
+                    stack.append(nxt)
+
+
+def _grid(tau_end: float, step: float) -> np.ndarray:
+    k = max(1, int(np.ceil(tau_end / step - 1e-9)))
+    taus = np.minimum(np.arange(k + 1) * step, tau_end)
+    taus[-1] = tau_end
+    return taus
+
+
+def _checked_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Vertices of {H a <= h} (non-redundant rows), or of its bounding box.
+
+    Soundness needs *every* vertex: a lost vertex would shrink the reach set. The enumerated
+    set is accepted only if every facet carries at least ``na`` of them (true for any
+    polytope); otherwise the bounding box's vertices are used, which over-approximates.
+    """
+    na = H.shape[1]
+    V = vertices(H, h, tol=1e-10)
+    if V is not None and V.shape[0] > na:
+        on = np.abs(V @ H.T - h[None, :]) <= 1e-8
+        if np.all(on.sum(axis=0) >= na):
+            return V
+    return _box_vertices(H, h)
+
+
+def _box_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Vertices of the bounding box of {H a <= h} (sound over-approximation of P)."""
+    na = H.shape[1]
+    lo, hi = np.empty(na), np.empty(na)
+    for j in range(na):
+        e = np.zeros(na)
+        e[j] = 1.0
+        x, _, _ = solve_lp(e, H, h)
+        lo[j] = x[j]
+        x, _, _ = solve_lp(-e, H, h)
+        hi[j] = x[j]
+    grids = np.stack(np.meshgrid(*[[lo[j], hi[j]] for j in range(na)], indexing="ij"), -1)
+    return grids.reshape(-1, na)
+
+
+def _box_meets(A: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Does the box [lo, hi] meet {A x <= b} (closed sets)?"""
+    n = lo.shape[0]
+    x, st, _ = solve_lp(np.zeros(n), A, b + 1e-12, lb=lo, ub=hi)
+    return st == "optimal"

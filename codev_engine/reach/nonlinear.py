@@ -1,0 +1,1031 @@
+"""Sound reachtubes for nonlinear plants: simulation + on-the-fly discrepancy, made rigorous.
+
+The reach set at a sample time is ``{y + D d + M e + r : d in P, |e|_2 <= 1}``: a centre
+``y``, a *sensitivity* matrix ``D`` applied to the initial deviation ``d`` (a polytope ``P``
+of the initial box's coordinates: exact star part), and a *remainder ellipsoid* ``M e``
+that absorbs every error. Within a period (``N`` substeps of length ``h``) the deviation
+from the centre is written ``x - y = Phi (D d + M e) + psi`` where ``Phi`` is the exact
+flow of the centre's Jacobian ``Jc`` (matrix exponentials) and ``psi`` is a local
+remainder bounded in the norm ``|v|_W = |W v|_2`` (see docs/verification.md for the
+proofs):
+
+1. **Centre**: a point trajectory ``y_j`` computed by RK4 (not rigorous) is validated
+   substep by substep: the exact solution from ``y_j`` is enclosed at ``h`` by an interval
+   Taylor step ``y_j + h f(y_j) + h^2/2 (J f)(B^c_j)`` (Lagrange remainder over its
+   a-priori enclosure ``B^c_j``); its distance ``eps_j`` to ``y_{j+1}`` goes into ``psi``.
+2. **A-priori enclosure** ``B_j``: a box with ``S_j + [0, h] f(B_j, U) subset B_j``
+   (Picard-Lindeloef in interval arithmetic, ``S_j`` the box of the set at ``t_j``): every
+   trajectory of the set stays in ``B_j`` over the substep; ``B_j`` is the tube's box.
+3. **Deviation**: by the mean-value theorem ``d/dt (x - z) = Jbar (x - z)`` (+ the held
+   input's deviation) with ``Jbar`` in the interval Jacobian over the hull of ``B_j`` and
+   ``B^c_j``; the point part ``Jc`` drives ``Phi`` exactly, the spread ``E`` (|E| <= R)
+   feeds ``|psi|_W`` through a Groenwall bound with the log-norm ``mu_W(Jc)``.
+4. At the sample the ellipsoid is carried *exactly* through the linear part: the new
+   remainder ellipsoid is an outer ellipsoid of ``Phi M e + psi`` (ellipsoid + ball).
+
+All ``N`` substeps of a period are computed as batches (numpy arrays over substeps): the
+local remainder profile ``rho_j`` is guessed, the enclosures are computed for the guessed
+sets, and the guess is accepted only if the Groenwall bound it leads to stays below it at
+every substep (induction over ``j``); otherwise the guess is raised and the period redone.
+
+Sets that reach the same sample are merged into one star when that costs little (the
+difference of their affine maps is absorbed by the ellipsoid), which keeps the number of
+branches from multiplying at every crossing of a region boundary.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
+
+from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+from codev_engine.law import ExplicitLaw
+from codev_engine.plant import linearize
+from codev_engine.reach.linear import ClosedLoopSetup, Finding
+from codev_engine.reach.tube import Tube
+from codev_engine.spec.problem import Problem
+
+__all__ = ["NonlinearReach"]
+
+_REL = 1e-12
+#: relative allowance for the rounding of matrix exponentials and small matrix products
+#: (about 1e-15 relative at these sizes and step lengths)
+_FPM = 1e-10
+_U = 2.0**-53
+
+
+@dataclass
+class _Set:
+    y: np.ndarray  # (n,) centre
+    D: np.ndarray  # (n, n) sensitivity to the initial deviation
+    M: np.ndarray  # (n, n) remainder ellipsoid {M e : |e|_2 <= 1}
+    k: int  # sample index
+    path: tuple[int, ...] = ()
+    H: np.ndarray | None = None  # initial deviations d satisfy H d <= h ...
+    h: np.ndarray | None = None
+    V: np.ndarray | None = None  # ... a polytope with these vertices (nv, n)
+    base: tuple | None = None  # polytope (H, h, V) this one was cut from (contains it)
+
+    @property
+    def poly(self) -> tuple:
+        return (self.H, self.h, self.V)
+
+    def range(self, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """min and max of A D d over the deviation polytope (attained at vertices)."""
+        vals = self.V @ (A @ self.D).T
+        return vals.min(axis=0), vals.max(axis=0)
+
+    def ell(self, A: np.ndarray) -> np.ndarray:
+        """max of |a' M e| over the unit ball for each row a of A: |M' a|_2 (rounded up)."""
+        return _ell_rows(A @ self.M)
+
+    def mag(self) -> np.ndarray:
+        """(n,) magnitudes bounding |D| |d| + |M| |e| (scale of the products' rounding)."""
+        return np.max(np.abs(self.V) @ np.abs(self.D).T, axis=0) + np.abs(self.M).sum(axis=1)
+
+
+def _ell_rows(AM: np.ndarray) -> np.ndarray:
+    """Row norms (..., k, n) -> (..., k), with a margin for rounding."""
+    return np.sqrt(np.einsum("...ij,...ij->...i", AM, AM)) * (1 + 1e-12) + 1e-300
+
+
+@dataclass
+class _Rec:
+    """One period's sets at the substep starts, for property checks."""
+
+    Y: np.ndarray  # (N, n) centres
+    PD: np.ndarray  # (N, n, n) star matrices
+    PM: np.ndarray  # (N, n, n) ellipsoid generators
+    rho: np.ndarray  # (N,) local remainder radii (W-norm)
+    swlo: np.ndarray  # (N, n) sweep [0, h] f(B) over the substep
+    swhi: np.ndarray
+    V: np.ndarray  # (nv, n) deviation polytope's vertices
+    flo: np.ndarray  # (N, n) f over the substep's enclosure
+    fhi: np.ndarray
+    hs: np.ndarray  # (N,) substep lengths
+    vmag: np.ndarray  # (N, n) magnitudes of the star's and ellipsoid's terms
+
+
+@dataclass
+class NonlinearReach(ClosedLoopSetup):
+    """Reachability engine for a nonlinear plant (see module docstring)."""
+
+    problem: Problem
+    law: ExplicitLaw
+    hold: str
+    max_depth: int
+    progress: Callable[[dict], None] | None = None
+    stats: dict = field(
+        default_factory=lambda: {"branches": 0, "refinements": 0, "partitions": 0, "merges": 0}
+    )
+    #: merge sets at a sample when the merged remainder grows by at most this fraction of
+    #: the set's size (in the W-norm; a heuristic: any merge is sound) ...
+    merge_cost: float = 0.1
+    #: ... and always keep at most this many sets per sample (cheapest merges first)
+    max_sets: int = 4
+
+    def __post_init__(self) -> None:
+        import sympy
+
+        from codev_engine.plant import symbolic_model
+        from codev_engine.reach.interval import plant_enclosures, plant_hessian
+
+        p = self.problem
+        vs = p.verify
+        self.enc = plant_enclosures(p)
+        self.hess = plant_hessian(p)
+        self._init_properties()
+        sym = symbolic_model(p)
+        try:  # scalar point evaluation for the (non-rigorous) centre trajectory
+            fm = sympy.lambdify((*sym.x, *sym.u), list(sym.f), modules="math")
+            fm(*([0.1] * (self.n + self.m)))
+            self._fnum = fm
+        except Exception:
+            from codev_engine.reach.simulate import _dynamics
+
+            fp = _dynamics(p)[0]
+            n = self.n
+            self._fnum = lambda *z: fp(np.array(z[:n]), np.array(z[n:])).tolist()
+        self.h = float(vs.step)
+        self.W, self.Winv = self._metric()
+        cond = float(np.linalg.norm(self.W, 2) * np.linalg.norm(self.Winv, 2))
+        # Winv is the inverse of W up to rounding: directions through Winv are inflated by
+        # far more than cond(W)^2 * n * u
+        self.winv_pad = 1.0 + 64 * self.n * cond * cond * _U + 1e-12
+        self.Wn = float(np.linalg.norm(self.W, 2)) * (1 + 1e-12)
+        self.absW, self.absWinv = np.abs(self.W), np.abs(self.Winv)
+        # |x_i - y_i| <= wrow_i |x - y|_W
+        self.wrow = np.linalg.norm(self.Winv, axis=1) * self.winv_pad
+        self._u_ok: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._rho_hint = 0.0
+
+    # ---- metric ---------------------------------------------------------------------
+
+    def _metric(self) -> tuple[np.ndarray, np.ndarray]:
+        """W with |v|_W = |W v|_2 from a Lyapunov function of the nominal closed loop.
+
+        Any invertible W is sound; a Lyapunov metric of the linearised closed loop at the
+        operating point makes the log-norm negative where the loop contracts, which keeps
+        tubes tight. Falls back to the identity.
+        """
+        p = self.problem
+        try:
+            Ac, Bc, _ = linearize(p.plant, p.model.x_op, p.model.u_op)
+            i = int(self.law.locate(p.model.x_op[None])[0])
+            if i >= 0:
+                A = Ac + Bc @ self.law.F[i]
+                if np.all(np.linalg.eigvals(A).real < 0):
+                    P = solve_continuous_lyapunov(A.T, -np.eye(self.n))
+                    P = 0.5 * (P + P.T)
+                    P /= np.max(np.linalg.eigvalsh(P))
+                    W = np.linalg.cholesky(P).T
+                    if np.linalg.cond(W) < 1e6:
+                        return W, np.linalg.inv(W)
+        except Exception:  # the metric is only a tightness heuristic
+            pass
+        return np.eye(self.n), np.eye(self.n)
+
+    def _ball_rows(self, A: np.ndarray) -> np.ndarray:
+        """max of |a' v| over |v|_W <= 1, for each row a of A."""
+        return np.linalg.norm(A @ self.Winv, axis=-1) * self.winv_pad
+
+    # ---- ellipsoids -----------------------------------------------------------------
+
+    def _ell_plus_ball(self, A: np.ndarray, rho: float) -> np.ndarray:
+        """Generator of an ellipsoid containing {A e} + {v : |v|_W <= rho}.
+
+        E(A) + E(B) lies in E((1 + 1/p) A A' + (1 + p) B B') for every p > 0 (B = rho W^-1);
+        the Cholesky factor of that matrix plus delta I, delta = 1e-12 of its trace (far
+        above the rounding of the products and of the factorisation), is the generator.
+        """
+        n = self.n
+        if rho <= 0.0:
+            return A
+        B = (rho * self.winv_pad * (1 + 1e-12)) * self.Winv
+        t1 = float(np.einsum("ij,ij->", A, A))
+        if t1 == 0.0:
+            return B
+        Q1 = A @ A.T
+        Q2 = B @ B.T
+        t2 = float(np.trace(Q2))
+        p = np.sqrt(t1 / t2)
+        Q = (1 + 1 / p) * Q1 + (1 + p) * Q2
+        Q = 0.5 * (Q + Q.T)
+        Q[np.diag_indices(n)] += 1e-12 * float(np.trace(Q)) + 1e-300
+        try:
+            return np.linalg.cholesky(Q)
+        except np.linalg.LinAlgError:
+            r = float(np.linalg.norm(self.W @ A, 2)) * (1 + 1e-9) + rho
+            return (r * self.winv_pad * (1 + 1e-12)) * self.Winv
+
+    def _ell_hull(self, Ms: list[np.ndarray]) -> np.ndarray:
+        """Generator of an ellipsoid containing every E(M_j) (a scaled one of them).
+
+        E(M_j) is inside E(lam L) when |L^-1 M_j|_2 <= lam; the triangular solves are
+        accurate to cond(L) * n * u relative, covered by the 1e-6 inflation for
+        cond(L) <= 1e6. Otherwise: the W-ball through all of them.
+        """
+        if len(Ms) == 1:
+            return Ms[0]
+        # base: the largest of them (trace), as a lower-triangular factor
+        b = int(np.argmax([float(np.einsum("ij,ij->", M, M)) for M in Ms]))
+        L = Ms[b]
+        if not np.array_equal(L, np.tril(L)):
+            try:
+                L = np.linalg.cholesky(L @ L.T)
+            except np.linalg.LinAlgError:
+                L = None
+        if L is not None:
+            d = np.abs(np.diag(L))
+            if d.min() > 0 and np.linalg.cond(L) <= 1e6:
+                lam = 1.0
+                for Mj in Ms:
+                    X = solve_triangular(L, Mj, lower=True)
+                    lam = max(lam, float(np.linalg.norm(X, 2)))
+                return (lam * (1 + 1e-6)) * L
+        r = max(float(np.linalg.norm(self.W @ Mj, 2)) for Mj in Ms) * (1 + 1e-9)
+        return (r * self.winv_pad * (1 + 1e-12)) * self.Winv
+
+    # ---- enclosures -----------------------------------------------------------------
+
+    def _u_range(self, i: int, xlo: np.ndarray, xhi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Range of u = F_i x + G_i over the box *within region i* (the states that use
+        law i at the sample are in the region): 2m small LPs, falling back to the box."""
+        F, G = self.law.F[i], self.law.G[i]
+        c, r = 0.5 * (xlo + xhi), 0.5 * (xhi - xlo)
+        mid = F @ c + G
+        rad = np.abs(F) @ r
+        blo, bhi = _dn(mid - rad), _up(mid + rad)
+        A, b = self.law.A[i], self.law.b[i] + 1e-9
+        lo, hi = blo.copy(), bhi.copy()
+        for r in range(F.shape[0]):
+            x, st, _ = solve_lp(F[r], A, b, lb=xlo, ub=xhi)
+            if st == "optimal":
+                lo[r] = max(blo[r], F[r] @ x + G[r] - 1e-12 * (1 + np.abs(F[r]) @ np.abs(x)))
+            x, st, _ = solve_lp(-F[r], A, b, lb=xlo, ub=xhi)
+            if st == "optimal":
+                hi[r] = min(bhi[r], F[r] @ x + G[r] + 1e-12 * (1 + np.abs(F[r]) @ np.abs(x)))
+        return lo, hi
+
+    def _region_u(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Range of u = F_i x + G_i over region i (LPs, cached; infinite where an LP fails)."""
+        if i not in self._u_ok:
+            F, G = self.law.F[i], self.law.G[i]
+            A, b = self.law.A[i], self.law.b[i] + 1e-9
+            lo = np.full(F.shape[0], -np.inf)
+            hi = np.full(F.shape[0], np.inf)
+            for r in range(F.shape[0]):
+                for sgn in (1.0, -1.0):
+                    x, st, _ = solve_lp(sgn * F[r], A, b)
+                    if st != "optimal":
+                        continue
+                    v = F[r] @ x + G[r]
+                    pad = 1e-9 * (1 + np.abs(F[r]) @ np.abs(x) + abs(G[r]))
+                    if sgn > 0:
+                        lo[r] = v - pad
+                    else:
+                        hi[r] = v + pad
+            self._u_ok[i] = (lo, hi)
+        return self._u_ok[i]
+
+    def _region_u_ok(self, i: int) -> bool:
+        """Does u = F_i x + G_i meet the input bounds on the whole region i?"""
+        lo, hi = self._region_u(i)
+        return bool(np.all(lo >= self.u_min) and np.all(hi <= self.u_max))
+
+    def _fb(self, lo, hi, i, ulo, uhi):
+        """f over boxes (N, n); ulo None: continuous hold, u = F x + G over the box."""
+        if ulo is None:
+            ulo, uhi = self._u_boxes(i, lo, hi)
+        return self.enc.f(lo, hi, ulo, uhi)
+
+    def _u_boxes(self, i, lo, hi):
+        F, G = self.law.F[i], self.law.G[i]
+        c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
+        mid = c @ F.T + G
+        rad = r @ np.abs(F).T
+        pad = 4 * _U * (np.abs(c) @ np.abs(F).T + np.abs(G) + rad) + 1e-300
+        return _dn(mid - rad - pad), _up(mid + rad + pad)
+
+    def _picard(self, slo, shi, i, ulo, uhi, h):
+        """Boxes B (N, n) with S + [0, h] f(B, U) inside B, batched over rows.
+
+        Returns (Blo, Bhi, flo, fhi, ok): f over the box of the last containment check (the
+        sweep ``[0, h] f`` of the substep lies in ``[h min(flo, 0), h max(fhi, 0)]``) and a
+        mask of the rows whose enclosure was established (the others are infinite).
+        """
+        N = slo.shape[0]
+        hc = h[:, None]
+        flo, fhi = self._fb(slo, shi, i, ulo, uhi)
+        grow = np.maximum(np.abs(flo), np.abs(fhi)) * hc
+        lo = slo - 1.5 * grow - 1e-12 * (1.0 + np.abs(slo))
+        hi = shi + 1.5 * grow + 1e-12 * (1.0 + np.abs(shi))
+        Blo = np.full((N, self.n), -np.inf)
+        Bhi = np.full((N, self.n), np.inf)
+        Flo = np.full((N, self.n), -np.inf)
+        Fhi = np.full((N, self.n), np.inf)
+        ok = np.zeros(N, dtype=bool)
+        todo = np.arange(N)
+        for _ in range(20):
+            ul = uh = None
+            if ulo is not None:
+                ul = ulo if ulo.ndim == 1 else ulo[todo]
+                uh = uhi if uhi.ndim == 1 else uhi[todo]
+            flo, fhi = self._fb(lo[todo], hi[todo], i, ul, uh)
+            hh = hc[todo]
+            dlo, dhi = hh * np.minimum(flo, 0.0), hh * np.maximum(fhi, 0.0)
+            s0, s1 = slo[todo], shi[todo]
+            nlo = s0 + dlo - _add_pad(s0, dlo)
+            nhi = s1 + dhi + _add_pad(s1, dhi)
+            good = np.all(nlo >= lo[todo], axis=1) & np.all(nhi <= hi[todo], axis=1)
+            g = todo[good]
+            Blo[g], Bhi[g], Flo[g], Fhi[g] = nlo[good], nhi[good], flo[good], fhi[good]
+            ok[g] = True
+            todo, nlo, nhi = todo[~good], nlo[~good], nhi[~good]
+            if todo.size == 0:
+                break
+            # iterate the Picard operator with a little inflation (epsilon-inflation); a
+            # blanket widening of every axis feeds back through f and can diverge
+            pad = 0.1 * (nhi - nlo) + 1e-12 * (1.0 + np.abs(nlo) + np.abs(nhi))
+            lo[todo] = np.minimum(lo[todo], nlo - pad)
+            hi[todo] = np.maximum(hi[todo], nhi + pad)
+        return Blo, Bhi, Flo, Fhi, ok
+
+    def _jac(self, lo, hi, i, ulo, uhi):
+        """Interval Jacobians (Jx, Ju) over boxes, for the mode's input."""
+        if ulo is None:
+            ulo, uhi = self._u_boxes(i, lo, hi)
+        return self.enc.jac_x(lo, hi, ulo, uhi), self.enc.jac_u(lo, hi, ulo, uhi)
+
+    # ---- one period ------------------------------------------------------------------
+
+    def _box(self, s: _Set) -> tuple[np.ndarray, np.ndarray]:
+        """Box enclosing the set (exact for the star part, plus the ellipsoid)."""
+        lo, hi = s.range(np.eye(self.n))
+        extra = s.ell(np.eye(self.n))
+        pad = 1e-12 * (np.abs(s.y) + s.mag() + extra) + 1e-15
+        return _dn(s.y + lo - extra - pad), _up(s.y + hi + extra + pad)
+
+    def _centre(self, y0, uc, F, G, hs) -> np.ndarray:
+        """Point trajectory of the centre (RK4 per substep; validated afterwards)."""
+        f = self._fnum
+        zoh = self.hold == "zoh"
+        Y = np.empty((hs.size + 1, self.n))
+        Y[0] = y0
+        x = [float(v) for v in y0]
+        u = [float(v) for v in uc]
+        Fl, Gl = F.tolist(), G.tolist()
+        n = self.n
+
+        def rhs(z):
+            if not zoh:
+                uu = [
+                    sum(a * b for a, b in zip(row, z, strict=True)) + g
+                    for row, g in zip(Fl, Gl, strict=True)
+                ]
+                return f(*z, *uu)
+            return f(*z, *u)
+
+        for j, h in enumerate(hs.tolist()):
+            k1 = rhs(x)
+            k2 = rhs([x[q] + 0.5 * h * k1[q] for q in range(n)])
+            k3 = rhs([x[q] + 0.5 * h * k2[q] for q in range(n)])
+            k4 = rhs([x[q] + h * k3[q] for q in range(n)])
+            x = [x[q] + h / 6.0 * (k1[q] + 2 * k2[q] + 2 * k3[q] + k4[q]) for q in range(n)]
+            Y[j + 1] = x
+        return Y
+
+    def _period(self, s: _Set, i: int):
+        """Reach over one period in region i: (next set, tube, findings, record)."""
+        n, m = self.n, self.m
+        F, G = self.law.F[i], self.law.G[i]
+        t_k = s.k * self.Ts
+        tau_end = min(self.Ts, self.T - t_k)
+        N = max(1, int(np.ceil(tau_end / self.h - 1e-9)))
+        taus = np.minimum(np.arange(N + 1) * self.h, tau_end)
+        taus[-1] = tau_end
+        hs = np.diff(taus)
+        zoh = self.hold == "zoh"
+        y0 = s.y
+        uc = F @ y0 + G  # the centre's input at the sample
+        FDlo, FDhi = s.range(F)
+        FMn = s.ell(F)
+        if zoh:
+            # held input of the set's trajectories: u = uc + F (D d + M e)
+            pad = 1e-12 * (np.abs(F) @ (np.abs(y0) + s.mag()) + np.abs(G) + FMn)
+            ulo = _dn(uc + FDlo - FMn - pad)
+            uhi = _up(uc + FDhi + FMn + pad)
+            # the centre's input may lie outside (y need not be in a cut set): hull
+            ulo, uhi = np.minimum(ulo, _dn(uc)), np.maximum(uhi, _up(uc))
+            FDv = s.V @ (F @ s.D).T
+            du_norm = (
+                float(np.max(np.linalg.norm(FDv, axis=1))) + float(np.linalg.norm(F @ s.M, 2))
+            ) * (1 + 1e-9) + 1e-300
+        # bound of | |D| |d| + |M| |e| |_2 for the rounding allowances
+        dabs = float(np.linalg.norm(s.mag()))
+
+        # 1. centre: point trajectory, validated substep by substep
+        try:
+            Y = self._centre(y0, uc, F, G, hs)
+        except (ValueError, OverflowError, ZeroDivisionError, TypeError):
+            Y = np.full((N + 1, n), np.nan)
+        Y0 = Y[:-1]
+        if not np.all(np.isfinite(Y)):
+            return None, _empty_tube(n), [Finding("max_depth", -1, t_k, None)], None
+        uC = (None, None) if not zoh else (uc, uc)
+        Bclo, Bchi, _, _, okc = self._picard(Y0, Y0, i, uC[0], uC[1], hs)
+        fyl, fyh = self._fb(Y0, Y0, i, *uC)
+        if not okc.all():
+            j = int(np.argmin(okc))
+            return None, _empty_tube(n), [Finding("max_depth", -1, t_k + taus[j], None)], None
+        (jxl, jxh), (jul, juh) = self._jac(Bclo, Bchi, i, *uC)
+        gl, gh = self._fb(Bclo, Bchi, i, *uC)
+        if zoh:
+            Jl, Jh = jxl, jxh
+        else:
+            Jl, Jh = _imat_add_point(jxl, jxh, jul, juh, F)
+        ddl, ddh = _imatvec(Jl, Jh, gl, gh)
+        cjl, cjh = (jxl, jul), (jxh, juh)  # Jacobians along the centre's substep trajectory
+        hc = hs[:, None]
+        t1l, t1h = hc * fyl, hc * fyh
+        h2 = 0.5 * hc * hc
+        t2l, t2h = h2 * np.minimum(ddl, ddh), h2 * np.maximum(ddl, ddh)
+        Tlo = Y0 + t1l + t2l - _add_pad(Y0, t1l, t2l)
+        Thi = Y0 + t1h + t2h + _add_pad(Y0, t1h, t2h)
+        Y1 = Y[1:]
+        eps = np.maximum(Thi - Y1, Y1 - Tlo)
+        eps = np.maximum(eps, 0.0) * (1 + 8 * _U) + 4 * _U * np.abs(Y1) + 1e-300
+        eps_w = np.linalg.norm(eps @ self.absW.T, axis=1) * (1 + 1e-12)
+
+        # 2. Jacobian at the centre and the linear flow Phi (exact up to rounding)
+        (cxl, cxh), (cul, cuh) = self._jac(Y0, Y0, i, *uC)
+        Jxc = 0.5 * (cxl + cxh)
+        Juc = 0.5 * (cul + cuh)
+        if zoh:
+            Me = np.zeros((N, n + m, n + m))
+            Me[:, :n, :n] = Jxc
+            Me[:, :n, n:] = Juc
+            E = expm(Me * hs[:, None, None])
+            Dx, Du = np.eye(n), np.zeros((n, m))
+            Phi = np.empty((N + 1, n, n))
+            Phi[0] = np.eye(n)
+            phin = np.empty(N + 1)  # magnitude of the terms of Phi (rounding allowance)
+            phin[0] = np.sqrt(n)
+            Fn_ = float(np.linalg.norm(F)) + 1.0
+            for j in range(N):
+                Dx, Du = E[j, :n, :n] @ Dx, E[j, :n, :n] @ Du + E[j, :n, n:]
+                Phi[j + 1] = Dx + Du @ F
+                phin[j + 1] = (
+                    np.linalg.norm(Dx) + (np.linalg.norm(Du) + np.linalg.norm(E[j, :n, n:])) * Fn_
+                )
+            Jc = Jxc
+        else:
+            Jc = Jxc + Juc @ F
+            E = expm(Jc * hs[:, None, None])
+            Phi = np.empty((N + 1, n, n))
+            Phi[0] = np.eye(n)
+            for j in range(N):
+                Phi[j + 1] = E[j] @ Phi[j]
+            phin = np.linalg.norm(Phi, axis=(1, 2))
+        # spread of the Jacobian along the exact centre trajectory, about Jc (joint in
+        # (x, u) for zoh; of the closed loop f(x, F x + G) for continuous hold)
+        if zoh:
+            Rc = np.concatenate(
+                [
+                    np.maximum(np.abs(cjl[0] - Jxc), np.abs(cjh[0] - Jxc)),
+                    np.maximum(np.abs(cjl[1] - Juc), np.abs(cjh[1] - Juc)),
+                ],
+                axis=2,
+            )
+        else:
+            Rc = np.maximum(np.abs(Jl - Jc[:, :, :]), np.abs(Jh - Jc))
+        Mw = self.W @ Jc @ self.Winv
+        Sy = 0.5 * (Mw + np.swapaxes(Mw, 1, 2))
+        mu = np.linalg.eigvalsh(Sy)[:, -1] + 1e-12 * (1 + np.abs(Sy).max(axis=(1, 2)))
+        grow = np.exp(np.maximum(mu, 0.0) * hs)
+        PD = Phi @ s.D
+        PM = Phi @ s.M
+        vals = np.einsum("vk,jik->jvi", s.V, PD)  # (N+1, nv, n) images of the vertices
+        slo_star, shi_star = vals.min(axis=1), vals.max(axis=1)
+        Sstar = np.linalg.norm(vals @ self.W.T, axis=2).max(axis=1) * (1 + 1e-12)
+        SM = np.linalg.norm(self.W @ PM, 2, axis=(1, 2)) * (1 + 1e-12)
+        Mrows = _ell_rows(PM)  # (N+1, n)
+        Sfull = grow * (Sstar[:-1] + SM[:-1])
+        if zoh:
+            WJu = np.linalg.norm(self.W @ Juc, 2, axis=(1, 2)) * (1 + 1e-12)
+            Sfull = Sfull + grow * hs * WJu * du_norm
+        # rounding of the exponentials and products (Phi, Phi D, Phi M and the vertex
+        # images), relative to the magnitude of their terms
+        fpm = _FPM * self.Wn * (1.0 + phin[:-1] + phin[1:]) * (1.0 + dabs) + _REL * (
+            1.0 + np.abs(Y1).max(axis=1)
+        )
+        absPhi = np.abs(Phi)
+        vmag = np.max(np.abs(s.V) @ np.swapaxes(absPhi @ np.abs(s.D), 1, 2), axis=1) + (
+            absPhi @ np.abs(s.M)
+        ).sum(axis=2)  # (N+1, n)
+
+        # 3. the local remainder: guess, enclose, check (induction over substeps)
+        gpad = 1e-12 * (1.0 + np.abs(y0).max())
+        frac = taus[:-1] / max(self.Ts, 1e-300)
+        guess = 1.5 * self._rho_hint * frac + gpad
+        rho = None
+        for _attempt in range(8):
+            base_lo = Y0 + slo_star[:-1] - Mrows[:-1]
+            base_hi = Y0 + shi_star[:-1] + Mrows[:-1]
+            ext = self.wrow[None, :] * guess[:, None]
+            bpad = 1e-12 * (np.abs(Y0) + vmag[:-1] + Mrows[:-1] + ext) + 1e-15
+            Slo = _dn(base_lo - ext - bpad)
+            Shi = _up(base_hi + ext + bpad)
+            if zoh:
+                Blo, Bhi, flo, fhi, okb = self._picard(Slo, Shi, i, ulo, uhi, hs)
+            else:
+                Blo, Bhi, flo, fhi, okb = self._picard(Slo, Shi, i, None, None, hs)
+            # deviation dynamics over the hull of the set's and the centre's enclosures
+            Hlo, Hhi = np.minimum(Blo, Bclo), np.maximum(Bhi, Bchi)
+            jfin = np.flatnonzero(okb)
+            a = np.full(N, np.inf)
+            b = np.zeros(N)
+            c2 = np.full(N, np.inf)
+            if jfin.size:
+                # second-order bound of the nonlinear forcing (no feedback through psi):
+                # |w_i| <= 1/2 Dz' |H_i| Dz + (Rc Dz)_i, Dz the a-priori bound of |x - z|
+                # (and |u - uc|) over the substep, from the enclosures
+                Dx = np.maximum(np.maximum(Bhi - Bclo, Bchi - Blo), 0.0)[jfin]
+                if zoh:
+                    Du_ = np.broadcast_to(np.maximum(uhi - uc, uc - ulo), (jfin.size, m))
+                    zl = np.hstack([Hlo[jfin], np.broadcast_to(ulo, (jfin.size, m))])
+                    zh = np.hstack([Hhi[jfin], np.broadcast_to(uhi, (jfin.size, m))])
+                else:
+                    Du_ = Dx @ np.abs(F).T
+                    ul_, uh_ = self._u_boxes(i, Hlo[jfin], Hhi[jfin])
+                    zl = np.hstack([Hlo[jfin], ul_])
+                    zh = np.hstack([Hhi[jfin], uh_])
+                Dz = np.hstack([Dx, Du_]) * (1 + 1e-12)
+                hl, hh = self.hess(zl, zh)
+                k = n + m
+                Hm = np.maximum(np.abs(hl), np.abs(hh)).reshape(-1, n, k, k)
+                Hm = np.where(np.isnan(Hm), np.inf, Hm)
+                q = 0.5 * np.einsum("pikl,pk,pl->pi", Hm, Dz, Dz)
+                if zoh:
+                    q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz)
+                else:
+                    q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, :n])
+                with np.errstate(invalid="ignore"):
+                    c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
+                c2 = np.where(np.isnan(c2), np.inf, c2)
+                if zoh:
+                    (Xl, Xh), (Ul, Uh) = self._jac(Hlo[jfin], Hhi[jfin], i, ulo, uhi)
+                else:
+                    (Xl, Xh), (Ul, Uh) = self._jac(Hlo[jfin], Hhi[jfin], i, None, None)
+                Rx = np.maximum(np.abs(Xl - Jxc[jfin]), np.abs(Xh - Jxc[jfin]))
+                Ru = np.maximum(np.abs(Ul - Juc[jfin]), np.abs(Uh - Juc[jfin]))
+                R = Rx if zoh else Rx + Ru @ np.abs(F)
+                a[jfin] = (
+                    np.linalg.norm(self.absW @ R @ self.absWinv, 2, axis=(1, 2))
+                    * (1 + 1e-12)
+                    * self.winv_pad
+                )
+                if zoh:
+                    b[jfin] = np.linalg.norm(self.absW @ Ru, 2, axis=(1, 2)) * (1 + 1e-12) * du_norm
+            rho = np.zeros(N + 1)
+            bad, r, last = -1, 0.0, N
+            for j in range(N):
+                if bad < 0 and not (r <= guess[j]):
+                    bad = j
+                if not okb[j]:
+                    if bad < 0:
+                        bad = j
+                    last = j
+                    break
+                r1 = _gronwall(r, mu[j], a[j], Sfull[j], hs[j], b[j])
+                r2 = _gronwall(r, mu[j], 0.0, 0.0, hs[j], c2[j]) if np.isfinite(c2[j]) else r1
+                r = (min(r1, r2) + eps_w[j] + fpm[j]) * (1 + 1e-12)
+                rho[j + 1] = r
+            if bad < 0:
+                break
+            if not okb[bad] and rho[bad] <= guess[bad]:
+                break  # the set is where the guess says, but its enclosure fails
+            # the guess was too small: raise it to the estimates of this pass and redo
+            est = rho[:N].copy()
+            est[last:] = rho[last]
+            guess = np.maximum(guess, 1.25 * est) + gpad
+        if bad >= 0:
+            # tube up to the failing substep (those boxes are proved), then stop
+            tube = _tube(
+                t_k + taus[:bad],
+                t_k + taus[1 : bad + 1],
+                Blo[:bad],
+                Bhi[:bad],
+                self.stats["branches"],
+            )
+            return None, tube, [Finding("max_depth", -1, t_k + taus[bad], None)], None
+        self._rho_hint = 0.5 * self._rho_hint + 0.5 * float(rho[N])
+        tube = _tube(t_k + taus[:-1], t_k + taus[1:], Blo, Bhi, self.stats["branches"])
+        swlo = _dn(hc * np.minimum(flo, 0.0))
+        swhi = _up(hc * np.maximum(fhi, 0.0))
+        rec = _Rec(Y0, PD[:-1], PM[:-1], rho[:-1], swlo, swhi, s.V, flo, fhi, hs, vmag[:-1])
+        Mn = self._ell_plus_ball(PM[N], float(rho[N]))
+        nxt = _Set(Y[N].copy(), PD[N], Mn, s.k + 1, s.path, s.H, s.h, s.V, s.base)
+        return nxt, tube, [], rec
+
+    # ---- properties -------------------------------------------------------------------
+
+    def _support(self, rec: _Rec, A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds (N, K) of A x over each substep's set (star + ellipsoid +
+        ball + sweep)."""
+        mid = rec.Y @ A.T  # (N, K)
+        AD = A @ rec.PD  # (N, K, n)
+        vals = AD @ rec.V.T  # (N, K, nv)
+        dlo, dhi = vals.min(axis=2), vals.max(axis=2)
+        ell = _ell_rows(A @ rec.PM)
+        ball = self._ball_rows(A)[None, :] * rec.rho[:, None]
+        pl, ph = A[None] * rec.swlo[:, None, :], A[None] * rec.swhi[:, None, :]
+        lo_sw = np.minimum(pl, ph).sum(axis=2)
+        hi_sw = np.maximum(pl, ph).sum(axis=2)
+        slack = 1e-12 * (
+            (np.abs(rec.Y) + np.abs(rec.swlo) + np.abs(rec.swhi) + rec.vmag) @ np.abs(A).T
+            + np.abs(dlo)
+            + np.abs(dhi)
+            + ell
+            + ball
+            + 1.0
+        )
+        lo = mid + dlo - ell - ball + lo_sw - slack
+        hi = mid + dhi + ell + ball + hi_sw + slack
+        return lo, hi
+
+    def _violations(self, tube: Tube, i: int, s: _Set, rec: _Rec) -> bool:
+        """Does the period's reach set possibly violate a property?
+
+        Each substep's set is bounded both by its box B and by the set at the substep's
+        start plus the sweep [0, h] f(B); the tighter of the two bounds is used per row.
+        """
+        lo, hi = tube.lower, tube.upper
+        if lo.shape[0] == 0:
+            return False
+        for A, b in self.unsafe:
+            zl, _ = self._support(rec, A)
+            bl = lo @ np.where(A > 0, A, 0).T + hi @ np.where(A < 0, A, 0).T
+            sep = np.any(np.maximum(zl, bl) > b[None, :], axis=1)
+            for j in np.flatnonzero(~sep):
+                # box B intersected with the half-spaces A x >= zl that hold on the set
+                Aq = np.vstack([A, -A])
+                bq = np.concatenate([b + 1e-12, -zl[j]])
+                x, st, _ = solve_lp(np.zeros(self.n), Aq, bq, lb=lo[j], ub=hi[j])
+                if st == "optimal":
+                    return True
+        for A, b in self.safe:
+            _, zu = self._support(rec, A)
+            bu = hi @ np.where(A > 0, A, 0).T + lo @ np.where(A < 0, A, 0).T
+            if np.any(np.minimum(zu, bu) > b[None, :]):
+                return True
+        if self.check_u:
+            F, G = self.law.F[i], self.law.G[i]
+            if self.hold == "zoh":
+                if self._region_u_ok(i):
+                    return False
+                # range of the held input: over the star (cut by the region) and over the
+                # box within the region (LPs); both are sound, take the tighter
+                dlo, dhi = s.range(F)
+                e = s.ell(F)
+                c = F @ s.y + G
+                pad = 1e-12 * (1 + np.abs(c) + np.abs(F) @ (np.abs(s.y) + s.mag()) + e)
+                slo, shi = c + dlo - e - pad, c + dhi + e + pad
+                xlo, xhi = self._box(s)
+                ulo, uhi = self._u_range(i, xlo, xhi)
+                ulo, uhi = np.maximum(ulo, slo), np.minimum(uhi, shi)
+                return bool(np.any(ulo < self.u_min) or np.any(uhi > self.u_max))
+            zl, zu = self._support(rec, F)
+            c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            bl, bu = c @ F.T - r @ np.abs(F).T, c @ F.T + r @ np.abs(F).T
+            umin = np.maximum(zl, bl) + G
+            umax = np.minimum(zu, bu) + G
+            # u(t) = u(t_k) + int F f: u(t_k) lies in the region's range of the law, and the
+            # integral is bounded by the substeps' [F f](B) (a state at the region's edge
+            # that moves inwards keeps its input inside the bounds)
+            rlo, rhi = self._region_u(i)
+            Fp, Fn = np.maximum(F, 0.0), np.minimum(F, 0.0)
+            dlo = rec.flo @ Fp.T + rec.fhi @ Fn.T
+            dhi = rec.fhi @ Fp.T + rec.flo @ Fn.T
+            fmag = np.maximum(np.abs(rec.flo), np.abs(rec.fhi))
+            mag = (self.n + 2) * _GAMMA * (fmag @ np.abs(F).T)
+            hc = rec.hs[:, None]
+            dlo = hc * np.minimum(dlo - mag, 0.0)
+            dhi = hc * np.maximum(dhi + mag, 0.0)
+            cl = np.cumsum(dlo, axis=0)  # through the end of each substep
+            ch = np.cumsum(dhi, axis=0)
+            cpad = 8 * _U * np.cumsum(np.abs(dlo) + np.abs(dhi), axis=0) * lo.shape[0]
+            umin = np.maximum(umin, rlo + cl - cpad)
+            umax = np.minimum(umax, rhi + ch + cpad)
+            pad = 1e-12 * (1 + np.abs(umin) + np.abs(umax))
+            if np.any(umin - pad < self.u_min) or np.any(umax + pad > self.u_max):
+                return True
+        return False
+
+    # ---- driver -----------------------------------------------------------------------
+
+    def _piece(
+        self, lo: np.ndarray, hi: np.ndarray, complete: bool = False
+    ) -> tuple[str, list[Tube], float | None]:
+        """Reach the initial box [lo, hi]: 'ok', 'violation' or 'undefined' (possible).
+
+        Stops at the first possible violation unless ``complete``: then it records the
+        first one and goes on, so the tube still holds every trajectory of the piece for
+        as long as its law is defined (used at the last refinement level).
+        """
+        n = self.n
+        c = 0.5 * (lo + hi)
+        r = 0.5 * (hi - lo)
+        H0 = np.vstack([np.eye(n), -np.eye(n)])
+        h0 = np.concatenate([r, r])
+        V0 = np.array(np.meshgrid(*[[-ri, ri] for ri in r], indexing="ij")).reshape(n, -1).T
+        root = _Set(c, np.eye(n), np.zeros((n, n)), 0, (), H0, h0, V0)
+        root.base = root.poly
+        frontier = [root]
+        tubes: list[Tube] = []
+        status, first_t = "ok", None
+        self._rho_hint = 0.0
+
+        def flag(kind: str, when: float) -> bool:
+            nonlocal status, first_t
+            if status == "ok":
+                status, first_t = kind, when
+            return not complete  # stop now?
+
+        A, b = self.law.domain_A, self.law.domain_b
+        while frontier:
+            nexts: list[_Set] = []
+            for s in frontier:
+                t = s.k * self.Ts
+                if A is not None and A.shape[0]:
+                    _, up = s.range(A)
+                    pad = 1e-12 * (1 + np.abs(A) @ (np.abs(s.y) + s.mag()))
+                    sup = A @ s.y + up + s.ell(A) + pad
+                    if np.any(sup > b) and flag("undefined", t):
+                        return status, tubes, first_t
+                children = self._split(s)
+                if not children and flag("undefined", t):
+                    return status, tubes, first_t
+                for i, child in children:
+                    self.stats["branches"] += 1
+                    nxt, tube, findings, rec = self._period(child, i)
+                    tubes.append(tube)
+                    if findings:
+                        # the enclosure failed: this branch cannot go on, even when complete
+                        flag("violation", findings[0].t)
+                        return status, tubes, first_t
+                    if self._violations(tube, i, child, rec):
+                        when = float(tube.t_start[0]) if tube.num_boxes else t
+                        if flag("violation", when):
+                            return status, tubes, first_t
+                    if nxt is not None and nxt.k * self.Ts < self.T - 1e-12:
+                        nexts.append(nxt)
+            frontier = self._merge(nexts, root.poly)
+            if self.progress is not None:
+                self.progress(dict(self.stats))
+        return status, tubes, first_t
+
+    def _split(self, s: _Set) -> list[tuple[int, _Set]]:
+        """One child per region the set meets, its deviation polytope cut by the region.
+
+        A state x = y + D d + M e is in region i only if A_i D d <= b_i - A_i y + |A_i M e|,
+        and |a' M e| <= |M' a|_2: adding these rows to the deviation polytope keeps every
+        state of the region (plus 1e-9) -- exact for the star part, sound for the ellipsoid.
+        """
+        from codev_engine.reach.linear import _checked_vertices
+
+        xlo, xhi = self._box(s)
+        cand = np.flatnonzero(
+            np.all(self.boxes_lo <= xhi + 1e-9, axis=1)
+            & np.all(self.boxes_hi >= xlo - 1e-9, axis=1)
+        )
+        out = []
+        X = s.y[None, :] + s.V @ s.D.T  # images of the deviation polytope's vertices
+        xpad = 1e-12 * (np.abs(s.y) + s.mag())
+        poly = s.poly
+        for i in cand:
+            Ai, bi = self.law.A[i], self.law.b[i]
+            slack = s.ell(Ai) + 1e-9 + np.abs(Ai) @ xpad
+            viol = X @ Ai.T - bi  # (nv, rows)
+            if np.any(np.all(viol > slack, axis=0)):
+                continue  # one row of the region excludes the whole set (convex hull)
+            if np.all(viol <= -slack):
+                out.append(
+                    (int(i), _Set(s.y, s.D, s.M, s.k, s.path + (int(i),), s.H, s.h, s.V, poly))
+                )
+                continue  # the whole set is inside the region: no cut needed
+            Hn = np.vstack([s.H, Ai @ s.D])
+            hn = np.concatenate([s.h, bi - Ai @ s.y + slack])
+            Hn, hn, ok = normalize_rows(Hn, hn)
+            if not ok:
+                continue
+            _, radius = chebyshev_ball(Hn, hn)
+            if not radius > 0:
+                continue
+            keep = minimal_rows(Hn, hn)
+            Hn, hn = Hn[keep], hn[keep]
+            V = _checked_vertices(Hn, hn)
+            out.append((int(i), _Set(s.y, s.D, s.M, s.k, s.path + (int(i),), Hn, hn, V, poly)))
+        return out
+
+    # ---- merging ----------------------------------------------------------------------
+
+    def _merged(self, sets: list[_Set], poly: tuple) -> tuple[_Set, float]:
+        """One set containing every set of the list, and its cost.
+
+        Each set is ``{y_j + D_j d + M_j e : d in P_j}`` with ``P_j`` inside the polytope
+        ``poly``. The merged star ``y + D d`` (d in poly) is the least-squares fit of the
+        sets' affine maps at their vertices; for d in P_j the mismatch
+        ``(y_j - y) + (D_j - D) d`` is at most ``mu_j`` in the W-norm (convex in d: at
+        P_j's vertices), so ``E(M_j) + ball_W(mu_j)`` holds the set's remainder; the merged
+        ellipsoid contains all of those. Cost: growth of the remainder's W-size relative to
+        the star's.
+        """
+        Vs = [s.V for s in sets]
+        Ts = [s.y[None, :] + s.V @ s.D.T for s in sets]
+        Amat = np.hstack([np.ones((sum(v.shape[0] for v in Vs), 1)), np.vstack(Vs)])
+        coef, *_ = np.linalg.lstsq(Amat, np.vstack(Ts), rcond=None)
+        y = coef[0].copy()
+        D = coef[1:].T.copy()
+        ells = []
+        r_old = 0.0
+        for s, V, T in zip(sets, Vs, Ts, strict=True):
+            fit = y[None, :] + V @ D.T
+            mis = np.linalg.norm((T - fit) @ self.W.T, axis=1).max()
+            mag = (np.abs(T) + np.abs(y)[None, :] + np.abs(V) @ np.abs(D).T).sum(axis=1).max()
+            mu = float(mis) * (1 + 1e-9) + 1e-12 * self.Wn * float(mag)
+            ells.append(self._ell_plus_ball(s.M, mu))
+            r_old = max(r_old, float(np.linalg.norm(self.W @ s.M, 2)))
+        Mm = self._ell_hull(ells)
+        r_new = float(np.linalg.norm(self.W @ Mm, 2))
+        star = float(np.max(np.linalg.norm(poly[2] @ (self.W @ D).T, axis=1)))
+        cost = (r_new - r_old) / max(star + r_old, 1e-300)
+        k = sets[0].k
+        merged = _Set(y, D, Mm, k, sets[0].path, poly[0], poly[1], poly[2], poly)
+        return merged, cost
+
+    def _merge(self, sets: list[_Set], root_poly: tuple) -> list[_Set]:
+        """Merge the sets of one sample greedily (closest pair first) while the cost is
+        below ``merge_cost`` or there are more than ``max_sets`` sets."""
+        if len(sets) <= 1:
+            return sets
+        sets = list(sets)
+
+        def poly_of(group):
+            b = group[0].base
+            return b if all(g.base is b for g in group) else root_poly
+
+        # usually the whole sample merges cheaply: try that first
+        whole, cost = self._merged(sets, poly_of(sets))
+        if cost <= self.merge_cost:
+            self.stats["merges"] += len(sets) - 1
+            return [whole]
+        # greedy: merge the pair whose bounding boxes' hull grows least (a cheap proxy of
+        # the merge's cost), while the real cost is small or there are too many sets
+        groups = [[s] for s in sets]
+        bx = [self._box(s) for s in sets]
+        glo = np.array([b[0] for b in bx])
+        ghi = np.array([b[1] for b in bx])
+        current = list(sets)
+        while len(current) > 1:
+            w = ghi - glo
+            scale = np.maximum(w.max(axis=0), 1e-300)
+            hull = np.maximum(ghi[:, None], ghi[None]) - np.minimum(glo[:, None], glo[None])
+            grow = ((hull - np.maximum(w[:, None], w[None])) / scale).sum(axis=2)
+            grow[np.diag_indices(len(current))] = np.inf
+            p, q = np.unravel_index(int(np.argmin(grow)), grow.shape)
+            p, q = min(p, q), max(p, q)
+            members = groups[p] + groups[q]
+            cand, cost = self._merged(members, poly_of(members))
+            if cost > self.merge_cost and len(current) <= self.max_sets:
+                break
+            self.stats["merges"] += 1
+            nlo, nhi = np.minimum(glo[p], glo[q]), np.maximum(ghi[p], ghi[q])
+            for idx in (q, p):
+                del current[idx]
+                del groups[idx]
+            keep = np.ones(len(glo), dtype=bool)
+            keep[[p, q]] = False
+            glo = np.vstack([glo[keep], nlo])
+            ghi = np.vstack([ghi[keep], nhi])
+            current.append(cand)
+            groups.append(members)
+        return current
+
+    def run(self) -> None:
+        """Refine the initial set until every piece is proved or the depth runs out."""
+        from codev_engine.reach.simulate import (
+            first_violation,
+            simulate,
+            simulate_many,
+            violations_many,
+        )
+
+        vs = self.problem.verify
+        queue = [(vs.initial_lower.astype(float), vs.initial_upper.astype(float), 0)]
+        while queue:
+            lo, hi, depth = queue.pop()
+            self.stats["partitions"] += 1
+            status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
+            if status == "ok":
+                self.tubes.extend(tubes)
+                continue
+            # a concrete trajectory from the piece's centre may settle it (screened with the
+            # fast fixed-step simulation, confirmed with the reference integrator)
+            x0 = 0.5 * (lo + hi)
+            v = None
+            sims = simulate_many(self.problem, self.law, x0[None], hold=self.hold, dt=self.h)
+            if violations_many(self.problem, *sims)[0][0]:
+                trace = simulate(self.problem, self.law, x0, hold=self.hold)
+                v = first_violation(self.problem, self.law, trace)
+            if v is not None:
+                rad = np.diag(self.V0)
+                alpha = np.where(rad > 0, (x0 - self.c0) / np.where(rad > 0, rad, 1.0), 0.0)
+                self.findings.append(Finding(v.kind, int(v.index), float(v.t), alpha))
+                self.tubes.extend(tubes)
+                return
+            if depth >= self.max_depth:
+                kind = "undefined" if status == "undefined" else "max_depth"
+                self.findings.append(Finding(kind, -1, float(t_bad or 0.0), None))
+                self.tubes.extend(tubes)
+                continue
+            self.stats["refinements"] += 1
+            # bisect the axis that is widest in the metric
+            r = 0.5 * (hi - lo)
+            ax = int(np.argmax(np.linalg.norm(self.W * r[None, :], axis=0)))
+            mid = 0.5 * (lo[ax] + hi[ax])
+            hi1 = hi.copy()
+            hi1[ax] = mid
+            lo2 = lo.copy()
+            lo2[ax] = mid
+            queue.append((lo2, hi, depth + 1))
+            queue.append((lo, hi1, depth + 1))
+
+
+def _tube(t0, t1, lo, hi, branch) -> Tube:
+    n = lo.shape[-1] if lo.ndim == 2 else 0
+    return Tube(
+        np.asarray(t0, float),
+        np.asarray(t1, float),
+        np.asarray(lo, float).reshape(-1, n),
+        np.asarray(hi, float).reshape(-1, n),
+        np.full(len(t0), branch),
+    )
+
+
+def _empty_tube(n: int) -> Tube:
+    return Tube.empty(n)
+
+
+def _gronwall(rho: float, mu: float, a: float, S: float, h: float, b: float) -> float:
+    """Bound of |r(h)|_W for r' = Jc r + w, |w|_W <= a (S + |r|_W) + b, |r(0)|_W <= rho."""
+    k = mu + a
+    grow = np.exp(k * h)
+    integ = h if abs(k * h) < 1e-12 else (grow - 1.0) / k
+    return float(grow * rho + integ * (a * S + b)) * (1 + 1e-12)
+
+
+_GAMMA = 4 * 2.0**-52  # per-term rounding allowance for short float sums and products
+
+
+def _imat_add_point(Al, Ah, Bl, Bh, F):
+    """[A] + [B] F for interval matrices [A] (..., n, n), [B] (..., n, m) and a point matrix
+    F (m, n).
+
+    Float sums are widened by the size of their *terms* (a cancelling sum's rounding error
+    scales with the terms, not with the result).
+    """
+    Fp, Fn = np.maximum(F, 0), np.minimum(F, 0)
+    lo = Al + Bl @ Fp + Bh @ Fn
+    hi = Ah + Bh @ Fp + Bl @ Fn
+    k = F.shape[0] + 2
+    mag = np.maximum(np.abs(Al), np.abs(Ah)) + np.maximum(np.abs(Bl), np.abs(Bh)) @ np.abs(F)
+    pad = k * _GAMMA * mag + 1e-300
+    return lo - pad, hi + pad
+
+
+def _imatvec(Al, Ah, xl, xh):
+    """Interval matrices (..., n, k) times interval vectors (..., k), widened by the size of
+    the summed terms."""
+    xl, xh = xl[..., None, :], xh[..., None, :]
+    cands = np.stack([Al * xl, Al * xh, Ah * xl, Ah * xh])
+    lo = cands.min(axis=0).sum(axis=-1)
+    hi = cands.max(axis=0).sum(axis=-1)
+    pad = (xl.shape[-1] + 2) * _GAMMA * np.abs(cands).max(axis=0).sum(axis=-1) + 1e-300
+    return lo - pad, hi + pad
+
+
+def _add_pad(*terms):
+    """Rounding allowance of a short float sum of these terms (element-wise)."""
+    return (len(terms) + 1) * _GAMMA * sum(np.abs(t) for t in terms) + 1e-300
+
+
+def _dn(x):
+    return np.nextafter(np.nextafter(x, -np.inf), -np.inf)
+
+
+def _up(x):
+    return np.nextafter(np.nextafter(x, np.inf), np.inf)

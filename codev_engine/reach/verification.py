@@ -1,0 +1,382 @@
+"""Closed-loop verification: verdicts from sound reachtubes and concrete counterexamples.
+
+Verdicts
+--------
+``robustly_safe``
+    The reachtube is disjoint from every unsafe set, inside every safe set, inside the law's
+    domain at every sample, and (with ``input_bounds``) the input stays within its bounds.
+``unsafe``
+    A concrete simulated trajectory (``counterexample``) violates a property or reaches a
+    state where the law is undefined. Every ``unsafe`` is confirmed by an independent
+    simulation (scipy ``solve_ivp``, tight tolerances) from the reported initial state.
+``unknown``
+    With ``reason`` ``"max_depth"`` (refinement budget exhausted while the
+    over-approximation still meets a property boundary) or ``"infeasible_region"`` (only the
+    over-approximation leaves the law's domain).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from codev_engine.errors import SpecError
+from codev_engine.io.atomic import write_npz
+from codev_engine.io.npz import array, load_checked, real, text
+from codev_engine.law import ExplicitLaw
+from codev_engine.reach.linear import LinearReach, affine_plant
+from codev_engine.reach.tube import Tube
+from codev_engine.spec.problem import Problem
+
+__all__ = ["VerificationResult", "Counterexample", "verify", "RESULT_FORMAT", "VERDICTS"]
+
+#: format tag of verification result files; bumped on incompatible changes
+RESULT_FORMAT = "codev-verification/1"
+VERDICTS = ("robustly_safe", "unsafe", "unknown")
+#: What a counterexample does, by kind (``{index}``: which set or input)
+VIOLATION_WORDS = {
+    "unsafe": "enters unsafe set {index}",
+    "safe": "leaves safe set {index}",
+    "input_bounds": "input {index} leaves its bounds",
+    "undefined": "leaves the law's domain",
+}
+#: Why a verdict is unknown, in words
+UNKNOWN_WORDS = {
+    "max_depth": "max_depth reached",
+    "infeasible_region": "the reach set leaves the law's domain",
+}
+
+
+def _json_scalar(obj):
+    """numpy scalars and arrays in ``stats`` as plain JSON."""
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    return str(obj)
+
+
+@dataclass(frozen=True)
+class Counterexample:
+    """A concrete trajectory that violates the specification.
+
+    Attributes
+    ----------
+    x0 : (n,) ndarray
+        Initial state (inside the initial set).
+    t : float
+        Time of the violation.
+    kind : str
+        ``"unsafe"``, ``"safe"``, ``"input_bounds"`` or ``"undefined"``.
+    index : int
+        Which unsafe/safe set or input (-1 for ``"undefined"``).
+    trace : object
+        The simulated ``simulate.Trace`` (t, x, u, region).
+    """
+
+    x0: np.ndarray
+    t: float
+    kind: str
+    index: int
+    trace: object
+
+    def describe(self) -> str:
+        """The violation in words: ``enters unsafe set 0``, ``input 1 leaves its bounds``."""
+        return VIOLATION_WORDS.get(self.kind, self.kind).format(index=self.index)
+
+
+@dataclass
+class VerificationResult:
+    """Outcome of ``verify``."""
+
+    verdict: str
+    reason: str | None
+    tube: Tube
+    hold: str
+    counterexample: Counterexample | None = None
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def seconds(self) -> float:
+        return float(self.stats.get("seconds", 0.0))
+
+    def width_at(self, t: float) -> np.ndarray:
+        """Width (n,) of the hull of the tube's boxes active at ``t``."""
+        lo, hi = self.tube.hull_at(t)
+        return hi - lo
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the result (verdict, stats, tube, counterexample trace) to an ``.npz``.
+
+        Atomic and pickle-free; :meth:`load` reads it back.
+        """
+        arrays: dict[str, np.ndarray] = {
+            "format": np.array(RESULT_FORMAT),
+            "verdict": np.array(self.verdict),
+            "reason": np.array(self.reason or ""),
+            "hold": np.array(self.hold),
+            "stats": np.array(json.dumps(self.stats, default=_json_scalar)),
+            **self.tube.arrays("tube_"),
+        }
+        ce = self.counterexample
+        if ce is not None:
+            tr = ce.trace
+            undefined = getattr(tr, "undefined_at", None)
+            arrays.update(
+                cex_x0=np.asarray(ce.x0, dtype=float),
+                cex_t=np.array(float(ce.t)),
+                cex_kind=np.array(ce.kind),
+                cex_index=np.array(int(ce.index)),
+                trace_t=tr.t,
+                trace_x=tr.x,
+                trace_u=tr.u,
+                trace_region=np.asarray(tr.region, dtype=np.int64),
+                trace_undefined_at=np.array(np.nan if undefined is None else float(undefined)),
+            )
+        return write_npz(path, arrays)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> VerificationResult:
+        """Read a result written by :meth:`save`; a malformed file raises ``SpecError``."""
+        return load_checked(path, "verification result", cls._from_arrays)
+
+    @classmethod
+    def _from_arrays(cls, data: dict[str, np.ndarray]) -> VerificationResult:
+        from codev_engine.reach.simulate import Trace
+
+        fmt = text(data, "format")
+        if fmt != RESULT_FORMAT:
+            raise SpecError(f"unsupported result format {fmt!r}", field="format")
+        verdict = text(data, "verdict")
+        if verdict not in VERDICTS:
+            raise SpecError(f"unknown verdict {verdict!r}", field="verdict")
+        hold = text(data, "hold")
+        if hold not in ("zoh", "continuous"):
+            raise SpecError(f"unknown hold {hold!r}", field="hold")
+        try:
+            stats = json.loads(text(data, "stats"))
+        except (ValueError, RecursionError):
+            raise SpecError("not valid JSON", field="stats") from None
+        if not isinstance(stats, dict):
+            raise SpecError("must be a JSON object", field="stats")
+        tube = Tube.from_arrays(data, "tube_")
+        n = tube.lower.shape[1]
+        cex = None
+        if "cex_x0" in data:
+            x0 = real(data, "cex_x0", shape=(n,))
+            t = real(data, "trace_t", ndim=1)
+            K = t.shape[0]
+            x = real(data, "trace_x", ndim=2)
+            if x.shape[0] != K or x.shape[1] != n:
+                raise SpecError(f"must have shape ({K}, {n}), got {x.shape}", field="trace_x")
+            u = array(data, "trace_u")  # NaN at the end of an undefined trajectory
+            if u.dtype.kind != "f" or u.ndim != 2 or u.shape[0] != K:
+                raise SpecError(f"must be ({K}, m) floats", field="trace_u")
+            region = array(data, "trace_region")
+            if region.dtype.kind not in "iu" or region.shape != (K,):
+                raise SpecError(f"must be {K} integers", field="trace_region")
+            undefined = float(array(data, "trace_undefined_at"))
+            trace = Trace(
+                t=t,
+                x=x,
+                u=u.astype(float),
+                region=region.astype(np.int64),
+                x0=x0,
+                hold=hold,
+                undefined_at=None if np.isnan(undefined) else undefined,
+            )
+            kind = text(data, "cex_kind")
+            cex = Counterexample(
+                x0=x0,
+                t=float(real(data, "cex_t", shape=())),
+                kind=kind,
+                index=int(real(data, "cex_index", shape=())),
+                trace=trace,
+            )
+        reason = text(data, "reason") or None
+        return cls(verdict, reason, tube, hold, cex, stats)
+
+    def summary(self) -> str:
+        line = f"verdict: {self.verdict}"
+        if self.counterexample is not None and self.verdict == "unsafe":
+            line += f" ({self.counterexample.describe()})"
+        elif self.reason:
+            line += f" ({UNKNOWN_WORDS.get(self.reason, self.reason)})"
+        line += f"; hold {self.hold}; {self.tube.num_boxes} boxes"
+        line += f"; {self.stats.get('branches', 0)} branches in {self.seconds:.3f} s"
+        if self.counterexample is not None:
+            ce = self.counterexample
+            line += (
+                f"\ncounterexample: x0 = {np.array2string(ce.x0, precision=6)}, "
+                f"{ce.kind} at t = {ce.t:.4f}"
+            )
+        return line
+
+    # ---- notebooks: codev_engine.figures draws (matplotlib is imported only there) ------
+
+    def _repr_png_(self) -> bytes:
+        """Verdict, tubes against time and plane view (``figures.figure_result``) as PNG."""
+        from codev_engine.view.figures import figure_result, png_bytes
+
+        return png_bytes(figure_result(self))
+
+    def _repr_html_(self) -> str:
+        """A coloured verdict banner, counterexample, timings and the tube picture."""
+        from codev_engine.view.figures import result_html
+
+        return result_html(self)
+
+    def _repr_mimebundle_(self, include: object = None, exclude: object = None) -> dict[str, str]:
+        """Notebook display: HTML summary and PNG, the picture rendered once."""
+        from codev_engine.view.figures import mimebundle
+
+        return mimebundle(self)
+
+
+def check_law_matches(problem: Problem, law: ExplicitLaw, *, file: str | None = None) -> None:
+    """Refuse a law computed for a different problem (fingerprint mismatch)."""
+    from codev_engine.mpc import build_program
+    from codev_engine.plant import discretize
+    from codev_engine.synthesis import problem_fingerprint
+
+    if law.n != problem.plant.n or law.m != problem.plant.m:
+        raise SpecError(
+            f"the law has n={law.n}, m={law.m} but the spec has n={problem.plant.n}, "
+            f"m={problem.plant.m}",
+            file=file,
+        )
+    fp = problem_fingerprint(build_program(problem.mpc, discretize(problem)))
+    if law.fingerprint and law.fingerprint != fp:
+        raise SpecError(
+            "the law was computed for a different problem (fingerprint mismatch)", file=file
+        )
+
+
+def verify(
+    problem: Problem,
+    law: ExplicitLaw,
+    *,
+    hold: str | None = None,
+    max_depth: int | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> VerificationResult:
+    """Verify the sampled closed loop of ``problem``'s plant with ``law``.
+
+    Parameters
+    ----------
+    problem : Problem
+        Must have a ``[verify]`` section.
+    law : ExplicitLaw
+    hold : {"zoh", "continuous"}, optional
+        Default ``problem.verify.hold``.
+    max_depth : int, optional
+        Refinement budget; default ``problem.verify.max_depth``.
+    progress : callable, optional
+        Called with a dict of counters now and then.
+
+    Returns
+    -------
+    VerificationResult
+    """
+    if problem.verify is None:
+        raise SpecError("the spec has no [verify] section", file=problem.path, field="verify")
+    vs = problem.verify
+    hold = hold or vs.hold
+    if hold not in ("zoh", "continuous"):
+        raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
+    depth = vs.max_depth if max_depth is None else max_depth
+    t0 = time.perf_counter()
+    plant = affine_plant(problem)
+    if plant is not None:
+        eng = LinearReach(problem, law, plant, hold, depth)
+        eng.run()
+        findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
+        c0, V0 = eng.c0, eng.V0
+        stats["partitions"] = 1
+        stats["method"] = "exact-flow star sets"
+    else:
+        from codev_engine.reach.nonlinear import NonlinearReach
+
+        eng = NonlinearReach(problem, law, hold, depth, progress=progress)
+        eng.run()
+        findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
+        c0, V0 = eng.c0, eng.V0
+    tube = Tube.concatenate(tubes, problem.plant.n)
+    stats["boxes"] = tube.num_boxes
+    verdict, reason, cex = "robustly_safe", None, None
+    concrete = [f for f in findings if f.alpha is not None]
+    for f in concrete:
+        cex = _confirm(problem, law, hold, c0 + V0 @ f.alpha)
+        if cex is not None:
+            verdict, reason = "unsafe", cex.kind
+            break
+    if verdict != "unsafe" and findings:
+        kinds = {f.kind for f in findings}
+        verdict = "unknown"
+        reason = "infeasible_region" if "undefined" in kinds else "max_depth"
+        # a possible violation is worth a few concrete simulations
+        cex = _search(problem, law, hold)
+        if cex is not None:
+            verdict, reason = "unsafe", cex.kind
+    if verdict == "unsafe" and cex is not None and tube.num_boxes:
+        # exploration stopped at the counterexample: the tube is partial, keep what
+        # precedes it (docs/verification.md)
+        keep = tube.t_start <= cex.t
+        tube = Tube(
+            tube.t_start[keep],
+            tube.t_end[keep],
+            tube.lower[keep],
+            tube.upper[keep],
+            tube.branch[keep],
+        )
+        stats["boxes"] = tube.num_boxes
+    stats["seconds"] = time.perf_counter() - t0
+    return VerificationResult(verdict, reason, tube, hold, cex, stats)
+
+
+def _confirm(
+    problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray
+) -> Counterexample | None:
+    """Simulate from x0 (independent integrator); a Counterexample if it violates."""
+    from codev_engine.reach.simulate import first_violation, simulate
+
+    vs = problem.verify
+    x0 = np.clip(x0, vs.initial_lower, vs.initial_upper)
+    trace = simulate(problem, law, x0, hold=hold)
+    v = first_violation(problem, law, trace)
+    if v is None:
+        return None
+    return Counterexample(x0=x0, t=float(v.t), kind=v.kind, index=int(v.index), trace=trace)
+
+
+def _search(
+    problem: Problem, law: ExplicitLaw, hold: str, samples: int = 64
+) -> Counterexample | None:
+    """Concrete simulations from corners, centre and random initial states."""
+    from codev_engine.reach.simulate import simulate_many, violations_many
+
+    vs = problem.verify
+    lo, hi = vs.initial_lower, vs.initial_upper
+    n = lo.shape[0]
+    corners = (
+        np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij")).reshape(n, -1).T
+    )
+    rng = np.random.default_rng(0)
+    X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples], rng.uniform(lo, hi, (samples, n))])
+    t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+    bad, _ = violations_many(problem, t, X, U, alive)
+    for p in np.flatnonzero(bad):
+        cex = _confirm(problem, law, hold, X0[p])
+        if cex is not None:
+            return cex
+    return None
+
+
+def with_hold(problem: Problem, hold: str) -> Problem:
+    """A copy of ``problem`` whose verify section uses ``hold``."""
+    assert problem.verify is not None
+    return replace(problem, verify=replace(problem.verify, hold=hold))

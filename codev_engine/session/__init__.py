@@ -1,0 +1,1 @@
+"""Sessions: a design's spec, its journal and its cached stage artifacts in one folder."""

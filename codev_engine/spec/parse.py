@@ -1,0 +1,615 @@
+"""The spec parser: TOML text -> a validated :class:`~codev_engine.spec.problem.Problem`.
+
+The TOML contract is documented in ``docs/spec.md``. The parser validates every field of the
+file before any work starts, so a bad spec fails fast with one ``SpecError`` naming the file,
+the field and the reason. It runs no later stage: whether the plant is linearisable and the
+MPC feasible is checked by the stages that need it (``codev_engine.pipeline``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import keyword
+import math
+import re
+import tomllib
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from codev_engine.errors import SpecError
+from codev_engine.spec.choices import HOLDS, METHODS, NORMS
+from codev_engine.spec.expr import RESERVED_NAMES, make_symbol, parse_expression
+from codev_engine.spec.problem import (
+    ModelSpec,
+    MpcSpec,
+    PlantSpec,
+    Problem,
+    SetSpec,
+    VerifySpec,
+)
+
+__all__ = ["read_spec", "parse_spec"]
+
+
+# --------------------------------------------------------------------------------------------
+# Loader
+# --------------------------------------------------------------------------------------------
+
+
+_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
+_IDENT_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+_SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
+
+_TOP = ("name", "plant", "model", "mpc", "verify")
+_PLANT = ("states", "inputs", "dynamics", "A", "B")
+_MODEL = ("sample_time", "method", "operating_point", "A", "B")
+_MPC = (
+    "horizon", "norm", "Q", "R", "P", "x_min", "x_max", "u_min", "u_max", "simplify",
+    "domain_bound",
+)  # fmt: skip
+_VERIFY = (
+    "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
+)  # fmt: skip
+
+
+def read_spec(path: str | Path) -> Problem:
+    """Read a spec TOML file and validate its fields.
+
+    Only the fields are checked here (types, shapes, values, names). The checks that need a
+    later stage -- the plant is linearisable at the operating point, the MPC is feasible
+    somewhere -- are run by that stage; :func:`codev_engine.pipeline.load_spec` runs them all.
+
+    Parameters
+    ----------
+    path : str or Path
+        The spec file.
+
+    Returns
+    -------
+    Problem
+        The validated problem; ``source`` is the file text and ``path`` is ``str(path)``.
+
+    Raises
+    ------
+    SpecError
+        The first problem found in the file (unreadable file, TOML syntax, unknown or missing
+        field, wrong type, shape or value), naming the file and the dotted field.
+    """
+    file = str(path)
+    try:
+        raw = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise SpecError("file not found", file=file) from None
+    except OSError as exc:
+        raise SpecError(f"cannot read the file: {exc.strerror or exc}", file=file) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SpecError(
+            f"the file is not UTF-8 text ({exc.reason} at byte {exc.start})", file=file
+        ) from None
+    return parse_spec(text, path=file)
+
+
+def parse_spec(text: str, *, path: str = "<string>") -> Problem:
+    """Parse a spec given as TOML text and validate its fields (see :func:`read_spec`).
+
+    Parameters
+    ----------
+    text : str
+        The TOML document.
+    path : str, optional
+        Name used for ``Problem.path`` and in error messages.
+
+    Returns
+    -------
+    Problem
+        The validated problem.
+
+    Raises
+    ------
+    SpecError
+        As :func:`read_spec`.
+    """
+    file = str(path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        if "line" not in msg:  # "(at end of document)"
+            msg += f" (line {max(1, len(text.splitlines()))}, end of file)"
+        raise SpecError(f"invalid TOML: {msg}", file=file) from None
+    except RecursionError:
+        raise SpecError("invalid TOML: arrays or tables nested too deeply", file=file) from None
+    try:
+        return _build(data, text, file)
+    except SpecError as exc:
+        raise (exc.with_file(file) if exc.file is None else exc) from None
+
+
+# --- building the problem -------------------------------------------------------------------
+
+
+def _build(data: dict[str, Any], text: str, file: str) -> Problem:
+    _table(data, "", required=("name", "plant", "model", "mpc"), optional=("verify",))
+    name = _spec_name(data["name"], "name")
+    plant_t = _table(
+        data["plant"], "plant", required=("states", "inputs"), optional=("dynamics", "A", "B")
+    )
+    model_t = _table(
+        data["model"],
+        "model",
+        required=("sample_time",),
+        optional=("method", "operating_point", "A", "B"),
+    )
+    states = _names(plant_t["states"], "plant.states")
+    inputs = _names(plant_t["inputs"], "plant.inputs")
+    clash = sorted(set(states) & set(inputs))
+    if clash:
+        raise SpecError(f"{clash[0]!r} is both a state and an input", field="plant.inputs")
+    n, m = len(states), len(inputs)
+
+    model = _model(model_t, n, m)
+    plant = _plant(plant_t, states, inputs, explicit=model.A is not None)
+    mpc = _mpc(
+        _table(
+            data["mpc"],
+            "mpc",
+            required=("horizon", "norm", "Q", "R"),
+            optional=tuple(k for k in _MPC if k not in ("horizon", "norm", "Q", "R")),
+        ),
+        n,
+        m,
+    )
+    verify = None
+    if "verify" in data:
+        verify = _verify(data["verify"], n)
+        if plant.dynamics is None and plant.A is None:
+            raise SpecError(
+                "verification needs the continuous-time plant: give plant.dynamics or "
+                "plant.A and plant.B (an explicit discrete model is not enough)",
+                field="verify",
+            )
+    return Problem(
+        name=name, plant=plant, model=model, mpc=mpc, verify=verify, path=file, source=text
+    )
+
+
+def _plant(
+    t: dict[str, Any], states: tuple[str, ...], inputs: tuple[str, ...], *, explicit: bool
+) -> PlantSpec:
+    n, m = len(states), len(inputs)
+    has_dyn = "dynamics" in t
+    has_ab = "A" in t or "B" in t
+    if has_dyn and has_ab:
+        key = "A" if "A" in t else "B"
+        raise SpecError(
+            "give either dynamics or the matrices A and B, not both", field=f"plant.{key}"
+        )
+    dynamics = A = B = None
+    if has_dyn:
+        dyn = t["dynamics"]
+        if not isinstance(dyn, list):
+            raise SpecError(
+                f"expected a list of {_count(n, 'expression string')}, got {_kind(dyn)}",
+                field="plant.dynamics",
+            )
+        if len(dyn) != n:
+            raise SpecError(
+                f"expected {_count(n, 'expression')} (one per state: {', '.join(states)}), "
+                f"got {len(dyn)}",
+                field="plant.dynamics",
+            )
+        symbols = {s: make_symbol(s) for s in (*states, *inputs)}
+        for i, item in enumerate(dyn):
+            f = f"plant.dynamics[{i}]"
+            if not isinstance(item, str):
+                raise SpecError(f"expected an expression string, got {_kind(item)}", field=f)
+            parse_expression(item, symbols, field=f)
+        dynamics = tuple(dyn)
+    elif has_ab:
+        for key in ("A", "B"):
+            if key not in t:
+                raise SpecError(
+                    "missing required field (A and B go together)", field=f"plant.{key}"
+                )
+        A = _matrix(t["A"], "plant.A", n, n)
+        B = _matrix(t["B"], "plant.B", n, m)
+    elif not explicit:
+        raise SpecError(
+            "missing the dynamics: give plant.dynamics, or plant.A and plant.B, "
+            "or an explicit discrete model (model.A, model.B)",
+            field="plant.dynamics",
+        )
+    return PlantSpec(states=states, inputs=inputs, dynamics=dynamics, A=A, B=B)
+
+
+def _model(t: dict[str, Any], n: int, m: int) -> ModelSpec:
+    dt = _positive(t["sample_time"], "model.sample_time")
+    method = _choice(t.get("method", "zoh"), "model.method", METHODS)
+    x_op, u_op = np.zeros(n), np.zeros(m)
+    if "operating_point" in t:
+        op = _table(t["operating_point"], "model.operating_point", optional=("x", "u"))
+        if "x" in op:
+            x_op = _vector(op["x"], "model.operating_point.x", n)
+        if "u" in op:
+            u_op = _vector(op["u"], "model.operating_point.u", m)
+    A = B = None
+    if "A" in t or "B" in t:
+        for key in ("A", "B"):
+            if key not in t:
+                raise SpecError(
+                    "missing required field (A and B go together)", field=f"model.{key}"
+                )
+        A = _matrix(t["A"], "model.A", n, n)
+        B = _matrix(t["B"], "model.B", n, m)
+    return ModelSpec(
+        sample_time=dt, method=method, x_op=_frozen(x_op), u_op=_frozen(u_op), A=A, B=B
+    )
+
+
+def _mpc(t: dict[str, Any], n: int, m: int) -> MpcSpec:
+    horizon = _integer(t["horizon"], "mpc.horizon", minimum=1)
+    norm = _norm(t["norm"], "mpc.norm")
+    square = norm == "2"
+    Q = _matrix(t["Q"], "mpc.Q", n if square else None, n)
+    R = _matrix(t["R"], "mpc.R", m if square else None, m)
+    P = _matrix(t["P"], "mpc.P", n if square else None, n) if "P" in t else None
+    if square:
+        _psd(Q, "Q", "mpc.Q", definite=False)
+        _psd(R, "R", "mpc.R", definite=True)
+        if P is not None:
+            _psd(P, "P", "mpc.P", definite=False)
+    x_min, x_max = _bounds(t, "x", n)
+    u_min, u_max = _bounds(t, "u", m)
+    simplify = _boolean(t.get("simplify", False), "mpc.simplify")
+    domain_bound = _positive(t.get("domain_bound", 100.0), "mpc.domain_bound")
+    return MpcSpec(
+        horizon=horizon,
+        norm=norm,
+        Q=Q,
+        R=R,
+        P=P,
+        x_min=x_min,
+        x_max=x_max,
+        u_min=u_min,
+        u_max=u_max,
+        simplify=simplify,
+        domain_bound=domain_bound,
+    )
+
+
+def _verify(value: Any, n: int) -> VerifySpec:
+    t = _table(
+        value,
+        "verify",
+        required=("time_horizon", "initial_set"),
+        optional=tuple(k for k in _VERIFY if k not in ("time_horizon", "initial_set")),
+    )
+    horizon = _positive(t["time_horizon"], "verify.time_horizon")
+    hold = _choice(t.get("hold", "zoh"), "verify.hold", HOLDS)
+    max_depth = _integer(t.get("max_depth", 6), "verify.max_depth", minimum=0)
+    step = _positive(t.get("step", 0.01), "verify.step")
+    if horizon < step:
+        raise SpecError(
+            f"horizon shorter than one step (time_horizon = {horizon:g} < step = {step:g})",
+            field="verify.time_horizon",
+        )
+    init = _table(t["initial_set"], "verify.initial_set", required=("lower", "upper"))
+    lower = _vector(init["lower"], "verify.initial_set.lower", n)
+    upper = _vector(init["upper"], "verify.initial_set.upper", n)
+    _ordered(lower, upper, "verify.initial_set.lower", "lower", "upper")
+    input_bounds = _boolean(t.get("input_bounds", False), "verify.input_bounds")
+    unsafe = _sets(t.get("unsafe", []), "verify.unsafe", n)
+    safe = _sets(t.get("safe", []), "verify.safe", n)
+    return VerifySpec(
+        time_horizon=horizon,
+        initial_lower=_frozen(lower),
+        initial_upper=_frozen(upper),
+        hold=hold,
+        max_depth=max_depth,
+        step=step,
+        input_bounds=input_bounds,
+        unsafe=unsafe,
+        safe=safe,
+    )
+
+
+def _sets(value: Any, field: str, n: int) -> tuple[SetSpec, ...]:
+    if not isinstance(value, list):
+        name = field.rsplit(".", 1)[-1]
+        raise SpecError(
+            f"expected an array of tables ([[verify.{name}]] blocks), got {_kind(value)}",
+            field=field,
+        )
+    return tuple(_set(item, f"{field}[{i}]", n) for i, item in enumerate(value))
+
+
+def _set(value: Any, field: str, n: int) -> SetSpec:
+    t = _table(value, field, optional=("lower", "upper", "A", "b"))
+    box = "lower" in t or "upper" in t
+    poly = "A" in t or "b" in t
+    if box and poly:
+        raise SpecError(
+            "give either lower/upper (a box) or A/b (a polytope A x <= b), not both", field=field
+        )
+    if not box and not poly:
+        raise SpecError(
+            "empty set description: give lower/upper (a box) or A/b (a polytope)", field=field
+        )
+    if box:
+        for key in ("lower", "upper"):
+            if key not in t:
+                raise SpecError(
+                    "missing required field (lower and upper go together)", field=f"{field}.{key}"
+                )
+        lower = _vector(t["lower"], f"{field}.lower", n, allow_inf=True)
+        upper = _vector(t["upper"], f"{field}.upper", n, allow_inf=True)
+        _no_wrong_inf(lower, f"{field}.lower", "lower", +1)
+        _no_wrong_inf(upper, f"{field}.upper", "upper", -1)
+        _ordered(lower, upper, f"{field}.lower", "lower", "upper")
+        return SetSpec(kind="box", lower=_frozen(lower), upper=_frozen(upper))
+    for key in ("A", "b"):
+        if key not in t:
+            raise SpecError("missing required field (A and b go together)", field=f"{field}.{key}")
+    A = _matrix(t["A"], f"{field}.A", None, n)
+    b = _vector(t["b"], f"{field}.b", A.shape[0])
+    return SetSpec(kind="polytope", A=A, b=_frozen(b))
+
+
+# --- field validators -----------------------------------------------------------------------
+
+
+def _join(prefix: str, key: str) -> str:
+    return f"{prefix}.{key}" if prefix else key
+
+
+def _count(k: int, word: str) -> str:
+    return f"{k} {word}" + ("" if k == 1 else "s")
+
+
+def _kind(value: Any) -> str:
+    if isinstance(value, bool):
+        return f"a boolean ({str(value).lower()})"
+    if isinstance(value, int):
+        return f"an integer ({value})"
+    if isinstance(value, float):
+        return f"a float ({value!r})"
+    if isinstance(value, str):
+        return f"a string ({value!r})" if len(value) <= 40 else "a string"
+    if isinstance(value, list):
+        return f"a list of {_count(len(value), 'item')}"
+    if isinstance(value, dict):
+        return "a table"
+    return f"a {type(value).__name__}"
+
+
+def _table(
+    value: Any, field: str, *, required: Iterable[str] = (), optional: Iterable[str] = ()
+) -> dict[str, Any]:
+    where = f"[{field}]" if field else "the top level"
+    if not isinstance(value, dict):
+        raise SpecError(f"expected a table, got {_kind(value)}", field=field or None)
+    required, optional = tuple(required), tuple(optional)
+    allowed = required + optional
+    for key in value:
+        if key not in allowed:
+            close = difflib.get_close_matches(key, allowed, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise SpecError(
+                f"unknown field {key!r} in {where} (allowed: {', '.join(allowed)}){hint}",
+                field=_join(field, key),
+            )
+    for key in required:
+        if key not in value:
+            raise SpecError(f"missing required field {key!r} in {where}", field=_join(field, key))
+    return value
+
+
+def _spec_name(value: Any, field: str) -> str:
+    if not isinstance(value, str):
+        raise SpecError(f"expected a string, got {_kind(value)}", field=field)
+    if not _NAME_RE.fullmatch(value):
+        raise SpecError(
+            f"invalid name {value!r}: use 1-64 letters, digits, '-', '_' or '.', starting with "
+            "a letter or digit",
+            field=field,
+        )
+    return value
+
+
+def _names(value: Any, field: str) -> tuple[str, ...]:
+    if not isinstance(value, list):
+        raise SpecError(f"expected a list of names, got {_kind(value)}", field=field)
+    if not value:
+        raise SpecError("the list of names is empty", field=field)
+    seen: set[str] = set()
+    for i, name in enumerate(value):
+        f = f"{field}[{i}]"
+        if not isinstance(name, str):
+            raise SpecError(f"expected a name (string), got {_kind(name)}", field=f)
+        if not _IDENT_RE.fullmatch(name):
+            raise SpecError(
+                f"invalid name {name!r}: use letters, digits and '_', starting with a letter",
+                field=f,
+            )
+        if keyword.iskeyword(name):
+            raise SpecError(f"{name!r} is a reserved word and cannot be a name", field=f)
+        if name in RESERVED_NAMES:
+            raise SpecError(
+                f"{name!r} is a constant or function of the expression language and cannot be "
+                "a name",
+                field=f,
+            )
+        if name in seen:
+            raise SpecError(f"duplicate name {name!r}", field=f)
+        seen.add(name)
+    return tuple(value)
+
+
+def _number(value: Any, field: str, *, allow_inf: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise SpecError(f"expected a number, got {_kind(value)}", field=field)
+    x = float(value)
+    if math.isnan(x):
+        raise SpecError("NaN is not allowed", field=field)
+    if math.isinf(x) and not allow_inf:
+        raise SpecError("infinite values are only allowed in bounds and box sets", field=field)
+    return x
+
+
+def _positive(value: Any, field: str) -> float:
+    x = _number(value, field)
+    if x <= 0:
+        raise SpecError(f"must be > 0, got {x:g}", field=field)
+    return x
+
+
+def _integer(value: Any, field: str, *, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise SpecError(f"expected an integer, got {_kind(value)}", field=field)
+    if value < minimum:
+        raise SpecError(f"must be >= {minimum}, got {value}", field=field)
+    return value
+
+
+def _boolean(value: Any, field: str) -> bool:
+    if not isinstance(value, bool):
+        raise SpecError(f"expected true or false, got {_kind(value)}", field=field)
+    return value
+
+
+def _choice(value: Any, field: str, choices: tuple[str, ...]) -> str:
+    allowed = ", ".join(f'"{c}"' for c in choices)
+    if not isinstance(value, str) or value not in choices:
+        raise SpecError(f"expected one of {allowed}, got {_kind(value)}", field=field)
+    return value
+
+
+def _norm(value: Any, field: str) -> str:
+    if isinstance(value, str) and value.strip().lower() in NORMS:
+        return value.strip().lower()
+    if not isinstance(value, bool) and isinstance(value, int) and value in (1, 2):
+        return str(value)
+    if isinstance(value, float) and math.isinf(value) and value > 0:
+        return "inf"
+    raise SpecError(f'expected "1", "inf" or "2", got {_kind(value)}', field=field)
+
+
+def _vector(value: Any, field: str, n: int, *, allow_inf: bool = False) -> np.ndarray:
+    if not isinstance(value, list):
+        raise SpecError(
+            f"expected a list of {_count(n, 'number')}, got {_kind(value)}", field=field
+        )
+    if len(value) != n:
+        raise SpecError(f"expected a list of {_count(n, 'number')}, got {len(value)}", field=field)
+    out = np.array(
+        [_number(v, f"{field}[{i}]", allow_inf=allow_inf) for i, v in enumerate(value)], dtype=float
+    ).reshape(n)
+    return _frozen(out)
+
+
+def _matrix(value: Any, field: str, rows: int | None, cols: int) -> np.ndarray:
+    """A finite (rows, cols) matrix given as a list of rows; ``rows=None``: any number >= 1."""
+    want = (
+        f"a {rows}×{cols} matrix" if rows is not None else f"a matrix with {_count(cols, 'column')}"
+    )
+    if not isinstance(value, list):
+        raise SpecError(f"expected {want} (a list of rows), got {_kind(value)}", field=field)
+    if not value:
+        raise SpecError(f"expected {want}, got an empty list", field=field)
+    if not any(isinstance(r, list) for r in value):
+        raise SpecError(
+            f"expected {want} written as a list of rows like [[...], [...]], got a flat list of "
+            f"{_count(len(value), 'item')}",
+            field=field,
+        )
+    for i, row in enumerate(value):
+        if not isinstance(row, list):
+            raise SpecError(f"expected {want}; row {i} is {_kind(row)}, not a list", field=field)
+    lengths = sorted({len(r) for r in value})
+    if len(lengths) > 1:
+        raise SpecError(
+            f"expected {want}, got rows of different lengths ({', '.join(map(str, lengths))})",
+            field=field,
+        )
+    shape = (len(value), lengths[0])
+    if shape[1] != cols or (rows is not None and shape[0] != rows):
+        raise SpecError(f"expected {want}, got {shape[0]}×{shape[1]}", field=field)
+    out = np.array(
+        [
+            [_number(v, f"{field}[{i}][{j}]") for j, v in enumerate(row)]
+            for i, row in enumerate(value)
+        ],
+        dtype=float,
+    ).reshape(shape)
+    return _frozen(out)
+
+
+def _psd(M: np.ndarray, name: str, field: str, *, definite: bool) -> None:
+    scale = float(np.max(np.abs(M))) if M.size else 0.0
+    asym = np.abs(M - M.T)
+    if np.max(asym) > _SYM_TOL * max(scale, 1e-300):
+        i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
+        raise SpecError(
+            f'{name} must be symmetric for norm "2" ({name}[{i}][{j}] = {M[i, j]:g} but '
+            f"{name}[{j}][{i}] = {M[j, i]:g})",
+            field=field,
+        )
+    eig = np.linalg.eigvalsh(0.5 * (M + M.T))
+    top = float(np.max(np.abs(eig)))
+    low = float(np.min(eig))
+    if definite and not low > _SYM_TOL * top:
+        raise SpecError(
+            f'{name} must be positive definite for norm "2" (smallest eigenvalue {low:.3g})',
+            field=field,
+        )
+    if not definite and low < -_SYM_TOL * top:
+        raise SpecError(
+            f'{name} must be positive semidefinite for norm "2" (smallest eigenvalue {low:.3g})',
+            field=field,
+        )
+
+
+def _bounds(t: Mapping[str, Any], var: str, n: int) -> tuple[np.ndarray, np.ndarray]:
+    lo_key, hi_key = f"{var}_min", f"{var}_max"
+    lo = (
+        _vector(t[lo_key], f"mpc.{lo_key}", n, allow_inf=True)
+        if lo_key in t
+        else _frozen(np.full(n, -np.inf))
+    )
+    hi = (
+        _vector(t[hi_key], f"mpc.{hi_key}", n, allow_inf=True)
+        if hi_key in t
+        else _frozen(np.full(n, np.inf))
+    )
+    _no_wrong_inf(lo, f"mpc.{lo_key}", lo_key, +1)
+    _no_wrong_inf(hi, f"mpc.{hi_key}", hi_key, -1)
+    _ordered(lo, hi, f"mpc.{lo_key}", lo_key, hi_key)
+    return lo, hi
+
+
+def _no_wrong_inf(v: np.ndarray, field: str, name: str, sign: int) -> None:
+    bad = np.flatnonzero(np.isinf(v) & (np.sign(v) == sign))
+    if bad.size:
+        i = int(bad[0])
+        what = "a lower bound cannot be +inf" if sign > 0 else "an upper bound cannot be -inf"
+        raise SpecError(f"{name}[{i}] = {v[i]}: {what}", field=f"{field}[{i}]")
+
+
+def _ordered(lo: np.ndarray, hi: np.ndarray, field: str, lo_name: str, hi_name: str) -> None:
+    bad = np.flatnonzero(lo > hi)
+    if bad.size:
+        i = int(bad[0])
+        raise SpecError(
+            f"{lo_name}[{i}] = {lo[i]:g} is greater than {hi_name}[{i}] = {hi[i]:g}",
+            field=field,
+        )
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a

@@ -1,0 +1,909 @@
+"""Matplotlib pictures of explicit laws and verification results (notebooks, reports).
+
+Pure functions on the engine's objects. matplotlib is imported inside the functions that
+draw, so ``import codev_engine`` never loads it. Everything uses the object-oriented API --
+a ``matplotlib.figure.Figure`` rendered by the Agg canvas -- never ``pyplot``: no GUI
+backend, no global figure registry, nothing left behind between calls.
+
+The notebook hooks of :class:`~codev_engine.law.ExplicitLaw` and
+:class:`~codev_engine.verify.VerificationResult` (``_repr_png_``, ``_repr_html_``,
+``_repr_mimebundle_``) delegate to :func:`figure_law`, :func:`figure_result`,
+:func:`law_html`, :func:`result_html` and :func:`mimebundle` here.
+
+Drawing is vectorised: a partition's polygons come from one batched vertex enumeration
+(:func:`section_polygons`, ~1000 regions in a few tens of milliseconds) and a tube's boxes
+go into one ``PolyCollection`` per axes, not one patch per box.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from itertools import combinations
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from codev_engine.law import ExplicitLaw
+    from codev_engine.reach.verification import Counterexample, VerificationResult
+    from codev_engine.spec.problem import Problem, SetSpec
+
+__all__ = [
+    "VERDICT_COLOURS",
+    "default_slice_point",
+    "figure_law",
+    "figure_result",
+    "law_html",
+    "merge_bands",
+    "mimebundle",
+    "plot_partition",
+    "plot_plane",
+    "plot_tube",
+    "png_bytes",
+    "result_html",
+    "section_polygons",
+]
+
+#: banner / title colour of each verdict (green, red, amber)
+VERDICT_COLOURS: dict[str, str] = {
+    "robustly_safe": "#2e7d32",
+    "unsafe": "#c62828",
+    "unknown": "#e69500",
+}
+_TUBE_FACE = "#6baed6"
+_TRACE = "#c62828"
+_UNSAFE = "#e53935"
+_SAFE = "#2e7d32"
+_INITIAL = "#111111"
+#: resolution of the notebook pictures (dots per inch)
+_DPI = 80
+#: cap on ``regions x vertex candidates x rows`` per batch of the vertex enumeration
+_BATCH = 2_000_000
+
+
+# --------------------------------------------------------------------------------------------
+# geometry
+# --------------------------------------------------------------------------------------------
+
+
+def section_polygons(
+    A: list[np.ndarray],
+    b: list[np.ndarray],
+    *,
+    axes: tuple[int, int] = (0, 1),
+    at: np.ndarray | None = None,
+    tol: float = 1e-9,
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """The 2-D sections of polytopes ``{x : A_i x <= b_i}`` as ordered polygons.
+
+    The section of region ``i`` is ``{(x[axes[0]], x[axes[1]]) : A_i x <= b_i}`` with every
+    other coordinate fixed at ``at``. Its vertices are found for all regions at once: every
+    pair of (normalised) rows of a region is intersected and the points that satisfy all the
+    region's rows are kept, then sorted by angle around their mean. Regions are batched by
+    row count, so there is no padding and no Python loop over regions.
+
+    Parameters
+    ----------
+    A : list of (r_i, n) ndarray
+        Region rows.
+    b : list of (r_i,) ndarray
+    axes : (2,) tuple of int
+        The two coordinates spanning the plane (distinct, ``< n``).
+    at : (n,) array_like, optional
+        Values of the other coordinates (ignored for ``n == 2``); zeros by default.
+    tol : float
+        Relative feasibility tolerance of a candidate vertex.
+
+    Returns
+    -------
+    polygons : list of (v_k, 2) ndarray
+        Counter-clockwise vertices of each non-degenerate section (positive area).
+    index : (p,) ndarray of int
+        The region of each polygon, increasing.
+    """
+    R = len(A)
+    if R == 0:
+        return [], np.zeros(0, dtype=int)
+    n = A[0].shape[1]
+    i, j = _check_axes(axes, n)
+    counts = np.array([a.shape[0] for a in A])
+    rows = np.vstack(A).astype(float)
+    rhs = np.concatenate(b).astype(float)
+    region = np.repeat(np.arange(R), counts)
+    others = [k for k in range(n) if k not in (i, j)]
+    if others:
+        at = np.zeros(n) if at is None else np.asarray(at, dtype=float).reshape(n)
+        rhs = rhs - rows[:, others] @ at[others]
+    plane = rows[:, [i, j]]
+    scale = np.maximum(np.linalg.norm(rows, axis=1), 1e-300)
+    norm = np.hypot(plane[:, 0], plane[:, 1])
+    flat = norm <= 1e-12 * scale
+    # a row without a component in the plane is a constant test: all or nothing
+    empty = np.bincount(region[flat & (rhs < -tol * (1.0 + np.abs(rhs)))], minlength=R) > 0
+    keep = ~flat & ~empty[region]
+    plane = plane[keep] / norm[keep, None]
+    rhs = rhs[keep] / norm[keep]
+    region = region[keep]
+    kept = np.bincount(region, minlength=R)
+    start = np.concatenate([[0], np.cumsum(kept)[:-1]])
+
+    pts, owner = [], []
+    for c in np.unique(kept[kept >= 3]):
+        regs = np.flatnonzero(kept == c)
+        p, q = (np.array(v) for v in zip(*combinations(range(c), 2), strict=True))
+        chunk = max(1, _BATCH // (len(p) * c))
+        for s in range(0, regs.size, chunk):
+            rr = regs[s : s + chunk]
+            idx = start[rr][:, None] + np.arange(c)  # (Rc, c) rows of each region
+            M, h = plane[idx], rhs[idx]
+            a, a2, h1, h2 = M[:, p], M[:, q], h[:, p], h[:, q]
+            det = a[..., 0] * a2[..., 1] - a[..., 1] * a2[..., 0]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                X = np.stack(
+                    [
+                        (h1 * a2[..., 1] - h2 * a[..., 1]) / det,
+                        (a[..., 0] * h2 - a2[..., 0] * h1) / det,
+                    ],
+                    axis=-1,
+                )  # (Rc, P, 2)
+                slack = np.einsum("rpd,rkd->rpk", X, M) - h[:, None, :]
+            ok = np.abs(det) > 1e-10
+            ok &= np.all(slack <= tol * (1.0 + np.abs(h[:, None, :])), axis=2)
+            r_ok, p_ok = np.nonzero(ok)
+            pts.append(X[r_ok, p_ok])
+            owner.append(rr[r_ok])
+    P = np.concatenate(pts) if pts else np.zeros((0, 2))
+    own = np.concatenate(owner) if owner else np.zeros(0, dtype=int)
+    if own.size == 0:
+        return [], np.zeros(0, dtype=int)
+    # order the vertices of each region by angle around their mean
+    num = np.bincount(own, minlength=R)
+    centre = (
+        np.stack([np.bincount(own, P[:, 0], R), np.bincount(own, P[:, 1], R)], axis=1)
+        / np.maximum(num, 1)[:, None]
+    )
+    d = P - centre[own]
+    order = np.lexsort((np.arctan2(d[:, 1], d[:, 0]), own))
+    P, own = P[order], own[order]
+    regs, first = np.unique(own, return_index=True)
+    # shoelace area per region (cyclic successor inside each region's run)
+    nxt = np.arange(1, own.size + 1)
+    nxt[np.append(first[1:], own.size) - 1] = first
+    cross = P[:, 0] * P[nxt, 1] - P[nxt, 0] * P[:, 1]
+    area = 0.5 * np.add.reduceat(cross, first)
+    span = float(np.ptp(P, axis=0).max()) if P.size else 0.0
+    good = (np.diff(np.append(first, own.size)) >= 3) & (area > 1e-12 * max(span, 1.0) ** 2)
+    polys = np.split(P, first[1:])
+    return [polys[k] for k in np.flatnonzero(good)], regs[good]
+
+
+def default_slice_point(law: ExplicitLaw) -> np.ndarray:
+    """The point whose other coordinates fix a 2-D section of an ``n > 2`` law.
+
+    The centre of the bounding box of the law's domain (the MPC's feasible set; two LPs per
+    state) -- for the usual designs around an operating point with symmetric bounds, that
+    operating point. Without a stored domain: the centre of the regions' bounding boxes.
+
+    Returns
+    -------
+    (n,) ndarray
+    """
+    from codev_engine.geometry.polytope import bounding_box
+
+    if law.domain_A is not None and law.domain_A.shape[0]:
+        lo, hi = bounding_box(law.domain_A, law.domain_b)
+        if np.all(np.isfinite(lo) & np.isfinite(hi)):
+            return 0.5 * (lo + hi)
+    if law.num_regions == 0:
+        return np.zeros(law.n)
+    lo, hi = law.boxes
+    return 0.5 * (lo.min(axis=0) + hi.max(axis=0))
+
+
+def _check_axes(axes: tuple[int, int], n: int) -> tuple[int, int]:
+    i, j = (int(a) for a in axes)
+    if i == j or not (0 <= i < n and 0 <= j < n):
+        raise ValueError(f"axes must be two distinct state indices below {n}, got {axes}")
+    return i, j
+
+
+def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Rectangles ``[lo, hi]`` (K, 2) as closed polygons (K, 4, 2)."""
+    return np.stack(
+        [
+            np.stack([lo[:, 0], lo[:, 1]], axis=1),
+            np.stack([hi[:, 0], lo[:, 1]], axis=1),
+            np.stack([hi[:, 0], hi[:, 1]], axis=1),
+            np.stack([lo[:, 0], hi[:, 1]], axis=1),
+        ],
+        axis=1,
+    )
+
+
+def merge_bands(
+    t_start: np.ndarray, t_end: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> np.ndarray:
+    """The union of a tube's bands on one state, as fewer bands.
+
+    Bands with the same time interval whose value intervals overlap are merged into their
+    union (exactly: the union of the drawn rectangles does not change). Tubes of many
+    branches on a common time grid shrink by about the number of branches.
+
+    Parameters
+    ----------
+    t_start, t_end, lower, upper : (K,) ndarray
+
+    Returns
+    -------
+    (k, 4) ndarray
+        Rows ``(t_start, t_end, lower, upper)``, ``k <= K``.
+    """
+    if t_start.shape[0] == 0:
+        return np.zeros((0, 4))
+    order = np.lexsort((lower, t_end, t_start))
+    ts, te, lo, hi = t_start[order], t_end[order], lower[order], upper[order]
+    new_time = np.ones(ts.shape[0], dtype=bool)
+    new_time[1:] = (ts[1:] != ts[:-1]) | (te[1:] != te[:-1])
+    group = np.cumsum(new_time) - 1
+    # running max of ``upper`` inside each time group: lift group g by g * span, so one
+    # cumulative maximum never carries a value across groups
+    span = 2.0 * (float(hi.max() - lo.min()) + 1.0)
+    reach = np.maximum.accumulate(hi - lo.min() + group * span) - group * span + lo.min()
+    gap = np.ones(ts.shape[0], dtype=bool)
+    gap[1:] = new_time[1:] | (lo[1:] > reach[:-1])
+    first = np.flatnonzero(gap)
+    return np.stack([ts[first], te[first], lo[first], np.maximum.reduceat(hi, first)], axis=1)
+
+
+def _add_boxes(ax: Axes, lo: np.ndarray, hi: np.ndarray, **style: Any) -> None:
+    """Rectangles ``[lo[k], hi[k]]`` (K, 2) as one compound path: one artist, one draw call
+    (10^5 boxes in a fraction of a second). Axis limits are the caller's to set."""
+    from matplotlib.patches import PathPatch
+    from matplotlib.path import Path
+
+    K = lo.shape[0]
+    verts = np.concatenate([_box_corners(lo, hi), lo[:, None, :]], axis=1).reshape(-1, 2)
+    step = [Path.MOVETO, Path.LINETO, Path.LINETO, Path.LINETO, Path.CLOSEPOLY]
+    codes = np.tile(np.array(step, dtype=Path.code_type), K)
+    # add_artist, not add_patch: add_patch walks the path in Python to update data limits
+    ax.add_artist(PathPatch(Path(verts, codes), **style))
+
+
+def _region_colours(index: np.ndarray) -> np.ndarray:
+    """Distinct pastel colours (k, 3): hues spaced by the golden ratio, by region index."""
+    from matplotlib.colors import hsv_to_rgb
+
+    hue = (np.asarray(index, dtype=float) * 0.618033988749895) % 1.0
+    hsv = np.stack([hue, np.full_like(hue, 0.45), np.full_like(hue, 0.95)], axis=1)
+    return hsv_to_rgb(hsv)
+
+
+def _state_names(n: int, names: tuple[str, ...] | None) -> tuple[str, ...]:
+    if names and len(names) == n:
+        return tuple(names)
+    return tuple(f"x[{k}]" for k in range(n))
+
+
+def _new_axes(ax: Axes | None, figsize: tuple[float, float] = (6.0, 4.5)) -> Axes:
+    if ax is not None:
+        return ax
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=figsize, layout="constrained").add_subplot()
+
+
+def _padded(lo: float, hi: float, frac: float = 0.15) -> tuple[float, float]:
+    """An interval around ``[lo, hi]`` with a margin (a unit margin when it is a point)."""
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return -1.0, 1.0
+    pad = frac * (hi - lo) if hi > lo else max(1.0, abs(lo)) * 0.1
+    return lo - pad, hi + pad
+
+
+# --------------------------------------------------------------------------------------------
+# laws
+# --------------------------------------------------------------------------------------------
+
+
+def plot_partition(
+    law: ExplicitLaw,
+    ax: Axes | None = None,
+    *,
+    axes: tuple[int, int] = (0, 1),
+    at: np.ndarray | None = None,
+    linewidth: float = 0.4,
+) -> Axes:
+    """Draw the law's critical regions, one colour each.
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    ax : matplotlib Axes, optional
+        Where to draw; a new figure's axes by default.
+    axes : (2,) tuple of int
+        The states on the horizontal and vertical axes (``n >= 2``).
+    at : (n,) array_like, optional
+        For ``n > 2``: the values of the other states; the picture is the section of the
+        partition through ``at`` (default :func:`default_slice_point`, the centre of the
+        domain's bounding box). Ignored for ``n <= 2``.
+    linewidth : float
+        Width of the region edges.
+
+    Returns
+    -------
+    matplotlib Axes
+
+    Notes
+    -----
+    With one state the regions are intervals: each is drawn as a band, with the first
+    input ``u = F_i x + G_i`` over it as a line.
+    """
+    ax = _new_axes(ax)
+    names = _state_names(law.n, law.states)
+    label = str(law.meta.get("problem", "explicit law"))
+    if law.n == 1:
+        return _plot_intervals(law, ax, names[0], label, linewidth)
+    i, j = _check_axes(axes, law.n)
+    at_full = None
+    if law.n > 2:
+        at_full = default_slice_point(law) if at is None else np.asarray(at, dtype=float)
+    polys, index = section_polygons(law.A, law.b, axes=(i, j), at=at_full)
+    _add_polygons(ax, polys, _region_colours(index), linewidth)
+    ax.set_xlabel(names[i])
+    ax.set_ylabel(names[j])
+    title = f"{label}: {law.num_regions} regions"
+    if at_full is not None:
+        fixed = ", ".join(f"{names[k]} = {at_full[k]:.3g}" for k in range(law.n) if k not in (i, j))
+        title += f"\nsection at {fixed} ({len(polys)} regions meet it)"
+    ax.set_title(title, fontsize="medium")
+    return ax
+
+
+def _add_polygons(ax: Axes, polys: list[np.ndarray], colours: np.ndarray, lw: float) -> None:
+    from matplotlib.collections import PolyCollection
+
+    if not polys:
+        ax.text(0.5, 0.5, "no region meets this section", ha="center", transform=ax.transAxes)
+        return
+    coll = PolyCollection(
+        polys, facecolors=colours, edgecolors="#333333", linewidths=lw, closed=True
+    )
+    ax.add_collection(coll, autolim=True)
+    ax.autoscale_view()
+
+
+def _plot_intervals(law: ExplicitLaw, ax: Axes, name: str, label: str, lw: float) -> Axes:
+    """One-state law: a band per region and the first input over it."""
+    from matplotlib.collections import LineCollection, PolyCollection
+
+    k = law.num_regions
+    if k == 0:
+        ax.set_title(f"{label}: 0 regions", fontsize="medium")
+        return ax
+    rows = np.concatenate([a[:, 0] for a in law.A])
+    rhs = np.concatenate(law.b)
+    region = np.repeat(np.arange(k), [a.shape[0] for a in law.A])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = rhs / rows
+    lo = np.full(k, -np.inf)
+    hi = np.full(k, np.inf)
+    np.maximum.at(lo, region[rows < 0], bound[rows < 0])
+    np.minimum.at(hi, region[rows > 0], bound[rows > 0])
+    ok = np.isfinite(lo) & np.isfinite(hi) & (lo < hi)
+    lo, hi, idx = lo[ok], hi[ok], np.flatnonzero(ok)
+    x = np.stack([lo, hi], axis=1)  # (k, 2)
+    u = law.F[idx, 0, 0][:, None] * x + law.G[idx, 0][:, None]
+    umin, umax = _padded(float(np.min(u)), float(np.max(u)), 0.1) if u.size else (-1, 1)
+    colours = _region_colours(idx)
+    bands = _box_corners(
+        np.stack([lo, np.full_like(lo, umin)], axis=1),
+        np.stack([hi, np.full_like(hi, umax)], axis=1),
+    )
+    ax.add_collection(
+        PolyCollection(bands, facecolors=colours, edgecolors="#333333", linewidths=lw)
+    )
+    ax.add_collection(LineCollection(np.stack([x, u], axis=2), colors="k", linewidths=1.5))
+    ax.set_xlim(float(lo.min()) if lo.size else -1, float(hi.max()) if hi.size else 1)
+    ax.set_ylim(umin, umax)
+    ax.set_xlabel(name)
+    ax.set_ylabel(law.inputs[0] if law.inputs else "u[0]")
+    ax.set_title(f"{label}: {k} regions", fontsize="medium")
+    return ax
+
+
+def figure_law(
+    law: ExplicitLaw, *, axes: tuple[int, int] = (0, 1), at: np.ndarray | None = None
+) -> Figure:
+    """A figure of the law's partition (see :func:`plot_partition`).
+
+    Returns
+    -------
+    matplotlib Figure
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.0, 4.5), layout="constrained")
+    plot_partition(law, fig.add_subplot(), axes=axes, at=at)
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# verification results
+# --------------------------------------------------------------------------------------------
+
+
+def plot_tube(
+    result: VerificationResult,
+    ax: Axes | None = None,
+    *,
+    state: int = 0,
+    problem: Problem | None = None,
+) -> Axes:
+    """Draw one state's reachtube against time.
+
+    Each box ``k`` of the tube is the band ``[t_start[k], t_end[k]] x [lower[k, state],
+    upper[k, state]]``; the bands are merged where they overlap (:func:`merge_bands`) and
+    drawn as one compound path. The counterexample trace, if any, is drawn over them, solid
+    up to its violation (marked) and faint after it.
+
+    Parameters
+    ----------
+    result : VerificationResult
+    ax : matplotlib Axes, optional
+    state : int
+        Index of the state.
+    problem : Problem, optional
+        Adds the states' names, the time horizon and the verify sets on that state: unsafe
+        sets that constrain this state alone as red bands (a set that also constrains other
+        states is not a band in this picture; see :func:`plot_plane`), and the bounds that
+        safe sets put on this state alone as green dashed lines.
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    ax = _new_axes(ax, (6.0, 3.0))
+    tube = result.tube
+    n = tube.lower.shape[1]
+    if not 0 <= state < n:
+        raise ValueError(f"state must be in [0, {n}), got {state}")
+    names = _state_names(n, problem.plant.states if problem is not None else None)
+    bands = merge_bands(tube.t_start, tube.t_end, tube.lower[:, state], tube.upper[:, state])
+    handles: list[Any] = []
+    ylo, yhi, tmax = np.inf, -np.inf, 0.0
+    if bands.shape[0]:
+        # edges in the face colour keep boxes thinner than a pixel visible
+        _add_boxes(ax, bands[:, [0, 2]], bands[:, [1, 3]], fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.8)
+        ylo, yhi = float(bands[:, 2].min()), float(bands[:, 3].max())
+        tmax = float(bands[:, 1].max())
+        handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
+    ce = result.counterexample
+    if ce is not None:
+        (th, xh), (tt, xt), v = _split_trace(ce, [state])
+        ax.plot(th, xh[:, 0], color=_TRACE, lw=1.2)
+        ax.plot(tt, xt[:, 0], color=_TRACE, lw=1.0, alpha=0.35)
+        ax.plot([ce.t], v, marker="X", color=_TRACE, ms=8, ls="none")
+        handles.append(
+            Line2D([], [], color=_TRACE, marker="X", label=f"counterexample ({ce.kind})")
+        )
+        ylo, yhi = min(ylo, float(xh.min())), max(yhi, float(xh.max()))
+        tmax = max(tmax, float(tt[-1]))
+    if problem is not None and problem.verify is not None:
+        tmax = max(tmax, problem.verify.time_horizon)
+    ylim = _padded(ylo, yhi)
+    ax.set_ylim(*ylim)
+    ax.set_xlim(0.0, tmax if tmax > 0 else 1.0)
+    if problem is not None and problem.verify is not None:
+        handles += _state_bounds(ax, problem, state, ylim)
+    ax.set_xlabel("t")
+    ax.set_ylabel(names[state])
+    if handles:
+        ax.legend(handles=handles, fontsize="small", loc="upper right")
+    return ax
+
+
+def _bounds_on(s: SetSpec, state: int, *, alone: bool) -> tuple[float, float] | None:
+    """Bounds ``(lo, hi)`` (+-inf allowed) that a verify set puts on one state.
+
+    With ``alone`` only when the set constrains no other state (then ``x`` is in the set
+    exactly when ``x[state]`` is within the bounds; None otherwise). Without: the bounds
+    implied by the set's rows on this state only -- necessary conditions of membership.
+    """
+    A, b = s.halfspaces()
+    on = np.all(np.delete(A, state, axis=1) == 0, axis=1)
+    if alone and not np.all(on):
+        return None
+    a, c = A[on, state], b[on]
+    lo = np.max(c[a < 0] / a[a < 0], initial=-np.inf)
+    hi = np.min(c[a > 0] / a[a > 0], initial=np.inf)
+    return float(lo), float(hi)
+
+
+def _state_bounds(ax: Axes, problem: Problem, state: int, ylim: tuple[float, float]) -> list:
+    """Draw the verify sets' bounds on one state; returns legend handles."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    vs = problem.verify
+    handles: list[Any] = []
+    drawn_unsafe = drawn_safe = False
+    for s in vs.unsafe:  # only sets on this state alone: others are not bands in time
+        ext = _bounds_on(s, state, alone=True)
+        if ext is None:
+            continue
+        lo, hi = max(ext[0], ylim[0]), min(ext[1], ylim[1])
+        if lo < hi:
+            ax.axhspan(lo, hi, color=_UNSAFE, alpha=0.2, lw=0)
+            drawn_unsafe = True
+    for s in vs.safe:  # every bound of a safe set must hold on its own
+        ext = _bounds_on(s, state, alone=False)
+        if ext is None:
+            continue
+        for y in ext:
+            if ylim[0] <= y <= ylim[1]:
+                ax.axhline(y, color=_SAFE, ls="--", lw=1)
+                drawn_safe = True
+    if drawn_unsafe:
+        handles.append(Patch(facecolor=_UNSAFE, alpha=0.2, label="unsafe"))
+    if drawn_safe:
+        handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe bound"))
+    return handles
+
+
+def plot_plane(
+    result: VerificationResult,
+    ax: Axes | None = None,
+    *,
+    axes: tuple[int, int] = (0, 1),
+    problem: Problem | None = None,
+    law: ExplicitLaw | None = None,
+) -> Axes:
+    """Draw the tube's boxes projected on a plane of two states.
+
+    Parameters
+    ----------
+    result : VerificationResult
+    ax : matplotlib Axes, optional
+    axes : (2,) tuple of int
+        The states on the horizontal and vertical axes.
+    problem : Problem, optional
+        Adds the initial set (black outline), the unsafe sets (red) and the safe sets (green
+        outline), clipped to the view. Boxes are drawn as their projections; polytope sets
+        whose rows only involve the two plotted states are drawn exactly, other polytope sets
+        are listed as not drawn.
+    law : ExplicitLaw, optional
+        Adds the outline of the law's domain (for ``n > 2``, its section through the centre
+        of the initial set, or :func:`default_slice_point` without a problem).
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Polygon, Rectangle
+
+    ax = _new_axes(ax)
+    tube = result.tube
+    n = tube.lower.shape[1]
+    i, j = _check_axes(axes, n)
+    names = _state_names(n, problem.plant.states if problem is not None else None)
+    handles: list[Any] = []
+    lo2 = np.unique(np.hstack([tube.lower[:, [i, j]], tube.upper[:, [i, j]]]), axis=0)
+    pts = [lo2[:, :2], lo2[:, 2:]]
+    if lo2.shape[0]:
+        _add_boxes(ax, lo2[:, :2], lo2[:, 2:], fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.5)
+        handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
+    ce = result.counterexample
+    if ce is not None:
+        (_, head), (_, tail), v = _split_trace(ce, [i, j])
+        ax.plot(head[:, 0], head[:, 1], color=_TRACE, lw=1.2)
+        ax.plot(tail[:, 0], tail[:, 1], color=_TRACE, lw=1.0, alpha=0.35)
+        ax.plot(v[:1], v[1:], marker="X", color=_TRACE, ms=8, ls="none")
+        handles.append(
+            Line2D([], [], color=_TRACE, marker="X", label=f"counterexample ({ce.kind})")
+        )
+        pts.append(head)
+    vs = problem.verify if problem is not None else None
+    if vs is not None:
+        ilo, ihi = vs.initial_lower[[i, j]], vs.initial_upper[[i, j]]
+        ax.add_patch(Rectangle(ilo, *(ihi - ilo), fill=False, ec=_INITIAL, lw=1.2, zorder=3))
+        handles.append(Patch(fill=False, ec=_INITIAL, label="initial set"))
+        pts += [ilo[None], ihi[None]]
+    allpts = np.vstack(pts) if pts else np.zeros((0, 2))
+    xlim = _padded(*_range(allpts[:, 0]))
+    ylim = _padded(*_range(allpts[:, 1]))
+    # sets are clipped to a box a little larger than the view: no clipped edge shows
+    margin = 0.1 * np.array([xlim[1] - xlim[0], ylim[1] - ylim[0]])
+    view = (np.array([xlim[0], ylim[0]]) - margin, np.array([xlim[1], ylim[1]]) + margin)
+    if vs is not None:
+        skipped = 0
+        for sets, style in ((vs.unsafe, "unsafe"), (vs.safe, "safe")):
+            drawn = False
+            for s in sets:
+                poly = _set_in_view(s, i, j, view)
+                if poly is None:
+                    skipped += 1
+                elif poly.shape[0] >= 3:
+                    if style == "safe" and _fills_view(poly, view):
+                        continue  # the safe set contains the whole view: nothing to see
+                    if style == "unsafe":
+                        ax.add_patch(Polygon(poly, fc=_UNSAFE, alpha=0.25, lw=0, zorder=0.5))
+                    else:
+                        ax.add_patch(Polygon(poly, fill=False, ec=_SAFE, ls="--", lw=1))
+                    drawn = True
+            if drawn and style == "unsafe":
+                handles.append(Patch(facecolor=_UNSAFE, alpha=0.25, label="unsafe"))
+            elif drawn:
+                handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe"))
+        if skipped:
+            handles.append(Patch(fill=False, lw=0, label=f"({skipped} polytope set(s) not drawn)"))
+    if law is not None:
+        at = None
+        if law.n > 2:
+            at = 0.5 * (vs.initial_lower + vs.initial_upper) if vs is not None else None
+            at = default_slice_point(law) if at is None else at
+        dom = _domain_polygon(law, (i, j), at, view)
+        if dom is not None:
+            ax.add_patch(Polygon(dom, fill=False, ec="#555555", ls=":", lw=1.2))
+            word = "law domain" if law.n == 2 else "law domain (section)"
+            handles.append(Line2D([], [], color="#555555", ls=":", label=word))
+    ax.set_xlim(*xlim)
+    ax.set_ylim(*ylim)
+    ax.set_xlabel(names[i])
+    ax.set_ylabel(names[j])
+    if handles:
+        ax.legend(handles=handles, fontsize="small", loc="upper right")
+    return ax
+
+
+def _split_trace(
+    ce: Counterexample, cols: list[int]
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """A counterexample's trace on states ``cols``, split at the violation.
+
+    Returns
+    -------
+    head : ((k,) ndarray, (k, c) ndarray)
+        Times and states up to and including the violation (interpolated at ``ce.t``).
+    tail : ((l,) ndarray, (l, c) ndarray)
+        From the violation to the end of the simulation (drawn faint).
+    v : (c,) ndarray
+        The state at the violation.
+    """
+    t = np.asarray(ce.trace.t, dtype=float)
+    X = np.asarray(ce.trace.x, dtype=float)[:, cols]
+    v = np.array([np.interp(ce.t, t, X[:, k]) for k in range(X.shape[1])])
+    before = t < ce.t
+    head = (np.append(t[before], ce.t), np.vstack([X[before], v]))
+    tail = (np.insert(t[~before], 0, ce.t), np.vstack([v, X[~before]]))
+    return head, tail, v
+
+
+def _range(v: np.ndarray) -> tuple[float, float]:
+    v = v[np.isfinite(v)]
+    return (float(v.min()), float(v.max())) if v.size else (np.nan, np.nan)
+
+
+def _set_in_view(
+    s: SetSpec, i: int, j: int, view: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray | None:
+    """A verify set's projection on states (i, j), clipped to the view box -> (v, 2).
+
+    None when it cannot be drawn exactly (a polytope with rows on other states); an empty
+    array when it misses the view.
+    """
+    from codev_engine.geometry.polytope import box_halfspaces
+
+    if s.kind == "box":
+        A, b = box_halfspaces(s.lower[[i, j]], s.upper[[i, j]])
+    elif np.any(np.delete(s.A, [i, j], axis=1) != 0):
+        return None
+    else:
+        A, b = s.A[:, [i, j]], s.b
+    Av, bv = box_halfspaces(*view)
+    polys, _ = section_polygons([np.vstack([A, Av])], [np.concatenate([b, bv])])
+    return polys[0] if polys else np.zeros((0, 2))
+
+
+def _domain_polygon(
+    law: ExplicitLaw,
+    axes: tuple[int, int],
+    at: np.ndarray | None,
+    view: tuple[np.ndarray, np.ndarray],
+) -> np.ndarray | None:
+    """The section of the law's domain clipped to ``view`` -> (v, 2); None when the domain's
+    boundary does not cross the view (or the law stores no domain)."""
+    if law.domain_A is None or not law.domain_A.shape[0]:
+        return None
+    lo, hi = view
+    E = np.zeros((4, law.n))
+    E[[0, 2], axes[0]] = 1.0, -1.0
+    E[[1, 3], axes[1]] = 1.0, -1.0
+    e = np.array([hi[0], hi[1], -lo[0], -lo[1]])
+    A = np.vstack([law.domain_A, E])
+    b = np.concatenate([law.domain_b, e])
+    polys, _ = section_polygons([A], [b], axes=axes, at=at)
+    if not polys:
+        return None
+    return None if _fills_view(polys[0], view) else polys[0]
+
+
+def _fills_view(poly: np.ndarray, view: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Is a polygon clipped to ``view`` the whole view box (its boundary out of sight)?"""
+    lo, hi = view
+    corners = _box_corners(lo[None], hi[None])[0]
+    gap = np.abs(poly[:, None, :] - corners[None]).max(axis=2).min(axis=1)
+    return bool(np.all(gap <= 1e-9 * (1.0 + np.abs(corners).max())))
+
+
+def _verdict_text(result: VerificationResult) -> str:
+    """``robustly safe``, ``unsafe: enters unsafe set 0 at t = 2.47``, ``unknown (max_depth)``."""
+    text = result.verdict.replace("_", " ")
+    ce = result.counterexample
+    if result.verdict == "unsafe" and ce is not None:
+        return f"{text}: {ce.describe()} at t = {ce.t:.4g}"
+    return f"{text} ({result.reason})" if result.reason else text
+
+
+def figure_result(
+    result: VerificationResult,
+    problem: Problem | None = None,
+    *,
+    law: ExplicitLaw | None = None,
+    max_states: int = 4,
+) -> Figure:
+    """A figure of a verification result: verdict title, tubes against time, plane view.
+
+    Parameters
+    ----------
+    result : VerificationResult
+    problem : Problem, optional
+        Adds state names, the problem's name and the verify section's sets.
+    law : ExplicitLaw, optional
+        Adds the law's domain to the plane view.
+    max_states : int
+        Tubes against time are drawn for the first ``max_states`` states.
+
+    Returns
+    -------
+    matplotlib Figure
+        Left: one tube-vs-time panel per state; right (``n >= 2``): the plane of the first
+        two states (:func:`plot_plane`).
+    """
+    from matplotlib.figure import Figure
+
+    n = result.tube.lower.shape[1]
+    rows = max(1, min(n, max_states))
+    plane = n >= 2
+    fig = Figure(figsize=(11.0 if plane else 6.5, 1.2 + 2.0 * rows), layout="constrained")
+    grid = fig.add_gridspec(rows, 2 if plane else 1, width_ratios=[1.2, 1] if plane else None)
+    for k in range(rows):
+        ax = fig.add_subplot(grid[k, 0])
+        plot_tube(result, ax, state=k, problem=problem)
+        if k < rows - 1:
+            ax.set_xlabel("")
+    if plane:
+        plot_plane(result, fig.add_subplot(grid[:, 1]), problem=problem, law=law)
+    name = f"{problem.name}: " if problem is not None else ""
+    stats = f"{result.tube.num_boxes} boxes, {result.seconds:.3g} s, hold {result.hold}"
+    fig.suptitle(
+        f"{name}{_verdict_text(result)}   [{stats}]",
+        color=VERDICT_COLOURS.get(result.verdict, "k"),
+        fontweight="bold",
+    )
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# notebook rendering
+# --------------------------------------------------------------------------------------------
+
+
+def png_bytes(fig: Figure, *, dpi: float = _DPI) -> bytes:
+    """The figure as PNG bytes (rendered by Agg; no backend or pyplot involved)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def _img(png: bytes) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    return f'<img src="data:image/png;base64,{data}" style="max-width:100%"/>'
+
+
+def _table(rows: list[tuple[str, str]]) -> str:
+    body = "".join(
+        f"<tr><th style='text-align:left;padding-right:1em'>{html.escape(k)}</th>"
+        f"<td style='text-align:left'>{html.escape(v)}</td></tr>"
+        for k, v in rows
+    )
+    return f"<table>{body}</table>"
+
+
+def law_html(law: ExplicitLaw, png: bytes | None = None) -> str:
+    """HTML summary of a law (regions, n, m, norm, ...) with the partition picture.
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    png : bytes, optional
+        The picture (:func:`figure_law` rendered by :func:`png_bytes`); drawn if None.
+    """
+    if png is None:
+        png = png_bytes(figure_law(law))
+    rows = [
+        ("regions", str(law.num_regions)),
+        ("states", f"{law.n} ({', '.join(law.states)})" if law.states else str(law.n)),
+        ("inputs", f"{law.m} ({', '.join(law.inputs)})" if law.inputs else str(law.m)),
+    ]
+    for key in ("norm", "horizon", "seconds"):
+        if key in law.meta:
+            rows.append((key, str(law.meta[key])))
+    title = html.escape(str(law.meta.get("problem", "")))
+    head = f"<b>ExplicitLaw</b> {title}".rstrip()
+    return f"<div>{head}{_table(rows)}{_img(png)}</div>"
+
+
+def result_html(result: VerificationResult, png: bytes | None = None) -> str:
+    """HTML summary of a verification result: a coloured verdict banner, the counterexample,
+    timings and sizes, and the tube picture.
+
+    Parameters
+    ----------
+    result : VerificationResult
+    png : bytes, optional
+        The picture (:func:`figure_result` rendered by :func:`png_bytes`); drawn if None.
+    """
+    if png is None:
+        png = png_bytes(figure_result(result))
+    colour = VERDICT_COLOURS.get(result.verdict, "#555555")
+    banner = (
+        f"<div style='background:{colour};color:white;padding:4px 10px;"
+        f"font-weight:bold;border-radius:3px'>{html.escape(_verdict_text(result))}</div>"
+    )
+    rows = [
+        ("hold", result.hold),
+        ("boxes", str(result.tube.num_boxes)),
+        ("branches", str(result.stats.get("branches", 0))),
+        ("seconds", f"{result.seconds:.3f}"),
+    ]
+    ce = result.counterexample
+    if ce is not None:
+        rows += [
+            ("counterexample x0", np.array2string(np.asarray(ce.x0), precision=6)),
+            ("violation", f"{ce.kind} (index {ce.index}) at t = {ce.t:.4f}"),
+        ]
+    return f"<div>{banner}{_table(rows)}{_img(png)}</div>"
+
+
+def mimebundle(obj: ExplicitLaw | VerificationResult) -> dict[str, str]:
+    """The notebook display of a law or a result, rendered once.
+
+    Returns
+    -------
+    dict
+        ``text/plain`` (the object's ``summary()``), ``text/html`` (the summary with the
+        picture embedded) and ``image/png`` (base64). Frontends prefer HTML, which shows
+        both; the PNG is there for frontends and tools that only take images.
+    """
+    from codev_engine.law import ExplicitLaw
+
+    if isinstance(obj, ExplicitLaw):
+        png = png_bytes(figure_law(obj))
+        text = law_html(obj, png)
+    else:
+        png = png_bytes(figure_result(obj))
+        text = result_html(obj, png)
+    return {
+        "text/plain": obj.summary(),
+        "text/html": text,
+        "image/png": base64.b64encode(png).decode("ascii"),
+    }

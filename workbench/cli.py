@@ -1,0 +1,683 @@
+"""The ``codev`` command line: a thin shell over the engine.
+
+Exit status: 0 success (for ``verify``/``run``: robustly safe), 1 an outcome that is not
+a success but not the input's fault either: a verification that is not a proof (unsafe or
+unknown), a solver breakdown (``SolverError``) or a ``--timeout`` reached; 2 bad input (one
+line on stderr: file, field, reason).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import replace
+from pathlib import Path
+
+from codev_engine.errors import CodevError, SolverError, SpecError
+
+__all__ = ["main"]
+
+
+def _err(msg: str) -> None:
+    print(f"codev: error: {msg}", file=sys.stderr)
+
+
+@contextmanager
+def _progress(label: str, enabled: bool, unit: str = "regions") -> Iterator[Callable[[int], None]]:
+    """A live counter (``unit`` found so far) for one long step: a one-stage
+    :func:`_stage_progress`."""
+    with _stage_progress(enabled, {label: unit}) as on_event:
+        on_event(label, "start", {})
+        yield lambda count: on_event(label, "progress", {"count": count})
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    from codev_engine.pipeline import load_spec
+    from codev_engine.synthesis import synthesize
+
+    problem = load_spec(args.spec)
+    with _progress(f"synthesising {problem.name}", not args.json) as update:
+        law = synthesize(problem, progress=update)
+    out = None
+    if args.out:
+        out = str(law.save(args.out))
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "problem": problem.name,
+                    "regions": law.num_regions,
+                    "regions_before_merge": law.meta.get("regions_before_merge"),
+                    "seconds": law.meta["seconds"],
+                    "n": law.n,
+                    "m": law.m,
+                    "norm": problem.mpc.norm,
+                    "horizon": problem.mpc.horizon,
+                    "out": out,
+                }
+            )
+        )
+        return 0
+    mpc = problem.mpc
+    print(
+        f"{problem.name}: explicit MPC with {law.num_regions} critical regions "
+        f"(n={law.n}, m={law.m}, N={mpc.horizon}, norm {mpc.norm}) "
+        f"in {law.meta['seconds']:.3f} s"
+    )
+    if law.meta.get("regions_before_merge") != law.num_regions:
+        print(f"  merged from {law.meta['regions_before_merge']} regions (simplify)")
+    shown = min(law.num_regions, 5)
+    for i in range(shown):
+        terms = []
+        for r in range(law.m):
+            coef = " ".join(f"{v:+.4g}*{s}" for v, s in zip(law.F[i, r], law.states, strict=True))
+            terms.append(f"{law.inputs[r]} = {coef} {law.G[i, r]:+.4g}")
+        print(f"  region {i}: {law.A[i].shape[0]} facets; " + "; ".join(terms))
+    if law.num_regions > shown:
+        print(f"  ... {law.num_regions - shown} more regions")
+    if out:
+        print(f"law written to {out}")
+    return 0
+
+
+def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
+    """The JSON summary of a verification (``codev verify --json``, ``codev run --json``)."""
+    import numpy as np
+
+    width = result.width_at(problem.verify.time_horizon)
+    cex = result.counterexample
+    return {
+        "problem": problem.name,
+        "verdict": result.verdict,
+        "reason": result.reason,
+        "hold": result.hold,
+        "regions": law.num_regions,
+        "synthesis_seconds": synth_seconds,
+        "verification_seconds": round(result.seconds, 6),
+        "branches": result.stats.get("branches"),
+        "partitions": result.stats.get("partitions"),
+        "boxes": result.tube.num_boxes,
+        "tube_width_at_horizon": [None if not np.isfinite(w) else float(w) for w in width],
+        "counterexample": None
+        if cex is None
+        else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind, "index": cex.index},
+        "tube": tube_path,
+    }
+
+
+def _print_result(problem, law, result, tube_path) -> None:
+    import numpy as np
+
+    print(f"{problem.name}: {law.num_regions} regions; " + result.summary())
+    width = result.width_at(problem.verify.time_horizon)
+    print("  tube width at the horizon: " + np.array2string(width, precision=4))
+    if tube_path:
+        print(f"tube written to {tube_path}")
+
+
+def _verification(args: argparse.Namespace, problem, law, synth_seconds: float | None) -> int:
+    from codev_engine.reach.verification import verify
+
+    if problem.verify is None:
+        raise CodevError(f"{problem.path}: verify: the spec has no [verify] section")
+    with _progress(f"verifying {problem.name}", not args.json, "branches") as update:
+        result = verify(
+            problem,
+            law,
+            hold=args.hold,
+            max_depth=args.max_depth,
+            progress=lambda st: update(st.get("branches", 0)),
+        )
+    tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
+    if getattr(args, "record", None):
+        from codev_engine.view.records import RecordingOptions, write_recording
+
+        write_recording(
+            args.record,
+            problem,
+            law,
+            result,
+            options=RecordingOptions(axes=args.axes, traces=args.traces),
+        )
+    if args.json:
+        payload = _result_payload(problem, law, result, synth_seconds, tube_path)
+        payload["recording"] = getattr(args, "record", None)
+        print(json.dumps(payload))
+    else:
+        _print_result(problem, law, result, tube_path)
+        if getattr(args, "record", None):
+            _say_recording(args.record)
+    return 0 if result.verdict == "robustly_safe" else 1
+
+
+def _say_recording(path) -> None:
+    print(f"recording written to {path}\n  view it: codev view {path}")
+
+
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from codev_engine.law import ExplicitLaw
+    from codev_engine.pipeline import load_spec
+    from codev_engine.reach.verification import check_law_matches
+    from codev_engine.synthesis import synthesize
+
+    problem = load_spec(args.spec)
+    if problem.verify is None:
+        raise CodevError(f"{args.spec}: verify: the spec has no [verify] section")
+    if args.law:
+        law = ExplicitLaw.load(args.law)
+        check_law_matches(problem, law, file=args.law)
+        synth_seconds = law.meta.get("seconds")
+    else:
+        with _progress(f"synthesising {problem.name}", not args.json) as update:
+            law = synthesize(problem, progress=update)
+        synth_seconds = law.meta["seconds"]
+    return _verification(args, problem, law, synth_seconds)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    if args.session is None:
+        if args.fresh:
+            raise SpecError(
+                "--fresh needs --session (there is no cache without one)", field="--fresh"
+            )
+        return _cmd_verify(args)
+    from codev_engine.pipeline import load_spec
+    from codev_engine.session.session import RunOptions, Session
+
+    # bad input fails here or in Session.run's own checks, before the session is touched;
+    # the MPC's feasibility LP (python-control, ~1 s of imports) only when not cached
+    problem = load_spec(args.spec, check_mpc=False)
+    session = Session.open_or_create(args.session)
+    options = RunOptions(
+        hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
+    )
+    with _stage_progress(not args.json) as on_event:
+        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn)
+    tube_path = None
+    if args.export_tube and report.result is not None:
+        tube_path = str(report.result.tube.save(args.export_tube))
+    record = None
+    if report.recording is not None:
+        record = (
+            str(session.export(report.recording, args.record))
+            if args.record
+            else str(report.recording)
+        )
+    stages = {
+        s.stage: {
+            "status": s.status,
+            "seconds": round(s.seconds, 6),
+            "key": s.key,
+            "artifact": s.artifact,
+            "outcome": s.outcome,
+        }
+        for s in report.stages
+    }
+    law, result = report.law, report.result
+    if args.json:
+        payload: dict = {"problem": problem.name, "regions": law.num_regions if law else None}
+        if result is not None:
+            synth = law.meta.get("seconds") if law else None
+            payload = _result_payload(problem, law, result, synth, tube_path)
+        payload["recording"] = record
+        payload["session"] = {
+            "dir": str(session.path),
+            "run": report.run,
+            "seconds": round(report.seconds, 6),
+            "stages": stages,
+        }
+        print(json.dumps(payload))
+    else:
+        print(f"session {session.path} (run {report.run})")
+        for s in report.stages:
+            print(f"  {s.stage:<13} {s.status:<9} {s.seconds:8.3f} s  {_outcome_text(s.outcome)}")
+        if result is not None:
+            _print_result(problem, law, result, tube_path)
+        if record:
+            _say_recording(record)
+    if result is None:
+        return 0
+    return 0 if result.verdict == "robustly_safe" else 1
+
+
+def _outcome_text(outcome: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in outcome.items() if v is not None)
+
+
+def _warn(msg: str) -> None:
+    print(f"codev: warning: {msg}", file=sys.stderr)
+
+
+@contextmanager
+def _stage_progress(
+    enabled: bool, units: dict[str, str] | None = None
+) -> Iterator[Callable[[str, str, dict], None]]:
+    """One rich progress line per stage on a terminal (a live count of ``units[stage]`` for
+    long stages, ~10 Hz), quiet otherwise or when not ``enabled``."""
+    if not enabled or not sys.stderr.isatty():
+        yield lambda _stage, _event, _data: None
+        return
+    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    unit = units or {"synthesis": "regions", "verification": "branches"}
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("[bold]{task.description:<13}"),
+        TextColumn("{task.fields[info]}"),
+        TimeElapsedColumn(),
+        transient=True,
+    ) as prog:
+        tasks: dict[str, int] = {}
+        last = [0.0]
+
+        def on_event(stage: str, event: str, data: dict) -> None:
+            if event == "start":
+                tasks[stage] = prog.add_task(stage, info="")
+            elif event == "progress" and stage in tasks:
+                now = time.monotonic()
+                if now - last[0] > 0.1:  # ~10 Hz
+                    last[0] = now
+                    prog.update(tasks[stage], info=f"{data['count']} {unit.get(stage, '')}")
+            elif event == "done" and stage in tasks:
+                prog.update(tasks[stage], info=data["status"], completed=1, total=1)
+
+        yield on_event
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from codev_engine.session.session import Session
+
+    session = Session.open(args.dir)
+    quiet = args.json
+
+    def on_run(run_no, rep, mismatches) -> None:
+        if quiet:
+            return
+        parts = ", ".join(f"{s.stage} {s.status}" for s in rep.stages)
+        verdict = f"; {rep.result.verdict}" if rep.result is not None else ""
+        state = "matches" if not mismatches else f"{len(mismatches)} MISMATCH(ES)"
+        print(f"run {run_no}: {parts}{verdict} -- {state}")
+        for _r, stage, want, got in mismatches:
+            print(f"  {stage}: recorded {_outcome_text(want)}; replayed {_outcome_text(got)}")
+        if rep.recording is not None:
+            print(f"  recording: {rep.recording}\n  view it: codev view {rep.recording}")
+
+    with _stage_progress(not quiet) as on_event:
+        rep = session.replay(on_event=on_event, warn=_warn, on_run=on_run)
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "dir": str(session.path),
+                    "runs": rep.runs,
+                    "checked": rep.checked,
+                    "cached": rep.cached,
+                    "match": rep.ok,
+                    "mismatches": [
+                        {"run": r, "stage": st, "recorded": a, "replayed": b}
+                        for r, st, a, b in rep.mismatches
+                    ],
+                    "seconds": round(rep.seconds, 6),
+                }
+            )
+        )
+    else:
+        verdict = "every outcome matches" if rep.ok else f"{len(rep.mismatches)} mismatch(es)"
+        print(
+            f"replay of {session.path}: {rep.runs} run(s), {rep.checked} stage(s) checked "
+            f"({rep.cached} cached): {verdict} in {rep.seconds:.2f} s"
+        )
+    return 0 if rep.ok else 1
+
+
+def _cmd_session(args: argparse.Namespace) -> int:
+    from codev_engine.session.session import Session
+
+    session = Session.open(args.dir)
+    journal = session.journal()
+    status = session.status()
+    problem = session.problem()
+    runs = sorted({r["run"] for r in journal})
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "dir": str(session.path),
+                    "format": session.meta.get("format"),
+                    "engine": session.meta.get("engine"),
+                    "created": session.meta.get("created"),
+                    "problem": problem.name,
+                    "runs": len(runs),
+                    "records": len(journal),
+                    "last": journal[-1]["started"] if journal else None,
+                    "stages": [
+                        {
+                            "stage": s.stage,
+                            "status": s.status,
+                            "key": s.key,
+                            "artifact": s.artifact,
+                            "reason": s.reason,
+                        }
+                        for s in status
+                    ],
+                }
+            )
+        )
+        return 0
+    meta = session.meta
+    print(
+        f"session {session.path}: {problem.name}; created {meta.get('created', '?')} by "
+        f"codev {meta.get('engine', '?')}"
+    )
+    last = f", last at {journal[-1]['started']}" if journal else ""
+    print(f"journal: {len(runs)} run(s), {len(journal)} stage record(s){last}")
+    for s in status:
+        where = s.artifact or ""
+        why = f" ({s.reason})" if s.reason else ""
+        print(f"  {s.stage:<13} {s.status:<8} {where}{why}")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    import shutil
+    import subprocess
+
+    from codev_engine.view.records import check_recording
+
+    check_recording(args.file)
+    has_display = bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or (
+        sys.platform in ("darwin", "win32")
+    )
+    viewer = shutil.which("rerun")
+    cmd = [viewer] if viewer else [sys.executable, "-m", "rerun"]
+    if has_display and not args.print_only:
+        subprocess.Popen([*cmd, str(args.file)], start_new_session=True)
+        print(f"opening {args.file} in the Rerun viewer")
+        return 0
+    print(
+        f"{args.file} is a valid recording. There is no display here; to look at it:\n"
+        f"  on a machine with a display:  rerun {args.file}   "
+        f"(pip install 'rerun-sdk>=0.41,<0.42')\n"
+        f"  in a browser, served from here:  rerun --web-viewer {args.file}   "
+        f"(then open http://localhost:9090)"
+    )
+    return 0
+
+
+def _cmd_tui(args: argparse.Namespace) -> int:
+    if not (sys.stdin.isatty() and sys.stdout.isatty()):
+        raise SpecError("codev tui needs a terminal (for scripts use codev run / codev replay)")
+    # the workbench is a separate package on top of the engine: imported only here
+    from workbench import run_workbench
+
+    return run_workbench(args.target, session_dir=args.session)
+
+
+#: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
+BENCHMARKS = ("mp", "synth", "session", "tui", "paper", "hylaa_peer")
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    import subprocess
+
+    folder = Path(__file__).resolve().parent.parent / "benchmarks"
+    script = folder / f"{args.name}.py"
+    if not script.is_file():
+        raise SpecError(
+            f"no benchmark script {script} (benchmarks live in the source checkout)",
+            field="bench",
+        )
+    return subprocess.call([sys.executable, str(script), *args.args])
+
+
+def _axes(text: str) -> tuple[int, int]:
+    try:
+        parts = tuple(int(p) for p in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError("must be two state indices, e.g. 0,1") from None
+    if len(parts) != 2 or parts[0] == parts[1] or min(parts) < 0:
+        raise argparse.ArgumentTypeError("must be two distinct state indices, e.g. 0,1")
+    return parts  # type: ignore[return-value]
+
+
+class _TimeLimitError(Exception):
+    """Raised (by SIGALRM) when ``--timeout`` seconds have passed."""
+
+
+@contextmanager
+def _time_limit(seconds: float | None) -> Iterator[None]:
+    """Interrupt the body after ``seconds`` of wall time (main thread, POSIX; else no limit)."""
+    if not seconds or not hasattr(signal, "setitimer"):
+        yield
+        return
+
+    def _expired(_signum, _frame):
+        raise _TimeLimitError
+
+    previous = signal.signal(signal.SIGALRM, _expired)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+def _cmd_mpsolve(args: argparse.Namespace) -> int:
+    from codev_engine.mp.program import MpProgram
+    from codev_engine.mp.solve import SolveOptions, mpsolve
+
+    if args.timeout is not None and not args.timeout > 0:
+        raise SpecError("must be a positive number of seconds", field="--timeout")
+    if args.max_regions is not None and not args.max_regions > 0:
+        raise SpecError("must be a positive number of regions", field="--max-regions")
+    options = SolveOptions()
+    if args.max_regions is not None:
+        options = replace(options, max_regions=args.max_regions)
+    program = MpProgram.load(args.file)
+    try:
+        with (
+            _time_limit(args.timeout),
+            _progress(f"solving {program.name}", not args.json) as update,
+        ):
+            sol = mpsolve(program, options=options, progress=update)
+    except _TimeLimitError:
+        _err(f"{args.file}: no solution within the time limit ({args.timeout:g} s)")
+        return 1
+    except SolverError as exc:
+        _err(f"{args.file}: solver failed: {exc}")
+        return 1
+    except SpecError as exc:  # found by the solver (empty parameter set, unbounded, ...)
+        raise (exc if exc.file else exc.with_file(str(args.file))) from None
+    out = str(sol.save(args.out)) if args.out else None
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "name": program.name,
+                    "kind": program.kind,
+                    "nz": program.nz,
+                    "d": program.d,
+                    "regions": sol.num_regions,
+                    "seconds": round(sol.seconds, 6),
+                    "stats": {k: _jsonable(v) for k, v in sol.stats.items()},
+                    "out": out,
+                }
+            )
+        )
+        return 0
+    print(
+        f"{program.name}: {sol.num_regions} critical regions in {sol.seconds:.3f} s "
+        f"({program.kind}, nz={program.nz}, d={program.d})"
+    )
+    if out:
+        print(f"solution written to {out}")
+    return 0
+
+
+def _jsonable(v):
+    """Counters of ``stats`` as plain JSON numbers (numpy scalars included)."""
+    if hasattr(v, "item"):
+        v = v.item()
+    return v if isinstance(v, (int, float, str, bool, type(None))) else str(v)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="codev",
+        description="Explicit MPC synthesis and closed-loop verification.",
+    )
+    parser.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = parser.add_subparsers(dest="command")
+
+    p = sub.add_parser("synth", help="synthesise the explicit MPC law of a spec")
+    p.add_argument("spec", help="problem spec (TOML)")
+    p.add_argument("--out", help="write the law to this .npz file")
+    p.add_argument("--json", action="store_true", help="print a JSON summary only")
+    p.set_defaults(func=_cmd_synth)
+
+    for name, helptext in (
+        ("verify", "verify the closed loop (synthesises first unless --law is given)"),
+        ("run", "synthesise, then verify"),
+    ):
+        p = sub.add_parser(name, help=helptext)
+        p.add_argument("spec", help="problem spec (TOML) with a [verify] section")
+        if name == "verify":
+            p.add_argument("--law", help="use this law file (from codev synth --out)")
+        p.add_argument("--hold", choices=["zoh", "continuous"], help="override verify.hold")
+        p.add_argument("--max-depth", type=int, help="override verify.max_depth")
+        p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
+        p.add_argument("--json", action="store_true", help="print a JSON summary only")
+        p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording")
+        p.add_argument(
+            "--axes",
+            type=_axes,
+            default=(0, 1),
+            metavar="I,J",
+            help="state indices of the recording's plane view (default 0,1)",
+        )
+        p.add_argument(
+            "--traces",
+            type=int,
+            default=16,
+            metavar="K",
+            help="simulated traces in the recording (default 16)",
+        )
+        if name == "run":
+            p.add_argument(
+                "--session",
+                metavar="DIR",
+                help="keep the spec, a journal and cached artifacts in DIR (created if new)",
+            )
+            p.add_argument(
+                "--fresh", action="store_true", help="recompute every stage (with --session)"
+            )
+            p.set_defaults(func=_cmd_run, law=None)
+        else:
+            p.set_defaults(func=_cmd_verify, law=None, session=None)
+
+    p = sub.add_parser("replay", help="re-execute a session's journal and compare outcomes")
+    p.add_argument("dir", metavar="DIR", help="the session folder")
+    p.add_argument("--json", action="store_true", help="print a JSON summary only")
+    p.set_defaults(func=_cmd_replay)
+
+    p = sub.add_parser("session", help="show a session: journal and what is cached or stale")
+    p.add_argument("dir", metavar="DIR", help="the session folder")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=_cmd_session)
+
+    p = sub.add_parser(
+        "bench",
+        help="run a benchmark against the peers (benchmarks/NAME.py; see benchmarks/README.md)",
+    )
+    p.add_argument("name", choices=BENCHMARKS)
+    p.add_argument("args", nargs=argparse.REMAINDER, help="passed to the script (--help)")
+    p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser(
+        "tui", help="the design workbench: plant, MPC, synthesis, verification, session"
+    )
+    p.add_argument(
+        "target",
+        nargs="?",
+        metavar="SPEC.toml|SESSION_DIR",
+        help="a spec (its session is sessions/<name>, or --session) or a session folder",
+    )
+    p.add_argument("--session", metavar="DIR", help="the session folder for a spec")
+    p.set_defaults(func=_cmd_tui)
+
+    p = sub.add_parser("view", help="open a Rerun recording (.rrd) in the viewer")
+    p.add_argument("file", metavar="FILE.rrd")
+    p.add_argument(
+        "--print-only", action="store_true", help="only print how to open it, even with a display"
+    )
+    p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser(
+        "mpsolve", help="solve a multi-parametric LP/QP (.npz, the mp_testset convention)"
+    )
+    p.add_argument("file", metavar="FILE.npz", help="the program (arrays H, c, C, A, b, F, ...)")
+    p.add_argument("--out", metavar="SOLUTION.npz", help="write the explicit solution")
+    p.add_argument("--json", action="store_true", help="print a JSON summary only")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        metavar="S",
+        help="give up after S seconds of wall time (exit 1)",
+    )
+    p.add_argument(
+        "--max-regions",
+        type=int,
+        metavar="N",
+        help="give up past N critical regions (exit 1; default 1,000,000, ~2.5 GB)",
+    )
+    p.set_defaults(func=_cmd_mpsolve)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``codev`` console script."""
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    if args.version:
+        from codev_engine.version import __version__
+
+        print(__version__)
+        return 0
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args))
+    except SolverError as exc:  # the engine's failure, not the input's
+        _err(str(exc))
+        return 1
+    except CodevError as exc:
+        _err(str(exc))
+        return 2
+    except KeyboardInterrupt:
+        _err("interrupted")
+        return 130
+    except OSError as exc:
+        name = getattr(exc, "filename", None)
+        _err(f"{name}: {exc.strerror}" if name else str(exc))
+        return 2
+    except Exception as exc:  # a bug in codev: one line, the traceback on request
+        if os.environ.get("CODEV_DEBUG"):
+            raise
+        _err(f"internal error ({exc.__class__.__name__}: {exc}); set CODEV_DEBUG=1 for details")
+        return 1
+
+
+def _path(s: str) -> Path:
+    return Path(s)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""The design workbench: a Textual app over ``codev_engine`` (``codev tui``)."""

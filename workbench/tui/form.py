@@ -1,0 +1,467 @@
+"""The spec as a form: one text entry per spec field, composed back into TOML.
+
+The workbench edits a spec field by field. Each field holds the text the user typed; a
+matrix may be typed as TOML (``[[1, 1], [0, 1]]``) or Matlab-style (``1 1; 0 1``). The whole
+form is composed into one TOML document and validated by the engine's own loader
+(:func:`codev_engine.loads_spec`), so the workbench never disagrees with ``codev run`` about
+what is valid, and an error's dotted field (``mpc.Q[0][1]``) is shown next to the entry that
+caused it. Nothing typed is ever executed: entries are parsed with ``tomllib`` and ``float``.
+
+No Textual import here: the form is plain data, tested on its own.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from codev_engine.errors import SpecError
+from codev_engine.spec.choices import HOLDS, METHODS, NORMS
+
+if TYPE_CHECKING:
+    from codev_engine import Problem
+
+__all__ = [
+    "FIELDS",
+    "FieldDef",
+    "FormCheck",
+    "check_form",
+    "compose",
+    "field_for_error",
+    "form_from_text",
+    "toml_value",
+]
+
+SECTIONS = ("plant", "model", "mpc", "verify")
+
+
+@dataclass(frozen=True)
+class FieldDef:
+    """One entry of the form.
+
+    Attributes
+    ----------
+    path : tuple of str
+        Where the value sits in the TOML document: ``("mpc", "Q")``,
+        ``("model", "operating_point", "x")``. The dotted form is the entry's id and the name
+        the engine's errors use.
+    kind : str
+        How the text is turned into TOML: ``string``, ``names`` (comma-separated names),
+        ``expressions`` (one per line), ``number``, ``integer``, ``choice``, ``bool``,
+        ``vector``, ``matrix`` or ``sets`` (a TOML array of inline tables).
+    label : str
+    help : str
+        One line shown under the entry.
+    choices : tuple of str
+        For ``choice``.
+    required : bool
+        An empty optional entry is left out of the document (the engine's default applies).
+    """
+
+    path: tuple[str, ...]
+    kind: str
+    label: str
+    help: str = ""
+    choices: tuple[str, ...] = ()
+    required: bool = False
+
+    @property
+    def name(self) -> str:
+        return ".".join(self.path)
+
+    @property
+    def section(self) -> str:
+        return self.path[0] if self.path[0] in SECTIONS else ""
+
+
+def _f(path: str, kind: str, label: str, help: str = "", **kw: Any) -> FieldDef:
+    return FieldDef(tuple(path.split(".")), kind, label, help, **kw)
+
+
+#: Every spec field the workbench edits, in screen order (docs/spec.md is the reference).
+FIELDS: tuple[FieldDef, ...] = (
+    _f("name", "string", "Name", "letters, digits, - _ . (used in file names)", required=True),
+    _f("plant.states", "names", "States", "comma-separated names, e.g. x1, x2", required=True),
+    _f("plant.inputs", "names", "Inputs", "comma-separated names, e.g. u", required=True),
+    _f(
+        "plant.dynamics",
+        "expressions",
+        "Dynamics dx/dt = f(x, u)",
+        "one expression per state, in state order (or give A and B below)",
+    ),
+    _f("plant.A", "matrix", "Continuous A", "instead of dynamics: dx/dt = A x + B u"),
+    _f("plant.B", "matrix", "Continuous B", "n×m, rows separated by ;"),
+    _f("model.sample_time", "number", "Sample time (s)", "controller period dt > 0", required=True),
+    _f("model.method", "choice", "Discretisation", "python-control method", choices=METHODS),
+    _f(
+        "model.operating_point.x",
+        "vector",
+        "Operating point x",
+        "linearisation point and MPC reference (default zeros)",
+    ),
+    _f("model.operating_point.u", "vector", "Operating point u", "default zeros"),
+    _f("mpc.horizon", "integer", "Horizon N", "prediction steps ≥ 1", required=True),
+    _f(
+        "mpc.norm",
+        "choice",
+        "Norm",
+        "1 and inf: mp-LP; 2: mp-QP",
+        choices=NORMS,
+        required=True,
+    ),
+    _f("mpc.Q", "matrix", "Q", "state weight (norm 2: n×n PSD; else q×n)", required=True),
+    _f("mpc.R", "matrix", "R", "input weight (norm 2: m×m PD; else r×m)", required=True),
+    _f("mpc.P", "matrix", "P", "terminal weight (empty: none)"),
+    _f("mpc.x_min", "vector", "x min", "n numbers, -inf allowed"),
+    _f("mpc.x_max", "vector", "x max", "n numbers, inf allowed"),
+    _f("mpc.u_min", "vector", "u min", "m numbers"),
+    _f("mpc.u_max", "vector", "u max", "m numbers"),
+    _f(
+        "mpc.domain_bound",
+        "number",
+        "Domain bound",
+        "half-width of the law's box on unbounded state axes (default 100)",
+    ),
+    _f("mpc.simplify", "bool", "Merge regions", "merge regions with the same affine law"),
+    _f(
+        "verify.time_horizon",
+        "number",
+        "Time horizon (s)",
+        "length of the verified interval",
+        required=True,
+    ),
+    _f("verify.initial_set.lower", "vector", "Initial set lower", "n numbers", required=True),
+    _f("verify.initial_set.upper", "vector", "Initial set upper", "n numbers", required=True),
+    _f(
+        "verify.hold",
+        "choice",
+        "Hold",
+        "zoh: u held over each sample; continuous: u = F x(t) + G",
+        choices=HOLDS,
+    ),
+    _f("verify.max_depth", "integer", "Max depth", "initial-set refinement depth (maxPart)"),
+    _f("verify.step", "number", "Tube step (s)", "time step of the reachtube (default 0.01)"),
+    _f("verify.input_bounds", "bool", "Check input bounds", "u(t) within [u_min, u_max]"),
+    _f(
+        "verify.unsafe",
+        "sets",
+        "Unsafe sets",
+        "TOML list: [{lower = [..], upper = [..]}, {A = [[..]], b = [..]}]",
+    ),
+    _f("verify.safe", "sets", "Safe sets", "the state must stay inside every one"),
+)
+
+FIELD_BY_NAME: dict[str, FieldDef] = {f.name: f for f in FIELDS}
+
+
+# --------------------------------------------------------------------------------------------
+# TOML values
+# --------------------------------------------------------------------------------------------
+
+
+def toml_value(value: Any) -> str:
+    """A TOML literal for a value read by ``tomllib`` (round-trips exactly).
+
+    Lists of inline tables are written one table per line (``sets`` entries).
+    """
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return _toml_string(value)
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{_key(k)} = {toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, list):
+        if value and all(isinstance(v, dict) for v in value):
+            return "[\n" + "".join(f"  {toml_value(v)},\n" for v in value) + "]"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML literal for {type(value).__name__}")
+
+
+def _toml_string(s: str) -> str:
+    """A TOML basic string: JSON escapes are TOML escapes, but TOML also forbids a raw DEL."""
+    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
+def _key(k: str) -> str:
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_string(k)
+
+
+def _single_value(lit: str) -> None:
+    """``lit`` must be exactly one TOML value (not a value followed by more keys or tables
+    on further lines, which would inject fields into the composed document)."""
+    doc = tomllib.loads(f"v = {lit}")
+    if list(doc) != ["v"]:
+        raise ValueError("one value expected (the text goes on after the value)")
+
+
+def _parses(lit: str) -> bool:
+    try:
+        _single_value(lit)
+    except ValueError:
+        return False
+    return True
+
+
+def _number_token(tok: str) -> str:
+    """One Matlab-style entry as a TOML number (``float`` parses it; nothing is executed)."""
+    v = float(tok)  # ValueError for anything that is not a number
+    return toml_value(v)
+
+
+def entry_to_toml(kind: str, text: str) -> str:
+    """The TOML literal of an entry's text, or ``""`` for an empty entry.
+
+    Raises
+    ------
+    ValueError
+        The text cannot be a value of this kind (message for the user).
+    """
+    s = text.strip()
+    if not s:
+        return ""
+    if kind == "string":
+        return s if s[0] in "\"'" else _toml_string(s)
+    if kind == "names":
+        if s.startswith("["):
+            return s
+        return toml_value([p.strip() for p in re.split(r"[,\s]+", s) if p.strip()])
+    if kind == "expressions":
+        if s.startswith("["):
+            return s
+        return toml_value([ln.strip() for ln in s.splitlines() if ln.strip()])
+    if kind == "choice":
+        return s if s[0] in "\"'" else _toml_string(s)
+    if kind == "bool":
+        low = s.lower()
+        if low in ("true", "yes", "on", "1"):
+            return "true"
+        if low in ("false", "no", "off", "0"):
+            return "false"
+        raise ValueError("expected true or false")
+    if kind == "number" and not _parses(s):
+        try:  # '.5', '5.', '1_000' (what Python reads as a number; nothing is evaluated)
+            return _number_token(s)
+        except ValueError:
+            return s  # the TOML error is reported
+    if kind in ("number", "integer", "sets"):
+        return s
+    if kind in ("vector", "matrix"):
+        if s.startswith("["):
+            if _parses(s) or s.count("[") != 1 or not s.endswith("]"):
+                return s
+            s = s[1:-1]  # Matlab brackets: [1 1; 0 1]
+        rows = [r for r in re.split(r"[;\n]", s) if r.strip()]
+        try:
+            parsed = [[_number_token(t) for t in re.split(r"[,\s]+", r.strip()) if t] for r in rows]
+        except ValueError:
+            raise ValueError(
+                "expected numbers: '1 2; 3 4' or TOML '[[1, 2], [3, 4]]'"
+                if kind == "matrix"
+                else "expected numbers: '1, 2' or TOML '[1, 2]'"
+            ) from None
+        if kind == "vector":
+            return "[" + ", ".join(t for row in parsed for t in row) + "]"
+        return "[" + ", ".join("[" + ", ".join(row) + "]" for row in parsed) + "]"
+    raise ValueError(f"unknown field kind {kind!r}")
+
+
+def _display(kind: str, value: Any) -> str:
+    """How a loaded value is shown in its entry (the inverse of :func:`entry_to_toml`)."""
+    if kind == "string" and isinstance(value, str):
+        return value
+    if kind == "choice" and isinstance(value, str):
+        return value
+    if kind == "choice" and isinstance(value, float) and math.isinf(value):
+        return "inf"
+    if kind == "choice" and isinstance(value, int) and not isinstance(value, bool):
+        return str(value)
+    if kind == "names" and isinstance(value, list) and all(isinstance(v, str) for v in value):
+        return ", ".join(value)
+    if kind == "expressions" and isinstance(value, list) and all(isinstance(v, str) for v in value):
+        return "\n".join(value)
+    return toml_value(value)
+
+
+# --------------------------------------------------------------------------------------------
+# Form <-> document
+# --------------------------------------------------------------------------------------------
+
+
+def form_from_text(text: str) -> tuple[dict[str, str], bool]:
+    """Entries of the form for a spec's TOML text.
+
+    Returns
+    -------
+    values : dict
+        Field name → entry text ("" where the spec leaves the field out).
+    has_verify : bool
+        Whether the spec has a ``[verify]`` section.
+
+    Raises
+    ------
+    SpecError
+        Invalid TOML, or a field the form has no entry for (e.g. an explicit discrete model:
+        edit such specs as text).
+    """
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"invalid TOML: {exc}") from None
+    values: dict[str, str] = {}
+    for fd in FIELDS:
+        node: Any = data
+        for part in fd.path:
+            node = node.get(part) if isinstance(node, dict) else None
+        values[fd.name] = "" if node is None else _display(fd.kind, node)
+    known = {fd.path for fd in FIELDS}
+    for path in _leaf_paths(data):
+        if path not in known and not any(path[: len(k)] == k for k in known):
+            raise SpecError(
+                "the workbench has no entry for this field; edit the spec file as text",
+                field=".".join(path),
+            )
+    return values, "verify" in data
+
+
+def _leaf_paths(data: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+    out = []
+    for k, v in data.items():
+        if isinstance(v, dict) and (prefix + (k,)) not in {fd.path for fd in FIELDS}:
+            out.extend(_leaf_paths(v, prefix + (k,)))
+        else:
+            out.append(prefix + (k,))
+    return out
+
+
+def compose(values: dict[str, str], *, with_verify: bool = True) -> tuple[str, dict[str, str]]:
+    """The TOML document of the form's entries.
+
+    Returns
+    -------
+    text : str
+        The document (entries that fail to convert are left out).
+    errors : dict
+        Field name → message, for entries whose text is not a value of their kind (checked
+        one by one with ``tomllib``, so a typo is pinned to its entry, not to a line of the
+        composed document).
+    """
+    errors: dict[str, str] = {}
+    tree: dict[str, Any] = {}
+    for fd in FIELDS:
+        if fd.section == "verify" and not with_verify:
+            continue
+        raw = values.get(fd.name, "")
+        try:
+            lit = entry_to_toml(fd.kind, raw)
+            if lit:
+                _single_value(lit)
+        except ValueError as exc:  # TOMLDecodeError is a ValueError
+            msg = str(exc)
+            errors[fd.name] = (
+                msg
+                if not msg.startswith(("Invalid", "Expected", "Unclosed"))
+                else f"not a valid value: {msg}"
+            )
+            continue
+        if not lit:
+            if fd.required:
+                errors[fd.name] = "required"
+            continue
+        node = tree
+        for part in fd.path[:-1]:
+            node = node.setdefault(part, {})
+        node[fd.path[-1]] = lit
+    lines = ["# written by codev tui (docs/spec.md describes every field)"]
+    if "name" in tree:
+        lines.append(f"name = {tree.pop('name')}")
+    for section in SECTIONS:
+        if section not in tree:
+            if section == "verify" and with_verify:
+                lines += ["", "[verify]"]
+            continue
+        lines += ["", f"[{section}]"]
+        for k, v in tree[section].items():
+            lines.append(f"{_key(k)} = {_inline(v)}")
+    return "\n".join(lines) + "\n", errors
+
+
+def _inline(v: Any) -> str:
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_key(k)} = {_inline(x)}" for k, x in v.items()) + " }"
+    return v
+
+
+@dataclass(frozen=True)
+class FormCheck:
+    """The result of validating the form: the problem, or the errors per entry."""
+
+    text: str
+    problem: Problem | None
+    errors: dict[str, str]
+    general: str | None = None  # an error that names no entry
+
+    @property
+    def ok(self) -> bool:
+        return self.problem is not None
+
+
+def field_for_error(field: str | None) -> str | None:
+    """The entry an engine error's dotted field belongs to (``mpc.Q[0][1]`` → ``mpc.Q``).
+
+    A sub-table (``model.operating_point``, ``verify.initial_set``) maps to its first entry;
+    a whole section (``mpc``: the MPC is infeasible; ``verify``) or an unknown field maps to
+    None (a general error, not pinned on an arbitrary entry).
+    """
+    if not field:
+        return None
+    base = re.sub(r"\[\d+\]", "", field)
+    if base in SECTIONS:
+        return None
+    best = None
+    for fd in FIELDS:
+        if base == fd.name or base.startswith(fd.name + "."):
+            if best is None or len(fd.name) > len(best):
+                best = fd.name
+    if best is None:
+        # a whole table (verify.initial_set, model.operating_point): its first entry
+        best = next((fd.name for fd in FIELDS if fd.name.startswith(base + ".")), None)
+    return best
+
+
+def check_form(
+    values: dict[str, str], *, with_verify: bool, check_mpc: bool = False, path: str = "<workbench>"
+) -> FormCheck:
+    """Compose and validate the form with the engine's spec loader.
+
+    The engine stops at the first error, so at most one entry error comes from it; entry
+    syntax errors are all reported.
+    """
+    text, errors = compose(values, with_verify=with_verify)
+    if errors:
+        return FormCheck(text, None, errors)
+    try:
+        from codev_engine.pipeline import loads_spec  # sympy: loaded on the first check
+
+        problem = loads_spec(text, path=path, check_mpc=check_mpc)
+    except SpecError as exc:
+        entry = field_for_error(exc.field)
+        if entry is None:
+            return FormCheck(
+                text, None, {}, exc.reason if exc.field is None else f"{exc.field}: {exc.reason}"
+            )
+        where = exc.field if exc.field and exc.field != entry else None
+        msg = f"{where}: {exc.reason}" if where else exc.reason
+        return FormCheck(text, None, {entry: msg})
+    return FormCheck(text, problem, {})

@@ -1,0 +1,136 @@
+"""Session pane: where the work is saved, cache status per stage, the journal, Rerun export."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from textual.app import ComposeResult
+from textual.containers import Horizontal, VerticalScroll
+from textual.widgets import Button, DataTable, Input, Label, Static
+
+from codev_engine import CodevError
+from codev_engine.session.session import RunReport
+
+from ..state import open_target
+
+if TYPE_CHECKING:
+    from ..app import CodevApp
+
+
+class SessionPane(VerticalScroll):
+    """The session folder is the workbench's state: open, save, status, journal, export."""
+
+    DEFAULT_CSS = """
+    SessionPane { padding: 0 1; }
+    SessionPane DataTable { height: auto; max-height: 14; margin: 0 0 1 0; }
+    SessionPane #open-path, SessionPane #export-path { width: 1fr; }
+    """
+
+    _journal_stamp: tuple | None = None  # (file, mtime, size) of the journal on screen
+
+    def compose(self) -> ComposeResult:
+        yield Static("", id="session-path", classes="small")
+        with Horizontal(classes="bar"):
+            yield Input(id="open-path", placeholder="a session folder or a spec .toml")
+            yield Button("Open", id="open")
+            yield Button("Save \\[ctrl+s]", id="save")
+        yield Label("Stages for the current spec")
+        yield DataTable(id="stages", cursor_type="row")
+        yield Label("Journal (every stage run, replayable with codev replay)")
+        yield DataTable(id="journal", cursor_type="row", zebra_stripes=True)
+        with Horizontal(classes="bar"):
+            yield Button("Export Rerun recording \\[ctrl+g]", id="export", variant="primary")
+            yield Input(id="export-path", placeholder="also copy it to FILE.rrd (optional)")
+        yield Static("", id="export-out", classes="small")
+
+    def on_mount(self) -> None:
+        self.query_one("#stages", DataTable).add_columns("stage", "status", "artifact / reason")
+        self.query_one("#journal", DataTable).add_columns(
+            "run", "stage", "status", "seconds", "outcome"
+        )
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        event.stop()
+        if event.button.id == "open":
+            self.open_path()
+        elif event.button.id == "save":
+            app.action_save()
+        elif event.button.id == "export":
+            app.run_stage("recording")
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        if event.input.id == "open-path":
+            event.stop()
+            self.open_path()
+
+    def open_path(self) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        text = self.query_one("#open-path", Input).value.strip()
+        if not text:
+            app.notify("type a session folder or a spec file to open", severity="warning")
+            return
+        try:
+            opened = open_target(text)
+        except CodevError as exc:
+            app.notify(str(exc), severity="error", timeout=8)
+            return
+        app.load(opened)
+
+    def refresh_session(self) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        session = app.session
+        self.query_one("#session-path", Static).update(
+            f"Session [b]{session.path}[/b] — the spec is saved to {session.spec_path().name} "
+            f"as you edit; `codev replay {session.path}` re-runs every stage headless."
+        )
+        stages = self.query_one("#stages", DataTable)
+        stages.clear()
+        for st in app.statuses.values():
+            stages.add_row(st.stage, st.status, st.artifact or st.reason or "")
+        # the journal changes only when a stage runs, not at every form check
+        file = session.path / "journal.jsonl"
+        try:
+            st = file.stat()
+            stamp: tuple = (file, st.st_mtime_ns, st.st_size)
+        except OSError:
+            stamp = (file, None, None)
+        if stamp == self._journal_stamp:
+            return
+        self._journal_stamp = stamp
+        journal = self.query_one("#journal", DataTable)
+        journal.clear()
+        try:
+            records = session.journal()
+        except CodevError as exc:
+            journal.add_row("-", "-", "unreadable", "-", str(exc))
+            return
+        for rec in records[-200:]:
+            journal.add_row(
+                str(rec["run"]),
+                rec["stage"],
+                rec["status"],
+                f"{rec['seconds']:.3f}",
+                json.dumps(rec["outcome"], sort_keys=True),
+            )
+        if records:
+            journal.move_cursor(row=journal.row_count - 1)
+
+    def run_finished(self, report: RunReport | None, error: object) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        if report is None or report.recording is None:
+            return
+        path = Path(report.recording)
+        dest = self.query_one("#export-path", Input).value.strip()
+        lines = [f"recording: {path}"]
+        if dest:
+            try:
+                out = app.session.export(path, dest)
+                lines.append(f"copied to {out}")
+                path = out
+            except OSError as exc:
+                lines.append(f"[red]✗ cannot copy to {dest}: {exc.strerror or exc}[/red]")
+        lines.append(f"open it with:  codev view {path}   (or: rerun {path})")
+        self.query_one("#export-out", Static).update("\n".join(lines))

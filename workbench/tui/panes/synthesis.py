@@ -1,0 +1,201 @@
+"""Synthesis pane: run the explicit MPC, see the partition, the regions, locate a state."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical
+from textual.widgets import Button, DataTable, Input, Label, Static
+
+from codev_engine.session.session import RunReport
+
+from ..design import locate_state, region_rows
+from ..views import partition_text
+from ..widgets import Plot
+from .mpc import parse_state
+
+if TYPE_CHECKING:
+    from codev_engine import ExplicitLaw
+
+    from ..app import CodevApp
+
+
+def parse_axes(text: str, names: tuple[str, ...]) -> tuple[int, int]:
+    """``"x1, x2"`` or ``"0 1"`` → two distinct state indices."""
+    parts = [p for p in text.replace(",", " ").split() if p]
+    if len(parts) != 2:
+        raise ValueError("give two states, e.g. " + ", ".join(names[:2]))
+    out = []
+    for p in parts:
+        if p in names:
+            out.append(names.index(p))
+        elif p.isdigit() and int(p) < len(names):
+            out.append(int(p))
+        else:
+            raise ValueError(f"unknown state {p!r} (states: {', '.join(names)})")
+    if out[0] == out[1]:
+        raise ValueError("the two axes must differ")
+    return out[0], out[1]
+
+
+class SynthesisPane(Vertical):
+    """The explicit law: progress and cancel, the partition picture, region table, lookup."""
+
+    DEFAULT_CSS = """
+    SynthesisPane #synth-side { width: 44; padding: 0 1; }
+    SynthesisPane #regions { height: 12; }
+    SynthesisPane #synth-main { height: 1fr; }
+    """
+
+    _note = ""  # the last run's failure or cancellation, kept until a law arrives
+    _law_shown: object = None  # the law whose picture and table are on screen
+
+    def compose(self) -> ComposeResult:
+        with Horizontal(classes="bar"):
+            yield Button("Synthesize \\[ctrl+g]", id="synth-run", variant="primary")
+            yield Button("Cancel \\[esc]", id="synth-cancel")
+            yield Static("no law yet: press Synthesize", id="synth-status", classes="status")
+        with Horizontal(id="synth-main"):
+            yield Plot("the partition appears here after synthesis", id="partition")
+            with Vertical(id="synth-side"):
+                yield Label("axes (2 states)")
+                yield Input(id="synth-axes", placeholder="e.g. x1, x2")
+                yield Label("slice: other states at (n > 2)")
+                yield Input(id="synth-at", placeholder="default: the domain's centre")
+                yield Label("locate a state")
+                yield Input(id="locate-x", placeholder="e.g. 1.5, -2  (Enter)")
+                yield Static("", id="locate-out", classes="small")
+        yield DataTable(id="regions", zebra_stripes=True, cursor_type="row")
+
+    def on_mount(self) -> None:
+        table = self.query_one("#regions", DataTable)
+        table.add_columns("region", "facets", "u = F x + G", "bounding box")
+
+    # ---- events ----------------------------------------------------------------------
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        if event.button.id == "synth-run":
+            event.stop()
+            app.run_stage("synthesis")
+        elif event.button.id == "synth-cancel":
+            event.stop()
+            app.action_cancel()
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        if event.input.id == "locate-x":
+            event.stop()
+            self.locate()
+        elif event.input.id in ("synth-axes", "synth-at"):
+            event.stop()
+            self.refresh_law(force=True)
+
+    # ---- showing the law -------------------------------------------------------------
+
+    def show_progress(self, text: str) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        if app.busy in ("model", "synthesis") or (
+            app.progress is not None and app.progress[0] in ("model", "synthesis")
+        ):
+            self.query_one("#synth-status", Static).update(f"[cyan]{text}[/cyan]")
+
+    def run_finished(self, report: RunReport | None, error: object) -> None:
+        if report is not None and report.law is not None:
+            self._note = ""
+            self.refresh_law()
+        elif error is not None:
+            self._note = (
+                f"[red]✗ {error}[/red]"
+                if error != "cancelled"
+                else "[yellow]cancelled: nothing was saved[/yellow]"
+            )
+            self.query_one("#synth-status", Static).update(self._note)
+            self.refresh_law(keep_status=True)
+
+    def refresh_law(self, keep_status: bool = False, force: bool = False) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        law = app.law
+        status = self.query_one("#synth-status", Static)
+        plot = self.query_one("#partition", Plot)
+        table = self.query_one("#regions", DataTable)
+        if law is None:
+            if not keep_status and app.busy is None:
+                note = f"{self._note} · " if self._note else ""
+                status.update(f"{note}no law yet: press Synthesize (ctrl+g)")
+            plot.set_draw(None, "the partition appears here after synthesis")
+            table.clear()
+            self._law_shown = None
+            return
+        if not keep_status and app.busy is None:
+            state = (
+                "[green]current[/green]"
+                if app.law_current()
+                else "[yellow]stale: the spec changed since; ctrl+g recomputes[/yellow]"
+            )
+            norm = law.meta.get("norm", "")
+            status.update(
+                f"{law.num_regions} critical regions · n={law.n}, m={law.m}"
+                f"{f', norm {norm}' if norm else ''} · {state}"
+            )
+        if law is not self._law_shown or force:
+            # the picture and the table depend on the law only: a form check (every few
+            # keys) must not rebuild them
+            self._law_shown = law
+            self._draw(law)
+            table.clear()
+            for row in region_rows(law):
+                table.add_row(*row)
+
+    def _draw(self, law: ExplicitLaw) -> None:
+        plot = self.query_one("#partition", Plot)
+        names = law.states or tuple(f"x{k}" for k in range(law.n))
+        if law.n == 1:
+            plot.set_draw(None, "one state: see the region table")
+            return
+        try:
+            axes = self._axes(names)
+            at = self._at(law)
+        except ValueError as exc:
+            plot.set_draw(None, f"✗ {exc}")
+            return
+        marker = getattr(self, "_marker", None)
+        plot.set_draw(lambda w, h: partition_text(law, w, h, axes=axes, at=at, marker=marker))
+
+    def _axes(self, names: tuple[str, ...]) -> tuple[int, int]:
+        text = self.query_one("#synth-axes", Input).value
+        if not text.strip():
+            return 0, 1
+        return parse_axes(text, names)
+
+    def _at(self, law: ExplicitLaw) -> np.ndarray | None:
+        text = self.query_one("#synth-at", Input).value
+        if not text.strip():
+            return None
+        return parse_state(text, law.n)
+
+    def locate(self) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        out = self.query_one("#locate-out", Static)
+        law = app.law
+        if law is None:
+            out.update("[red]no law yet: synthesize first[/red]")
+            return
+        try:
+            x = parse_state(self.query_one("#locate-x", Input).value, law.n)
+        except ValueError as exc:
+            out.update(f"[red]✗ {exc}[/red]")
+            return
+        k, u = locate_state(law, x)
+        self._marker = x
+        if k < 0:
+            out.update("outside the law's domain: the MPC is infeasible there")
+        else:
+            names = law.inputs or tuple(f"u{i}" for i in range(law.m))
+            us = ", ".join(f"{nm} = {v:.6g}" for nm, v in zip(names, u, strict=True))
+            out.update(f"region [b]{k}[/b] · {us}")
+            table = self.query_one("#regions", DataTable)
+            if k < table.row_count:
+                table.move_cursor(row=k)
+        self._draw(law)

@@ -1,0 +1,197 @@
+"""Verification pane: sets, horizon, hold, depth; the verdict, the reachtube, the trace."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from textual.app import ComposeResult
+from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.widgets import Button, Input, Label, Static, Switch
+
+from codev_engine.session.session import RunReport
+
+from ..form import FIELDS
+from ..views import plane_text, tube_time_text
+from ..widgets import FieldEntry, Plot
+from .synthesis import parse_axes
+
+if TYPE_CHECKING:
+    from ..app import CodevApp
+
+VERIFY_FIELDS = [f.name for f in FIELDS if f.section == "verify"]
+
+VERDICT_TEXT = {
+    "robustly_safe": (
+        "ROBUSTLY SAFE",
+        "-safe",
+        "every trajectory from the initial set stays safe up to the horizon",
+    ),
+    "unsafe": ("UNSAFE", "-unsafe", "a concrete trajectory violates the specification"),
+    "unknown": ("UNKNOWN", "-unknown", "nothing proved"),
+}
+REASONS = {
+    "max_depth": "the reachtube could not be made tight enough within max depth; "
+    "raise max depth or shrink the initial set",
+    "infeasible_region": "the reach set leaves the MPC's feasible region (the law is "
+    "undefined there)",
+}
+
+
+class VerificationPane(Horizontal):
+    """Left: the [verify] fields. Right: run, verdict banner, tube vs time, plane view."""
+
+    DEFAULT_CSS = """
+    VerificationPane .plots { height: 1fr; }
+    VerificationPane #tube-state, VerificationPane #plane-axes { width: 16; }
+    """
+
+    def __init__(self, values: dict[str, str], enabled: bool) -> None:
+        super().__init__()
+        self._values = values
+        self._enabled = enabled
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll(classes="form"):
+            with Horizontal(classes="bar"):
+                yield Switch(value=self._enabled, id="verify-enabled")
+                yield Label(" verify the closed loop (the \\[verify] section)")
+            for name in VERIFY_FIELDS:
+                yield FieldEntry(name, self._values.get(name, ""))
+        with Vertical(classes="output"):
+            with Horizontal(classes="bar"):
+                yield Button("Verify \\[ctrl+g]", id="verify-run", variant="primary")
+                yield Button("Cancel \\[esc]", id="verify-cancel")
+                yield Static("", id="verify-status", classes="status")
+            yield Static("no verdict yet: press Verify", id="verdict", classes="banner")
+            with Horizontal(classes="bar"):
+                yield Label("state ")
+                yield Input(id="tube-state", placeholder="e.g. x1")
+                yield Label("  plane ")
+                yield Input(id="plane-axes", placeholder="e.g. x1, x2")
+            with Vertical(classes="plots"):
+                yield Plot("the reachtube against time appears here", id="tube-time")
+                yield Plot("the reachtube in the state plane appears here", id="tube-plane")
+            yield Static("", id="cex", classes="small")
+
+    def on_mount(self) -> None:
+        self.set_enabled(self._enabled)
+
+    def set_enabled(self, enabled: bool) -> None:
+        self.query_one("#verify-enabled", Switch).value = enabled
+        for entry in self.query(FieldEntry):
+            entry.disabled = not enabled
+
+    def on_switch_changed(self, event: Switch.Changed) -> None:
+        if event.switch.id == "verify-enabled":
+            event.stop()
+            for entry in self.query(FieldEntry):
+                entry.disabled = not event.value
+            app: CodevApp = self.app  # type: ignore[assignment]
+            if app.has_verify != event.value:
+                app.set_verify_enabled(event.value)
+
+    def on_button_pressed(self, event: Button.Pressed) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        if event.button.id == "verify-run":
+            event.stop()
+            app.run_stage("verification")
+        elif event.button.id == "verify-cancel":
+            event.stop()
+            app.action_cancel()
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        if event.input.id in ("tube-state", "plane-axes"):
+            event.stop()
+            self.refresh_result(force=True)
+
+    def show_progress(self, text: str) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        if app.busy in ("verification", "recording"):
+            self.query_one("#verify-status", Static).update(f"[cyan]{text}[/cyan]")
+
+    def run_finished(self, report: RunReport | None, error: object) -> None:
+        status = self.query_one("#verify-status", Static)
+        if error == "cancelled":
+            status.update("[yellow]cancelled[/yellow]")
+        elif error is not None:
+            status.update(f"[red]✗ {error}[/red]")
+        elif report is not None:
+            sr = report.stage("verification")
+            if sr is not None and sr.status == "failed":
+                status.update(f"[red]✗ {sr.outcome.get('message', 'failed')}[/red]")
+            elif sr is not None:
+                status.update(sr.status)  # the seconds are in the toast and the journal
+            self.refresh_result()
+
+    _result_shown: object = None  # the result whose pictures are on screen
+
+    def refresh_result(self, force: bool = False) -> None:
+        app: CodevApp = self.app  # type: ignore[assignment]
+        result = app.result
+        banner = self.query_one("#verdict", Static)
+        tplot = self.query_one("#tube-time", Plot)
+        pplot = self.query_one("#tube-plane", Plot)
+        cex_out = self.query_one("#cex", Static)
+        banner.remove_class("-safe", "-unsafe", "-unknown", "-stale")
+        if result is None:
+            banner.update("no verdict yet: press Verify (ctrl+g)")
+            tplot.set_draw(None, "the reachtube against time appears here")
+            pplot.set_draw(None, "the reachtube in the state plane appears here")
+            cex_out.update("")
+            self._result_shown = None
+            return
+        title, cls, meaning = VERDICT_TEXT.get(result.verdict, (result.verdict, "", ""))
+        reason = REASONS.get(result.reason or "", result.reason or "")
+        lines = [f"{title} — {meaning}" + (f": {reason}" if reason and cls != "-unsafe" else "")]
+        lines.append(
+            f"hold {result.hold} · {result.tube.num_boxes} boxes · "
+            f"{result.stats.get('branches', '?')} branches"
+        )
+        if not app.result_current():
+            lines.append("⟳ stale: the spec changed since this verdict; ctrl+g re-verifies")
+            banner.add_class("-stale")
+        banner.add_class(cls)
+        banner.update("\n".join(lines))
+        problem = app.result_problem
+        if result is self._result_shown and not force:
+            return  # the pictures depend on the result only (a form check must not redraw)
+        self._result_shown = result
+        names = problem.plant.states if problem is not None else ()
+        try:
+            state = self._state(names)
+            axes = self._axes(names)
+        except ValueError as exc:
+            cex_out.update(f"[red]✗ {exc}[/red]")
+            return
+        tplot.set_draw(lambda w, h: tube_time_text(result, w, h, state=state, problem=problem))
+        n = result.tube.lower.shape[1]
+        if n >= 2:
+            pplot.set_draw(lambda w, h: plane_text(result, w, h, axes=axes, problem=problem))
+        else:
+            pplot.set_draw(None, "one state: no plane view")
+        cex = result.counterexample
+        if cex is not None:
+            x0 = ", ".join(f"{v:.6g}" for v in cex.x0)
+            cex_out.update(
+                f"[red]counterexample[/red]: from x0 = ({x0}), {cex.describe()} "
+                f"at t = {cex.t:.4g} s — "
+                "drawn in red; replay it with `codev verify --json`"
+            )
+        else:
+            cex_out.update("")
+
+    def _state(self, names: tuple[str, ...]) -> int:
+        text = self.query_one("#tube-state", Input).value.strip()
+        if not text:
+            return 0
+        if text in names:
+            return names.index(text)
+        if text.isdigit() and int(text) < max(len(names), 1):
+            return int(text)
+        raise ValueError(f"unknown state {text!r} (states: {', '.join(names)})")
+
+    def _axes(self, names: tuple[str, ...]) -> tuple[int, int]:
+        text = self.query_one("#plane-axes", Input).value
+        if not text.strip() or len(names) < 2:
+            return 0, 1
+        return parse_axes(text, names)

@@ -1,0 +1,165 @@
+"""Opening a workbench target: a session folder, a spec file, or nothing (no Textual here).
+
+The session is the workbench's state. Whatever the user opens, edits are written to a session
+folder as they happen (``spec.toml`` when the form is valid, ``tui-draft.json`` with the raw
+entries when it is not), so a crash loses nothing and ``codev replay DIR`` reproduces every
+stage run from the workbench.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from codev_engine import SpecError
+from codev_engine.io.atomic import write_text
+from codev_engine.session.session import Session, SessionError
+
+from .form import FIELDS, form_from_text
+
+__all__ = ["DRAFT", "Opened", "open_target", "read_draft", "write_draft", "clear_draft"]
+
+#: Raw form entries of an edit that is not a valid spec yet (restored on the next start).
+DRAFT = "tui-draft.json"
+DRAFT_FORMAT = "codev-tui-draft/1"
+
+
+@dataclass
+class Opened:
+    """What the workbench starts with."""
+
+    session: Session
+    values: dict[str, str]
+    has_verify: bool
+    note: str | None = None  # shown once at start (a restored draft, a new session)
+    #: write the form to the session's spec.toml at once (a spec file was opened into the
+    #: session); otherwise spec.toml is written on the first edit, so merely opening a
+    #: session never rewrites its spec
+    save_now: bool = False
+
+
+def _blank() -> tuple[dict[str, str], bool]:
+    return {fd.name: "" for fd in FIELDS}, True
+
+
+def open_target(
+    target: str | None, *, session_dir: str | None = None, sessions_root: str | Path = "sessions"
+) -> Opened:
+    """Resolve ``codev tui [TARGET] [--session DIR]``.
+
+    - a session folder: open it, with its ``spec.toml`` (or the draft left by a crash);
+    - a spec file: open (or create) ``--session`` or ``sessions/<spec name>`` and start from
+      the file's text;
+    - nothing: ``--session`` or ``sessions/untitled``, from its spec, else a blank form.
+
+    Raises
+    ------
+    SpecError
+        An unreadable spec or session (the CLI prints it and exits 2).
+    """
+    root = Path(sessions_root)
+    if target is not None and Path(target).is_dir():
+        if session_dir is not None:
+            raise SessionError("give a session folder or --session, not both", field="--session")
+        session = Session.open(target)
+        return _from_session(session)
+    if target is not None:
+        path = Path(target)
+        values, has_verify = _read_form(path)
+        name = values.get("name") or path.stem
+        folder = Path(session_dir) if session_dir else root / _safe(name)
+        existed = (folder / "session.json").exists()
+        session = Session.open_or_create(folder)
+        note = (
+            f"opened session {folder} with {path}"
+            if existed
+            else f"new session {folder} for {path}"
+        )
+        return Opened(session, values, has_verify, note, save_now=True)
+    folder = Path(session_dir) if session_dir else root / "untitled"
+    existed = (folder / "session.json").exists()
+    session = Session.open_or_create(folder)
+    if existed:
+        return _from_session(session)
+    values, has_verify = _blank()
+    return Opened(
+        session,
+        values,
+        has_verify,
+        f"new session {folder}: fill in the plant, or open a spec (Session tab)",
+    )
+
+
+def _safe(name: str) -> str:
+    """A folder name for a spec name: never a path (``/``), never ``.``/``..`` or hidden."""
+    safe = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in name)
+    return safe.lstrip(".") or "untitled"
+
+
+def _read_form(path: Path) -> tuple[dict[str, str], bool]:
+    """The form entries of a spec file; ``SpecError`` naming the file otherwise."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError("file not found", file=str(path)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"cannot read the spec: {exc}", file=str(path)) from None
+    try:
+        return form_from_text(text)
+    except SpecError as exc:
+        raise exc.with_file(str(path)) if exc.file is None else exc from None
+
+
+def _from_session(session: Session) -> Opened:
+    draft = read_draft(session)
+    if draft is not None:
+        values, has_verify = draft
+        return Opened(
+            session, values, has_verify, "restored unsaved edits from the last workbench run"
+        )
+    spec = session.spec_path()
+    if spec.is_file():
+        values, has_verify = _read_form(spec)
+        return Opened(session, values, has_verify, None)
+    values, has_verify = _blank()
+    return Opened(session, values, has_verify, "the session has no spec yet: fill in the form")
+
+
+def read_draft(session: Session) -> tuple[dict[str, str], bool] | None:
+    """The draft left in ``session`` (None if absent or unusable: it is only a convenience)."""
+    file = session.path / DRAFT
+    try:
+        data = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+        return None
+    if not isinstance(data, dict) or data.get("format") != DRAFT_FORMAT:
+        return None
+    entries = data.get("values")
+    if not isinstance(entries, dict):
+        return None
+    values = {fd.name: entries.get(fd.name, "") for fd in FIELDS}
+    if not all(isinstance(v, str) for v in values.values()):
+        return None
+    has_verify = data.get("has_verify", True)
+    if not isinstance(has_verify, bool):
+        return None
+    return values, has_verify
+
+
+def write_draft(session: Session, values: dict[str, str], has_verify: bool) -> None:
+    """Save the raw entries (atomically) while the form is not a valid spec."""
+    data = {
+        "format": DRAFT_FORMAT,
+        "has_verify": has_verify,
+        "values": {fd.name: values.get(fd.name, "") for fd in FIELDS},
+    }
+    write_text(session.path / DRAFT, json.dumps(data, indent=1) + "\n")
+
+
+def clear_draft(session: Session) -> None:
+    """Drop the draft once the form is valid again (its spec is then ``spec.toml``)."""
+    try:
+        (session.path / DRAFT).unlink()
+    except FileNotFoundError:
+        pass

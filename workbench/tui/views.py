@@ -1,0 +1,225 @@
+"""Terminal pictures of the engine's objects: partitions, reachtubes, time series.
+
+Each function takes engine data and a size in cells and returns a ``rich.text.Text`` (see
+:mod:`workbench.raster`). Pure functions of their inputs: the widgets call them from a worker
+thread and only swap the finished text in.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from rich.text import Text
+
+if TYPE_CHECKING:
+    from codev_engine import ExplicitLaw, Problem, VerificationResult
+
+from codev_engine.view.figures import default_slice_point
+
+from .raster import COLOURS, Raster, nice_limits, plot_text
+
+__all__ = ["law_limits", "partition_text", "plane_text", "series_text", "tube_time_text"]
+
+
+def law_limits(law: ExplicitLaw, axes: tuple[int, int]) -> tuple[tuple[float, float], ...]:
+    """View limits of the law's domain on two state axes (its regions' bounding box)."""
+    lo, hi = law.boxes
+    i, j = axes
+    return (
+        nice_limits(lo[:, i].min(), hi[:, i].max(), 0.03),
+        nice_limits(lo[:, j].min(), hi[:, j].max(), 0.03),
+    )
+
+
+def partition_text(
+    law: ExplicitLaw,
+    width: int,
+    height: int,
+    *,
+    axes: tuple[int, int] = (0, 1),
+    at: np.ndarray | None = None,
+    marker: np.ndarray | None = None,
+    limits: tuple[tuple[float, float], tuple[float, float]] | None = None,
+) -> Text:
+    """The critical regions coloured on a pixel grid (a 2-D slice for n > 2).
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    width, height : int
+        Plot size in cells (the pixel grid is width × 2·height).
+    axes : (2,) tuple of int
+        The state axes shown.
+    at : (n,) array_like, optional
+        The other states' values on the slice (default: ``figures.default_slice_point``, the
+        centre of the domain's bounding box).
+    marker : (n,) array_like, optional
+        A state to mark (the located state).
+    """
+    n = law.n
+    i, j = axes
+    xlim, ylim = limits or law_limits(law, axes)
+    r = Raster(width, height, xlim, ylim)
+    xs, ys = r.centres()
+    if at is None:
+        at = default_slice_point(law)  # the notebook pictures use the same slice
+    base = np.asarray(at, dtype=float).reshape(n)
+    gx, gy = np.meshgrid(xs, ys)
+    X = np.tile(base, (gx.size, 1))
+    X[:, i] = gx.ravel()
+    X[:, j] = gy.ravel()
+    idx = law.locate(X).reshape(gx.shape)
+    r.paint(idx)
+    if marker is not None:
+        mk = np.asarray(marker, dtype=float).reshape(n)
+        r.points([mk[i]], [mk[j]], COLOURS["marker"])
+    names = law.states or tuple(f"x{k}" for k in range(n))
+    found = len(np.unique(idx[idx >= 0]))
+    legend = [(f"{law.num_regions} regions ({found} in view)", COLOURS["axis"])]
+    if n > 2:
+        others = ", ".join(f"{names[k]}={base[k]:.3g}" for k in range(n) if k not in axes)
+        legend.append((f"slice at {others}", COLOURS["axis"]))
+    return plot_text(r, xlabel=names[i], ylabel=names[j], legend=legend)
+
+
+def tube_time_text(
+    result: VerificationResult,
+    width: int,
+    height: int,
+    *,
+    state: int = 0,
+    problem: Problem | None = None,
+    names: tuple[str, ...] = (),
+) -> Text:
+    """One state's reachtube against time, with unsafe bounds and the counterexample."""
+    tube = result.tube
+    names = names or (problem.plant.states if problem is not None else ())
+    name = names[state] if names else f"x{state}"
+    if tube.num_boxes == 0:
+        return Text("(empty reachtube)")
+    t1 = float(tube.t_end.max())
+    lo, hi = tube.lower[:, state], tube.upper[:, state]
+    ymin, ymax = float(np.min(lo)), float(np.max(hi))
+    cex = result.counterexample
+    trace = getattr(cex, "trace", None) if cex is not None else None
+    if trace is not None:
+        ymin = min(ymin, float(np.nanmin(trace.x[:, state])))
+        ymax = max(ymax, float(np.nanmax(trace.x[:, state])))
+    if problem is not None and problem.verify is not None:
+        # show an unsafe bound that is near the tube (within half its range): the margin is
+        # what the user looks for
+        near = 0.5 * max(ymax - ymin, 1e-9)
+        for s in problem.verify.unsafe:
+            if s.kind != "box":
+                continue
+            for v in (float(s.lower[state]), float(s.upper[state])):
+                if np.isfinite(v) and ymin - near <= v <= ymax + near:
+                    ymin, ymax = min(ymin, v), max(ymax, v)
+    r = Raster(width, height, nice_limits(0.0, t1, 0.0), nice_limits(ymin, ymax))
+    legend = [("reachtube", COLOURS["tube"])]
+    if problem is not None and problem.verify is not None:
+        for s in problem.verify.unsafe:
+            if s.kind == "box":
+                r.boxes([0.0], [t1], [s.lower[state]], [s.upper[state]], COLOURS["unsafe"])
+        if problem.verify.unsafe:
+            legend.append(("unsafe (boxes)", COLOURS["unsafe"]))
+    r.boxes(tube.t_start, tube.t_end, lo, hi, COLOURS["tube"])
+    if trace is not None:
+        r.polyline(trace.t, trace.x[:, state], COLOURS["cex"])
+        legend.append(("counterexample", COLOURS["cex"]))
+    return plot_text(r, xlabel="t (s)", ylabel=name, legend=legend)
+
+
+def plane_text(
+    result: VerificationResult,
+    width: int,
+    height: int,
+    *,
+    axes: tuple[int, int] = (0, 1),
+    problem: Problem | None = None,
+    names: tuple[str, ...] = (),
+) -> Text:
+    """The reachtube's boxes projected on two state axes, with the sets and counterexample."""
+    tube = result.tube
+    i, j = axes
+    pts_x = [tube.lower[:, i], tube.upper[:, i]]
+    pts_y = [tube.lower[:, j], tube.upper[:, j]]
+    vs = problem.verify if problem is not None else None
+    if vs is not None:
+        pts_x += [vs.initial_lower[i : i + 1], vs.initial_upper[i : i + 1]]
+        pts_y += [vs.initial_lower[j : j + 1], vs.initial_upper[j : j + 1]]
+    cex = result.counterexample
+    trace = getattr(cex, "trace", None) if cex is not None else None
+    if trace is not None:
+        pts_x.append(trace.x[:, i])
+        pts_y.append(trace.x[:, j])
+    allx, ally = np.concatenate(pts_x), np.concatenate(pts_y)
+    allx, ally = allx[np.isfinite(allx)], ally[np.isfinite(ally)]
+    if allx.size == 0:
+        return Text("(nothing to draw)")
+    r = Raster(
+        width, height, nice_limits(allx.min(), allx.max()), nice_limits(ally.min(), ally.max())
+    )
+    legend = [("reachtube", COLOURS["tube"])]
+    if vs is not None:
+        for s in vs.unsafe:
+            if s.kind == "box":
+                r.boxes([s.lower[i]], [s.upper[i]], [s.lower[j]], [s.upper[j]], COLOURS["unsafe"])
+        if vs.unsafe:
+            legend.append(("unsafe", COLOURS["unsafe"]))
+    r.boxes(tube.lower[:, i], tube.upper[:, i], tube.lower[:, j], tube.upper[:, j], COLOURS["tube"])
+    if vs is not None:
+        r.outline(
+            vs.initial_lower[i],
+            vs.initial_upper[i],
+            vs.initial_lower[j],
+            vs.initial_upper[j],
+            COLOURS["initial"],
+        )
+        legend.append(("initial set", COLOURS["initial"]))
+    if trace is not None:
+        r.polyline(trace.x[:, i], trace.x[:, j], COLOURS["cex"])
+        legend.append(("counterexample", COLOURS["cex"]))
+    nm = (
+        names
+        or (problem.plant.states if problem is not None else ())
+        or tuple(f"x{k}" for k in range(tube.lower.shape[1]))
+    )
+    return plot_text(r, xlabel=nm[i], ylabel=nm[j], legend=legend)
+
+
+def series_text(
+    t: np.ndarray,
+    Y: np.ndarray,
+    labels: tuple[str, ...],
+    width: int,
+    height: int,
+    *,
+    steps: bool = False,
+) -> Text:
+    """Time series (K,) × (K, k) as coloured lines; ``steps`` draws a held signal."""
+    t = np.asarray(t, dtype=float).ravel()
+    Y = np.asarray(Y, dtype=float)
+    if t.size == 0 or Y.size == 0:
+        return Text("(no data)")
+    Y = Y.reshape(t.size, -1)
+    finite = Y[np.isfinite(Y)]
+    if finite.size == 0:
+        return Text("(no data)")
+    r = Raster(
+        width, height, nice_limits(t.min(), t.max(), 0.0), nice_limits(finite.min(), finite.max())
+    )
+    r.polyline(t, np.zeros_like(t), COLOURS["axis"])
+    palette = ("#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#b07aa1", "#edc948")
+    legend = []
+    for k in range(Y.shape[1]):
+        colour = palette[k % len(palette)]
+        if steps:
+            tt = np.repeat(t, 2)[1:]
+            yy = np.repeat(Y[:, k], 2)[:-1]
+        else:
+            tt, yy = t, Y[:, k]
+        r.polyline(tt, yy, colour)
+        legend.append((labels[k] if k < len(labels) else f"y{k}", colour))
+    return plot_text(r, xlabel="t (s)", legend=legend)
