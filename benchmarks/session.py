@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import codev_engine as ce  # noqa: E402
-from codev_engine.session.session import RunOptions, Session  # noqa: E402
+from codev_engine.session import RunOptions, Session  # noqa: E402
 
 DEFAULT_SPECS = ["examples/magnetic_pointer_a.toml", "examples/double_integrator.toml"]
 

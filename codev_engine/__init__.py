@@ -53,8 +53,8 @@ _LAZY: dict[str, str] = {
     "Counterexample": "reach.verification",
     "VerificationResult": "reach.verification",
     "verify": "reach.verification",
-    "RunOptions": "session.session",
-    "Session": "session.session",
+    "RunOptions": "session",
+    "Session": "session",
 }
 
 

@@ -188,7 +188,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             )
         return _cmd_verify(args)
     from codev_engine.pipeline import load_spec
-    from codev_engine.session.session import RunOptions, Session
+    from codev_engine.session import RunOptions, Session
 
     # bad input fails here or in Session.run's own checks, before the session is touched;
     # the MPC's feasibility LP (python-control, ~1 s of imports) only when not cached
@@ -291,7 +291,7 @@ def _stage_progress(
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from codev_engine.session.session import Session
+    from codev_engine.session import Session
 
     session = Session.open(args.dir)
     quiet = args.json
@@ -337,7 +337,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_session(args: argparse.Namespace) -> int:
-    from codev_engine.session.session import Session
+    from codev_engine.session import Session
 
     session = Session.open(args.dir)
     journal = session.journal()

@@ -6,7 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
-from codev_engine.session.session import Session
+from codev_engine.session import Session
 from workbench.cli import main
 
 BUNDLED = Path(__file__).resolve().parents[2] / "sessions" / "double_integrator"

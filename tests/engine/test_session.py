@@ -36,7 +36,7 @@ import pytest
 import codev_engine.session.session as session_mod
 from codev_engine import load_spec, loads_spec
 from codev_engine.errors import CodevError, SpecError
-from codev_engine.session.session import RunOptions, Session, SessionError, stage_keys
+from codev_engine.session import RunOptions, Session, SessionError, stage_keys
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"

@@ -16,7 +16,7 @@ from pilot_tools import EXAMPLES, ROOT, SIZE, entry, run, settle, text_of, type_
 from textual.widgets import DataTable, Input, Static
 
 from codev_engine import load_spec
-from codev_engine.session.session import Session
+from codev_engine.session import Session
 from workbench.tui.app import CodevApp
 from workbench.tui.panes.plant import PlantPane
 from workbench.tui.state import DRAFT, open_target

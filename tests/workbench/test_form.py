@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 import codev_engine as ce
-from codev_engine.session.session import RunOptions, stage_keys
+from codev_engine.session import RunOptions, stage_keys
 from workbench.tui.form import (
     FIELD_BY_NAME,
     FIELDS,

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 import codev_engine as ce
-from codev_engine.session.session import RunOptions, Session, SessionError, stage_keys
+from codev_engine.session import RunOptions, Session, SessionError, stage_keys
 from workbench.tui.form import FIELDS, check_form, form_from_text
 from workbench.tui.state import DRAFT, clear_draft, open_target, read_draft, write_draft
 

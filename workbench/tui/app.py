@@ -23,7 +23,7 @@ from textual.binding import Binding
 from textual.widgets import Footer, Static, TabbedContent, TabPane
 
 from codev_engine.errors import CodevError
-from codev_engine.session.session import (
+from codev_engine.session import (
     STAGES,
     RunOptions,
     RunReport,

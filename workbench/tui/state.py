@@ -14,7 +14,7 @@ from pathlib import Path
 
 from codev_engine import SpecError
 from codev_engine.io.atomic import write_text
-from codev_engine.session.session import Session, SessionError
+from codev_engine.session import Session, SessionError
 
 from .form import FIELDS, form_from_text
 

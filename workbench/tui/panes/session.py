@@ -11,7 +11,7 @@ from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Button, DataTable, Input, Label, Static
 
 from codev_engine import CodevError
-from codev_engine.session.session import RunReport
+from codev_engine.session import RunReport
 
 from ..state import open_target
 

@@ -9,7 +9,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widgets import Button, DataTable, Input, Label, Static
 
-from codev_engine.session.session import RunReport
+from codev_engine.session import RunReport
 
 from ..design import locate_state, region_rows
 from ..views import partition_text

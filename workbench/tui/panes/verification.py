@@ -8,7 +8,7 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.widgets import Button, Input, Label, Static, Switch
 
-from codev_engine.session.session import RunReport
+from codev_engine.session import RunReport
 
 from ..form import FIELDS
 from ..views import plane_text, tube_time_text
