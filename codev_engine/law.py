@@ -18,8 +18,7 @@ import numpy as np
 from codev_engine.errors import SpecError
 from codev_engine.geometry.locate import PointLocator, bounding_boxes
 from codev_engine.geometry.polytope import Polytope
-from codev_engine.io.atomic import write_npz
-from codev_engine.io.npz import load_checked, offsets
+from codev_engine.io.npz import NpzFormat, load_npz, offsets, save_npz
 from codev_engine.io.npz import names as _names
 from codev_engine.io.npz import pair as _pair
 from codev_engine.io.npz import real as _real
@@ -29,6 +28,7 @@ __all__ = ["ExplicitLaw", "LAW_FORMAT"]
 
 #: format tag written into every law file; bumped on incompatible changes
 LAW_FORMAT = "codev-explicit-law/1"
+_LAW_FILE = NpzFormat("law file", LAW_FORMAT, "law")
 
 
 @dataclass
@@ -155,7 +155,6 @@ class ExplicitLaw:
         offsets = np.cumsum([0] + [a.shape[0] for a in self.A])
         n = self.n
         arrays = {
-            "format": np.array(LAW_FORMAT),
             "A": np.vstack(self.A) if self.A else np.zeros((0, n)),
             "b": np.concatenate(self.b) if self.b else np.zeros(0),
             "offsets": offsets.astype(np.int64),
@@ -170,12 +169,12 @@ class ExplicitLaw:
             arrays["box_lo"], arrays["box_hi"] = self._boxes
         if self.domain_A is not None:
             arrays["domain_A"], arrays["domain_b"] = self.domain_A, self.domain_b
-        return write_npz(path, arrays)
+        return save_npz(path, _LAW_FILE, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> ExplicitLaw:
         """Read a law written by ``save``; any malformed file raises ``SpecError``."""
-        return load_checked(path, "law file", cls._from_arrays)
+        return load_npz(path, _LAW_FILE, cls._from_arrays)
 
     @classmethod
     def _from_arrays(cls, data: dict[str, np.ndarray]) -> ExplicitLaw:
@@ -184,11 +183,8 @@ class ExplicitLaw:
         Every array is checked here, in one place: presence, dtype kind (numbers are real
         floats or integers -- never complex, bool, text or objects; the offsets are
         integers; the names are text), shape, finiteness, and the consistency of the
-        shapes with each other.
+        shapes with each other (the format tag is checked by ``load_npz``).
         """
-        fmt = _text(data, "format")
-        if fmt != LAW_FORMAT:
-            raise SpecError(f"unsupported law format {fmt!r}", field="format")
         F = _real(data, "F", ndim=3)
         k, m, n = F.shape
         G = _real(data, "G", shape=(k, m))

@@ -15,8 +15,7 @@ import numpy as np
 import sympy
 
 from codev_engine.errors import SpecError
-from codev_engine.io.atomic import write_npz
-from codev_engine.io.npz import load_checked, pair, real, text
+from codev_engine.io.npz import NpzFormat, load_npz, pair, real, save_npz
 from codev_engine.spec.expr import make_symbol, parse_expression
 
 if TYPE_CHECKING:
@@ -35,6 +34,7 @@ __all__ = [
 
 #: format tag of model files (session artifacts); bumped on incompatible changes
 MODEL_FORMAT = "codev-model/1"
+_MODEL_FILE = NpzFormat("model file", MODEL_FORMAT, "model")
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,6 @@ class LinearModel:
     def save(self, path: str | os.PathLike) -> Path:
         """Write the model to ``path`` (``.npz``, no pickle) atomically; returns the path."""
         arrays = {
-            "format": np.array(MODEL_FORMAT),
             "A": self.A,
             "B": self.B,
             "c": self.c,
@@ -87,18 +86,15 @@ class LinearModel:
         }
         if self.Ac is not None and self.Bc is not None:
             arrays["Ac"], arrays["Bc"] = self.Ac, self.Bc
-        return write_npz(path, arrays)
+        return save_npz(path, _MODEL_FILE, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LinearModel:
         """Read a model written by ``save``; a malformed file raises ``SpecError``."""
-        return load_checked(path, "model file", cls._from_arrays)
+        return load_npz(path, _MODEL_FILE, cls._from_arrays)
 
     @classmethod
     def _from_arrays(cls, data: dict[str, np.ndarray]) -> LinearModel:
-        fmt = text(data, "format")
-        if fmt != MODEL_FORMAT:
-            raise SpecError(f"unsupported model format {fmt!r}", field="format")
         A = real(data, "A", ndim=2)
         n = A.shape[0]
         if A.shape != (n, n):

@@ -1,24 +1,120 @@
-"""Reading ``.npz`` artifacts safely: no pickle, every array checked, errors name it.
+"""``.npz`` artifacts: one checked format, no pickle, every array checked, errors name it.
 
-Writers live in ``atomic.py`` (temp file + rename). Readers call :func:`read_npz` and then
-the typed getters below, which raise ``SpecError`` naming the array (``field``) and what is
-wrong with it; the caller adds the file name.
+Each kind of artifact (law, model, solution, tube, verification result, program) is an
+:class:`NpzFormat`: what the file is, for messages, and the tag written into its
+``format`` array. :func:`save_npz` writes the tag and the arrays atomically (``atomic.py``:
+temp file + rename); :func:`load_npz` reads them with ``allow_pickle=False``, checks the tag
+and hands the arrays to the caller's builder, which validates them with the typed getters
+below (``SpecError`` naming the array, ``field``); the file name is added here.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
 
 from codev_engine.errors import SpecError
+from codev_engine.io.atomic import write_npz
 
 T = TypeVar("T")
 
-__all__ = ["read_npz", "load_checked", "array", "real", "text", "names", "pair", "offsets"]
+__all__ = [
+    "NpzFormat",
+    "save_npz",
+    "load_npz",
+    "read_npz",
+    "array",
+    "real",
+    "text",
+    "names",
+    "pair",
+    "offsets",
+]
+
+
+@dataclass(frozen=True)
+class NpzFormat:
+    """One kind of ``.npz`` artifact.
+
+    Attributes
+    ----------
+    what : str
+        What the file is, in error messages: ``"law file"``, ``"tube file"``.
+    tag : str or None
+        The format tag written as the 0-d text array ``format`` and required on reading
+        (``"codev-explicit-law/1"``; bumped on incompatible changes). None: no tag (a
+        neutral convention shared with other tools, e.g. mp test sets).
+    name : str
+        The artifact in ``unsupported {name} format '...'``.
+    reads : tuple of str
+        Older tags still read (the builder tells them apart by ``data["format"]``).
+    untagged : bool
+        Also read files without a ``format`` array (written by other tools); a tag, when
+        present, must still be known.
+    """
+
+    what: str
+    tag: str | None = None
+    name: str = ""
+    reads: tuple[str, ...] = ()
+    untagged: bool = False
+
+    def check(self, data: dict[str, np.ndarray]) -> None:
+        """Refuse a missing (unless ``untagged``), malformed or unknown ``format`` tag."""
+        if self.tag is None or (self.untagged and "format" not in data):
+            return
+        tag = text(data, "format")
+        if tag != self.tag and tag not in self.reads:
+            raise SpecError(f"unsupported {self.name} format {tag!r}", field="format")
+
+
+def save_npz(
+    path: str | os.PathLike,
+    fmt: NpzFormat,
+    arrays: dict[str, np.ndarray],
+    *,
+    compress: bool = True,
+) -> Path:
+    """Write ``arrays`` and the format tag of ``fmt`` to ``path`` atomically (no pickle).
+
+    Parameters
+    ----------
+    compress : bool
+        Deflate the arrays (see :func:`codev_engine.io.atomic.write_npz`).
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
+    if fmt.tag is not None:
+        arrays = {"format": np.array(fmt.tag), **arrays}
+    return write_npz(path, arrays, compress=compress)
+
+
+def load_npz(path: str | os.PathLike, fmt: NpzFormat, build: Callable[[dict], T]) -> T:
+    """Read an artifact of format ``fmt`` and build it with ``build(arrays)``.
+
+    The file is read with :func:`read_npz` (never unpickled), its tag checked
+    (:meth:`NpzFormat.check`), then ``build`` validates the arrays (``data`` still holds
+    ``format``) and raises ``SpecError`` naming the array.
+
+    Raises
+    ------
+    SpecError
+        Naming the file, the array (``field``) and what is wrong.
+    """
+    data = read_npz(path, fmt.what)
+    try:
+        fmt.check(data)
+        return build(data)
+    except SpecError as exc:
+        raise exc.with_file(str(path)) from None
 
 
 def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
@@ -71,19 +167,6 @@ def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
                     field=k,
                 ) from None
     return out
-
-
-def load_checked(path: str | os.PathLike, what: str, build: Callable[[dict], T]) -> T:
-    """Read ``path`` with :func:`read_npz` and build the object with ``build(arrays)``.
-
-    ``build`` validates and raises ``SpecError`` naming the array; the error is returned
-    with the file name added.
-    """
-    data = read_npz(path, what)
-    try:
-        return build(data)
-    except SpecError as exc:
-        raise exc.with_file(str(path)) from None
 
 
 def offsets(data: dict[str, np.ndarray], key: str, count: int, rows: int) -> np.ndarray:

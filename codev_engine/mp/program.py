@@ -22,11 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.errors import SpecError
-from codev_engine.io.atomic import write_npz
-from codev_engine.io.npz import load_checked, real
+from codev_engine.io.npz import NpzFormat, load_npz, real, save_npz
 
 __all__ = ["MpProgram"]
 
+#: the neutral convention of mp test sets: no format tag (``kind`` and ``name`` arrays)
+_PROGRAM_FILE = NpzFormat("program file (.npz)")
 _ARRAYS = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta")
 _EQ = ("Aeq", "beq", "Feq")
 
@@ -109,14 +110,14 @@ class MpProgram:
                 raise SpecError("missing array", field=missing[0])
             return cls(**{k: data[k] for k in _ARRAYS + _EQ if k in data}, name=name)
 
-        return load_checked(path, "program file (.npz)", build)
+        return load_npz(path, _PROGRAM_FILE, build)
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the program as an ``.npz`` in the same convention, atomically."""
         arrays = {k: getattr(self, k) for k in _ARRAYS + _EQ if getattr(self, k) is not None}
         arrays["kind"] = np.array(self.kind)
         arrays["name"] = np.array(self.name)
-        return write_npz(path, arrays)
+        return save_npz(path, _PROGRAM_FILE, arrays)
 
 
 def _validated(data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -20,8 +20,7 @@ import numpy as np
 
 from codev_engine.errors import SpecError
 from codev_engine.geometry.locate import PointLocator
-from codev_engine.io.atomic import write_npz
-from codev_engine.io.npz import array, load_checked, offsets, real, text
+from codev_engine.io.npz import NpzFormat, array, load_npz, offsets, real, save_npz, text
 from codev_engine.mp.program import MpProgram
 
 __all__ = ["CriticalRegion", "MpSolution", "RegionArrays", "SOLUTION_FORMAT", "too_many_regions"]
@@ -30,7 +29,7 @@ __all__ = ["CriticalRegion", "MpSolution", "RegionArrays", "SOLUTION_FORMAT", "t
 SOLUTION_FORMAT = "codev-mp-solution/2"
 #: format 1: every region with all its rows (no shared rows); still read
 _FORMAT_1 = "codev-mp-solution/1"
-_READABLE = (_FORMAT_1, SOLUTION_FORMAT)
+_SOLUTION_FILE = NpzFormat("solution file", SOLUTION_FORMAT, "solution", reads=(_FORMAT_1,))
 #: solutions of more bytes are saved uncompressed
 _COMPRESS_BELOW = 1 << 26
 
@@ -382,7 +381,6 @@ class MpSolution:
         d = p.d
         ra = self.regions
         arrays: dict[str, np.ndarray] = {
-            "format": np.array(SOLUTION_FORMAT),
             "A": ra.A,
             "b": ra.b,
             "offsets": ra.offsets,
@@ -403,18 +401,16 @@ class MpSolution:
                 arrays[f"program.{key}"] = val
         # (large solutions uncompressed: deflating 10 GB of rows took 5 minutes)
         size = sum(a.nbytes for a in arrays.values())
-        return write_npz(path, arrays, compress=size < _COMPRESS_BELOW)
+        return save_npz(path, _SOLUTION_FILE, arrays, compress=size < _COMPRESS_BELOW)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> MpSolution:
         """Read a solution written by ``save``; a malformed file raises ``SpecError``."""
-        return load_checked(path, "solution file", cls._from_arrays)
+        return load_npz(path, _SOLUTION_FILE, cls._from_arrays)
 
     @classmethod
     def _from_arrays(cls, data: dict[str, np.ndarray]) -> MpSolution:
-        fmt = text(data, "format")
-        if fmt not in _READABLE:
-            raise SpecError(f"unsupported solution format {fmt!r}", field="format")
+        fmt = text(data, "format")  # (checked by load_npz: this one or format 1)
         prog = {k[len("program.") :]: v for k, v in data.items() if k.startswith("program.")}
         try:
             meta = json.loads(text(data, "meta"))

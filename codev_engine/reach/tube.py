@@ -14,12 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.errors import SpecError
-from codev_engine.io.atomic import write_npz
-from codev_engine.io.npz import array, load_checked, real
+from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz
 
 __all__ = ["Tube", "TUBE_FORMAT"]
 
 TUBE_FORMAT = "codev-tube/1"
+#: tube files of other tools (no tag) are read too
+_TUBE_FILE = NpzFormat("tube file", TUBE_FORMAT, "tube", untagged=True)
 
 
 @dataclass(frozen=True)
@@ -90,12 +91,12 @@ class Tube:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write ``t_start``, ``t_end``, ``lower``, ``upper`` (and ``branch``) to an npz."""
-        return write_npz(path, {"format": np.array(TUBE_FORMAT), **self.arrays()})
+        return save_npz(path, _TUBE_FILE, self.arrays())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Tube:
         """Read a tube written by ``save``; a malformed file raises ``SpecError``."""
-        return load_checked(path, "tube file", cls.from_arrays)
+        return load_npz(path, _TUBE_FILE, cls.from_arrays)
 
     @classmethod
     def from_arrays(cls, data: dict[str, np.ndarray], prefix: str = "") -> Tube:

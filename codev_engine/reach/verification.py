@@ -27,8 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.errors import SpecError
-from codev_engine.io.atomic import write_npz
-from codev_engine.io.npz import array, load_checked, real, text
+from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
 from codev_engine.reach.linear import LinearReach, affine_plant
 from codev_engine.reach.tube import Tube
@@ -38,6 +37,7 @@ __all__ = ["VerificationResult", "Counterexample", "verify", "RESULT_FORMAT", "V
 
 #: format tag of verification result files; bumped on incompatible changes
 RESULT_FORMAT = "codev-verification/1"
+_RESULT_FILE = NpzFormat("verification result", RESULT_FORMAT, "result")
 VERDICTS = ("robustly_safe", "unsafe", "unknown")
 #: What a counterexample does, by kind (``{index}``: which set or input)
 VIOLATION_WORDS = {
@@ -115,7 +115,6 @@ class VerificationResult:
         Atomic and pickle-free; :meth:`load` reads it back.
         """
         arrays: dict[str, np.ndarray] = {
-            "format": np.array(RESULT_FORMAT),
             "verdict": np.array(self.verdict),
             "reason": np.array(self.reason or ""),
             "hold": np.array(self.hold),
@@ -137,20 +136,17 @@ class VerificationResult:
                 trace_region=np.asarray(tr.region, dtype=np.int64),
                 trace_undefined_at=np.array(np.nan if undefined is None else float(undefined)),
             )
-        return write_npz(path, arrays)
+        return save_npz(path, _RESULT_FILE, arrays)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> VerificationResult:
         """Read a result written by :meth:`save`; a malformed file raises ``SpecError``."""
-        return load_checked(path, "verification result", cls._from_arrays)
+        return load_npz(path, _RESULT_FILE, cls._from_arrays)
 
     @classmethod
     def _from_arrays(cls, data: dict[str, np.ndarray]) -> VerificationResult:
         from codev_engine.reach.simulate import Trace
 
-        fmt = text(data, "format")
-        if fmt != RESULT_FORMAT:
-            raise SpecError(f"unsupported result format {fmt!r}", field="format")
         verdict = text(data, "verdict")
         if verdict not in VERDICTS:
             raise SpecError(f"unknown verdict {verdict!r}", field="verdict")
