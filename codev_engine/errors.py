@@ -37,7 +37,18 @@ class SpecError(CodevError, ValueError):
         return f"{where}: {self.reason}" if where else self.reason
 
     def with_file(self, file: str) -> SpecError:
-        """Return a copy that names ``file`` (used when the loader knows the path)."""
+        """Return a copy that names ``file`` (used when the loader knows the path).
+
+        Parameters
+        ----------
+        file : str
+            The file the bad input came from.
+
+        Returns
+        -------
+        SpecError
+            The same reason and field, with ``file`` set.
+        """
         return SpecError(self.reason, file=file, field=self.field)
 
 

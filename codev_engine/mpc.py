@@ -94,14 +94,19 @@ class MpcProgram:
     Attributes
     ----------
     program : MpProgram
+        The condensed program in ``(theta, z)``.
     model : LinearModel
+        The prediction model it was condensed from.
     spec : MpcSpec
+        The MPC design (weights, bounds, norm).
     n, m, N : int
         State and input dimensions, horizon.
     u0_slice : slice
         Where the first deviation input ``u_0 - u_op`` sits inside ``z``.
     x_op : (n,) ndarray
+        Operating point state: ``theta = x_0 - x_op``.
     u_op : (m,) ndarray
+        Operating point input: the inputs in ``z`` are ``u_k - u_op``.
     """
 
     program: MpProgram
@@ -144,11 +149,33 @@ class MpcProgram:
         return np.linalg.norm(T @ Q.T, ord=ordp, axis=1)
 
     def to_theta(self, X: np.ndarray) -> np.ndarray:
-        """Plant states ``X`` (P, n) -> parameters ``theta = X - x_op`` (P, n)."""
+        """Map plant states to parameters, ``theta = X - x_op``.
+
+        Parameters
+        ----------
+        X : (P, n) or (n,) array_like
+            Plant states.
+
+        Returns
+        -------
+        (P, n) or (n,) ndarray
+            The parameters, in the shape of ``X``.
+        """
         return np.asarray(X, dtype=float) - self.x_op
 
     def from_theta(self, theta: np.ndarray) -> np.ndarray:
-        """Parameters ``theta`` (P, n) -> plant states ``theta + x_op`` (P, n)."""
+        """Map parameters to plant states, ``X = theta + x_op``.
+
+        Parameters
+        ----------
+        theta : (P, n) or (n,) array_like
+            Initial state deviations.
+
+        Returns
+        -------
+        (P, n) or (n,) ndarray
+            The plant states, in the shape of ``theta``.
+        """
         return np.asarray(theta, dtype=float) + self.x_op
 
     def u0_from_z(self, Z: np.ndarray) -> np.ndarray:
@@ -157,6 +184,7 @@ class MpcProgram:
         Parameters
         ----------
         Z : (nz,) or (P, nz) ndarray
+            Decision vectors of ``program``.
 
         Returns
         -------
@@ -243,7 +271,7 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
         Weights ``Q`` (q, n), ``R`` (r, m), optional ``P`` (p, n) (square for norm "2"),
         bounds in plant coordinates.
     model : LinearModel
-        The discrete-time model in deviation coordinates.
+        The discrete-time model in deviation coordinates: A (n, n), B (n, m), c (n,).
 
     Returns
     -------
@@ -252,6 +280,13 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
         ``z = [u_0..u_{N-1} (deviations), slacks]``; state bounds on ``x_1..x_N`` and input
         bounds are rows ``A z <= b + F theta``, the ``x_0`` bound (a box, ``domain_bound`` on
         infinite sides) and any constraint on theta alone form ``A_theta theta <= b_theta``.
+
+    Raises
+    ------
+    SpecError
+        When ``spec`` does not fit the model: an unknown norm, a horizon below 1, weights
+        of the wrong shape, or (norm "2") a weight that is not square or not positive
+        semidefinite.
     """
     n, m = np.asarray(model.B).shape
     N = int(spec.horizon)
@@ -420,6 +455,7 @@ def check_feasible(problem: Problem, model: LinearModel | None = None) -> None:
     Parameters
     ----------
     problem : Problem
+        The problem whose ``mpc`` is checked.
     model : LinearModel, optional
         The prediction model; ``plant.discretize(problem)`` when omitted.
 
@@ -486,6 +522,7 @@ class OnlineSolution:
 
     @property
     def feasible(self) -> bool:
+        """True when the MPC has a solution at this state (``status == "optimal"``)."""
         return self.status == "optimal"
 
 
@@ -507,9 +544,16 @@ class OnlineMpc:
     Parameters
     ----------
     spec : MpcSpec
+        The MPC design (horizon, norm, weights, bounds in plant coordinates).
     model : LinearModel
+        The prediction model in deviation coordinates.
     solver_options : dict, optional
         Clarabel settings; defaults to ``CLARABEL_OPTIONS``.
+
+    Raises
+    ------
+    SpecError
+        When ``spec`` does not fit the model (as :func:`build_program`).
     """
 
     def __init__(self, spec: MpcSpec, model: LinearModel,
@@ -688,11 +732,23 @@ class OnlineMpc:
         return None
 
     def solve(self, x: np.ndarray) -> OnlineSolution:
-        """Solve the MPC at the plant state ``x`` (n,).
+        """Solve the MPC at one plant state.
+
+        Parameters
+        ----------
+        x : (n,) array_like
+            The initial state ``x_0``, in plant coordinates.
 
         Returns
         -------
         OnlineSolution
+            ``status="infeasible"`` (NaN plans, infinite cost) when no plan satisfies the
+            constraints.
+
+        Raises
+        ------
+        SolverError
+            When Clarabel fails at every setting although the MPC may be feasible.
         """
         self._x0.value = np.asarray(x, dtype=float).reshape(self.n)
         if not self._run(self._prob):
@@ -709,15 +765,28 @@ class OnlineMpc:
         )
 
     def first_move_cost(self, x: np.ndarray, u0: np.ndarray) -> float:
-        """Optimal MPC cost at ``x`` (n,) with the first move fixed to ``u0`` (m,).
+        """Optimal MPC cost at ``x`` with the first move fixed to ``u0``.
 
-        Both in plant coordinates. ``u0`` is an optimal first move iff this equals
-        ``solve(x).cost`` (within solver tolerance).
+        ``u0`` is an optimal first move iff this equals ``solve(x).cost`` (within solver
+        tolerance), which tests an explicit law's move even where the optimal move is not
+        unique (and so need not be the one :meth:`solve` returns).
+
+        Parameters
+        ----------
+        x : (n,) array_like
+            The initial state, in plant coordinates.
+        u0 : (m,) array_like
+            The first move, in plant coordinates.
 
         Returns
         -------
         float
             ``inf`` when no feasible plan starts with ``u0``.
+
+        Raises
+        ------
+        SolverError
+            As :meth:`solve`.
         """
         self._x0.value = np.asarray(x, dtype=float).reshape(self.n)
         self._u0.value = np.asarray(u0, dtype=float).reshape(self.m)
@@ -726,7 +795,12 @@ class OnlineMpc:
         return float(self._prob_fixed.value)
 
     def solve_many(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Solve at each row of ``X`` (P, n).
+        """Solve the MPC at each of several plant states (see :meth:`solve`).
+
+        Parameters
+        ----------
+        X : (P, n) or (n,) array_like
+            The initial states, one per row.
 
         Returns
         -------
@@ -735,6 +809,12 @@ class OnlineMpc:
         cost : (P,) ndarray
             Optimal costs (inf where infeasible).
         feasible : (P,) bool ndarray
+            Where the MPC has a solution.
+
+        Raises
+        ------
+        SolverError
+            As :meth:`solve`.
         """
         X = np.atleast_2d(np.asarray(X, dtype=float))
         U0 = np.full((X.shape[0], self.m), np.nan)

@@ -18,7 +18,20 @@ __all__ = ["synthesize", "law_from_solution", "problem_fingerprint"]
 
 
 def problem_fingerprint(mp: MpcProgram) -> str:
-    """Hash of everything the explicit law depends on (the condensed program + op point)."""
+    """Hash of everything the explicit law depends on: the condensed program and op point.
+
+    Parameters
+    ----------
+    mp : MpcProgram
+        The condensed MPC (from :func:`codev_engine.mpc.build_program`).
+
+    Returns
+    -------
+    str
+        16 hex digits over the program's arrays (``H``, ``c``, ``C``, ``A``, ``b``, ``F``,
+        ``A_theta``, ``b_theta``), ``x_op``, ``u_op`` and the norm; stored as
+        ``ExplicitLaw.fingerprint``, so that a law file made for another problem is refused.
+    """
     p = mp.program
     return fingerprint_arrays(
         p.H, p.c, p.C, p.A, p.b, p.F, p.A_theta, p.b_theta, mp.x_op, mp.u_op, mp.spec.norm
@@ -30,7 +43,26 @@ def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> Exp
 
     With ``theta = x - x_op`` and ``u = u_op + z[u0] = u_op + K_u theta + k_u``:
     ``F = K_u``, ``G = u_op + k_u - K_u x_op``; region rows ``A theta <= b`` become
-    ``A x <= b + A x_op``.
+    ``A x <= b + A x_op``, and so do the domain's rows.
+
+    Parameters
+    ----------
+    mp : MpcProgram
+        The condensed MPC that ``sol`` solves.
+    sol : MpSolution
+        The solution of ``mp.program``: critical regions in theta with the optimiser
+        ``z = K theta + k`` of each.
+    simplify : bool
+        Merge the regions whose laws ``(F_i, G_i)`` are equal up to round-off (relative
+        1e-9) while their union stays convex.
+
+    Returns
+    -------
+    ExplicitLaw
+        ``A``, ``b`` (k regions), ``F`` (k, m, n), ``G`` (k, m), the domain, the fingerprint
+        (:func:`problem_fingerprint`) and ``meta`` (norm, horizon, region counts before and
+        after merging, solve seconds, solver stats). ``states`` and ``inputs`` are empty:
+        the caller names them (:func:`synthesize` does).
     """
     sl = mp.u0_slice
     As = [r.A for r in sol.regions]
@@ -90,6 +122,7 @@ def synthesize(
     simplify : bool, optional
         Merge regions sharing a law; default ``problem.mpc.simplify``.
     options : SolveOptions, optional
+        Settings of the multi-parametric solver; its defaults when omitted.
     progress : callable, optional
         Called with the number of regions found so far.
 
@@ -97,6 +130,16 @@ def synthesize(
     -------
     ExplicitLaw
         In plant coordinates; ``law.meta['seconds']`` is the total wall time.
+
+    Raises
+    ------
+    SpecError
+        When the problem cannot be condensed or solved as given (the plant is not
+        linearisable at the operating point, weights of the wrong shape, an empty or
+        unbounded parameter set).
+    SolverError
+        When the multi-parametric solver gives up (more regions than
+        ``options.max_regions``, numerical trouble).
     """
     t0 = time.perf_counter()
     model = model if model is not None else discretize(problem)

@@ -22,8 +22,26 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; on success it is renamed onto ``path``.
 
     The temporary file is created empty (mode 0666 less the umask, like ``open``), so a
-    writer may reopen it by name (e.g. a library that takes a path). On any exception it
-    is removed and ``path`` is untouched.
+    writer may reopen it by name (e.g. a library that takes a path). When the ``with`` body
+    returns, the file is flushed to disk (``fsync``) and renamed onto ``path``; on any
+    exception (``KeyboardInterrupt`` included) it is removed, ``path`` is untouched and the
+    exception propagates.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write; its missing parent folders are created.
+
+    Yields
+    ------
+    Path
+        ``.tmp-<random hex><suffix of path>`` in the folder of ``path``.
+
+    Notes
+    -----
+    The temporary file is in the same folder so that the rename is atomic (``os.replace``
+    is atomic only within one file system); it keeps the suffix of ``path`` for the
+    libraries that choose a format, or append an extension, by the file name.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -51,6 +69,11 @@ def write_npz(
 
     Parameters
     ----------
+    path : str or os.PathLike
+        The file to write (see :func:`atomic_path`).
+    arrays : dict of str to ndarray
+        The arrays, by name; numeric or string arrays only, since the readers load with
+        ``allow_pickle=False``.
     compress : bool
         Deflate the arrays (zlib writes ~30 MB/s here and shrinks floating-point data little:
         the 5M regions of pop_mpqp_095 took 5 minutes to write, 8.7 GB deflated).
@@ -66,7 +89,20 @@ def write_npz(
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write UTF-8 ``text`` to ``path`` atomically."""
+    """Write ``text`` to ``path`` as UTF-8, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (see :func:`atomic_path`).
+    text : str
+        The whole content of the file.
+
+    Returns
+    -------
+    Path
+        The path written.
+    """
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)

@@ -276,6 +276,20 @@ def parse_expression(
 
 
 def make_symbol(name: str) -> sympy.Symbol:
-    """The sympy symbol of a state or input name (real-valued, so ``abs``, ``sign`` and their
-    derivatives simplify as for real numbers). Every module builds symbols through this."""
+    """Return the sympy symbol of a state or input name.
+
+    Every module builds its symbols through this function, so that the symbols of one name
+    are equal everywhere (sympy compares symbols by name *and* assumptions).
+
+    Parameters
+    ----------
+    name : str
+        A state or input name of the spec.
+
+    Returns
+    -------
+    sympy.Symbol
+        Real-valued, so ``abs``, ``sign`` and their derivatives simplify as for real
+        numbers.
+    """
     return sympy.Symbol(name, real=True)

@@ -16,11 +16,24 @@ __all__ = ["PlantSpec", "ModelSpec", "MpcSpec", "SetSpec", "VerifySpec", "Proble
 
 @dataclass(frozen=True)
 class PlantSpec:
-    """Continuous-time plant ``dx/dt = f(x, u)``.
+    """Continuous-time plant ``dx/dt = f(x, u)`` (the spec's ``[plant]`` table).
 
-    Exactly one of ``dynamics`` (expression strings, one per state) and the pair ``A``
-    (n, n), ``B`` (n, m) is set -- unless the model section gives an explicit discrete model,
-    in which case both may be absent.
+    Exactly one of ``dynamics`` and the pair ``A``, ``B`` is set -- unless the model section
+    gives an explicit discrete model, in which case both may be absent.
+
+    Attributes
+    ----------
+    states : tuple of str
+        The n state names, in order (``x[0]``, ``x[1]``, ...).
+    inputs : tuple of str
+        The m input names, in order.
+    dynamics : tuple of str or None
+        ``f(x, u)``: one expression per state, in the state and input names (parsed by
+        :func:`codev_engine.spec.expr.parse_expression`).
+    A : (n, n) ndarray or None
+        Linear plant ``dx/dt = A x + B u``, with ``B``.
+    B : (n, m) ndarray or None
+        See ``A``.
     """
 
     states: tuple[str, ...]
@@ -31,20 +44,35 @@ class PlantSpec:
 
     @property
     def n(self) -> int:
+        """Number of states."""
         return len(self.states)
 
     @property
     def m(self) -> int:
+        """Number of inputs."""
         return len(self.inputs)
 
 
 @dataclass(frozen=True)
 class ModelSpec:
-    """Discrete-time prediction model settings.
+    """Discrete-time prediction model settings (the spec's ``[model]`` table).
 
-    ``x_op`` (n,) and ``u_op`` (m,) are the operating point (linearisation point and MPC
-    reference), zero by default. ``A``/``B`` set an explicit discrete model (then the plant
-    is not discretised).
+    Attributes
+    ----------
+    sample_time : float
+        Sample period of the controller (s), > 0.
+    method : str
+        Discretisation method, one of :data:`codev_engine.spec.choices.METHODS`.
+    x_op : (n,) ndarray
+        Operating point state: the linearisation point and the MPC reference (the parser
+        gives zeros when the spec has none).
+    u_op : (m,) ndarray
+        Operating point input, as ``x_op``.
+    A : (n, n) ndarray or None
+        Explicit discrete model ``x+ = A x + B u``, with ``B``; then the plant is not
+        discretised.
+    B : (n, m) ndarray or None
+        See ``A``.
     """
 
     sample_time: float
@@ -57,7 +85,36 @@ class ModelSpec:
 
 @dataclass(frozen=True)
 class MpcSpec:
-    """MPC design: horizon, norm, weights and bounds (bounds may be +-inf)."""
+    """MPC design: horizon, norm, weights and bounds (the spec's ``[mpc]`` table).
+
+    Attributes
+    ----------
+    horizon : int
+        Prediction horizon N (steps), >= 1.
+    norm : str
+        Norm of the stage and terminal costs: ``"1"``, ``"inf"`` or ``"2"``.
+    Q : (q, n) ndarray
+        State weight: cost ``x'Qx`` for norm ``"2"`` (then q = n, symmetric positive
+        semidefinite), ``||Q x||`` for norms ``"1"`` and ``"inf"``.
+    R : (r, m) ndarray
+        Input weight, as ``Q`` (positive definite for norm ``"2"``).
+    P : (p, n) ndarray or None
+        Terminal weight on ``x_N``, as ``Q``; None: no terminal cost.
+    x_min, x_max : (n,) ndarray
+        State bounds in plant coordinates, on the predicted states; +-inf allowed.
+    u_min, u_max : (m,) ndarray
+        Input bounds in plant coordinates; +-inf allowed.
+    simplify : bool
+        Merge the regions of the explicit law that share an affine law.
+    domain_bound : float
+        Half-width of the box around ``x_op`` on which the explicit law is computed along
+        the state axes whose ``x_min``/``x_max`` is infinite.
+
+    Notes
+    -----
+    ``domain_bound`` exists because the parameter set of the multi-parametric program must
+    be bounded; the online MPC imposes no such bound.
+    """
 
     horizon: int
     norm: str  # "1", "inf" or "2"
@@ -77,7 +134,22 @@ class MpcSpec:
 
 @dataclass(frozen=True)
 class SetSpec:
-    """A set in state space: a box (``lower``/``upper``, +-inf allowed) or ``A x <= b``."""
+    """A set in state space: a box ``lower <= x <= upper`` or a polytope ``A x <= b``.
+
+    An item of ``[[verify.unsafe]]`` or ``[[verify.safe]]``; the fields of the other kind
+    are None.
+
+    Attributes
+    ----------
+    kind : str
+        ``"box"`` or ``"polytope"``.
+    lower, upper : (n,) ndarray or None
+        The box's sides (a box); +-inf allowed, an infinite side is unbounded.
+    A : (k, n) ndarray or None
+        The polytope's rows (a polytope).
+    b : (k,) ndarray or None
+        The polytope's right-hand side.
+    """
 
     kind: str  # "box" or "polytope"
     lower: np.ndarray | None = None
@@ -86,7 +158,14 @@ class SetSpec:
     b: np.ndarray | None = None
 
     def halfspaces(self) -> tuple[np.ndarray, np.ndarray]:
-        """H-representation ``(A, b)`` with ``A x <= b``; infinite box sides are dropped."""
+        """H-representation of the set; infinite box sides are dropped.
+
+        Returns
+        -------
+        A : (k, n) ndarray
+        b : (k,) ndarray
+            The set is ``A x <= b``; a box gives one row per finite side (k may be 0).
+        """
         if self.kind == "polytope":
             assert self.A is not None and self.b is not None
             return self.A, self.b
@@ -106,7 +185,28 @@ class SetSpec:
 
 @dataclass(frozen=True)
 class VerifySpec:
-    """Closed-loop verification settings."""
+    """Closed-loop verification settings (the spec's ``[verify]`` table).
+
+    Attributes
+    ----------
+    time_horizon : float
+        Length of the verified time interval (s).
+    initial_lower, initial_upper : (n,) ndarray
+        The box of initial states.
+    hold : str
+        Control between samples: ``"zoh"`` (``u`` held from the sampled state over the
+        period) or ``"continuous"`` (``u(t)`` from the current state).
+    max_depth : int
+        Refinement depth of the initial set.
+    step : float
+        Time step of the reachtube (s).
+    input_bounds : bool
+        Also require ``u(t)`` to stay within ``[u_min, u_max]`` at all times.
+    unsafe : tuple of SetSpec
+        Sets the state must never enter.
+    safe : tuple of SetSpec
+        Sets the state must always stay inside (every one of them).
+    """
 
     time_horizon: float
     initial_lower: np.ndarray
@@ -121,7 +221,25 @@ class VerifySpec:
 
 @dataclass(frozen=True)
 class Problem:
-    """A whole validated spec file."""
+    """A whole validated spec file.
+
+    All arrays are float64 and read-only; bounds and sets are in plant coordinates.
+
+    Attributes
+    ----------
+    name : str
+        Short identifier of the problem (1-64 letters, digits, ``-``, ``_``, ``.``).
+    plant : PlantSpec
+    model : ModelSpec
+    mpc : MpcSpec
+    verify : VerifySpec or None
+        None when the spec has no ``[verify]`` table.
+    path : str or None
+        The file name as given (``"<string>"`` for text parsed without one); None for a
+        problem built in code.
+    source : str
+        The TOML text, for hashing and sessions.
+    """
 
     name: str
     plant: PlantSpec
