@@ -6,7 +6,7 @@ the verification stage (``RunOptions(upto="verification")``); the recording stag
 exercised where it matters (its key, its cache, a failing recording, a run killed while
 writing it).
 
-The contract under test is the module docstring of ``codev_engine/session.py``:
+The contract under test is the docstrings of ``codev_engine/session/`` (session, store, keys):
 
 * a stage's key hashes everything it depends on, so a change reruns exactly the stages
   downstream of it and nothing else;
@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import codev_engine.session.session as session_mod
+import codev_engine.session.keys as keys_mod
+import codev_engine.session.store as store_mod
 from codev_engine import load_spec, loads_spec
 from codev_engine.errors import CodevError, SpecError
 from codev_engine.session import RunOptions, Session, SessionError, stage_keys
@@ -197,7 +198,7 @@ def test_keys_change_exactly_downstream(text, options, changed):
 
 def test_keys_depend_on_the_engine_version(monkeypatch):
     base = stage_keys(problem())
-    monkeypatch.setattr(session_mod, "__version__", "0.0.0-other")
+    monkeypatch.setattr(keys_mod, "__version__", "0.0.0-other")
     other = stage_keys(problem())
     assert all(base[s] != other[s] for s in ALL)
 
@@ -230,7 +231,7 @@ def test_first_run_computes_then_everything_is_cached(sess):
     assert np.array_equal(r2.model.A, r1.model.A)
     assert r2.result.tube.num_boxes == r1.result.tube.num_boxes
     # spec.toml and the snapshot
-    sha = session_mod._sha(BASE.encode())
+    sha = store_mod.sha(BASE.encode())
     assert (sess.path / "spec.toml").read_text() == BASE
     assert (sess.path / "specs" / f"{sha[:16]}.toml").read_text() == BASE
     assert sorted(p.name for p in (sess.path / "specs").iterdir()) == [f"{sha[:16]}.toml"]
@@ -249,7 +250,7 @@ def test_first_run_computes_then_everything_is_cached(sess):
         assert rec["key"] == keys[rec["stage"]]
         assert rec["spec"] == sha
         assert rec["outcome"] == CLEAN[rec["stage"]]
-        assert rec["engine"] == session_mod.__version__
+        assert rec["engine"] == keys_mod.__version__
         assert rec["options"]["upto"] == "verification"
         assert (sess.path / rec["artifact"]).is_file()
     # no temporary file is left behind
@@ -281,7 +282,7 @@ def test_a_change_reruns_only_the_stages_downstream(sess, text, options, want):
     # the new spec is the session's spec and has its own snapshot; the old one is kept
     assert (sess.path / "spec.toml").read_text() == text
     for t in {BASE, text}:
-        assert (sess.path / "specs" / f"{session_mod._sha(t.encode())[:16]}.toml").read_text() == t
+        assert (sess.path / "specs" / f"{store_mod.sha(t.encode())[:16]}.toml").read_text() == t
     # and now it is cached too, the old one as well
     assert {s.status for s in sess.run(problem(text), options).stages} == {"cached"}
     assert {s.status for s in sess.run(problem(), UPTO_V).stages} == {"cached"}
@@ -389,7 +390,7 @@ def test_damaged_artifact_is_reported_and_recomputed(sess, warned, damage):
     assert outcomes(rep) == CLEAN
     assert rep.law.num_regions == 10
     # repaired: indexed again, and the next run uses it
-    assert read_index(sess)[target.name]["sha256"] == session_mod._file_sha(target)
+    assert read_index(sess)[target.name]["sha256"] == store_mod.file_sha(target)
     assert status_map(sess)["synthesis"] == "cached"
     warned.clear()
     assert {s.status for s in sess.run(problem(), UPTO_V, warn=warned.append).stages} == {"cached"}
@@ -430,7 +431,7 @@ def test_indexed_file_of_the_wrong_kind_is_refused_by_its_loader(sess, warned):
     target = art(sess, r1, "verification")
     shutil.copyfile(art(sess, r1, "synthesis"), target)
     idx = read_index(sess)
-    idx[target.name]["sha256"] = session_mod._file_sha(target)
+    idx[target.name]["sha256"] = store_mod.file_sha(target)
     idx[target.name]["bytes"] = target.stat().st_size
     (sess.path / "artifacts" / "index.json").write_text(json.dumps(idx))
     assert status_map(sess)["verification"] == "corrupt"
@@ -457,7 +458,7 @@ def test_pickled_artifact_is_never_unpickled(sess, warned, tmp_path):
     with target.open("wb") as fh:
         np.savez(fh, format=np.array([_Trap(str(marker))], dtype=object), A=np.eye(2))
     idx = read_index(sess)
-    idx[target.name]["sha256"] = session_mod._file_sha(target)
+    idx[target.name]["sha256"] = store_mod.file_sha(target)
     (sess.path / "artifacts" / "index.json").write_text(json.dumps(idx))
     assert status_map(sess)["model"] == "corrupt"
     rep = sess.run(problem(), UPTO_V, warn=warned.append)
@@ -832,7 +833,7 @@ def _check_after_kill(d: Path, label: str) -> None:
         assert not name.startswith(".tmp-"), label
         f = arts / name
         assert f.is_file(), (label, name)
-        assert entry["sha256"] == session_mod._file_sha(f), (label, name)
+        assert entry["sha256"] == store_mod.file_sha(f), (label, name)
         assert entry["bytes"] == f.stat().st_size
         valid.add(name)
     present = {p.name for p in arts.iterdir() if not p.name.startswith(".tmp-")}

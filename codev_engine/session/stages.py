@@ -1,0 +1,390 @@
+"""The stage table: every stage a session runs, declared once.
+
+A :class:`Stage` says everything the session needs to know about one stage: the inputs its
+key hashes, its artifact's extension, how to check, compute, load and describe it, and which
+:class:`~codev_engine.session.reports.RunReport` field holds its value. The session, the
+keys, the status and the replay only walk :data:`TABLE` (in order: a stage reads the values
+of the stages before it) and look stages up in it by name.
+
+Adding a stage is one entry in :data:`TABLE`: its key, artifact, cache check, journal
+record, status line and replay comparison all follow from it.
+
+::
+
+    model         plant + model sections                     -> LinearModel       .npz
+    synthesis     model key + mpc section + names            -> ExplicitLaw       .npz
+    verification  synthesis key + plant + verify section     -> VerificationResult .npz
+                  + hold/max_depth overrides (only with [verify])
+    recording     verification (or synthesis) key + options  -> Rerun recording   .rrd
+
+The engine modules each stage runs are imported when it runs: the session's bookkeeping (keys,
+the status of a cached folder, the journal) needs none of them, and the workbench draws its
+first screen before sympy and scipy are loaded.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from codev_engine.session.store import SessionError
+
+if TYPE_CHECKING:
+    from codev_engine.session.options import RunOptions
+    from codev_engine.spec.problem import Problem, VerifySpec
+
+__all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable"]
+
+
+@dataclass(frozen=True)
+class StageRun:
+    """What a stage's ``compute`` is given.
+
+    Attributes
+    ----------
+    problem : Problem
+    options : RunOptions
+    upstream : mapping
+        Stage name -> value of every stage run before this one in the same run.
+    path : Path
+        Where the artifact goes (the stage writes it, atomically).
+    progress : callable
+        ``progress(count)``: regions found, branches explored, ...
+    """
+
+    problem: Problem
+    options: RunOptions
+    upstream: Mapping[str, Any]
+    path: Path
+    progress: Callable[[int], None]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a session run.
+
+    Attributes
+    ----------
+    name : str
+        Stage name: in keys, artifact names, the journal and ``RunOptions.upto``.
+    ext : str
+        Extension of the artifact ``<name>-<key[:16]>.<ext>``.
+    report_field : str or None
+        The :class:`RunReport` attribute that receives the stage's value (None: none).
+    inputs : callable
+        ``inputs(problem, options, keys) -> dict or None``: what the key hashes, given the
+        keys of the stages before it; None when the stage does not apply to the spec.
+    compute : callable
+        ``compute(StageRun) -> value``; writes the artifact to ``StageRun.path``.
+    load : callable
+        ``load(path) -> value`` of a cached artifact (its SHA-256 already matched);
+        ``CodevError`` if the file is not one.
+    describe : callable
+        ``describe(value, upstream) -> (outcome, details)``: what a replay compares, and the
+        rest (timings, sizes), both JSON-able.
+    check : callable or None
+        ``check(problem)``: the stage's precondition on the spec (raises ``SpecError``), run
+        before anything is written unless the stage's artifact is cached (a cached artifact
+        proves it) -- whatever ``upto`` is, so a spec no stage can run is never stored.
+    check_options : callable or None
+        ``check_options(problem, options)``: the run options fit the spec; run when the stage
+        is part of the run, before anything is written.
+    """
+
+    name: str
+    ext: str
+    report_field: str | None
+    inputs: Callable[[Problem, RunOptions, Mapping[str, str]], dict[str, Any] | None]
+    compute: Callable[[StageRun], Any]
+    load: Callable[[Path], Any]
+    describe: Callable[[Any, Mapping[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
+    check: Callable[[Problem], None] | None = None
+    check_options: Callable[[Problem, RunOptions], None] | None = None
+
+
+@dataclass(frozen=True)
+class StageTable:
+    """The stages of a run, in order, with unique names."""
+
+    stages: tuple[Stage, ...]
+
+    def __post_init__(self) -> None:
+        names = [s.name for s in self.stages]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"stage names must be unique: {', '.join(dup)} repeated")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(s.name for s in self.stages)
+
+    def __iter__(self) -> Iterator[Stage]:
+        return iter(self.stages)
+
+    def __getitem__(self, name: str) -> Stage:
+        for s in self.stages:
+            if s.name == name:
+                return s
+        raise KeyError(name)
+
+    def upto(self, last: str, keys: Mapping[str, str]) -> list[Stage]:
+        """The stages of a run that stops after ``last``: those with a key (that apply)."""
+        stop = self.names.index(last)
+        return [s for s in self.stages[: stop + 1] if s.name in keys]
+
+
+# --------------------------------------------------------------------------------------------
+# model: the linearised, discretised plant
+# --------------------------------------------------------------------------------------------
+
+
+def _model_inputs(problem: Problem, options: RunOptions, keys: Mapping[str, str]) -> dict:
+    return {"plant": problem.plant, "model": problem.model}
+
+
+def _model_check(problem: Problem) -> None:
+    from codev_engine.pipeline import check_model
+
+    check_model(problem)
+
+
+def _model_compute(run: StageRun) -> Any:
+    from codev_engine.plant import discretize
+
+    model = discretize(run.problem)
+    model.save(run.path)
+    return model
+
+
+def _model_load(path: Path) -> Any:
+    from codev_engine.plant import LinearModel
+
+    return LinearModel.load(path)
+
+
+def _model_describe(model: Any, upstream: Mapping[str, Any]) -> tuple[dict, dict]:
+    eig = np.linalg.eigvals(model.A)
+    return (
+        {"n": model.n, "m": model.m, "dt": model.dt},
+        {"spectral_radius": round(float(np.max(np.abs(eig))), 9)},
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# synthesis: the explicit MPC law
+# --------------------------------------------------------------------------------------------
+
+
+def _synthesis_inputs(problem: Problem, options: RunOptions, keys: Mapping[str, str]) -> dict:
+    return {
+        "model": keys["model"],
+        "mpc": problem.mpc,
+        "states": problem.plant.states,
+        "inputs": problem.plant.inputs,
+        "name": problem.name,
+    }
+
+
+def _synthesis_check(problem: Problem) -> None:
+    # an LP that loads python-control: only run when the law is not cached
+    from codev_engine.pipeline import check_mpc_feasible
+
+    check_mpc_feasible(problem)
+
+
+def _synthesis_compute(run: StageRun) -> Any:
+    from codev_engine.synthesis import synthesize
+
+    law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress)
+    law.save(run.path)
+    return law
+
+
+def _synthesis_load(path: Path) -> Any:
+    from codev_engine.law import ExplicitLaw
+
+    return ExplicitLaw.load(path)
+
+
+def _synthesis_describe(law: Any, upstream: Mapping[str, Any]) -> tuple[dict, dict]:
+    return (
+        {"regions": law.num_regions},
+        {
+            "regions_before_merge": law.meta.get("regions_before_merge"),
+            "synthesis_seconds": law.meta.get("seconds"),
+        },
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# verification: verdict, reachtube, counterexample (only with a [verify] section)
+# --------------------------------------------------------------------------------------------
+
+
+def _effective_verify(problem: Problem, options: RunOptions) -> VerifySpec:
+    """The ``[verify]`` section with the run's ``hold`` / ``max_depth`` overrides applied."""
+    vs = problem.verify
+    assert vs is not None
+    return replace(
+        vs,
+        hold=options.hold or vs.hold,
+        max_depth=vs.max_depth if options.max_depth is None else options.max_depth,
+    )
+
+
+def _verification_inputs(
+    problem: Problem, options: RunOptions, keys: Mapping[str, str]
+) -> dict | None:
+    if problem.verify is None:
+        return None
+    return {
+        "synthesis": keys["synthesis"],
+        "plant": problem.plant,
+        "verify": _effective_verify(problem, options),
+    }
+
+
+def _verification_compute(run: StageRun) -> Any:
+    from codev_engine.reach.verification import verify
+
+    result = verify(
+        run.problem,
+        run.upstream["synthesis"],
+        hold=run.options.hold,
+        max_depth=run.options.max_depth,
+        progress=lambda st: run.progress(st.get("branches", 0)),
+    )
+    result.save(run.path)
+    return result
+
+
+def _verification_load(path: Path) -> Any:
+    from codev_engine.reach.verification import VerificationResult
+
+    return VerificationResult.load(path)
+
+
+def _verification_describe(result: Any, upstream: Mapping[str, Any]) -> tuple[dict, dict]:
+    cex = result.counterexample
+    return (
+        {"verdict": result.verdict, "reason": result.reason},
+        {
+            "hold": result.hold,
+            "boxes": result.tube.num_boxes,
+            "branches": result.stats.get("branches"),
+            "verification_seconds": round(result.seconds, 6),
+            "counterexample": None
+            if cex is None
+            else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind},
+        },
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# recording: the Rerun recording of the law (and the tube, when verified)
+# --------------------------------------------------------------------------------------------
+
+
+def _recording_inputs(problem: Problem, options: RunOptions, keys: Mapping[str, str]) -> dict:
+    upstream = (
+        {"verification": keys["verification"]}
+        if "verification" in keys
+        else {"synthesis": keys["synthesis"]}
+    )
+    return {
+        **upstream,
+        "axes": list(options.axes),
+        "traces": options.traces,
+        "name": problem.name,
+    }
+
+
+def _recording_check_options(problem: Problem, options: RunOptions) -> None:
+    n = problem.plant.n
+    if n >= 2 and max(options.axes) >= n:  # one state: no plane view, axes unused
+        raise SessionError(
+            f"state index {max(options.axes)} out of range: the plant has {n} states",
+            field="axes",
+        )
+
+
+def _recording_compute(run: StageRun) -> Path:
+    from codev_engine.view.records import RecordingOptions, write_recording
+
+    write_recording(
+        run.path,
+        run.problem,
+        run.upstream["synthesis"],
+        run.upstream.get("verification"),
+        options=RecordingOptions(axes=run.options.axes, traces=run.options.traces),
+    )
+    return run.path
+
+
+def _recording_load(path: Path) -> Path:
+    from codev_engine.view.records import check_recording
+
+    check_recording(path, deep=False)  # the SHA-256 already matched the written file
+    return path
+
+
+def _recording_describe(path: Path, upstream: Mapping[str, Any]) -> tuple[dict, dict]:
+    result = upstream.get("verification")
+    boxes = result.tube.num_boxes if result is not None else 0
+    return ({"boxes": boxes}, {"bytes": Path(path).stat().st_size})
+
+
+# --------------------------------------------------------------------------------------------
+# The table
+# --------------------------------------------------------------------------------------------
+
+TABLE = StageTable(
+    (
+        Stage(
+            name="model",
+            ext="npz",
+            report_field="model",
+            inputs=_model_inputs,
+            compute=_model_compute,
+            load=_model_load,
+            describe=_model_describe,
+            check=_model_check,
+        ),
+        Stage(
+            name="synthesis",
+            ext="npz",
+            report_field="law",
+            inputs=_synthesis_inputs,
+            compute=_synthesis_compute,
+            load=_synthesis_load,
+            describe=_synthesis_describe,
+            check=_synthesis_check,
+        ),
+        Stage(
+            name="verification",
+            ext="npz",
+            report_field="result",
+            inputs=_verification_inputs,
+            compute=_verification_compute,
+            load=_verification_load,
+            describe=_verification_describe,
+        ),
+        Stage(
+            name="recording",
+            ext="rrd",
+            report_field="recording",
+            inputs=_recording_inputs,
+            compute=_recording_compute,
+            load=_recording_load,
+            describe=_recording_describe,
+            check_options=_recording_check_options,
+        ),
+    )
+)
+
+#: The stage names, in the order a run executes them.
+STAGES: tuple[str, ...] = TABLE.names

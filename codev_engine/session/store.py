@@ -1,0 +1,355 @@
+"""A session's folder on disk: metadata, lock, journal, spec snapshots and artifact index.
+
+This module knows the files and how to trust them, not what a stage computes::
+
+    session.json          format tag, the engine that created it, creation time
+    spec.toml             the spec of the latest run (or the workbench's edit)
+    specs/<sha[:16]>.toml every spec a run used or spec.toml held, by the SHA-256 of its text
+    journal.jsonl         one JSON object per stage executed
+    artifacts/<stage>-<key[:16]>.<ext>   a stage's cached result
+    artifacts/index.json  artifact name -> stage, key, SHA-256, size, engine
+    .lock                 serialises read-modify-write of the journal and the index
+
+Every file is written atomically (temporary file, then rename: :mod:`codev_engine.io.atomic`);
+an artifact enters the index only after its rename, and is trusted only if the index lists it
+under the same key and its bytes still hash to the indexed SHA-256. Reads never unpickle or
+run anything: JSON, TOML text and hashes only.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+from collections.abc import Collection, Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from codev_engine.errors import SpecError
+from codev_engine.io.atomic import write_text
+from codev_engine.version import __version__
+
+__all__ = [
+    "SESSION_FORMAT",
+    "SessionError",
+    "append_journal",
+    "artifact_path",
+    "check_artifact",
+    "create_folder",
+    "file_sha",
+    "locked",
+    "now",
+    "read_journal",
+    "read_meta",
+    "read_spec_snapshot",
+    "register_artifact",
+    "save_spec_text",
+    "sha",
+    "snapshot_path",
+    "spec_path",
+]
+
+SESSION_FORMAT = "codev-session/1"
+
+
+class SessionError(SpecError):
+    """A session folder that cannot be used as asked (bad input: exit status 2)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Hashes, time, lock
+# --------------------------------------------------------------------------------------------
+
+
+def sha(data: bytes) -> str:
+    """SHA-256 of ``data`` as 64 lowercase hex digits."""
+    return hashlib.sha256(data).hexdigest()
+
+
+def file_sha(path: Path) -> str:
+    """SHA-256 of a file's bytes, read in 1 MiB blocks."""
+    h = hashlib.sha256()
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def now() -> str:
+    """The current UTC time, ISO 8601 to the second (journal and metadata timestamps)."""
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+@contextlib.contextmanager
+def locked(folder: Path) -> Iterator[None]:
+    """Serialise read-modify-write of the journal and index between processes (POSIX)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: atomic renames still protect files
+        yield
+        return
+    with (folder / ".lock").open("a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+# --------------------------------------------------------------------------------------------
+# The folder
+# --------------------------------------------------------------------------------------------
+
+
+def read_meta(path: Path) -> dict[str, Any]:
+    """The ``session.json`` of an existing session; ``SessionError`` if ``path`` is not one."""
+    if not path.exists():
+        raise SessionError("no such session folder", file=str(path))
+    if not path.is_dir():
+        raise SessionError("not a folder (a session is a folder)", file=str(path))
+    meta_file = path / "session.json"
+    if not meta_file.is_file():
+        raise SessionError(
+            "not a codev session (no session.json); create one with "
+            "`codev run SPEC --session DIR`",
+            file=str(path),
+        )
+    try:
+        meta = json.loads(meta_file.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:
+        raise SessionError(
+            f"unreadable session.json ({exc.__class__.__name__})", file=str(meta_file)
+        ) from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("format"), str):
+        raise SessionError("not a codev session file (no format)", file=str(meta_file))
+    if meta["format"] != SESSION_FORMAT:
+        raise SessionError(
+            f"session format {meta['format']!r} is not {SESSION_FORMAT!r} (written by "
+            f"codev {meta.get('engine', '?')}; this is codev {__version__})",
+            file=str(meta_file),
+            field="format",
+        )
+    return meta
+
+
+def create_folder(path: Path) -> dict[str, Any]:
+    """Make ``path`` (new, or an empty folder) a session; returns its ``session.json``."""
+    if path.exists() and not path.is_dir():
+        raise SessionError("exists and is not a folder", file=str(path))
+    if path.is_dir() and not _empty(path):
+        raise SessionError(
+            "not a codev session (no session.json) and not empty: refusing to write into it",
+            file=str(path),
+        )
+    path.mkdir(parents=True, exist_ok=True)
+    meta = {"format": SESSION_FORMAT, "engine": __version__, "created": now()}
+    write_text(path / "session.json", json.dumps(meta, indent=2) + "\n")
+    (path / "artifacts").mkdir(exist_ok=True)
+    return meta
+
+
+def _empty(folder: Path) -> bool:
+    """Nothing in ``folder`` but what an interrupted :func:`create_folder` leaves behind
+    (temporary files, an empty ``artifacts/``)."""
+    for p in folder.iterdir():
+        if p.name.startswith(".tmp-") and p.is_file():
+            continue
+        if p.name == "artifacts" and p.is_dir() and not any(p.iterdir()):
+            continue
+        return False
+    return True
+
+
+# --------------------------------------------------------------------------------------------
+# The journal
+# --------------------------------------------------------------------------------------------
+
+_RECORD_FIELDS = {
+    "run": int,
+    "stage": str,
+    "key": str,
+    "spec": str,
+    "options": dict,
+    "started": str,
+    "seconds": (int, float),
+    "status": str,
+    "outcome": dict,
+    "details": dict,
+    "engine": str,
+}
+
+
+def read_journal(folder: Path, stages: Collection[str]) -> list[dict[str, Any]]:
+    """Every journal record, oldest first; ``SessionError`` on a malformed line.
+
+    Parameters
+    ----------
+    folder : Path
+        The session folder.
+    stages : collection of str
+        The stage names a record may carry.
+    """
+    file = folder / "journal.jsonl"
+    if not file.exists():
+        return []
+    try:
+        lines = file.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SessionError(f"unreadable journal ({exc})", file=str(file)) from None
+    records = []
+    for i, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+        except (ValueError, RecursionError):
+            raise SessionError(f"line {i} is not valid JSON", file=str(file)) from None
+        _check_record(rec, f"{file}:{i}", stages)
+        records.append(rec)
+    return records
+
+
+def append_journal(folder: Path, records: list[dict[str, Any]], stages: Collection[str]) -> int:
+    """Add one run's records to the journal under the next run number; returns it.
+
+    The whole file is rewritten atomically under the lock, so concurrent runs get distinct
+    numbers and no record is lost. Sets ``run`` in each of ``records``.
+    """
+    with locked(folder):
+        old = read_journal(folder, stages)
+        run = max((r["run"] for r in old), default=0) + 1
+        for r in records:
+            r["run"] = run
+        lines = [json.dumps(r, sort_keys=True) for r in old + records]
+        write_text(folder / "journal.jsonl", "\n".join(lines) + "\n")
+    return run
+
+
+def _check_record(rec: Any, where: str, stages: Collection[str]) -> None:
+    """A journal record must have the expected fields with the expected types."""
+    if not isinstance(rec, dict):
+        raise SessionError("a journal record must be a JSON object", file=where)
+    for name, typ in _RECORD_FIELDS.items():
+        if name not in rec:
+            raise SessionError("missing field", file=where, field=name)
+        if not isinstance(rec[name], typ) or isinstance(rec[name], bool):
+            raise SessionError("wrong type", file=where, field=name)
+    if rec["stage"] not in stages:
+        raise SessionError(f"unknown stage {rec['stage']!r}", file=where, field="stage")
+    if rec["status"] not in ("computed", "cached", "failed"):
+        raise SessionError(f"unknown status {rec['status']!r}", file=where, field="status")
+    if len(rec["spec"]) != 64 or any(c not in "0123456789abcdef" for c in rec["spec"]):
+        raise SessionError("not a SHA-256 hex digest", file=where, field="spec")
+
+
+# --------------------------------------------------------------------------------------------
+# Specs
+# --------------------------------------------------------------------------------------------
+
+
+def spec_path(folder: Path) -> Path:
+    """The session's current spec, ``spec.toml``."""
+    return folder / "spec.toml"
+
+
+def snapshot_path(folder: Path, spec_sha: str) -> Path:
+    """Where the spec whose text has SHA-256 ``spec_sha`` is kept."""
+    return folder / "specs" / f"{spec_sha[:16]}.toml"
+
+
+def save_spec_text(folder: Path, text: str) -> str:
+    """Make ``text`` the session's ``spec.toml``; returns its SHA-256.
+
+    Every spec that was ever ``spec.toml`` keeps a snapshot (the one replaced included), so
+    an edit saved by the workbench loses nothing.
+    """
+    spec_sha = sha(text.encode())
+    _snapshot(folder, text)
+    current = spec_path(folder)
+    try:
+        old: str | None = current.read_text("utf-8")
+    except (OSError, UnicodeDecodeError):
+        old = None  # absent or unreadable: nothing worth keeping
+    if old == text:
+        return spec_sha
+    if old is not None and old.strip():
+        _snapshot(folder, old)
+    write_text(current, text)
+    return spec_sha
+
+
+def _snapshot(folder: Path, text: str) -> None:
+    snap = snapshot_path(folder, sha(text.encode()))
+    if not snap.exists():
+        write_text(snap, text)
+
+
+def read_spec_snapshot(folder: Path, spec_sha: str) -> str:
+    """The text of the snapshot with SHA-256 ``spec_sha``, checked against it."""
+    snap = snapshot_path(folder, spec_sha)
+    try:
+        text = snap.read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise SessionError("the spec this run used is missing", file=str(snap)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SessionError(f"unreadable spec ({exc})", file=str(snap)) from None
+    if sha(text.encode()) != spec_sha:
+        raise SessionError("the stored spec was edited (hash mismatch)", file=str(snap))
+    return text
+
+
+# --------------------------------------------------------------------------------------------
+# Artifacts
+# --------------------------------------------------------------------------------------------
+
+
+def artifact_path(folder: Path, stage: str, key: str, ext: str) -> Path:
+    """``artifacts/<stage>-<key[:16]>.<ext>``."""
+    return folder / "artifacts" / f"{stage}-{key[:16]}.{ext}"
+
+
+def _index(folder: Path) -> dict[str, dict[str, Any]]:
+    file = folder / "artifacts" / "index.json"
+    try:
+        data = json.loads(file.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return {}
+    except (OSError, ValueError, RecursionError, UnicodeDecodeError):
+        return {}  # a damaged index only costs recomputation
+    return data if isinstance(data, dict) else {}
+
+
+def register_artifact(folder: Path, path: Path, stage: str, key: str) -> str:
+    """Enter a completely written artifact in the index; returns its SHA-256."""
+    digest = file_sha(path)
+    with locked(folder):
+        index = _index(folder)
+        index[path.name] = {
+            "stage": stage,
+            "key": key,
+            "sha256": digest,
+            "bytes": path.stat().st_size,
+            "engine": __version__,
+        }
+        write_text(folder / "artifacts" / "index.json", json.dumps(index, indent=1, sort_keys=True))
+    return digest
+
+
+def check_artifact(folder: Path, path: Path, key: str) -> str | None:
+    """Why the artifact at ``path`` cannot be used for ``key``; None when it can.
+
+    "missing" when there is no file; otherwise the file must be regular, listed in the
+    index under ``key``, and hash to the indexed SHA-256. (Whether its loader accepts it is
+    the stage's business.)
+    """
+    if not path.exists():
+        return "missing"
+    if not path.is_file():
+        return "not a regular file"
+    entry = _index(folder).get(path.name)
+    if not isinstance(entry, dict) or entry.get("key") != key:
+        return "not in the artifact index (an interrupted write?)"
+    if entry.get("sha256") != file_sha(path):
+        return "its content does not match the recorded SHA-256 (damaged or edited)"
+    return None
