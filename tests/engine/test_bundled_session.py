@@ -6,7 +6,8 @@ import json
 import shutil
 from pathlib import Path
 
-from codev_engine.session import Session
+from codev_engine.pipeline import loads_spec
+from codev_engine.session import RunOptions, Session, stage_keys
 from workbench.cli import main
 
 BUNDLED = Path(__file__).resolve().parents[2] / "sessions" / "double_integrator"
@@ -48,3 +49,18 @@ def test_bundled_session_replays_and_matches(tmp_path, capsys):
     assert main(["replay", str(dest), "--json"]) == 0
     again = json.loads(capsys.readouterr().out)
     assert again["cached"] == again["checked"] == 8
+
+
+def test_bundled_journal_keys_are_the_keys_computed_now():
+    """The keys are a file format: the journal's, hashed by the engine that recorded it, are
+    the ones this engine computes from the same spec snapshot and options."""
+    journal = Session.open(BUNDLED).journal()
+    for rec in journal:
+        text = (BUNDLED / "specs" / f"{rec['spec'][:16]}.toml").read_text(encoding="utf-8")
+        problem = loads_spec(text, check_mpc=False)
+        keys = stage_keys(problem, RunOptions.from_json(rec["options"]))
+        assert keys[rec["stage"]] == rec["key"], (rec["run"], rec["stage"])
+        assert rec["artifact"] == f"artifacts/{rec['stage']}-{rec['key'][:16]}." + (
+            "rrd" if rec["stage"] == "recording" else "npz"
+        )
+    assert len(journal) == 8

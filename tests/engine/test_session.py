@@ -28,6 +28,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +38,10 @@ import codev_engine.session.keys as keys_mod
 import codev_engine.session.store as store_mod
 from codev_engine import load_spec, loads_spec
 from codev_engine.errors import CodevError, SpecError
-from codev_engine.session import RunOptions, Session, SessionError, stage_keys
+from codev_engine.io.atomic import write_text
+from codev_engine.session import STAGES, RunOptions, Session, SessionError, stage_keys
+from codev_engine.session.stages import TABLE, Stage, StageRun, StageTable
+from codev_engine.spec.parse import parse_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
@@ -335,6 +339,67 @@ def test_run_options_are_validated_before_anything_is_written(sess):
         with pytest.raises(SessionError):
             sess.run(problem(Q2), bad)
     assert snapshot(sess.path) == before
+
+
+#: u >= 5 takes x2 out of [-1, 1] in one step: the MPC is infeasible for every state.
+INFEASIBLE = edit(
+    "u_max = [1.0]",
+    "u_max = [6.0]",
+    edit(
+        "u_min = [-1.0]",
+        "u_min = [5.0]",
+        edit(
+            "x_max = [10.0, 10.0]",
+            "x_max = [1.0, 1.0]",
+            edit("x_min = [-10.0, -10.0]", "x_min = [-1.0, -1.0]"),
+        ),
+    ),
+)
+#: f is not finite at the operating point x = 0: the plant cannot be linearised there.
+SINGULAR = edit('dynamics = ["x2", "u"]', 'dynamics = ["x2", "u + 1/x1"]')
+
+
+@pytest.mark.parametrize("options", [UPTO_V, RunOptions(upto="model")], ids=["verify", "model"])
+def test_stage_checks_fail_before_anything_is_written(sess, options):
+    sess.run(problem(), UPTO_V)
+    before = snapshot(sess.path)
+    # parsed only (the pipeline's checks not run): the session runs the stages' checks
+    with pytest.raises(SpecError, match="cannot be linearised") as exc:
+        sess.run(parse_spec(SINGULAR, path="singular.toml"), options)
+    assert (exc.value.file, exc.value.field) == ("singular.toml", "model.operating_point")
+    # the model is cached (same plant) but the law is not: its check runs, even for a run
+    # that stops at the model, since the spec would become the session's spec.toml
+    with pytest.raises(SpecError, match="infeasible for every initial state") as exc:
+        sess.run(parse_spec(INFEASIBLE, path="infeasible.toml"), options)
+    assert (exc.value.file, exc.value.field) == ("infeasible.toml", "mpc")
+    assert snapshot(sess.path) == before
+
+
+def test_a_stage_check_runs_only_when_its_artifact_is_not_cached(tmp_path):
+    calls: list[str] = []
+
+    def counted(stage: Stage) -> Stage:
+        def check(prob):
+            calls.append(stage.name)
+            stage.check(prob)  # the pipeline's own check
+
+        return replace(stage, check=check)
+
+    class Counting(Session):
+        table = StageTable(tuple(counted(st) if st.check else st for st in TABLE))
+
+    sess = Counting.create(tmp_path / "s")
+    rep = sess.run(problem(), UPTO_V)
+    assert calls == ["model", "synthesis"]
+    calls.clear()
+    sess.run(problem(), UPTO_V)
+    assert calls == []  # a cached artifact proves its stage's check
+    sess.run(problem(), UPTO_V, fresh=True)
+    assert calls == ["model", "synthesis"]
+    calls.clear()
+    art(sess, rep, "synthesis").unlink()
+    sess.run(problem(), RunOptions(upto="model"))
+    assert calls == ["synthesis"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -900,3 +965,97 @@ def test_interleaved_runs_get_distinct_run_numbers(sess):
     runs = {(r["run"], r["spec"]) for r in j}
     assert len(runs) == 2 and len({r for r, _ in runs}) == 2, runs
     assert sess.replay().ok
+
+
+# --------------------------------------------------------------------------------------------
+# 8. the stage table
+# --------------------------------------------------------------------------------------------
+
+
+def test_every_stage_has_exactly_one_table_entry():
+    names = [st.name for st in TABLE]
+    assert names == list(STAGES) == ["model", "synthesis", "verification", "recording"]
+    assert all(names.count(n) == 1 and TABLE[n].name == n for n in STAGES)
+    assert [st.ext for st in TABLE] == ["npz", "npz", "npz", "rrd"]
+    with pytest.raises(ValueError, match="unique: model repeated"):
+        StageTable((*TABLE.stages, TABLE["model"]))
+    with pytest.raises(KeyError):
+        TABLE["digest"]
+
+
+def _digest_compute(run: StageRun) -> dict:
+    write_text(run.path, json.dumps({"regions": run.upstream["synthesis"].num_regions}))
+    return _digest_load(run.path)
+
+
+def _digest_load(path: Path) -> dict:
+    data = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(data, dict) or not isinstance(data.get("regions"), int):
+        raise SpecError("not a digest", file=str(path))
+    return data
+
+
+#: A stage that is not codev's: one entry, between synthesis and verification.
+DIGEST = Stage(
+    name="digest",
+    ext="json",
+    report_field=None,
+    inputs=lambda prob, options, keys: {"synthesis": keys["synthesis"]},
+    compute=_digest_compute,
+    load=_digest_load,
+    describe=lambda value, upstream: ({"regions": value["regions"]}, {"n": upstream["model"].n}),
+)
+WITH_DIGEST = StageTable(
+    (TABLE["model"], TABLE["synthesis"], DIGEST, TABLE["verification"], TABLE["recording"])
+)
+
+
+class DigestSession(Session):
+    table = WITH_DIGEST
+
+
+def test_a_new_stage_is_one_table_entry(tmp_path):
+    """The table drives the run, the keys, the artifacts, the journal, status and replay."""
+    sess = DigestSession.create(tmp_path / "s")
+    rep = sess.run(problem(), UPTO_V)
+    assert [(st.stage, st.status) for st in rep.stages] == [
+        ("model", "computed"),
+        ("synthesis", "computed"),
+        ("digest", "computed"),
+        ("verification", "computed"),
+    ]
+    keys = stage_keys(problem(), UPTO_V, WITH_DIGEST)
+    # a stage downstream changes no key upstream or beside it
+    assert {k: v for k, v in keys.items() if k != "digest"} == stage_keys(problem(), UPTO_V)
+    digest = rep.stage("digest")
+    # its description (outcome, details: the model from upstream) and extension are its entry's
+    assert (digest.outcome, digest.details) == ({"regions": 10}, {"n": 2})
+    assert digest.artifact == f"artifacts/digest-{keys['digest'][:16]}.json"
+    assert read_index(sess)[Path(digest.artifact).name]["key"] == keys["digest"]
+    assert [(st.stage, st.status, st.artifact) for st in sess.status(problem(), UPTO_V)][2] == (
+        "digest",
+        "cached",
+        digest.artifact,
+    )
+    again = sess.run(problem(), UPTO_V)
+    assert set(statuses(again).values()) == {"cached"} and len(again.stages) == 4
+    # Q changes the law, so the digest downstream of it
+    assert statuses(sess.run(problem(Q2), UPTO_V))["digest"] == "computed"
+    digests = [r["outcome"] for r in sess.journal() if r["stage"] == "digest"]
+    assert digests == [{"regions": 10}, {"regions": 10}, {"regions": 12}]
+    replayed = sess.replay()
+    assert replayed.ok and replayed.checked == 12 and replayed.cached == 12
+    # replay compares what the entry describes: another description is a mismatch
+    recount = replace(DIGEST, describe=lambda v, up: ({"regions": v["regions"] + 1}, {}))
+
+    class Recounting(Session):
+        table = StageTable(tuple(recount if st is DIGEST else st for st in WITH_DIGEST))
+
+    assert Recounting.open(sess.path).replay().mismatches == [
+        (1, "digest", {"regions": 10}, {"regions": 11}),
+        (2, "digest", {"regions": 10}, {"regions": 11}),
+        (3, "digest", {"regions": 12}, {"regions": 13}),
+    ]
+    # codev's own table has no such stage: its journal is refused, not misread
+    with pytest.raises(SessionError, match="unknown stage 'digest'"):
+        Session.open(sess.path).journal()
