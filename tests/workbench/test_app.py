@@ -285,9 +285,12 @@ def test_a_late_picture_does_not_replace_the_latest():
     from rich.text import Text
     from textual.app import App
 
+    from workbench.tui.app import STYLESHEET
     from workbench.tui.widgets import Plot
 
     class One(App):
+        CSS_PATH = STYLESHEET  # the plot's size
+
         def compose(self):
             yield Plot(id="plot")
 

@@ -6,6 +6,22 @@ and every stage the user runs goes through ``Session.run`` (journaled, cached, r
 ``codev replay``). Heavy work (synthesis, verification, previews, pictures) runs in thread
 workers; progress is read by a 10 Hz timer, never pushed per event, so the keyboard stays
 responsive while the engine works.
+
+The app and its panes talk one way each:
+
+- **pane → app: messages.** A pane never imports this module, calls the app or reads its
+  attributes; it posts a typed message of :mod:`workbench.tui.messages` (``RunRequested``,
+  ``CancelRequested``, ``VerifyToggled``, ``SaveRequested``, ``OpenRequested``,
+  ``ExportRequested``; the entries post ``FieldEntry.Edited``), which bubbles up to the app
+  and is handled here by an ``on_<message>`` method. The keys bound here go the same way:
+  ctrl+g posts ``RunRequested`` for the stage of the tab on screen.
+- **app → pane: documented methods with plain data.** The app owns the state (session,
+  form check, law, verdict, the stage running) and hands each pane what it shows by calling
+  the pane's ``show_*`` / ``set_*`` / ``run_finished`` methods with values (a law, a result,
+  whether it is current, the stage running), never itself; a pane keeps what it was handed
+  to redraw it (new axes, a located state).
+
+The stylesheet is ``workbench.tcss`` beside this module (``CSS_PATH``).
 """
 
 from __future__ import annotations
@@ -14,6 +30,7 @@ import os
 import threading
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from rich.markup import escape
@@ -33,19 +50,30 @@ from codev_engine.session import (
 )
 
 from .form import FormCheck, check_form, field_for_error
+from .messages import (
+    CancelRequested,
+    ExportRequested,
+    OpenRequested,
+    RunRequested,
+    SaveRequested,
+    VerifyToggled,
+)
 from .panes.mpc import MpcPane
 from .panes.plant import PlantPane
 from .panes.session import SessionPane
 from .panes.synthesis import SynthesisPane
 from .panes.verification import VerificationPane
-from .state import Opened, clear_draft, write_draft
+from .state import Opened, clear_draft, open_target, write_draft
 from .widgets import FieldEntry
 
 if TYPE_CHECKING:
     # the numerical stack loads in the first check's worker, after the first screen
     from codev_engine import ExplicitLaw, Problem, VerificationResult
 
-__all__ = ["CodevApp", "RunCancelledError"]
+__all__ = ["STYLESHEET", "CodevApp", "RunCancelledError"]
+
+# every style of the app, its panes and widgets (also for a test app mounting one widget)
+STYLESHEET = Path(__file__).with_name("workbench.tcss")
 
 STATUS_STYLE = {
     "cached": ("✓", "green"),
@@ -53,6 +81,14 @@ STATUS_STYLE = {
     "missing": ("○", "grey62"),
     "corrupt": ("✗", "red"),
     "running": ("…", "cyan"),
+}
+
+# the stage ctrl+g runs on each tab (the MPC tab previews instead)
+TAB_STAGE = {
+    "plant": "model",
+    "synthesis": "synthesis",
+    "verification": "verification",
+    "session": "recording",
 }
 
 
@@ -64,24 +100,7 @@ class CodevApp(App):
     """``codev tui``: plant → MPC → synthesis → verification, saved as a session."""
 
     TITLE = "codev workbench"
-    CSS = """
-    Screen { overflow: hidden; }
-    #pipeline { height: 1; padding: 0 1; background: $boost; }
-    #tabs { height: 1fr; }
-    #tabs > ContentSwitcher { height: 1fr; }
-    #tabs TabPane { height: 1fr; padding: 0; }
-    .form { width: 52; min-width: 40; border-right: vkey $primary 30%; padding: 0 1; }
-    .output { padding: 0 1; }
-    .bar { height: auto; padding: 0 0 1 0; }
-    .bar Button { margin: 0 1 0 0; min-width: 12; }
-    .status { height: auto; padding: 0 1; }
-    .banner { height: auto; padding: 0 1; text-style: bold; }
-    .banner.-safe { background: $success 40%; }
-    .banner.-unsafe { background: $error 50%; }
-    .banner.-unknown { background: $warning 40%; }
-    .banner.-stale { color: $warning; }
-    .small { height: auto; }
-    """
+    CSS_PATH = STYLESHEET
     BINDINGS = [
         Binding("f1", "show('plant')", "Plant"),
         Binding("f2", "show('mpc')", "MPC"),
@@ -150,8 +169,8 @@ class CodevApp(App):
         self._dirty = True
         self._schedule_check()
 
-    def set_verify_enabled(self, enabled: bool) -> None:
-        self.has_verify = enabled
+    def on_verify_toggled(self, event: VerifyToggled) -> None:
+        self.has_verify = event.enabled
         self._dirty = True
         self._schedule_check()
 
@@ -228,9 +247,9 @@ class CodevApp(App):
             self.result, self.result_key = loaded["verification"], keys.get("verification")
             self.result_problem = chk.problem
         self._show_pipeline()
-        self.query_one(SynthesisPane).refresh_law()
-        self.query_one(VerificationPane).refresh_result()
-        self.query_one(SessionPane).refresh_session()
+        self.query_one(MpcPane).set_problem(chk.problem if chk.ok else None)
+        self._show_results()
+        self.query_one(SessionPane).show_session(self.session, self.statuses)
         plant = self.query_one(PlantPane)
         if chk.ok and chk.problem is not None:
             # the report depends on the model stage's inputs only: re-derived when they change
@@ -271,7 +290,24 @@ class CodevApp(App):
     def result_current(self) -> bool:
         return self.result is not None and self.result_key == self.keys.get("verification")
 
+    def _show_results(self) -> None:
+        """Hand the law and the verdict shown, and whether they are current, to their panes."""
+        self.query_one(SynthesisPane).show_law(self.law, current=self.law_current())
+        self.query_one(VerificationPane).show_result(
+            self.result, problem=self.result_problem, current=self.result_current()
+        )
+
+    def _show_busy(self) -> None:
+        for pane in (self.query_one(SynthesisPane), self.query_one(VerificationPane)):
+            pane.show_busy(self.busy)
+
     # ---- stages ----------------------------------------------------------------------
+
+    def on_run_requested(self, event: RunRequested) -> None:
+        self.run_stage(event.stage)
+
+    def on_cancel_requested(self, event: CancelRequested) -> None:
+        self.action_cancel()
 
     def run_stage(self, upto: str) -> None:
         """Run the pipeline up to ``upto`` in a worker (cached stages are loaded)."""
@@ -292,6 +328,7 @@ class CodevApp(App):
         self._cancel.clear()
         self.progress = (upto, 0, time.perf_counter())
         self._show_pipeline()
+        self._show_busy()
         self._stage_worker(chk.problem, replace(self.options, upto=upto))
 
     @work(thread=True, exclusive=True, group="stage")
@@ -328,7 +365,7 @@ class CodevApp(App):
     def _finish(self, report: RunReport | None, error: object, warnings: list[str]) -> None:
         stage = self.busy or ""
         self.busy = None
-        self.progress = None
+        self.progress = None  # the panes hear it in run_finished
         for w in warnings:
             self.notify(w, severity="warning", timeout=8)
         if error == "cancelled":
@@ -344,8 +381,16 @@ class CodevApp(App):
             self.notify(f"{stage}: {error}", severity="error", timeout=10)
         if report is not None:
             self._take_report(report)
-        self.query_one(SynthesisPane).run_finished(report, error)
-        self.query_one(VerificationPane).run_finished(report, error)
+        self.query_one(SynthesisPane).run_finished(
+            report, error, law=self.law, current=self.law_current()
+        )
+        self.query_one(VerificationPane).run_finished(
+            report,
+            error,
+            result=self.result,
+            problem=self.result_problem,
+            current=self.result_current(),
+        )
         self.query_one(SessionPane).run_finished(report, error)
         self._schedule_check()  # statuses and the journal moved on
 
@@ -377,8 +422,8 @@ class CodevApp(App):
         elapsed = time.perf_counter() - started
         unit = {"synthesis": "regions", "verification": "branches"}.get(stage, "")
         text = f"{stage}: {count} {unit} · {elapsed:.1f} s · Esc cancels".replace("  ", " ")
-        self.query_one(SynthesisPane).show_progress(text)
-        self.query_one(VerificationPane).show_progress(text)
+        self.query_one(SynthesisPane).show_progress(stage, text)
+        self.query_one(VerificationPane).show_progress(stage, text)
 
     # ---- actions ---------------------------------------------------------------------
 
@@ -397,20 +442,18 @@ class CodevApp(App):
         tab = self.query_one("#tabs", TabbedContent).active
         if tab == "mpc":
             self.query_one(MpcPane).run_preview()
-        elif tab == "synthesis":
-            self.run_stage("synthesis")
-        elif tab == "verification":
-            self.run_stage("verification")
-        elif tab == "session":
-            self.run_stage("recording")
-        else:
-            self.run_stage("model")
+            return
+        # the same message as the tab's run button: one way in for every run
+        self.post_message(RunRequested(TAB_STAGE.get(tab, "model")))
 
     def action_cancel(self) -> None:
         if self.busy is not None:
             self._cancel.set()
             self.notify(f"cancelling {self.busy}…", timeout=3)
         self.query_one(MpcPane).cancel_preview()
+
+    def on_save_requested(self, event: SaveRequested) -> None:
+        self.action_save()
 
     def action_save(self) -> None:
         chk = self.check
@@ -425,7 +468,24 @@ class CodevApp(App):
         self.session.save_spec(chk.problem)
         self.notify(f"saved {self.session.spec_path()}")
 
-    # ---- opening another target --------------------------------------------------------
+    # ---- the Session tab: opening another target, exporting the recording ---------------
+
+    def on_open_requested(self, event: OpenRequested) -> None:
+        try:
+            opened = open_target(event.target)
+        except CodevError as exc:
+            self.notify(str(exc), severity="error", timeout=8)
+            return
+        self.load(opened)
+
+    def on_export_requested(self, event: ExportRequested) -> None:
+        pane = self.query_one(SessionPane)
+        try:
+            out = self.session.export(event.recording, event.dest)
+        except OSError as exc:
+            pane.show_export(event.recording, event.dest, error=str(exc.strerror or exc))
+            return
+        pane.show_export(event.recording, event.dest, copied=out)
 
     def load(self, opened: Opened) -> None:
         """Switch to another session / spec (the Session tab's Open)."""
@@ -443,8 +503,7 @@ class CodevApp(App):
         for entry in self.query(FieldEntry):
             entry.set_text(self.values.get(entry.field_name, ""))
         self.query_one(VerificationPane).set_enabled(self.has_verify)
-        self.query_one(SynthesisPane).refresh_law()
-        self.query_one(VerificationPane).refresh_result()
+        self._show_results()
         if opened.note:
             self.notify(opened.note)
         self._run_check()

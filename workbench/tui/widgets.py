@@ -1,4 +1,7 @@
-"""Widgets shared by the panes: a spec-field entry with its inline error, and a plot."""
+"""Widgets shared by the panes: a spec-field entry with its inline error, and a plot.
+
+Their styles are in ``workbench.tcss`` with the rest of the app's.
+"""
 
 from __future__ import annotations
 
@@ -24,16 +27,6 @@ class FieldEntry(Vertical):
     """One spec field: label, editor (input, text area, select or switch), help / error line.
 
     Posts :class:`FieldEntry.Edited` with the entry's text on every change.
-    """
-
-    DEFAULT_CSS = """
-    FieldEntry { height: auto; margin: 0 0 1 0; }
-    FieldEntry > Label { color: $text-muted; }
-    FieldEntry > .help { color: $text-muted; text-style: italic; height: auto; }
-    FieldEntry.-error > .help { color: $error; text-style: bold; }
-    FieldEntry.-error Input, FieldEntry.-error TextArea { border: tall $error; }
-    FieldEntry TextArea { height: 4; }
-    FieldEntry Switch { width: auto; }
     """
 
     class Edited(Message):
@@ -152,10 +145,6 @@ class Plot(Static):
 
     Redrawn on resize and on :meth:`set_draw`; the last picture stays up meanwhile, so a slow
     partition never blocks the keyboard.
-    """
-
-    DEFAULT_CSS = """
-    Plot { height: 1fr; width: 1fr; min-height: 8; }
     """
 
     def __init__(self, placeholder: str = "", **kwargs) -> None:

@@ -15,36 +15,28 @@ from codev_engine.errors import CodevError
 
 from ..design import MpcPreview, mpc_preview
 from ..form import FIELDS
+from ..parsers import parse_state
 from ..views import series_text
 from ..widgets import FieldEntry, Plot
 
 if TYPE_CHECKING:
-    from ..app import CodevApp
+    from codev_engine import Problem
 
 MPC_FIELDS = [f.name for f in FIELDS if f.section == "mpc"]
 
 
-def parse_state(text: str, n: int) -> np.ndarray:
-    """``"1, -2"`` or ``"1 -2"`` → (n,) array; ``ValueError`` with a message otherwise."""
-    parts = [p for p in text.replace(",", " ").replace(";", " ").split() if p]
-    try:
-        x = np.array([float(p) for p in parts])
-    except ValueError:
-        raise ValueError("expected numbers, e.g. 1.5, -2") from None
-    if x.size != n:
-        raise ValueError(f"expected {n} numbers, got {x.size}")
-    if not np.all(np.isfinite(x)):
-        raise ValueError("the state must be finite")
-    return x
-
-
 class MpcPane(Horizontal):
-    """Left: the MPC fields. Right: the online MPC's closed loop from a chosen state."""
+    """Left: the MPC fields. Right: the online MPC's closed loop from a chosen state.
+
+    The app hands it the spec to preview with :meth:`set_problem` (at every form check)
+    and starts and stops the preview with :meth:`run_preview` and :meth:`cancel_preview`.
+    """
 
     def __init__(self, values: dict[str, str]) -> None:
         super().__init__()
         self._values = values
         self._stop = threading.Event()
+        self._problem: Problem | None = None  # the valid spec of the last form check
         self.last: MpcPreview | None = None
 
     def compose(self) -> ComposeResult:
@@ -77,17 +69,19 @@ class MpcPane(Horizontal):
             event.stop()
             self.run_preview()
 
+    def set_problem(self, problem: Problem | None) -> None:
+        """The spec a preview runs on (None: the form is not valid, or not checked yet)."""
+        self._problem = problem
+
     def cancel_preview(self) -> None:
         self._stop.set()
 
     def run_preview(self) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
         status = self.query_one("#preview-status", Static)
-        chk = app.check
-        if chk is None or not chk.ok or chk.problem is None:
+        problem = self._problem
+        if problem is None:
             status.update("[red]✗ the spec is not valid yet (fields marked in red)[/red]")
             return
-        problem = chk.problem
         x_text = self.query_one("#preview-x0", Input).value
         if not x_text.strip():
             x0 = _default_state(problem)
@@ -105,21 +99,20 @@ class MpcPane(Horizontal):
         self._preview(problem, x0, steps)
 
     @work(thread=True, exclusive=True, group="preview")
-    def _preview(self, problem, x0: np.ndarray, steps: int) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
+    def _preview(self, problem: Problem, x0: np.ndarray, steps: int) -> None:
         from codev_engine import discretize
 
         try:
             model = discretize(problem)
             prev = mpc_preview(problem, model, x0, steps, should_stop=self._stop.is_set)
         except CodevError as exc:
-            app.call_from_thread(
+            self.app.call_from_thread(
                 self.query_one("#preview-status", Static).update, f"[red]✗ {exc}[/red]"
             )
             return
-        app.call_from_thread(self._show, prev, problem)
+        self.app.call_from_thread(self._show, prev, problem)
 
-    def _show(self, prev: MpcPreview, problem) -> None:
+    def _show(self, prev: MpcPreview, problem: Problem) -> None:
         self.last = prev
         k = prev.U.shape[0]
         msg = f"{k} steps"
@@ -138,7 +131,7 @@ class MpcPane(Horizontal):
             )
 
 
-def _default_state(problem) -> np.ndarray:
+def _default_state(problem: Problem) -> np.ndarray:
     """The centre of the initial set, else a point off the operating point."""
     if problem.verify is not None:
         return 0.5 * (problem.verify.initial_lower + problem.verify.initial_upper)

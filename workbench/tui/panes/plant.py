@@ -19,13 +19,15 @@ from ..widgets import FieldEntry
 if TYPE_CHECKING:
     from codev_engine import Problem
 
-    from ..app import CodevApp
-
 PLANT_FIELDS = [f.name for f in FIELDS if f.section in ("", "plant", "model")]
 
 
 class PlantPane(Horizontal):
-    """Left: the plant and model fields. Right: Jacobian, linearisation, discrete model."""
+    """Left: the plant and model fields. Right: Jacobian, linearisation, discrete model.
+
+    The app shows the report of a valid spec with :meth:`show_report`, and a message in its
+    place with :meth:`show_invalid` while a plant or model entry is wrong.
+    """
 
     def __init__(self, values: dict[str, str]) -> None:
         super().__init__()
@@ -53,14 +55,13 @@ class PlantPane(Horizontal):
 
     @work(thread=True, exclusive=True, group="plant-report")
     def _report(self, problem: Problem) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
         try:
             text, _model = plant_report(problem)
             body: object = Markdown(text)
         except CodevError as exc:
             text = f"✗ {exc}"
             body = f"[red]✗ {exc}[/red]"
-        app.call_from_thread(self._show, body, text)
+        self.app.call_from_thread(self._show, body, text)
 
     def _show(self, body: object, text: str) -> None:
         self.report_text = text

@@ -3,29 +3,27 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Button, DataTable, Input, Label, Static
 
 from codev_engine import CodevError
-from codev_engine.session import RunReport
+from codev_engine.session import RunReport, Session, StageStatus
 
-from ..state import open_target
-
-if TYPE_CHECKING:
-    from ..app import CodevApp
+from ..messages import ExportRequested, OpenRequested, RunRequested, SaveRequested
 
 
 class SessionPane(VerticalScroll):
-    """The session folder is the workbench's state: open, save, status, journal, export."""
+    """The session folder is the workbench's state: open, save, status, journal, export.
 
-    DEFAULT_CSS = """
-    SessionPane { padding: 0 1; }
-    SessionPane DataTable { height: auto; max-height: 14; margin: 0 0 1 0; }
-    SessionPane #open-path, SessionPane #export-path { width: 1fr; }
+    Posts :class:`OpenRequested`, :class:`SaveRequested`, :class:`RunRequested`
+    ``("recording")`` and, once a recording exists and a copy is asked for,
+    :class:`ExportRequested`. The app hands it the session and the stages' status with
+    :meth:`show_session`, the end of a run with :meth:`run_finished` and the copy's
+    outcome with :meth:`show_export`.
     """
 
     _journal_stamp: tuple | None = None  # (file, mtime, size) of the journal on screen
@@ -52,14 +50,13 @@ class SessionPane(VerticalScroll):
         )
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
         event.stop()
         if event.button.id == "open":
             self.open_path()
         elif event.button.id == "save":
-            app.action_save()
+            self.post_message(SaveRequested())
         elif event.button.id == "export":
-            app.run_stage("recording")
+            self.post_message(RunRequested("recording"))
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         if event.input.id == "open-path":
@@ -67,28 +64,22 @@ class SessionPane(VerticalScroll):
             self.open_path()
 
     def open_path(self) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
         text = self.query_one("#open-path", Input).value.strip()
         if not text:
-            app.notify("type a session folder or a spec file to open", severity="warning")
+            self.notify("type a session folder or a spec file to open", severity="warning")
             return
-        try:
-            opened = open_target(text)
-        except CodevError as exc:
-            app.notify(str(exc), severity="error", timeout=8)
-            return
-        app.load(opened)
+        self.post_message(OpenRequested(text))
 
-    def refresh_session(self) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
-        session = app.session
+    def show_session(self, session: Session, statuses: Mapping[str, StageStatus]) -> None:
+        """Show ``session``: its folder, each stage's status for the current spec, and its
+        journal (read again only when the file changed)."""
         self.query_one("#session-path", Static).update(
             f"Session [b]{session.path}[/b] — the spec is saved to {session.spec_path().name} "
             f"as you edit; `codev replay {session.path}` re-runs every stage headless."
         )
         stages = self.query_one("#stages", DataTable)
         stages.clear()
-        for st in app.statuses.values():
+        for st in statuses.values():
             stages.add_row(st.stage, st.status, st.artifact or st.reason or "")
         # the journal changes only when a stage runs, not at every form check
         file = session.path / "journal.jsonl"
@@ -119,18 +110,32 @@ class SessionPane(VerticalScroll):
             journal.move_cursor(row=journal.row_count - 1)
 
     def run_finished(self, report: RunReport | None, error: object) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
+        """The run ended: show its recording, if it made one, or ask for its copy."""
         if report is None or report.recording is None:
             return
         path = Path(report.recording)
         dest = self.query_one("#export-path", Input).value.strip()
-        lines = [f"recording: {path}"]
         if dest:
-            try:
-                out = app.session.export(path, dest)
-                lines.append(f"copied to {out}")
-                path = out
-            except OSError as exc:
-                lines.append(f"[red]✗ cannot copy to {dest}: {exc.strerror or exc}[/red]")
+            self.post_message(ExportRequested(path, dest))
+        else:
+            self.show_export(path)
+
+    def show_export(
+        self,
+        recording: Path,
+        dest: str = "",
+        *,
+        copied: Path | None = None,
+        error: str | None = None,
+    ) -> None:
+        """Show where ``recording`` is, and the outcome of copying it to ``dest``: the
+        copy's path, or the reason it failed."""
+        path = recording
+        lines = [f"recording: {path}"]
+        if copied is not None:
+            lines.append(f"copied to {copied}")
+            path = copied
+        elif error is not None:
+            lines.append(f"[red]✗ cannot copy to {dest}: {error}[/red]")
         lines.append(f"open it with:  codev view {path}   (or: rerun {path})")
         self.query_one("#export-out", Static).update("\n".join(lines))

@@ -12,45 +12,31 @@ from textual.widgets import Button, DataTable, Input, Label, Static
 from codev_engine.session import RunReport
 
 from ..design import locate_state, region_rows
+from ..messages import CancelRequested, RunRequested
+from ..parsers import parse_axes, parse_state
 from ..views import partition_text
 from ..widgets import Plot
-from .mpc import parse_state
 
 if TYPE_CHECKING:
     from codev_engine import ExplicitLaw
 
-    from ..app import CodevApp
-
-
-def parse_axes(text: str, names: tuple[str, ...]) -> tuple[int, int]:
-    """``"x1, x2"`` or ``"0 1"`` → two distinct state indices."""
-    parts = [p for p in text.replace(",", " ").split() if p]
-    if len(parts) != 2:
-        raise ValueError("give two states, e.g. " + ", ".join(names[:2]))
-    out = []
-    for p in parts:
-        if p in names:
-            out.append(names.index(p))
-        elif p.isdigit() and int(p) < len(names):
-            out.append(int(p))
-        else:
-            raise ValueError(f"unknown state {p!r} (states: {', '.join(names)})")
-    if out[0] == out[1]:
-        raise ValueError("the two axes must differ")
-    return out[0], out[1]
-
 
 class SynthesisPane(Vertical):
-    """The explicit law: progress and cancel, the partition picture, region table, lookup."""
+    """The explicit law: progress and cancel, the partition picture, region table, lookup.
 
-    DEFAULT_CSS = """
-    SynthesisPane #synth-side { width: 44; padding: 0 1; }
-    SynthesisPane #regions { height: 12; }
-    SynthesisPane #synth-main { height: 1fr; }
+    Posts :class:`RunRequested` ``("synthesis")`` and :class:`CancelRequested`. The app
+    hands it the law with :meth:`show_law`, the stage in flight with :meth:`show_busy`,
+    the progress line with :meth:`show_progress` and the end of a run with
+    :meth:`run_finished`.
     """
 
     _note = ""  # the last run's failure or cancellation, kept until a law arrives
     _law_shown: object = None  # the law whose picture and table are on screen
+    # what the app last handed over: the law, whether it is the current spec's, and the
+    # stage running (its progress owns the status line meanwhile)
+    _law: ExplicitLaw | None = None
+    _current = False
+    _busy: str | None = None
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="bar"):
@@ -76,13 +62,12 @@ class SynthesisPane(Vertical):
     # ---- events ----------------------------------------------------------------------
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
         if event.button.id == "synth-run":
             event.stop()
-            app.run_stage("synthesis")
+            self.post_message(RunRequested("synthesis"))
         elif event.button.id == "synth-cancel":
             event.stop()
-            app.action_cancel()
+            self.post_message(CancelRequested())
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         if event.input.id == "locate-x":
@@ -94,14 +79,31 @@ class SynthesisPane(Vertical):
 
     # ---- showing the law -------------------------------------------------------------
 
-    def show_progress(self, text: str) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
-        if app.busy in ("model", "synthesis") or (
-            app.progress is not None and app.progress[0] in ("model", "synthesis")
-        ):
+    def show_busy(self, stage: str | None) -> None:
+        """The stage run in flight (None: none); nothing is redrawn."""
+        self._busy = stage
+
+    def show_progress(self, stage: str, text: str) -> None:
+        """``text``: the progress of the run in flight, now in ``stage``."""
+        if self._busy in ("model", "synthesis") or stage in ("model", "synthesis"):
             self.query_one("#synth-status", Static).update(f"[cyan]{text}[/cyan]")
 
-    def run_finished(self, report: RunReport | None, error: object) -> None:
+    def show_law(self, law: ExplicitLaw | None, *, current: bool) -> None:
+        """Show ``law`` (None: no law yet); ``current``: computed for the spec on screen."""
+        self._law, self._current = law, current
+        self.refresh_law()
+
+    def run_finished(
+        self,
+        report: RunReport | None,
+        error: object,
+        *,
+        law: ExplicitLaw | None,
+        current: bool,
+    ) -> None:
+        """The run ended (nothing runs now) with ``report`` or ``error`` (``"cancelled"``,
+        or the exception); ``law`` and ``current`` as in :meth:`show_law`, after the run."""
+        self._law, self._current, self._busy = law, current, None
         if report is not None and report.law is not None:
             self._note = ""
             self.refresh_law()
@@ -115,23 +117,23 @@ class SynthesisPane(Vertical):
             self.refresh_law(keep_status=True)
 
     def refresh_law(self, keep_status: bool = False, force: bool = False) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
-        law = app.law
+        """Redraw the law last handed over (``force``: the picture too, for new axes)."""
+        law = self._law
         status = self.query_one("#synth-status", Static)
         plot = self.query_one("#partition", Plot)
         table = self.query_one("#regions", DataTable)
         if law is None:
-            if not keep_status and app.busy is None:
+            if not keep_status and self._busy is None:
                 note = f"{self._note} · " if self._note else ""
                 status.update(f"{note}no law yet: press Synthesize (ctrl+g)")
             plot.set_draw(None, "the partition appears here after synthesis")
             table.clear()
             self._law_shown = None
             return
-        if not keep_status and app.busy is None:
+        if not keep_status and self._busy is None:
             state = (
                 "[green]current[/green]"
-                if app.law_current()
+                if self._current
                 else "[yellow]stale: the spec changed since; ctrl+g recomputes[/yellow]"
             )
             norm = law.meta.get("norm", "")
@@ -176,9 +178,8 @@ class SynthesisPane(Vertical):
         return parse_state(text, law.n)
 
     def locate(self) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
         out = self.query_one("#locate-out", Static)
-        law = app.law
+        law = self._law
         if law is None:
             out.update("[red]no law yet: synthesize first[/red]")
             return

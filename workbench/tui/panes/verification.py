@@ -11,12 +11,13 @@ from textual.widgets import Button, Input, Label, Static, Switch
 from codev_engine.session import RunReport
 
 from ..form import FIELDS
+from ..messages import CancelRequested, RunRequested, VerifyToggled
+from ..parsers import parse_axes, parse_state_name
 from ..views import plane_text, tube_time_text
 from ..widgets import FieldEntry, Plot
-from .synthesis import parse_axes
 
 if TYPE_CHECKING:
-    from ..app import CodevApp
+    from codev_engine import Problem, VerificationResult
 
 VERIFY_FIELDS = [f.name for f in FIELDS if f.section == "verify"]
 
@@ -38,12 +39,21 @@ REASONS = {
 
 
 class VerificationPane(Horizontal):
-    """Left: the [verify] fields. Right: run, verdict banner, tube vs time, plane view."""
+    """Left: the [verify] fields. Right: run, verdict banner, tube vs time, plane view.
 
-    DEFAULT_CSS = """
-    VerificationPane .plots { height: 1fr; }
-    VerificationPane #tube-state, VerificationPane #plane-axes { width: 16; }
+    Posts :class:`RunRequested` ``("verification")``, :class:`CancelRequested` and
+    :class:`VerifyToggled`. The app hands it the verdict with :meth:`show_result`, the
+    switch's state with :meth:`set_enabled`, the stage in flight with :meth:`show_busy`,
+    the progress line with :meth:`show_progress` and the end of a run with
+    :meth:`run_finished`.
     """
+
+    # what the app last handed over: the result, the problem it was computed for, whether
+    # it is the current spec's, and the stage running
+    _result: VerificationResult | None = None
+    _problem: Problem | None = None
+    _current = False
+    _busy: str | None = None
 
     def __init__(self, values: dict[str, str], enabled: bool) -> None:
         super().__init__()
@@ -77,6 +87,9 @@ class VerificationPane(Horizontal):
         self.set_enabled(self._enabled)
 
     def set_enabled(self, enabled: bool) -> None:
+        """Switch the [verify] section on or off (a loaded spec) without posting
+        :class:`VerifyToggled`."""
+        self._enabled = enabled
         self.query_one("#verify-enabled", Switch).value = enabled
         for entry in self.query(FieldEntry):
             entry.disabled = not enabled
@@ -86,30 +99,54 @@ class VerificationPane(Horizontal):
             event.stop()
             for entry in self.query(FieldEntry):
                 entry.disabled = not event.value
-            app: CodevApp = self.app  # type: ignore[assignment]
-            if app.has_verify != event.value:
-                app.set_verify_enabled(event.value)
+            if self._enabled != event.value:  # the user's, not set_enabled's
+                self._enabled = event.value
+                self.post_message(VerifyToggled(event.value))
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
         if event.button.id == "verify-run":
             event.stop()
-            app.run_stage("verification")
+            self.post_message(RunRequested("verification"))
         elif event.button.id == "verify-cancel":
             event.stop()
-            app.action_cancel()
+            self.post_message(CancelRequested())
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         if event.input.id in ("tube-state", "plane-axes"):
             event.stop()
             self.refresh_result(force=True)
 
-    def show_progress(self, text: str) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
-        if app.busy in ("verification", "recording"):
+    def show_busy(self, stage: str | None) -> None:
+        """The stage run in flight (None: none); nothing is redrawn."""
+        self._busy = stage
+
+    def show_progress(self, stage: str, text: str) -> None:
+        """``text``: the progress of the run in flight, now in ``stage``."""
+        if self._busy in ("verification", "recording"):
             self.query_one("#verify-status", Static).update(f"[cyan]{text}[/cyan]")
 
-    def run_finished(self, report: RunReport | None, error: object) -> None:
+    def show_result(
+        self, result: VerificationResult | None, *, problem: Problem | None, current: bool
+    ) -> None:
+        """Show ``result`` (None: no verdict yet), computed for ``problem`` (its names and
+        sets label the pictures); ``current``: computed for the spec on screen."""
+        self._result, self._problem, self._current = result, problem, current
+        self.refresh_result()
+
+    def run_finished(
+        self,
+        report: RunReport | None,
+        error: object,
+        *,
+        result: VerificationResult | None,
+        problem: Problem | None,
+        current: bool,
+    ) -> None:
+        """The run ended (nothing runs now) with ``report`` or ``error`` (``"cancelled"``,
+        or the exception); ``result``, ``problem`` and ``current`` as in
+        :meth:`show_result`, after the run."""
+        self._result, self._problem, self._current = result, problem, current
+        self._busy = None
         status = self.query_one("#verify-status", Static)
         if error == "cancelled":
             status.update("[yellow]cancelled[/yellow]")
@@ -126,8 +163,8 @@ class VerificationPane(Horizontal):
     _result_shown: object = None  # the result whose pictures are on screen
 
     def refresh_result(self, force: bool = False) -> None:
-        app: CodevApp = self.app  # type: ignore[assignment]
-        result = app.result
+        """Redraw the result last handed over (``force``: the pictures too, for new axes)."""
+        result = self._result
         banner = self.query_one("#verdict", Static)
         tplot = self.query_one("#tube-time", Plot)
         pplot = self.query_one("#tube-plane", Plot)
@@ -147,12 +184,12 @@ class VerificationPane(Horizontal):
             f"hold {result.hold} · {result.tube.num_boxes} boxes · "
             f"{result.stats.get('branches', '?')} branches"
         )
-        if not app.result_current():
+        if not self._current:
             lines.append("⟳ stale: the spec changed since this verdict; ctrl+g re-verifies")
             banner.add_class("-stale")
         banner.add_class(cls)
         banner.update("\n".join(lines))
-        problem = app.result_problem
+        problem = self._problem
         if result is self._result_shown and not force:
             return  # the pictures depend on the result only (a form check must not redraw)
         self._result_shown = result
@@ -181,14 +218,7 @@ class VerificationPane(Horizontal):
             cex_out.update("")
 
     def _state(self, names: tuple[str, ...]) -> int:
-        text = self.query_one("#tube-state", Input).value.strip()
-        if not text:
-            return 0
-        if text in names:
-            return names.index(text)
-        if text.isdigit() and int(text) < max(len(names), 1):
-            return int(text)
-        raise ValueError(f"unknown state {text!r} (states: {', '.join(names)})")
+        return parse_state_name(self.query_one("#tube-state", Input).value, names)
 
     def _axes(self, names: tuple[str, ...]) -> tuple[int, int]:
         text = self.query_one("#plane-axes", Input).value
