@@ -131,7 +131,7 @@ class NonlinearReach(ClosedLoopSetup):
         import sympy
 
         from codev_engine.plant import symbolic_model
-        from codev_engine.reach.interval import plant_enclosures, plant_hessian
+        from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
 
         p = self.problem
         vs = p.verify

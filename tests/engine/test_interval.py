@@ -1,5 +1,5 @@
-"""Tests of the sound interval arithmetic and the sympy -> interval compiler
-(codev_engine.interval).
+"""Tests of the sound interval arithmetic (codev_engine.reach.interval), the sympy -> interval
+compiler (reach.interval_function) and the plant enclosures (reach.enclosure).
 
 Soundness is checked against sampled values of the exact function. numpy's own value at a
 sample carries rounding error, so a sample found outside the enclosure (beyond a loose
@@ -22,13 +22,10 @@ import sympy
 from codev_engine.pipeline import load_spec, loads_spec
 from codev_engine.plant import numeric_dynamics
 from codev_engine.reach import interval as iv
-from codev_engine.reach.interval import (
-    Interval,
-    IntervalDomainError,
-    compile_interval,
-    plant_enclosures,
-    plant_hessian,
-)
+from codev_engine.reach import interval_function as ivf
+from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
+from codev_engine.reach.interval import Interval, IntervalDomainError
+from codev_engine.reach.interval_function import compile_interval
 from codev_engine.spec.expr import make_symbol, parse_expression
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
@@ -69,7 +66,7 @@ def samples(lo: np.ndarray, hi: np.ndarray, rng, n: int = 1000) -> np.ndarray:
 def on_arrays(f, lo, hi):
     """Evaluate one box with the array kernels (larger batches than _SCALAR_MAX_BATCH use
     them)."""
-    n = iv._SCALAR_MAX_BATCH + 1
+    n = ivf._SCALAR_MAX_BATCH + 1
     lo, hi = f(np.tile(np.asarray(lo, float), (n, 1)), np.tile(np.asarray(hi, float), (n, 1)))
     return lo[0], hi[0]
 

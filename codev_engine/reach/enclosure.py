@@ -1,0 +1,138 @@
+"""Sound interval enclosures of a plant's dynamics, Jacobians and second derivatives.
+
+Compiled (:func:`~codev_engine.reach.interval_function.compile_interval`) from the plant's
+symbolic model (:func:`codev_engine.plant.symbolic_model`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import sympy
+
+from codev_engine.reach.interval import Array
+from codev_engine.reach.interval_function import IntervalFunction, compile_interval
+
+if TYPE_CHECKING:
+    from codev_engine.plant import SymbolicPlant
+    from codev_engine.spec.problem import PlantSpec, Problem
+
+__all__ = ["PlantEnclosures", "plant_enclosures", "plant_hessian"]
+
+
+@dataclass(frozen=True)
+class PlantEnclosures:
+    """Compiled interval enclosures of a plant's ``f``, ``df/dx`` and ``df/du``.
+
+    Each method takes a state box ``xlo, xhi`` of shape (n,) or (P, n) and an input box
+    ``ulo, uhi`` of shape (m,) or (P, m) (a single input box is broadcast over a batch of
+    state boxes and vice versa) and returns ``(lo, hi)``:
+
+    - ``f(...)``: (n,) or (P, n);
+    - ``jac_x(...)``: (n, n) or (P, n, n);
+    - ``jac_u(...)``: (n, m) or (P, n, m).
+
+    Attributes
+    ----------
+    sym : SymbolicPlant
+        The symbolic model the functions were compiled from.
+    f_fn, jac_x_fn, jac_u_fn : IntervalFunction
+        The compiled functions over the symbols ``(*x, *u)`` (boxes of length n + m).
+    """
+
+    sym: SymbolicPlant
+    f_fn: IntervalFunction
+    jac_x_fn: IntervalFunction
+    jac_u_fn: IntervalFunction
+
+    @property
+    def n(self) -> int:
+        return len(self.sym.x)
+
+    @property
+    def m(self) -> int:
+        return len(self.sym.u)
+
+    def box(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
+        """The joint box ``(lo, hi)`` of shape (n + m,) or (P, n + m)."""
+        n, m = self.n, self.m
+        parts = [np.asarray(a, dtype=np.float64) for a in (xlo, xhi, ulo, uhi)]
+        for a, d, name in zip(parts, (n, n, m, m), ("xlo", "xhi", "ulo", "uhi"), strict=True):
+            if a.ndim not in (1, 2) or a.shape[-1] != d:
+                raise ValueError(f"{name} must have shape ({d},) or (P, {d}), got {a.shape}")
+        if all(a.ndim == 1 for a in parts):
+            return np.concatenate([parts[0], parts[2]]), np.concatenate([parts[1], parts[3]])
+        batch = np.broadcast_shapes(*(a.shape[:-1] for a in parts))
+        full = [np.broadcast_to(a, (*batch, a.shape[-1])) for a in parts]
+        return (
+            np.concatenate([full[0], full[2]], axis=-1),
+            np.concatenate([full[1], full[3]], axis=-1),
+        )
+
+    def f(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
+        """Enclosure of ``f(x, u)`` over the box: (n,) or (P, n)."""
+        return self.f_fn(*self.box(xlo, xhi, ulo, uhi))
+
+    def jac_x(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
+        """Enclosure of ``df/dx`` over the box: (n, n) or (P, n, n)."""
+        return self.jac_x_fn(*self.box(xlo, xhi, ulo, uhi))
+
+    def jac_u(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
+        """Enclosure of ``df/du`` over the box: (n, m) or (P, n, m)."""
+        return self.jac_u_fn(*self.box(xlo, xhi, ulo, uhi))
+
+
+def plant_enclosures(problem_or_plant: Problem | PlantSpec) -> PlantEnclosures:
+    """Compile interval enclosures of a plant's dynamics and Jacobians.
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+        A plant with continuous-time dynamics (expressions or ``A``, ``B`` matrices).
+
+    Returns
+    -------
+    PlantEnclosures
+        ``f``, ``jac_x``, ``jac_u`` over (state box, input box); see the class.
+
+    Raises
+    ------
+    SpecError
+        If the plant has no continuous-time dynamics.
+    """
+    from codev_engine.plant import symbolic_model
+
+    sym = symbolic_model(problem_or_plant)
+    args = (*sym.x, *sym.u)
+    return PlantEnclosures(
+        sym=sym,
+        f_fn=compile_interval(list(sym.f), args),
+        jac_x_fn=compile_interval(sym.Jx, args),
+        jac_u_fn=compile_interval(sym.Ju, args),
+    )
+
+
+def plant_hessian(problem_or_plant: Problem | PlantSpec) -> IntervalFunction:
+    """Compile an interval enclosure of the second derivatives of a plant's ``f``.
+
+    Returns
+    -------
+    IntervalFunction
+        Over the symbols ``(*x, *u)`` (boxes of length ``k = n + m``); the output is the flat
+        list of ``d^2 f_i / dz_a dz_b`` (``z = (x, u)``) in the order ``(i, a, b)``, so it
+        reshapes to ``(n, k, k)`` (``(P, n, k, k)`` for a batch).
+
+    Notes
+    -----
+    For a non-smooth ``f`` the second derivatives hold ``DiracDelta`` terms, whose enclosure is
+    ``[0, inf]`` (or ``[-inf, inf]``) over a box meeting the kink: the bound then becomes
+    infinite, which callers must treat as "no second-order bound".
+    """
+    from codev_engine.plant import symbolic_model
+
+    sym = symbolic_model(problem_or_plant)
+    args = (*sym.x, *sym.u)
+    exprs = [sympy.diff(fi, za, zb) for fi in sym.f for za in args for zb in args]
+    return compile_interval(exprs, args)
