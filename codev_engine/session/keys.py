@@ -31,6 +31,21 @@ def canon(obj: Any) -> Any:
 
     Floats as ``float.hex`` (exact), arrays by dtype, shape and the SHA-256 of their
     little-endian bytes, dataclasses as dicts of their fields.
+
+    Parameters
+    ----------
+    obj : object
+        Spec data: dataclasses, arrays, numbers, strings, None, lists, tuples, dicts.
+
+    Returns
+    -------
+    object
+        Nested dicts, lists, strings, ints, bools and None.
+
+    Raises
+    ------
+    TypeError
+        For any other type (nothing is hashed by ``repr``).
     """
     if is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: canon(getattr(obj, f.name)) for f in fields(obj)}
@@ -57,7 +72,20 @@ def canon(obj: Any) -> Any:
 
 
 def stage_key(stage: str, inputs: dict[str, Any]) -> str:
-    """The 64-hex key of stage ``stage`` with ``inputs`` (see the module docstring)."""
+    """The key of a stage with its inputs (see the module docstring).
+
+    Parameters
+    ----------
+    stage : str
+        The stage name.
+    inputs : dict
+        What the stage's table entry says its key hashes.
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
     doc = {"engine": __version__, "stage": stage, "inputs": canon(inputs)}
     return sha(json.dumps(doc, sort_keys=True, separators=(",", ":")).encode())
 

@@ -38,6 +38,7 @@ class RunOptions:
     traces: int = 16
 
     def to_json(self) -> dict[str, Any]:
+        """The options as a journal record holds them (``axes`` as a list)."""
         return {
             "upto": self.upto,
             "hold": self.hold,
@@ -52,7 +53,23 @@ class RunOptions:
     ) -> RunOptions:
         """Validate the options of a journal record (no field may carry code or junk).
 
-        ``stages`` are the names ``upto`` may take (default: codev's stages).
+        Parameters
+        ----------
+        d : object
+            The record's ``options``, as read from JSON.
+        where : str
+            Names the record in errors.
+        stages : tuple of str
+            The names ``upto`` may take (default: codev's stages).
+
+        Returns
+        -------
+        RunOptions
+
+        Raises
+        ------
+        SessionError
+            ``d`` is not an object of valid options.
         """
         if not isinstance(d, dict):
             raise SessionError("must be a JSON object", field=where)
@@ -70,8 +87,20 @@ class RunOptions:
         return opts
 
     def check(self, *, field_prefix: str = "options", stages: tuple[str, ...] = STAGES) -> None:
-        """``SessionError`` naming the option that is out of range (``upto`` not in
-        ``stages``, ...)."""
+        """Check every option's range.
+
+        Parameters
+        ----------
+        field_prefix : str
+            Prefix of the field named in errors.
+        stages : tuple of str
+            The names ``upto`` may take (default: codev's stages).
+
+        Raises
+        ------
+        SessionError
+            Naming the first option out of range.
+        """
         if self.upto not in stages:
             raise SessionError(f"must be one of {', '.join(stages)}", field=f"{field_prefix}.upto")
         if self.hold is not None and self.hold not in HOLDS:

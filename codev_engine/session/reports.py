@@ -19,8 +19,23 @@ __all__ = ["ReplayReport", "RunReport", "StageReport", "StageStatus"]
 class StageReport:
     """What one stage did in a run.
 
-    ``status`` is "computed", "cached", "skipped" or "failed"; ``outcome`` holds the fields a
-    replay compares (regions, verdict, ...), ``details`` the rest (timings, sizes).
+    Attributes
+    ----------
+    stage : str
+    status : str
+        "computed", "cached", "skipped" or "failed".
+    key : str
+        The stage key.
+    seconds : float
+        Wall time of the stage (loading or computing, describing).
+    outcome : dict
+        The fields a replay compares (regions, verdict, ...); for "failed", the error.
+    details : dict
+        The rest (timings, sizes).
+    artifact : str or None
+        The artifact's path relative to the session folder.
+    note : str or None
+        Why a cached artifact was not used.
     """
 
     stage: str
@@ -48,8 +63,25 @@ class StageReport:
 
 @dataclass
 class RunReport:
-    """The result of :meth:`Session.run`: what each stage did and the values it produced
-    (each stage's value goes to the field its table entry names)."""
+    """The result of :meth:`Session.run`: what each stage did and the values it produced.
+
+    Each stage's value goes to the field its table entry names.
+
+    Attributes
+    ----------
+    run : int
+        The run's number in the journal (0 when not journaled).
+    stages : list of StageReport
+        In the order run.
+    problem : Problem
+    model : LinearModel or None
+    law : ExplicitLaw or None
+    result : VerificationResult or None
+    recording : Path or None
+        The recording inside the session.
+    seconds : float
+        Wall time of the run.
+    """
 
     run: int
     stages: list[StageReport]
@@ -61,14 +93,36 @@ class RunReport:
     seconds: float = 0.0
 
     def stage(self, name: str) -> StageReport | None:
+        """The report of stage ``name``, or None if the run did not reach it.
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        StageReport or None
+        """
         return next((s for s in self.stages if s.stage == name), None)
 
 
 @dataclass(frozen=True)
 class StageStatus:
-    """Cache status of one stage for a spec and options: "cached" (a valid artifact for the
-    current inputs), "stale" (computed before, but its inputs changed since), "missing"
-    (never computed, or the artifact is gone) or "corrupt" (the artifact fails its check).
+    """Cache status of one stage for a spec and options.
+
+    Attributes
+    ----------
+    stage : str
+    key : str
+        The stage key for the spec and options.
+    status : str
+        "cached" (a valid artifact for the current inputs), "stale" (computed before, but
+        its inputs changed since), "missing" (never computed, or the artifact is gone) or
+        "corrupt" (the artifact fails its check).
+    artifact : str or None
+        The artifact's path relative to the session folder ("cached", "corrupt").
+    reason : str or None
+        Why it is not "cached".
     """
 
     stage: str
@@ -82,7 +136,18 @@ class StageStatus:
 class ReplayReport:
     """The result of :meth:`Session.replay`.
 
-    ``mismatches`` lists ``(run, stage, recorded outcome, replayed outcome)``.
+    Attributes
+    ----------
+    runs : int
+        Runs replayed.
+    checked : int
+        Stage records compared.
+    cached : int
+        Of those, stages loaded from the cache.
+    mismatches : list of tuple
+        ``(run, stage, recorded outcome, replayed outcome)``.
+    seconds : float
+        Wall time of the replay.
     """
 
     runs: int
@@ -93,4 +158,5 @@ class ReplayReport:
 
     @property
     def ok(self) -> bool:
+        """Every replayed outcome matches the recorded one."""
         return not self.mismatches

@@ -52,12 +52,15 @@ class Session:
     Use :meth:`open` for an existing session, :meth:`create` for a new one, or
     :meth:`open_or_create`.
 
-    Attributes
+    Parameters
     ----------
     path : Path
         The folder.
     meta : dict
         Its ``session.json``.
+
+    Attributes
+    ----------
     table : StageTable
         The stages it runs (a class attribute: codev's :data:`~stages.TABLE`).
     """
@@ -72,18 +75,58 @@ class Session:
 
     @classmethod
     def open(cls, path: str | os.PathLike) -> Session:
-        """Open an existing session; ``SessionError`` if the folder is not one."""
+        """Open an existing session.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The session folder.
+
+        Returns
+        -------
+        Session
+
+        Raises
+        ------
+        SessionError
+            The folder is not a session.
+        """
         path = Path(path)
         return cls(path, store.read_meta(path))
 
     @classmethod
     def create(cls, path: str | os.PathLike) -> Session:
-        """Make a new session in ``path`` (created, or an empty folder)."""
+        """Make a new session.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The folder: created, or an empty one.
+
+        Returns
+        -------
+        Session
+
+        Raises
+        ------
+        SessionError
+            ``path`` is a file or a folder with something in it.
+        """
         path = Path(path)
         return cls(path, store.create_folder(path))
 
     @classmethod
     def open_or_create(cls, path: str | os.PathLike) -> Session:
+        """:meth:`open` the session in ``path`` if it has a ``session.json``, else :meth:`create`.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+
+        Returns
+        -------
+        Session
+        """
         path = Path(path)
         if (path / "session.json").exists():
             return cls.open(path)
@@ -92,6 +135,7 @@ class Session:
     # ---- the spec and the journal ----------------------------------------------------
 
     def spec_path(self) -> Path:
+        """The session's current spec file, ``spec.toml`` (it may not exist yet)."""
         return store.spec_path(self.path)
 
     def problem(self) -> Problem:
@@ -107,10 +151,20 @@ class Session:
         return store.read_journal(self.path, self.table.names)
 
     def save_spec(self, problem: Problem) -> str:
-        """Make ``problem``'s TOML the session's ``spec.toml``; returns its SHA-256.
+        """Make ``problem``'s TOML the session's ``spec.toml``.
 
         Every spec that was ever ``spec.toml`` keeps a snapshot in ``specs/<sha>.toml``
         (the one replaced included), so an edit saved by the workbench loses nothing.
+
+        Parameters
+        ----------
+        problem : Problem
+            Its ``source`` is stored.
+
+        Returns
+        -------
+        str
+            The SHA-256 of the source.
         """
         if not problem.source.strip():
             raise SessionError("the problem has no TOML source to store in the session")
@@ -127,6 +181,17 @@ class Session:
     # ---- artifacts -------------------------------------------------------------------
 
     def artifact_path(self, stage: str, key: str) -> Path:
+        """Where stage ``stage``'s artifact for ``key`` is (extension from the table).
+
+        Parameters
+        ----------
+        stage : str
+        key : str
+
+        Returns
+        -------
+        Path
+        """
         return store.artifact_path(self.path, stage, key, self.table[stage].ext)
 
     def _check_artifact(self, stage: Stage, key: str) -> tuple[Path, str | None]:
@@ -139,8 +204,20 @@ class Session:
     def status(
         self, problem: Problem | None = None, options: RunOptions | None = None
     ) -> list[StageStatus]:
-        """Cache status per stage for ``problem`` (default: the session's spec) and
-        ``options`` (default: those of the latest run)."""
+        """Cache status per stage, without computing anything.
+
+        Parameters
+        ----------
+        problem : Problem, optional
+            Default: the session's ``spec.toml``.
+        options : RunOptions, optional
+            Default: those of the latest run.
+
+        Returns
+        -------
+        list of StageStatus
+            In table order, for the stages that apply to the spec.
+        """
         problem = problem if problem is not None else self.problem()
         journal = self.journal()
         if options is None:
@@ -309,8 +386,26 @@ class Session:
     ) -> ReplayReport:
         """Re-execute every run of the journal (reusing valid cache) and compare outcomes.
 
-        The journal is not modified. ``SessionError`` if the journal is empty or was written
-        by another engine version (its outcomes cannot be compared).
+        The journal is not modified.
+
+        Parameters
+        ----------
+        on_event : callable, optional
+            Progress, as for :meth:`run`.
+        warn : callable, optional
+            As for :meth:`run`.
+        on_run : callable, optional
+            ``on_run(run, report, mismatches)`` after each run is replayed.
+
+        Returns
+        -------
+        ReplayReport
+
+        Raises
+        ------
+        SessionError
+            The journal is empty, was written by another engine version (its outcomes
+            cannot be compared), or a run's spec snapshot is missing or edited.
         """
         t0 = time.perf_counter()
         journal = self.journal()
@@ -363,7 +458,20 @@ class Session:
     # ---- housekeeping ----------------------------------------------------------------
 
     def export(self, artifact: Path, dest: str | os.PathLike) -> Path:
-        """Copy an artifact out of the session atomically (e.g. ``--record FILE.rrd``)."""
+        """Copy an artifact out of the session atomically (e.g. ``--record FILE.rrd``).
+
+        Parameters
+        ----------
+        artifact : Path
+            The artifact (``RunReport.recording``, ...).
+        dest : str or os.PathLike
+            Where the copy goes.
+
+        Returns
+        -------
+        Path
+            ``dest``.
+        """
         with atomic_path(dest) as tmp:
             shutil.copyfile(artifact, tmp)
         return Path(dest)

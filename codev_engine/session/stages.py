@@ -108,7 +108,18 @@ class Stage:
 
 @dataclass(frozen=True)
 class StageTable:
-    """The stages of a run, in order, with unique names."""
+    """The stages of a run, in order, with unique names.
+
+    Attributes
+    ----------
+    stages : tuple of Stage
+        In the order a run executes them: a stage may read the values of those before it.
+
+    Raises
+    ------
+    ValueError
+        Two stages with one name.
+    """
 
     stages: tuple[Stage, ...]
 
@@ -120,6 +131,7 @@ class StageTable:
 
     @property
     def names(self) -> tuple[str, ...]:
+        """The stage names, in order."""
         return tuple(s.name for s in self.stages)
 
     def __iter__(self) -> Iterator[Stage]:
@@ -132,7 +144,20 @@ class StageTable:
         raise KeyError(name)
 
     def upto(self, last: str, keys: Mapping[str, str]) -> list[Stage]:
-        """The stages of a run that stops after ``last``: those with a key (that apply)."""
+        """The stages of a run that stops after ``last``.
+
+        Parameters
+        ----------
+        last : str
+            The last stage's name (``RunOptions.upto``).
+        keys : mapping
+            The stage keys of the spec (:func:`~codev_engine.session.keys.stage_keys`): a
+            stage without one does not apply and is left out.
+
+        Returns
+        -------
+        list of Stage
+        """
         stop = self.names.index(last)
         return [s for s in self.stages[: stop + 1] if s.name in keys]
 

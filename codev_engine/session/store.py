@@ -54,7 +54,17 @@ SESSION_FORMAT = "codev-session/1"
 
 
 class SessionError(SpecError):
-    """A session folder that cannot be used as asked (bad input: exit status 2)."""
+    """A session folder that cannot be used as asked (bad input: exit status 2).
+
+    Parameters
+    ----------
+    reason : str
+        What is wrong.
+    file : str, optional
+        The session file or folder concerned.
+    field : str, optional
+        The field of that file (or the run option) that is wrong.
+    """
 
 
 # --------------------------------------------------------------------------------------------
@@ -63,12 +73,30 @@ class SessionError(SpecError):
 
 
 def sha(data: bytes) -> str:
-    """SHA-256 of ``data`` as 64 lowercase hex digits."""
+    """SHA-256 of ``data`` as 64 lowercase hex digits.
+
+    Parameters
+    ----------
+    data : bytes
+
+    Returns
+    -------
+    str
+    """
     return hashlib.sha256(data).hexdigest()
 
 
 def file_sha(path: Path) -> str:
-    """SHA-256 of a file's bytes, read in 1 MiB blocks."""
+    """SHA-256 of a file's bytes (64 hex digits), read in 1 MiB blocks.
+
+    Parameters
+    ----------
+    path : Path
+
+    Returns
+    -------
+    str
+    """
     h = hashlib.sha256()
     with path.open("rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -83,7 +111,13 @@ def now() -> str:
 
 @contextlib.contextmanager
 def locked(folder: Path) -> Iterator[None]:
-    """Serialise read-modify-write of the journal and index between processes (POSIX)."""
+    """Serialise read-modify-write of the journal and index between processes (POSIX).
+
+    Parameters
+    ----------
+    folder : Path
+        The session folder; its ``.lock`` is held (``flock``) for the ``with`` body.
+    """
     try:
         import fcntl
     except ImportError:  # pragma: no cover - not POSIX: atomic renames still protect files
@@ -103,7 +137,24 @@ def locked(folder: Path) -> Iterator[None]:
 
 
 def read_meta(path: Path) -> dict[str, Any]:
-    """The ``session.json`` of an existing session; ``SessionError`` if ``path`` is not one."""
+    """The ``session.json`` of an existing session.
+
+    Parameters
+    ----------
+    path : Path
+        The session folder.
+
+    Returns
+    -------
+    dict
+        Its metadata: ``format``, ``engine``, ``created``.
+
+    Raises
+    ------
+    SessionError
+        ``path`` is missing, not a folder, has no readable ``session.json``, or one of
+        another format.
+    """
     if not path.exists():
         raise SessionError("no such session folder", file=str(path))
     if not path.is_dir():
@@ -134,7 +185,24 @@ def read_meta(path: Path) -> dict[str, Any]:
 
 
 def create_folder(path: Path) -> dict[str, Any]:
-    """Make ``path`` (new, or an empty folder) a session; returns its ``session.json``."""
+    """Make ``path`` (new, or an empty folder) a session.
+
+    Parameters
+    ----------
+    path : Path
+        The folder; created with its parents if missing.
+
+    Returns
+    -------
+    dict
+        The ``session.json`` written.
+
+    Raises
+    ------
+    SessionError
+        ``path`` is a file, or a folder holding anything but an interrupted creation's
+        leftovers.
+    """
     if path.exists() and not path.is_dir():
         raise SessionError("exists and is not a folder", file=str(path))
     if path.is_dir() and not _empty(path):
@@ -181,7 +249,7 @@ _RECORD_FIELDS = {
 
 
 def read_journal(folder: Path, stages: Collection[str]) -> list[dict[str, Any]]:
-    """Every journal record, oldest first; ``SessionError`` on a malformed line.
+    """Every journal record, oldest first.
 
     Parameters
     ----------
@@ -189,6 +257,16 @@ def read_journal(folder: Path, stages: Collection[str]) -> list[dict[str, Any]]:
         The session folder.
     stages : collection of str
         The stage names a record may carry.
+
+    Returns
+    -------
+    list of dict
+        The records, each checked field by field; empty without a journal.
+
+    Raises
+    ------
+    SessionError
+        An unreadable journal, or a line that is not a valid record.
     """
     file = folder / "journal.jsonl"
     if not file.exists():
@@ -211,10 +289,24 @@ def read_journal(folder: Path, stages: Collection[str]) -> list[dict[str, Any]]:
 
 
 def append_journal(folder: Path, records: list[dict[str, Any]], stages: Collection[str]) -> int:
-    """Add one run's records to the journal under the next run number; returns it.
+    """Add one run's records to the journal under the next run number.
 
     The whole file is rewritten atomically under the lock, so concurrent runs get distinct
-    numbers and no record is lost. Sets ``run`` in each of ``records``.
+    numbers and no record is lost.
+
+    Parameters
+    ----------
+    folder : Path
+        The session folder.
+    records : list of dict
+        The run's records; their ``run`` is set to the number given.
+    stages : collection of str
+        The stage names a record may carry (the journal is read back first).
+
+    Returns
+    -------
+    int
+        The run number.
     """
     with locked(folder):
         old = read_journal(folder, stages)
@@ -249,20 +341,52 @@ def _check_record(rec: Any, where: str, stages: Collection[str]) -> None:
 
 
 def spec_path(folder: Path) -> Path:
-    """The session's current spec, ``spec.toml``."""
+    """The session's current spec, ``spec.toml``.
+
+    Parameters
+    ----------
+    folder : Path
+
+    Returns
+    -------
+    Path
+    """
     return folder / "spec.toml"
 
 
 def snapshot_path(folder: Path, spec_sha: str) -> Path:
-    """Where the spec whose text has SHA-256 ``spec_sha`` is kept."""
+    """Where the spec whose text has SHA-256 ``spec_sha`` is kept.
+
+    Parameters
+    ----------
+    folder : Path
+    spec_sha : str
+        64 hex digits.
+
+    Returns
+    -------
+    Path
+        ``specs/<spec_sha[:16]>.toml``.
+    """
     return folder / "specs" / f"{spec_sha[:16]}.toml"
 
 
 def save_spec_text(folder: Path, text: str) -> str:
-    """Make ``text`` the session's ``spec.toml``; returns its SHA-256.
+    """Make ``text`` the session's ``spec.toml``.
 
     Every spec that was ever ``spec.toml`` keeps a snapshot (the one replaced included), so
     an edit saved by the workbench loses nothing.
+
+    Parameters
+    ----------
+    folder : Path
+    text : str
+        The spec's TOML.
+
+    Returns
+    -------
+    str
+        The SHA-256 of ``text``.
     """
     spec_sha = sha(text.encode())
     _snapshot(folder, text)
@@ -286,7 +410,23 @@ def _snapshot(folder: Path, text: str) -> None:
 
 
 def read_spec_snapshot(folder: Path, spec_sha: str) -> str:
-    """The text of the snapshot with SHA-256 ``spec_sha``, checked against it."""
+    """The text of the snapshot with SHA-256 ``spec_sha``, checked against it.
+
+    Parameters
+    ----------
+    folder : Path
+    spec_sha : str
+        64 hex digits, as a journal record's ``spec``.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    SessionError
+        The snapshot is missing, unreadable, or its text no longer hashes to ``spec_sha``.
+    """
     snap = snapshot_path(folder, spec_sha)
     try:
         text = snap.read_bytes().decode("utf-8")
@@ -305,7 +445,22 @@ def read_spec_snapshot(folder: Path, spec_sha: str) -> str:
 
 
 def artifact_path(folder: Path, stage: str, key: str, ext: str) -> Path:
-    """``artifacts/<stage>-<key[:16]>.<ext>``."""
+    """Where a stage's artifact for a key goes.
+
+    Parameters
+    ----------
+    folder : Path
+    stage : str
+    key : str
+        The stage key (64 hex digits).
+    ext : str
+        The stage's extension, without the dot.
+
+    Returns
+    -------
+    Path
+        ``artifacts/<stage>-<key[:16]>.<ext>``.
+    """
     return folder / "artifacts" / f"{stage}-{key[:16]}.{ext}"
 
 
@@ -321,7 +476,21 @@ def _index(folder: Path) -> dict[str, dict[str, Any]]:
 
 
 def register_artifact(folder: Path, path: Path, stage: str, key: str) -> str:
-    """Enter a completely written artifact in the index; returns its SHA-256."""
+    """Enter a completely written artifact in the index.
+
+    Parameters
+    ----------
+    folder : Path
+    path : Path
+        The artifact (renamed into place already).
+    stage, key : str
+        Its stage and key.
+
+    Returns
+    -------
+    str
+        The artifact's SHA-256.
+    """
     digest = file_sha(path)
     with locked(folder):
         index = _index(folder)
@@ -337,11 +506,21 @@ def register_artifact(folder: Path, path: Path, stage: str, key: str) -> str:
 
 
 def check_artifact(folder: Path, path: Path, key: str) -> str | None:
-    """Why the artifact at ``path`` cannot be used for ``key``; None when it can.
+    """Why the artifact at ``path`` cannot be used for ``key``.
 
-    "missing" when there is no file; otherwise the file must be regular, listed in the
-    index under ``key``, and hash to the indexed SHA-256. (Whether its loader accepts it is
-    the stage's business.)
+    The file must be regular, listed in the index under ``key``, and hash to the indexed
+    SHA-256. (Whether its loader accepts it is the stage's business.)
+
+    Parameters
+    ----------
+    folder : Path
+    path : Path
+    key : str
+
+    Returns
+    -------
+    str or None
+        None when it can be used, "missing" when there is no file, else the reason.
     """
     if not path.exists():
         return "missing"
