@@ -4,13 +4,15 @@ each widget it bubbles through, up to the app)."""
 
 from __future__ import annotations
 
+import shutil
+
 import pytest
-from pilot_tools import EXAMPLES, SIZE, run, settle, text_of
-from textual.widgets import Switch
+from pilot_tools import EXAMPLES, ROOT, SIZE, run, settle, text_of
+from textual.widgets import Input, Switch
 
 from codev_engine.session import Session
 from workbench.tui.app import CodevApp
-from workbench.tui.messages import RunRequested, SaveRequested, VerifyToggled
+from workbench.tui.messages import ExportRequested, RunRequested, SaveRequested, VerifyToggled
 from workbench.tui.state import open_target
 
 
@@ -77,5 +79,33 @@ def test_the_panes_buttons_and_switch_post_messages(di_app, tmp_path):
             await settle(pilot, di_app)
             assert posted(seen, RunRequested) == [RunRequested("synthesis")]
             assert di_app.law is not None
+
+    run(scenario())
+
+
+def test_a_copy_that_fails_is_shown_not_raised(tmp_path, monkeypatch):
+    """ctrl+g on the Session tab: RunRequested("recording"), then the pane asks for the
+    copy (ExportRequested) and shows why it failed (its folder is a file)."""
+    monkeypatch.chdir(tmp_path)
+    src = ROOT / "sessions" / "double_integrator"
+    shutil.copytree(src, "s", ignore=shutil.ignore_patterns("artifacts", "tui-draft.json"))
+    (tmp_path / "a-file").write_text("")
+    dest = str(tmp_path / "a-file" / "out.rrd")
+    app = CodevApp(open_target("s"))
+    seen: list[object] = []
+
+    async def scenario():
+        async with app.run_test(size=SIZE, message_hook=seen.append) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f5")
+            app.query_one("#export-path", Input).value = dest
+            await pilot.press("ctrl+g")
+            await settle(pilot, app, timeout=120)
+            assert posted(seen, RunRequested) == [RunRequested("recording")]
+            (export,) = posted(seen, ExportRequested)
+            assert export.dest == dest and export.recording.is_file()
+            out = text_of(app, "#export-out")
+            assert f"cannot copy to {dest}" in out
+            assert f"codev view {export.recording}" in out
 
     run(scenario())
