@@ -1,13 +1,18 @@
 """Plant: symbolic dynamics, Jacobian, linearisation and discretisation.
 
-Produces the discrete-time prediction model ``LinearModel`` used by the MPC.
+The plant's continuous-time model -- its sympy vector field and Jacobians, and the numeric
+callables compiled from them -- is a :class:`PlantModel`, derived once per plant by
+:func:`plant_model` and shared by every stage (linearisation, simulation, the reach
+engines, the interval enclosures, the workbench). Produces the discrete-time prediction
+model ``LinearModel`` used by the MPC.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -25,10 +30,14 @@ __all__ = [
     "LinearModel",
     "MODEL_FORMAT",
     "NumericDynamics",
+    "PlantModel",
     "SymbolicPlant",
+    "clear_plant_models",
     "discretize",
     "linearize",
+    "model_derivations",
     "numeric_dynamics",
+    "plant_model",
     "symbolic_model",
 ]
 
@@ -180,25 +189,8 @@ def _no_continuous_plant() -> SpecError:
     )
 
 
-def symbolic_model(problem_or_plant: Problem | PlantSpec) -> SymbolicPlant:
-    """Build the symbolic dynamics and Jacobians of the plant.
-
-    Parameters
-    ----------
-    problem_or_plant : Problem or PlantSpec
-
-    Returns
-    -------
-    SymbolicPlant
-        ``f`` (n, 1) from the parsed ``dynamics`` expressions, or ``A x + B u`` for a
-        matrix plant; ``Jx`` (n, n) and ``Ju`` (n, m) by ``sympy`` differentiation.
-
-    Raises
-    ------
-    SpecError
-        If the plant has no continuous-time dynamics, or an expression is invalid.
-    """
-    plant = _plant_of(problem_or_plant)
+def _derive(plant: PlantSpec) -> SymbolicPlant:
+    """Parse the dynamics (or ``A x + B u``) and differentiate: the one derivation."""
     x = tuple(make_symbol(s) for s in plant.states)
     u = tuple(make_symbol(s) for s in plant.inputs)
     if plant.dynamics is not None:
@@ -249,8 +241,217 @@ def _vectorised(
     return call
 
 
+def _matrix_dynamics(plant: PlantSpec) -> NumericDynamics:
+    """Exact matrix products of a plant given by ``A``, ``B``."""
+    n, m = plant.n, plant.m
+    A = np.array(plant.A, dtype=float)
+    B = np.array(plant.B, dtype=float)
+
+    def f(x, u):
+        x = np.asarray(x, dtype=float)
+        u = np.asarray(u, dtype=float)
+        return x @ A.T + u @ B.T
+
+    def jac_x(x, u):
+        batch = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
+        return np.broadcast_to(A, (*batch, n, n)).copy()
+
+    def jac_u(x, u):
+        batch = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
+        return np.broadcast_to(B, (*batch, n, m)).copy()
+
+    return NumericDynamics(f, jac_x, jac_u)
+
+
+@dataclass(frozen=True, eq=False)
+class PlantModel:
+    """A plant's continuous-time model, derived once and shared by every stage.
+
+    Made by :func:`plant_model` (one per plant, cached by value). The symbolic model is
+    derived when the model is made; each compiled callable is compiled on first use and
+    kept (they are pure functions of their arguments: safe to share).
+
+    Attributes
+    ----------
+    plant : PlantSpec
+        The plant it was derived from (one of the equal plants that share it).
+    sym : SymbolicPlant
+        ``f`` (n, 1), ``Jx`` (n, n), ``Ju`` (n, m) over the symbols ``x``, ``u``.
+    """
+
+    plant: PlantSpec
+    sym: SymbolicPlant
+
+    @property
+    def n(self) -> int:
+        return len(self.sym.x)
+
+    @property
+    def m(self) -> int:
+        return len(self.sym.u)
+
+    @property
+    def args(self) -> tuple[sympy.Symbol, ...]:
+        """The symbols ``(*x, *u)``: the argument order of every compiled function."""
+        return (*self.sym.x, *self.sym.u)
+
+    @functools.cached_property
+    def numeric(self) -> NumericDynamics:
+        """``f``, ``jac_x``, ``jac_u`` with numpy broadcasting (see :func:`numeric_dynamics`)."""
+        plant, n, m = self.plant, self.n, self.m
+        if plant.dynamics is None and plant.A is not None and plant.B is not None:
+            return _matrix_dynamics(plant)
+        sym, args = self.sym, self.args
+        return NumericDynamics(
+            _vectorised(_lambdify(list(sym.f), args), n, m, (n,)),
+            _vectorised(_lambdify(list(sym.Jx), args), n, m, (n, n)),
+            _vectorised(_lambdify(list(sym.Ju), args), n, m, (n, m)),
+        )
+
+    @functools.cached_property
+    def vector_field(
+        self,
+    ) -> tuple[
+        Callable[[np.ndarray, np.ndarray], np.ndarray],
+        Callable[[np.ndarray, np.ndarray], np.ndarray],
+    ]:
+        """``(f_point, f_batch)``: ``f`` for one point and for a batch, for integrators.
+
+        ``f_point(x (n,), u (m,)) -> (n,)``, ``f_batch(X (P, n), U (P, m)) -> (P, n)``. The
+        same vector field as ``numeric.f``, compiled without its general broadcasting
+        wrapper, which dominates the cost of the many small calls an integrator makes
+        (about 5x faster per call).
+        """
+        if self.plant.dynamics is None:
+            f = self.numeric.f
+            return f, f
+        n = self.n
+        compiled = sympy.lambdify(self.args, list(self.sym.f), modules="numpy", dummify=True)
+
+        def f_point(x, u):
+            return np.array(compiled(*x, *u), dtype=float)
+
+        def f_batch(X, U):
+            values = compiled(*X.T, *U.T)
+            out = np.empty((X.shape[0], n))
+            for k, v in enumerate(values):
+                out[:, k] = v  # constants broadcast
+            return out
+
+        return f_point, f_batch
+
+    @functools.cached_property
+    def scalar_field(self) -> Callable[..., list[float]]:
+        """``f`` on Python floats: ``scalar_field(*x, *u) -> n floats`` (not rigorous).
+
+        Compiled with ``math`` (fastest for one point); when that cannot evaluate (a
+        function ``math`` lacks, or a domain error at the probe point), ``f_point``.
+        """
+        try:
+            fm = sympy.lambdify(self.args, list(self.sym.f), modules="math")
+            fm(*([0.1] * (self.n + self.m)))
+            return fm
+        except Exception:
+            fp, n = self.vector_field[0], self.n
+            return lambda *z: fp(np.array(z[:n]), np.array(z[n:])).tolist()
+
+
+@dataclass(frozen=True)
+class _PlantKey:
+    """A plant by value (PlantSpec holds arrays, so it is not hashable itself)."""
+
+    states: tuple[str, ...]
+    inputs: tuple[str, ...]
+    dynamics: tuple[str, ...] | None
+    A: tuple[tuple[int, ...], bytes] | None
+    B: tuple[tuple[int, ...], bytes] | None
+    plant: PlantSpec = field(compare=False, repr=False)
+
+
+def _matrix_key(a: np.ndarray | None) -> tuple[tuple[int, ...], bytes] | None:
+    if a is None:
+        return None
+    a = np.asarray(a, dtype=float)
+    return a.shape, a.tobytes()
+
+
+#: symbolic derivations made so far (read by tests through :func:`model_derivations`)
+_derivations = 0
+
+
+@functools.lru_cache(maxsize=16)
+def _model_of(key: _PlantKey) -> PlantModel:
+    global _derivations
+    _derivations += 1
+    return PlantModel(plant=key.plant, sym=_derive(key.plant))
+
+
+def plant_model(problem_or_plant: Problem | PlantSpec) -> PlantModel:
+    """The plant's model: derived on the first call for a plant, then shared.
+
+    Plants are compared by value (states, inputs, dynamics, ``A`` and ``B``), so equal plants
+    of different ``Problem`` objects (a re-loaded spec, ``dataclasses.replace``) share one
+    model; the last 16 plants are kept.
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+
+    Returns
+    -------
+    PlantModel
+
+    Raises
+    ------
+    SpecError
+        If the plant has no continuous-time dynamics, or an expression is invalid.
+    """
+    plant = _plant_of(problem_or_plant)
+    dyn = None if plant.dynamics is None else tuple(plant.dynamics)
+    key = _PlantKey(
+        tuple(plant.states),
+        tuple(plant.inputs),
+        dyn,
+        _matrix_key(plant.A),
+        _matrix_key(plant.B),
+        plant,
+    )
+    return _model_of(key)
+
+
+def model_derivations() -> int:
+    """How many symbolic derivations of a plant model this process has run."""
+    return _derivations
+
+
+def clear_plant_models() -> None:
+    """Forget the cached plant models (the next :func:`plant_model` derives again)."""
+    _model_of.cache_clear()
+
+
+def symbolic_model(problem_or_plant: Problem | PlantSpec) -> SymbolicPlant:
+    """The symbolic dynamics and Jacobians of the plant (of its shared :class:`PlantModel`).
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+
+    Returns
+    -------
+    SymbolicPlant
+        ``f`` (n, 1) from the parsed ``dynamics`` expressions, or ``A x + B u`` for a
+        matrix plant; ``Jx`` (n, n) and ``Ju`` (n, m) by ``sympy`` differentiation.
+
+    Raises
+    ------
+    SpecError
+        If the plant has no continuous-time dynamics, or an expression is invalid.
+    """
+    return plant_model(problem_or_plant).sym
+
+
 def numeric_dynamics(problem_or_plant: Problem | PlantSpec) -> NumericDynamics:
-    """Fast numeric versions of ``f``, ``df/dx`` and ``df/du``.
+    """Fast numeric versions of ``f``, ``df/dx`` and ``df/du`` (of the shared model).
 
     Parameters
     ----------
@@ -270,32 +471,7 @@ def numeric_dynamics(problem_or_plant: Problem | PlantSpec) -> NumericDynamics:
         with ``sympy.lambdify(..., modules="numpy")`` from the parsed (whitelisted) sympy
         expressions -- never from user text.
     """
-    plant = _plant_of(problem_or_plant)
-    n, m = plant.n, plant.m
-    if plant.dynamics is None and plant.A is not None and plant.B is not None:
-        A = np.array(plant.A, dtype=float)
-        B = np.array(plant.B, dtype=float)
-
-        def f(x, u):
-            x = np.asarray(x, dtype=float)
-            u = np.asarray(u, dtype=float)
-            return x @ A.T + u @ B.T
-
-        def jac_x(x, u):
-            batch = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
-            return np.broadcast_to(A, (*batch, n, n)).copy()
-
-        def jac_u(x, u):
-            batch = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
-            return np.broadcast_to(B, (*batch, n, m)).copy()
-
-        return NumericDynamics(f, jac_x, jac_u)
-    sym = symbolic_model(plant)
-    args = (*sym.x, *sym.u)
-    f = _vectorised(_lambdify(list(sym.f), args), n, m, (n,))
-    jac_x = _vectorised(_lambdify(list(sym.Jx), args), n, m, (n, n))
-    jac_u = _vectorised(_lambdify(list(sym.Ju), args), n, m, (n, m))
-    return NumericDynamics(f, jac_x, jac_u)
+    return plant_model(problem_or_plant).numeric
 
 
 def linearize(

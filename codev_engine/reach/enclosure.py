@@ -1,22 +1,24 @@
 """Sound interval enclosures of a plant's dynamics, Jacobians and second derivatives.
 
 Compiled (:func:`~codev_engine.reach.interval_function.compile_interval`) from the plant's
-symbolic model (:func:`codev_engine.plant.symbolic_model`).
+shared symbolic model (:func:`codev_engine.plant.plant_model`), once per plant model: the
+reach engine of every verification of the same plant reuses them.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import sympy
 
+from codev_engine.plant import PlantModel, SymbolicPlant, plant_model
 from codev_engine.reach.interval import Array
 from codev_engine.reach.interval_function import IntervalFunction, compile_interval
 
 if TYPE_CHECKING:
-    from codev_engine.plant import SymbolicPlant
     from codev_engine.spec.problem import PlantSpec, Problem
 
 __all__ = ["PlantEnclosures", "plant_enclosures", "plant_hessian"]
@@ -85,7 +87,7 @@ class PlantEnclosures:
 
 
 def plant_enclosures(problem_or_plant: Problem | PlantSpec) -> PlantEnclosures:
-    """Compile interval enclosures of a plant's dynamics and Jacobians.
+    """Interval enclosures of a plant's dynamics and Jacobians (compiled once per plant).
 
     Parameters
     ----------
@@ -102,20 +104,11 @@ def plant_enclosures(problem_or_plant: Problem | PlantSpec) -> PlantEnclosures:
     SpecError
         If the plant has no continuous-time dynamics.
     """
-    from codev_engine.plant import symbolic_model
-
-    sym = symbolic_model(problem_or_plant)
-    args = (*sym.x, *sym.u)
-    return PlantEnclosures(
-        sym=sym,
-        f_fn=compile_interval(list(sym.f), args),
-        jac_x_fn=compile_interval(sym.Jx, args),
-        jac_u_fn=compile_interval(sym.Ju, args),
-    )
+    return _enclosures(plant_model(problem_or_plant))
 
 
 def plant_hessian(problem_or_plant: Problem | PlantSpec) -> IntervalFunction:
-    """Compile an interval enclosure of the second derivatives of a plant's ``f``.
+    """An interval enclosure of the second derivatives of a plant's ``f`` (compiled once).
 
     Returns
     -------
@@ -130,9 +123,24 @@ def plant_hessian(problem_or_plant: Problem | PlantSpec) -> IntervalFunction:
     ``[0, inf]`` (or ``[-inf, inf]``) over a box meeting the kink: the bound then becomes
     infinite, which callers must treat as "no second-order bound".
     """
-    from codev_engine.plant import symbolic_model
+    return _hessian(plant_model(problem_or_plant))
 
-    sym = symbolic_model(problem_or_plant)
-    args = (*sym.x, *sym.u)
-    exprs = [sympy.diff(fi, za, zb) for fi in sym.f for za in args for zb in args]
+
+# Keyed by the model object (plant_model returns the same one for equal plants); the
+# compiled functions are immutable, so every caller can share them.
+@functools.lru_cache(maxsize=16)
+def _enclosures(model: PlantModel) -> PlantEnclosures:
+    sym, args = model.sym, model.args
+    return PlantEnclosures(
+        sym=sym,
+        f_fn=compile_interval(list(sym.f), args),
+        jac_x_fn=compile_interval(sym.Jx, args),
+        jac_u_fn=compile_interval(sym.Ju, args),
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def _hessian(model: PlantModel) -> IntervalFunction:
+    args = model.args
+    exprs = [sympy.diff(fi, za, zb) for fi in model.sym.f for za in args for zb in args]
     return compile_interval(exprs, args)

@@ -43,7 +43,7 @@ from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 
 from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
 from codev_engine.law import ExplicitLaw
-from codev_engine.plant import linearize
+from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.linear import ClosedLoopSetup, Finding
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
@@ -128,27 +128,15 @@ class NonlinearReach(ClosedLoopSetup):
     max_sets: int = 4
 
     def __post_init__(self) -> None:
-        import sympy
-
-        from codev_engine.plant import symbolic_model
         from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
 
         p = self.problem
         vs = p.verify
+        # all compiled once per plant (the shared plant model) and reused by every run
         self.enc = plant_enclosures(p)
         self.hess = plant_hessian(p)
         self._init_properties()
-        sym = symbolic_model(p)
-        try:  # scalar point evaluation for the (non-rigorous) centre trajectory
-            fm = sympy.lambdify((*sym.x, *sym.u), list(sym.f), modules="math")
-            fm(*([0.1] * (self.n + self.m)))
-            self._fnum = fm
-        except Exception:
-            from codev_engine.reach.simulate import _dynamics
-
-            fp = _dynamics(p)[0]
-            n = self.n
-            self._fnum = lambda *z: fp(np.array(z[:n]), np.array(z[n:])).tolist()
+        self._fnum = plant_model(p).scalar_field  # the (non-rigorous) centre trajectory
         self.h = float(vs.step)
         self.W, self.Winv = self._metric()
         cond = float(np.linalg.norm(self.W, 2) * np.linalg.norm(self.Winv, 2))
