@@ -426,14 +426,31 @@ BENCHMARKS = ("mp", "synth", "session", "tui", "paper", "hylaa_peer")
 def _cmd_bench(args: argparse.Namespace) -> int:
     import subprocess
 
-    folder = Path(__file__).resolve().parent.parent / "benchmarks"
+    from workbench.bundled import benchmarks_dir
+
+    folder = benchmarks_dir()
+    if folder is None:
+        raise CodevError(
+            "codev bench needs a checkout of the repository: the benchmarks are not "
+            "installed with the package (clone it and run codev bench there)"
+        )
     script = folder / f"{args.name}.py"
     if not script.is_file():
-        raise SpecError(
-            f"no benchmark script {script} (benchmarks live in the source checkout)",
-            field="bench",
-        )
+        raise CodevError(f"{script}: no such benchmark script in this checkout")
     return subprocess.call([sys.executable, str(script), *args.args])
+
+
+def _cmd_examples(args: argparse.Namespace) -> int:
+    from workbench.bundled import next_steps, write_examples
+
+    written = write_examples(args.dir, force=args.force)
+    print(f"wrote {len(written)} example files to {args.dir}:")
+    for path in written:
+        print(f"  {path}")
+    print("next, try:")
+    for command in next_steps(args.dir):
+        print(f"  {command}")
+    return 0
 
 
 def _axes(text: str) -> tuple[int, int]:
@@ -529,6 +546,8 @@ def _jsonable(v):
 
 
 def _build_parser() -> argparse.ArgumentParser:
+    from workbench.bundled import DEFAULT_EXAMPLES_DIR
+
     parser = argparse.ArgumentParser(
         prog="codev",
         description="Explicit MPC synthesis and closed-loop verification.",
@@ -593,8 +612,24 @@ def _build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_session)
 
     p = sub.add_parser(
+        "examples",
+        help="write the bundled example specs and notebook to a folder",
+        description="Write the bundled example specs (*.toml) and notebook (*.ipynb) to DIR.",
+    )
+    p.add_argument(
+        "dir",
+        nargs="?",
+        default=DEFAULT_EXAMPLES_DIR,
+        metavar="DIR",
+        help=f"the folder to write to, created if missing (default ./{DEFAULT_EXAMPLES_DIR})",
+    )
+    p.add_argument("--force", action="store_true", help="overwrite files that exist already")
+    p.set_defaults(func=_cmd_examples)
+
+    p = sub.add_parser(
         "bench",
-        help="run a benchmark against the peers (benchmarks/NAME.py; see benchmarks/README.md)",
+        help="run a benchmark against the peers (benchmarks/NAME.py of a checkout; "
+        "see benchmarks/README.md)",
     )
     p.add_argument("name", choices=BENCHMARKS)
     p.add_argument("args", nargs=argparse.REMAINDER, help="passed to the script (--help)")
