@@ -1,0 +1,149 @@
+"""The import contracts of ``[tool.importlinter]`` in pyproject.toml, run by import-linter.
+
+- every contract is kept by the code as it is (``lint-imports --contract ID`` exits 0);
+- each contract breaks when a forbidden import is added: the packages are copied to a
+  temporary folder, one import statement is appended to one module of the copy, and the
+  linter, run on the copy, fails that contract and names the new import;
+- importing the engine loads none of the front end's or the pictures' libraries (textual,
+  rich, rerun, matplotlib), checked in a fresh interpreter's ``sys.modules``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+#: the linter's command line, from the interpreter running the tests (no PATH lookup)
+LINT = [
+    sys.executable,
+    "-c",
+    "import sys; from importlinter.cli import lint_imports_command; lint_imports_command()",
+]
+
+
+def lint(cwd: Path, *contracts: str) -> subprocess.CompletedProcess:
+    """``lint-imports`` in ``cwd`` (its pyproject.toml, the packages found from ``cwd``)."""
+    args = [arg for c in contracts for arg in ("--contract", c)]
+    # wide lines: the report names an import on one line, not wrapped at 80 columns
+    env = {**os.environ, "COLUMNS": "500", "PYTHONPATH": str(cwd)}
+    return subprocess.run(
+        [*LINT, "--no-cache", "--no-logo", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def contract_ids() -> list[str]:
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    return [c["id"] for c in config["tool"]["importlinter"]["contracts"]]
+
+
+@pytest.mark.parametrize("contract", contract_ids())
+def test_contract_is_kept(contract):
+    out = lint(ROOT, contract)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "Contracts: 1 kept, 0 broken." in out.stdout, out.stdout
+
+
+#: contract id -> (module file of the copy, the line appended to it, the import reported)
+BREAKS = {
+    "engine-no-front-end": (
+        "codev_engine/spec/expr.py",
+        "import textual",
+        "codev_engine.spec.expr -> textual",
+    ),
+    "view-only-draws": (
+        "codev_engine/reach/tube.py",
+        "import rerun",
+        "codev_engine.reach.tube -> rerun",
+    ),
+    "reach-below-session-view": (
+        "codev_engine/reach/tube.py",
+        "from codev_engine.session import Session",
+        "codev_engine.reach.tube -> codev_engine.session",
+    ),
+    "mp-geometry-below-problems": (
+        "codev_engine/geometry/polytope.py",
+        "from codev_engine.spec.problem import Problem",
+        "codev_engine.geometry.polytope -> codev_engine.spec.problem",
+    ),
+    "engine-layers": (
+        "codev_engine/mpc.py",
+        "from codev_engine.synthesis import synthesize",
+        "codev_engine.mpc -> codev_engine.synthesis",
+    ),
+}
+
+
+def test_every_contract_has_a_break():
+    assert sorted(BREAKS) == sorted(contract_ids())
+
+
+@pytest.mark.parametrize("contract", sorted(BREAKS))
+def test_contract_fails_when_broken(contract, tmp_path):
+    ignore = shutil.ignore_patterns("__pycache__")
+    for package in ("codev_engine", "workbench"):
+        shutil.copytree(ROOT / package, tmp_path / package, ignore=ignore)
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    module, line, reported = BREAKS[contract]
+    target = tmp_path / module
+    target.write_text(target.read_text(encoding="utf-8") + f"\n{line}\n", encoding="utf-8")
+
+    out = lint(tmp_path, contract)
+    assert out.returncode == 1, out.stdout + out.stderr
+    assert "0 kept, 1 broken." in out.stdout, out.stdout
+    assert reported in out.stdout, out.stdout  # the copy was linted, and the new import named
+
+
+#: what the engine must not load when imported: the front end's and the pictures' libraries
+FRONT_END = ("textual", "rich", "rerun", "matplotlib")
+
+
+def loaded_after(*modules: str) -> set[str]:
+    """Top-level names in ``sys.modules`` of a fresh interpreter after importing ``modules``."""
+    code = (
+        "import json, sys\n"
+        + "".join(f"import {m}\n" for m in modules)
+        + "print(json.dumps(sorted({n.split('.')[0] for n in sys.modules})))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    return set(json.loads(out.stdout))
+
+
+def test_importing_the_engine_loads_no_front_end():
+    loaded = loaded_after("codev_engine")
+    assert "codev_engine" in loaded
+    assert loaded.isdisjoint(FRONT_END), loaded & set(FRONT_END)
+    # and no numerical stack either (codev_engine/__init__.py: public names are lazy)
+    assert loaded.isdisjoint({"numpy", "scipy", "sympy"}), loaded
+
+
+def test_the_engine_modules_and_the_cli_load_no_front_end_on_import():
+    # the pictures and the progress bars are imported when drawn, the workbench for `tui`
+    loaded = loaded_after(
+        "codev_engine.session",
+        "codev_engine.synthesis",
+        "codev_engine.reach.verification",
+        "codev_engine.view.figures",
+        "codev_engine.view.records",
+        "workbench.cli",
+    )
+    assert "codev_engine" in loaded and "workbench" in loaded
+    assert loaded.isdisjoint(FRONT_END), loaded & set(FRONT_END)
+
