@@ -20,8 +20,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+## lint: ruff, and the import contracts of pyproject.toml (also run by make test)
 lint: $(STAMP)
 	$(BIN)/ruff check codev_engine workbench tests benchmarks
+	$(BIN)/lint-imports --no-logo
 
 ## bench: synthesis benchmark against PPOPT (installs the peer into .venv)
 bench: $(STAMP)
@@ -29,4 +31,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/synth.py
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out .pytest_cache build dist .import_linter_cache .grimp_cache
