@@ -8,7 +8,7 @@ Two ways, one answer (see :meth:`PointLocator.locate` for the region a point get
   locating a hundred points in 860,000 regions).
 - **grid**: a uniform grid over the partition's bounding box lists, per cell, the regions
   whose bounding box meets the cell. A query finds its cell and tests that cell's
-  candidates (a compiled loop, ``locate_jit.walk``), so the work is proportional to the
+  candidates (a compiled loop, ``locate_kernel.walk``), so the work is proportional to the
   (small) number of candidates per cell. Its set-up (a bounding box per region, the cell
   lists) pays once many points are located. A region whose box spans too many cells (thin
   and oblique, in 5-8 dimensions) goes to a coarser grid instead (half as many cells per
@@ -50,7 +50,7 @@ def bounding_boxes(
     copy of 860k regions' rows is 2 GB).
 
     Each bound is an LP. From ``COMPILED_BOXES`` regions on, all of them are one compiled
-    call (``mpqp_jit.region_boxes``; its multipliers must reproduce the cost; loading the
+    call (``lp_kernel.region_boxes``; its multipliers must reproduce the cost; loading the
     compiled code costs ~0.3 s once per process, too much for a few regions). A region it
     gives no bound for, and each region of fewer, is bounded by DAQP when DAQP's multipliers
     prove its optimum (dual feasible, no gap), else by HiGHS with tight tolerances. (On
@@ -130,14 +130,14 @@ def _compiled_boxes(
     d: int,
     rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``mpqp_jit.region_boxes`` on the regions (``rows``: their ``_stack``, if at hand):
+    """``lp_kernel.region_boxes`` on the regions (``rows``: their ``_stack``, if at hand):
     lower, upper (R, d) and ok (R,)."""
-    from codev_engine.mp import mpqp_kernel as mpqp_jit
+    from codev_engine.geometry import lp_kernel
 
     if len(As) == 0:
         return np.zeros((0, d)), np.zeros((0, d)), np.zeros(0, dtype=bool)
     A, b, off = rows if rows is not None else _stack(As, bs)
-    return mpqp_jit.region_boxes(A, b, off, 50 * (int(np.diff(off).max()) + d + 1))
+    return lp_kernel.region_boxes(A, b, off, 50 * (int(np.diff(off).max()) + d + 1))
 
 
 #: From this many regions on, bounding boxes come from one compiled call

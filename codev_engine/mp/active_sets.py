@@ -1,7 +1,7 @@
 """The bookkeeping of the mp-QP active-set graph search, compiled with numba.
 
 ``mpqp.explore_active_sets`` walks a graph whose nodes are active sets. Once the compiled
-kernel (``mpqp_jit``) evaluates candidates, the Python side of the walk (a set of tuples
+kernel (``mpqp_kernel``) evaluates candidates, the Python side of the walk (a set of tuples
 for the explored sets, a list as the stack, a loop over each candidate's moves) costs as
 much as the evaluation of most candidates. Here an active set is a bitmask of ``W = ceil(m
 / 64)`` words; the explored sets live in an open-addressing hash table and the stack in an
@@ -100,18 +100,18 @@ def _visit(
     keys : (B, W) uint64
         The candidates.
     status : (B,) int64
-        Their ``mpqp_jit`` status (EMPTY and FALLBACK ones are skipped).
+        Their ``mpqp_kernel`` status (EMPTY and FALLBACK ones are skipped).
     moves, moves_off : (q,) int64, (B + 1,) int64
         Signed constraint ids of each candidate's neighbours (``+i+1``: i may leave,
         ``-(i+1)``: i may enter), candidate c's in ``moves[moves_off[c]:moves_off[c+1]]``.
     swaps, swaps_off : (s, 2) int64, (B + 1,) int64
-        Pairs (i, j): i may enter as j leaves (``mpqp_jit._swaps``), laid out as moves.
+        Pairs (i, j): i may enter as j leaves (``mpqp_kernel._swaps``), laid out as moves.
     nz : int
         Number of variables (an active set of more rows breaks LICQ).
     opposite : (m, W) uint64
         Bitmasks of the rows that cannot be active together with each row.
     found : (B, d)
-        The candidates' points (``mpqp_jit.evaluate``'s last result).
+        The candidates' points (``mpqp_kernel.evaluate``'s last result).
     """
     W = keys.shape[1]
     new = np.empty(W, dtype=np.uint64)

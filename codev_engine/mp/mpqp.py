@@ -47,7 +47,7 @@ __all__ = ["explore_active_sets"]
 #: regions found before the search goes parallel (small problems stay serial:
 #: forking costs ~20 ms)
 PARALLEL_AFTER = 400
-#: regions found before candidates go to the compiled kernel (mpqp_jit; importing numba
+#: regions found before candidates go to the compiled kernel (mpqp_kernel; importing numba
 #: and loading the kernel costs ~1 s, more than small problems take altogether)
 JIT_AFTER = 200
 #: batches' regions put together into one chunk of arrays during the compiled walk
@@ -114,15 +114,15 @@ class _Kernel:
         self.bound = (
             None if self.box is None else float(np.max(np.abs(self.box[0]) + self.box[1]))
         )
-        self._jit = None  # mpqp_jit once start_jit succeeded
+        self._jit = None  # the module mpqp_kernel once start_jit succeeded
 
     def start_jit(self) -> bool:
-        """Evaluate candidates with the compiled kernel (``mpqp_jit``) from now on, where it
+        """Evaluate candidates with the compiled kernel (``mpqp_kernel``) from now on, where it
         applies (H > 0 and a bounded parameter set); False when numba is unavailable."""
         if self.box is None or type(self) is not _Kernel:
             return False
         try:
-            from codev_engine.mp import mpqp_kernel as mpqp_jit
+            from codev_engine.mp import mpqp_kernel
         except ImportError:  # pragma: no cover - numba is a dependency
             return False
         f = np.ascontiguousarray
@@ -133,7 +133,7 @@ class _Kernel:
             float(self.region_tol), float(self.nonempty_tol), float(ILL_CONDITIONED),
             int(50 * (self.m + self.At.shape[0] + self.d)),
         )
-        self._jit = mpqp_jit
+        self._jit = mpqp_kernel
         return True
 
     def evaluate(self, act: tuple[int, ...]):
@@ -145,7 +145,7 @@ class _Kernel:
                 np.array(act, dtype=np.int64), self.box[0], *self._jit_args
             )
             if status == jit.FULL:
-                if swaps.size:  # this walk takes the plain moves (see mpqp_jit._swaps)
+                if swaps.size:  # this walk takes the plain moves (see mpqp_kernel._swaps)
                     moves = np.union1d(moves, -(swaps[:, 0] + 1))
                 return "full", (Ak, bk), (K, k), moves, lp
             if status != jit.FALLBACK:
@@ -550,7 +550,7 @@ def explore_active_sets(
 
 class _CompiledWalk:
     """The rest of the search once the compiled kernel runs: the explored active sets and
-    the stack as bitmasks (``mpqp_graph``), candidates evaluated in batches by compiled
+    the stack as bitmasks (``active_sets``), candidates evaluated in batches by compiled
     code (in threads: it releases the GIL); only the regions found and the candidates the
     compiled kernel hands back come to Python."""
 
@@ -563,22 +563,21 @@ class _CompiledWalk:
         regions: list[CriticalRegion],
         stats: dict,
     ):
-        from codev_engine.mp import active_sets as mpqp_graph
-        from codev_engine.mp import mpqp_kernel as mpqp_jit
+        from codev_engine.mp import active_sets, mpqp_kernel
 
         self.kernel, self.regions, self.stats = kernel, regions, stats
         self.parts: list[RegionArrays] = []  # the latest batches' regions
         self.chunks: list[RegionArrays] = []  # the earlier ones, in larger arrays
         self.found = len(regions)  # regions in both
         self.shared: tuple[np.ndarray, np.ndarray] | None = None  # the kernel's At rows
-        self.jit = mpqp_jit
-        self.evaluate_batch = mpqp_jit.evaluate_batch
-        self.codes = {name: code for code, name in mpqp_jit.STATUS_NAMES.items()}
+        self.jit = mpqp_kernel
+        self.evaluate_batch = mpqp_kernel.evaluate_batch
+        self.codes = {name: code for code, name in mpqp_kernel.STATUS_NAMES.items()}
         m = kernel.m
         opp = np.zeros((m, m), dtype=bool)
         for i, js in opposite.items():
             opp[i, list(js)] = True
-        self.graph = mpqp_graph.ActiveSetGraph(m, kernel.nz, opp, kernel.box[0])
+        self.graph = active_sets.ActiveSetGraph(m, kernel.nz, opp, kernel.box[0])
         self.graph.seed(explored, stack)
 
     def run(self, nworkers: int, max_regions: int, progress) -> None:

@@ -1,4 +1,4 @@
-"""The compiled walk of the mp-QP active-set graph (codev_engine/mpqp_graph.py).
+"""The compiled walk of the mp-QP active-set graph (codev_engine/mp/active_sets.py).
 
 Its bookkeeping against a plain Python model of the same rules, and whole searches against
 the Python walk: serial, in threads, and with candidates handed back to the numpy kernel.
@@ -11,9 +11,7 @@ import pytest
 
 import codev_engine as ce
 from codev_engine.geometry import polytope
-from codev_engine.mp import active_sets as mpqp_graph
-from codev_engine.mp import mpqp
-from codev_engine.mp import mpqp_kernel as mpqp_jit
+from codev_engine.mp import active_sets, mpqp, mpqp_kernel
 
 
 def _reference_visit(explored: set, stack: list, act, status, moves, swaps, nz, opposite):
@@ -24,9 +22,9 @@ def _reference_visit(explored: set, stack: list, act, status, moves, swaps, nz, 
             explored.add(new)
             stack.append(new)
 
-    if status in (mpqp_jit.EMPTY, mpqp_jit.FALLBACK):
+    if status in (mpqp_kernel.EMPTY, mpqp_kernel.FALLBACK):
         return
-    if status == mpqp_jit.LICQ:
+    if status == mpqp_kernel.LICQ:
         for i in act:
             push(tuple(x for x in act if x != i))
         return
@@ -56,7 +54,7 @@ def test_bitmask_walk_matches_the_python_rules(m):
     for i in range(0, m - 1, 2):
         opposite[i, i + 1] = opposite[i + 1, i] = True
     start = np.array([1.0, -2.0, 3.0])
-    graph = mpqp_graph.ActiveSetGraph(m, nz, opposite, start)
+    graph = active_sets.ActiveSetGraph(m, nz, opposite, start)
     seed = [tuple(sorted(rng.choice(m, size=int(rng.integers(0, nz + 1)), replace=False)))
             for _ in range(5)]
     explored, stack = set(seed), list(dict.fromkeys(seed))
@@ -64,7 +62,7 @@ def test_bitmask_walk_matches_the_python_rules(m):
     origin = dict.fromkeys(stack, tuple(start))  # the point each set is pushed with
     for _ in range(30):
         keys, points = graph.pop(7)
-        acts, sizes = mpqp_jit.decode(keys, nz + 2)
+        acts, sizes = mpqp_kernel.decode(keys, nz + 2)
         batch = [tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)]
         assert [stack.pop() for _ in batch][::-1] == batch
         assert [tuple(p) for p in points] == [origin[act] for act in batch]
@@ -93,20 +91,20 @@ def test_bitmask_walk_matches_the_python_rules(m):
         if not stack:
             break
     rest, _ = graph.pop(len(graph))
-    acts, sizes = mpqp_jit.decode(rest, nz + 2)
+    acts, sizes = mpqp_kernel.decode(rest, nz + 2)
     assert sorted(tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)) == sorted(stack)
 
 
 def test_table_keeps_every_key_when_it_grows():
-    graph = mpqp_graph.ActiveSetGraph(100, 3, np.zeros((100, 100), dtype=bool))
+    graph = active_sets.ActiveSetGraph(100, 3, np.zeros((100, 100), dtype=bool))
     acts = {tuple(sorted(c)) for c in np.random.default_rng(0).integers(0, 100, size=(20000, 3))}
     acts = sorted(acts)
     graph.seed(acts, [])
     assert graph.explored == len(acts) and graph.table.shape[0] >= 2 * len(acts)
     # every key is found again (a second insert is refused) and nothing else is
     for act in acts[::97]:
-        assert not mpqp_graph._insert(graph.table, graph.used, graph.key(act))
-    assert mpqp_graph._insert(graph.table, graph.used, graph.key((1, 2, 99, 98)))
+        assert not active_sets._insert(graph.table, graph.used, graph.key(act))
+    assert active_sets._insert(graph.table, graph.used, graph.key((1, 2, 99, 98)))
 
 
 def _program(seed: int = 2) -> ce.MpProgram:
@@ -160,7 +158,7 @@ def test_compiled_walk_batches_do_not_depend_on_timing_or_workers(monkeypatch):
     """Each candidate's Chebyshev LP starts from the point of the region that pushed it, so
     the walk's order must not depend on which thread finishes first: every batch, and every
     start point in it, is the same serially and in threads."""
-    batch = mpqp_jit.evaluate_batch
+    batch = mpqp_kernel.evaluate_batch
 
     def run(workers: int) -> list:
         seen = []
@@ -169,7 +167,7 @@ def test_compiled_walk_batches_do_not_depend_on_timing_or_workers(monkeypatch):
             seen.append((keys.tobytes(), starts.tobytes()))
             return batch(keys, starts, args)
 
-        monkeypatch.setattr(mpqp_jit, "evaluate_batch", recording)
+        monkeypatch.setattr(mpqp_kernel, "evaluate_batch", recording)
         _solve(monkeypatch, jit_after=0, workers=workers, parallel_after=1)
         return sorted(seen)
 
@@ -184,17 +182,17 @@ def test_candidates_handed_back_to_numpy_change_nothing(monkeypatch):
     (in another order: the neighbours of a candidate handed back are pushed after the
     batch's)."""
     ref = _solve(monkeypatch, jit_after=0)
-    batch = mpqp_jit.evaluate_batch
+    batch = mpqp_kernel.evaluate_batch
     handed = []
 
     def some_back(keys, *args):
         out = batch(keys, *args)
         status = out[0].copy()
-        status[::3] = mpqp_jit.FALLBACK
-        handed.append(int(np.count_nonzero(status == mpqp_jit.FALLBACK)))
+        status[::3] = mpqp_kernel.FALLBACK
+        handed.append(int(np.count_nonzero(status == mpqp_kernel.FALLBACK)))
         return (status, *out[1:])
 
-    monkeypatch.setattr(mpqp_jit, "evaluate_batch", some_back)
+    monkeypatch.setattr(mpqp_kernel, "evaluate_batch", some_back)
     got = _solve(monkeypatch, jit_after=0)
     assert sum(handed) > 100
     assert got.stats["handed_back"] == sum(handed)
@@ -251,7 +249,7 @@ def test_row_hashing_agrees_with_exact_comparison(seed):
     assert polytope.rows_in(Q, -M, 7).tolist() == [
         k in set(_keys(-M)) for k in _keys(Q)
     ]
-    got = mpqp_graph.unpaired_rows(np.ascontiguousarray(M[:, :-1]), M[:, -1].copy(), 7)
+    got = active_sets.unpaired_rows(np.ascontiguousarray(M[:, :-1]), M[:, -1].copy(), 7)
     negs = set(_keys(-M))
     want = [i in seen.values() and seen[k] == i and k not in negs for i, k in enumerate(keys)]
     assert got.tolist() == want

@@ -1,6 +1,7 @@
-"""The compiled mp-QP kernel (codev_engine/mpqp_jit.py) against independent solvers.
+"""The compiled kernels (codev_engine/geometry/lp_kernel.py, mp/mpqp_kernel.py) against
+independent solvers.
 
-Its LP solver against HiGHS, its certified minimal representation against one exact LP per
+The LP solver against HiGHS, its certified minimal representation against one exact LP per
 row, and whole candidate evaluations against the numpy kernel on a real problem.
 """
 
@@ -13,10 +14,8 @@ import pytest
 from scipy.optimize import linprog
 
 import codev_engine as ce
-from codev_engine.geometry import polytope
-from codev_engine.mp import active_sets as mpqp_graph
-from codev_engine.mp import mpqp
-from codev_engine.mp import mpqp_kernel as mpqp_jit
+from codev_engine.geometry import lp_kernel, polytope
+from codev_engine.mp import active_sets, mpqp, mpqp_kernel
 
 TESTSET = Path(__file__).resolve().parents[3] / "shared" / "benchmarks" / "mp_testset"
 
@@ -42,11 +41,11 @@ def test_lp_max_matches_highs(seed):
         b = np.concatenate([b, b[-3:]])
     c = rng.normal(size=d)
     use = np.ones(A.shape[0], dtype=bool)
-    status, x, y, _, _ = mpqp_jit.lp_max(
+    status, x, y, _, _ = lp_kernel.lp_max(
         c, A, b, use, np.zeros(d), np.empty(0, dtype=np.int64), 0, np.inf, 10_000
     )
     ref = linprog(-c, A_ub=A, b_ub=b, bounds=[(None, None)] * d, method="highs")
-    assert status == mpqp_jit._OPTIMAL
+    assert status == lp_kernel.OPTIMAL
     assert np.all(A @ x <= b + 1e-9)
     assert c @ x == pytest.approx(-ref.fun, rel=1e-9, abs=1e-9)
     # the multipliers are a dual certificate: y >= 0, A'y = c, b'y = the optimum
@@ -58,18 +57,18 @@ def test_lp_max_matches_highs(seed):
 def test_lp_max_stops_once_past_the_stop_value():
     A = np.vstack([np.eye(2), -np.eye(2)])
     b = np.ones(4)
-    status, x, *_ = mpqp_jit.lp_max(
+    status, x, *_ = lp_kernel.lp_max(
         np.array([1.0, 0.0]), A, b, np.ones(4, dtype=bool), np.zeros(2),
         np.empty(0, dtype=np.int64), 0, 0.5, 100,
     )
-    assert status == mpqp_jit._EXCEEDS and x[0] > 0.5
+    assert status == lp_kernel.EXCEEDS and x[0] > 0.5
 
 
 @pytest.mark.parametrize("how", ["compiled", "numpy"])
 @pytest.mark.parametrize("seed", range(30))
 def test_certified_reduction_drops_only_redundant_rows(seed, how):
     """Every dropped row is redundant (an exact LP over the kept rows does not pass it) and
-    every row that is a facet is kept: ``mpqp_jit._certified_keep`` and
+    every row that is a facet is kept: ``lp_kernel.certified_keep`` and
     ``polytope.certified_minimal_rows`` (minrep's proposals, each proved by an LP's
     multipliers or by the cone of an earlier LP's optimal basis)."""
     rng = np.random.default_rng(100 + seed)
@@ -87,7 +86,7 @@ def test_certified_reduction_drops_only_redundant_rows(seed, how):
     )
     centre = res.x[:d]
     if how == "compiled":
-        kept = mpqp_jit._certified_keep(A, b, fixed, centre, 3.0, 10_000)
+        kept = lp_kernel.certified_keep(A, b, fixed, centre, 3.0, 10_000)
     else:
         kept = np.zeros(k, dtype=bool)
         kept[polytope.certified_minimal_rows(A, b, 3.0, np.flatnonzero(fixed))] = True
@@ -145,9 +144,9 @@ def test_compiled_and_numpy_kernels_agree_on_a_real_problem():
     assert sol.stats.get("jit") is True
     for reg in sol.regions:
         act = np.array(reg.active, dtype=np.int64)
-        got = mpqp_jit.evaluate(act, kernel.box[0], *kernel._jit_args)
+        got = mpqp_kernel.evaluate(act, kernel.box[0], *kernel._jit_args)
         ref = kernel.evaluate_numpy(reg.active)
-        assert ref[0] == "full" and got[0] == mpqp_jit.FULL
+        assert ref[0] == "full" and got[0] == mpqp_kernel.FULL
         np.testing.assert_allclose(got[3], ref[2][0], atol=1e-8)
         np.testing.assert_allclose(got[4], ref[2][1], atol=1e-8)
         for (A1, b1), (A2, b2) in (((got[1], got[2]), ref[1]), (ref[1], (got[1], got[2]))):
@@ -185,8 +184,8 @@ def test_numpy_kernel_keeps_regions_daqps_ball_misjudges():
     assert status == "full"
     A, b = rows
     assert polytope.chebyshev_ball(A, b)[1] < 0  # (DAQP's answer, still wrong)
-    got = mpqp_jit.evaluate(np.array(act), kernel.box[0], *kernel._jit_args)
-    assert got[0] == mpqp_jit.FULL
+    got = mpqp_kernel.evaluate(np.array(act), kernel.box[0], *kernel._jit_args)
+    assert got[0] == mpqp_kernel.FULL
     assert np.min(got[2] - got[1] @ got[8]) > 1e-5
     assert act in {r.active for r in sol.regions}
 
@@ -237,10 +236,10 @@ def test_swaps_are_taken_past_rows_that_vanish_with_a_positive_constant():
     kernel = mpqp._Kernel(H, c, C, G, w, S, At, bt, 1.0, 1e-9, (np.zeros(1), np.ones(1)))
     assert kernel.start_jit()
     act = np.array([0, 1, 4], dtype=np.int64)
-    status, Ak, bk, K, k, moves, _, swaps, _ = mpqp_jit.evaluate(
+    status, Ak, bk, K, k, moves, _, swaps, _ = mpqp_kernel.evaluate(
         act, np.array([0.5]), *kernel._jit_args
     )
-    assert status == mpqp_jit.FULL
+    assert status == mpqp_kernel.FULL
     np.testing.assert_allclose(K @ [0.25] + k, [0.25, 0.25, -1.0])
     # entering 2 is a swap (0 or 1 leaves), never a plain move into the dependent set
     assert sorted(map(tuple, swaps.tolist())) == [(2, 0), (2, 1)]
@@ -275,11 +274,12 @@ def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
         -4.723129842630359, 3.9426458815635277, 0.778939684603324, 0.8009440276682488,
         6.6037038362022615, -1.5330459492445925, -4.267572052062844, -6.867831724062033,
     ])
-    alone = mpqp_jit.evaluate(act, pushed_from, *kernel._jit_args)
-    assert alone[0] == mpqp_jit.FALLBACK
-    graph = mpqp_graph.ActiveSetGraph(kernel.m, kernel.nz, np.zeros((kernel.m,) * 2, dtype=bool))
-    status = mpqp_jit.evaluate_batch(graph.key(act)[None], pushed_from[None], kernel._jit_args)[0]
-    assert status[0] == mpqp_jit.LOWER
+    alone = mpqp_kernel.evaluate(act, pushed_from, *kernel._jit_args)
+    assert alone[0] == mpqp_kernel.FALLBACK
+    graph = active_sets.ActiveSetGraph(kernel.m, kernel.nz, np.zeros((kernel.m,) * 2, dtype=bool))
+    keys = graph.key(act)[None]
+    status = mpqp_kernel.evaluate_batch(keys, pushed_from[None], kernel._jit_args)[0]
+    assert status[0] == mpqp_kernel.LOWER
 
     kernel, _ = _kernel_of("pop_mpqp_047", max_regions=300)
     act = np.array([5, 7, 29, 33, 34, 35, 42], dtype=np.int64)
@@ -288,8 +288,8 @@ def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
         -9.94378840950449, 9.943788409504489, -9.943788409504391, 9.943788409504485,
     ])
     for start in (pushed_from, kernel._jit_args[10]):
-        got = mpqp_jit.evaluate(act, start, *kernel._jit_args)
-        assert got[0] == mpqp_jit.FULL and np.min(got[2] - got[1] @ got[8]) > 5e-8
+        got = mpqp_kernel.evaluate(act, start, *kernel._jit_args)
+        assert got[0] == mpqp_kernel.FULL and np.min(got[2] - got[1] @ got[8]) > 5e-8
 
 
 def test_a_row_dropped_and_blocking_at_once_does_not_stall_the_lp():
@@ -301,8 +301,8 @@ def test_a_row_dropped_and_blocking_at_once_does_not_stall_the_lp():
     kernel finds."""
     kernel, _ = _kernel_of("pop_mpqp_036", max_regions=300)
     act = (18, 24, 26, 37, 38, 42, 45, 47)
-    got = mpqp_jit.evaluate(np.array(act, dtype=np.int64), np.zeros(8), *kernel._jit_args)
-    assert got[0] == mpqp_jit.LOWER
+    got = mpqp_kernel.evaluate(np.array(act, dtype=np.int64), np.zeros(8), *kernel._jit_args)
+    assert got[0] == mpqp_kernel.LOWER
     assert kernel.evaluate_numpy(act)[0] == "lower"
 
 
@@ -329,7 +329,7 @@ def test_lp_with_a_blocking_row_dependent_on_its_working_set_gives_up_without_ra
         [0.0, 0.0, 1.0, 5.0],
     ])
     A, b = rows[:, :3].copy(), rows[:, 3].copy()
-    lo, hi, ok = mpqp_jit.region_boxes(A, b, np.array([0, len(b)]), 1000)
+    lo, hi, ok = lp_kernel.region_boxes(A, b, np.array([0, len(b)]), 1000)
     if ok[0]:
         assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
     from codev_engine.geometry.locate import bounding_boxes
@@ -357,3 +357,76 @@ def test_cone_proofs_prove_only_what_the_rows_imply():
                                   [True, False, False, False])
     np.testing.assert_array_equal(_cone_proofs(AB, bB, Ar, beta, 1.0),
                                   [True, False, False, True])
+
+
+_CALLEE = """from numba import njit
+
+
+@njit(cache=True)
+def f():
+    return {value}
+"""
+
+_CALLER = """import sys
+
+import callee
+from numba import njit
+
+from codev_engine.geometry.lp_kernel import cache_follows
+
+
+@njit(cache=True)
+def g():
+    return callee.f() + 10
+
+
+cache_follows(globals(), callee.__file__)
+value = g()
+print(value, sum(g.stats.cache_hits.values()), sum(g.stats.cache_misses.values()))
+"""
+
+
+def test_cache_follows_renews_a_callers_cache_when_the_callees_file_changes(tmp_path):
+    """numba renews a function's disk cache when its own file changes, not when that of a
+    compiled function it calls does: the mp-QP kernel, with the LP of ``lp_kernel``
+    compiled into it, would go on running an old LP after an edit there. With
+    ``cache_follows`` an edit of the callee's file renews the caller's cache, and an
+    unchanged file still loads it (a cache hit, no compilation)."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "caller.py").write_text(_CALLER)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), *sys.path])}
+
+    def run(value: int) -> tuple[int, int, int]:
+        """g() with callee.f returning ``value``: (g(), cache hits, cache misses)."""
+        (tmp_path / "callee.py").write_text(_CALLEE.format(value=value))
+        out = subprocess.run(
+            [sys.executable, "caller.py"], cwd=tmp_path, env=env, capture_output=True,
+            text=True, timeout=300, check=True,
+        )
+        got, hits, misses = (int(s) for s in out.stdout.split())
+        return got, hits, misses
+
+    assert run(1) == (11, 0, 1)  # compiled: nothing cached yet
+    assert run(1) == (11, 1, 0)  # loaded from the cache
+    assert run(2) == (12, 0, 1)  # the callee's edit renewed the caller's cache
+    assert run(2) == (12, 1, 0)
+
+
+def test_the_mp_qp_kernels_cache_follows_the_lp_kernel():
+    """Every compiled function of ``mpqp_kernel`` with a disk cache has it stamped with
+    ``lp_kernel.py``'s hash too (``cache_follows`` at the end of the module)."""
+    import hashlib
+
+    digest = hashlib.sha256(Path(lp_kernel.__file__).read_bytes()).digest()
+    here = mpqp_kernel.__name__
+    cached = [
+        fn for fn in vars(mpqp_kernel).values()
+        if getattr(fn, "py_func", None) is not None and fn.py_func.__module__ == here
+    ]
+    assert {fn.__name__ for fn in cached} >= {"evaluate", "evaluate_batch", "decode", "_swaps"}
+    for fn in cached:
+        stamp = fn._cache._cache_file._source_stamp
+        assert isinstance(stamp, tuple) and stamp[1] == digest, fn.__name__
