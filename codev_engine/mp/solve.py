@@ -1,60 +1,35 @@
 """Exact multi-parametric LP/QP solver, the front door of both.
 
-mp-QPs (H != 0 after equality elimination; positive definite, or semi-definite with a
-lexicographic selection of the optimizer) go to the active-set graph search of
-``mpqp.py``. mp-LPs are explored geometrically here (see ``docs/algorithm.md``
-for the argument):
+``mpsolve`` reduces the program (``reduce.py``: equalities eliminated, pure-parameter rows
+moved to the parameter set, rows normalised and de-duplicated) and measures its parameter
+set, then hands it on:
 
-1. **Reduce.** Eliminate equalities, move pure-parameter rows to the parameter set,
-   normalise and de-duplicate the rows.
-2. **Unique selection.** The optimizer is made a single-valued function of theta: the
-   cost is perturbed by a tiny generic vector (fixed seed) so that every LP has exactly one
-   optimal vertex; the optimal basis of the perturbed LP is checked to be optimal for the
-   *original* cost (its reduced costs are >= 0 under it), so every law is exactly optimal.
-   When it is not (costs of very different sizes, where no perturbation size suits every
-   dual), a primal simplex with the lexicographic rule finishes from that basis.
-3. **Critical region at a point.** Solve at theta (DAQP, exact active sets), take the
-   optimal active set / basis, and write the affine optimizer ``z = K theta + k`` and the
-   polyhedron where it stays optimal (primal feasibility of every row): the whole set
-   where that law is primal feasible, which makes regions of different laws
-   interior-disjoint.
-4. **Exploration with a non-facet-to-facet-safe step.** Every facet of every region is
-   covered: a facet is split into *pieces*; for each piece, step a tiny distance across its
-   Chebyshev centre, find (or compute) the region there, check it touches the piece, and
-   subtract it from the piece (set difference by reversing its rows one at a time). A piece
-   is done when it is empty, or its hyperplane supports the feasible set (an LP, asked when
-   the step lands outside the set; when the set goes on past the hyperplane but is thinner
-   than the step there, the step goes towards a feasible point past it instead). So the
-   union of the regions is the whole feasible set: no holes even when neighbouring regions
-   do not meet facet to facet.
+- **mp-QPs** (H != 0 after the reduction; positive definite, or semi-definite with a
+  lexicographic selection of the optimizer, refused when the constraints leave a direction
+  of recession) go to the active-set graph search of ``mpqp.py``, from a point inside
+  the feasible set;
+- **mp-LPs** go to the geometric exploration of ``mplp.py``.
+
+Then, for both, the **domain**: an H-representation of the feasible parameter set from the
+regions' rows (its facets are the regions' facets on its boundary), and the laws are mapped
+back to the original variables. See ``docs/algorithm.md`` for the algorithms.
 """
 
 from __future__ import annotations
 
 import time
-import warnings
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import daqp
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 
-from codev_engine.errors import SolverError, SpecError
-from codev_engine.geometry.polytope import (
-    bounding_box,
-    certified_minimal_rows,
-    chebyshev_ball,
-    normalize_rows,
-    rows_in,
-    solve_lp,
-    unique_rows,
-    vertices,
-)
+from codev_engine.errors import SolverError
+from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
+from codev_engine.mp.mplp import COUNTERS, explore_facets
 from codev_engine.mp.mpqp import explore_active_sets
 from codev_engine.mp.program import MpProgram
-from codev_engine.mp.solution import CriticalRegion, MpSolution, RegionArrays, too_many_regions
+from codev_engine.mp.reduce import Reduced, lifted, parameter_box, reduce_program, start_point
+from codev_engine.mp.solution import CriticalRegion, MpSolution, RegionArrays
 
 __all__ = ["CriticalRegion", "MpSolution", "mpsolve", "SolveOptions"]
 
@@ -90,741 +65,6 @@ class SolveOptions:
     workers: int | None = None
 
 
-#: a dual is a tie (zero) below this times its componentwise rounding-error bound (the bound
-#: without its factor n; 1e-14 is about 50 units of roundoff)
-_TIE = 1e-14
-
-# --------------------------------------------------------------------------------------
-# reduction
-
-
-@dataclass(frozen=True)
-class _Reduced:
-    """The program after equality elimination and row clean-up.
-
-    ``z = Z0 + Z1 theta + Nz w`` maps the reduced variables ``w`` back.
-    """
-
-    H: np.ndarray
-    c: np.ndarray
-    C: np.ndarray
-    G: np.ndarray
-    w: np.ndarray
-    S: np.ndarray
-    At: np.ndarray
-    bt: np.ndarray
-    Z0: np.ndarray
-    Z1: np.ndarray
-    Nz: np.ndarray
-
-
-def _reduce(p: MpProgram) -> _Reduced:
-    nz, d = p.nz, p.d
-    H, c, C, G, w, S = p.H, p.c, p.C, p.A, p.b, p.F
-    Z0 = np.zeros(nz)
-    Z1 = np.zeros((nz, d))
-    Nz = np.eye(nz)
-    if p.Aeq is not None and p.Aeq.shape[0]:
-        Aeq, beq, Feq = p.Aeq, p.beq, p.Feq
-        U, s, Vt = np.linalg.svd(Aeq)
-        rank = int(np.sum(s > 1e-10 * max(1.0, s[0] if s.size else 1.0)))
-        pinv = np.linalg.pinv(Aeq, rcond=1e-10)
-        # equalities must be consistent for every theta: the rows outside the range of Aeq
-        resid = np.hstack([beq[:, None], Feq]) - Aeq @ pinv @ np.hstack([beq[:, None], Feq])
-        if np.max(np.abs(resid), initial=0.0) > 1e-8 * max(1.0, np.max(np.abs(Feq), initial=1)):
-            raise SpecError(
-                "equality constraints are inconsistent for some parameters", field="Aeq"
-            )
-        Z0 = pinv @ beq
-        Z1 = pinv @ Feq
-        Nz = Vt[rank:].T
-        H, c, C = Nz.T @ H @ Nz, Nz.T @ (H @ Z0 + c), Nz.T @ (H @ Z1 + C)
-        w = w - G @ Z0
-        S = S - G @ Z1
-        G = G @ Nz
-    # pure parameter rows belong to the parameter set
-    gnorm = np.linalg.norm(G, axis=1)
-    pure = gnorm <= 1e-12 * max(1.0, np.max(gnorm, initial=1.0))
-    At = np.vstack([p.A_theta, -S[pure]])
-    bt = np.concatenate([p.b_theta, w[pure]])
-    G, w, S = G[~pure], w[~pure], S[~pure]
-    scale = np.linalg.norm(G, axis=1)
-    G, w, S = G / scale[:, None], w / scale, S / scale[:, None]
-    # identical rows are one constraint (they would break LICQ everywhere)
-    if G.shape[0]:
-        key = np.round(np.hstack([G, w[:, None], S]), 11)
-        _, first = np.unique(key, axis=0, return_index=True)
-        first = np.sort(first)
-        G, w, S = G[first], w[first], S[first]
-    At, bt, ok = normalize_rows(At, bt)
-    if not ok:
-        raise SpecError("the parameter set is empty", field="A_theta")
-    return _Reduced(H=0.5 * (H + H.T), c=c, C=C, G=G, w=w, S=S, At=At, bt=bt, Z0=Z0, Z1=Z1, Nz=Nz)
-
-
-# --------------------------------------------------------------------------------------
-# the explorer
-
-
-class _NoRegionError(SolverError):
-    """No full-dimensional region could be identified around a point (degenerate spot)."""
-
-
-class _Explorer:
-    def __init__(self, red: _Reduced, opts: SolveOptions, progress: Callable | None):
-        self.r = red
-        self.opts = opts
-        self.progress = progress
-        self.d = red.At.shape[1]
-        self.nw = red.H.shape[0]
-        self.is_lp = not np.any(red.H)
-        self.rng = np.random.default_rng(opts.seed)
-        self.stats = {"solves": 0, "pieces": 0, "jitters": 0, "step_refinements": 0}
-        # parameter-set scale: widths of its bounding box
-        _, st, _ = solve_lp(np.zeros(self.d), red.At, red.bt)
-        if st == "infeasible":
-            raise SpecError("the parameter set is empty", field="A_theta")
-        lo, hi = bounding_box(red.At, red.bt)
-        self.theta_box = (lo, hi)
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            raise SpecError("the parameter set is unbounded", field="A_theta")
-        if np.any(hi - lo < 0):
-            raise SpecError("the parameter set is empty", field="A_theta")
-        self.scale = float(max(np.max(hi - lo), 1e-12))
-        self.bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))  # of |theta|_inf
-        self.region_tol = opts.region_tol * self.scale
-        self.step = opts.step * self.scale
-        self.touch_tol = 1e-11 * self.scale
-        self._hs = None
-        self._hs_cost: np.ndarray | None = None
-        self.pert = np.zeros(self.nw)
-        self.cmag = max(np.max(np.abs(red.c), initial=0.0), 1.0)
-        # run() explores mp-LPs; for mp-QPs only the start point and the scale are used
-        self.c_pert = red.c.copy()
-        if self.is_lp:
-            self.pert = self.rng.uniform(0.5, 1.0, self.nw) * self.rng.choice([-1.0, 1.0], self.nw)
-            self.c_pert = red.c + opts.lp_perturbation * self.cmag * self.pert
-        self.regions: list[CriticalRegion] = []
-        self._verts: list[np.ndarray | None] = []
-        self._done: list[np.ndarray] = []  # per region: facets already known to be covered
-        # all regions' rows, contiguous per region, in growing buffers (for _find)
-        self._bufA = np.zeros((1024, self.d))
-        self._bufb = np.zeros(1024)
-        self._nrows = 0
-        self._starts = np.zeros(0, dtype=np.intp)
-        self._far: dict[bytes, np.ndarray | None] = {}  # see _past
-        self._lifted = _lifted(red)
-
-    # ---- small geometry helpers -------------------------------------------------------
-
-    def _in_theta(self, q: np.ndarray) -> bool:
-        return bool(np.all(self.r.At @ q <= self.r.bt + 1e-12 * self.scale))
-
-    def _find(self, q: np.ndarray, tol: float) -> int:
-        """Index of a found region containing q (-1 if none)."""
-        if not self.regions:
-            return -1
-        rows = self._nrows
-        viol = (self._bufA[:rows] @ q - self._bufb[:rows] > tol).astype(np.int32)
-        counts = np.add.reduceat(viol, self._starts)
-        hits = np.flatnonzero(counts == 0)
-        return int(hits[0]) if hits.size else -1
-
-    # ---- optimisation at a point ------------------------------------------------------
-
-    def _solve_at(self, q: np.ndarray):
-        """Solve the (perturbed) program at theta = q -> (w, lam) or None if infeasible."""
-        r = self.r
-        self.stats["solves"] += 1
-        rhs = r.w + r.S @ q
-        m = rhs.shape[0]
-        sense = np.zeros(m, dtype=np.int32)
-        lower = np.full(m, -1e30)
-        x, _, flag, info = daqp.solve(
-            np.zeros((self.nw, self.nw)),
-            self.c_pert + r.C @ q,
-            r.G,
-            rhs,
-            lower,
-            sense,
-            eps_prox=1e-2,
-            iter_limit=10_000,
-            primal_tol=1e-11,
-            dual_tol=1e-12,
-        )
-        if flag == -1:
-            return None if self._infeasible(q) else self._solve_at_fallback(q)
-        if flag == -3:
-            raise SpecError(
-                f"the program is unbounded at theta={np.array2string(q, precision=4)} (the "
-                "cost decreases without end along a feasible direction: bound the variables "
-                "or make the cost definite)",
-                field="c",
-            )
-        if flag != 1:
-            return self._solve_at_fallback(q)
-        return np.asarray(x), np.asarray(info["lam"])
-
-    def _solve_at_fallback(self, q: np.ndarray):
-        """HiGHS when DAQP reports trouble (cycling near the feasibility boundary)."""
-        import highspy
-
-        h = self._highs(q)
-        status = h.getModelStatus()
-        if status == highspy.HighsModelStatus.kInfeasible:
-            return None
-        if status != highspy.HighsModelStatus.kOptimal:
-            return "fail"
-        sol = h.getSolution()
-        return np.asarray(sol.col_value), -np.asarray(sol.row_dual)
-
-    def _region_at(self, q: np.ndarray, jitter: float):
-        """Critical region whose closure holds q (or a jittered q); None if infeasible."""
-        for _ in range(8):
-            sol = self._solve_at(q)
-            if sol is None:
-                return None
-            if not isinstance(sol, str):
-                reg = self._region_from_solution(q, *sol)
-                if reg is not None:
-                    return reg
-            # q sits on a degenerate spot (lower-dimensional set): move off it
-            q = self._jitter(q, jitter)
-            self.stats["jitters"] += 1
-        raise _NoRegionError(
-            f"could not identify a full-dimensional critical region near theta={q}"
-        )
-
-    def _jitter(self, q: np.ndarray, size: float) -> np.ndarray:
-        qn = q + self.rng.normal(size=q.shape) * size
-        return qn if self._in_theta(qn) else q
-
-    def _lex_state(self, act, q: np.ndarray):
-        """Duals of the basis ``act`` at q -> (vertex, d0, d1, tie, inverse), or None when the
-        basis matrix is singular.
-
-        The selection rule is lexicographic in (c, r), r the fixed generic direction of the
-        perturbation: a basis is lexicographically optimal when its duals for the original
-        cost, d0, are >= 0 and, on the ties (d0 ~ 0), its duals for r, d1, are >= 0. Among
-        all c-optimal vertices this picks the r-optimal one, which is unique for a generic r
-        -- the same vertex whatever the perturbation size used to find it, so regions of
-        different laws cannot overlap.
-
-        A tie is a dual within a small multiple (``_TIE``) of its own rounding error, bounded
-        componentwise by ``|B^-T| (|c| + |B^T| |d0|) + max|c|`` (B the basis matrix), and
-        never more than ``1e-9 max|c|``. A fixed ``1e-9 max|c|`` is far above the rounding
-        error when costs have very different sizes (soft-constraint penalties): in
-        mpt3_mpqp_04_dat (costs 1e9 next to 10, max|c| 7e8 after the reduction) genuine
-        duals of the small costs are 0.03 to 0.2 and rounding errors 1e-7, and
-        ``1e-9 max|c|`` = 0.7 called those duals ties (wrong laws).
-        """
-        r = self.r
-        GB = r.G[act]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LinAlgWarning)  # singular: checked below
-            lu, piv = lu_factor(GB, check_finite=False)
-        if not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) == 0.0:
-            return None
-        cq = r.c + r.C @ q
-        # LU solves (backward stable), not products with the inverse: a dual that is zero
-        # by the structure of the basis comes out zero, not as rounding noise of the inverse
-        d0 = lu_solve((lu, piv), -cq, trans=1, check_finite=False)
-        d1 = lu_solve((lu, piv), -self.pert, trans=1, check_finite=False)
-        x = lu_solve((lu, piv), r.w[act] + r.S[act] @ q, check_finite=False)
-        Binv = lu_solve((lu, piv), np.eye(self.nw), check_finite=False)
-        err0 = np.abs(Binv.T) @ (np.abs(cq) + np.abs(GB.T) @ np.abs(d0))
-        tie = np.abs(d0) <= np.minimum(_TIE * (err0 + self.cmag), 1e-9 * self.cmag)
-        return x, d0, d1, tie, Binv
-
-    def _lex_negative(self, d0, d1, tie) -> np.ndarray:
-        """Rows of a basis whose dual is lexicographically negative."""
-        return (~tie & (d0 < 0)) | (tie & (d1 < -1e-9 * np.max(np.abs(self.pert))))
-
-    def _lex_optimal(self, act: np.ndarray, q: np.ndarray) -> bool:
-        """Is the basis ``act`` lexicographically optimal (and primal feasible) at q?"""
-        st = self._lex_state(act, q)
-        if st is None:
-            return False
-        x, d0, d1, tie, _ = st
-        if np.any(self._lex_negative(d0, d1, tie)):
-            return False
-        r = self.r
-        return bool(np.all(r.G @ x <= r.w + r.S @ q + 1e-9 * self.scale))
-
-    def _lex_refine(self, act: np.ndarray, q: np.ndarray) -> np.ndarray | None:
-        """Primal simplex from the primal-feasible basis ``act`` to the lexicographically
-        optimal one; None if ``act`` is not a primal-feasible basis or the pivots do not
-        settle.
-
-        The LP solvers find the optimal vertex of a perturbed cost ``c + delta r``; when
-        delta is not small against every genuine dual of c (costs of very different sizes)
-        their basis is not c-optimal, and no one perturbation size suits every program.
-        This finishes the job with the exact rule, in two phases, each by Bland's rule (the
-        lowest-numbered negative row leaves, the lowest-numbered first blocking row enters:
-        no cycling on degenerate vertices):
-
-        A. rows with a clearly negative d0 leave until the basis is c-optimal;
-        B. the rows with a clearly positive d0 are then held (every optimal point has them
-           active: this is the optimal face) and tied rows with a negative d1 leave: the
-           simplex for r on the optimal face, whose decisions do not depend on the
-           classification of ties.
-
-        A basis seen twice (ties classified differently at different bases) ends it.
-        """
-        r = self.r
-        h = r.w + r.S @ q
-        B = np.array(act, dtype=np.intp)
-        inB = np.zeros(r.G.shape[0], dtype=bool)
-        inB[B] = True
-        held: np.ndarray | None = None  # phase B: rows of the optimal face
-        seen: set[bytes] = set()
-        feas_tol = 1e-9 * self.scale
-        for _ in range(20 * self.nw + 100):
-            key = np.sort(B).tobytes()
-            if key in seen:
-                break
-            seen.add(key)
-            st = self._lex_state(B, q)
-            if st is None:
-                return None
-            x, d0, d1, tie, Binv = st
-            slack = h - r.G @ x
-            if np.any(slack < -feas_tol):
-                return None
-            neg = self._lex_negative(d0, d1, tie)
-            if not np.any(neg):
-                return np.sort(B)
-            if held is None:
-                cand = np.flatnonzero(~tie & (d0 < 0))
-                if cand.size == 0:
-                    held = np.zeros_like(inB)
-                    held[B[~tie & (d0 > 0)]] = True
-            if held is not None:
-                cand = np.flatnonzero(neg & ~held[B])
-                if cand.size == 0:
-                    break  # the face's r-optimum fails the test: not settled
-            self.stats["lex_pivots"] = self.stats.get("lex_pivots", 0) + 1
-            i = cand[np.argmin(B[cand])]
-            u = -Binv[:, i]  # G_B u = -e_i: off row i into its feasible side
-            Gu = r.G @ u
-            block = ~inB & (Gu > 1e-9 * np.linalg.norm(u))
-            if not np.any(block):
-                return None  # unbounded along the face (no lexicographic optimum)
-            rows = np.flatnonzero(block)
-            t = np.maximum(slack[rows], 0.0) / Gu[rows]
-            tmin = np.min(t)
-            j = int(np.min(rows[t <= tmin + 1e-12 * max(1.0, tmin)]))
-            inB[B[i]] = False
-            inB[j] = True
-            B[i] = j
-        self.stats["lex_refine_failed"] = self.stats.get("lex_refine_failed", 0) + 1
-        return None
-
-    def _lp_basis(self, q: np.ndarray, lam: np.ndarray) -> np.ndarray | None:
-        """The lexicographically optimal basis (row indices) of the LP at q.
-
-        DAQP's working set is tried first. Otherwise (DAQP's proximal LP mode can stop on an
-        edge when the cost slope along it is as small as the perturbation) HiGHS's dual
-        simplex solves the perturbed LP, with smaller perturbations if needed. A basis that
-        fails the lexicographic test is finished by ``_lex_refine``.
-        """
-        act = np.flatnonzero(lam > 0)
-        if act.size == self.nw:
-            if self._lex_optimal(act, q):
-                return act
-            act = self._lex_refine(act, q)
-            if act is not None:
-                return act
-        for delta in (self.opts.lp_perturbation, 1e-3 * self.opts.lp_perturbation):
-            act = self._highs_basis(q, delta)
-            if act is None or (isinstance(act, str)):
-                return None
-            if self._lex_optimal(act, q):
-                return act
-            act = self._lex_refine(act, q)
-            if act is not None:
-                return act
-            self.stats["rejected_bases"] = self.stats.get("rejected_bases", 0) + 1
-        return None
-
-    def _highs(self, q: np.ndarray, delta: float | None = None):
-        """Solve the perturbed LP at q with HiGHS (warm-started dual simplex)."""
-        import highspy
-
-        r = self.r
-        m, nw = r.G.shape
-        inf = highspy.kHighsInf
-        if self._hs is None:
-            h = highspy.Highs()
-            h.setOptionValue("output_flag", False)
-            # the perturbation must dominate the solver's tolerances
-            h.setOptionValue("primal_feasibility_tolerance", 1e-10)
-            h.setOptionValue("dual_feasibility_tolerance", 1e-10)
-            lp = highspy.HighsLp()
-            lp.num_col_, lp.num_row_ = nw, m
-            # the objective divided by max|c| (the same optimizer): HiGHS refuses costs
-            # like 1e9 ("excessive dual values")
-            lp.col_cost_ = self.c_pert / self.cmag
-            lp.col_lower_ = np.full(nw, -inf)
-            lp.col_upper_ = np.full(nw, inf)
-            lp.row_lower_ = np.full(m, -inf)
-            lp.row_upper_ = r.w.copy()
-            lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
-            lp.a_matrix_.start_ = np.arange(0, m * nw + 1, nw)
-            lp.a_matrix_.index_ = np.tile(np.arange(nw), m)
-            lp.a_matrix_.value_ = r.G.ravel()
-            h.passModel(lp)
-            self._hs = h
-        h = self._hs
-        self.stats["highs"] = self.stats.get("highs", 0) + 1
-        h.changeRowsBounds(m, np.arange(m, dtype=np.int32), np.full(m, -inf), r.w + r.S @ q)
-        if self.is_lp:
-            delta = self.opts.lp_perturbation if delta is None else delta
-            cost = (r.c + r.C @ q) / self.cmag + delta * self.pert
-            if self._hs_cost is None or np.any(cost != self._hs_cost):
-                h.changeColsCost(nw, np.arange(nw, dtype=np.int32), cost)
-                self._hs_cost = cost
-        h.run()
-        if h.getModelStatus() == highspy.HighsModelStatus.kUnknown:
-            # a warm start gone wrong, or tolerances too tight for this point: cold start,
-            # then once more with HiGHS's default tolerances
-            h.clearSolver()
-            h.run()
-            if h.getModelStatus() == highspy.HighsModelStatus.kUnknown:
-                h.setOptionValue("primal_feasibility_tolerance", 1e-7)
-                h.setOptionValue("dual_feasibility_tolerance", 1e-7)
-                h.clearSolver()
-                h.run()
-                h.setOptionValue("primal_feasibility_tolerance", 1e-10)
-                h.setOptionValue("dual_feasibility_tolerance", 1e-10)
-        return h
-
-    def _highs_basis(self, q: np.ndarray, delta: float) -> np.ndarray | None:
-        import highspy
-
-        h = self._highs(q, delta)
-        if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
-            return None
-        rows = np.array(
-            [st == highspy.HighsBasisStatus.kUpper for st in h.getBasis().row_status], dtype=bool
-        )
-        act = np.flatnonzero(rows)
-        if act.size < self.nw:
-            r = self.r
-            x = np.asarray(h.getSolution().col_value)
-            slack = r.w + r.S @ q - r.G @ x
-            tight = np.setdiff1d(np.flatnonzero(slack <= 1e-9 * self.scale), act)
-            act = _complete_basis(r.G, act, tight, self.nw)
-        return act
-
-    def _infeasible(self, q: np.ndarray) -> bool:
-        """Confirm with HiGHS that the program is infeasible at q (a false 'infeasible'
-        would end the exploration of a facet and leave a hole)."""
-        import highspy
-
-        h = self._highs(q)
-        return h.getModelStatus() == highspy.HighsModelStatus.kInfeasible
-
-    def _region_from_solution(self, q, x, lam):
-        r = self.r
-        act = self._lp_basis(q, lam)
-        if act is None:
-            return None
-        GB = r.G[act]
-        try:
-            # _lp_basis checked the basis is optimal for the ORIGINAL cost
-            Z = np.linalg.solve(GB, np.hstack([r.w[act, None], r.S[act]]))
-        except np.linalg.LinAlgError:
-            return None
-        k0, K = Z[:, 0], Z[:, 1:]
-        Ar = r.G @ K - r.S
-        br = r.w - r.G @ k0
-        if np.any(r.C):
-            # with a parameter-dependent cost the basis needs duals >= 0 as well
-            Dl = np.linalg.solve(GB.T, -np.hstack([r.c[:, None], r.C]))
-            Ar = np.vstack([Ar, -Dl[:, 1:]])
-            br = np.concatenate([br, Dl[:, 0]])
-        Ar = np.vstack([Ar, r.At])
-        br = np.concatenate([br, r.bt])
-        Ar, br, ok = normalize_rows(Ar, br, tol=1e-10)
-        if not ok:
-            return None
-        centre, radius = chebyshev_ball(Ar, br)
-        if not radius > self.region_tol:
-            return None
-        if np.any(Ar @ q - br > 1e-7 * self.scale):
-            return None
-        # redundant rows dropped only with a proof: DAQP's minrep alone dropped a
-        # parameter-set row that a sliver region (radius 3e-5) crossed by 0.7 (an MPC of
-        # the oracle tests). (Not the compiled mpqp_jit kernel: loading numba's cached code
-        # costs ~0.2 s, far more than the whole solve of a small program.)
-        keep = certified_minimal_rows(Ar, br, self.bound)
-        return CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=tuple(int(i) for i in act))
-
-    # ---- exploration --------------------------------------------------------------------
-
-    def _add(self, reg: CriticalRegion, verts: np.ndarray | None = None) -> int:
-        """Append ``reg`` (with its vertices, if already enumerated); its index."""
-        self.regions.append(reg)
-        self._verts.append(vertices(reg.A, reg.b, tol=self.touch_tol) if verts is None else verts)
-        self._done.append(np.zeros(reg.A.shape[0], dtype=bool))
-        k = reg.A.shape[0]
-        if self._nrows + k > self._bufA.shape[0]:
-            cap = 2 * (self._nrows + k)
-            self._bufA = np.resize(self._bufA, (cap, self.d))
-            self._bufb = np.resize(self._bufb, cap)
-        self._bufA[self._nrows : self._nrows + k] = reg.A
-        self._bufb[self._nrows : self._nrows + k] = reg.b
-        self._starts = np.append(self._starts, self._nrows)
-        self._nrows += k
-        if self.progress is not None:
-            self.progress(len(self.regions))
-        if len(self.regions) > self.opts.max_regions:
-            raise SolverError(too_many_regions(self.opts.max_regions))
-        return len(self.regions) - 1
-
-    def start_point(self) -> np.ndarray | None:
-        """A parameter well inside the feasible set (lifted Chebyshev centre), or None."""
-        r = self.r
-        d, nw = self.d, self.nw
-        A, b = self._lifted
-        # radius measured in theta only: ball of theta's, any w
-        norms = np.concatenate([np.linalg.norm(r.S, axis=1), np.linalg.norm(r.At, axis=1)])
-        f = np.zeros(nw + d + 1)
-        f[-1] = -1.0
-        ub = np.full(nw + d + 1, np.inf)
-        ub[-1] = self.scale
-        x, st, _ = solve_lp(f, np.hstack([A, norms[:, None]]), b, ub=ub)
-        if st != "optimal" or x is None or x[-1] <= self.region_tol:
-            return None
-        # the centre is often a symmetric, degenerate point (the origin): start off it
-        u = self.rng.normal(size=d)
-        return x[nw : nw + d] + 0.37 * x[-1] * u / np.linalg.norm(u)
-
-    def run(self) -> list[CriticalRegion]:
-        q0 = self.start_point()
-        if q0 is None:
-            return []
-        first = self._region_at(q0, 1e-3 * self.scale)
-        if first is None:
-            return []
-        queue = deque([self._add(first)])
-        while queue:
-            i = queue.popleft()
-            reg = self.regions[i]
-            for j in range(reg.A.shape[0]):
-                if self._done[i][j]:
-                    continue
-                for new in self._cover_facet(i, j):
-                    queue.append(new)
-        return self.regions
-
-    def _past(self, a: np.ndarray, beta: float) -> np.ndarray | None:
-        """A feasible parameter farthest along ``a``, when it is past ``a theta = beta`` by
-        more than ``region_tol`` (else None: the hyperplane supports the feasible set, and
-        a facet on it is on the set's boundary). One LP over the lifted set per direction
-        (many facets share a boundary hyperplane)."""
-        key = a.tobytes()
-        if key not in self._far:
-            nw = self.nw
-            x, st, _ = solve_lp(np.concatenate([np.zeros(nw), -a]), *self._lifted)
-            self._far[key] = x[nw:] if st == "optimal" and x is not None else None
-        z = self._far[key]
-        if z is None or a @ z <= beta + self.region_tol:
-            return None
-        return z
-
-    def _known(self, V: np.ndarray | None) -> int:
-        """Index of a found region that a new region (vertices ``V``) is a copy of (a
-        degenerate vertex reached by another basis gives the same region), else -1: one of
-        its inner points (the mean of its vertices) strictly inside a found region means
-        an overlap."""
-        if V is None or V.shape[0] == 0:
-            return -1
-        return self._find(V.mean(axis=0), -1e-9 * self.scale)
-
-    def _facet_vertices(self, i: int, j: int) -> np.ndarray | None:
-        V = self._verts[i]
-        if V is None:
-            return None
-        reg = self.regions[i]
-        Vf = V[np.abs(V @ reg.A[j] - reg.b[j]) <= self.touch_tol]
-        # a facet of a d-dimensional polytope has >= d vertices spanning d-1 dimensions;
-        # anything less means the enumeration lost a vertex: do not trust it
-        if Vf.shape[0] < self.d:
-            return None
-        if self.d > 1 and np.linalg.matrix_rank(Vf[1:] - Vf[0], tol=self.touch_tol) < self.d - 1:
-            return None
-        return Vf
-
-    def _covers_whole_facet(self, i: int, j: int, k: int) -> bool:
-        """Does region k contain all of facet j of region i (vertex test)?
-
-        When it does and k has the opposite facet, that facet of k is covered by region i
-        as soon as its vertices lie in region i: mark it so it is not explored twice.
-        """
-        Vf = self._facet_vertices(i, j)
-        if Vf is None or Vf.shape[0] == 0:
-            return False
-        Rk = self.regions[k]
-        if not np.all(Vf @ Rk.A.T - Rk.b <= self.touch_tol):
-            return False
-        reg = self.regions[i]
-        match = np.flatnonzero(
-            (np.abs(Rk.A @ reg.A[j] + 1.0) <= 1e-9) & (np.abs(Rk.b + reg.b[j]) <= self.touch_tol)
-        )
-        for r in match:
-            Vk = self._facet_vertices(k, r)
-            if Vk is not None and Vk.shape[0] and np.all(Vk @ reg.A.T - reg.b <= self.touch_tol):
-                self._done[k][r] = True
-        return True
-
-    def _cover_facet(self, i: int, j: int) -> list[int]:
-        """Make sure every point of facet j of region i has a region on its other side."""
-        reg = self.regions[i]
-        a, beta = reg.A[j], reg.b[j]
-        others = np.delete(np.arange(reg.A.shape[0]), j)
-        baseA, baseb = reg.A[others], reg.b[others]
-        new_regions: list[int] = []
-        # a piece: extra rows (EA, Eb), a step scale, and its Chebyshev ball if known
-        pieces: list = [(np.zeros((0, self.d)), np.zeros(0), 1.0, None)]
-        budget = 2000
-        whole = True  # the first piece is the whole facet
-        while pieces and budget:
-            budget -= 1
-            EA, Eb, scale, ball = pieces.pop()
-            self.stats["pieces"] += 1
-            if ball is None:
-                PA = np.vstack([baseA, EA])
-                Pb = np.concatenate([baseb, Eb])
-                ball = chebyshev_ball(PA, Pb, a[None, :], np.array([beta]))
-            p, rho = ball
-            if not rho > self.region_tol:
-                continue
-            if scale < 1e-6:
-                self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
-                continue
-            eps = min(self.step, 0.5 * rho) * scale
-            target = -1
-            # across the facet (eps: the distance past its hyperplane): along its normal,
-            # unless the feasible set is thinner than that there
-            direction = a
-            tries = 0
-            while tries < 6:
-                tries += 1
-                q = p + eps * direction
-                # past the hyperplane, outside the parameter set or where the program is
-                # infeasible: the facet is on the feasible set's boundary only if that is
-                # so along all of the hyperplane
-                beyond = not self._in_theta(q)
-                if not beyond:
-                    k = self._find(q, 1e-12 * self.scale)
-                    if k < 0:
-                        try:
-                            nreg = self._region_at(q, 0.1 * eps)
-                        except _NoRegionError:
-                            # only regions thinner than region_tol live here: a numerically
-                            # flat piece; counted and reported, never silently
-                            self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
-                            target = -3
-                            break
-                        beyond = nreg is None
-                        if not beyond:
-                            V = vertices(nreg.A, nreg.b, tol=self.touch_tol)
-                            k = self._known(V)
-                            if k >= 0:
-                                self.stats["copies"] = self.stats.get("copies", 0) + 1
-                            else:
-                                k = self._add(nreg, V)
-                                new_regions.append(k)
-                if beyond:
-                    if direction is not a:
-                        # on the segment from p to a feasible point: rounding at a
-                        # boundary point of the set; step closer
-                        eps *= 0.1
-                        self.stats["step_refinements"] += 1
-                        continue
-                    z = self._past(a, beta)
-                    if z is None:
-                        target = -2  # the set ends at this hyperplane: boundary
-                        break
-                    # the set goes on past the hyperplane, but by less than eps at p (a
-                    # thin wedge): step towards a feasible point z past it instead, eps
-                    # past the hyperplane as before (the segment from p, a point of the
-                    # set, to z lies in the set)
-                    past = float(a @ (z - p))
-                    direction = (z - p) / past
-                    eps = min(eps, 0.5 * past)
-                    self.stats["wedges"] = self.stats.get("wedges", 0) + 1
-                    tries -= 1
-                    continue
-                if k == i:
-                    # rounding put q in the region stepped from: taking it as the neighbour
-                    # would mark the piece covered and leave a hole; refuse loudly
-                    break
-                R2 = self.regions[k]
-                if np.all(R2.A @ p - R2.b <= self.touch_tol):
-                    target = k
-                    break
-                eps *= 0.1  # a thinner region lies in between: step closer
-                self.stats["step_refinements"] += 1
-            if target == -3:
-                continue
-            if target == -2:
-                return new_regions  # the facet is on the feasible set's boundary
-            if target < 0:
-                raise SolverError("could not step across a facet (numerical trouble)")
-            if whole and self._covers_whole_facet(i, j, target):
-                return new_regions  # neighbour meets this facet facet-to-facet (or more)
-            whole = False
-            # subtract R2 from the piece, inside the facet's hyperplane
-            R2 = self.regions[target]
-            tang = R2.A - np.outer(R2.A @ a, a)
-            cut = np.linalg.norm(tang, axis=1) > 1e-9
-            prevA = np.zeros((0, self.d))
-            prevb = np.zeros(0)
-            # progress needs R2 to cover a relative-interior ball of the piece; when R2 only
-            # touches the piece (at p, in a lower-dimensional set), step again, closer
-            _, common = chebyshev_ball(
-                np.vstack([baseA, EA, R2.A]),
-                np.concatenate([baseb, Eb, R2.b]),
-                a[None, :],
-                np.array([beta]),
-            )
-            if not common > self.region_tol:
-                self.stats["step_refinements"] += 1
-                pieces.append((EA, Eb, scale * 0.1, ball))
-                continue
-            for row, rhs in zip(R2.A[cut], R2.b[cut], strict=True):
-                nEA = np.vstack([EA, prevA, -row[None, :]])
-                nEb = np.concatenate([Eb, prevb, [-rhs]])
-                pieces.append((nEA, nEb, 1.0, None))
-                prevA = np.vstack([prevA, row[None, :]])
-                prevb = np.concatenate([prevb, [rhs]])
-        if budget == 0:
-            raise SolverError("facet coverage did not converge (too many pieces)")
-        return new_regions
-
-
-def _lifted(red: _Reduced) -> tuple[np.ndarray, np.ndarray]:
-    """The feasible set lifted to (w, theta): rows ``G w - S theta <= w`` and ``At theta
-    <= bt``, (m + p, nw + d) and (m + p,)."""
-    zero = np.zeros((red.At.shape[0], red.G.shape[1]))
-    return np.block([[red.G, -red.S], [zero, red.At]]), np.concatenate([red.w, red.bt])
-
-
-def _complete_basis(G, act, tight, n):
-    """Extend the rows ``act`` with rows of ``tight`` to n linearly independent rows."""
-    rows = list(act)
-    for t in tight:
-        trial = G[rows + [t]]
-        if np.linalg.matrix_rank(trial, tol=1e-9) == len(rows) + 1:
-            rows.append(int(t))
-            if len(rows) == n:
-                break
-    return np.array(rows) if len(rows) == n else None
-
-
 def mpsolve(
     program: MpProgram,
     *,
@@ -847,19 +87,34 @@ def mpsolve(
     """
     opts = options or SolveOptions()
     t0 = time.perf_counter()
-    red = _reduce(program)
+    red = reduce_program(program)
     semidefinite = bool(np.any(red.H)) and np.min(np.linalg.eigvalsh(red.H)) <= 1e-12 * max(
         1.0, np.max(np.abs(red.H))
     )
     if semidefinite:
         _check_no_recession(red)
-    ex = _Explorer(red, opts, progress)
+    size = parameter_box(red)
+    region_tol = opts.region_tol * size.scale
     nz, d = red.G.shape[1], red.At.shape[1]
-    if ex.is_lp:
-        regions = RegionArrays.from_regions(ex.run(), nz, d)
+    # the mp-LP's counters are in an mp-QP's stats too, at zero (as when one object
+    # measured both programs: the reports keep their keys)
+    stats = dict.fromkeys(COUNTERS, 0)
+    if not np.any(red.H):
+        found = explore_facets(
+            red,
+            size,
+            region_tol=region_tol,
+            step=opts.step * size.scale,
+            lp_perturbation=opts.lp_perturbation,
+            seed=opts.seed,
+            max_regions=opts.max_regions,
+            progress=progress,
+            stats=stats,
+        )
+        regions = RegionArrays.from_regions(found, nz, d)
     else:
-        # strictly convex QP: combinatorial adjacency over active sets (mpqp.py)
-        q0 = ex.start_point()
+        # combinatorial adjacency over active sets (mpqp.py)
+        q0 = start_point(red, size.scale, region_tol, np.random.default_rng(opts.seed))
         regions = RegionArrays.from_regions([], nz, d)
         if q0 is not None:
             regions = explore_active_sets(
@@ -872,17 +127,17 @@ def mpsolve(
                 red.At,
                 red.bt,
                 q0,
-                scale=ex.scale,
-                region_tol=ex.region_tol,
-                theta_box=ex.theta_box,
+                scale=size.scale,
+                region_tol=region_tol,
+                theta_box=size.box,
                 max_regions=opts.max_regions,
                 workers=opts.workers,
                 semidefinite=semidefinite,
                 progress=progress,
-                stats=ex.stats,
+                stats=stats,
             )
     domain = (
-        _domain_from_regions(red, regions, ex.scale, ex.theta_box) if len(regions)
+        _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
         else _empty_domain(red)
     )
     # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
@@ -895,11 +150,11 @@ def mpsolve(
         domain_A=domain[0],
         domain_b=domain[1],
         seconds=time.perf_counter() - t0,
-        stats=ex.stats,
+        stats=stats,
     )
 
 
-def _check_no_recession(red: _Reduced) -> None:
+def _check_no_recession(red: Reduced) -> None:
     """Semi-definite H: refuse a program with a direction of recession ``d != 0``
     (``H d = 0``, ``G d <= 0``), along which the optimizer is not unique or the cost is
     unbounded below. Without one the optimizer set is bounded and the lexicographic
@@ -921,7 +176,7 @@ def _check_no_recession(red: _Reduced) -> None:
                 )
 
 
-def _empty_domain(red: _Reduced) -> tuple[np.ndarray, np.ndarray]:
+def _empty_domain(red: Reduced) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros((0, red.At.shape[1])), np.zeros(0)
 
 
@@ -938,7 +193,7 @@ _SEEN = 256
 
 
 def _domain_from_regions(
-    red: _Reduced,
+    red: Reduced,
     regions: RegionArrays,
     scale: float,
     box: tuple[np.ndarray, np.ndarray],
@@ -972,7 +227,7 @@ def _domain_from_regions(
     theta_rows = np.hstack([red.At, red.bt[:, None]])
     cand = cand[~rows_in(cand, theta_rows, 7)]
     nw = red.G.shape[1]
-    LA, Lb = _lifted(red)
+    LA, Lb = lifted(red)
     tol = 1e-9 * scale
     # a row is valid if max a'theta over the lifted set is at most its offset; a point of
     # the set found by an earlier LP clearly beyond it (by far more than the tolerance, so
@@ -1016,3 +271,4 @@ def _domain_from_regions(
         bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
         allrows = allrows[certified_minimal_rows(allrows[:, :-1], allrows[:, -1], bound)]
     return allrows[:, :-1], allrows[:, -1]
+

@@ -1,0 +1,197 @@
+"""The reduced program that both mp algorithms solve, and what they measure it by.
+
+``mpsolve`` (``solve.py``) reduces the program once and hands it to the mp-QP search
+(``mpqp.py``) or the mp-LP explorer (``mplp.py``); the front door also needs it for the
+domain and to map the laws back. Here and not in ``solve.py``, because the explorer uses it
+too and ``solve.py`` imports the explorer:
+
+- **the reduction**: equalities eliminated, pure-parameter rows moved to the parameter set,
+  rows normalised and de-duplicated (:func:`reduce_program`);
+- **the lifted feasible set** ``{(w, theta)}`` (:func:`lifted`);
+- **the parameter set's size**, which every length of the solver is relative to
+  (:func:`parameter_box`), and a start point well inside the feasible set
+  (:func:`start_point`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from codev_engine.errors import SpecError
+from codev_engine.geometry.polytope import bounding_box, normalize_rows, solve_lp
+from codev_engine.mp.program import MpProgram
+
+__all__ = ["ParameterBox", "Reduced", "lifted", "parameter_box", "reduce_program", "start_point"]
+
+
+@dataclass(frozen=True)
+class Reduced:
+    """The program after equality elimination and row clean-up::
+
+        min_w  0.5 w'H w + (c + C theta)'w   s.t.  G w <= w0 + S theta,  At theta <= bt
+
+    (the offset ``w0`` is the field ``w``). ``z = Z0 + Z1 theta + Nz w`` maps the reduced
+    variables ``w`` back.
+
+    Attributes
+    ----------
+    H : (nw, nw) ndarray
+        Symmetric; zero for an mp-LP.
+    c, C : (nw,), (nw, d) ndarrays
+    G, w, S : (m, nw), (m,), (m, d) ndarrays
+        Unit rows ``G``, none of them zero, none repeated.
+    At, bt : (p, d), (p,) ndarrays
+        The parameter set, normalised.
+    Z0, Z1, Nz : (nz,), (nz, d), (nz, nw) ndarrays
+    """
+
+    H: np.ndarray
+    c: np.ndarray
+    C: np.ndarray
+    G: np.ndarray
+    w: np.ndarray
+    S: np.ndarray
+    At: np.ndarray
+    bt: np.ndarray
+    Z0: np.ndarray
+    Z1: np.ndarray
+    Nz: np.ndarray
+
+
+def reduce_program(p: MpProgram) -> Reduced:
+    """Eliminate the equalities (``z = Z0 + Z1 theta + Nz w``, ``Nz`` a basis of the null
+    space of ``Aeq``), move the rows without variables to the parameter set, normalise the
+    rows and drop repeated ones (they would break LICQ everywhere).
+
+    Raises
+    ------
+    SpecError
+        When the equalities are inconsistent for some parameters or the parameter set is
+        empty.
+    """
+    nz, d = p.nz, p.d
+    H, c, C, G, w, S = p.H, p.c, p.C, p.A, p.b, p.F
+    Z0 = np.zeros(nz)
+    Z1 = np.zeros((nz, d))
+    Nz = np.eye(nz)
+    if p.Aeq is not None and p.Aeq.shape[0]:
+        Aeq, beq, Feq = p.Aeq, p.beq, p.Feq
+        U, s, Vt = np.linalg.svd(Aeq)
+        rank = int(np.sum(s > 1e-10 * max(1.0, s[0] if s.size else 1.0)))
+        pinv = np.linalg.pinv(Aeq, rcond=1e-10)
+        # equalities must be consistent for every theta: the rows outside the range of Aeq
+        resid = np.hstack([beq[:, None], Feq]) - Aeq @ pinv @ np.hstack([beq[:, None], Feq])
+        if np.max(np.abs(resid), initial=0.0) > 1e-8 * max(1.0, np.max(np.abs(Feq), initial=1)):
+            raise SpecError(
+                "equality constraints are inconsistent for some parameters", field="Aeq"
+            )
+        Z0 = pinv @ beq
+        Z1 = pinv @ Feq
+        Nz = Vt[rank:].T
+        H, c, C = Nz.T @ H @ Nz, Nz.T @ (H @ Z0 + c), Nz.T @ (H @ Z1 + C)
+        w = w - G @ Z0
+        S = S - G @ Z1
+        G = G @ Nz
+    # pure parameter rows belong to the parameter set
+    gnorm = np.linalg.norm(G, axis=1)
+    pure = gnorm <= 1e-12 * max(1.0, np.max(gnorm, initial=1.0))
+    At = np.vstack([p.A_theta, -S[pure]])
+    bt = np.concatenate([p.b_theta, w[pure]])
+    G, w, S = G[~pure], w[~pure], S[~pure]
+    scale = np.linalg.norm(G, axis=1)
+    G, w, S = G / scale[:, None], w / scale, S / scale[:, None]
+    # identical rows are one constraint (they would break LICQ everywhere)
+    if G.shape[0]:
+        key = np.round(np.hstack([G, w[:, None], S]), 11)
+        _, first = np.unique(key, axis=0, return_index=True)
+        first = np.sort(first)
+        G, w, S = G[first], w[first], S[first]
+    At, bt, ok = normalize_rows(At, bt)
+    if not ok:
+        raise SpecError("the parameter set is empty", field="A_theta")
+    return Reduced(H=0.5 * (H + H.T), c=c, C=C, G=G, w=w, S=S, At=At, bt=bt, Z0=Z0, Z1=Z1, Nz=Nz)
+
+
+def lifted(red: Reduced) -> tuple[np.ndarray, np.ndarray]:
+    """The feasible set lifted to (w, theta): rows ``G w - S theta <= w`` and ``At theta
+    <= bt``, (m + p, nw + d) and (m + p,)."""
+    zero = np.zeros((red.At.shape[0], red.G.shape[1]))
+    return np.block([[red.G, -red.S], [zero, red.At]]), np.concatenate([red.w, red.bt])
+
+
+@dataclass(frozen=True)
+class ParameterBox:
+    """The parameter set's bounding box and size.
+
+    Attributes
+    ----------
+    lo, hi : (d,) ndarrays
+        The box.
+    scale : float
+        Its largest width (at least 1e-12): the solver's lengths are relative to it.
+    bound : float
+        The largest ``|theta|_inf`` in the box: where certificates charge residuals.
+    """
+
+    lo: np.ndarray
+    hi: np.ndarray
+    scale: float
+    bound: float
+
+    @property
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.lo, self.hi
+
+
+def parameter_box(red: Reduced) -> ParameterBox:
+    """The bounding box of the parameter set ``At theta <= bt``.
+
+    Raises
+    ------
+    SpecError
+        When the parameter set is empty or unbounded.
+    """
+    d = red.At.shape[1]
+    _, st, _ = solve_lp(np.zeros(d), red.At, red.bt)
+    if st == "infeasible":
+        raise SpecError("the parameter set is empty", field="A_theta")
+    lo, hi = bounding_box(red.At, red.bt)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise SpecError("the parameter set is unbounded", field="A_theta")
+    if np.any(hi - lo < 0):
+        raise SpecError("the parameter set is empty", field="A_theta")
+    return ParameterBox(
+        lo=lo,
+        hi=hi,
+        scale=float(max(np.max(hi - lo), 1e-12)),
+        bound=float(max(np.max(np.abs(lo)), np.max(np.abs(hi)))),
+    )
+
+
+def start_point(
+    red: Reduced, scale: float, region_tol: float, rng: np.random.Generator
+) -> np.ndarray | None:
+    """A parameter well inside the feasible set (lifted Chebyshev centre), or None when
+    the set is empty or thinner than ``region_tol``.
+
+    The radius is measured in theta only (a ball of theta's, any w) and capped at
+    ``scale``; the point is moved off the centre by 0.37 of the radius in a direction
+    drawn from ``rng`` (one ``normal(size=d)`` draw), since the centre is often a
+    symmetric, degenerate point (the origin).
+    """
+    d, nw = red.At.shape[1], red.H.shape[0]
+    A, b = lifted(red)
+    # radius measured in theta only: ball of theta's, any w
+    norms = np.concatenate([np.linalg.norm(red.S, axis=1), np.linalg.norm(red.At, axis=1)])
+    f = np.zeros(nw + d + 1)
+    f[-1] = -1.0
+    ub = np.full(nw + d + 1, np.inf)
+    ub[-1] = scale
+    x, st, _ = solve_lp(f, np.hstack([A, norms[:, None]]), b, ub=ub)
+    if st != "optimal" or x is None or x[-1] <= region_tol:
+        return None
+    # the centre is often a symmetric, degenerate point (the origin): start off it
+    u = rng.normal(size=d)
+    return x[nw : nw + d] + 0.37 * x[-1] * u / np.linalg.norm(u)
