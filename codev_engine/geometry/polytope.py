@@ -536,36 +536,3 @@ def exact_minimal_rows(A: np.ndarray, b: np.ndarray, centre: np.ndarray) -> np.n
         if not (redundant and A[i] @ x <= b[i] + 1e-9 * (1 + abs(b[i]))):
             keep[i] = True
     return np.flatnonzero(keep)
-
-
-def vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-9, max_combos: int = 20_000):
-    """Vertices of a bounded polytope by enumerating d-subsets of its rows.
-
-    Meant for the small, non-redundant H-representations of critical regions in low
-    dimension; returns None when the enumeration would be too large (callers then fall
-    back to LPs).
-
-    Returns
-    -------
-    (nv, d) ndarray or None
-    """
-    from itertools import combinations
-    from math import comb
-
-    k, d = A.shape
-    if k < d or comb(k, d) > max_combos:
-        return None
-    idx = np.array(list(combinations(range(k), d)), dtype=int)
-    M = A[idx]
-    rhs = b[idx]
-    det = np.linalg.det(M)
-    ok = np.abs(det) > 1e-12
-    if not np.any(ok):
-        return np.zeros((0, d))
-    X = np.linalg.solve(M[ok], rhs[ok][..., None])[..., 0]
-    feas = np.all(X @ A.T <= b + tol, axis=1)
-    V = X[feas]
-    if V.shape[0] == 0:
-        return V
-    _, first = np.unique(np.round(V / tol), axis=0, return_index=True)
-    return V[np.sort(first)]

@@ -41,8 +41,8 @@ from codev_engine.geometry.polytope import (
     chebyshev_ball,
     normalize_rows,
     solve_lp,
-    vertices,
 )
+from codev_engine.geometry.vertices import vertices
 from codev_engine.mp.reduce import ParameterBox, Reduced, lifted, start_point
 from codev_engine.mp.solution import CriticalRegion, too_many_regions
 

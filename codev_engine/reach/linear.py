@@ -32,8 +32,8 @@ from codev_engine.geometry.polytope import (
     minimal_rows,
     normalize_rows,
     solve_lp,
-    vertices,
 )
+from codev_engine.geometry.vertices import box_corners, checked_vertices
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import symbolic_model
 from codev_engine.reach.tube import Tube
@@ -416,7 +416,7 @@ class LinearReach(ClosedLoopSetup):
                 continue
             keep = minimal_rows(H, h)
             H, h = H[keep], h[keep]
-            verts = _checked_vertices(H, h)
+            verts = checked_vertices(H, h)
             children.append((int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),))))
         if not children:
             self.findings.append(Finding("undefined", -1, t, None))
@@ -427,7 +427,7 @@ class LinearReach(ClosedLoopSetup):
         n = self.n
         H0 = np.vstack([np.eye(n), -np.eye(n)])
         h0 = np.ones(2 * n)
-        verts0 = _box_vertices(H0, h0)
+        verts0 = box_corners(-np.ones(n), np.ones(n))  # P's vertices, exact
         stack = [_Star(self.c0.copy(), self.V0.copy(), H0, h0, verts0, np.zeros(n), 0)]
         while stack:
             s = stack.pop()
@@ -453,35 +453,8 @@ def _grid(tau_end: float, step: float) -> np.ndarray:
     return taus
 
 
-def _checked_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Vertices of {H a <= h} (non-redundant rows), or of its bounding box.
-
-    Soundness needs *every* vertex: a lost vertex would shrink the reach set. The enumerated
-    set is accepted only if every facet carries at least ``na`` of them (true for any
-    polytope); otherwise the bounding box's vertices are used, which over-approximates.
-    """
-    na = H.shape[1]
-    V = vertices(H, h, tol=1e-10)
-    if V is not None and V.shape[0] > na:
-        on = np.abs(V @ H.T - h[None, :]) <= 1e-8
-        if np.all(on.sum(axis=0) >= na):
-            return V
-    return _box_vertices(H, h)
-
-
-def _box_vertices(H: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Vertices of the bounding box of {H a <= h} (sound over-approximation of P)."""
-    na = H.shape[1]
-    lo, hi = np.empty(na), np.empty(na)
-    for j in range(na):
-        e = np.zeros(na)
-        e[j] = 1.0
-        x, _, _ = solve_lp(e, H, h)
-        lo[j] = x[j]
-        x, _, _ = solve_lp(-e, H, h)
-        hi[j] = x[j]
-    grids = np.stack(np.meshgrid(*[[lo[j], hi[j]] for j in range(na)], indexing="ij"), -1)
-    return grids.reshape(-1, na)
+# the name nonlinear.py imports (soundness needs every vertex: checked_vertices' docstring)
+_checked_vertices = checked_vertices
 
 
 def _box_meets(A: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:

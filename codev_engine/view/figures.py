@@ -11,8 +11,9 @@ The notebook hooks of :class:`~codev_engine.law.ExplicitLaw` and
 :func:`law_html`, :func:`result_html` and :func:`mimebundle` here.
 
 Drawing is vectorised: a partition's polygons come from one batched vertex enumeration
-(:func:`section_polygons`, ~1000 regions in a few tens of milliseconds) and a tube's boxes
-go into one ``PolyCollection`` per axes, not one patch per box.
+(:func:`section_polygons`, on :mod:`codev_engine.geometry.vertices`; ~1000 regions in tens
+of milliseconds) and a tube's boxes go into one ``PolyCollection`` per axes, not one patch
+per box.
 """
 
 from __future__ import annotations
@@ -20,10 +21,11 @@ from __future__ import annotations
 import base64
 import html
 import io
-from itertools import combinations
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from codev_engine.geometry.vertices import packed_vertices
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from matplotlib.axes import Axes
@@ -62,8 +64,6 @@ _SAFE = "#2e7d32"
 _INITIAL = "#111111"
 #: resolution of the notebook pictures (dots per inch)
 _DPI = 80
-#: cap on ``regions x vertex candidates x rows`` per batch of the vertex enumeration
-_BATCH = 2_000_000
 
 
 # --------------------------------------------------------------------------------------------
@@ -82,10 +82,10 @@ def section_polygons(
     """The 2-D sections of polytopes ``{x : A_i x <= b_i}`` as ordered polygons.
 
     The section of region ``i`` is ``{(x[axes[0]], x[axes[1]]) : A_i x <= b_i}`` with every
-    other coordinate fixed at ``at``. Its vertices are found for all regions at once: every
-    pair of (normalised) rows of a region is intersected and the points that satisfy all the
-    region's rows are kept, then sorted by angle around their mean. Regions are batched by
-    row count, so there is no padding and no Python loop over regions.
+    other coordinate fixed at ``at``. Its rows are normalised in the plane and its vertices
+    found for all regions at once by :func:`~codev_engine.geometry.vertices.packed_vertices`
+    (every pair of rows intersected, the points that satisfy all the region's rows kept),
+    then sorted by angle around their mean.
 
     Parameters
     ----------
@@ -97,7 +97,8 @@ def section_polygons(
     at : (n,) array_like, optional
         Values of the other coordinates (ignored for ``n == 2``); zeros by default.
     tol : float
-        Relative feasibility tolerance of a candidate vertex.
+        Feasibility tolerance of a candidate vertex, ``tol * (1 + |b_j|)`` for row ``j``
+        (absolute and relative parts of :func:`~codev_engine.geometry.vertices.packed_vertices`).
 
     Returns
     -------
@@ -129,36 +130,9 @@ def section_polygons(
     plane = plane[keep] / norm[keep, None]
     rhs = rhs[keep] / norm[keep]
     region = region[keep]
-    kept = np.bincount(region, minlength=R)
-    start = np.concatenate([[0], np.cumsum(kept)[:-1]])
-
-    pts, owner = [], []
-    for c in np.unique(kept[kept >= 3]):
-        regs = np.flatnonzero(kept == c)
-        p, q = (np.array(v) for v in zip(*combinations(range(c), 2), strict=True))
-        chunk = max(1, _BATCH // (len(p) * c))
-        for s in range(0, regs.size, chunk):
-            rr = regs[s : s + chunk]
-            idx = start[rr][:, None] + np.arange(c)  # (Rc, c) rows of each region
-            M, h = plane[idx], rhs[idx]
-            a, a2, h1, h2 = M[:, p], M[:, q], h[:, p], h[:, q]
-            det = a[..., 0] * a2[..., 1] - a[..., 1] * a2[..., 0]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                X = np.stack(
-                    [
-                        (h1 * a2[..., 1] - h2 * a[..., 1]) / det,
-                        (a[..., 0] * h2 - a2[..., 0] * h1) / det,
-                    ],
-                    axis=-1,
-                )  # (Rc, P, 2)
-                slack = np.einsum("rpd,rkd->rpk", X, M) - h[:, None, :]
-            ok = np.abs(det) > 1e-10
-            ok &= np.all(slack <= tol * (1.0 + np.abs(h[:, None, :])), axis=2)
-            r_ok, p_ok = np.nonzero(ok)
-            pts.append(X[r_ok, p_ok])
-            owner.append(rr[r_ok])
-    P = np.concatenate(pts) if pts else np.zeros((0, 2))
-    own = np.concatenate(owner) if owner else np.zeros(0, dtype=int)
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(region, minlength=R))])
+    # all regions in one enumeration (the section rows have unit norm in the plane)
+    P, own, _ = packed_vertices(plane, rhs, offsets, tol, rtol=tol, max_combos=None)
     if own.size == 0:
         return [], np.zeros(0, dtype=int)
     # order the vertices of each region by angle around their mean

@@ -1,9 +1,10 @@
 """Start the installed workbench headless on a spec, synthesise from its keys, quit.
 
 ``python tui_smoke.py SPEC SESSION_DIR`` opens SPEC as ``codev tui SPEC --session
-SESSION_DIR`` does, in Textual's headless driver (``App.run_test``), presses F3 (the
-synthesis tab) and ctrl+g (run the synthesis), waits for the session's journal to record
-the synthesis, then presses ctrl+q. Exit 0 and one line with the region count, or a
+SESSION_DIR`` does, in Textual's headless driver (``App.run_test``), waits for the pipeline
+line to show the synthesis stage's status (the spec checked), presses F3 (the synthesis
+tab) and ctrl+g (run the synthesis), waits for the session's journal to record the
+synthesis, then presses ctrl+q. Exit 0 and one line with the region count, or a
 traceback. Run by .ci/run and tests/contract/test_wheel.py with the Python of a venv where
 the wheel is installed, from outside the checkout: it imports only the installed packages.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -28,10 +30,18 @@ def synthesis_records(session: Path) -> list[dict]:
     return [r for r in map(json.loads, filter(str.strip, lines)) if r["stage"] == "synthesis"]
 
 
+#: the pipeline line once the spec is checked (ctrl+g before that is refused: not valid yet)
+CHECKED = re.compile(r"synthesis (missing|cached|stale|corrupt)|spec not valid")
+
+
 async def scenario(spec: str, session: Path, timeout: float = 180.0) -> dict:
     app = CodevApp(open_target(spec, session_dir=str(session)))
     async with app.run_test(size=(160, 50)) as pilot:
-        await pilot.pause(0.5)
+        end = time.monotonic() + timeout
+        while not CHECKED.search(line := str(app.query_one("#pipeline").render())):
+            assert time.monotonic() < end, f"the spec was not checked after {timeout} s: {line}"
+            await pilot.pause(0.2)
+        assert "spec not valid" not in line, line
         await pilot.press("f3")
         await pilot.pause(0.2)
         active = app.query_one("#tabs").active

@@ -1,0 +1,385 @@
+"""Vertices of polytopes ``{x : A x <= b}``: the one vertex enumeration of the engine.
+
+Every d-subset of a polytope's rows is solved as a ``d x d`` linear system; the solutions
+that satisfy all the rows are its vertices (a bounded polytope is the convex hull of them;
+an unbounded one has only the vertices it has, possibly none). This is meant for the small
+H-representations of the engine -- critical regions, reach-set stars, sets drawn -- in low
+dimension: ``C(k, d)`` systems for ``k`` rows. Many polytopes are enumerated at once
+(:func:`vertices_many`, vectorised over all polytopes with the same number of rows).
+
+Rows are expected of unit norm (every caller normalises them), so ``a_j x - b_j`` is the
+signed distance to row ``j``'s hyperplane and ``|det|`` of d rows is the volume their
+normals span. The tolerances, and what each guards against:
+
+``DET_TOL = 1e-12`` (singular subsets)
+    A subset whose ``|det|`` is below it has (nearly) dependent rows: the system has no
+    unique solution, or one too inaccurate to trust, and gives no vertex. A vertex where
+    facets meet at such a small angle is lost; the callers that need every vertex check
+    for that (:func:`checked_vertices`, the mp-LP explorer's facet check).
+``tol`` and ``rtol`` (feasibility)
+    A solution is a vertex when ``A x <= b + tol + rtol |b|`` for every row. The rounding
+    of the solve leaves the rows that are tight at a vertex slightly violated -- notably
+    at a degenerate vertex, where more than d facets meet and the rows outside the subset
+    are tight too; the tolerance keeps such vertices. Too wide a tolerance would admit
+    points just outside the polytope (where a nearly redundant row cuts a corner off).
+    The callers choose (``tol`` is in units of ``x``):
+
+    * the mp-LP explorer: its touch tolerance ``1e-11 * scale``, ``rtol = 0``;
+    * reachability (:func:`checked_vertices`): ``1e-10``, ``rtol = 0``;
+    * drawings (figures, recordings): ``1e-9`` with ``rtol = 1e-9``, for sets whose
+      offsets ``b`` have any magnitude.
+``tol`` again (merging)
+    The solutions of the subsets that meet at a degenerate vertex differ by rounding only,
+    far below ``tol``: solutions that round to the same multiple of ``tol`` are one vertex
+    (the first found, in subset order, is kept).
+``FACET_TOL = 1e-8`` (the completeness check of :func:`checked_vertices`)
+    A vertex is on a facet when its distance to the facet's hyperplane is at most this.
+``max_combos`` (a budget, not a tolerance)
+    A polytope with more d-subsets than this is not enumerated (None): the callers fall
+    back to LPs (``MAX_COMBOS = 20_000``), or take a larger budget where they have no
+    fallback (recordings: 50,000; 2-D sections: none).
+
+:func:`checked_vertices` is the *sound* variant for reachability: points whose convex hull
+contains the polytope -- its vertices when their enumeration passes a completeness check,
+else the corners of its bounding box.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from itertools import combinations
+from math import comb
+
+import numpy as np
+
+from codev_engine.errors import SolverError
+from codev_engine.geometry.polytope import solve_lp
+
+__all__ = [
+    "DET_TOL",
+    "FACET_TOL",
+    "MAX_COMBOS",
+    "box_corners",
+    "checked_vertices",
+    "packed_vertices",
+    "vertices",
+    "vertices_in_boxes",
+    "vertices_many",
+]
+
+#: |det| of d unit rows below this: the rows are (nearly) dependent, no vertex from them
+DET_TOL = 1e-12
+#: a vertex is on a facet (the check of ``checked_vertices``) within this distance
+FACET_TOL = 1e-8
+#: default budget of d-subsets per polytope (None beyond it)
+MAX_COMBOS = 20_000
+#: cap on ``polytopes x row subsets x rows`` per vectorised batch (memory ~ 8 bytes x d^2 each)
+_BATCH = 2_000_000
+#: ``vertices_in_boxes``: vertices span their box when they reach each side to this
+#: fraction of ``1 + |box|`` (the boxes come from LPs accurate to ~1e-9)
+_SPAN_TOL = 1e-6
+
+
+def vertices(
+    A: np.ndarray,
+    b: np.ndarray,
+    tol: float = 1e-9,
+    *,
+    rtol: float = 0.0,
+    max_combos: int | None = MAX_COMBOS,
+) -> np.ndarray | None:
+    """Vertices of one polytope ``{x : A x <= b}`` (see the module docstring).
+
+    Parameters
+    ----------
+    A : (k, d) ndarray
+        Rows of unit norm.
+    b : (k,) ndarray
+    tol : float
+        Absolute feasibility tolerance, also the grid on which vertices are merged.
+    rtol : float
+        Feasibility tolerance relative to ``|b_j|``.
+    max_combos : int or None
+        Give up (None) beyond this many d-subsets of the rows; None for no limit.
+
+    Returns
+    -------
+    (v, d) ndarray or None
+        The distinct vertices, in the order of the first subset that gives each; none when
+        the polytope is empty, has fewer than d rows or has no vertex; None when the
+        enumeration would exceed ``max_combos``.
+    """
+    return vertices_many([A], [b], tol, rtol=rtol, max_combos=max_combos)[0]
+
+
+def vertices_many(
+    As: Sequence[np.ndarray],
+    bs: Sequence[np.ndarray],
+    tol: float = 1e-9,
+    *,
+    rtol: float = 0.0,
+    max_combos: int | None = MAX_COMBOS,
+) -> list[np.ndarray | None]:
+    """Vertices of many polytopes ``{x : A_i x <= b_i}`` of one dimension, vectorised.
+
+    Same result for each polytope as :func:`vertices` (see :func:`packed_vertices`).
+
+    Parameters
+    ----------
+    As : sequence of (k_i, d) ndarray
+        Rows of unit norm.
+    bs : sequence of (k_i,) ndarray
+    tol : float
+        Absolute feasibility tolerance, also the grid on which vertices are merged.
+    rtol : float
+        Feasibility tolerance relative to ``|b_j|``.
+    max_combos : int or None
+        Give up on a polytope (None) beyond this many d-subsets; None for no limit.
+
+    Returns
+    -------
+    list of (v_i, d) ndarray or None
+        As :func:`vertices`, one entry per polytope.
+    """
+    R = len(As)
+    if R == 0:
+        return []
+    offsets = np.concatenate([[0], np.cumsum([np.shape(A)[0] for A in As])])
+    V, owner, done = packed_vertices(
+        np.vstack(As), np.concatenate(bs), offsets, tol, rtol=rtol, max_combos=max_combos
+    )
+    parts = np.split(V, np.cumsum(np.bincount(owner, minlength=R))[:-1])
+    return [parts[i] if done[i] else None for i in range(R)]
+
+
+def packed_vertices(
+    A: np.ndarray,
+    b: np.ndarray,
+    offsets: np.ndarray,
+    tol: float = 1e-9,
+    *,
+    rtol: float = 0.0,
+    max_combos: int | None = MAX_COMBOS,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices of polytopes packed in flat arrays (region after region), vectorised.
+
+    The polytopes with the same number of rows are solved together, in batches of at most
+    ``2e6`` subset rows; each polytope's result is that of :func:`vertices`.
+
+    Parameters
+    ----------
+    A : (q, d) ndarray
+        The polytopes' rows (unit norm), polytope after polytope.
+    b : (q,) ndarray
+    offsets : (R + 1,) ndarray of int
+        Polytope ``i``'s rows are ``A[offsets[i]:offsets[i + 1]]``.
+    tol : float
+        Absolute feasibility tolerance, also the grid on which vertices are merged.
+    rtol : float
+        Feasibility tolerance relative to ``|b_j|``.
+    max_combos : int or None
+        Give up on a polytope beyond this many d-subsets; None for no limit.
+
+    Returns
+    -------
+    V : (N, d) ndarray
+        The vertices, polytope after polytope (each in the order of :func:`vertices`).
+    owner : (N,) ndarray of int
+        The polytope of each vertex (non-decreasing).
+    enumerated : (R,) bool ndarray
+        False for the polytopes given up on (they have no vertices in ``V``).
+    """
+    A = np.asarray(A, dtype=float)
+    b = np.asarray(b, dtype=float)
+    offsets = np.asarray(offsets, dtype=np.intp)
+    d = A.shape[1]
+    counts = np.diff(offsets)
+    enumerated = np.ones(counts.shape[0], dtype=bool)
+    found_V, found_owner = [np.zeros((0, d))], [np.zeros(0, dtype=np.intp)]
+    for k in np.unique(counts):
+        k = int(k)
+        members = np.flatnonzero(counts == k)
+        if k < d:  # no vertex
+            continue
+        C = comb(k, d)
+        if max_combos is not None and C > max_combos:
+            enumerated[members] = False
+            continue
+        idx = np.array(list(combinations(range(k), d)), dtype=np.intp).reshape(C, d)
+        per = max(1, _BATCH // (C * k))
+        for s in range(0, members.size, per):
+            sel = members[s : s + per]
+            rows = offsets[sel][:, None] + np.arange(k)  # (G, k)
+            g, X = _enumerate(A[rows], b[rows], idx, tol, rtol)
+            found_V.append(X)
+            found_owner.append(sel[g])
+    V, owner = np.concatenate(found_V), np.concatenate(found_owner)
+    order = np.argsort(owner, kind="stable")
+    return V[order], owner[order], enumerated
+
+
+def _enumerate(
+    A: np.ndarray, b: np.ndarray, idx: np.ndarray, tol: float, rtol: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices of G polytopes of k rows each, ``A`` (G, k, d), ``b`` (G, k), from the row
+    subsets ``idx`` (C, d) -> the polytope of each (N,), non-decreasing, and the vertices
+    (N, d)."""
+    G, k, d = A.shape
+    C = idx.shape[0]
+    bound = b + (tol + rtol * np.abs(b))  # (G, k) what A x may reach
+    # subsets per step: all of them, unless one polytope has too many (then G == 1, and
+    # the steps' results come in subset order)
+    chunk = max(1, _BATCH // (G * k))
+    found_g, found_X = [], []
+    for s in range(0, C, chunk):
+        sub = idx[s : s + chunk]
+        M = A[:, sub]  # (G, c, d, d)
+        with np.errstate(all="ignore"):
+            det = np.linalg.det(M)
+        g, c = np.nonzero(np.abs(det) > DET_TOL)
+        if g.size == 0:
+            continue
+        X = np.linalg.solve(M[g, c], b[:, sub][g, c][..., None])[..., 0]  # (N, d)
+        if G == 1:  # one polytope: one matrix product
+            feas = np.all(X @ A[0].T <= bound[0], axis=1)
+        else:
+            feas = np.all(np.einsum("nkd,nd->nk", A[g], X) <= bound[g], axis=1)
+        found_g.append(g[feas])
+        found_X.append(X[feas])
+    if not found_g:
+        return np.zeros(0, dtype=np.intp), np.zeros((0, d))
+    g, X = np.concatenate(found_g), np.concatenate(found_X)
+    if g.size == 0:
+        return g, X
+    # merge: the first solution of each vertex on the grid ``tol`` (see the module docstring)
+    _, first = np.unique(np.column_stack([g, np.round(X / tol)]), axis=0, return_index=True)
+    first.sort()
+    return g[first], X[first]
+
+
+def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The ``2^d`` corners of the box ``[lo, hi]``.
+
+    Parameters
+    ----------
+    lo, hi : (d,) ndarray
+
+    Returns
+    -------
+    (2^d, d) ndarray
+        In binary order, the last coordinate fastest (``lo`` first, ``hi`` last).
+    """
+    d = lo.shape[0]
+    grids = np.stack(np.meshgrid(*[[lo[j], hi[j]] for j in range(d)], indexing="ij"), -1)
+    return grids.reshape(-1, d)
+
+
+def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.ndarray:
+    """Points whose convex hull contains the bounded polytope ``{x : A x <= b}`` (sound).
+
+    Reachability bounds sets by their vertices, so a lost vertex would shrink the reach
+    set. The enumeration (:func:`vertices`, ``rtol = 0``) is accepted only if it has more
+    than d vertices and every row carries at least d of them within ``FACET_TOL`` (true for
+    every facet of a polytope); otherwise the corners of the polytope's bounding box (2d
+    LPs) are returned, which over-approximate.
+
+    Parameters
+    ----------
+    A : (k, d) ndarray
+        Non-redundant rows of unit norm (a redundant row carries no vertex and forces the
+        bounding box).
+    b : (k,) ndarray
+    tol : float
+        Feasibility tolerance of the enumeration (absolute).
+
+    Returns
+    -------
+    (v, d) ndarray
+
+    Raises
+    ------
+    ValueError
+        The polytope is unbounded (a bounding box LP is unbounded).
+    SolverError
+        A bounding box LP has no solution (the polytope is empty, or the LP failed).
+    """
+    d = A.shape[1]
+    V = vertices(A, b, tol)
+    if V is not None and V.shape[0] > d:
+        on = np.abs(V @ A.T - b[None, :]) <= FACET_TOL
+        if np.all(on.sum(axis=0) >= d):
+            return V
+    lo, hi = np.empty(d), np.empty(d)
+    for j in range(d):
+        e = np.zeros(d)
+        e[j] = 1.0
+        lo[j] = _box_side(e, A, b)[j]
+        hi[j] = _box_side(-e, A, b)[j]
+    return box_corners(lo, hi)
+
+
+def _box_side(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The minimiser of ``f x`` over ``A x <= b`` (bounding box LP)."""
+    x, status, _ = solve_lp(f, A, b)
+    if status == "unbounded":
+        raise ValueError("an unbounded polytope has no enclosing vertices")
+    if x is None:  # solve_lp reports its failures as infeasible
+        raise SolverError(f"the bounding box LP of a polytope is {status} (empty, or failed)")
+    return x
+
+
+def vertices_in_boxes(
+    As: Sequence[np.ndarray],
+    bs: Sequence[np.ndarray],
+    lo: np.ndarray,
+    hi: np.ndarray,
+    tol: float = 1e-9,
+    *,
+    rtol: float = 0.0,
+    max_combos: int | None = MAX_COMBOS,
+) -> tuple[list[np.ndarray | None], list[np.ndarray], list[np.ndarray]]:
+    """Vertices of polytopes clipped to their boxes, ``{x : A_i x <= b_i, lo_i <= x <= hi_i}``.
+
+    Fast path: the polytopes' own rows. A polytope whose vertices do not reach every side
+    of its box (unbounded, or a box wider than the polytope) is enumerated again with the
+    box's rows added, which bounds it (and changes nothing for a bounded polytope inside
+    its box).
+
+    Parameters
+    ----------
+    As : sequence of (k_i, d) ndarray
+        Rows of unit norm.
+    bs : sequence of (k_i,) ndarray
+    lo, hi : (R, d) ndarray
+        The boxes (finite), e.g. the polytopes' bounding boxes.
+    tol, rtol, max_combos
+        As in :func:`vertices_many`.
+
+    Returns
+    -------
+    vertices : list of (v_i, d) ndarray or None
+    A, b : list of ndarray
+        The rows the vertices were enumerated from (the box rows appended where used).
+    """
+    V = vertices_many(As, bs, tol, rtol=rtol, max_combos=max_combos)
+    As, bs = list(As), list(bs)
+    d = lo.shape[1]
+    eye = np.vstack([np.eye(d), -np.eye(d)])
+    redo = []
+    for i, v in enumerate(V):
+        if v is None or v.shape[0] == 0:
+            redo.append(i)
+            continue
+        gap = _SPAN_TOL * (1.0 + max(np.abs(lo[i]).max(), np.abs(hi[i]).max()))
+        if np.abs(v.min(axis=0) - lo[i]).max() > gap or np.abs(v.max(axis=0) - hi[i]).max() > gap:
+            redo.append(i)
+    if redo:
+        for i in redo:
+            As[i] = np.vstack([As[i], eye])
+            bs[i] = np.concatenate([bs[i], hi[i], -lo[i]])
+        again = vertices_many(
+            [As[i] for i in redo], [bs[i] for i in redo], tol, rtol=rtol, max_combos=max_combos
+        )
+        for i, v in zip(redo, again, strict=True):
+            V[i] = v
+    return V, As, bs
