@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from codev_engine.display import Displayable
 from codev_engine.errors import SpecError
 from codev_engine.geometry.locate import PointLocator, bounding_boxes
 from codev_engine.geometry.polytope import Polytope
@@ -32,7 +33,7 @@ _LAW_FILE = NpzFormat("law file", LAW_FORMAT, "law")
 
 
 @dataclass
-class ExplicitLaw:
+class ExplicitLaw(Displayable):
     """Piecewise-affine state feedback on a polyhedral partition.
 
     Attributes
@@ -246,26 +247,6 @@ class ExplicitLaw:
 
     def __repr__(self) -> str:
         return f"ExplicitLaw(num_regions={self.num_regions}, n={self.n}, m={self.m})"
-
-    # ---- notebooks: codev_engine.figures draws (matplotlib is imported only there) ------
-
-    def _repr_png_(self) -> bytes:
-        """The partition picture (``figures.figure_law``) as PNG bytes."""
-        from codev_engine.view.figures import figure_law, png_bytes
-
-        return png_bytes(figure_law(self))
-
-    def _repr_html_(self) -> str:
-        """A summary table (regions, n, m, norm, ...) with the partition picture."""
-        from codev_engine.view.figures import law_html
-
-        return law_html(self)
-
-    def _repr_mimebundle_(self, include: object = None, exclude: object = None) -> dict[str, str]:
-        """Notebook display: HTML summary and PNG, the picture rendered once."""
-        from codev_engine.view.figures import mimebundle
-
-        return mimebundle(self)
 
 
 def fingerprint_arrays(*arrays: np.ndarray | float | str) -> str:

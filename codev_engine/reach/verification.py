@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from codev_engine.display import Displayable
 from codev_engine.errors import SpecError
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
@@ -90,7 +91,7 @@ class Counterexample:
 
 
 @dataclass
-class VerificationResult:
+class VerificationResult(Displayable):
     """Outcome of ``verify``."""
 
     verdict: str
@@ -211,26 +212,6 @@ class VerificationResult:
                 f"{ce.kind} at t = {ce.t:.4f}"
             )
         return line
-
-    # ---- notebooks: codev_engine.figures draws (matplotlib is imported only there) ------
-
-    def _repr_png_(self) -> bytes:
-        """Verdict, tubes against time and plane view (``figures.figure_result``) as PNG."""
-        from codev_engine.view.figures import figure_result, png_bytes
-
-        return png_bytes(figure_result(self))
-
-    def _repr_html_(self) -> str:
-        """A coloured verdict banner, counterexample, timings and the tube picture."""
-        from codev_engine.view.figures import result_html
-
-        return result_html(self)
-
-    def _repr_mimebundle_(self, include: object = None, exclude: object = None) -> dict[str, str]:
-        """Notebook display: HTML summary and PNG, the picture rendered once."""
-        from codev_engine.view.figures import mimebundle
-
-        return mimebundle(self)
 
 
 def check_law_matches(problem: Problem, law: ExplicitLaw, *, file: str | None = None) -> None:

@@ -5,10 +5,11 @@ draw, so ``import codev_engine`` never loads it. Everything uses the object-orie
 a ``matplotlib.figure.Figure`` rendered by the Agg canvas -- never ``pyplot``: no GUI
 backend, no global figure registry, nothing left behind between calls.
 
-The notebook hooks of :class:`~codev_engine.law.ExplicitLaw` and
-:class:`~codev_engine.verify.VerificationResult` (``_repr_png_``, ``_repr_html_``,
-``_repr_mimebundle_``) delegate to :func:`figure_law`, :func:`figure_result`,
-:func:`law_html`, :func:`result_html` and :func:`mimebundle` here.
+The notebook display of :class:`~codev_engine.law.ExplicitLaw` and
+:class:`~codev_engine.reach.verification.VerificationResult` (their ``_repr_png_``,
+``_repr_html_`` and ``_repr_mimebundle_``, from :class:`codev_engine.display.Displayable`)
+is drawn by :mod:`codev_engine.view.notebook` with :func:`figure_law`, :func:`figure_result`,
+:func:`law_html`, :func:`result_html` and :func:`png_bytes` here.
 
 Drawing is vectorised: a partition's polygons come from one batched vertex enumeration
 (:func:`section_polygons`, on :mod:`codev_engine.geometry.vertices`; ~1000 regions in tens
@@ -42,7 +43,6 @@ __all__ = [
     "figure_result",
     "law_html",
     "merge_bands",
-    "mimebundle",
     "plot_partition",
     "plot_plane",
     "plot_tube",
@@ -856,28 +856,3 @@ def result_html(result: VerificationResult, png: bytes | None = None) -> str:
             ("violation", f"{ce.kind} (index {ce.index}) at t = {ce.t:.4f}"),
         ]
     return f"<div>{banner}{_table(rows)}{_img(png)}</div>"
-
-
-def mimebundle(obj: ExplicitLaw | VerificationResult) -> dict[str, str]:
-    """The notebook display of a law or a result, rendered once.
-
-    Returns
-    -------
-    dict
-        ``text/plain`` (the object's ``summary()``), ``text/html`` (the summary with the
-        picture embedded) and ``image/png`` (base64). Frontends prefer HTML, which shows
-        both; the PNG is there for frontends and tools that only take images.
-    """
-    from codev_engine.law import ExplicitLaw
-
-    if isinstance(obj, ExplicitLaw):
-        png = png_bytes(figure_law(obj))
-        text = law_html(obj, png)
-    else:
-        png = png_bytes(figure_result(obj))
-        text = result_html(obj, png)
-    return {
-        "text/plain": obj.summary(),
-        "text/html": text,
-        "image/png": base64.b64encode(png).decode("ascii"),
-    }

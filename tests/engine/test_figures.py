@@ -119,6 +119,43 @@ def test_import_and_drawing_keep_matplotlib_lazy_and_pyplot_out(tmp_path):
     assert out.stdout.strip() == "ok"
 
 
+def test_displayed_types_import_no_drawing_code(tmp_path):
+    """The law and the result display through ``codev_engine.display``: no import statement
+    of theirs (lazy ones included) names ``codev_engine.view``; the drawing backend is
+    imported by module name on the first display."""
+    import ast
+
+    for rel in ("codev_engine/law.py", "codev_engine/reach/verification.py"):
+        tree = ast.parse((ROOT / rel).read_text())
+        names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+        names += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+        assert not [m for m in names if m.startswith("codev_engine.view")], rel
+    script = textwrap.dedent(
+        """
+        import sys
+        import codev_engine.law, codev_engine.reach.verification
+        views = lambda: sorted(m for m in sys.modules if m.startswith("codev_engine.view"))
+        assert views() == [], views()
+        law = codev_engine.law.ExplicitLaw.load(sys.argv[1])
+        assert law._repr_mimebundle_()["image/png"]
+        assert "codev_engine.view.notebook" in views(), views()
+        assert "matplotlib.pyplot" not in sys.modules
+        print("ok")
+        """
+    )
+    problem = ce.load_spec(ROOT / "examples" / "cruise_control.toml")
+    path = ce.synthesize(problem).save(tmp_path / "law.npz")
+    out = subprocess.run(
+        [sys.executable, "-c", script, str(path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "ok"
+
+
 # --------------------------------------------------------------------------------------------
 # partitions
 # --------------------------------------------------------------------------------------------
