@@ -1,8 +1,9 @@
-"""Rerun recordings (codev_engine.records): real .rrd files written and read back.
+"""Rerun recordings (codev_engine.view.records): real .rrd files written and read back.
 
 Every recording here is read back with rerun's own ``RrdReader``: entity paths, instance
 counts, the ``time`` timeline against the tube's ``t_start``, the blueprint store; plus the
-file checks (``check_recording``), the atomic write, and the geometry helpers.
+file checks (``check_recording``), the atomic write, and the unsafe margin. (The vertex
+enumeration is tested in test_vertices.py.)
 """
 
 from __future__ import annotations
@@ -25,12 +26,11 @@ from codev_engine.reach.tube import Tube
 from codev_engine.reach.verification import VerificationResult
 from codev_engine.spec.problem import SetSpec
 from codev_engine.view import records
+from codev_engine.view.record_content import unsafe_margin
 from codev_engine.view.records import (
     RecordingOptions,
     RecordingSummary,
     check_recording,
-    enumerate_vertices,
-    unsafe_margin,
     write_recording,
 )
 
@@ -475,25 +475,8 @@ def test_many_boxes(di, tmp_path):
 
 
 # ---------------------------------------------------------------------------------------
-# geometry helpers
+# the unsafe margin
 # ---------------------------------------------------------------------------------------
-
-
-def test_enumerate_vertices():
-    square_A = np.vstack([np.eye(2), -np.eye(2)])
-    square_b = np.array([1.0, 2.0, 0.0, 0.0])
-    tri_A = np.array([[-1.0, 0.0], [0.0, -1.0], [1.0, 1.0]])
-    tri_A[2] /= np.sqrt(2)
-    tri_b = np.array([0.0, 0.0, 1.0 / np.sqrt(2)])
-    cube_A = np.vstack([np.eye(3), -np.eye(3)])
-    V = enumerate_vertices([square_A, tri_A, square_A[:1]], [square_b, tri_b, square_b[:1]])
-    assert {tuple(v) for v in np.round(V[0], 9)} == {(0, 0), (1, 0), (0, 2), (1, 2)}
-    assert {tuple(v) for v in np.round(V[1], 9)} == {(0, 0), (1, 0), (0, 1)}
-    assert V[2].shape == (0, 2)  # one row: no vertex
-    (cube,) = enumerate_vertices([cube_A], [np.ones(6)])
-    assert cube.shape == (8, 3) and np.allclose(np.abs(cube), 1.0)
-    empty = enumerate_vertices([square_A], [np.array([-1.0, 0.0, 0.0, 0.0])])
-    assert empty[0].shape == (0, 2)
 
 
 def test_unsafe_margin():
