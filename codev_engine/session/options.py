@@ -19,8 +19,8 @@ class RunOptions:
     Attributes
     ----------
     upto : str
-        Last stage to run (one of ``STAGES``); stages that need a ``[verify]`` section are
-        skipped when the spec has none.
+        Last stage to run (one of ``STAGES``; default the last); stages that need a
+        ``[verify]`` section are skipped when the spec has none.
     hold : str or None
         Overrides ``verify.hold``.
     max_depth : int or None
@@ -31,7 +31,7 @@ class RunOptions:
         Simulated traces in the recording.
     """
 
-    upto: str = "recording"
+    upto: str = STAGES[-1]
     hold: str | None = None
     max_depth: int | None = None
     axes: tuple[int, int] = (0, 1)
@@ -75,7 +75,7 @@ class RunOptions:
             raise SessionError("must be a JSON object", field=where)
         try:
             opts = cls(
-                upto=str(d.get("upto", "recording")),
+                upto=str(d.get("upto", STAGES[-1])),
                 hold=d.get("hold"),
                 max_depth=d.get("max_depth"),
                 axes=tuple(d.get("axes", (0, 1))),  # type: ignore[arg-type]
