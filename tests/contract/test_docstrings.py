@@ -86,20 +86,6 @@ NOT_YET: set[str] = {
     "codev_engine.view.figures",
     "workbench",
     "workbench.cli",
-    "workbench.tui.app",
-    "workbench.tui.design",
-    "workbench.tui.form",
-    "workbench.tui.messages",
-    "workbench.tui.panes.mpc",
-    "workbench.tui.panes.plant",
-    "workbench.tui.panes.session",
-    "workbench.tui.panes.synthesis",
-    "workbench.tui.panes.verification",
-    "workbench.tui.parsers",
-    "workbench.tui.raster",
-    "workbench.tui.state",
-    "workbench.tui.views",
-    "workbench.tui.widgets",
 }
 
 Errors = list[tuple[str, str]]

@@ -97,7 +97,45 @@ class RunCancelledError(Exception):
 
 
 class CodevApp(App):
-    """``codev tui``: plant → MPC → synthesis → verification, saved as a session."""
+    """``codev tui``: plant → MPC → synthesis → verification, saved as a session.
+
+    Parameters
+    ----------
+    opened : Opened
+        The session and form entries to start with (:func:`~workbench.tui.state.open_target`).
+    traces : int
+        Simulated traces in the session's Rerun recording (:class:`RunOptions` ``traces``).
+
+    Attributes
+    ----------
+    session : Session
+        The session edits are saved to and stages run in.
+    values : dict of str to str
+        The form's entries: field name → text.
+    has_verify : bool
+        Whether the ``[verify]`` section is on.
+    options : RunOptions
+        The options of every stage run (``upto`` set per run).
+    check : FormCheck or None
+        The last form check (None before the first).
+    statuses : dict of str to StageStatus
+        Each stage's status for the checked spec.
+    keys : dict of str to str
+        Each stage's key for the checked spec.
+    law : ExplicitLaw or None
+        The law shown (the latest computed or loaded: it may be stale).
+    result : VerificationResult or None
+        The verdict shown (likewise).
+    law_key, result_key : str or None
+        The stage keys they were computed for (stale when not the checked spec's ``keys``).
+    result_problem : Problem or None
+        The spec the verdict was computed for (its names label the pictures).
+    busy : str or None
+        The stage the run in flight was started for (``upto``); None when nothing runs.
+    progress : tuple of (str, int, float) or None
+        The run's stage, count (regions, branches) and the stage's start time, read by the
+        10 Hz timer.
+    """
 
     TITLE = "codev workbench"
     CSS_PATH = STYLESHEET
@@ -285,9 +323,21 @@ class CodevApp(App):
         bar.update(head + "  ".join(parts) + "   [dim]✓ spec saved[/dim]")
 
     def law_current(self) -> bool:
+        """Whether the law shown was computed for the spec on screen.
+
+        Returns
+        -------
+        bool
+        """
         return self.law is not None and self.law_key == self.keys.get("synthesis")
 
     def result_current(self) -> bool:
+        """Whether the verdict shown was computed for the spec on screen.
+
+        Returns
+        -------
+        bool
+        """
         return self.result is not None and self.result_key == self.keys.get("verification")
 
     def _show_results(self) -> None:
@@ -310,7 +360,17 @@ class CodevApp(App):
         self.action_cancel()
 
     def run_stage(self, upto: str) -> None:
-        """Run the pipeline up to ``upto`` in a worker (cached stages are loaded)."""
+        """Run the pipeline up to a stage in a worker (cached stages are loaded).
+
+        Refused with a notification while a run is in flight, while the spec is not valid,
+        or for a verification stage of a spec without ``[verify]``.
+
+        Parameters
+        ----------
+        upto : str
+            The last stage: ``"model"``, ``"synthesis"``, ``"verification"`` or
+            ``"recording"``.
+        """
         if self.busy is not None:
             self.notify(f"{self.busy} is running: wait, or cancel it (Esc)", severity="warning")
             return
@@ -488,7 +548,16 @@ class CodevApp(App):
         pane.show_export(event.recording, event.dest, copied=out)
 
     def load(self, opened: Opened) -> None:
-        """Switch to another session / spec (the Session tab's Open)."""
+        """Switch to another session / spec (the Session tab's Open).
+
+        Refused with a notification while a run is in flight. The entries, the
+        ``[verify]`` switch and the results shown are replaced, and the form is checked.
+
+        Parameters
+        ----------
+        opened : Opened
+            The session and entries to switch to.
+        """
         if self.busy is not None:
             self.notify("a stage is running: cancel it first", severity="warning")
             return

@@ -42,6 +42,11 @@ def _eig(M: np.ndarray) -> str:
 def plant_report(problem: Problem) -> tuple[str, LinearModel]:
     """The plant screen's derived view of a problem.
 
+    Parameters
+    ----------
+    problem : Problem
+        A valid spec (its plant and model sections are used).
+
     Returns
     -------
     text : str
@@ -49,6 +54,7 @@ def plant_report(problem: Problem) -> tuple[str, LinearModel]:
         ``B``, ``c``, eigenvalues (continuous and discrete, with stability), the
         controllability matrix's rank.
     model : LinearModel
+        The discretised model the text describes.
     """
     from codev_engine import discretize
     from codev_engine.plant import symbolic_model
@@ -142,6 +148,25 @@ def mpc_preview(
 
     The loop runs on the discrete prediction model ``dx+ = A dx + B du + c`` (what the MPC
     believes), not the nonlinear plant: the verification stage covers the true plant.
+
+    Parameters
+    ----------
+    problem : Problem
+        The spec (its ``mpc`` section is the MPC solved).
+    model : LinearModel
+        The prediction model, ``discretize(problem)``.
+    x0 : (n,) array_like of float
+        The initial state (plant coordinates).
+    steps : int
+        The number of samples simulated.
+    should_stop : callable
+        Called before each step with no argument; True stops the loop there (the
+        workbench's cancel).
+
+    Returns
+    -------
+    MpcPreview
+        The loop up to ``steps``, the first infeasible step, or the stop.
     """
     import time
 
@@ -171,7 +196,19 @@ def mpc_preview(
 
 
 def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
-    """Rows of the region table: index, facets, law ``u = F x + G`` (first ``limit``)."""
+    """Rows of the synthesis screen's region table, one per critical region.
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    limit : int
+        At most this many rows (the first regions).
+
+    Returns
+    -------
+    list of tuple of str
+        ``(index, number of facets, the law u = F x + G, the bounding box)`` per region.
+    """
     rows = []
     names = law.states or tuple(f"x{k}" for k in range(law.n))
     lo, hi = law.boxes
@@ -194,7 +231,21 @@ def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
 
 
 def locate_state(law: ExplicitLaw, x: np.ndarray) -> tuple[int, np.ndarray | None]:
-    """(region index or -1, u or None) of one state."""
+    """The critical region of one state and the law's input there.
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    x : (n,) array_like of float
+        The state.
+
+    Returns
+    -------
+    region : int
+        The region's index, or -1 outside the law's domain (where the MPC is infeasible).
+    u : (m,) ndarray or None
+        The input ``F x + G`` of that region; None outside the domain.
+    """
     x = np.asarray(x, dtype=float).reshape(1, law.n)
     k = int(law.locate(x)[0])
     if k < 0:

@@ -71,10 +71,12 @@ class FieldDef:
 
     @property
     def name(self) -> str:
+        """The dotted path, ``"mpc.Q"``: the entry's id and the engine errors' field."""
         return ".".join(self.path)
 
     @property
     def section(self) -> str:
+        """The TOML section the field is in (``"mpc"``), or ``""`` for a top-level key."""
         return self.path[0] if self.path[0] in SECTIONS else ""
 
 
@@ -167,6 +169,20 @@ def toml_value(value: Any) -> str:
     """A TOML literal for a value read by ``tomllib`` (round-trips exactly).
 
     Lists of inline tables are written one table per line (``sets`` entries).
+
+    Parameters
+    ----------
+    value : bool, int, float, str, list or dict
+        A value as ``tomllib`` returns it (nested lists and tables included).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    TypeError
+        A value of another type (TOML has no literal for it).
     """
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -302,6 +318,11 @@ def _display(kind: str, value: Any) -> str:
 def form_from_text(text: str) -> tuple[dict[str, str], bool]:
     """Entries of the form for a spec's TOML text.
 
+    Parameters
+    ----------
+    text : str
+        The spec document.
+
     Returns
     -------
     values : dict
@@ -347,6 +368,13 @@ def _leaf_paths(data: dict[str, Any], prefix: tuple[str, ...] = ()) -> list[tupl
 
 def compose(values: dict[str, str], *, with_verify: bool = True) -> tuple[str, dict[str, str]]:
     """The TOML document of the form's entries.
+
+    Parameters
+    ----------
+    values : dict of str to str
+        The entries: field name → text (a missing field is empty).
+    with_verify : bool
+        Include the ``[verify]`` section (its entries are left out otherwise).
 
     Returns
     -------
@@ -405,15 +433,28 @@ def _inline(v: Any) -> str:
 
 @dataclass(frozen=True)
 class FormCheck:
-    """The result of validating the form: the problem, or the errors per entry."""
+    """The result of validating the form: the problem, or the errors per entry.
+
+    Attributes
+    ----------
+    text : str
+        The composed TOML document that was validated.
+    problem : Problem or None
+        The validated spec; None if the form is not valid.
+    errors : dict of str to str
+        Field name → message, for the entries at fault.
+    general : str or None
+        An error that names no entry (the MPC is infeasible, ...).
+    """
 
     text: str
     problem: Problem | None
     errors: dict[str, str]
-    general: str | None = None  # an error that names no entry
+    general: str | None = None
 
     @property
     def ok(self) -> bool:
+        """Whether the form is a valid spec (``problem`` is set)."""
         return self.problem is not None
 
 
@@ -423,6 +464,17 @@ def field_for_error(field: str | None) -> str | None:
     A sub-table (``model.operating_point``, ``verify.initial_set``) maps to its first entry;
     a whole section (``mpc``: the MPC is infeasible; ``verify``) or an unknown field maps to
     None (a general error, not pinned on an arbitrary entry).
+
+    Parameters
+    ----------
+    field : str or None
+        The dotted field of a :class:`~codev_engine.errors.SpecError` (None: it names
+        none).
+
+    Returns
+    -------
+    str or None
+        The name of the entry (a :attr:`FieldDef.name`), or None.
     """
     if not field:
         return None
@@ -447,6 +499,23 @@ def check_form(
 
     The engine stops at the first error, so at most one entry error comes from it; entry
     syntax errors are all reported.
+
+    Parameters
+    ----------
+    values : dict of str to str
+        The entries: field name → text.
+    with_verify : bool
+        Whether the ``[verify]`` section is on (see :func:`compose`).
+    check_mpc : bool
+        Also check that the MPC is feasible for some state in the state bounds (an LP;
+        passed to :func:`~codev_engine.pipeline.loads_spec`).
+    path : str
+        The spec's name in the engine's messages.
+
+    Returns
+    -------
+    FormCheck
+        The problem, or the errors: per entry, or one general error.
     """
     text, errors = compose(values, with_verify=with_verify)
     if errors:

@@ -25,8 +25,14 @@ __all__ = [
 
 @dataclass
 class RunRequested(Message):
-    """Run the pipeline up to ``stage`` (``"model"``, ``"synthesis"``, ``"verification"``
-    or ``"recording"``); cached stages are loaded, not recomputed."""
+    """Run the pipeline up to a stage; cached stages are loaded, not recomputed.
+
+    Attributes
+    ----------
+    stage : str
+        The last stage to run: ``"model"``, ``"synthesis"``, ``"verification"`` or
+        ``"recording"``.
+    """
 
     stage: str
 
@@ -38,7 +44,13 @@ class CancelRequested(Message):
 
 @dataclass
 class VerifyToggled(Message):
-    """The spec's ``[verify]`` section was switched on or off."""
+    """The spec's ``[verify]`` section was switched on or off by the user.
+
+    Attributes
+    ----------
+    enabled : bool
+        Whether the section is now on.
+    """
 
     enabled: bool
 
@@ -50,14 +62,29 @@ class SaveRequested(Message):
 
 @dataclass
 class OpenRequested(Message):
-    """Open another session folder or spec file, as typed by the user (not resolved yet)."""
+    """Open another session folder or spec file.
+
+    Attributes
+    ----------
+    target : str
+        The path as typed by the user (not resolved yet: the app resolves it with
+        :func:`~workbench.tui.state.open_target`).
+    """
 
     target: str
 
 
 @dataclass
 class ExportRequested(Message):
-    """Copy the session's Rerun ``recording`` to ``dest`` (a path as typed by the user)."""
+    """Copy the session's Rerun recording to a file the user named.
+
+    Attributes
+    ----------
+    recording : Path
+        The recording in the session folder.
+    dest : str
+        Where to copy it, as typed by the user.
+    """
 
     recording: Path
     dest: str

@@ -12,7 +12,24 @@ __all__ = ["parse_axes", "parse_state", "parse_state_name"]
 
 
 def parse_state(text: str, n: int) -> np.ndarray:
-    """``"1, -2"`` or ``"1 -2"`` → (n,) array; ``ValueError`` with a message otherwise."""
+    """A state typed as ``"1, -2"`` or ``"1 -2"`` (commas, semicolons or spaces).
+
+    Parameters
+    ----------
+    text : str
+        The user's entry.
+    n : int
+        The number of states expected.
+
+    Returns
+    -------
+    (n,) ndarray of float
+
+    Raises
+    ------
+    ValueError
+        An entry that is not a number, the wrong count, or a value that is not finite.
+    """
     parts = [p for p in text.replace(",", " ").replace(";", " ").split() if p]
     try:
         x = np.array([float(p) for p in parts])
@@ -26,7 +43,25 @@ def parse_state(text: str, n: int) -> np.ndarray:
 
 
 def parse_axes(text: str, names: tuple[str, ...]) -> tuple[int, int]:
-    """``"x1, x2"`` or ``"0 1"`` → two distinct state indices."""
+    """Two plot axes typed as state names (``"x1, x2"``) or indices (``"0 1"``).
+
+    Parameters
+    ----------
+    text : str
+        The user's entry.
+    names : tuple of str
+        The plant's state names, in state order.
+
+    Returns
+    -------
+    tuple of (int, int)
+        Two distinct state indices.
+
+    Raises
+    ------
+    ValueError
+        Not two entries, an unknown state, or the same state twice.
+    """
     parts = [p for p in text.replace(",", " ").split() if p]
     if len(parts) != 2:
         raise ValueError("give two states, e.g. " + ", ".join(names[:2]))
@@ -44,7 +79,25 @@ def parse_axes(text: str, names: tuple[str, ...]) -> tuple[int, int]:
 
 
 def parse_state_name(text: str, names: tuple[str, ...]) -> int:
-    """``"x1"`` or ``"0"`` → one state index; empty → 0."""
+    """One state typed as a name (``"x1"``) or an index (``"0"``); empty means state 0.
+
+    Parameters
+    ----------
+    text : str
+        The user's entry.
+    names : tuple of str
+        The plant's state names, in state order.
+
+    Returns
+    -------
+    int
+        The state index.
+
+    Raises
+    ------
+    ValueError
+        An unknown state.
+    """
     text = text.strip()
     if not text:
         return 0

@@ -46,7 +46,21 @@ COLOURS = {
 
 
 def nice_limits(lo: float, hi: float, pad: float = 0.05) -> tuple[float, float]:
-    """Padded, finite, non-empty axis limits."""
+    """Padded, finite, non-empty axis limits for data in ``[lo, hi]``.
+
+    Parameters
+    ----------
+    lo, hi : float
+        The data's range. Not finite: ``(-1, 1)`` is used; empty or a single value: a
+        small span around ``lo``.
+    pad : float
+        The margin on each side, as a fraction of ``hi - lo``.
+
+    Returns
+    -------
+    tuple of (float, float)
+        The lower and upper limits (lower < upper).
+    """
     lo, hi = float(lo), float(hi)
     if not (np.isfinite(lo) and np.isfinite(hi)):
         lo, hi = -1.0, 1.0
@@ -64,10 +78,17 @@ class Raster:
 
     Attributes
     ----------
+    width : int
+        W, the width in cells and pixels (at least 2).
+    height : int
+        H, the height in cells (at least 1): two pixel rows per cell.
+    xlim, ylim : tuple of (float, float)
+        The data box shown: the left and right, bottom and top limits.
     pixels : (2H, W) ndarray of int
         Colour per pixel: an index into ``colours``; -1 is the background. Row 0 is the top
         (``ylim[1]``).
     colours : list of str
+        The colours used so far, in the order of first use.
     """
 
     width: int
@@ -85,6 +106,7 @@ class Raster:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """The pixel grid's shape, ``(2H, W)``."""
         return self.pixels.shape  # type: ignore[return-value]
 
     def centres(self) -> tuple[np.ndarray, np.ndarray]:
@@ -105,7 +127,17 @@ class Raster:
         return (y1 - np.asarray(y, dtype=float)) / (y1 - y0) * self.shape[0]
 
     def colour(self, name: str) -> int:
-        """Index of a colour (added on first use)."""
+        """Index of a colour in ``colours`` (added on first use).
+
+        Parameters
+        ----------
+        name : str
+            A colour as rich reads it (``"#4e79a7"``).
+
+        Returns
+        -------
+        int
+        """
         if name not in self.colours:
             self.colours.append(name)
         return self.colours.index(name)
@@ -113,7 +145,15 @@ class Raster:
     # ---- drawing ---------------------------------------------------------------------
 
     def paint(self, index: np.ndarray, palette: tuple[str, ...] = PALETTE) -> None:
-        """Colour each pixel by an integer label (2H, W); negative labels stay unpainted."""
+        """Colour each pixel by an integer label (a critical region's index, say).
+
+        Parameters
+        ----------
+        index : (2H, W) ndarray of int
+            The label of each pixel; negative labels stay unpainted.
+        palette : tuple of str
+            The colours, cycled: label ``k`` gets ``palette[k % len(palette)]``.
+        """
         index = np.asarray(index)
         ids = [self.colour(c) for c in palette]
         lut = np.asarray(ids, dtype=np.int16)
@@ -126,7 +166,17 @@ class Raster:
         """Fill the union of K axis-aligned boxes (each at least one pixel), vectorised.
 
         Coverage is counted with a 2-D difference array and prefix sums, so 1e5 boxes cost a
-        few milliseconds.
+        few milliseconds. A box that is empty (a lower bound above its upper one, or NaN)
+        or outside the view draws nothing.
+
+        Parameters
+        ----------
+        xlo, xhi : (K,) array_like of float
+            The boxes' left and right bounds (data coordinates).
+        ylo, yhi : (K,) array_like of float
+            The boxes' lower and upper bounds.
+        colour : str
+            The fill colour.
         """
         rows, cols = self.shape
         xlo, xhi = np.asarray(xlo, float), np.asarray(xhi, float)
@@ -158,7 +208,17 @@ class Raster:
         self.pixels[cover] = self.colour(colour)
 
     def outline(self, xlo: float, xhi: float, ylo: float, yhi: float, colour: str) -> None:
-        """The border of one box (clipped to the view)."""
+        """The border of one box (clipped to the view).
+
+        Parameters
+        ----------
+        xlo, xhi : float
+            The box's left and right bounds (data coordinates).
+        ylo, yhi : float
+            Its lower and upper bounds.
+        colour : str
+            The line colour.
+        """
         xlo, xhi = _clip_span(xlo, xhi, self.xlim)
         ylo, yhi = _clip_span(ylo, yhi, self.ylim)
         if xlo > xhi or ylo > yhi:
@@ -171,6 +231,13 @@ class Raster:
         Each segment is first clipped to the view (with a one-pixel margin), so a segment
         to a far-away point still draws its visible part as a connected line; points that
         are not finite are dropped (the line joins their neighbours).
+
+        Parameters
+        ----------
+        x, y : (K,) array_like of float
+            The points, in data coordinates and in order.
+        colour : str
+            The line colour.
         """
         c = self._col(np.asarray(x, float).ravel())
         r = self._row(np.asarray(y, float).ravel())
@@ -195,11 +262,28 @@ class Raster:
         self.points_px(cc, rr, colour)
 
     def points(self, x: np.ndarray, y: np.ndarray, colour: str) -> None:
-        """Single pixels at data points."""
+        """Single pixels at data points (points outside the view are skipped).
+
+        Parameters
+        ----------
+        x, y : (K,) array_like of float
+            The points, in data coordinates.
+        colour : str
+            The pixels' colour.
+        """
         self.points_px(self._col(np.asarray(x, float)), self._row(np.asarray(y, float)), colour)
 
     def points_px(self, c: np.ndarray, r: np.ndarray, colour: str) -> None:
-        """Single pixels at pixel coordinates (column, row; not finite: skipped)."""
+        """Single pixels at pixel coordinates (not finite or outside the grid: skipped).
+
+        Parameters
+        ----------
+        c, r : (K,) array_like of float
+            Column and row of each pixel (fractional: the pixel containing it; row 0 is the
+            top).
+        colour : str
+            The pixels' colour.
+        """
         rows, cols = self.shape
         c, r = np.asarray(c, float).ravel(), np.asarray(r, float).ravel()
         ok = np.isfinite(c) & np.isfinite(r)
@@ -210,7 +294,17 @@ class Raster:
     # ---- output ----------------------------------------------------------------------
 
     def to_text(self, background: str | None = None) -> Text:
-        """The image as half-block text (H lines of W cells)."""
+        """The image as half-block text (H lines of W cells).
+
+        Parameters
+        ----------
+        background : str, optional
+            The colour of unpainted pixels (None: the terminal's background).
+
+        Returns
+        -------
+        rich.text.Text
+        """
         text = Text(no_wrap=True, overflow="crop")
         styles: dict[tuple[int, int], Style] = {}
         bg = background
@@ -287,7 +381,23 @@ def plot_text(
     legend: list[tuple[str, str]] | None = None,
     background: str | None = None,
 ) -> Text:
-    """The raster with a y-axis (top, middle, bottom ticks), an x-axis and a legend line."""
+    """The raster with a y-axis (top, middle, bottom ticks), an x-axis and a legend line.
+
+    Parameters
+    ----------
+    raster : Raster
+        The picture (its limits label the axes).
+    xlabel, ylabel : str
+        The axes' names, in the caption (empty: left out).
+    legend : list of (str, str), optional
+        ``(name, colour)`` pairs shown after the caption.
+    background : str, optional
+        The colour of unpainted pixels (see :meth:`Raster.to_text`).
+
+    Returns
+    -------
+    rich.text.Text
+    """
     y0, y1 = raster.ylim
     ticks = {0: _tick(y1), raster.height // 2: _tick((y0 + y1) / 2), raster.height - 1: _tick(y0)}
     margin = max(len(s) for s in ticks.values()) + 1

@@ -27,15 +27,28 @@ DRAFT_FORMAT = "codev-tui-draft/1"
 
 @dataclass
 class Opened:
-    """What the workbench starts with."""
+    """What the workbench starts with (or switches to): a session and the form's entries.
+
+    Attributes
+    ----------
+    session : Session
+        The session the edits are saved to.
+    values : dict of str to str
+        The form's entries: field name → text (see :data:`~workbench.tui.form.FIELDS`).
+    has_verify : bool
+        Whether the spec has its ``[verify]`` section switched on.
+    note : str or None
+        Shown once at start (a restored draft, a new session).
+    save_now : bool
+        Write the form to the session's ``spec.toml`` at once (a spec file was opened into
+        the session); otherwise ``spec.toml`` is written on the first edit, so merely
+        opening a session never rewrites its spec.
+    """
 
     session: Session
     values: dict[str, str]
     has_verify: bool
-    note: str | None = None  # shown once at start (a restored draft, a new session)
-    #: write the form to the session's spec.toml at once (a spec file was opened into the
-    #: session); otherwise spec.toml is written on the first edit, so merely opening a
-    #: session never rewrites its spec
+    note: str | None = None
     save_now: bool = False
 
 
@@ -53,10 +66,28 @@ def open_target(
       the file's text;
     - nothing: ``--session`` or ``sessions/untitled``, from its spec, else a blank form.
 
+    Parameters
+    ----------
+    target : str or None
+        A session folder or a spec file, as given on the command line (or typed in the
+        Session tab); None for neither.
+    session_dir : str, optional
+        The ``--session`` folder, for a spec file or no target (not with a session
+        folder).
+    sessions_root : str or Path
+        Where a session named after the spec (or ``untitled``) goes when ``session_dir``
+        is not given.
+
+    Returns
+    -------
+    Opened
+
     Raises
     ------
     SpecError
-        An unreadable spec or session (the CLI prints it and exits 2).
+        An unreadable spec or session (the CLI prints it and exits 2); a
+        :class:`~codev_engine.session.SessionError` for a session folder given with
+        ``session_dir``.
     """
     root = Path(sessions_root)
     if target is not None and Path(target).is_dir():
@@ -127,7 +158,18 @@ def _from_session(session: Session) -> Opened:
 
 
 def read_draft(session: Session) -> tuple[dict[str, str], bool] | None:
-    """The draft left in ``session`` (None if absent or unusable: it is only a convenience)."""
+    """The draft of unsaved entries left in a session by an invalid form.
+
+    Parameters
+    ----------
+    session : Session
+
+    Returns
+    -------
+    tuple of (dict of str to str, bool) or None
+        The entries (every field of the form) and whether ``[verify]`` is on; None if there
+        is no draft or it is unusable (it is only a convenience, never an error).
+    """
     file = session.path / DRAFT
     try:
         data = json.loads(file.read_text(encoding="utf-8"))
@@ -148,7 +190,17 @@ def read_draft(session: Session) -> tuple[dict[str, str], bool] | None:
 
 
 def write_draft(session: Session, values: dict[str, str], has_verify: bool) -> None:
-    """Save the raw entries (atomically) while the form is not a valid spec."""
+    """Save the raw entries (atomically) while the form is not a valid spec.
+
+    Parameters
+    ----------
+    session : Session
+        The draft goes to its folder, as :data:`DRAFT`.
+    values : dict of str to str
+        The form's entries: field name → text (fields missing are saved empty).
+    has_verify : bool
+        Whether the ``[verify]`` section is on.
+    """
     data = {
         "format": DRAFT_FORMAT,
         "has_verify": has_verify,
@@ -158,7 +210,13 @@ def write_draft(session: Session, values: dict[str, str], has_verify: bool) -> N
 
 
 def clear_draft(session: Session) -> None:
-    """Drop the draft once the form is valid again (its spec is then ``spec.toml``)."""
+    """Drop the draft once the form is valid again (its spec is then ``spec.toml``).
+
+    Parameters
+    ----------
+    session : Session
+        The session whose draft is removed (none: nothing happens).
+    """
     try:
         (session.path / DRAFT).unlink()
     except FileNotFoundError:

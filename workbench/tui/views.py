@@ -1,7 +1,7 @@
 """Terminal pictures of the engine's objects: partitions, reachtubes, time series.
 
 Each function takes engine data and a size in cells and returns a ``rich.text.Text`` (see
-:mod:`workbench.raster`). Pure functions of their inputs: the widgets call them from a worker
+:mod:`workbench.tui.raster`). Pure functions of their inputs: the widgets call them from a worker
 thread and only swap the finished text in.
 """
 
@@ -23,7 +23,19 @@ __all__ = ["law_limits", "partition_text", "plane_text", "series_text", "tube_ti
 
 
 def law_limits(law: ExplicitLaw, axes: tuple[int, int]) -> tuple[tuple[float, float], ...]:
-    """View limits of the law's domain on two state axes (its regions' bounding box)."""
+    """View limits of the law's domain on two state axes (its regions' bounding box).
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    axes : tuple of (int, int)
+        The state axes shown, horizontal then vertical.
+
+    Returns
+    -------
+    tuple of ((float, float), (float, float))
+        The x and y limits, padded by 3 %.
+    """
     lo, hi = law.boxes
     i, j = axes
     return (
@@ -56,6 +68,13 @@ def partition_text(
         centre of the domain's bounding box).
     marker : (n,) array_like, optional
         A state to mark (the located state).
+    limits : tuple of ((float, float), (float, float)), optional
+        The x and y limits of the view (default: :func:`law_limits`).
+
+    Returns
+    -------
+    rich.text.Text
+        The picture, its axes and a legend (the number of regions, the slice).
     """
     n = law.n
     i, j = axes
@@ -92,7 +111,27 @@ def tube_time_text(
     problem: Problem | None = None,
     names: tuple[str, ...] = (),
 ) -> Text:
-    """One state's reachtube against time, with unsafe bounds and the counterexample."""
+    """One state's reachtube against time, with unsafe bounds and the counterexample.
+
+    Parameters
+    ----------
+    result : VerificationResult
+        Its tube's boxes are drawn over their time intervals, its counterexample's trace
+        (if any) as a line.
+    width, height : int
+        Plot size in cells.
+    state : int
+        The state shown.
+    problem : Problem, optional
+        The spec verified: its unsafe boxes are drawn (their bounds on ``state`` near the
+        tube widen the view) and its state names label the axis.
+    names : tuple of str
+        The state names (default: the problem's, else ``x0``, ``x1``, ...).
+
+    Returns
+    -------
+    rich.text.Text
+    """
     tube = result.tube
     names = names or (problem.plant.states if problem is not None else ())
     name = names[state] if names else f"x{state}"
@@ -140,7 +179,25 @@ def plane_text(
     problem: Problem | None = None,
     names: tuple[str, ...] = (),
 ) -> Text:
-    """The reachtube's boxes projected on two state axes, with the sets and counterexample."""
+    """The reachtube's boxes projected on two state axes, with the sets and counterexample.
+
+    Parameters
+    ----------
+    result : VerificationResult
+        Its tube's boxes are drawn, its counterexample's trace (if any) as a line.
+    width, height : int
+        Plot size in cells.
+    axes : tuple of (int, int)
+        The state axes shown, horizontal then vertical.
+    problem : Problem, optional
+        The spec verified: its unsafe boxes are filled and its initial set outlined.
+    names : tuple of str
+        The state names (default: the problem's, else ``x0``, ``x1``, ...).
+
+    Returns
+    -------
+    rich.text.Text
+    """
     tube = result.tube
     i, j = axes
     pts_x = [tube.lower[:, i], tube.upper[:, i]]
@@ -198,7 +255,25 @@ def series_text(
     *,
     steps: bool = False,
 ) -> Text:
-    """Time series (K,) × (K, k) as coloured lines; ``steps`` draws a held signal."""
+    """Time series as coloured lines, one per column of ``Y``.
+
+    Parameters
+    ----------
+    t : (K,) array_like of float
+        Sample times.
+    Y : (K, k) array_like of float
+        The signals' values at the samples.
+    labels : tuple of str
+        The signals' names in the legend (missing ones: ``y0``, ``y1``, ...).
+    width, height : int
+        Plot size in cells.
+    steps : bool
+        Draw each signal held from one sample to the next (an input under zero-order hold).
+
+    Returns
+    -------
+    rich.text.Text
+    """
     t = np.asarray(t, dtype=float).ravel()
     Y = np.asarray(Y, dtype=float)
     if t.size == 0 or Y.size == 0:

@@ -27,9 +27,34 @@ class FieldEntry(Vertical):
     """One spec field: label, editor (input, text area, select or switch), help / error line.
 
     Posts :class:`FieldEntry.Edited` with the entry's text on every change.
+
+    Parameters
+    ----------
+    name : str
+        The field's name (a :attr:`~workbench.tui.form.FieldDef.name` of
+        :data:`~workbench.tui.form.FIELDS`); the widget's DOM id is made from it.
+    text : str
+        The entry's text at start.
+
+    Attributes
+    ----------
+    field : FieldDef
+        The field edited.
     """
 
     class Edited(Message):
+        """The user changed the entry's text (not posted for :meth:`FieldEntry.set_text`).
+
+        Parameters
+        ----------
+        entry : FieldEntry
+            The entry that changed.
+        name : str
+            Its field's name.
+        text : str
+            Its new text.
+        """
+
         def __init__(self, entry: FieldEntry, name: str, text: str) -> None:
             super().__init__()
             self.entry = entry
@@ -44,6 +69,7 @@ class FieldEntry(Vertical):
 
     @property
     def field_name(self) -> str:
+        """The field's dotted name (``"mpc.Q"``)."""
         return self.field.name
 
     def compose(self) -> ComposeResult:
@@ -81,10 +107,17 @@ class FieldEntry(Vertical):
 
     @property
     def text(self) -> str:
+        """The entry's current text (a switch's is ``"true"`` or ``"false"``)."""
         return self._text
 
     def set_text(self, text: str) -> None:
-        """Show a new value (from a loaded spec) without posting Edited."""
+        """Show a new value (from a loaded spec) without posting Edited.
+
+        Parameters
+        ----------
+        text : str
+            The entry's text (a choice not among the field's choices shows the default).
+        """
         self._text = text
         editor = self.query_one("#editor")
         self._loading = True
@@ -106,7 +139,13 @@ class FieldEntry(Vertical):
     _error: str | None = None
 
     def set_error(self, message: str | None) -> None:
-        """Show ``message`` under the entry (None: back to the help line)."""
+        """Show an error under the entry in place of its help line.
+
+        Parameters
+        ----------
+        message : str or None
+            The error; None goes back to the help line.
+        """
         if message == self._error:
             return  # every form check calls this on every entry
         self._error = message
@@ -145,6 +184,13 @@ class Plot(Static):
 
     Redrawn on resize and on :meth:`set_draw`; the last picture stays up meanwhile, so a slow
     partition never blocks the keyboard.
+
+    Parameters
+    ----------
+    placeholder : str
+        Shown until a drawing is set, and when it is unset without a placeholder of its own.
+    **kwargs
+        Passed to :class:`textual.widgets.Static` (``id``, ``classes``, ...).
     """
 
     def __init__(self, placeholder: str = "", **kwargs) -> None:
@@ -154,6 +200,17 @@ class Plot(Static):
         self._drawn = 0  # the latest picture asked for (see _show)
 
     def set_draw(self, draw: Callable[[int, int], Text] | None, placeholder: str = "") -> None:
+        """Draw the picture with ``draw``, now and on every resize, in a worker thread.
+
+        Parameters
+        ----------
+        draw : callable or None
+            ``draw(width, height) -> rich.text.Text``, with the size in cells left for the
+            picture; an exception it raises is shown in place of the picture. None: no
+            picture, the placeholder is shown.
+        placeholder : str
+            Shown when ``draw`` is None (empty: the widget's placeholder).
+        """
         self._draw = draw
         if draw is None:
             self.update(placeholder or self._placeholder)

@@ -30,6 +30,16 @@ class MpcPane(Horizontal):
 
     The app hands it the spec to preview with :meth:`set_problem` (at every form check)
     and starts and stops the preview with :meth:`run_preview` and :meth:`cancel_preview`.
+
+    Parameters
+    ----------
+    values : dict of str to str
+        The form's entries at start: field name → text (the pane's own fields are used).
+
+    Attributes
+    ----------
+    last : MpcPreview or None
+        The last preview shown.
     """
 
     def __init__(self, values: dict[str, str]) -> None:
@@ -70,13 +80,26 @@ class MpcPane(Horizontal):
             self.run_preview()
 
     def set_problem(self, problem: Problem | None) -> None:
-        """The spec a preview runs on (None: the form is not valid, or not checked yet)."""
+        """Set the spec a preview runs on.
+
+        Parameters
+        ----------
+        problem : Problem or None
+            The form's valid spec; None while the form is not valid (or not checked yet).
+        """
         self._problem = problem
 
     def cancel_preview(self) -> None:
+        """Stop the preview in flight before its next MPC solve (none: nothing happens)."""
         self._stop.set()
 
     def run_preview(self) -> None:
+        """Start the preview from the state and steps typed, in a worker thread.
+
+        An empty state is filled in with a default (the initial set's centre, else a point
+        off the operating point); a spec that is not valid or a state that does not parse
+        is reported in the pane's status line, and nothing runs.
+        """
         status = self.query_one("#preview-status", Static)
         problem = self._problem
         if problem is None:

@@ -27,12 +27,22 @@ class PlantPane(Horizontal):
 
     The app shows the report of a valid spec with :meth:`show_report`, and a message in its
     place with :meth:`show_invalid` while a plant or model entry is wrong.
+
+    Parameters
+    ----------
+    values : dict of str to str
+        The form's entries at start: field name → text (the pane's own fields are used).
+
+    Attributes
+    ----------
+    report_text : str
+        The markdown shown (tests and copy-paste read it).
     """
 
     def __init__(self, values: dict[str, str]) -> None:
         super().__init__()
         self._values = values
-        self.report_text = ""  # the markdown shown (tests and copy-paste read it)
+        self.report_text = ""
 
     def compose(self) -> ComposeResult:
         with VerticalScroll(classes="form"):
@@ -42,7 +52,19 @@ class PlantPane(Horizontal):
             yield Static("checking the spec…", id="plant-report")
 
     def show_invalid(self, chk: FormCheck) -> bool:
-        """Replace the report by a message if a plant or model entry is wrong (-> True)."""
+        """Replace the report by a message if a plant or model entry is wrong.
+
+        Parameters
+        ----------
+        chk : FormCheck
+            The form check that failed.
+
+        Returns
+        -------
+        bool
+            Whether the report was replaced (False: no plant or model entry is at fault,
+            the report stays).
+        """
         if not any(k in PLANT_FIELDS for k in chk.errors):
             return False
         self.report_text = "The derived model appears once the fields marked in red are fixed."
@@ -50,6 +72,14 @@ class PlantPane(Horizontal):
         return True
 
     def show_report(self, problem: Problem) -> None:
+        """Derive the plant report of a valid spec in a worker thread, and show it.
+
+        Parameters
+        ----------
+        problem : Problem
+            The spec (see :func:`~workbench.tui.design.plant_report`); an engine error
+            deriving the report is shown in its place.
+        """
         self.query_one("#plant-report", Static).update("deriving the linear model…")
         self._report(problem)
 

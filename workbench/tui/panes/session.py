@@ -64,6 +64,10 @@ class SessionPane(VerticalScroll):
             self.open_path()
 
     def open_path(self) -> None:
+        """Ask the app to open the folder or spec typed (:class:`OpenRequested`).
+
+        An empty entry is answered with a warning, and nothing is posted.
+        """
         text = self.query_one("#open-path", Input).value.strip()
         if not text:
             self.notify("type a session folder or a spec file to open", severity="warning")
@@ -72,7 +76,15 @@ class SessionPane(VerticalScroll):
 
     def show_session(self, session: Session, statuses: Mapping[str, StageStatus]) -> None:
         """Show ``session``: its folder, each stage's status for the current spec, and its
-        journal (read again only when the file changed)."""
+        journal (read again only when the file changed).
+
+        Parameters
+        ----------
+        session : Session
+        statuses : Mapping of str to StageStatus
+            Each stage's status for the current spec, by stage name, in pipeline order
+            (empty while the spec is not valid).
+        """
         self.query_one("#session-path", Static).update(
             f"Session [b]{session.path}[/b] — the spec is saved to {session.spec_path().name} "
             f"as you edit; `codev replay {session.path}` re-runs every stage headless."
@@ -110,7 +122,19 @@ class SessionPane(VerticalScroll):
             journal.move_cursor(row=journal.row_count - 1)
 
     def run_finished(self, report: RunReport | None, error: object) -> None:
-        """The run ended: show its recording, if it made one, or ask for its copy."""
+        """The run ended: show its recording, if it made one, or ask for its copy.
+
+        With a destination typed, :class:`ExportRequested` is posted (the app answers with
+        :meth:`show_export`); without, the recording's path is shown.
+
+        Parameters
+        ----------
+        report : RunReport or None
+            The run's report (None: the run failed or was cancelled).
+        error : object
+            ``"cancelled"``, the exception that ended the run, or None; not shown here (the
+            app notifies it).
+        """
         if report is None or report.recording is None:
             return
         path = Path(report.recording)
@@ -129,7 +153,19 @@ class SessionPane(VerticalScroll):
         error: str | None = None,
     ) -> None:
         """Show where ``recording`` is, and the outcome of copying it to ``dest``: the
-        copy's path, or the reason it failed."""
+        copy's path, or the reason it failed.
+
+        Parameters
+        ----------
+        recording : Path
+            The recording in the session folder.
+        dest : str
+            Where the copy was asked for (empty: none).
+        copied : Path, optional
+            The copy, once made.
+        error : str, optional
+            Why the copy failed.
+        """
         path = recording
         lines = [f"recording: {path}"]
         if copied is not None:

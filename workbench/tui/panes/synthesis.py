@@ -80,16 +80,40 @@ class SynthesisPane(Vertical):
     # ---- showing the law -------------------------------------------------------------
 
     def show_busy(self, stage: str | None) -> None:
-        """The stage run in flight (None: none); nothing is redrawn."""
+        """Note the stage run in flight; nothing is redrawn.
+
+        Parameters
+        ----------
+        stage : str or None
+            The stage running (None: none); while it is set, the progress owns the status
+            line.
+        """
         self._busy = stage
 
     def show_progress(self, stage: str, text: str) -> None:
-        """``text``: the progress of the run in flight, now in ``stage``."""
+        """Show the progress of the run in flight, if it concerns this pane.
+
+        Parameters
+        ----------
+        stage : str
+            The stage the run is in now (shown while it is ``model`` or ``synthesis``, or
+            the run was started for one of them).
+        text : str
+            The progress line.
+        """
         if self._busy in ("model", "synthesis") or stage in ("model", "synthesis"):
             self.query_one("#synth-status", Static).update(f"[cyan]{text}[/cyan]")
 
     def show_law(self, law: ExplicitLaw | None, *, current: bool) -> None:
-        """Show ``law`` (None: no law yet); ``current``: computed for the spec on screen."""
+        """Show a law, and whether it is the current spec's.
+
+        Parameters
+        ----------
+        law : ExplicitLaw or None
+            The law (None: no law yet).
+        current : bool
+            Whether it was computed for the spec on screen (else it is shown as stale).
+        """
         self._law, self._current = law, current
         self.refresh_law()
 
@@ -101,8 +125,19 @@ class SynthesisPane(Vertical):
         law: ExplicitLaw | None,
         current: bool,
     ) -> None:
-        """The run ended (nothing runs now) with ``report`` or ``error`` (``"cancelled"``,
-        or the exception); ``law`` and ``current`` as in :meth:`show_law`, after the run."""
+        """The run ended (nothing runs now): show its law, or why it has none.
+
+        Parameters
+        ----------
+        report : RunReport or None
+            The run's report (None: the run failed or was cancelled).
+        error : object
+            ``"cancelled"``, the exception that ended the run, or None.
+        law : ExplicitLaw or None
+            The law to show after the run, as in :meth:`show_law`.
+        current : bool
+            As in :meth:`show_law`.
+        """
         self._law, self._current, self._busy = law, current, None
         if report is not None and report.law is not None:
             self._note = ""
@@ -117,7 +152,15 @@ class SynthesisPane(Vertical):
             self.refresh_law(keep_status=True)
 
     def refresh_law(self, keep_status: bool = False, force: bool = False) -> None:
-        """Redraw the law last handed over (``force``: the picture too, for new axes)."""
+        """Redraw the law last handed over (its picture and table only if the law changed).
+
+        Parameters
+        ----------
+        keep_status : bool
+            Leave the status line as it is (a failure or cancellation shown there).
+        force : bool
+            Redraw the picture and the table even for the same law (new axes or slice).
+        """
         law = self._law
         status = self.query_one("#synth-status", Static)
         plot = self.query_one("#partition", Plot)
@@ -178,6 +221,11 @@ class SynthesisPane(Vertical):
         return parse_state(text, law.n)
 
     def locate(self) -> None:
+        """Find the region of the state typed, show its input, and mark it on the picture.
+
+        The region's row is selected in the table; a state that does not parse, or no law
+        yet, is reported in place of the answer.
+        """
         out = self.query_one("#locate-out", Static)
         law = self._law
         if law is None:

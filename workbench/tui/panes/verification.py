@@ -46,6 +46,13 @@ class VerificationPane(Horizontal):
     switch's state with :meth:`set_enabled`, the stage in flight with :meth:`show_busy`,
     the progress line with :meth:`show_progress` and the end of a run with
     :meth:`run_finished`.
+
+    Parameters
+    ----------
+    values : dict of str to str
+        The form's entries at start: field name → text (the pane's own fields are used).
+    enabled : bool
+        Whether the ``[verify]`` section is on at start.
     """
 
     # what the app last handed over: the result, the problem it was computed for, whether
@@ -88,7 +95,13 @@ class VerificationPane(Horizontal):
 
     def set_enabled(self, enabled: bool) -> None:
         """Switch the [verify] section on or off (a loaded spec) without posting
-        :class:`VerifyToggled`."""
+        :class:`VerifyToggled`.
+
+        Parameters
+        ----------
+        enabled : bool
+            On: the section's entries can be edited; off: they are disabled.
+        """
         self._enabled = enabled
         self.query_one("#verify-enabled", Switch).value = enabled
         for entry in self.query(FieldEntry):
@@ -117,19 +130,44 @@ class VerificationPane(Horizontal):
             self.refresh_result(force=True)
 
     def show_busy(self, stage: str | None) -> None:
-        """The stage run in flight (None: none); nothing is redrawn."""
+        """Note the stage run in flight; nothing is redrawn.
+
+        Parameters
+        ----------
+        stage : str or None
+            The stage running (None: none).
+        """
         self._busy = stage
 
     def show_progress(self, stage: str, text: str) -> None:
-        """``text``: the progress of the run in flight, now in ``stage``."""
+        """Show the progress of the run in flight, if it was started for this pane.
+
+        Parameters
+        ----------
+        stage : str
+            The stage the run is in now (the line is shown for any stage of a run started
+            for ``verification`` or ``recording``).
+        text : str
+            The progress line.
+        """
         if self._busy in ("verification", "recording"):
             self.query_one("#verify-status", Static).update(f"[cyan]{text}[/cyan]")
 
     def show_result(
         self, result: VerificationResult | None, *, problem: Problem | None, current: bool
     ) -> None:
-        """Show ``result`` (None: no verdict yet), computed for ``problem`` (its names and
-        sets label the pictures); ``current``: computed for the spec on screen."""
+        """Show a verdict with its pictures, and whether it is the current spec's.
+
+        Parameters
+        ----------
+        result : VerificationResult or None
+            The verdict, reachtube and counterexample (None: no verdict yet).
+        problem : Problem or None
+            The spec ``result`` was computed for: its state names and sets label the
+            pictures.
+        current : bool
+            Whether it was computed for the spec on screen (else it is shown as stale).
+        """
         self._result, self._problem, self._current = result, problem, current
         self.refresh_result()
 
@@ -142,9 +180,22 @@ class VerificationPane(Horizontal):
         problem: Problem | None,
         current: bool,
     ) -> None:
-        """The run ended (nothing runs now) with ``report`` or ``error`` (``"cancelled"``,
-        or the exception); ``result``, ``problem`` and ``current`` as in
-        :meth:`show_result`, after the run."""
+        """The run ended (nothing runs now): show its outcome and the verdict after it.
+
+        Parameters
+        ----------
+        report : RunReport or None
+            The run's report (None: the run failed or was cancelled); a failed
+            verification stage in it is shown in the status line.
+        error : object
+            ``"cancelled"``, the exception that ended the run, or None.
+        result : VerificationResult or None
+            The verdict to show after the run, as in :meth:`show_result`.
+        problem : Problem or None
+            As in :meth:`show_result`.
+        current : bool
+            As in :meth:`show_result`.
+        """
         self._result, self._problem, self._current = result, problem, current
         self._busy = None
         status = self.query_one("#verify-status", Static)
@@ -163,7 +214,13 @@ class VerificationPane(Horizontal):
     _result_shown: object = None  # the result whose pictures are on screen
 
     def refresh_result(self, force: bool = False) -> None:
-        """Redraw the result last handed over (``force``: the pictures too, for new axes)."""
+        """Redraw the result last handed over (its pictures only if the result changed).
+
+        Parameters
+        ----------
+        force : bool
+            Redraw the pictures even for the same result (a new state or plane typed).
+        """
         result = self._result
         banner = self.query_one("#verdict", Static)
         tplot = self.query_one("#tube-time", Plot)
