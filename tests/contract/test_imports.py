@@ -5,11 +5,14 @@
   temporary folder, one import statement is appended to one module of the copy, and the
   linter, run on the copy, fails that contract and names the new import;
 - importing the engine loads none of the front end's or the pictures' libraries (textual,
-  rich, rerun, matplotlib), checked in a fresh interpreter's ``sys.modules``.
+  rich, rerun, matplotlib), checked in a fresh interpreter's ``sys.modules``;
+- the engine imports a module by name (``importlib.import_module``, which no contract
+  sees) only where that is known: its lazy public names and the notebook backend.
 """
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import shutil
@@ -147,3 +150,27 @@ def test_the_engine_modules_and_the_cli_load_no_front_end_on_import():
     assert "codev_engine" in loaded and "workbench" in loaded
     assert loaded.isdisjoint(FRONT_END), loaded & set(FRONT_END)
 
+
+
+#: the engine's imports by name, which the linter cannot see: the lazy public names of
+#: ``import codev_engine`` (its own submodules) and the notebook backend (codev_engine.view)
+IMPORTS_BY_NAME = {"codev_engine/__init__.py", "codev_engine/display.py"}
+
+
+def test_the_engine_imports_by_name_only_where_known():
+    # an import_module elsewhere would pass every contract unseen
+    def calls_by_name(path: Path) -> bool:
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Call):
+                f = node.func
+                name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", None)
+                if name in ("import_module", "__import__"):
+                    return True
+        return False
+
+    by_name = {
+        str(p.relative_to(ROOT))
+        for p in sorted((ROOT / "codev_engine").rglob("*.py"))
+        if calls_by_name(p)
+    }
+    assert by_name == IMPORTS_BY_NAME
