@@ -44,10 +44,7 @@ def bounding_boxes(
     domain: tuple[np.ndarray, np.ndarray] | None = None,
     rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounding boxes of bounded polytopes -> lower (R, d), upper (R, d).
-
-    ``rows``, optional, is ``_stack(As, bs)`` when the caller has it already (a second
-    copy of 860k regions' rows is 2 GB).
+    """Axis-aligned bounding boxes of bounded polytopes ``{x : As[i] x <= bs[i]}``.
 
     Each bound is an LP. From ``COMPILED_BOXES`` regions on, all of them are one compiled
     call (``lp_kernel.region_boxes``; its multipliers must reproduce the cost; loading the
@@ -67,6 +64,21 @@ def bounding_boxes(
 
     The result is always finite (when there is at least one finite bound per axis): a
     point locator built on it must never see an infinite or NaN box.
+
+    Parameters
+    ----------
+    As, bs : lists of (k_i, d) and (k_i,) ndarray
+        The R regions.
+    domain : (A, b), optional
+        The union of all regions, ``A`` (k, d) and ``b`` (k,): its box fills a bound that
+        no LP gives.
+    rows : (A, b, offsets), optional
+        All rows region after region, (N, d), (N,) and (R + 1,) int64, when the caller has
+        them already (a second copy of 860k regions' rows is 2 GB).
+
+    Returns
+    -------
+    lower, upper : (R, d) ndarray
     """
     R = len(As)
     d = As[0].shape[1] if R else 0
@@ -260,8 +272,28 @@ class PointLocator:
         boxes: tuple[np.ndarray, np.ndarray] | None = None,
         grid: bool | None = None,
     ) -> PointLocator:
-        """A locator on regions packed as in ``mpsolution.RegionArrays``: region ``i`` is
-        ``A[offsets[i]:offsets[i + 1]]`` and, where ``implied[i]``, the ``shared`` rows."""
+        """A locator on regions packed as in ``mp.solution.RegionArrays``: region ``i`` is
+        ``A[offsets[i]:offsets[i + 1]]`` and, where ``implied[i]``, the ``shared`` rows.
+
+        Parameters
+        ----------
+        A : (N, d) ndarray
+            Every region's own rows, region after region.
+        b : (N,) ndarray
+        offsets : (R + 1,) ndarray of int
+            Region ``i``'s rows are ``offsets[i]:offsets[i + 1]``.
+        shared : (SA, Sb), optional
+            Rows (s, d) and (s,) held once and implied in every region marked in
+            ``implied``.
+        implied : (R,) ndarray of bool, optional
+            Which regions include the ``shared`` rows.
+        tol, boxes, grid
+            As for the constructor.
+
+        Returns
+        -------
+        PointLocator
+        """
         self = cls.__new__(cls)
         if implied is None or shared is None or not np.any(implied):
             shared = implied = None
@@ -424,13 +456,23 @@ class PointLocator:
         return self.rows_A[rows], self.rows_b[rows], off, regions
 
     def locate(self, X: np.ndarray) -> np.ndarray:
-        """Region index per row of ``X`` (P, d) -> (P,) int, -1 outside every region.
+        """The region of each point: the index of a region per row of ``X``.
 
         A point inside regions (every row holds as computed) gets the lowest of them; a
         point inside none but within ``tol`` of some gets the one whose rows it violates
         least (the lowest index on ties). A region that a point is only near is never
         preferred to one that holds it: a sliver's law extrapolated 4e-10 past its facet was
         6e-6 (relative) off the optimum on ``pop_mpqp_002``, whose gains reach 1e7.
+
+        Parameters
+        ----------
+        X : (P, d) or (d,) ndarray
+            The points, one a row; a point with a non-finite coordinate is in no region.
+
+        Returns
+        -------
+        (P,) ndarray of int
+            The region index, -1 outside every region.
         """
         X = np.atleast_2d(np.asarray(X, dtype=float))
         P = X.shape[0]

@@ -120,6 +120,34 @@ def walk(X, pts, origin, cell, g, start, cands, A, b, off, implied, sv, tol, out
     without rows), and of ``sv[p]`` (the point's violation of the shared rows) where
     ``implied[r]``. A cell's list ascends, so past the first region that holds the point
     none of them can win.
+
+    Parameters
+    ----------
+    X : (P, d) float64 ndarray
+        The points, C-contiguous.
+    pts : (q,) int64 ndarray
+        The rows of ``X`` to locate (inside the grid's box).
+    origin, cell : (d,) float64 ndarrays
+        The grid's lower corner and cell size.
+    g : int
+        Cells per axis.
+    start, cands : int64 ndarrays
+        The grid's cell lists, from :func:`cell_lists`.
+    A : (N, d) float64 ndarray
+        Every region's rows, region after region.
+    b : (N,) float64 ndarray
+    off : (R + 1,) int64 ndarray
+        Region ``r``'s rows are ``off[r]:off[r + 1]``.
+    implied : (R,) bool ndarray
+        Which regions include the shared rows.
+    sv : (P,) float64 ndarray
+        Each point's largest violation of the shared rows (zeros without them).
+    tol : float
+        How far outside a region a point is still near it.
+    out : (P,) int ndarray
+        The region found so far per point (-1: none); updated in place.
+    best : (P,) float64 ndarray
+        The violation of ``out``'s region per point (inf: none); updated in place.
     """
     d = X.shape[1]
     for p in pts:

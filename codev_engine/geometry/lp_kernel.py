@@ -75,7 +75,18 @@ def _append_row(A, j, Q, R, nw):
 @njit(cache=True)
 def solve_rt(R, rhs, nw, out):
     """``R[:nw, :nw]' out = rhs`` (R lower triangular, as from ``_append_row``), by back
-    substitution into ``out`` (which may be ``rhs`` itself)."""
+    substitution into ``out`` (which may be ``rhs`` itself).
+
+    Parameters
+    ----------
+    R : (m, m) float64 ndarray
+        Lower triangular in its leading ``nw`` rows and columns, ``m >= nw``.
+    rhs : (>= nw,) float64 ndarray
+    nw : int
+        The size of the system.
+    out : (>= nw,) float64 ndarray
+        Receives the solution in ``out[:nw]``.
+    """
     for i in range(nw - 1, -1, -1):
         s = rhs[i]
         for j in range(i + 1, nw):
@@ -86,7 +97,24 @@ def solve_rt(R, rhs, nw, out):
 @njit(cache=True)
 def orthonormal_rows(A, W, nw, Q, R):
     """``A[W[:nw]] = R Q`` with ``Q`` (nw, n) orthonormal rows and ``R`` (nw, nw) lower
-    triangular. Returns the smallest |R_ii|."""
+    triangular, written in place (modified Gram-Schmidt, twice).
+
+    Parameters
+    ----------
+    A : (k, n) float64 ndarray
+    W : (>= nw,) int64 ndarray
+        The rows of ``A`` to factor.
+    nw : int
+    Q : (>= nw, n) float64 ndarray
+        Receives the orthonormal rows.
+    R : (>= nw, >= nw) float64 ndarray
+        Receives the lower triangular factor.
+
+    Returns
+    -------
+    float
+        The smallest ``|R_ii|``: (near) zero when the rows are (nearly) dependent.
+    """
     smallest = np.inf
     for j in range(nw):
         smallest = min(smallest, _append_row(A, W[j], Q, R, j))
@@ -96,7 +124,21 @@ def orthonormal_rows(A, W, nw, Q, R):
 @njit(cache=True)
 def lp_workspace(k, n):
     """Scratch arrays for :func:`_lp` on ``k`` rows and ``n`` variables (a critical region
-    needs ~15 LPs of one size: allocating once saves ~10 allocations each)."""
+    needs ~15 LPs of one size: allocating once saves ~10 allocations each).
+
+    Parameters
+    ----------
+    k : int
+        Rows of the LP.
+    n : int
+        Variables of the LP.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``x`` (n,), ``y`` (k,), ``W`` (n,) int64, ``inW`` (k,) bool, ``Q`` and ``R``
+        (n, n), ``p``, ``qc`` (n,), ``steps``, ``slopes``, ``slack`` (k,).
+    """
     return (
         np.empty(n), np.zeros(k), np.empty(n, dtype=np.int64), np.zeros(k, dtype=np.bool_),
         np.zeros((n, n)), np.zeros((n, n)), np.empty(n), np.empty(n), np.empty(k),
@@ -291,8 +333,32 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
 
 @njit(cache=True)
 def chebyshev(Ar, br, x0, bound, maxit):
-    """Largest ball in ``{Ar x <= br}`` (unit rows, the set within ``|x|_inf <= bound``):
-    (status, centre, radius, an upper bound of the radius)."""
+    """Largest ball in ``{Ar x <= br}`` (unit rows, the set within ``|x|_inf <= bound``).
+
+    One LP in ``(x, r)``, started from ``x0``; the radius is capped at 1e6.
+
+    Parameters
+    ----------
+    Ar : (k, d) float64 ndarray
+        Unit rows.
+    br : (k,) float64 ndarray
+    x0 : (d,) float64 ndarray
+        A start point (feasible or not: its radius is the smallest slack).
+    bound : float
+        An upper bound of ``max |x|_inf`` over the set (its rows among ``Ar``).
+    maxit : int
+        The LP's pivot limit.
+
+    Returns
+    -------
+    status : int
+        ``OPTIMAL`` or another LP outcome.
+    centre : (d,) float64 ndarray
+    radius : float
+    upper : float
+        An upper bound of the largest radius by weak duality, whatever the accuracy of
+        the LP (inf unless ``OPTIMAL``).
+    """
     k, d = Ar.shape
     A = np.zeros((k + 1, d + 1))
     b = np.empty(k + 1)
@@ -343,7 +409,28 @@ def certified_keep(A, b, fixed, centre, bound, maxit):
     """Rows of the bounded polytope ``A x <= b`` (unit rows) to keep: every row not kept
     is proved redundant by multipliers over kept rows (weak duality, residual charged at
     ``bound``). ``fixed`` rows are always kept; ``centre`` is an interior point. An LP that
-    gives no answer keeps its row. Returns the keep mask."""
+    gives no answer keeps its row.
+
+    Parameters
+    ----------
+    A : (k, d) float64 ndarray
+        Unit rows.
+    b : (k,) float64 ndarray
+    fixed : (k,) bool ndarray
+        Rows kept whatever their redundancy.
+    centre : (d,) float64 ndarray
+        An interior point (the LPs' start and the origin of the facet rays).
+    bound : float
+        An upper bound of ``max |x|_inf`` over the set, at which the residual of the
+        dual equation is charged.
+    maxit : int
+        Each LP's pivot limit.
+
+    Returns
+    -------
+    (k,) bool ndarray
+        The rows kept.
+    """
     k, d = A.shape
     kept = np.ones(k, dtype=np.bool_)
     margin = np.empty(k)
@@ -521,7 +608,20 @@ def _project(Q, nq, a, out):
 
 @njit(cache=True)
 def project_row(Q, nq, A, j, out):
-    """:func:`_project` of the row ``A[j]`` (by index: no view in the hot loops)."""
+    """:func:`_project` of the row ``A[j]`` (by index: no view in the hot loops).
+
+    Parameters
+    ----------
+    Q : (>= nq, n) float64 ndarray
+        Orthonormal rows.
+    nq : int
+        How many rows of ``Q``.
+    A : (k, n) float64 ndarray
+    j : int
+        The row of ``A``.
+    out : (>= nq,) float64 ndarray
+        Receives ``Q[:nq] A[j]`` in ``out[:nq]``.
+    """
     for i in range(nq):
         s = 0.0
         for t in range(A.shape[1]):
@@ -688,6 +788,13 @@ def cache_follows(namespace: dict, source: str = __file__) -> None:
     index is checked against becomes the pair (its own stamp, ``source``'s hash), so a
     change to either file renews it. Call at the end of the module, before any of its
     functions is compiled; functions without a disk cache are left alone.
+
+    Parameters
+    ----------
+    namespace : dict
+        The calling module's ``globals()``.
+    source : str
+        The path of the file whose changes must renew the caches.
     """
     with open(source, "rb") as f:
         digest = hashlib.sha256(f.read()).digest()

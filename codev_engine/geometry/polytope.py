@@ -45,10 +45,23 @@ class Polytope:
 
     @property
     def dim(self) -> int:
+        """The dimension ``d`` of the space."""
         return self.A.shape[1]
 
     def contains(self, X: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-        """Membership of the rows of ``X`` (P, d) -> (P,) bool."""
+        """Membership of the rows of ``X``: ``A x <= b + tol``.
+
+        Parameters
+        ----------
+        X : (P, d) or (d,) ndarray
+            The points, one a row.
+        tol : float
+            Absolute slack allowed on every row.
+
+        Returns
+        -------
+        (P,) ndarray of bool
+        """
         return contains(self.A, self.b, X, tol)
 
     def chebyshev(self) -> tuple[np.ndarray, float]:
@@ -57,13 +70,39 @@ class Polytope:
 
 
 def contains(A: np.ndarray, b: np.ndarray, X: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    """Rows of ``X`` (P, d) with ``A x <= b + tol`` -> (P,) bool."""
+    """Which rows ``x`` of ``X`` satisfy ``A x <= b + tol``.
+
+    Parameters
+    ----------
+    A : (k, d) ndarray
+    b : (k,) ndarray
+    X : (P, d) or (d,) ndarray
+        The points, one a row.
+    tol : float
+        Absolute slack allowed on every row.
+
+    Returns
+    -------
+    (P,) ndarray of bool
+    """
     X = np.atleast_2d(X)
     return np.all(X @ A.T <= b + tol, axis=1)
 
 
 def box_halfspaces(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """H-representation of the box ``lower <= x <= upper`` (finite sides only)."""
+    """H-representation of the box ``lower <= x <= upper`` (finite sides only).
+
+    Parameters
+    ----------
+    lower, upper : (d,) ndarray
+        The box's sides; an infinite side gives no row.
+
+    Returns
+    -------
+    A : (k, d) ndarray
+        Rows ``e_i`` (upper sides) then ``-e_i`` (lower sides), ``k <= 2 d``.
+    b : (k,) ndarray
+    """
     d = lower.shape[0]
     eye = np.eye(d)
     A = np.vstack([eye, -eye])
@@ -76,6 +115,13 @@ def normalize_rows(
     A: np.ndarray, b: np.ndarray, tol: float = 1e-12
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Scale rows to unit norm and drop rows ``0 <= b``.
+
+    Parameters
+    ----------
+    A : (k, d) ndarray
+    b : (k,) ndarray
+    tol : float
+        A row of norm at most ``tol`` counts as zero (and ``b >= -tol`` as ``0 <= b``).
 
     Returns
     -------
@@ -101,6 +147,17 @@ def solve_lp(
     ub: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, str, np.ndarray | None]:
     """``min f'x  s.t.  A x <= b, Aeq x = beq, lb <= x <= ub``.
+
+    Parameters
+    ----------
+    f : (nx,) ndarray
+        The cost.
+    A : (k, nx) ndarray
+    b : (k,) ndarray
+    Aeq : (ke, nx) ndarray, optional
+    beq : (ke,) ndarray, optional
+    lb, ub : (nx,) ndarray, optional
+        Bounds of the variables; infinite entries are no bound.
 
     Returns
     -------
@@ -189,6 +246,10 @@ def chebyshev_ball(
 
     Parameters
     ----------
+    A : (k, d) ndarray
+    b : (k,) ndarray
+    Aeq : (ke, d) ndarray, optional
+    beq : (ke,) ndarray, optional
     solver : {"daqp", "highs"}
         DAQP (fast; its proximal LP can be off by ~1e-5 on badly scaled rows) or HiGHS.
     multipliers : bool
@@ -373,6 +434,12 @@ def minimal_rows(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
     Rows are expected normalised (``normalize_rows``). Exact duplicates are removed first
     (keeping the first), then DAQP's minimal-representation routine removes the rest.
+
+    Parameters
+    ----------
+    A : (k, d) ndarray
+        Unit rows.
+    b : (k,) ndarray
 
     Returns
     -------
