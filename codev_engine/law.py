@@ -71,14 +71,17 @@ class ExplicitLaw(Displayable):
 
     @property
     def num_regions(self) -> int:
+        """The number of critical regions ``k``."""
         return len(self.A)
 
     @property
     def n(self) -> int:
+        """The state dimension (from ``F``, or the state names when there is no region)."""
         return self.F.shape[2] if self.F.ndim == 3 and self.F.shape[0] else len(self.states)
 
     @property
     def m(self) -> int:
+        """The input dimension (from ``F``, or the input names when there is no region)."""
         return self.F.shape[1] if self.F.ndim == 3 and self.F.shape[0] else len(self.inputs)
 
     @property
@@ -102,6 +105,7 @@ class ExplicitLaw(Displayable):
 
     @property
     def locator(self) -> PointLocator:
+        """The point locator on the regions, built on first use from :attr:`boxes`."""
         if self._locator is None:
             self._locator = PointLocator(self.A, self.b, boxes=self.boxes)
         return self._locator
@@ -151,7 +155,20 @@ class ExplicitLaw(Displayable):
     # ---- persistence -----------------------------------------------------------------
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the law to ``path`` (``.npz``) atomically; returns the path written."""
+        """Write the law to ``path`` (``.npz``, format ``LAW_FORMAT``) atomically.
+
+        The bounding boxes are saved too once computed, so that a loaded law need not
+        solve their LPs again.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Path
+            The path written.
+        """
         path = Path(path)
         offsets = np.cumsum([0] + [a.shape[0] for a in self.A])
         n = self.n
@@ -174,7 +191,21 @@ class ExplicitLaw(Displayable):
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> ExplicitLaw:
-        """Read a law written by ``save``; any malformed file raises ``SpecError``."""
+        """Read a law written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        ExplicitLaw
+
+        Raises
+        ------
+        SpecError
+            The file is missing or malformed (naming the file and the array).
+        """
         return load_npz(path, _LAW_FILE, cls._from_arrays)
 
     @classmethod
@@ -239,6 +270,7 @@ class ExplicitLaw(Displayable):
     # ---- display -----------------------------------------------------------------------
 
     def summary(self) -> str:
+        """A few lines of text: the regions and dimensions, and the problem's metadata."""
         rows = [f"explicit law: {self.num_regions} regions, n={self.n}, m={self.m}"]
         for key in ("problem", "norm", "horizon", "seconds"):
             if key in self.meta:

@@ -77,14 +77,27 @@ class LinearModel:
 
     @property
     def n(self) -> int:
+        """The state dimension."""
         return self.A.shape[0]
 
     @property
     def m(self) -> int:
+        """The input dimension."""
         return self.B.shape[1]
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the model to ``path`` (``.npz``, no pickle) atomically; returns the path."""
+        """Write the model to ``path`` (``.npz``, format ``MODEL_FORMAT``, no pickle)
+        atomically.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Path
+            The path written.
+        """
         arrays = {
             "A": self.A,
             "B": self.B,
@@ -99,7 +112,21 @@ class LinearModel:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LinearModel:
-        """Read a model written by ``save``; a malformed file raises ``SpecError``."""
+        """Read a model written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        LinearModel
+
+        Raises
+        ------
+        SpecError
+            The file is missing or malformed (naming the file and the array).
+        """
         return load_npz(path, _MODEL_FILE, cls._from_arrays)
 
     @classmethod
@@ -160,6 +187,15 @@ class NumericDynamics(tuple):
 
     ``f(x, u)``: x (n,), u (m,) -> (n,); batched x (P, n), u (P, m) or (m,) -> (P, n).
     ``jac_x(x, u)``: (n, n), batched (P, n, n). ``jac_u(x, u)``: (n, m), batched (P, n, m).
+
+    Parameters
+    ----------
+    f : callable
+        The vector field ``f(x, u)``.
+    jac_x : callable
+        ``df/dx(x, u)``.
+    jac_u : callable
+        ``df/du(x, u)``.
     """
 
     f: Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -284,10 +320,12 @@ class PlantModel:
 
     @property
     def n(self) -> int:
+        """The state dimension."""
         return len(self.sym.x)
 
     @property
     def m(self) -> int:
+        """The input dimension."""
         return len(self.sym.u)
 
     @property

@@ -65,7 +65,18 @@ class NpzFormat:
     untagged: bool = False
 
     def check(self, data: dict[str, np.ndarray]) -> None:
-        """Refuse a missing (unless ``untagged``), malformed or unknown ``format`` tag."""
+        """Refuse a missing (unless ``untagged``), malformed or unknown ``format`` tag.
+
+        Parameters
+        ----------
+        data : dict of str to ndarray
+            The arrays of the file, as from :func:`read_npz`.
+
+        Raises
+        ------
+        SpecError
+            On the ``format`` array (``field``).
+        """
         if self.tag is None or (self.untagged and "format" not in data):
             return
         tag = text(data, "format")
@@ -84,6 +95,12 @@ def save_npz(
 
     Parameters
     ----------
+    path : path-like
+        The file to write (replaced whole, or left as it was).
+    fmt : NpzFormat
+        The artifact's format; its tag, if any, is written as the array ``format``.
+    arrays : dict of str to ndarray
+        The arrays, by name (numeric or text: no object arrays).
     compress : bool
         Deflate the arrays (see :func:`codev_engine.io.atomic.write_npz`).
 
@@ -103,6 +120,20 @@ def load_npz(path: str | os.PathLike, fmt: NpzFormat, build: Callable[[dict], T]
     The file is read with :func:`read_npz` (never unpickled), its tag checked
     (:meth:`NpzFormat.check`), then ``build`` validates the arrays (``data`` still holds
     ``format``) and raises ``SpecError`` naming the array.
+
+    Parameters
+    ----------
+    path : path-like
+    fmt : NpzFormat
+        The format the file must have.
+    build : callable
+        ``build(data)`` makes the artifact from the file's arrays (``dict`` of str to
+        ndarray), validating them with the getters of this module.
+
+    Returns
+    -------
+    T
+        What ``build`` returns.
 
     Raises
     ------
@@ -171,7 +202,28 @@ def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
 
 def offsets(data: dict[str, np.ndarray], key: str, count: int, rows: int) -> np.ndarray:
     """Offsets of ``count`` consecutive blocks over ``rows`` rows: integers, shape
-    ``(count + 1,)``, rising from 0 to ``rows``."""
+    ``(count + 1,)``, rising from 0 to ``rows``.
+
+    Parameters
+    ----------
+    data : dict of str to ndarray
+        The arrays of the file, as from :func:`read_npz`.
+    key : str
+        The array's name.
+    count : int
+        The number of blocks.
+    rows : int
+        The number of rows the blocks cover.
+
+    Returns
+    -------
+    (count + 1,) ndarray of int64
+
+    Raises
+    ------
+    SpecError
+        Naming ``key``, when the array is missing or not such offsets.
+    """
     off = array(data, key)
     if off.dtype.kind not in "iu":
         raise SpecError(f"must be integers, got dtype {off.dtype}", field=key)
@@ -186,7 +238,24 @@ def offsets(data: dict[str, np.ndarray], key: str, count: int, rows: int) -> np.
 
 
 def array(data: dict[str, np.ndarray], key: str) -> np.ndarray:
-    """The array ``key`` (``SpecError`` when missing)."""
+    """The array ``key``.
+
+    Parameters
+    ----------
+    data : dict of str to ndarray
+        The arrays of the file, as from :func:`read_npz`.
+    key : str
+        The array's name.
+
+    Returns
+    -------
+    ndarray
+
+    Raises
+    ------
+    SpecError
+        Naming ``key``, when it is missing.
+    """
     if key not in data:
         raise SpecError("missing array", field=key)
     return data[key]
@@ -199,7 +268,28 @@ def real(
     ndim: int | None = None,
     shape: tuple[int, ...] | None = None,
 ) -> np.ndarray:
-    """A finite real array (float or integer dtype) of the given ndim / shape, as float."""
+    """A finite real array (float or integer dtype) of the given ndim / shape, as float.
+
+    Parameters
+    ----------
+    data : dict of str to ndarray
+        The arrays of the file, as from :func:`read_npz`.
+    key : str
+        The array's name.
+    ndim : int, optional
+        The number of dimensions it must have.
+    shape : tuple of int, optional
+        The shape it must have.
+
+    Returns
+    -------
+    ndarray of float
+
+    Raises
+    ------
+    SpecError
+        Naming ``key``, when it is missing, not real, of another shape or not finite.
+    """
     arr = array(data, key)
     if arr.dtype.kind not in "fiu":
         raise SpecError(f"must hold real numbers, got dtype {arr.dtype}", field=key)
@@ -220,7 +310,24 @@ _FINITE_CHUNK = 1 << 22
 
 
 def text(data: dict[str, np.ndarray], key: str) -> str:
-    """A single string (0-d text array)."""
+    """A single string (0-d text array).
+
+    Parameters
+    ----------
+    data : dict of str to ndarray
+        The arrays of the file, as from :func:`read_npz`.
+    key : str
+        The array's name.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    SpecError
+        Naming ``key``, when it is missing or not a 0-d text array.
+    """
     arr = array(data, key)
     if arr.dtype.kind != "U" or arr.ndim != 0:
         raise SpecError(
@@ -230,7 +337,26 @@ def text(data: dict[str, np.ndarray], key: str) -> str:
 
 
 def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str, ...]:
-    """A 1-D text array of ``count`` names (or none: unnamed); any count if ``None``."""
+    """A 1-D text array of ``count`` names (or none: unnamed); any count if ``None``.
+
+    Parameters
+    ----------
+    data : dict of str to ndarray
+        The arrays of the file, as from :func:`read_npz`.
+    key : str
+        The array's name.
+    count : int or None
+        The number of names required (an empty array is always accepted).
+
+    Returns
+    -------
+    tuple of str
+
+    Raises
+    ------
+    SpecError
+        Naming ``key``, when it is missing, not a list of names or of another length.
+    """
     arr = array(data, key)
     if arr.ndim != 1 or (arr.dtype.kind != "U" and arr.size):
         raise SpecError(
@@ -242,6 +368,19 @@ def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str
 
 
 def pair(data: dict[str, np.ndarray], a: str, b: str) -> None:
-    """``a`` and ``b`` come together or not at all."""
+    """``a`` and ``b`` come together or not at all.
+
+    Parameters
+    ----------
+    data : dict of str to ndarray
+        The arrays of the file, as from :func:`read_npz`.
+    a, b : str
+        The two arrays' names.
+
+    Raises
+    ------
+    SpecError
+        Naming the one that is missing.
+    """
     if (a in data) != (b in data):
         raise SpecError("missing array", field=b if a in data else a)
