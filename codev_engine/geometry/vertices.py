@@ -32,8 +32,16 @@ normals span. The tolerances, and what each guards against:
     The solutions of the subsets that meet at a degenerate vertex differ by rounding only,
     far below ``tol``: solutions that round to the same multiple of ``tol`` are one vertex
     (the first found, in subset order, is kept).
-``FACET_TOL = 1e-8`` (the completeness check of :func:`checked_vertices`)
-    A vertex is on a facet when its distance to the facet's hyperplane is at most this.
+``FACET_TOL = 1e-8`` and the edge tolerances (the completeness checks of
+:func:`checked_vertices`)
+    A vertex is on a facet when its distance to the facet's hyperplane is at most
+    ``FACET_TOL``. For the edges: a row is tight at a vertex within the enumeration's
+    ``tol``; a unit direction leaves a row's hyperplane when it gains more than ``1e-9``
+    on it; an edge's end is a found vertex when within ``1e-9 (1 + |x|)`` of one (a missed
+    vertex that close to a found one is within the enumeration's own accuracy).
+``_SPAN_TOL = 1e-6`` (:func:`vertices_in_boxes`)
+    Vertices span their box when they reach each side to ``1e-6 (1 + |box|)``; the boxes
+    come from LPs accurate to ~1e-9, so a larger gap means the polytope does not fill it.
 ``max_combos`` (a budget, not a tolerance)
     A polytope with more d-subsets than this is not enumerated (None): the callers fall
     back to LPs (``MAX_COMBOS = 20_000``), or take a larger budget where they have no
@@ -71,9 +79,13 @@ __all__ = [
 DET_TOL = 1e-12
 #: a vertex is on a facet (the check of ``checked_vertices``) within this distance
 FACET_TOL = 1e-8
+#: ``checked_vertices``' edges: a unit direction leaves a row when it gains more than this
+_LEAVE_TOL = 1e-9
+#: ``checked_vertices``' edges: an edge's end is a found vertex within this of ``1 + |x|``
+_END_TOL = 1e-9
 #: default budget of d-subsets per polytope (None beyond it)
 MAX_COMBOS = 20_000
-#: cap on ``polytopes x row subsets x rows`` per vectorised batch (memory ~ 8 bytes x d^2 each)
+#: cap on ``polytopes x row subsets x rows`` per vectorised batch
 _BATCH = 2_000_000
 #: ``vertices_in_boxes``: vertices span their box when they reach each side to this
 #: fraction of ``1 + |box|`` (the boxes come from LPs accurate to ~1e-9)
@@ -278,10 +290,18 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
     """Points whose convex hull contains the bounded polytope ``{x : A x <= b}`` (sound).
 
     Reachability bounds sets by their vertices, so a lost vertex would shrink the reach
-    set. The enumeration (:func:`vertices`, ``rtol = 0``) is accepted only if it has more
-    than d vertices and every row carries at least d of them within ``FACET_TOL`` (true for
-    every facet of a polytope); otherwise the corners of the polytope's bounding box (2d
-    LPs) are returned, which over-approximate.
+    set. The enumeration (:func:`vertices`, ``rtol = 0``) is accepted only if it is
+    complete:
+
+    * it has more than d vertices and every row carries at least d of them within
+      ``FACET_TOL`` (true for every facet of a polytope);
+    * every edge that leaves one of them ends at one of them. The vertices and edges of a
+      polytope form a connected graph (Balinski's theorem), so a set of its vertices that
+      no edge leaves is all of them. (The facet count alone misses, e.g., a cube without
+      one corner.)
+
+    Otherwise the corners of the polytope's bounding box (2d LPs) are returned, which
+    over-approximate.
 
     Parameters
     ----------
@@ -307,7 +327,7 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
     V = vertices(A, b, tol)
     if V is not None and V.shape[0] > d:
         on = np.abs(V @ A.T - b[None, :]) <= FACET_TOL
-        if np.all(on.sum(axis=0) >= d):
+        if np.all(on.sum(axis=0) >= d) and _closed_under_edges(V, A, b, tol):
             return V
     lo, hi = np.empty(d), np.empty(d)
     for j in range(d):
@@ -316,6 +336,45 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
         lo[j] = _box_side(e, A, b)[j]
         hi[j] = _box_side(-e, A, b)[j]
     return box_corners(lo, hi)
+
+
+def _closed_under_edges(V: np.ndarray, A: np.ndarray, b: np.ndarray, tol: float) -> bool:
+    """Whether every edge of ``{A x <= b}`` that leaves a vertex of ``V`` (v, d) ends at a
+    vertex of ``V`` (and none is unbounded).
+
+    The edges at a vertex are the extreme rays of its tangent cone ``{e : A_T e <= 0}``
+    (``T`` its tight rows): the null direction of d - 1 independent tight rows that
+    leaves no tight row. Each is followed to the first row it meets.
+    """
+    nv, d = V.shape
+    slack = b[None, :] - V @ A.T  # (v, k)
+    tight = np.abs(slack) <= tol
+    if np.any(tight.sum(axis=1) < d):
+        return False
+    at, subsets = [], []
+    for i in range(nv):
+        for S in combinations(np.flatnonzero(tight[i]), d - 1):
+            at.append(i)
+            subsets.append(S)
+    at = np.array(at, dtype=np.intp)
+    if d == 1:
+        E = np.ones((at.size, 1))
+    else:
+        _, sv, Vt = np.linalg.svd(A[np.array(subsets, dtype=np.intp)])  # (N, d-1, d)
+        independent = sv[:, -1] > DET_TOL
+        at, E = at[independent], Vt[independent, -1]
+    at, E = np.concatenate([at, at]), np.concatenate([E, -E])
+    AE = E @ A.T  # (N, k) what each direction gains on each row
+    ray = ~np.any(tight[at] & (AE > _LEAVE_TOL), axis=1)  # in the tangent cone
+    at, E, AE = at[ray], E[ray], AE[ray]
+    meets = AE > _LEAVE_TOL
+    if not np.all(meets.any(axis=1)):
+        return False  # an unbounded edge
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(meets, slack[at] / AE, np.inf).min(axis=1)
+    W = V[at] + t[:, None] * E  # the edges' ends
+    gap = np.abs(W[:, None, :] - V[None]).max(axis=2).min(axis=1)
+    return bool(np.all(gap <= _END_TOL * (1.0 + np.abs(W).max(axis=1))))
 
 
 def _box_side(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -265,3 +265,22 @@ def test_checked_vertices_refuse_unbounded_sets():
 def test_box_corners_order():
     C = box_corners(np.array([0.0, 10.0]), np.array([1.0, 20.0]))
     assert C.tolist() == [[0, 10], [0, 20], [1, 10], [1, 20]]
+
+
+def test_the_edge_check_finds_a_lost_vertex():
+    """A vertex set that misses one vertex of the polytope is not closed under edges, even
+    where every facet still carries d of them (the facet count alone would accept it)."""
+    rng = np.random.default_rng(5)
+    for d in (2, 3, 4):
+        cube = np.vstack([np.eye(d), -np.eye(d)]), np.ones(2 * d)
+        cases = [cube] + [_random_polytope(rng, d) for _ in range(10)]
+        cases += _degenerate_polytopes(d)
+        for A, b in cases:
+            V = vertices(A, b, 1e-10)
+            assert vx._closed_under_edges(V, A, b, 1e-10)
+            for i in range(V.shape[0]):
+                assert not vx._closed_under_edges(np.delete(V, i, axis=0), A, b, 1e-10)
+        # the cube without a corner passes the facet count
+        A, b = cube
+        V = vertices(A, b, 1e-10)[1:]
+        assert d < 3 or np.all((np.abs(V @ A.T - b) <= vx.FACET_TOL).sum(axis=0) >= d)
