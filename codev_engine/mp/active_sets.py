@@ -201,7 +201,17 @@ class ActiveSetGraph:
         self.opposite = np.stack([self.key(np.flatnonzero(row)) for row in opposite])
 
     def key(self, act) -> np.ndarray:
-        """The bitmask (W,) of the active set ``act`` (constraint ids)."""
+        """The bitmask of an active set: bit ``i`` of the words set for each constraint i.
+
+        Parameters
+        ----------
+        act : iterable of int
+            The active set's constraint ids (in ``range(m)``).
+
+        Returns
+        -------
+        (W,) ndarray of uint64
+        """
         key = np.zeros(self.W, dtype=np.uint64)
         for i in act:
             key[int(i) >> 6] |= np.uint64(1) << np.uint64(int(i) & 63)
@@ -209,6 +219,7 @@ class ActiveSetGraph:
 
     @property
     def explored(self) -> int:
+        """How many distinct active sets have been pushed (or seeded) so far."""
         return int(self.meta[0])
 
     def __len__(self) -> int:
@@ -216,7 +227,13 @@ class ActiveSetGraph:
         return int(self.meta[1])
 
     def reserve(self, n: int) -> None:
-        """Room for ``n`` more explored sets (table at most half full) and stack entries."""
+        """Room for ``n`` more explored sets (table at most half full) and stack entries.
+
+        Parameters
+        ----------
+        n : int
+            The number of sets about to be added.
+        """
         need = self.meta[0] + n
         if 2 * need > self.table.shape[0]:
             size = self.table.shape[0]
@@ -238,7 +255,15 @@ class ActiveSetGraph:
     def seed(self, explored, stack) -> None:
         """Take over a search begun elsewhere: the active sets ``explored`` (an iterable
         of tuples, ``stack`` among them) are known, those of ``stack`` are still to
-        evaluate."""
+        evaluate.
+
+        Parameters
+        ----------
+        explored : iterable of tuple of int
+            The active sets explored so far (``stack`` among them).
+        stack : sequence of tuple of int
+            The active sets still to evaluate; each gets the graph's ``start`` point.
+        """
         explored = list(explored)
         self.reserve(len(explored) + len(stack))
         for act in explored:
@@ -250,8 +275,20 @@ class ActiveSetGraph:
         self.meta[1] = len(stack)
 
     def pop(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """The newest ``n`` (or fewer) active sets of the stack, as (b, W) bitmasks, and
-        their start points (b, d)."""
+        """Take the newest ``n`` (or fewer) active sets off the stack.
+
+        Parameters
+        ----------
+        n : int
+            At most this many.
+
+        Returns
+        -------
+        keys : (b, W) ndarray of uint64
+            Their bitmasks, ``b = min(n, len(self))``.
+        points : (b, d) ndarray
+            Their start points.
+        """
         top = int(self.meta[1])
         b = min(n, top)
         keys = self.stack[top - b : top].copy()
@@ -260,8 +297,23 @@ class ActiveSetGraph:
         return keys, points
 
     def visit(self, keys, status, moves, moves_off, swaps, swaps_off, found=None) -> None:
-        """Push the unexplored neighbours of evaluated candidates (see ``_visit``; without
-        ``found``, they carry the seeds' start point)."""
+        """Push the unexplored neighbours of evaluated candidates (see ``_visit``).
+
+        Parameters
+        ----------
+        keys : (B, W) ndarray of uint64
+            The candidates' bitmasks.
+        status : (B,) ndarray of int64
+            Their ``mpqp_kernel`` status (EMPTY and FALLBACK ones have no neighbours).
+        moves, moves_off : (q,) and (B + 1,) ndarray of int64
+            Signed constraint ids of each candidate's neighbours (``+i+1``: i may leave,
+            ``-(i+1)``: i may enter), candidate c's in ``moves[moves_off[c]:moves_off[c+1]]``.
+        swaps, swaps_off : (s, 2) and (B + 1,) ndarray of int64
+            Pairs (i, j): i may enter as j leaves, laid out as ``moves``.
+        found : (B, d) ndarray, optional
+            The candidates' points, where their neighbours' LPs start; without it, the
+            graph's ``start`` point.
+        """
         if found is None:
             found = np.broadcast_to(self.start, (keys.shape[0], self.start.size)).copy()
         # a move per constraint at most, and nz swaps for each

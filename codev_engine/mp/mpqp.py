@@ -402,10 +402,28 @@ def explore_active_sets(
 
     Parameters
     ----------
+    H : (nz, nz) ndarray
+        The Hessian (positive definite, or semi-definite with ``semidefinite``).
+    c : (nz,) ndarray
+    C : (nz, d) ndarray
+        The linear cost ``(c + C theta)' z``.
+    G : (m, nz) ndarray
+        Constraint rows, unit norm.
+    w : (m,) ndarray
+    S : (m, d) ndarray
+        The constraints ``G z <= w + S theta``.
+    At : (p, d) ndarray
+    bt : (p,) ndarray
+        The parameter set ``At theta <= bt``.
     theta0 : (d,) ndarray
         A feasible parameter (the search starts from the optimal active set there).
     scale : float
         Size of the parameter set (tolerances are relative to it).
+    region_tol : float
+        A region counts as full-dimensional only with a proved inscribed ball larger than
+        this (thinner ones are lower-dimensional: explored through, not kept).
+    max_regions : int
+        The search stops with ``SolverError`` once it finds more regions than this.
     theta_box : ((d,), (d,)) ndarrays, optional
         The parameter set's bounding box (lo, hi), if the caller has it already.
     workers : int, optional
@@ -417,6 +435,11 @@ def explore_active_sets(
         H is only positive semi-definite (singular): the optimizer is selected
         lexicographically (see ``_KernelSemidefinite``); the caller has checked that the
         problem has no direction of recession.
+    progress : callable, optional
+        Called with the number of regions found so far, as they are found.
+    stats : dict, optional
+        Updated in place with the search's counters (``candidates``, ``lps``,
+        ``explored``, ``candidates_<status>``, ``jit``, ``workers``, ``merged``, ...).
 
     Returns
     -------
@@ -424,6 +447,11 @@ def explore_active_sets(
         In the variables z; ``active`` holds the active set. Sorted by active set, but for
         the regions of the compiled walk, which stay in the order it found them (neither
         timing nor the worker count changes that order).
+
+    Raises
+    ------
+    SolverError
+        When more than ``max_regions`` regions are found.
     """
     global _KERNEL
     stats = {} if stats is None else stats

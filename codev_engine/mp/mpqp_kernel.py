@@ -89,6 +89,49 @@ def evaluate(
     region saves pivots (the walk passes the centre of the region that led here: about
     14 pivots instead of 25 from the centre of the parameter box).
 
+    The problem is ``min 0.5 z'Hz + (c + C theta)'z s.t. G z <= w + S theta, At theta <=
+    bt`` (``mpqp.explore_active_sets``); its precomputed products are those of
+    ``mpqp._Kernel``, every array float64 and C-contiguous but ``act``.
+
+    Parameters
+    ----------
+    act : (na,) int64 ndarray
+        The candidate active set, ascending.
+    start : (d,) float64 ndarray
+        Where the Chebyshev LP starts.
+    G : (m, nz) ndarray
+        Constraint rows, unit norm.
+    M : (m, m) ndarray
+        ``G H^-1 G'``.
+    Dfull : (m, d + 1) ndarray
+        ``d(theta) = w + S theta + G H^-1 (c + C theta)`` as columns (constant, theta).
+    negZ0 : (nz, d + 1) ndarray
+        ``-H^-1 (c + C theta)`` as columns (constant, theta).
+    Hinv_Gt : (nz, m) ndarray
+        ``H^-1 G'``.
+    H : (nz, nz) ndarray
+        The Hessian (for the augmented KKT system of ill-conditioned active sets).
+    rhs_z : (nz, d + 1) ndarray
+        ``-(c + C theta)`` as columns (constant, theta).
+    wS : (m, d + 1) ndarray
+        ``w + S theta`` as columns (constant, theta).
+    At : (p, d) ndarray
+    bt : (p,) ndarray
+        The parameter set ``At theta <= bt``.
+    box_c, box_h : (d,) ndarrays
+        Centre and half-widths of a box containing the parameter set (``mpqp._padded_box``).
+    scale : float
+        Size of the parameter set (tolerances are relative to it).
+    region_tol : float
+        A region is FULL only with a verified inscribed ball of radius above this.
+    nonempty_tol : float
+        A region is EMPTY only with a proved radius bound below ``-nonempty_tol``.
+    ill_conditioned : float
+        Estimated condition number of ``M_AA`` above which the augmented KKT system
+        gives the multipliers and the law.
+    maxit : int
+        The LPs' pivot limit.
+
     Returns
     -------
     status : int
@@ -394,8 +437,23 @@ def _bit_index(low):
 
 @njit(cache=True)
 def decode(keys, width):
-    """Active sets of the bitmasks ``keys`` (B, W): (B, width) int64 rows, ascending, padded
-    with -1, and their sizes (B,)."""
+    """Active sets of bitmasks: bit ``i`` of the words of a key set for constraint i.
+
+    Parameters
+    ----------
+    keys : (B, W) uint64 ndarray
+        The bitmasks.
+    width : int
+        Entries per row of the result (a set's constraints past ``width`` are counted in
+        its size but not listed).
+
+    Returns
+    -------
+    acts : (B, width) int64 ndarray
+        Each set's constraint ids, ascending, padded with -1.
+    sizes : (B,) int64 ndarray
+        Each set's size.
+    """
     B, W = keys.shape
     acts = np.full((B, width), -1, dtype=np.int64)
     sizes = np.zeros(B, dtype=np.int64)
@@ -416,7 +474,17 @@ def decode(keys, width):
 @njit(cache=True, nogil=True)
 def evaluate_batch(keys, starts, args):
     """``evaluate(act, start, *args)`` on each candidate ``act`` of ``keys`` (B, W) with its
-    ``start`` from ``starts`` (B, d), in one call.
+    ``start`` from ``starts`` (B, d), in one call. A candidate that falls back is
+    evaluated once more from the centre of the parameter box.
+
+    Parameters
+    ----------
+    keys : (B, W) uint64 ndarray
+        The candidates' bitmasks (``active_sets.ActiveSetGraph``).
+    starts : (B, d) float64 ndarray
+        Where each candidate's Chebyshev LP starts.
+    args : tuple
+        ``evaluate``'s parameters after ``act`` and ``start``, in its order.
 
     Returns
     -------

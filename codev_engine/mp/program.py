@@ -77,18 +77,22 @@ class MpProgram:
 
     @property
     def nz(self) -> int:
+        """The number of decision variables."""
         return self.H.shape[0]
 
     @property
     def d(self) -> int:
+        """The number of parameters."""
         return self.A_theta.shape[1]
 
     @property
     def is_lp(self) -> bool:
+        """Whether ``H`` is all zero (an mp-LP)."""
         return not np.any(self.H)
 
     @property
     def kind(self) -> str:
+        """``"mplp"`` or ``"mpqp"``."""
         return "mplp" if self.is_lp else "mpqp"
 
     # ---- persistence -----------------------------------------------------------------
@@ -96,6 +100,15 @@ class MpProgram:
     @classmethod
     def load(cls, path: str | os.PathLike) -> MpProgram:
         """Read a program from an ``.npz`` in the neutral convention (never unpickles).
+
+        Parameters
+        ----------
+        path : path-like
+            The file; its stem becomes the program's ``name``.
+
+        Returns
+        -------
+        MpProgram
 
         Raises
         ------
@@ -113,7 +126,19 @@ class MpProgram:
         return load_npz(path, _PROGRAM_FILE, build)
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the program as an ``.npz`` in the same convention, atomically."""
+        """Write the program as an ``.npz`` in the same convention, atomically.
+
+        The arrays ``kind`` and ``name`` are written too (and ignored on reading).
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Path
+            The path written.
+        """
         arrays = {k: getattr(self, k) for k in _ARRAYS + _EQ if getattr(self, k) is not None}
         arrays["kind"] = np.array(self.kind)
         arrays["name"] = np.array(self.name)

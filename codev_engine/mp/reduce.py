@@ -65,6 +65,14 @@ def reduce_program(p: MpProgram) -> Reduced:
     space of ``Aeq``), move the rows without variables to the parameter set, normalise the
     rows and drop repeated ones (they would break LICQ everywhere).
 
+    Parameters
+    ----------
+    p : MpProgram
+
+    Returns
+    -------
+    Reduced
+
     Raises
     ------
     SpecError
@@ -116,7 +124,17 @@ def reduce_program(p: MpProgram) -> Reduced:
 
 def lifted(red: Reduced) -> tuple[np.ndarray, np.ndarray]:
     """The feasible set lifted to (w, theta): rows ``G w - S theta <= w`` and ``At theta
-    <= bt``, (m + p, nw + d) and (m + p,)."""
+    <= bt``.
+
+    Parameters
+    ----------
+    red : Reduced
+
+    Returns
+    -------
+    A : (m + p, nw + d) ndarray
+    b : (m + p,) ndarray
+    """
     zero = np.zeros((red.At.shape[0], red.G.shape[1]))
     return np.block([[red.G, -red.S], [zero, red.At]]), np.concatenate([red.w, red.bt])
 
@@ -142,11 +160,20 @@ class ParameterBox:
 
     @property
     def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo, hi)``."""
         return self.lo, self.hi
 
 
 def parameter_box(red: Reduced) -> ParameterBox:
     """The bounding box of the parameter set ``At theta <= bt``.
+
+    Parameters
+    ----------
+    red : Reduced
+
+    Returns
+    -------
+    ParameterBox
 
     Raises
     ------
@@ -180,6 +207,20 @@ def start_point(
     ``scale``; the point is moved off the centre by 0.37 of the radius in a direction
     drawn from ``rng`` (one ``normal(size=d)`` draw), since the centre is often a
     symmetric, degenerate point (the origin).
+
+    Parameters
+    ----------
+    red : Reduced
+    scale : float
+        The parameter set's size (the radius's cap).
+    region_tol : float
+        The smallest radius accepted.
+    rng : numpy.random.Generator
+        Draws the direction of the offset.
+
+    Returns
+    -------
+    (d,) ndarray or None
     """
     d, nw = red.At.shape[1], red.H.shape[0]
     A, b = lifted(red)

@@ -105,7 +105,19 @@ class RegionArrays(Sequence[CriticalRegion]):
     def from_regions(
         cls, regions: Sequence[CriticalRegion], nz: int = 0, d: int = 0
     ) -> RegionArrays:
-        """Pack ``regions`` (``nz``, ``d`` give the shapes when there are none)."""
+        """Pack ``regions`` into flat arrays (no region has shared rows).
+
+        Parameters
+        ----------
+        regions : sequence of CriticalRegion
+            Returned as it is when it is a ``RegionArrays`` already.
+        nz, d : int
+            The shapes of the laws when there are no regions (else taken from them).
+
+        Returns
+        -------
+        RegionArrays
+        """
         if isinstance(regions, RegionArrays):
             return regions
         n = len(regions)
@@ -149,7 +161,18 @@ class RegionArrays(Sequence[CriticalRegion]):
         )
 
     def rows(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """Region ``i``'s rows, the shared ones included: (r, d), (r,)."""
+        """Region ``i``'s rows, the shared ones included.
+
+        Parameters
+        ----------
+        i : int
+
+        Returns
+        -------
+        A : (r, d) ndarray
+        b : (r,) ndarray
+            Views of the arrays, or a copy when the region has shared rows.
+        """
         r0, r1 = self.offsets[i], self.offsets[i + 1]
         if not self.implied[i]:
             return self.A[r0:r1], self.b[r0:r1]
@@ -163,7 +186,17 @@ class RegionArrays(Sequence[CriticalRegion]):
         return np.diff(self.offsets) + self.implied * self.shared_b.size
 
     def take(self, idx: np.ndarray) -> RegionArrays:
-        """The regions ``idx`` (an index array), in that order."""
+        """The regions ``idx``, in that order (copies of their rows).
+
+        Parameters
+        ----------
+        idx : (n,) array_like of int
+
+        Returns
+        -------
+        RegionArrays
+            With the same shared rows.
+        """
         idx = np.asarray(idx, dtype=np.int64)
         o, a = self.offsets, self.active_offsets
         rows, off = segment_indices(o[idx], o[idx + 1] - o[idx])
@@ -178,7 +211,23 @@ class RegionArrays(Sequence[CriticalRegion]):
         """The regions of ``parts`` one after the other (their shared rows must agree
         where they have implied regions). ``consume``: each part is dropped from the list
         once copied, so that the copy and the parts are not all held at once (the result
-        is allocated empty, and its pages are touched only as they are filled)."""
+        is allocated empty, and its pages are touched only as they are filled).
+
+        Parameters
+        ----------
+        parts : list of RegionArrays
+        consume : bool
+            Empty ``parts`` as they are copied (and give the freed memory back).
+
+        Returns
+        -------
+        RegionArrays
+
+        Raises
+        ------
+        ValueError
+            When parts with implied regions have different shared rows.
+        """
         live = [p for p in parts if len(p)] or list(parts[:1])
         src = next((p for p in live if p.implied.any()), live[0])
         for p in live:
@@ -245,7 +294,17 @@ def segment_indices(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, 
 
 
 def too_many_regions(limit: int) -> str:
-    """The message of the solver's safety stop on the number of regions."""
+    """The message of the solver's safety stop on the number of regions.
+
+    Parameters
+    ----------
+    limit : int
+        The largest number of regions allowed.
+
+    Returns
+    -------
+    str
+    """
     return (
         f"more than {limit:,} regions: the safety stop (raise it with --max-regions or "
         "SolveOptions.max_regions; a region of the CDC-24 set holds ~2.5 KB)"
@@ -320,10 +379,12 @@ class MpSolution:
 
     @property
     def num_regions(self) -> int:
+        """The number of critical regions."""
         return len(self.regions)
 
     @property
     def locator(self) -> PointLocator:
+        """The point locator on the regions (the shared rows held once), built on first use."""
         if self._locator is None:
             ra = self.regions
             self._locator = PointLocator.packed(
@@ -340,11 +401,36 @@ class MpSolution:
         return Theta
 
     def locate(self, Theta: np.ndarray) -> np.ndarray:
-        """Region index per row of ``Theta`` (P, d) -> (P,) int, -1 outside."""
+        """The region of each parameter (see :meth:`PointLocator.locate`).
+
+        Parameters
+        ----------
+        Theta : (P, d) or (d,) array_like
+
+        Returns
+        -------
+        (P,) ndarray of int
+            -1 outside the feasible set.
+
+        Raises
+        ------
+        ValueError
+            When the parameters are not of dimension ``d``.
+        """
         return self.locator.locate(self._theta(Theta))
 
     def primal(self, Theta: np.ndarray) -> np.ndarray:
-        """Optimizer ``z*(theta)`` per row -> (P, nz), NaN outside the feasible set."""
+        """The optimizer ``z*(theta) = K_i theta + k_i`` of each parameter.
+
+        Parameters
+        ----------
+        Theta : (P, d) or (d,) array_like
+
+        Returns
+        -------
+        (P, nz) ndarray
+            NaN rows outside the feasible set.
+        """
         Theta = self._theta(Theta)
         idx = self.locate(Theta)
         Z = np.full((Theta.shape[0], self.program.nz), np.nan)
@@ -354,7 +440,17 @@ class MpSolution:
         return Z
 
     def value(self, Theta: np.ndarray) -> np.ndarray:
-        """Optimal value per row -> (P,), NaN outside the feasible set."""
+        """The optimal value ``0.5 z'Hz + (c + C theta)'z`` of each parameter.
+
+        Parameters
+        ----------
+        Theta : (P, d) or (d,) array_like
+
+        Returns
+        -------
+        (P,) ndarray
+            NaN outside the feasible set.
+        """
         Theta = self._theta(Theta)
         Z = self.primal(Theta)
         p = self.program
@@ -362,6 +458,7 @@ class MpSolution:
         return 0.5 * np.einsum("pi,ij,pj->p", Z, p.H, Z) + np.einsum("pi,pi->p", lin, Z)
 
     def summary(self) -> str:
+        """One line: the program's kind and name, its regions, sizes and solve time."""
         p = self.program
         return (
             f"{p.kind} {p.name or ''}: {self.num_regions} critical regions "
@@ -376,7 +473,18 @@ class MpSolution:
     # ---- persistence -----------------------------------------------------------------
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write the solution (and its program) to ``path`` (``.npz``) atomically."""
+        """Write the solution (and its program) to ``path`` (``.npz``, format
+        ``SOLUTION_FORMAT``) atomically; a large one uncompressed.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Path
+            The path written.
+        """
         p = self.program
         d = p.d
         ra = self.regions
@@ -405,7 +513,21 @@ class MpSolution:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> MpSolution:
-        """Read a solution written by ``save``; a malformed file raises ``SpecError``."""
+        """Read a solution written by :meth:`save` (format 2, or format 1).
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        MpSolution
+
+        Raises
+        ------
+        SpecError
+            The file is missing or malformed (naming the file and the array).
+        """
         return load_npz(path, _SOLUTION_FILE, cls._from_arrays)
 
     @classmethod
