@@ -51,14 +51,33 @@ class PlantEnclosures:
 
     @property
     def n(self) -> int:
+        """The state dimension."""
         return len(self.sym.x)
 
     @property
     def m(self) -> int:
+        """The input dimension."""
         return len(self.sym.u)
 
     def box(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
-        """The joint box ``(lo, hi)`` of shape (n + m,) or (P, n + m)."""
+        """The joint box over ``z = (x, u)``, batch shapes broadcast.
+
+        Parameters
+        ----------
+        xlo, xhi : (n,) or (P, n) array_like
+            The state box.
+        ulo, uhi : (m,) or (P, m) array_like
+            The input box.
+
+        Returns
+        -------
+        lo, hi : (n + m,) or (P, n + m) ndarray
+
+        Raises
+        ------
+        ValueError
+            When a side is not of shape (d,) or (P, d).
+        """
         n, m = self.n, self.m
         parts = [np.asarray(a, dtype=np.float64) for a in (xlo, xhi, ulo, uhi)]
         for a, d, name in zip(parts, (n, n, m, m), ("xlo", "xhi", "ulo", "uhi"), strict=True):
@@ -74,15 +93,51 @@ class PlantEnclosures:
         )
 
     def f(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
-        """Enclosure of ``f(x, u)`` over the box: (n,) or (P, n)."""
+        """Enclosure of ``f(x, u)`` over the box.
+
+        Parameters
+        ----------
+        xlo, xhi : (n,) or (P, n) array_like
+            The state box.
+        ulo, uhi : (m,) or (P, m) array_like
+            The input box.
+
+        Returns
+        -------
+        lo, hi : (n,) or (P, n) ndarray
+        """
         return self.f_fn(*self.box(xlo, xhi, ulo, uhi))
 
     def jac_x(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
-        """Enclosure of ``df/dx`` over the box: (n, n) or (P, n, n)."""
+        """Enclosure of ``df/dx`` over the box.
+
+        Parameters
+        ----------
+        xlo, xhi : (n,) or (P, n) array_like
+            The state box.
+        ulo, uhi : (m,) or (P, m) array_like
+            The input box.
+
+        Returns
+        -------
+        lo, hi : (n, n) or (P, n, n) ndarray
+        """
         return self.jac_x_fn(*self.box(xlo, xhi, ulo, uhi))
 
     def jac_u(self, xlo: Any, xhi: Any, ulo: Any, uhi: Any) -> tuple[Array, Array]:
-        """Enclosure of ``df/du`` over the box: (n, m) or (P, n, m)."""
+        """Enclosure of ``df/du`` over the box.
+
+        Parameters
+        ----------
+        xlo, xhi : (n,) or (P, n) array_like
+            The state box.
+        ulo, uhi : (m,) or (P, m) array_like
+            The input box.
+
+        Returns
+        -------
+        lo, hi : (n, m) or (P, n, m) ndarray
+        """
         return self.jac_u_fn(*self.box(xlo, xhi, ulo, uhi))
 
 
@@ -109,6 +164,11 @@ def plant_enclosures(problem_or_plant: Problem | PlantSpec) -> PlantEnclosures:
 
 def plant_hessian(problem_or_plant: Problem | PlantSpec) -> IntervalFunction:
     """An interval enclosure of the second derivatives of a plant's ``f`` (compiled once).
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+        A plant with continuous-time dynamics.
 
     Returns
     -------

@@ -116,16 +116,15 @@ Pair = tuple[Any, Any]  # (lo, hi): float arrays or numpy float scalars
 class IntervalDomainError(CodevError, ValueError):
     """An interval operation was applied outside its domain (or near a singularity).
 
+    The parameters are kept as attributes of the same names.
+
     Parameters
     ----------
     reason : str
         What went wrong, e.g. ``"log of an interval reaching <= 0"``.
     mask : ndarray of bool, optional
         Where (elementwise over the operands' broadcast shape) the violation occurred.
-
-    Attributes
-    ----------
-    boxes : (k,) ndarray of int or None
+    boxes : (k,) ndarray of int, optional
         For an error raised by a compiled function on a batch of boxes: the indices of the
         offending boxes (None for a single box).
     """
@@ -820,13 +819,31 @@ class Interval:
 
     @classmethod
     def of(cls, value: Any) -> Interval:
-        """A sound enclosure of a number (int, float, Fraction, sympy number such as
-        ``sympy.pi`` or ``sympy.Rational(1, 3)``)."""
+        """A sound enclosure of a number.
+
+        Parameters
+        ----------
+        value : int, float, Fraction or sympy number
+            A Python or numpy float is exact; a ``sympy.Float`` is read as the decimal
+            literal it was written as, and widened; ``sympy.pi``, ``sympy.Rational(1, 3)``
+            and other real constants are enclosed by neighbouring floats.
+
+        Returns
+        -------
+        Interval
+            A 0-d interval containing ``value``.
+
+        Raises
+        ------
+        TypeError
+            For a bool or anything that is not a real number.
+        """
         return cls(*_number_interval(value))
 
     # -- properties ------------------------------------------------------------------
     @property
     def shape(self) -> tuple[int, ...]:
+        """The shape of the endpoint arrays."""
         return self.lo.shape
 
     @property
@@ -840,7 +857,17 @@ class Interval:
         return np.clip(self.lo + 0.5 * (self.hi - self.lo), self.lo, self.hi)
 
     def contains(self, x: Any) -> Array:
-        """Elementwise ``lo <= x <= hi`` (bool array)."""
+        """Elementwise ``lo <= x <= hi``.
+
+        Parameters
+        ----------
+        x : array_like
+            Points, broadcastable with the interval.
+
+        Returns
+        -------
+        ndarray of bool
+        """
         x = np.asarray(x, dtype=np.float64)
         return (self.lo <= x) & (x <= self.hi)
 
@@ -954,6 +981,16 @@ class Interval:
         ``gamma_{k-1} * sum(|terms|)`` with ``gamma_j = j u / (1 - j u)``, ``u = 2**-53``;
         the float sums are widened by twice that bound plus an absolute ``k * 2**-1074``
         (underflow).
+
+        Parameters
+        ----------
+        axis : int
+            The axis summed over.
+
+        Returns
+        -------
+        Interval
+            Of the shape without ``axis``; ``[0, 0]`` for an empty axis.
         """
         k = self.lo.shape[axis]
         if k == 0:
@@ -992,9 +1029,25 @@ def _unary(kernel: Callable[..., Pair], doc: str) -> Callable[[Any], Interval]:
         with np.errstate(all="ignore"):
             return Interval._raw(kernel(lo, hi))
 
-    fn.__doc__ = doc
+    fn.__doc__ = doc + _UNARY_DOC
     return fn
 
+
+#: the sections every unary function's docstring ends with
+_UNARY_DOC = """
+
+Parameters
+----------
+x : Interval, ndarray or number
+    The argument: an array is a point interval (its floats are exact), a number is
+    enclosed soundly (see :meth:`Interval.of`).
+
+Returns
+-------
+Interval
+    An enclosure of the image of ``x``, elementwise (outward rounded where the
+    operation is not exact).
+"""
 
 sin = _unary(_k_sin, "Interval sine (tight: extrema inside the interval are included).")
 cos = _unary(_k_cos, "Interval cosine (tight: extrema inside the interval are included).")
@@ -1019,10 +1072,29 @@ def _binary(kernel: Callable[..., Pair], doc: str) -> Callable[[Any, Any], Inter
         with np.errstate(all="ignore"):
             return Interval._raw(kernel(al, ah, bl, bh))
 
-    fn.__doc__ = doc
+    fn.__doc__ = doc + _BINARY_DOC
     return fn
 
 
+#: the sections every binary function's docstring ends with
+_BINARY_DOC = """
+
+Parameters
+----------
+a, b : Interval, ndarray or number
+    The arguments, broadcast together: an array is a point interval (its floats are
+    exact), a number is enclosed soundly (see :meth:`Interval.of`).
+
+Returns
+-------
+Interval
+    An enclosure of the image of ``(a, b)``, elementwise (outward rounded where the
+    operation is not exact).
+"""
+
 minimum = _binary(_k_min, "Elementwise interval minimum (exact).")
 maximum = _binary(_k_max, "Elementwise interval maximum (exact).")
-atan2 = _binary(_k_atan2, "Interval ``atan2(y, x)`` in [-pi, pi] (conservative at the cut).")
+atan2 = _binary(
+    _k_atan2, "Interval ``atan2(y, x)``, ``y = a``, ``x = b``, in [-pi, pi] (conservative at "
+    "the cut)."
+)

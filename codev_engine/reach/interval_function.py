@@ -276,15 +276,21 @@ class _Compiler:
 class IntervalFunction:
     """A compiled interval evaluator of sympy expressions (see :func:`compile_interval`).
 
-    Attributes
+    Made by :func:`compile_interval`, not directly.
+
+    Parameters
     ----------
     symbols : tuple of sympy.Symbol
-        The argument symbols, in the order of the box coordinates.
+        The argument symbols, in the order of the box coordinates (the attribute
+        ``symbols``).
     shape : tuple of int
         The output shape: ``(rows, cols)`` for a matrix, ``(k,)`` for a list, ``()`` for
-        one expression.
-    n_ops : int
-        Number of operations of the compiled program.
+        one expression (the attribute ``shape``).
+    compiler : _Compiler
+        The compiled program: its registers (the arguments first, then constants and
+        results) and its operations.
+    outs : sequence of int
+        The output registers, flat, in the C order of ``shape``.
 
     Notes
     -----
@@ -324,6 +330,7 @@ class IntervalFunction:
 
     @property
     def n_ops(self) -> int:
+        """Number of operations of the compiled program."""
         return len(self._ops)
 
     def __repr__(self) -> str:

@@ -46,7 +46,15 @@ _REL = 1e-12  # relative floating-point margin per propagated quantity
 
 @dataclass(frozen=True)
 class AffinePlant:
-    """``dx/dt = Ac x + Bc u + f0`` in plant coordinates."""
+    """``dx/dt = Ac x + Bc u + f0`` in plant coordinates.
+
+    Attributes
+    ----------
+    Ac : (n, n) ndarray
+    Bc : (n, m) ndarray
+    f0 : (n,) ndarray
+        The drift at ``x = 0, u = 0``.
+    """
 
     Ac: np.ndarray
     Bc: np.ndarray
@@ -54,7 +62,19 @@ class AffinePlant:
 
 
 def affine_plant(problem: Problem) -> AffinePlant | None:
-    """The plant as an affine ODE, or None when it is nonlinear."""
+    """The plant as an affine ODE, or None when it is nonlinear.
+
+    A plant given by ``A``, ``B`` matrices is affine; one given by expressions is when its
+    Jacobians are constant (then ``f0 = f(0, 0)``).
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    AffinePlant or None
+    """
     pl = problem.plant
     if pl.A is not None and pl.B is not None:
         return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
@@ -88,6 +108,18 @@ class Finding:
 
     ``alpha`` is set when the violation is *exact* (a concrete initial state reaches it:
     ``x0 = c0 + V0 alpha``); otherwise it is only a possible violation.
+
+    Attributes
+    ----------
+    kind : str
+        ``"unsafe"``, ``"safe"``, ``"input_bounds"`` (a property violated), ``"undefined"``
+        (the set leaves the law's domain) or ``"max_depth"`` (the refinement budget ran out).
+    index : int
+        The unsafe or safe set, or the input, violated; -1 for the other kinds.
+    t : float
+        The time (s) of the violation, or of the segment that could not be decided.
+    alpha : (n,) ndarray or None
+        The initial state's coordinates in the initial box (``[-1, 1]^n``).
     """
 
     kind: str  # "unsafe", "safe", "input_bounds", "undefined"
@@ -129,7 +161,28 @@ class ClosedLoopSetup:
 
 @dataclass
 class LinearReach(ClosedLoopSetup):
-    """Reachability engine for one problem, law and hold (see module docstring)."""
+    """Reachability engine for one problem, law and hold (see module docstring).
+
+    After :meth:`run`, ``tubes`` holds the reachtube's pieces and ``findings`` the
+    violations found (see :class:`ClosedLoopSetup`).
+
+    Attributes
+    ----------
+    problem : Problem
+        With a ``[verify]`` section.
+    law : ExplicitLaw
+    plant : AffinePlant
+        The plant, from :func:`affine_plant`.
+    hold : {"zoh", "continuous"}
+        How the input is applied between samples: held at the sample's value, or the law
+        evaluated continuously.
+    max_depth : int
+        How many times a suspicious segment may be refined in time (each refinement cuts
+        it in four).
+    stats : dict
+        Counters: ``branches`` and ``refinements``, updated by :meth:`run` (``boxes`` is
+        counted by ``verify``, on the tube).
+    """
 
     problem: Problem
     law: ExplicitLaw

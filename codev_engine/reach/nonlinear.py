@@ -111,7 +111,33 @@ class _Rec:
 
 @dataclass
 class NonlinearReach(ClosedLoopSetup):
-    """Reachability engine for a nonlinear plant (see module docstring)."""
+    """Reachability engine for a nonlinear plant (see module docstring).
+
+    After :meth:`run`, ``tubes`` holds the reachtube's pieces and ``findings`` the
+    violations found (see ``linear.ClosedLoopSetup``).
+
+    Attributes
+    ----------
+    problem : Problem
+        With a ``[verify]`` section.
+    law : ExplicitLaw
+    hold : {"zoh", "continuous"}
+        How the input is applied between samples: held at the sample's value, or the law
+        evaluated continuously.
+    max_depth : int
+        How many times the initial box may be bisected (a piece that is not proved at
+        this depth gives a ``max_depth`` or ``undefined`` finding).
+    progress : callable, optional
+        Called with a copy of ``stats`` after each sample of each piece.
+    stats : dict
+        Counters updated by :meth:`run`: ``branches``, ``refinements``, ``partitions``,
+        ``merges``.
+    merge_cost : float
+        Sets at a sample are merged when the merged remainder grows by at most this
+        fraction of the set's size (in the W-norm; a heuristic: any merge is sound) ...
+    max_sets : int
+        ... and at most this many sets are kept per sample (cheapest merges first).
+    """
 
     problem: Problem
     law: ExplicitLaw

@@ -579,6 +579,15 @@ def first_violation(problem: Problem, law: ExplicitLaw, trace: Trace) -> Violati
     the law being defined (``trace.undefined_at``). At equal times the order is unsafe,
     safe, input_bounds, undefined.
 
+    Parameters
+    ----------
+    problem : Problem
+        Its ``[verify]`` section gives the properties.
+    law : ExplicitLaw
+        The law the trace was simulated with (for the left limits of the input).
+    trace : Trace
+        From :func:`simulate`.
+
     Returns
     -------
     Violation or None

@@ -43,14 +43,38 @@ class Tube:
 
     @property
     def num_boxes(self) -> int:
+        """The number of boxes K."""
         return int(self.t_start.shape[0])
 
     @classmethod
     def empty(cls, n: int) -> Tube:
+        """A tube of no boxes in dimension ``n``.
+
+        Parameters
+        ----------
+        n : int
+            The state dimension.
+
+        Returns
+        -------
+        Tube
+        """
         return cls(np.zeros(0), np.zeros(0), np.zeros((0, n)), np.zeros((0, n)), np.zeros(0, int))
 
     @classmethod
     def concatenate(cls, tubes: list[Tube], n: int) -> Tube:
+        """The boxes of ``tubes``, one tube after the other.
+
+        Parameters
+        ----------
+        tubes : list of Tube
+        n : int
+            The state dimension (of the result when ``tubes`` is empty).
+
+        Returns
+        -------
+        Tube
+        """
         if not tubes:
             return cls.empty(n)
         return cls(
@@ -62,12 +86,31 @@ class Tube:
         )
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """The boxes active at time ``t`` -> lower (k, n), upper (k, n)."""
+        """The boxes active at time ``t`` (``t_start <= t <= t_end``).
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        lower, upper : (k, n) ndarray
+        """
         sel = (self.t_start <= t) & (t <= self.t_end)
         return self.lower[sel], self.upper[sel]
 
     def hull_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Bounding box of all boxes active at ``t``."""
+        """Bounding box of all boxes active at ``t``.
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        lower, upper : (n,) ndarray
+            NaN when no box is active at ``t``.
+        """
         lo, hi = self.at(t)
         if lo.shape[0] == 0:
             n = self.lower.shape[1]
@@ -75,7 +118,21 @@ class Tube:
         return lo.min(axis=0), hi.max(axis=0)
 
     def contains(self, t: np.ndarray, X: np.ndarray, tol: float = 0.0) -> np.ndarray:
-        """Is state ``X[p]`` at time ``t[p]`` inside some active box?  -> (P,) bool."""
+        """Is state ``X[p]`` at time ``t[p]`` inside some box active at ``t[p]``?
+
+        Parameters
+        ----------
+        t : (P,) array_like
+            The times.
+        X : (P, n) array_like
+            The states.
+        tol : float
+            Absolute slack on every side of the boxes.
+
+        Returns
+        -------
+        (P,) ndarray of bool
+        """
         t = np.asarray(t, dtype=float)
         X = np.atleast_2d(np.asarray(X, dtype=float))
         out = np.zeros(X.shape[0], dtype=bool)
@@ -90,12 +147,37 @@ class Tube:
         return out
 
     def save(self, path: str | os.PathLike) -> Path:
-        """Write ``t_start``, ``t_end``, ``lower``, ``upper`` (and ``branch``) to an npz."""
+        """Write ``t_start``, ``t_end``, ``lower``, ``upper`` and ``branch`` to an npz
+        (format ``TUBE_FORMAT``), atomically.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Path
+            The path written.
+        """
         return save_npz(path, _TUBE_FILE, self.arrays())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Tube:
-        """Read a tube written by ``save``; a malformed file raises ``SpecError``."""
+        """Read a tube written by :meth:`save` (or an untagged file of another tool).
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Tube
+
+        Raises
+        ------
+        SpecError
+            The file is missing or malformed (naming the file and the array).
+        """
         return load_npz(path, _TUBE_FILE, cls.from_arrays)
 
     @classmethod
@@ -104,6 +186,22 @@ class Tube:
 
         Every array is real and finite (``SpecError`` names the array), shapes agree and
         ``t_start <= t_end``, ``lower <= upper`` hold.
+
+        Parameters
+        ----------
+        data : dict of str to ndarray
+            The arrays; ``{prefix}branch`` is optional (all zeros).
+        prefix : str
+            The prefix of the tube's names (a tube stored inside another artifact).
+
+        Returns
+        -------
+        Tube
+
+        Raises
+        ------
+        SpecError
+            Naming the array that is missing or wrong.
         """
         ts = real(data, prefix + "t_start", ndim=1)
         K = ts.shape[0]
@@ -123,7 +221,17 @@ class Tube:
         return cls(ts, te, lo, hi, branch.astype(np.int64))
 
     def arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
-        """The tube as named arrays (the inverse of :meth:`from_arrays`)."""
+        """The tube as named arrays (the inverse of :meth:`from_arrays`).
+
+        Parameters
+        ----------
+        prefix : str
+            Put before every name.
+
+        Returns
+        -------
+        dict of str to ndarray
+        """
         return {
             prefix + "t_start": self.t_start,
             prefix + "t_end": self.t_end,

@@ -92,7 +92,25 @@ class Counterexample:
 
 @dataclass
 class VerificationResult(Displayable):
-    """Outcome of ``verify``."""
+    """Outcome of :func:`verify` (see the module docstring for the verdicts).
+
+    Attributes
+    ----------
+    verdict : str
+        ``"robustly_safe"``, ``"unsafe"`` or ``"unknown"`` (``VERDICTS``).
+    reason : str or None
+        None when robustly safe; the counterexample's kind when unsafe; ``"max_depth"``
+        or ``"infeasible_region"`` when unknown.
+    tube : Tube
+        The reachtube (when unsafe, only its boxes that start by the violation's time).
+    hold : {"zoh", "continuous"}
+        The hold the closed loop was verified with.
+    counterexample : Counterexample or None
+        A confirmed violating trajectory (unsafe only).
+    stats : dict
+        Counters of the run (``branches``, ``refinements``, ``boxes``, ``partitions``,
+        ``method``, ``seconds``, ...), for reports.
+    """
 
     verdict: str
     reason: str | None
@@ -103,17 +121,37 @@ class VerificationResult(Displayable):
 
     @property
     def seconds(self) -> float:
+        """Wall time of the verification (``stats["seconds"]``, 0 when absent)."""
         return float(self.stats.get("seconds", 0.0))
 
     def width_at(self, t: float) -> np.ndarray:
-        """Width (n,) of the hull of the tube's boxes active at ``t``."""
+        """Width of the hull of the tube's boxes active at ``t``.
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        (n,) ndarray
+            NaN when no box is active at ``t``.
+        """
         lo, hi = self.tube.hull_at(t)
         return hi - lo
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the result (verdict, stats, tube, counterexample trace) to an ``.npz``.
 
-        Atomic and pickle-free; :meth:`load` reads it back.
+        Atomic and pickle-free (format ``RESULT_FORMAT``); :meth:`load` reads it back.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Path
+            The path written.
         """
         arrays: dict[str, np.ndarray] = {
             "verdict": np.array(self.verdict),
@@ -141,7 +179,21 @@ class VerificationResult(Displayable):
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> VerificationResult:
-        """Read a result written by :meth:`save`; a malformed file raises ``SpecError``."""
+        """Read a result written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        VerificationResult
+
+        Raises
+        ------
+        SpecError
+            The file is missing or malformed (naming the file and the array).
+        """
         return load_npz(path, _RESULT_FILE, cls._from_arrays)
 
     @classmethod
@@ -198,6 +250,7 @@ class VerificationResult(Displayable):
         return cls(verdict, reason, tube, hold, cex, stats)
 
     def summary(self) -> str:
+        """The verdict and why, the tube's size and the time; the counterexample, if any."""
         line = f"verdict: {self.verdict}"
         if self.counterexample is not None and self.verdict == "unsafe":
             line += f" ({self.counterexample.describe()})"
