@@ -506,9 +506,6 @@ def _grid(tau_end: float, step: float) -> np.ndarray:
     return taus
 
 
-# the name nonlinear.py imports (soundness needs every vertex: checked_vertices' docstring)
-_checked_vertices = checked_vertices
-
 
 def _box_meets(A: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
     """Does the box [lo, hi] meet {A x <= b} (closed sets)?"""

@@ -42,6 +42,7 @@ import numpy as np
 from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 
 from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+from codev_engine.geometry.vertices import checked_vertices
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.linear import ClosedLoopSetup, Finding
@@ -809,8 +810,6 @@ class NonlinearReach(ClosedLoopSetup):
         and |a' M e| <= |M' a|_2: adding these rows to the deviation polytope keeps every
         state of the region (plus 1e-9) -- exact for the star part, sound for the ellipsoid.
         """
-        from codev_engine.reach.linear import _checked_vertices
-
         xlo, xhi = self._box(s)
         cand = np.flatnonzero(
             np.all(self.boxes_lo <= xhi + 1e-9, axis=1)
@@ -841,7 +840,7 @@ class NonlinearReach(ClosedLoopSetup):
                 continue
             keep = minimal_rows(Hn, hn)
             Hn, hn = Hn[keep], hn[keep]
-            V = _checked_vertices(Hn, hn)
+            V = checked_vertices(Hn, hn)
             out.append((int(i), _Set(s.y, s.D, s.M, s.k, s.path + (int(i),), Hn, hn, V, poly)))
         return out
 
