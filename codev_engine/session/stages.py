@@ -27,17 +27,40 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from codev_engine.session.store import SessionError
 
 if TYPE_CHECKING:
-    from codev_engine.session.options import RunOptions
     from codev_engine.spec.problem import Problem, VerifySpec
 
 __all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable"]
+
+
+class StageOptions(Protocol):
+    """What the stages read of a run's options (:class:`codev_engine.session.RunOptions`).
+
+    A protocol, so that the table does not import the options, which take their stage
+    names (``upto``) from the table.
+
+    Attributes
+    ----------
+    hold : str or None
+        Overrides ``verify.hold``.
+    max_depth : int or None
+        Overrides ``verify.max_depth``.
+    axes : (2,) tuple of int
+        State indices of the recording's plane view.
+    traces : int
+        Simulated traces in the recording.
+    """
+
+    hold: str | None
+    max_depth: int | None
+    axes: tuple[int, int]
+    traces: int
 
 
 @dataclass(frozen=True)
@@ -47,7 +70,7 @@ class StageRun:
     Attributes
     ----------
     problem : Problem
-    options : RunOptions
+    options : StageOptions
     upstream : mapping
         Stage name -> value of every stage run before this one in the same run.
     path : Path
@@ -57,7 +80,7 @@ class StageRun:
     """
 
     problem: Problem
-    options: RunOptions
+    options: StageOptions
     upstream: Mapping[str, Any]
     path: Path
     progress: Callable[[int], None]
@@ -98,12 +121,12 @@ class Stage:
     name: str
     ext: str
     report_field: str | None
-    inputs: Callable[[Problem, RunOptions, Mapping[str, str]], dict[str, Any] | None]
+    inputs: Callable[[Problem, StageOptions, Mapping[str, str]], dict[str, Any] | None]
     compute: Callable[[StageRun], Any]
     load: Callable[[Path], Any]
     describe: Callable[[Any, Mapping[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
     check: Callable[[Problem], None] | None = None
-    check_options: Callable[[Problem, RunOptions], None] | None = None
+    check_options: Callable[[Problem, StageOptions], None] | None = None
 
 
 @dataclass(frozen=True)
@@ -167,7 +190,7 @@ class StageTable:
 # --------------------------------------------------------------------------------------------
 
 
-def _model_inputs(problem: Problem, options: RunOptions, keys: Mapping[str, str]) -> dict:
+def _model_inputs(problem: Problem, options: StageOptions, keys: Mapping[str, str]) -> dict:
     return {"plant": problem.plant, "model": problem.model}
 
 
@@ -204,7 +227,7 @@ def _model_describe(model: Any, upstream: Mapping[str, Any]) -> tuple[dict, dict
 # --------------------------------------------------------------------------------------------
 
 
-def _synthesis_inputs(problem: Problem, options: RunOptions, keys: Mapping[str, str]) -> dict:
+def _synthesis_inputs(problem: Problem, options: StageOptions, keys: Mapping[str, str]) -> dict:
     return {
         "model": keys["model"],
         "mpc": problem.mpc,
@@ -250,7 +273,7 @@ def _synthesis_describe(law: Any, upstream: Mapping[str, Any]) -> tuple[dict, di
 # --------------------------------------------------------------------------------------------
 
 
-def _effective_verify(problem: Problem, options: RunOptions) -> VerifySpec:
+def _effective_verify(problem: Problem, options: StageOptions) -> VerifySpec:
     """The ``[verify]`` section with the run's ``hold`` / ``max_depth`` overrides applied."""
     vs = problem.verify
     assert vs is not None
@@ -262,7 +285,7 @@ def _effective_verify(problem: Problem, options: RunOptions) -> VerifySpec:
 
 
 def _verification_inputs(
-    problem: Problem, options: RunOptions, keys: Mapping[str, str]
+    problem: Problem, options: StageOptions, keys: Mapping[str, str]
 ) -> dict | None:
     if problem.verify is None:
         return None
@@ -314,7 +337,7 @@ def _verification_describe(result: Any, upstream: Mapping[str, Any]) -> tuple[di
 # --------------------------------------------------------------------------------------------
 
 
-def _recording_inputs(problem: Problem, options: RunOptions, keys: Mapping[str, str]) -> dict:
+def _recording_inputs(problem: Problem, options: StageOptions, keys: Mapping[str, str]) -> dict:
     upstream = (
         {"verification": keys["verification"]}
         if "verification" in keys
@@ -328,7 +351,7 @@ def _recording_inputs(problem: Problem, options: RunOptions, keys: Mapping[str, 
     }
 
 
-def _recording_check_options(problem: Problem, options: RunOptions) -> None:
+def _recording_check_options(problem: Problem, options: StageOptions) -> None:
     n = problem.plant.n
     if n >= 2 and max(options.axes) >= n:  # one state: no plane view, axes unused
         raise SessionError(

@@ -29,12 +29,12 @@ from codev_engine.view.shapes import meshes, outline
 if TYPE_CHECKING:
     from codev_engine.reach.tube import Tube
     from codev_engine.reach.verification import Counterexample, VerificationResult
-    from codev_engine.view.records import RecordingOptions
 
 __all__ = [
     "TIMELINE",
     "EntityWriter",
     "RecordingContent",
+    "RecordingOptions",
     "Traces",
     "simulate_traces",
     "unsafe_margin",
@@ -55,6 +55,27 @@ _TRACE = (90, 90, 90)
 _TOL = 1e-9
 #: a polytope with more d-subsets of rows than this is not drawn (no LP fallback here)
 _MAX_COMBOS = 50_000
+
+
+@dataclass(frozen=True)
+class RecordingOptions:
+    """What to record.
+
+    Attributes
+    ----------
+    axes : (int, int)
+        State indices of the plane view (a projection when n > 2); must be distinct and
+        ``< n`` (``SpecError`` with ``field="axes"``). Ignored when n == 1 (no plane view).
+    traces : int
+        Closed-loop traces simulated from the initial set (centre, corners, then seeded
+        random points); 0 for none.
+    seed : int
+        Seed of the random initial states.
+    """
+
+    axes: tuple[int, int] = (0, 1)
+    traces: int = 16
+    seed: int = 0
 
 
 class EntityWriter:

@@ -28,7 +28,7 @@ from codev_engine.io.atomic import atomic_path
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem
 from codev_engine.view.blueprint import blueprint
-from codev_engine.view.record_content import EntityWriter, RecordingContent
+from codev_engine.view.record_content import EntityWriter, RecordingContent, RecordingOptions
 
 if TYPE_CHECKING:
     from codev_engine.reach.verification import VerificationResult
@@ -37,27 +37,6 @@ __all__ = ["RecordingOptions", "RecordingSummary", "write_recording", "check_rec
 
 #: application id of every recording (the viewer groups recordings and blueprints by it)
 APPLICATION_ID = "codev"
-
-
-@dataclass(frozen=True)
-class RecordingOptions:
-    """What to record.
-
-    Attributes
-    ----------
-    axes : (int, int)
-        State indices of the plane view (a projection when n > 2); must be distinct and
-        ``< n`` (``SpecError`` with ``field="axes"``). Ignored when n == 1 (no plane view).
-    traces : int
-        Closed-loop traces simulated from the initial set (centre, corners, then seeded
-        random points); 0 for none.
-    seed : int
-        Seed of the random initial states.
-    """
-
-    axes: tuple[int, int] = (0, 1)
-    traces: int = 16
-    seed: int = 0
 
 
 @dataclass(frozen=True)
