@@ -10,7 +10,25 @@ __all__ = ["run_workbench"]
 
 
 def run_workbench(target: str | None, *, session_dir: str | None = None) -> int:
-    """Open ``target`` (a spec, a session folder, or None) and run the app; exit status."""
+    """Open a design in the terminal workbench and run it until the user quits.
+
+    Parameters
+    ----------
+    target : str or None
+        A spec file, a session folder, or None for an empty design.
+    session_dir : str, optional
+        The session folder to work in (default ``sessions/<spec name>``).
+
+    Returns
+    -------
+    int
+        The exit status (0).
+
+    Raises
+    ------
+    SpecError, SessionError
+        When ``target`` cannot be opened (the CLI prints one line and exits 2).
+    """
     from workbench.tui.app import CodevApp
     from workbench.tui.state import open_target
 

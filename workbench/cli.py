@@ -677,7 +677,19 @@ def _build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``codev`` console script."""
+    """Entry point of the ``codev`` console script.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program name (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        The exit status: 0 success (or robustly safe), 1 unsafe / unknown / solver failure,
+        2 bad input (one line on stderr naming the file, the field and the reason).
+    """
     parser = _build_parser()
     args = parser.parse_args(argv)
     if args.version:

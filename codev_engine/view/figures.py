@@ -163,6 +163,11 @@ def default_slice_point(law: ExplicitLaw) -> np.ndarray:
     state) -- for the usual designs around an operating point with symmetric bounds, that
     operating point. Without a stored domain: the centre of the regions' bounding boxes.
 
+    Parameters
+    ----------
+    law : ExplicitLaw
+        The law, with ``n > 2`` states.
+
     Returns
     -------
     (n,) ndarray
@@ -394,6 +399,16 @@ def figure_law(
     law: ExplicitLaw, *, axes: tuple[int, int] = (0, 1), at: np.ndarray | None = None
 ) -> Figure:
     """A figure of the law's partition (see :func:`plot_partition`).
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+        The law whose critical regions are drawn.
+    axes : (2,) tuple of int
+        State indices of the drawn plane.
+    at : (n,) ndarray, optional
+        For ``n > 2``: the point whose other coordinates fix the section (default
+        :func:`default_slice_point`).
 
     Returns
     -------
@@ -782,7 +797,20 @@ def figure_result(
 
 
 def png_bytes(fig: Figure, *, dpi: float = _DPI) -> bytes:
-    """The figure as PNG bytes (rendered by Agg; no backend or pyplot involved)."""
+    """The figure as PNG bytes (rendered by Agg; no backend or pyplot involved).
+
+    Parameters
+    ----------
+    fig : matplotlib Figure
+        The figure to render.
+    dpi : float
+        Resolution of the PNG.
+
+    Returns
+    -------
+    bytes
+        The PNG file's content.
+    """
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     return buf.getvalue()
