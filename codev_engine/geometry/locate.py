@@ -287,7 +287,11 @@ class PointLocator:
             ``implied``.
         implied : (R,) ndarray of bool, optional
             Which regions include the ``shared`` rows.
-        tol, boxes, grid
+        tol : float
+            As for the constructor.
+        boxes : (lower, upper), optional
+            As for the constructor.
+        grid : bool, optional
             As for the constructor.
 
         Returns
