@@ -396,7 +396,7 @@ def explore_active_sets(
     semidefinite: bool = False,
     progress: Callable[[int], None] | None = None,
     stats: dict | None = None,
-) -> list[CriticalRegion]:
+) -> RegionArrays:
     """All full-dimensional critical regions of ``min 0.5 z'Hz + (c + C theta)'z s.t.
     G z <= w + S theta, At theta <= bt`` (H positive definite, rows of G unit norm).
 
