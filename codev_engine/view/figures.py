@@ -26,8 +26,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from codev_engine.geometry.vertices import packed_vertices
-
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
@@ -132,6 +130,10 @@ def section_polygons(
     region = region[keep]
     offsets = np.concatenate([[0], np.cumsum(np.bincount(region, minlength=R))])
     # all regions in one enumeration (the section rows have unit norm in the plane)
+    # imported here: geometry's LPs load scipy.optimize (~0.3 s), which the workbench's first
+    # screen must not wait for
+    from codev_engine.geometry.vertices import packed_vertices
+
     P, own, _ = packed_vertices(plane, rhs, offsets, tol, rtol=tol, max_combos=None)
     if own.size == 0:
         return [], np.zeros(0, dtype=int)
