@@ -151,6 +151,21 @@ def test_the_engine_modules_and_the_cli_load_no_front_end_on_import():
     assert loaded.isdisjoint(FRONT_END), loaded & set(FRONT_END)
 
 
+def test_the_workbench_starts_without_the_solvers():
+    # the first screen draws before the numerical stack is loaded (benchmarks/tui.py): the
+    # solvers and the symbolic model load in the first check's worker. A top-level import of
+    # geometry in view.figures once cost the first screen ~0.3 s (scipy.optimize).
+    code = (
+        "import sys\nimport workbench.tui.app\n"
+        "heavy = ('scipy.optimize', 'sympy', 'control', 'cvxpy', 'numba', 'matplotlib', 'rerun')\n"
+        "print(','.join(m for m in heavy if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "", out.stdout
+
 
 #: the engine's imports by name, which the linter cannot see: the lazy public names of
 #: ``import codev_engine`` (its own submodules) and the notebook backend (codev_engine.view)
