@@ -61,13 +61,14 @@ from math import comb
 import numpy as np
 
 from codev_engine.errors import SolverError
-from codev_engine.geometry.polytope import solve_lp
+from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
 
 __all__ = [
     "DET_TOL",
     "FACET_TOL",
     "MAX_COMBOS",
     "box_corners",
+    "checked_piece",
     "checked_vertices",
     "packed_vertices",
     "vertices",
@@ -442,3 +443,37 @@ def vertices_in_boxes(
         for i, v in zip(redo, again, strict=True):
             V[i] = v
     return V, As, bs
+
+
+def checked_piece(
+    A: np.ndarray, b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """A polytope ``{x : A x <= b}`` made ready for reachability, or None when it is empty.
+
+    The rows are normalised, the set is dropped when it has no interior (a Chebyshev ball of
+    radius 0: empty or flat), the redundant rows are removed and the set is bounded by
+    :func:`checked_vertices` -- the sequence both reach engines run on a set cut by a
+    critical region.
+
+    Parameters
+    ----------
+    A : (k, d) ndarray
+        Rows of the polytope, any scale.
+    b : (k,) ndarray
+        Right-hand sides.
+
+    Returns
+    -------
+    tuple of ((k', d) ndarray, (k',) ndarray, (v, d) ndarray) or None
+        The non-redundant unit rows, their right-hand sides and points whose convex hull
+        contains the polytope; None when the polytope has no interior.
+    """
+    A, b, ok = normalize_rows(A, b)
+    if not ok:
+        return None
+    _, radius = chebyshev_ball(A, b)
+    if not radius > 0:
+        return None
+    keep = minimal_rows(A, b)
+    A, b = A[keep], b[keep]
+    return A, b, checked_vertices(A, b)

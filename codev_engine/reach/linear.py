@@ -28,12 +28,10 @@ import numpy as np
 from scipy.linalg import expm
 
 from codev_engine.geometry.polytope import (
-    chebyshev_ball,
-    minimal_rows,
     normalize_rows,
     solve_lp,
 )
-from codev_engine.geometry.vertices import box_corners, checked_vertices
+from codev_engine.geometry.vertices import box_corners, checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import symbolic_model
 from codev_engine.reach.tube import Tube
@@ -459,17 +457,10 @@ class LinearReach(ClosedLoopSetup):
             A, b = law.A[r], law.b[r]
             Hn = A @ s.V
             hn = b - A @ s.c + np.abs(A) @ s.err + 1e-9
-            H = np.vstack([s.H, Hn])
-            h = np.concatenate([s.h, hn])
-            H, h, ok = normalize_rows(H, h)
-            if not ok:
+            piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))
+            if piece is None:
                 continue
-            _, radius = chebyshev_ball(H, h)
-            if not radius > 0:
-                continue
-            keep = minimal_rows(H, h)
-            H, h = H[keep], h[keep]
-            verts = checked_vertices(H, h)
+            H, h, verts = piece
             children.append((int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),))))
         if not children:
             self.findings.append(Finding("undefined", -1, t, None))

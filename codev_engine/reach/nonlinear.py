@@ -41,8 +41,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 
-from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
-from codev_engine.geometry.vertices import checked_vertices
+from codev_engine.geometry.polytope import solve_lp
+from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.linear import ClosedLoopSetup, Finding
@@ -830,17 +830,12 @@ class NonlinearReach(ClosedLoopSetup):
                     (int(i), _Set(s.y, s.D, s.M, s.k, s.path + (int(i),), s.H, s.h, s.V, poly))
                 )
                 continue  # the whole set is inside the region: no cut needed
-            Hn = np.vstack([s.H, Ai @ s.D])
-            hn = np.concatenate([s.h, bi - Ai @ s.y + slack])
-            Hn, hn, ok = normalize_rows(Hn, hn)
-            if not ok:
+            piece = checked_piece(
+                np.vstack([s.H, Ai @ s.D]), np.concatenate([s.h, bi - Ai @ s.y + slack])
+            )
+            if piece is None:
                 continue
-            _, radius = chebyshev_ball(Hn, hn)
-            if not radius > 0:
-                continue
-            keep = minimal_rows(Hn, hn)
-            Hn, hn = Hn[keep], hn[keep]
-            V = checked_vertices(Hn, hn)
+            Hn, hn, V = piece
             out.append((int(i), _Set(s.y, s.D, s.M, s.k, s.path + (int(i),), Hn, hn, V, poly)))
         return out
 
