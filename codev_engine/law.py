@@ -85,6 +85,16 @@ class ExplicitLaw(Displayable):
         return self.F.shape[1] if self.F.ndim == 3 and self.F.shape[0] else len(self.inputs)
 
     @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the law's parameter ``theta`` (length ``n``), in order.
+
+        The states, then ``prev_<input>`` when the law takes the previous input, then
+        ``ref_<signal>`` when it takes a reference; the regions, ``F`` and ``locate`` /
+        ``evaluate`` all live in this ``theta`` space.
+        """
+        return self.states
+
+    @property
     def regions(self) -> list[Polytope]:
         """The critical regions as ``Polytope`` objects (H-representations)."""
         return [Polytope(a, b) for a, b in zip(self.A, self.b, strict=True)]
