@@ -48,7 +48,16 @@ def canon(obj: Any) -> Any:
         For any other type (nothing is hashed by ``repr``).
     """
     if is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: canon(getattr(obj, f.name)) for f in fields(obj)}
+        # a field added to the contract later is left out while it keeps its default, so
+        # the keys of sessions made before it existed do not change
+        return {
+            f.name: canon(getattr(obj, f.name))
+            for f in fields(obj)
+            if not (
+                f.metadata.get("key_omit_default")
+                and _is_default(getattr(obj, f.name), f.default)
+            )
+        }
     if isinstance(obj, np.ndarray):
         a = np.ascontiguousarray(obj)
         if a.dtype.kind == "f":
@@ -69,6 +78,12 @@ def canon(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): canon(v) for k, v in obj.items()}
     raise TypeError(f"cannot hash {type(obj).__name__}")
+
+
+def _is_default(value: Any, default: Any) -> bool:
+    if default is None:
+        return value is None
+    return type(value) is type(default) and value == default
 
 
 def stage_key(stage: str, inputs: dict[str, Any]) -> str:

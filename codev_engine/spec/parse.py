@@ -23,10 +23,13 @@ from codev_engine.errors import SpecError
 from codev_engine.spec.choices import HOLDS, METHODS, NORMS
 from codev_engine.spec.expr import RESERVED_NAMES, make_symbol, parse_expression
 from codev_engine.spec.problem import (
+    SOFT_GROUPS,
+    MixedConstraint,
     ModelSpec,
     MpcSpec,
     PlantSpec,
     Problem,
+    ReferenceSpec,
     SetSpec,
     VerifySpec,
 )
@@ -48,7 +51,8 @@ _PLANT = ("states", "inputs", "dynamics", "A", "B")
 _MODEL = ("sample_time", "method", "operating_point", "A", "B")
 _MPC = (
     "horizon", "norm", "Q", "R", "P", "x_min", "x_max", "u_min", "u_max", "simplify",
-    "domain_bound",
+    "domain_bound", "control_horizon", "terminal_set", "du_min", "du_max", "Rd", "C",
+    "y_min", "y_max", "soft", "soft_weight", "constraints", "reference",
 )  # fmt: skip
 _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
@@ -167,6 +171,12 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
     verify = None
     if "verify" in data:
         verify = _verify(data["verify"], n)
+        if mpc.has_rates and verify.hold == "continuous":
+            raise SpecError(
+                'input rates (du_min, du_max, Rd) need a sampled controller: hold = "continuous" '
+                "has no previous input",
+                field="verify.hold",
+            )
         if plant.dynamics is None and plant.A is None:
             raise SpecError(
                 "verification needs the continuous-time plant: give plant.dynamics or "
@@ -257,7 +267,19 @@ def _mpc(t: dict[str, Any], n: int, m: int) -> MpcSpec:
     square = norm == "2"
     Q = _matrix(t["Q"], "mpc.Q", n if square else None, n)
     R = _matrix(t["R"], "mpc.R", m if square else None, m)
-    P = _matrix(t["P"], "mpc.P", n if square else None, n) if "P" in t else None
+    P, terminal_cost = None, None
+    if "P" in t and t["P"] == "lqr":
+        if not square:
+            raise SpecError(
+                f'P = "lqr" needs norm "2" (the Riccati solution is a quadratic cost), not '
+                f'"{norm}"',
+                field="mpc.P",
+            )
+        terminal_cost = "lqr"
+    elif "P" in t:
+        if isinstance(t["P"], str):
+            raise SpecError(f'expected "lqr" or a matrix, got {_kind(t["P"])}', field="mpc.P")
+        P = _matrix(t["P"], "mpc.P", n if square else None, n)
     if square:
         _psd(Q, "Q", "mpc.Q", definite=False)
         _psd(R, "R", "mpc.R", definite=True)
@@ -267,6 +289,54 @@ def _mpc(t: dict[str, Any], n: int, m: int) -> MpcSpec:
     u_min, u_max = _bounds(t, "u", m)
     simplify = _boolean(t.get("simplify", False), "mpc.simplify")
     domain_bound = _positive(t.get("domain_bound", 100.0), "mpc.domain_bound")
+    control_horizon = None
+    if "control_horizon" in t:
+        control_horizon = _integer(t["control_horizon"], "mpc.control_horizon", minimum=1)
+        if control_horizon > horizon:
+            raise SpecError(
+                f"must be at most the horizon ({horizon}), got {control_horizon}",
+                field="mpc.control_horizon",
+            )
+    terminal_set: SetSpec | str | None = None
+    if "terminal_set" in t:
+        ts = t["terminal_set"]
+        if ts == "lqr":
+            terminal_set = "lqr"
+        elif isinstance(ts, dict):
+            terminal_set = _set(ts, "mpc.terminal_set", n)
+        else:
+            raise SpecError(
+                f'expected "lqr" or a table {{ A = [[...]], b = [...] }}, got {_kind(ts)}',
+                field="mpc.terminal_set",
+            )
+    du_min = du_max = None
+    if "du_min" in t or "du_max" in t:
+        du_min, du_max = _bounds(t, "du", m)
+        for i in range(m):
+            if not du_min[i] <= 0.0 <= du_max[i]:
+                raise SpecError(
+                    f"the rate bounds must allow a constant input (du_min[{i}] <= 0 <= "
+                    f"du_max[{i}]), got [{du_min[i]:g}, {du_max[i]:g}]",
+                    field=f"mpc.du_min[{i}]" if du_min[i] > 0 else f"mpc.du_max[{i}]",
+                )
+    Rd = None
+    if "Rd" in t:
+        Rd = _matrix(t["Rd"], "mpc.Rd", m if square else None, m)
+        if square:
+            _psd(Rd, "Rd", "mpc.Rd", definite=False)
+    C = _matrix(t["C"], "mpc.C", None, n) if "C" in t else None
+    y_min = y_max = None
+    if "y_min" in t or "y_max" in t:
+        if C is None:
+            key = "y_min" if "y_min" in t else "y_max"
+            raise SpecError("output bounds need the outputs: give mpc.C", field=f"mpc.{key}")
+        y_min, y_max = _bounds(t, "y", C.shape[0])
+    soft = _soft(t.get("soft", []), x_min, x_max, y_min, y_max)
+    soft_weight = _positive(t.get("soft_weight", 1e4), "mpc.soft_weight")
+    constraints = _constraints(t.get("constraints", []), n, m)
+    reference = None
+    if "reference" in t:
+        reference = _reference(t["reference"], n, C)
     return MpcSpec(
         horizon=horizon,
         norm=norm,
@@ -279,7 +349,94 @@ def _mpc(t: dict[str, Any], n: int, m: int) -> MpcSpec:
         u_max=u_max,
         simplify=simplify,
         domain_bound=domain_bound,
+        control_horizon=control_horizon,
+        terminal_cost=terminal_cost,
+        terminal_set=terminal_set,
+        du_min=du_min,
+        du_max=du_max,
+        Rd=Rd,
+        C=C,
+        y_min=y_min,
+        y_max=y_max,
+        soft=soft,
+        soft_weight=soft_weight,
+        constraints=constraints,
+        reference=reference,
     )
+
+
+def _soft(
+    value: Any,
+    x_min: np.ndarray,
+    x_max: np.ndarray,
+    y_min: np.ndarray | None,
+    y_max: np.ndarray | None,
+) -> tuple[str, ...]:
+    field = "mpc.soft"
+    if not isinstance(value, list):
+        raise SpecError(f"expected a list of constraint groups, got {_kind(value)}", field=field)
+    groups = {"x_min": x_min, "x_max": x_max, "y_min": y_min, "y_max": y_max}
+    out: list[str] = []
+    for i, g in enumerate(value):
+        if not isinstance(g, str) or g not in SOFT_GROUPS:
+            allowed = ", ".join(f'"{c}"' for c in SOFT_GROUPS)
+            raise SpecError(f"expected one of {allowed}, got {_kind(g)}", field=f"{field}[{i}]")
+        if g in out:
+            raise SpecError(f"{g!r} is listed twice", field=f"{field}[{i}]")
+        bounds = groups[g]
+        if bounds is None or not np.any(np.isfinite(bounds)):
+            raise SpecError(f"{g!r} names no constraint (no finite mpc.{g})", field=f"{field}[{i}]")
+        out.append(g)
+    return tuple(out)
+
+
+def _constraints(value: Any, n: int, m: int) -> tuple[MixedConstraint, ...]:
+    field = "mpc.constraints"
+    if not isinstance(value, list):
+        raise SpecError(
+            f"expected an array of tables ([[mpc.constraints]] blocks), got {_kind(value)}",
+            field=field,
+        )
+    out = []
+    for i, item in enumerate(value):
+        f = f"{field}[{i}]"
+        c = _table(item, f, required=("h",), optional=("Hx", "Hu"))
+        if "Hx" not in c and "Hu" not in c:
+            raise SpecError("give Hx, Hu or both (Hx x_k + Hu u_k <= h)", field=f)
+        h = c["h"]
+        if not isinstance(h, list) or not h:
+            raise SpecError(f"expected a non-empty list of numbers, got {_kind(h)}", field=f"{f}.h")
+        k = len(h)
+        hv = _vector(h, f"{f}.h", k)
+        Hx = _matrix(c["Hx"], f"{f}.Hx", k, n) if "Hx" in c else _frozen(np.zeros((k, n)))
+        Hu = _matrix(c["Hu"], f"{f}.Hu", k, m) if "Hu" in c else _frozen(np.zeros((k, m)))
+        out.append(MixedConstraint(Hx=Hx, Hu=Hu, h=hv))
+    return tuple(out)
+
+
+def _reference(value: Any, n: int, C: np.ndarray | None) -> ReferenceSpec:
+    field = "mpc.reference"
+    t = _table(value, field, required=("signal",), optional=("value", "lower", "upper"))
+    signal = _choice(t["signal"], f"{field}.signal", ("y", "x"))
+    if signal == "y" and C is None:
+        raise SpecError('signal = "y" follows the outputs: give mpc.C', field=f"{field}.signal")
+    p = n if signal == "x" else int(C.shape[0])  # type: ignore[union-attr]
+    box = "lower" in t or "upper" in t
+    if "value" in t and box:
+        raise SpecError("give either value (fixed) or lower/upper (a box), not both", field=field)
+    if "value" in t:
+        return ReferenceSpec(signal=signal, value=_vector(t["value"], f"{field}.value", p))
+    if not box:
+        raise SpecError("give value (a fixed reference) or lower and upper (a box)", field=field)
+    for key in ("lower", "upper"):
+        if key not in t:
+            raise SpecError(
+                "missing required field (lower and upper go together)", field=f"{field}.{key}"
+            )
+    lower = _vector(t["lower"], f"{field}.lower", p)
+    upper = _vector(t["upper"], f"{field}.upper", p)
+    _ordered(lower, upper, f"{field}.lower", "lower", "upper")
+    return ReferenceSpec(signal=signal, lower=lower, upper=upper)
 
 
 def _verify(value: Any, n: int) -> VerifySpec:

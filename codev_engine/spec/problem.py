@@ -11,7 +11,26 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["PlantSpec", "ModelSpec", "MpcSpec", "SetSpec", "VerifySpec", "Problem"]
+__all__ = [
+    "PlantSpec",
+    "ModelSpec",
+    "MpcSpec",
+    "MixedConstraint",
+    "ReferenceSpec",
+    "SetSpec",
+    "VerifySpec",
+    "Problem",
+    "SOFT_GROUPS",
+]
+
+#: The constraint groups ``mpc.soft`` may name.
+SOFT_GROUPS = ("x_min", "x_max", "y_min", "y_max")
+
+
+def _since_v2(default):
+    """A field added after the first spec contract: omitted from session keys while it
+    keeps its default, so that the sessions of older specs keep their keys."""
+    return field(default=default, metadata={"key_omit_default": True})
 
 
 @dataclass(frozen=True)
@@ -84,6 +103,49 @@ class ModelSpec:
 
 
 @dataclass(frozen=True)
+class MixedConstraint:
+    """Mixed stage constraints ``Hx x_k + Hu u_k <= h``, k = 0..N-1 (plant coordinates).
+
+    An item of ``[[mpc.constraints]]``.
+
+    Attributes
+    ----------
+    Hx : (c, n) ndarray
+    Hu : (c, m) ndarray
+    h : (c,) ndarray
+    """
+
+    Hx: np.ndarray
+    Hu: np.ndarray
+    h: np.ndarray
+
+
+@dataclass(frozen=True)
+class ReferenceSpec:
+    """What the MPC tracks (the spec's ``[mpc.reference]`` table).
+
+    Attributes
+    ----------
+    signal : str
+        ``"y"`` (the outputs ``C x``; needs ``mpc.C``) or ``"x"`` (the states).
+    value : (p,) ndarray or None
+        A fixed reference (plant coordinates of the signal).
+    lower, upper : (p,) ndarray or None
+        The box of a free reference: ``r`` is then a parameter of the law.
+    """
+
+    signal: str
+    value: np.ndarray | None = None
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
+
+    @property
+    def free(self) -> bool:
+        """True when ``r`` is a parameter of the law (a box), False for a fixed value."""
+        return self.value is None
+
+
+@dataclass(frozen=True)
 class MpcSpec:
     """MPC design: horizon, norm, weights and bounds (the spec's ``[mpc]`` table).
 
@@ -108,12 +170,39 @@ class MpcSpec:
         Merge the regions of the explicit law that share an affine law.
     domain_bound : float
         Half-width of the box around ``x_op`` on which the explicit law is computed along
-        the state axes whose ``x_min``/``x_max`` is infinite.
+        the state axes whose ``x_min``/``x_max`` is infinite (or soft).
+    control_horizon : int or None
+        Nc in 1..N: ``u_k = u_{Nc-1}`` for ``k >= Nc`` (move blocking); None: N.
+    terminal_cost : str or None
+        ``"lqr"``: ``P`` is the DARE solution for the prediction model and ``(Q, R)``
+        (norm ``"2"``; ``P`` is then None here and computed from the model).
+    terminal_set : SetSpec or str or None
+        ``x_N`` in this set: a polytope ``A x <= b`` (plant coordinates), or ``"lqr"``, the
+        maximal positively invariant set of the LQR loop around the target.
+    du_min, du_max : (m,) ndarray or None
+        Rate bounds ``du_min <= u_k - u_{k-1} <= du_max``, k = 0..N-1 (+-inf allowed).
+    Rd : (m, m) ndarray or None
+        Weight on ``u_k - u_{k-1}`` (as ``R``: ``(r, m)`` for norms 1/inf).
+    C : (p, n) ndarray or None
+        Outputs ``y = C x``.
+    y_min, y_max : (p,) ndarray or None
+        Output bounds on ``y_0..y_N`` (+-inf allowed).
+    soft : tuple of str
+        The constraint groups made soft (of :data:`SOFT_GROUPS`).
+    soft_weight : float
+        l1 weight of the slacks (one slack per soft row and step).
+    constraints : tuple of MixedConstraint
+        Mixed stage constraints.
+    reference : ReferenceSpec or None
+        What the MPC tracks; None: regulate to the operating point.
 
     Notes
     -----
     ``domain_bound`` exists because the parameter set of the multi-parametric program must
     be bounded; the online MPC imposes no such bound.
+
+    The law's parameter is ``theta = (x, u_prev, r)``: ``u_prev`` (the input applied at the
+    previous sample) when :attr:`has_rates`, ``r`` when the reference is free.
     """
 
     horizon: int
@@ -130,6 +219,34 @@ class MpcSpec:
     # infinite: the explicit law is computed on that box there (the parameter set must be
     # bounded). Spec field ``mpc.domain_bound``, default 100.
     domain_bound: float = 100.0
+    control_horizon: int | None = _since_v2(None)
+    terminal_cost: str | None = _since_v2(None)
+    terminal_set: SetSpec | str | None = _since_v2(None)
+    du_min: np.ndarray | None = _since_v2(None)
+    du_max: np.ndarray | None = _since_v2(None)
+    Rd: np.ndarray | None = _since_v2(None)
+    C: np.ndarray | None = _since_v2(None)
+    y_min: np.ndarray | None = _since_v2(None)
+    y_max: np.ndarray | None = _since_v2(None)
+    soft: tuple[str, ...] = _since_v2(())
+    soft_weight: float = _since_v2(1e4)
+    constraints: tuple[MixedConstraint, ...] = _since_v2(())
+    reference: ReferenceSpec | None = _since_v2(None)
+
+    @property
+    def has_rates(self) -> bool:
+        """True when the law takes the previous input (any of du_min, du_max, Rd given)."""
+        return self.du_min is not None or self.du_max is not None or self.Rd is not None
+
+    @property
+    def free_reference(self) -> bool:
+        """True when the reference is a parameter of the law (a box)."""
+        return self.reference is not None and self.reference.free
+
+    @property
+    def Nc(self) -> int:
+        """The control horizon (N when not given)."""
+        return self.horizon if self.control_horizon is None else self.control_horizon
 
 
 @dataclass(frozen=True)
