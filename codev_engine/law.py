@@ -44,6 +44,9 @@ class ExplicitLaw(Displayable):
     F : (k, m, n) ndarray
     G : (k, m) ndarray
     states, inputs : tuple of str
+    parameters : tuple of str
+        Names of ``theta`` when it is longer than the state (the states, ``prev_<input>``,
+        ``ref_<signal>``); empty when ``theta = x``.
     fingerprint : str
         Hash of the MPC problem the law was computed for (model, weights, bounds); used to
         refuse a law file that belongs to another problem.
@@ -64,6 +67,7 @@ class ExplicitLaw(Displayable):
     meta: dict = field(default_factory=dict)
     domain_A: np.ndarray | None = None
     domain_b: np.ndarray | None = None
+    parameters: tuple[str, ...] = ()
     _locator: PointLocator | None = field(default=None, repr=False, compare=False)
     _boxes: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
@@ -76,8 +80,11 @@ class ExplicitLaw(Displayable):
 
     @property
     def n(self) -> int:
-        """The state dimension (from ``F``, or the state names when there is no region)."""
-        return self.F.shape[2] if self.F.ndim == 3 and self.F.shape[0] else len(self.states)
+        """The length of ``theta`` (the state dimension unless the law also takes the
+        previous input or a reference): from ``F``, or the names when there is no region."""
+        if self.F.ndim == 3 and self.F.shape[0]:
+            return self.F.shape[2]
+        return len(self.parameter_names)
 
     @property
     def m(self) -> int:
@@ -92,7 +99,7 @@ class ExplicitLaw(Displayable):
         ``ref_<signal>`` when it takes a reference; the regions, ``F`` and ``locate`` /
         ``evaluate`` all live in this ``theta`` space.
         """
-        return self.states
+        return self.parameters or self.states
 
     @property
     def regions(self) -> list[Polytope]:
@@ -126,6 +133,8 @@ class ExplicitLaw(Displayable):
         Parameters
         ----------
         X : (P, n) or (n,) array_like
+            Parameters ``theta`` (the states, then ``u_prev`` and ``r`` when the law takes
+            them; see :attr:`parameter_names`).
 
         Returns
         -------
@@ -160,7 +169,46 @@ class ExplicitLaw(Displayable):
 
     def _check_dim(self, X: np.ndarray) -> None:
         if X.shape[1] != self.n:
-            raise ValueError(f"expected states of dimension {self.n}, got {X.shape[1]}")
+            what = "states" if not self.parameters else f"theta = ({', '.join(self.parameters)})"
+            raise ValueError(f"expected {what} of dimension {self.n}, got {X.shape[1]}")
+
+    def section(self, values: np.ndarray) -> ExplicitLaw:
+        """The law in the state alone, with the other parameters fixed.
+
+        For a law whose ``theta = (x, u_prev, r)`` is longer than the state: the rows
+        ``A_x x <= b - A_e e`` and the feedback ``u = F_x x + (G + F_e e)`` at ``e =
+        values``. A law with ``theta = x`` is returned as it is.
+
+        Parameters
+        ----------
+        values : (n - len(states),) array_like
+            The fixed values of the parameters after the states, in the order of
+            :attr:`parameter_names`.
+
+        Returns
+        -------
+        ExplicitLaw
+            In the states; ``meta["section"]`` names the fixed values. Regions the section
+            misses are kept (empty sets: ``locate`` never returns them).
+        """
+        nx = len(self.states)
+        if not self.parameters or nx == self.n:
+            return self
+        e = np.asarray(values, dtype=float).reshape(self.n - nx)
+        A = [a[:, :nx] for a in self.A]
+        b = [bb - a[:, nx:] @ e for a, bb in zip(self.A, self.b, strict=True)]
+        F = self.F[:, :, :nx]
+        G = self.G + np.einsum("kij,j->ki", self.F[:, :, nx:], e)
+        meta = dict(self.meta)
+        meta["section"] = {
+            name: float(v) for name, v in zip(self.parameters[nx:], e, strict=True)
+        }
+        dA = db = None
+        if self.domain_A is not None:
+            dA = self.domain_A[:, :nx]
+            db = self.domain_b - self.domain_A[:, nx:] @ e
+        return ExplicitLaw(A=A, b=b, F=F, G=G, states=self.states, inputs=self.inputs,
+                           fingerprint=self.fingerprint, meta=meta, domain_A=dA, domain_b=db)
 
     # ---- persistence -----------------------------------------------------------------
 
@@ -193,6 +241,8 @@ class ExplicitLaw(Displayable):
             "fingerprint": np.array(self.fingerprint),
             "meta": np.array(json.dumps(self.meta, default=_json_default)),
         }
+        if self.parameters:
+            arrays["parameters"] = np.array(self.parameters, dtype=str)
         if self._boxes is not None:
             arrays["box_lo"], arrays["box_hi"] = self._boxes
         if self.domain_A is not None:
@@ -235,7 +285,8 @@ class ExplicitLaw(Displayable):
             raise SpecError(f"has {A.shape[1]} columns, F has {n}", field="A")
         b = _real(data, "b", shape=(A.shape[0],))
         off = offsets(data, "offsets", k, A.shape[0])
-        states = _names(data, "states", n if k else None)
+        parameters = _names(data, "parameters", n if k else None) if "parameters" in data else ()
+        states = _names(data, "states", n if k and not parameters else None)
         inputs = _names(data, "inputs", m if k else None)
         cols = n if k else None  # the columns of domain_A and the boxes (any: no regions)
         fingerprint = _text(data, "fingerprint")
@@ -256,6 +307,7 @@ class ExplicitLaw(Displayable):
             inputs=inputs,
             fingerprint=fingerprint,
             meta=meta,
+            parameters=parameters,
         )
         _pair(data, "domain_A", "domain_b")
         if "domain_A" in data:

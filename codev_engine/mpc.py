@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     import cvxpy as cp
 
 from codev_engine.errors import SolverError, SpecError
+from codev_engine.formulation import Formulation, formulation
 from codev_engine.mp.program import MpProgram
 from codev_engine.plant import LinearModel
 from codev_engine.spec.choices import NORMS
@@ -77,6 +78,15 @@ RETRY_OPTIONS: tuple[dict, ...] = (
 )
 
 
+#: How soft constraints are priced (docs/spec.md). Norms "1"/"inf": ``soft_weight * sum(eps)``,
+#: the l1 penalty. Norm "2": ``soft_weight * sum(eps + eps**2)``: the l1 part keeps a soft
+#: constraint exact (no slack wherever the hard problem is feasible, for a weight above the
+#: constraint's multipliers), the quadratic part keeps the QP strictly convex, so that the
+#: optimal moves are unique and the mp-QP is definite (a semi-definite one with a slack per
+#: soft row and step enumerates far too many active sets).
+SOFT_COST = {"1": "l1", "inf": "l1", "2": "l1 + l2"}
+
+
 # ---------------------------------------------------------------------------------------
 # the condensed program
 # ---------------------------------------------------------------------------------------
@@ -86,10 +96,12 @@ RETRY_OPTIONS: tuple[dict, ...] = (
 class MpcProgram:
     """The condensed MPC as a multi-parametric program, with what is needed to read it.
 
-    The parameter is ``theta = x_0 - x_op`` (n,). The decision vector is
-    ``z = [u_0, ..., u_{N-1}, s]``: the deviation inputs (N*m) first, then the slacks of the
-    LP norms (none for norm ``"2"``). The full MPC cost at ``(theta, z)`` is
-    ``0.5 z'Hz + (c + C theta)'z + theta_constant(theta)``.
+    The parameter is ``dtheta = theta - theta_op`` (d,), with ``theta = (x, u_prev, r)``
+    (``x`` alone for a regulator without input rates: ``dtheta = x_0 - x_op``). The decision
+    vector is ``z = [v_0, ..., v_{Nc-1}, eps, s]``: the free deviation moves (Nc*m) first,
+    then the slacks of the soft constraints, then the slacks of the LP norms (none for norm
+    ``"2"``). The full MPC cost at ``(dtheta, z)`` is
+    ``0.5 z'Hz + (c + C dtheta)'z + theta_constant(dtheta)``.
 
     Attributes
     ----------
@@ -107,6 +119,8 @@ class MpcProgram:
         Operating point state: ``theta = x_0 - x_op``.
     u_op : (m,) ndarray
         Operating point input: the inputs in ``z`` are ``u_k - u_op``.
+    formulation : Formulation or None
+        The design's derived data (parameter layout, targets, terminal ingredients).
     """
 
     program: MpProgram
@@ -123,6 +137,19 @@ class MpcProgram:
     _Kq: np.ndarray
     _kl: np.ndarray
     _k0: float
+    formulation: Formulation | None = None
+    # soft rows on theta alone: cost soft_weight * sum(max(0, A0 theta - b0))
+    _soft0: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def d(self) -> int:
+        """Length of the parameter ``theta`` (``n`` unless the law takes u_prev or r)."""
+        return self.program.d
+
+    @property
+    def theta_op(self) -> np.ndarray:
+        """(d,) ``theta - theta_op`` is the program's parameter (``x_op``, ``u_op``, 0)."""
+        return self.x_op if self.formulation is None else self.formulation.theta_op
 
     @property
     def n_slack(self) -> int:
@@ -134,8 +161,8 @@ class MpcProgram:
 
         Parameters
         ----------
-        theta : (P, n) ndarray
-            Initial state deviations ``x_0 - x_op``.
+        theta : (P, d) ndarray
+            Parameter deviations ``theta - theta_op``.
 
         Returns
         -------
@@ -143,40 +170,51 @@ class MpcProgram:
         """
         T = np.atleast_2d(np.asarray(theta, dtype=float))
         if self.spec.norm == "2":
-            return np.einsum("pi,ij,pj->p", T, self._Kq, T) + T @ self._kl + self._k0
-        Q = np.asarray(self.spec.Q, dtype=float)
-        ordp = 1 if self.spec.norm == "1" else np.inf
-        return np.linalg.norm(T @ Q.T, ord=ordp, axis=1)
+            out = np.einsum("pi,ij,pj->p", T, self._Kq, T) + T @ self._kl + self._k0
+        else:
+            Q = np.asarray(self.spec.Q, dtype=float)
+            ordp = 1 if self.spec.norm == "1" else np.inf
+            fm = self.formulation
+            X0 = T[:, :self.n]
+            if fm is not None and fm.tracking:
+                X0 = X0 - T @ fm.Sx.T - fm.sx
+            out = np.linalg.norm(X0 @ Q.T, ord=ordp, axis=1)
+        if self._soft0 is not None and self._soft0[1].size:
+            A0, b0 = self._soft0
+            hinge = np.maximum(T @ A0.T - b0, 0.0).sum(axis=1)
+            out = out + float(self.spec.soft_weight) * hinge
+        return out
 
     def to_theta(self, X: np.ndarray) -> np.ndarray:
-        """Map plant states to parameters, ``theta = X - x_op``.
+        """Map plant-coordinate parameters to the program's, ``dtheta = X - theta_op``.
 
         Parameters
         ----------
-        X : (P, n) or (n,) array_like
-            Plant states.
+        X : (P, d) or (d,) array_like
+            Plant states (then the previous input and the reference, when the law takes
+            them).
 
         Returns
         -------
-        (P, n) or (n,) ndarray
+        (P, d) or (d,) ndarray
             The parameters, in the shape of ``X``.
         """
-        return np.asarray(X, dtype=float) - self.x_op
+        return np.asarray(X, dtype=float) - self.theta_op
 
     def from_theta(self, theta: np.ndarray) -> np.ndarray:
-        """Map parameters to plant states, ``X = theta + x_op``.
+        """Map the program's parameters to plant coordinates, ``X = dtheta + theta_op``.
 
         Parameters
         ----------
-        theta : (P, n) or (n,) array_like
-            Initial state deviations.
+        theta : (P, d) or (d,) array_like
+            Parameter deviations.
 
         Returns
         -------
-        (P, n) or (n,) ndarray
-            The plant states, in the shape of ``theta``.
+        (P, d) or (d,) ndarray
+            In plant coordinates, in the shape of ``theta``.
         """
-        return np.asarray(theta, dtype=float) + self.x_op
+        return np.asarray(theta, dtype=float) + self.theta_op
 
     def u0_from_z(self, Z: np.ndarray) -> np.ndarray:
         """The first move in plant coordinates, ``Z[..., u0_slice] + u_op``.
@@ -269,59 +307,114 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
     ----------
     spec : MpcSpec
         Weights ``Q`` (q, n), ``R`` (r, m), optional ``P`` (p, n) (square for norm "2"),
-        bounds in plant coordinates.
+        bounds in plant coordinates, and the optional terms of ``docs/spec.md`` (rates,
+        outputs, soft and mixed constraints, move blocking, reference, terminal set).
     model : LinearModel
         The discrete-time model in deviation coordinates: A (n, n), B (n, m), c (n,).
 
     Returns
     -------
     MpcProgram
-        ``program`` has parameter ``theta = x_0 - x_op`` (n,) and decision
-        ``z = [u_0..u_{N-1} (deviations), slacks]``; state bounds on ``x_1..x_N`` and input
-        bounds are rows ``A z <= b + F theta``, the ``x_0`` bound (a box, ``domain_bound`` on
-        infinite sides) and any constraint on theta alone form ``A_theta theta <= b_theta``.
+        ``program`` has parameter ``dtheta = theta - theta_op`` (d,), ``theta = (x, u_prev,
+        r)`` (see :mod:`codev_engine.formulation`), and decision ``z = [v_0..v_{Nc-1}
+        (deviation moves), soft slacks, LP-norm slacks]``; every constraint that involves a
+        move is a row ``A z <= b + F dtheta``; the parameter box (``domain_bound`` on
+        infinite or soft sides) and the constraints on ``dtheta`` alone form
+        ``A_theta dtheta <= b_theta``.
 
     Raises
     ------
     SpecError
         When ``spec`` does not fit the model: an unknown norm, a horizon below 1, weights
-        of the wrong shape, or (norm "2") a weight that is not square or not positive
-        semidefinite.
+        of the wrong shape, (norm "2") a weight that is not square or not positive
+        semidefinite, a reference with no steady state, a bad terminal set.
     """
     n, m = np.asarray(model.B).shape
     N = int(spec.horizon)
     _check_dims(spec, n, m)
+    fm = formulation(spec, model)
+    dth, Nc = fm.d, fm.Nc
     x_op = np.asarray(model.x_op, dtype=float).reshape(n)
     u_op = np.asarray(model.u_op, dtype=float).reshape(m)
-    nu = N * m
+    nu = Nc * m  # the free moves
     Phi, Gam, d = _predictions(model, N)
+    Bk = None
+    if Nc < N:
+        Bk = fm.blocking()
+        Gam = [G @ Bk for G in Gam]
+    if dth > n:
+        Phi = [np.hstack([P_, np.zeros((n, dth - n))]) for P_ in Phi]
+
+    def move(k: int) -> np.ndarray:
+        """(m, nu) selection of the move applied at step k."""
+        S = np.zeros((m, nu))
+        j = min(k, Nc - 1)
+        S[:, j * m:(j + 1) * m] = np.eye(m)
+        return S
 
     Q = _as2d(spec.Q, n)
     R = _as2d(spec.R, m)
-    P = _as2d(spec.P, n)
+    P = None if fm.P is None else _as2d(fm.P, n)
+    soft = set(spec.soft)
 
-    # --- bounds: rows  Au u <= b + F theta  (u = the N*m deviation inputs) ---------------
+    # --- bounds: rows  Au u <= b + F theta  (u = the free deviation moves) ---------------
     Au_rows: list[np.ndarray] = []
     b_rows: list[np.ndarray] = []
     F_rows: list[np.ndarray] = []
+    # soft rows: Au u - eps <= b + F theta (one slack each); soft rows on x_0 / y_0 alone
+    # do not involve a move: their cost is in theta_constant
+    Su_rows: list[np.ndarray] = []
+    sb_rows: list[float] = []
+    SF_rows: list[np.ndarray] = []
+    s0_A: list[np.ndarray] = []
+    s0_b: list[float] = []
 
     umin = np.asarray(spec.u_min, dtype=float) - u_op
     umax = np.asarray(spec.u_max, dtype=float) - u_op
     Iu = np.eye(nu)
-    for k in range(N):
+    for k in range(Nc):
         for i in range(m):
             j = k * m + i
             if np.isfinite(umax[i]):
                 Au_rows.append(Iu[j])
                 b_rows.append(np.array([umax[i]]))
-                F_rows.append(np.zeros((1, n)))
+                F_rows.append(np.zeros((1, dth)))
             if np.isfinite(umin[i]):
                 Au_rows.append(-Iu[j])
                 b_rows.append(np.array([-umin[i]]))
-                F_rows.append(np.zeros((1, n)))
+                F_rows.append(np.zeros((1, dth)))
+    if spec.du_min is not None:
+        # du_k = v_k - v_{k-1} (k < Nc; zero beyond), du_0 = v_0 - u_prev (deviations)
+        dumin = np.asarray(spec.du_min, dtype=float)
+        dumax = np.asarray(spec.du_max, dtype=float)
+        up = fm.up_cols
+        for k in range(Nc):
+            for i in range(m):
+                row = Iu[k * m + i].copy()
+                Frow = np.zeros((1, dth))
+                if k == 0:
+                    Frow[0, up.start + i] = 1.0
+                else:
+                    row[(k - 1) * m + i] -= 1.0
+                if np.isfinite(dumax[i]):
+                    Au_rows.append(row)
+                    b_rows.append(np.array([dumax[i]]))
+                    F_rows.append(Frow)
+                if np.isfinite(dumin[i]):
+                    Au_rows.append(-row)
+                    b_rows.append(np.array([-dumin[i]]))
+                    F_rows.append(-Frow)
     xmin = np.asarray(spec.x_min, dtype=float) - x_op
     xmax = np.asarray(spec.x_max, dtype=float) - x_op
     up, lo = np.flatnonzero(np.isfinite(xmax)), np.flatnonzero(np.isfinite(xmin))
+    if "x_max" in soft:
+        up_soft, up = up, up[:0]
+    else:
+        up_soft = up[:0]
+    if "x_min" in soft:
+        lo_soft, lo = lo, lo[:0]
+    else:
+        lo_soft = lo[:0]
     for k in range(1, N + 1):
         # x_k = Phi theta + Gam u + d <= xmax   <=>   Gam u <= xmax - d - Phi theta
         for i in up:
@@ -332,14 +425,52 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
             Au_rows.append(-Gam[k][i])
             b_rows.append(np.array([d[k][i] - xmin[i]]))
             F_rows.append(Phi[k][i][None, :])
+    for k in range(N + 1):
+        for i in up_soft:
+            _soft_row(k, Gam[k][i], xmax[i] - d[k][i], -Phi[k][i], Su_rows, sb_rows, SF_rows,
+                      s0_A, s0_b)
+        for i in lo_soft:
+            _soft_row(k, -Gam[k][i], d[k][i] - xmin[i], Phi[k][i], Su_rows, sb_rows, SF_rows,
+                      s0_A, s0_b)
+    if spec.C is not None and spec.y_min is not None:
+        C = np.asarray(spec.C, dtype=float)
+        ymax = np.asarray(spec.y_max, dtype=float) - C @ x_op
+        ymin = np.asarray(spec.y_min, dtype=float) - C @ x_op
+        for k in range(N + 1):
+            CG, CP, Cd = C @ Gam[k], C @ Phi[k], C @ d[k]
+            for i in range(C.shape[0]):
+                for sgn, bound, group in ((1.0, ymax[i], "y_max"), (-1.0, -ymin[i], "y_min")):
+                    if not np.isfinite(bound):
+                        continue
+                    # sgn (C Gam u + C Phi theta + C d) <= bound
+                    a, bb, f = sgn * CG[i], bound - sgn * Cd[i], -sgn * CP[i]
+                    if group in soft:
+                        _soft_row(k, a, bb, f, Su_rows, sb_rows, SF_rows, s0_A, s0_b)
+                    else:
+                        Au_rows.append(a)
+                        b_rows.append(np.array([bb]))
+                        F_rows.append(f[None, :])
+    for mc in spec.constraints:
+        Hx, Hu = np.asarray(mc.Hx, dtype=float), np.asarray(mc.Hu, dtype=float)
+        h = np.asarray(mc.h, dtype=float) - Hx @ x_op - Hu @ u_op
+        for k in range(N):
+            # Hx (Phi theta + Gam u + d) + Hu v_k <= h
+            Au_rows.extend(Hx @ Gam[k] + Hu @ move(k))
+            b_rows.append(h - Hx @ d[k])
+            F_rows.append(-Hx @ Phi[k])
+    if fm.term_b.size:
+        # term_Ax (Phi_N theta + Gam_N u + d_N) + term_At theta <= term_b
+        Au_rows.extend(fm.term_Ax @ Gam[N])
+        b_rows.append(fm.term_b - fm.term_Ax @ d[N])
+        F_rows.append(-(fm.term_Ax @ Phi[N] + fm.term_At))
 
     Au = np.array(Au_rows, dtype=float).reshape(-1, nu)
     bu = np.concatenate(b_rows) if b_rows else np.zeros(0)
-    Fu = np.vstack(F_rows) if F_rows else np.zeros((0, n))
+    Fu = np.vstack(F_rows) if F_rows else np.zeros((0, dth))
 
     # --- the parameter set: box, plus the pure-theta rows --------------------------------
-    th_lo, th_hi = _theta_box(spec, x_op)
-    A_theta_rows = [np.eye(n), -np.eye(n)]
+    th_lo, th_hi = fm.theta_lo, fm.theta_hi
+    A_theta_rows = [np.eye(dth), -np.eye(dth)]
     b_theta_rows = [th_hi, -th_lo]
     pure = ~np.any(Au != 0.0, axis=1)
     if np.any(pure):
@@ -354,26 +485,82 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
     A_theta = np.vstack(A_theta_rows)
     b_theta = np.concatenate(b_theta_rows)
 
+    # --- soft slacks: columns after the moves ---------------------------------------------
+    ns = len(Su_rows)
+    if ns:
+        Au = np.vstack([
+            np.hstack([Au, np.zeros((Au.shape[0], ns))]),
+            np.hstack([np.array(Su_rows).reshape(ns, nu), -np.eye(ns)]),
+            np.hstack([np.zeros((ns, nu)), -np.eye(ns)]),
+        ])
+        bu = np.concatenate([bu, np.array(sb_rows), np.zeros(ns)])
+        Fu = np.vstack([Fu, np.array(SF_rows).reshape(ns, dth), np.zeros((ns, dth))])
+    nd = nu + ns  # moves and soft slacks
+    soft0 = (np.array(s0_A).reshape(-1, dth), np.array(s0_b))
+
+    # extra cost terms (v = Gv z + Phv theta + dv, weight M), beyond the state and input
+    # terms of the regulator: input rates, and the input target of a tracking design
+    extra: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    if spec.Rd is not None:
+        Rd = _as2d(spec.Rd, m)
+        for k in range(min(N, Nc)):
+            G = move(k) - (move(k - 1) if k else 0.0)
+            Ph = np.zeros((m, dth))
+            if k == 0:
+                Ph[:, fm.up_cols] = -np.eye(m)
+            extra.append((Rd, np.hstack([G, np.zeros((m, ns))]), np.zeros(m), Ph))
+    # state targets: the k-th state term is dx_k - dx_s = Gam u + (Phi - Sx) theta + d - sx
+    if fm.tracking:
+        Phi_t = [P_ - fm.Sx for P_ in Phi]
+        d_t = [dk - fm.sx for dk in d]
+    else:
+        Phi_t, d_t = Phi, d
+    Gam_z = Gam if not ns else [np.hstack([G, np.zeros((n, ns))]) for G in Gam]
+
     # --- the cost ------------------------------------------------------------------------
     if spec.norm == "2":
         assert Q is not None and R is not None
         Qs = 0.5 * (Q + Q.T)
         Rs = 0.5 * (R + R.T)
         W = [Qs] * N + ([0.5 * (P + P.T)] if P is not None else [np.zeros((n, n))])
-        H = 2.0 * np.kron(np.eye(N), Rs)
-        cz = np.zeros(nu)
-        Cz = np.zeros((nu, n))
-        Kq = np.zeros((n, n))
-        kl = np.zeros(n)
+        if Bk is None:
+            H = 2.0 * np.kron(np.eye(N), Rs)
+        else:
+            H = 2.0 * Bk.T @ np.kron(np.eye(N), Rs) @ Bk
+        if ns:
+            H = np.block([[H, np.zeros((nu, ns))], [np.zeros((ns, nu)), np.zeros((ns, ns))]])
+        cz = np.zeros(nd)
+        Cz = np.zeros((nd, dth))
+        Kq = np.zeros((dth, dth))
+        kl = np.zeros(dth)
         k0 = 0.0
         for k in range(N + 1):
-            Gk, Wk = Gam[k], W[k]
+            Gk, Wk = Gam_z[k], W[k]
             H += 2.0 * Gk.T @ Wk @ Gk
-            cz += 2.0 * Gk.T @ Wk @ d[k]
-            Cz += 2.0 * Gk.T @ Wk @ Phi[k]
-            Kq += Phi[k].T @ Wk @ Phi[k]
-            kl += 2.0 * Phi[k].T @ Wk @ d[k]
-            k0 += float(d[k] @ Wk @ d[k])
+            cz += 2.0 * Gk.T @ Wk @ d_t[k]
+            Cz += 2.0 * Gk.T @ Wk @ Phi_t[k]
+            Kq += Phi_t[k].T @ Wk @ Phi_t[k]
+            kl += 2.0 * Phi_t[k].T @ Wk @ d_t[k]
+            k0 += float(d_t[k] @ Wk @ d_t[k])
+        if fm.tracking:
+            # (v_k - du_s)'R(v_k - du_s): the cross and constant terms of the input target
+            for k in range(N):
+                Gv = np.hstack([move(k), np.zeros((m, ns))])
+                extra.append((R, np.zeros((m, nd)), -fm.su, -fm.Su))
+                cz += -2.0 * Gv.T @ Rs @ fm.su
+                Cz += -2.0 * Gv.T @ Rs @ fm.Su
+        for M, Gv, dv, Ph in extra:
+            Ms = 0.5 * (M + M.T)
+            H += 2.0 * Gv.T @ Ms @ Gv
+            cz += 2.0 * Gv.T @ Ms @ dv
+            Cz += 2.0 * Gv.T @ Ms @ Ph
+            Kq += Ph.T @ Ms @ Ph
+            kl += 2.0 * Ph.T @ Ms @ dv
+            k0 += float(dv @ Ms @ dv)
+        if ns:
+            # soft_weight * (eps + eps^2): see SOFT_COST
+            cz[nu:] += float(spec.soft_weight)
+            H[nu:, nu:] += 2.0 * float(spec.soft_weight) * np.eye(ns)
         H = 0.5 * (H + H.T)
         Kq = 0.5 * (Kq + Kq.T)
         program = MpProgram(
@@ -382,36 +569,44 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
         return MpcProgram(
             program=program, model=model, spec=spec, n=n, m=m, N=N,
             u0_slice=slice(0, m), x_op=x_op, u_op=u_op, _Kq=Kq, _kl=kl, _k0=k0,
+            formulation=fm, _soft0=soft0,
         )
 
     # LP norms: terms (M, Gv, dv, Phiv) with v = Gv u + Phiv theta + dv
     assert Q is not None and R is not None
     terms: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
     for k in range(1, N):  # the k = 0 state term depends on theta only
-        terms.append((Q, Gam[k], d[k], Phi[k]))
+        terms.append((Q, Gam_z[k], d_t[k], Phi_t[k]))
     for k in range(N):
-        G = np.zeros((m, nu))
-        G[:, k * m:(k + 1) * m] = np.eye(m)
-        terms.append((R, G, np.zeros(m), np.zeros((m, n))))
+        if Bk is None and not ns:
+            G = np.zeros((m, nu))
+            G[:, k * m:(k + 1) * m] = np.eye(m)
+        else:
+            G = np.hstack([move(k), np.zeros((m, ns))])
+        if fm.tracking:
+            terms.append((R, G, -fm.su, -fm.Su))
+        else:
+            terms.append((R, G, np.zeros(m), np.zeros((m, dth))))
     if P is not None:
-        terms.append((P, Gam[N], d[N], Phi[N]))
+        terms.append((P, Gam_z[N], d_t[N], Phi_t[N]))
+    terms += extra
     terms = [t for t in terms if t[0].shape[0] > 0]
 
     n_slack = sum(M.shape[0] for M, *_ in terms) if spec.norm == "1" else len(terms)
-    nz = nu + n_slack
+    nz = nd + n_slack
     A_rows = [np.hstack([Au, np.zeros((Au.shape[0], n_slack))])]
     b_list = [bu]
     F_list = [Fu]
-    s = nu  # index of the next slack
+    s = nd  # index of the next slack
     for M, G, dv, Ph in terms:
         q = M.shape[0]
         MG, Md, MP = M @ G, M @ dv, M @ Ph
         S = np.zeros((q, n_slack))
         if spec.norm == "1":
-            S[:, s - nu:s - nu + q] = -np.eye(q)
+            S[:, s - nd:s - nd + q] = -np.eye(q)
             s += q
         else:
-            S[:, s - nu] = -1.0
+            S[:, s - nd] = -1.0
             s += 1
         #  M(G u + Ph theta + dv) - t <= 0   and   -M(...) - t <= 0
         A_rows += [np.hstack([MG, S]), np.hstack([-MG, S])]
@@ -420,16 +615,34 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
     A_all = np.vstack(A_rows)
     b_all = np.concatenate(b_list)
     F_all = np.vstack(F_list)
-    cz = np.concatenate([np.zeros(nu), np.ones(n_slack)])
+    cz = np.concatenate([np.zeros(nu), np.full(ns, float(spec.soft_weight)), np.ones(n_slack)])
     program = MpProgram(
-        H=np.zeros((nz, nz)), c=cz, C=np.zeros((nz, n)), A=A_all, b=b_all, F=F_all,
+        H=np.zeros((nz, nz)), c=cz, C=np.zeros((nz, dth)), A=A_all, b=b_all, F=F_all,
         A_theta=A_theta, b_theta=b_theta,
     )
     return MpcProgram(
         program=program, model=model, spec=spec, n=n, m=m, N=N,
         u0_slice=slice(0, m), x_op=x_op, u_op=u_op,
-        _Kq=np.zeros((n, n)), _kl=np.zeros(n), _k0=0.0,
+        _Kq=np.zeros((dth, dth)), _kl=np.zeros(dth), _k0=0.0,
+        formulation=fm, _soft0=soft0,
     )
+
+
+def _soft_row(k: int, a: np.ndarray, b: float, f: np.ndarray,
+              Su_rows: list, sb_rows: list, SF_rows: list, s0_A: list, s0_b: list) -> None:
+    """File the soft row ``a u <= b + f theta`` of step k.
+
+    A row on theta alone (``x_0``, ``y_0``, or a step no move reaches) cannot change the
+    optimal moves: its slack would only split regions, so its cost goes to
+    ``theta_constant`` instead.
+    """
+    if k == 0 or not np.any(a):
+        s0_A.append(-f)
+        s0_b.append(float(b))
+    else:
+        Su_rows.append(a)
+        sb_rows.append(float(b))
+        SF_rows.append(f)
 
 
 def _onto_bounds(v: np.ndarray, lo: np.ndarray, hi: np.ndarray,
@@ -574,15 +787,22 @@ class OnlineMpc:
 
         import cvxpy as cp  # imported here: loading a spec or a law does not need it
 
+        fm = formulation(spec, model)
+        self.formulation = fm
+        self.d = fm.d
         x = cp.Variable((N + 1, n), name="x")
         u = cp.Variable((N, m), name="u")
         self._x, self._u = x, u
-        self._x0 = cp.Parameter(n, name="x0")
+        self._x0 = cp.Parameter(fm.d, name="theta")  # theta = (x_0, u_prev, r)
         self._u0 = cp.Parameter(m, name="u0")
+        dtheta = self._x0 - fm.theta_op
         dx = [x[k] - self.x_op for k in range(N + 1)]
         du = [u[k] - self.u_op for k in range(N)]
+        # the cost's targets (the operating point when regulating)
+        ex = dx if not fm.tracking else [v - (fm.Sx @ dtheta + fm.sx) for v in dx]
+        eu = du if not fm.tracking else [v - (fm.Su @ dtheta + fm.su) for v in du]
 
-        cons = [x[0] == self._x0]
+        cons = [x[0] == self._x0[:n]]
         for k in range(N):
             cons.append(dx[k + 1] == A @ dx[k] + B @ du[k] + c)
         xmin, xmax = np.asarray(spec.x_min, float), np.asarray(spec.x_max, float)
@@ -599,20 +819,63 @@ class OnlineMpc:
             Aeq[r, (N + 1) * n + k * m:(N + 1) * n + (k + 1) * m] = -B
         self._lp_Aeq = Aeq
         self._lp_beq = np.tile(c + self.x_op - A @ self.x_op - B @ self.u_op, N)
-        for lo, hi, var, K in ((xmin, xmax, x, N + 1), (umin, umax, u, N)):
+        soft = set(spec.soft)
+        slacks = []
+
+        def bound(expr, lo: np.ndarray, hi: np.ndarray, soft_lo: bool, soft_hi: bool) -> None:
             ilo, ihi = np.flatnonzero(np.isfinite(lo)), np.flatnonzero(np.isfinite(hi))
-            for k in range(K):
-                if ilo.size:
-                    cons.append(var[k][ilo] >= lo[ilo])
-                if ihi.size:
-                    cons.append(var[k][ihi] <= hi[ihi])
+            for idx, side, is_soft in ((ilo, -1.0, soft_lo), (ihi, 1.0, soft_hi)):
+                if not idx.size:
+                    continue
+                lim = hi[idx] if side > 0 else lo[idx]
+                if is_soft:
+                    e = cp.Variable(idx.size, nonneg=True)
+                    slacks.append(e)
+                    cons.append(side * (expr[idx] - lim) <= e)
+                else:
+                    cons.append(side * (expr[idx] - lim) <= 0)
+
+        for k in range(N + 1):
+            bound(x[k], xmin, xmax, "x_min" in soft, "x_max" in soft)
+        for k in range(N):
+            bound(u[k], umin, umax, False, False)
+        if spec.C is not None and spec.y_min is not None:
+            Cy = np.asarray(spec.C, float)
+            for k in range(N + 1):
+                bound(Cy @ x[k], np.asarray(spec.y_min, float), np.asarray(spec.y_max, float),
+                      "y_min" in soft, "y_max" in soft)
+        rate = []
+        if fm.rates:
+            u_prev = self._x0[fm.up_cols]
+            rate = [u[0] - u_prev] + [u[k] - u[k - 1] for k in range(1, N)]
+        if spec.du_min is not None:
+            for v in rate:
+                bound(v, np.asarray(spec.du_min, float), np.asarray(spec.du_max, float),
+                      False, False)
+        for k in range(fm.Nc, N):  # move blocking
+            cons.append(u[k] == u[fm.Nc - 1])
+        for mc in spec.constraints:
+            for k in range(N):
+                cons.append(mc.Hx @ x[k] + mc.Hu @ u[k] <= mc.h)
+        if fm.term_b.size:
+            cons.append(fm.term_Ax @ dx[N] + fm.term_At @ dtheta <= fm.term_b)
+        self._extended = bool(
+            fm.d > n or fm.tracking or spec.soft or spec.constraints or fm.term_b.size
+            or fm.Nc < N or spec.y_min is not None
+        )
 
         Q = _as2d(spec.Q, n)
         R = _as2d(spec.R, m)
-        P = _as2d(spec.P, n)
+        P = None if fm.P is None else _as2d(fm.P, n)
         terms = []
         if spec.norm == "2":
             def quad(v, M):
+                if v.parameters():
+                    # cvxpy's QP path does not keep quad_form(parameter-affine) DPP (it
+                    # would recompile at every solve): name the argument by a variable
+                    w = cp.Variable(v.shape)
+                    cons.append(w == v)
+                    v = w
                 return cp.quad_form(v, cp.psd_wrap(0.5 * (M + M.T)))
         else:
             ordp = 1 if spec.norm == "1" else "inf"
@@ -621,13 +884,22 @@ class OnlineMpc:
                 return cp.norm(M @ v, ordp)
         for k in range(N):
             if Q.shape[0]:
-                terms.append(quad(dx[k], Q))
+                terms.append(quad(ex[k], Q))
             if R.shape[0]:
-                terms.append(quad(du[k], R))
+                terms.append(quad(eu[k], R))
         if P is not None and P.shape[0]:
-            terms.append(quad(dx[N], P))
+            terms.append(quad(ex[N], P))
+        if spec.Rd is not None:
+            Rd = _as2d(spec.Rd, m)
+            terms += [quad(v, Rd) for v in rate]
+        if slacks:
+            eps = cp.hstack(slacks)
+            terms.append(float(spec.soft_weight) * cp.sum(eps))
+            if spec.norm == "2":  # see SOFT_COST
+                terms.append(float(spec.soft_weight) * cp.sum_squares(eps))
         objective = cp.Minimize(cp.sum(cp.hstack(terms)) if terms else cp.Constant(0.0))
 
+        self._cons = cons
         self._prob = cp.Problem(objective, cons)
         self._prob_fixed = cp.Problem(objective, cons + [u[0] == self._u0])
         assert self._prob.is_dcp(dpp=True) and self._prob_fixed.is_dcp(dpp=True)
@@ -706,6 +978,8 @@ class OnlineMpc:
         True / False, or None when HiGHS cannot decide either.
         """
         n, m, N = self.n, self.m, self.N
+        if self._extended:
+            return self._feasible_cvxpy(x0, u0)
         x0 = _onto_bounds(x0, self._xmin, self._xmax)
         if x0 is None:
             return False
@@ -731,13 +1005,52 @@ class OnlineMpc:
             return False
         return None
 
+    def _feasible_cvxpy(self, theta: np.ndarray, u0: np.ndarray | None) -> bool | None:
+        """:meth:`_feasible_lp` for designs beyond the box-bounded regulator: the same
+        constraints as the MPC (cvxpy, zero cost) by HiGHS, with ``x_0`` and ``u0`` moved onto
+        their box bounds when within the LP's tolerance of them."""
+        import cvxpy as cp
+
+        n, m = self.n, self.m
+        x0 = _onto_bounds(theta[:n], self._xmin, self._xmax)
+        if x0 is None and not self.spec.soft:
+            return False
+        theta = np.array(theta, dtype=float)
+        if x0 is not None:
+            theta[:n] = x0
+        cons = list(self._cons)
+        if u0 is not None:
+            u0 = _onto_bounds(np.asarray(u0, dtype=float).reshape(m), self._umin, self._umax)
+            if u0 is None:
+                return False
+            cons.append(self._u[0] == u0)
+        saved = self._x0.value
+        self._x0.value = theta
+        try:
+            prob = cp.Problem(cp.Minimize(0), cons)
+            with warnings.catch_warnings():
+                # cvxpy's SciPy path does not cache parametrised problems ("not DPP"): this
+                # LP runs only where Clarabel failed, so its compile time does not matter
+                warnings.simplefilter("ignore", UserWarning)
+                prob.solve(solver=cp.SCIPY, scipy_options={"method": "highs"})
+        except (cp.SolverError, ValueError):
+            return None
+        finally:
+            self._x0.value = saved
+        if prob.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            return True
+        if prob.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            return False
+        return None
+
     def solve(self, x: np.ndarray) -> OnlineSolution:
         """Solve the MPC at one plant state.
 
         Parameters
         ----------
-        x : (n,) array_like
-            The initial state ``x_0``, in plant coordinates.
+        x : (d,) array_like
+            The parameter ``theta``: the initial state ``x_0`` (then ``u_prev`` and ``r``
+            when the design takes them), in plant coordinates.
 
         Returns
         -------
@@ -750,7 +1063,7 @@ class OnlineMpc:
         SolverError
             When Clarabel fails at every setting although the MPC may be feasible.
         """
-        self._x0.value = np.asarray(x, dtype=float).reshape(self.n)
+        self._x0.value = np.asarray(x, dtype=float).reshape(self.d)
         if not self._run(self._prob):
             nan = np.nan
             return OnlineSolution(
@@ -773,8 +1086,8 @@ class OnlineMpc:
 
         Parameters
         ----------
-        x : (n,) array_like
-            The initial state, in plant coordinates.
+        x : (d,) array_like
+            The parameter ``theta`` (as :meth:`solve`), in plant coordinates.
         u0 : (m,) array_like
             The first move, in plant coordinates.
 
@@ -788,7 +1101,7 @@ class OnlineMpc:
         SolverError
             As :meth:`solve`.
         """
-        self._x0.value = np.asarray(x, dtype=float).reshape(self.n)
+        self._x0.value = np.asarray(x, dtype=float).reshape(self.d)
         self._u0.value = np.asarray(u0, dtype=float).reshape(self.m)
         if not self._run(self._prob_fixed, u0=self._u0.value):
             return float("inf")
@@ -799,8 +1112,8 @@ class OnlineMpc:
 
         Parameters
         ----------
-        X : (P, n) or (n,) array_like
-            The initial states, one per row.
+        X : (P, d) or (d,) array_like
+            The parameters ``theta`` (as :meth:`solve`), one per row.
 
         Returns
         -------

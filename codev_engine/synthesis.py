@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from codev_engine.formulation import parameter_names
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
 from codev_engine.mp.merge import merge_regions
 from codev_engine.mp.solve import MpSolution, SolveOptions, mpsolve
@@ -41,9 +42,10 @@ def problem_fingerprint(mp: MpcProgram) -> str:
 def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> ExplicitLaw:
     """Turn the parametric solution into the state-feedback law in plant coordinates.
 
-    With ``theta = x - x_op`` and ``u = u_op + z[u0] = u_op + K_u theta + k_u``:
-    ``F = K_u``, ``G = u_op + k_u - K_u x_op``; region rows ``A theta <= b`` become
-    ``A x <= b + A x_op``, and so do the domain's rows.
+    With ``dtheta = theta - theta_op`` and ``u = u_op + z[u0] = u_op + K_u dtheta + k_u``:
+    ``F = K_u``, ``G = u_op + k_u - K_u theta_op``; region rows ``A dtheta <= b`` become
+    ``A theta <= b + A theta_op``, and so do the domain's rows (``theta = x``,
+    ``theta_op = x_op`` unless the law takes the previous input or a reference).
 
     Parameters
     ----------
@@ -65,10 +67,11 @@ def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> Exp
         the caller names them (:func:`synthesize` does).
     """
     sl = mp.u0_slice
+    op = mp.theta_op
     As = [r.A for r in sol.regions]
-    bs = [r.b + r.A @ mp.x_op for r in sol.regions]
-    F = np.array([r.K[sl] for r in sol.regions]).reshape(len(As), mp.m, mp.n)
-    G = np.array([mp.u_op + r.k[sl] - r.K[sl] @ mp.x_op for r in sol.regions]).reshape(
+    bs = [r.b + r.A @ op for r in sol.regions]
+    F = np.array([r.K[sl] for r in sol.regions]).reshape(len(As), mp.m, mp.d)
+    G = np.array([mp.u_op + r.k[sl] - r.K[sl] @ op for r in sol.regions]).reshape(
         len(As), mp.m
     )
     merged = len(As)
@@ -84,7 +87,7 @@ def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> Exp
         merged = len(As)
     return ExplicitLaw(
         domain_A=sol.domain_A,
-        domain_b=sol.domain_b + sol.domain_A @ mp.x_op,
+        domain_b=sol.domain_b + sol.domain_A @ op,
         A=As,
         b=bs,
         F=F,
@@ -150,6 +153,8 @@ def synthesize(
     )
     law.states = tuple(problem.plant.states)
     law.inputs = tuple(problem.plant.inputs)
+    if mp.d > mp.n:
+        law.parameters = parameter_names(problem.mpc, law.states, law.inputs)
     law.meta["problem"] = problem.name
     law.meta["seconds"] = round(time.perf_counter() - t0, 6)
     return law

@@ -156,24 +156,44 @@ def mpsolve(
 
 def _check_no_recession(red: Reduced) -> None:
     """Semi-definite H: refuse a program with a direction of recession ``d != 0``
-    (``H d = 0``, ``G d <= 0``), along which the optimizer is not unique or the cost is
-    unbounded below. Without one the optimizer set is bounded and the lexicographic
-    selection of the mp-QP search is well defined."""
+    (``H d = 0``, ``G d <= 0``) along which the cost does not grow at every parameter:
+    along it the optimizer is not unique or the cost is unbounded below. Directions along
+    which the cost grows for every theta (``C'd = 0``, ``c'd > 0``: e.g. the penalised
+    slacks of soft constraints) are harmless. Without a harmful one the optimizer set is
+    bounded and the lexicographic selection of the mp-QP search is well defined."""
     lam, V = np.linalg.eigh(red.H)
     N = V[:, lam <= 1e-9 * max(1.0, float(np.max(np.abs(lam))))]  # null space of H
     k = N.shape[1]
     GN = red.G @ N
-    for j in range(k):
-        for sign in (1.0, -1.0):
-            f = np.zeros(k)
-            f[j] = -sign
-            y, status, _ = solve_lp(f, GN, np.zeros(GN.shape[0]), lb=-np.ones(k), ub=np.ones(k))
-            if status == "optimal" and y is not None and sign * y[j] > 1e-9:
-                raise SolverError(
-                    "H is only semi-definite and the constraints leave a direction of "
-                    "recession in its null space (the optimizer is not unique or the cost "
-                    "is unbounded along it): bound those variables"
-                )
+    cN = red.c @ N
+    CN = red.C.T @ N  # (d, k): C'd for d = N y
+    scale = 1e-9 * max(1.0, float(np.max(np.abs(cN), initial=0.0)))
+    # the cone's directions with cost not growing for some theta: c'd <= 0, or C'd != 0
+    cones = [(np.vstack([GN, cN[None, :]]), np.zeros(GN.shape[0] + 1), None)]
+    for i in range(CN.shape[0]):
+        if np.any(np.abs(CN[i]) > 1e-12):
+            cones.append((GN, np.zeros(GN.shape[0]), CN[i]))
+    for Ac, bc, lin in cones:
+        for j in range(k if lin is None else 1):
+            for sign in (1.0, -1.0):
+                if lin is None:
+                    f = np.zeros(k)
+                    f[j] = -sign
+                else:
+                    f = -sign * lin
+                y, status, _ = solve_lp(f, Ac, bc, lb=-np.ones(k), ub=np.ones(k))
+                if status != "optimal" or y is None:
+                    continue
+                if sign * (y[j] if lin is None else float(lin @ y)) > max(1e-9, scale):
+                    _recession()
+
+
+def _recession() -> None:
+    raise SolverError(
+        "H is only semi-definite and the constraints leave a direction of "
+        "recession in its null space (the optimizer is not unique or the cost "
+        "is unbounded along it): bound those variables"
+    )
 
 
 def _empty_domain(red: Reduced) -> tuple[np.ndarray, np.ndarray]:
