@@ -51,6 +51,8 @@ VIOLATION_WORDS = {
 UNKNOWN_WORDS = {
     "max_depth": "max_depth reached",
     "infeasible_region": "the reach set leaves the law's domain",
+    "law_parameters": "the law also takes the previous input or a reference, which the "
+    "reach engines do not track yet",
 }
 
 
@@ -273,13 +275,14 @@ def check_law_matches(problem: Problem, law: ExplicitLaw, *, file: str | None = 
     from codev_engine.plant import discretize
     from codev_engine.synthesis import problem_fingerprint
 
-    if law.n != problem.plant.n or law.m != problem.plant.m:
+    mp = build_program(problem.mpc, discretize(problem))
+    if law.n != mp.d or law.m != problem.plant.m:
         raise SpecError(
-            f"the law has n={law.n}, m={law.m} but the spec has n={problem.plant.n}, "
-            f"m={problem.plant.m}",
+            f"the law has n={law.n}, m={law.m} but the spec's law takes theta of length "
+            f"{mp.d} and m={problem.plant.m}",
             file=file,
         )
-    fp = problem_fingerprint(build_program(problem.mpc, discretize(problem)))
+    fp = problem_fingerprint(mp)
     if law.fingerprint and law.fingerprint != fp:
         raise SpecError(
             "the law was computed for a different problem (fingerprint mismatch)", file=file
@@ -320,6 +323,12 @@ def verify(
         raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
     depth = vs.max_depth if max_depth is None else max_depth
     t0 = time.perf_counter()
+    if law.n > problem.plant.n:
+        # theta = (x, u_prev, r): the closed loop's state is longer than the plant's; a
+        # limitation of the verifier, so a verdict and not an error
+        stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
+        return VerificationResult("unknown", "law_parameters", Tube.empty(problem.plant.n),
+                                  hold, None, stats)
     plant = affine_plant(problem)
     if plant is not None:
         eng = LinearReach(problem, law, plant, hold, depth)

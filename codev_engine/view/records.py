@@ -14,6 +14,7 @@ strict mode are left as they were.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 import uuid
@@ -113,6 +114,12 @@ def write_recording(
             f"a recording must be a .rrd file (got suffix {path.suffix!r})", file=str(path)
         )
     n = problem.plant.n
+    if law.n > n and law.parameters:
+        # theta = (x, u_prev, r): the partition is drawn as the section at the operating
+        # input and the middle of the reference box; the closed loop over u_prev is not
+        # simulated yet, so no traces (their loop would not be the controller's)
+        law = law.section(_section_point(problem, law))
+        options = dataclasses.replace(options, traces=0)
     if law.n != n or law.m != problem.plant.m:
         raise SpecError(
             f"the law has n={law.n}, m={law.m} but the spec has n={n}, m={problem.plant.m}",
@@ -240,3 +247,18 @@ def _has_footer(path: Path) -> bool:
 def _send_blueprint(w: EntityWriter, content: RecordingContent) -> None:
     """Send the viewer layout (after the data: it shows the views that have data)."""
     w.rec.send_blueprint(blueprint(w.entities, content))
+
+
+def _section_point(problem: Problem, law: ExplicitLaw) -> np.ndarray:
+    """The default values of the parameters after the states: ``u_op`` for ``prev_*``,
+    the middle of the reference box for ``ref_*``."""
+    mpc = problem.mpc
+    out: list[float] = []
+    if mpc.has_rates:
+        u_op = np.asarray(problem.model.u_op, dtype=float)
+        out += list(u_op if u_op.size else np.zeros(problem.plant.m))
+    if mpc.free_reference:
+        ref = mpc.reference
+        assert ref is not None and ref.lower is not None and ref.upper is not None
+        out += list(0.5 * (np.asarray(ref.lower) + np.asarray(ref.upper)))
+    return np.asarray(out, dtype=float)
