@@ -484,6 +484,57 @@ def _group_alive(pgid: int) -> bool:
     return True
 
 
+def _cmd_report(args: argparse.Namespace) -> int:
+    from codev_engine.view.report import write_report
+
+    target = Path(args.target)
+    if target.is_dir():
+        problem, law, result = _from_session(target)
+    else:
+        from codev_engine.pipeline import load_spec
+        from codev_engine.synthesis import synthesize
+
+        problem = load_spec(target)
+        with _progress(f"synthesising {problem.name}", True) as update:
+            law = synthesize(problem, progress=update)
+        result = None
+        if problem.verify is not None:
+            from codev_engine.reach.verification import verify
+
+            print(f"verifying {problem.name}", file=sys.stderr)
+            result = verify(problem, law)
+    out = Path(args.out) if args.out else Path(f"{problem.name}-report.html")
+    if out.suffix.lower() not in (".html", ".htm"):
+        raise SpecError(f"a report is an .html file (got suffix {out.suffix!r})", field="--out")
+    path = write_report(out, problem, law, result, traces=args.traces, axes=args.axes)
+    print(f"report written to {path} ({path.stat().st_size / 1e6:.2f} MB; open it in a browser)")
+    return 0
+
+
+def _from_session(d: Path):
+    """The spec, the law and the result (or None) cached in a session folder."""
+    from codev_engine.law import ExplicitLaw
+    from codev_engine.reach.verification import VerificationResult
+    from codev_engine.session import Session
+
+    session = Session.open(d)
+    problem = session.problem()
+    status = {s.stage: s for s in session.status(problem)}
+    syn = status.get("synthesis")
+    if syn is None or syn.status != "cached":
+        raise SpecError(
+            f"the session has no cached law for its spec; run: codev run {session.spec_path()} "
+            f"--session {d}",
+            file=str(d),
+        )
+    law = ExplicitLaw.load(d / syn.artifact)
+    ver = status.get("verification")
+    result = None
+    if ver is not None and ver.status == "cached":
+        result = VerificationResult.load(d / ver.artifact)
+    return problem, law, result
+
+
 def _cmd_tui(args: argparse.Namespace) -> int:
     if not (sys.stdin.isatty() and sys.stdout.isatty()):
         raise SpecError("codev tui needs a terminal (for scripts use codev run / codev replay)")
@@ -735,6 +786,21 @@ def _build_parser() -> argparse.ArgumentParser:
         "--port", type=int, default=9090, help="web viewer port (the data on PORT+1; default 9090)"
     )
     p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser(
+        "report",
+        help="write a self-contained HTML report of a design (for any browser)",
+        description="Write one HTML file (figures inline, nothing fetched): the verdict, the "
+        "tube per state and in the plane, the partition, the inputs, the spec. From a session "
+        "folder its cached law and result are used; from a spec they are computed.",
+    )
+    p.add_argument("target", metavar="SESSION_DIR|SPEC.toml")
+    p.add_argument("--out", metavar="FILE.html", help="default ./<name>-report.html")
+    p.add_argument("--traces", type=int, default=16, metavar="K", help="simulated traces")
+    p.add_argument(
+        "--axes", type=_axes, default=(0, 1), metavar="I,J", help="the plane's state indices"
+    )
+    p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser(
         "mpsolve", help="solve a multi-parametric LP/QP (.npz, the mp_testset convention)"

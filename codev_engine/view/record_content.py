@@ -880,8 +880,13 @@ class RecordingContent:
         alive = np.asarray(trace.region) >= 0
         self._log_scalars(w, t, U, X, alive, "counterexample", _RED, 2.5)
 
-    def verdict_text(self) -> str:
+    def verdict_text(self, *, views: bool = True) -> str:
         """The verdict document: it tells the story without the other views.
+
+        Parameters
+        ----------
+        views : bool
+            Add how to read the recording's views (the HTML report leaves it out).
 
         Returns
         -------
@@ -947,6 +952,10 @@ class RecordingContent:
         ]
         if p.path and p.path != "<string>":
             lines.append(f"- reproduce: `codev run {p.path} --record OUT.rrd`")
+        if not views:
+            if self.notes:
+                lines += ["", "### notes", ""] + [f"- {s}" for s in self.notes]
+            return "\n".join(lines) + "\n"
         xname, yname = self.plane_names
         where = f"{xname} → right, {yname} ↑ up"
         if self.n > 2:

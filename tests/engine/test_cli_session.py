@@ -344,6 +344,38 @@ def test_view_print_only_and_no_display(base, capsys, monkeypatch):
     assert code == 0 and "no display" in out2.lower() and str(rrd) in out2
 
 
+def test_report_from_a_session(base, tmp_path, capsys):
+    d = base[0]
+    before = sorted(p.name for p in (d / "artifacts").iterdir())
+    out_file = tmp_path / "r" / "di.html"
+    code, out, err = cli(capsys, "report", d, "--out", out_file, "--traces", "2")
+    assert code == 0, err
+    assert f"report written to {out_file}" in out
+    text = out_file.read_text()
+    assert text.startswith("<!DOCTYPE html>") and text.count("<figure") == 3
+    assert "ROBUSTLY SAFE" in text
+    assert sorted(p.name for p in (d / "artifacts").iterdir()) == before  # nothing computed
+    code, _, err = cli(capsys, "report", d, "--out", tmp_path / "r.pdf")
+    assert code == 2 and "--out" in one_error_line(err)
+
+
+def test_report_from_a_session_without_a_law(tmp_path, capsys):
+    from codev_engine.session import Session
+
+    d = tmp_path / "s"
+
+    session = Session.create(d)
+    session.save_spec(ce_load(DI_PATH))
+    code, _, err = cli(capsys, "report", d)
+    assert code == 2 and "codev run" in one_error_line(err)
+
+
+def ce_load(path: Path):
+    import codev_engine as ce
+
+    return ce.load_spec(path)
+
+
 def _gone(pid: int, seconds: float = 5.0) -> bool:
     """Has process ``pid`` exited (absent, or a zombie waiting for its reaper)?"""
     deadline = time.monotonic() + seconds
