@@ -480,7 +480,7 @@ class RecordingContent:
         xname, yname = self.plane_names
         pos = [[x, lo[1] - 3.5 * tick[1]] for x in xs] + [[lo[0] - 4.5 * tick[0], y] for y in ys]
         labels = [_fmt(x) for x in xs] + [_fmt(y) for y in ys]
-        pos += [[c[0], lo[1] - 9 * tick[1]], [lo[0], hi[1] + 4 * tick[1]]]
+        pos += [[c[0], lo[1] - 9 * tick[1]], [lo[0], hi[1] + 6 * tick[1]]]
         labels += [f"{xname} →", f"{yname} ↑"]
         w.static(
             "/plane/axes/ticks",
