@@ -545,7 +545,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 
 
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
-BENCHMARKS = ("mp", "synth", "session", "tui", "paper", "hylaa_peer")
+BENCHMARKS = ("mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
