@@ -593,3 +593,64 @@ def test_unsafe_margin():
     both = unsafe_margin([box, half], X)
     assert np.allclose(both, np.minimum(unsafe_margin([box], X), unsafe_margin([half], X)))
     assert np.all(unsafe_margin([], X) == np.inf)
+
+
+# ---------------------------------------------------------------------------------------
+# rasters and the tube's hull (what the plane and the state views are drawn from)
+# ---------------------------------------------------------------------------------------
+
+
+def test_raster_polygons_pixel_centres():
+    from codev_engine.view.shapes import raster_polygons
+
+    tri = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 4.0]])  # counter-clockwise
+    sq = np.array([[3.0, 3.0], [3.0, 4.0], [4.0, 4.0], [4.0, 3.0]])  # clockwise
+    lo, hi = np.array([0.0, 0.0]), np.array([4.0, 4.0])
+    img = raster_polygons([tri, sq], lo, hi, (40, 40), np.array([7, 9]))
+    assert img.dtype == np.uint32 and img.shape == (40, 40)
+    r, c = np.mgrid[0:40, 0:40]
+    x, y = (c + 0.5) * 0.1, (r + 0.5) * 0.1  # row 0 at the bottom
+    assert np.array_equal(img == 7, (x + y <= 4.0) & ~((x >= 3) & (y >= 3)))
+    assert np.array_equal(img == 9, (x >= 3) & (y >= 3))  # later polygons on top
+    # outside the window: nothing; a flat polygon: nothing
+    far = raster_polygons([tri + 10.0, tri[:2]], lo, hi, (8, 8))
+    assert not far.any()
+
+
+def test_raster_boxes_union_and_least_width():
+    from codev_engine.view.shapes import raster_boxes
+
+    lo, hi = np.array([0.0, 0.0]), np.array([10.0, 10.0])
+    lower = np.array([[1.0, 1.0], [2.0, 2.0], [5.0, 5.0]])
+    upper = np.array([[3.0, 3.0], [4.0, 4.0], [5.0001, 9.0]])  # the last: thinner than a pixel
+    m = raster_boxes(lower, upper, lo, hi, (10, 10), min_pixels=2)
+    want = np.zeros((10, 10), dtype=bool)
+    want[1:3, 1:3] = want[2:4, 2:4] = True
+    assert np.array_equal(m[:, :4], want[:, :4]) and not m[:5, 4:].any() and not m[9:].any()
+    thin = m[5:9, 4:]  # widened about x = 5 to 2 pixels (3 when it straddles pixel edges)
+    assert thin[:, :2].all() and 2 <= thin.sum(axis=1).min() <= thin.sum(axis=1).max() <= 3
+    assert not raster_boxes(np.zeros((0, 2)), np.zeros((0, 2)), lo, hi, (4, 4)).any()
+
+
+def test_tube_envelope_contains_every_box():
+    from codev_engine.view.record_content import tube_envelope
+
+    ts = np.array([0.0, 0.0, 1.0, 2.5])
+    te = np.array([1.0, 2.0, 2.0, 3.0])  # [2, 2.5] uncovered
+    lo = np.array([[0.0], [-1.0], [0.5], [3.0]])
+    hi = np.array([[1.0], [0.5], [2.0], [4.0]])
+    t, elo, ehi = tube_envelope(ts, te, lo, hi)
+    assert np.array_equal(t, [0.0, 1.0, 2.0, 2.5, 3.0])
+    assert np.array_equal(elo[:, 0], [-1.0, -1.0, np.nan, 3.0], equal_nan=True)
+    assert np.array_equal(ehi[:, 0], [1.0, 2.0, np.nan, 4.0], equal_nan=True)
+    rng = np.random.default_rng(1)
+    K = 500
+    ts = np.round(rng.uniform(0, 5, K), 2)
+    te = ts + np.round(rng.uniform(0.01, 1, K), 2)
+    lo = rng.normal(size=(K, 3))
+    hi = lo + rng.uniform(0, 1, (K, 3))
+    t, elo, ehi = tube_envelope(ts, te, lo, hi)
+    for k in range(K):
+        seg = (t[:-1] >= ts[k]) & (t[1:] <= te[k])
+        assert seg.any()
+        assert np.all(elo[seg] <= lo[k]) and np.all(ehi[seg] >= hi[k])
