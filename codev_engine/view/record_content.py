@@ -687,13 +687,13 @@ class RecordingContent:
                 image[mask_t & mask_u] = 3
         infos = [
             rr.AnnotationInfo(id=0, label="", color=(0, 0, 0, 0)),
-            rr.AnnotationInfo(id=1, label="unsafe set", color=(235, 30, 30, 120)),
+            rr.AnnotationInfo(id=1, label="unsafe set", color=(255, 0, 0, 150)),
             rr.AnnotationInfo(id=2, label="reachtube", color=_TUBE_FILL),
             rr.AnnotationInfo(id=3, label="reachtube in an unsafe set", color=(150, 0, 120, 230)),
         ]
         w.static("/plane/overlay", rr.AnnotationContext(infos), 0)
         w.static("/plane/overlay", self._image_transform(shape), 0)
-        w.static("/plane/overlay", rr.SegmentationImage(image, draw_order=-5.0), 1)
+        w.static("/plane/overlay", rr.SegmentationImage(image, opacity=1.0, draw_order=-5.0), 1)
 
     def _log_tube(self, w: EntityWriter) -> None:
         import rerun as rr
