@@ -231,6 +231,10 @@ class RecordingContent:
         What could not be drawn (shown in the verdict document).
     tube_boxes : int
         Tube boxes logged.
+    set_shapes : list or None
+        :meth:`set_polygons`, once computed.
+    set_rows : (list of ndarray, list of ndarray)
+        The rows of each set with the view box's, which its vertices came from.
     """
 
     problem: Problem
@@ -245,6 +249,8 @@ class RecordingContent:
     traces: Traces | None
     notes: list[str]
     tube_boxes: int = 0
+    set_shapes: list | None = None
+    set_rows: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
 
     @property
     def n(self) -> int:
@@ -570,8 +576,14 @@ class RecordingContent:
 
         The vertices are (v, n) (None: empty in the view box); the polygon (p, 2) is the
         projection on the plane (n == 1: the interval as a band over ``[0, horizon]``;
-        None: flat or empty).
+        None: flat or empty). Computed once (the rows they came from are kept in
+        ``set_rows``).
         """
+        if self.set_shapes is None:
+            self.set_shapes = self._set_shapes()
+        return self.set_shapes
+
+    def _set_shapes(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
         sets = self._sets()
         if not sets:
             return []
@@ -582,7 +594,7 @@ class RecordingContent:
         As = [np.vstack([A, eye]) for A, _ in rows]
         bs = [np.concatenate([b, hi, -lo]) for _, b in rows]
         V = vertices_many(As, bs, _TOL, rtol=_TOL, max_combos=_MAX_COMBOS)
-        self._set_rows_clipped = (As, bs)
+        self.set_rows = (As, bs)
         out = []
         plo, phi = self.plane_window
         for (name, _, _), v in zip(sets, V, strict=True):
@@ -603,11 +615,9 @@ class RecordingContent:
         sets = self._sets()
         if not sets:
             return
-        self._set_polys = self.set_polygons()
-        As, bs = self._set_rows_clipped
-        for k, ((name, s, color), (_, v, poly)) in enumerate(
-            zip(sets, self._set_polys, strict=True)
-        ):
+        shapes = self.set_polygons()
+        As, bs = self.set_rows
+        for k, ((name, s, color), (_, v, poly)) in enumerate(zip(sets, shapes, strict=True)):
             if v is None:
                 self.notes.append(f"set {name} is empty inside the view box: not drawn")
                 continue
@@ -671,7 +681,7 @@ class RecordingContent:
 
         shape = (_RASTER, _RASTER)
         lo, hi = self.plane_window
-        unsafe = [p for nm, _, p in getattr(self, "_set_polys", []) if nm.startswith("unsafe")]
+        unsafe = [p for nm, _, p in self.set_polygons() if nm.startswith("unsafe")]
         unsafe = [p for p in unsafe if p is not None]
         mask_u = raster_polygons(unsafe, lo, hi, shape) > 0 if unsafe else None
         tl, th = self.tube_rectangles()
