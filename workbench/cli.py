@@ -422,7 +422,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
         f"  on a machine with a display:  codev view {args.file}   "
         f"(or rerun {args.file}; pip install 'rerun-sdk>=0.41,<0.42')\n"
         f"  in a browser, served from here:  codev view --web {args.file}   "
-        f"(then open http://127.0.0.1:9090; without a GPU add ?renderer=webgl)\n"
+        f"(then open the address it prints; without a GPU add &renderer=webgl)\n"
         f"  without the viewer:  codev report SESSION_DIR --out report.html"
     )
     return 0
