@@ -628,8 +628,12 @@ def plot_plane(
         for k, s in enumerate(vs.unsafe):
             bx, by = _bounds_on(s, i, alone=False), _bounds_on(s, j, alone=False)
             box = np.array([[bx[0], by[0]], [bx[1], by[1]]])
-            if not np.all(np.isfinite(box)):
-                continue
+            # an unbounded side: a sliver past the finite one (the edge comes into view),
+            # or what is drawn already when both sides are unbounded
+            lo_inf, hi_inf = ~np.isfinite(box[0]), ~np.isfinite(box[1])
+            both = lo_inf & hi_inf
+            box[0] = np.where(both, blo, np.where(lo_inf, box[1] - 0.1 * reach, box[0]))
+            box[1] = np.where(both, bhi, np.where(hi_inf, box[0] + 0.1 * reach, box[1]))
             hit = ce is not None and ce.kind == "unsafe" and ce.index == k
             near = np.all(box[0] <= bhi + reach) and np.all(box[1] >= blo - reach)
             if hit or near:
