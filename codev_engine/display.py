@@ -20,7 +20,7 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-__all__ = ["BACKEND", "Displayable", "backend"]
+__all__ = ["BACKEND", "Displayable", "backend", "context"]
 
 #: the module that draws (imported on the first display)
 BACKEND = "codev_engine.view.notebook"
@@ -40,12 +40,41 @@ def backend() -> ModuleType:
     return module
 
 
+def context(obj: object) -> dict[str, object]:
+    """What the display of ``obj`` may use besides ``obj`` (e.g. the spec of a result).
+
+    Parameters
+    ----------
+    obj : Displayable
+
+    Returns
+    -------
+    dict
+        ``{"problem": Problem, "law": ExplicitLaw}`` for a result of ``verify``; empty when
+        nothing was attached (a result loaded from a file).
+    """
+    return dict(getattr(obj, "_display_context", None) or {})
+
+
 class Displayable:
     """Mixin: the notebook display hooks, drawn by :func:`backend`.
 
     A class that derives from it displays itself in Jupyter; it needs a ``summary()``
     method (the plain-text part of the display) and a picture and summary in the backend.
+    The producer of an object may attach what its picture needs (:meth:`attach_display`):
+    ``verify`` attaches the spec and the law, so a result shows state names and sets.
     """
+
+    def attach_display(self, **items: object) -> None:
+        """Keep ``items`` for the display only (not a field: no effect on equality, saving
+        or ``repr``).
+
+        Parameters
+        ----------
+        **items : object
+            E.g. ``problem=..., law=...``.
+        """
+        object.__setattr__(self, "_display_context", {**context(self), **items})
 
     def _repr_png_(self) -> bytes:
         """The picture as PNG bytes."""

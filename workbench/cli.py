@@ -386,7 +386,6 @@ def _cmd_session(args: argparse.Namespace) -> int:
 
 def _cmd_view(args: argparse.Namespace) -> int:
     import shutil
-    import subprocess
 
     from codev_engine.view.records import check_recording
 
@@ -396,18 +395,144 @@ def _cmd_view(args: argparse.Namespace) -> int:
     )
     viewer = shutil.which("rerun")
     cmd = [viewer] if viewer else [sys.executable, "-m", "rerun"]
+    if args.web and not args.print_only:
+        port = int(args.port)
+        url = f"http://127.0.0.1:{port}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{port + 1}%2Fproxy"
+        print(
+            f"serving {args.file} at http://127.0.0.1:{port} (no GPU: add &renderer=webgl to "
+            f"the address, i.e. {url}&renderer=webgl); Ctrl-C stops the viewer"
+        )
+        web = [
+            *cmd,
+            "--web-viewer",
+            "--bind",
+            "127.0.0.1",
+            "--web-viewer-port",
+            str(port),
+            "--port",
+            str(port + 1),
+            str(args.file),
+        ]
+        return run_viewer(web)
     if has_display and not args.print_only:
-        subprocess.Popen([*cmd, str(args.file)], start_new_session=True)
-        print(f"opening {args.file} in the Rerun viewer")
-        return 0
+        print(f"opening {args.file} in the Rerun viewer (closing it or Ctrl-C ends codev view)")
+        return run_viewer([*cmd, str(args.file)])
     print(
         f"{args.file} is a valid recording. There is no display here; to look at it:\n"
-        f"  on a machine with a display:  rerun {args.file}   "
-        f"(pip install 'rerun-sdk>=0.41,<0.42')\n"
-        f"  in a browser, served from here:  rerun --web-viewer {args.file}   "
-        f"(then open http://localhost:9090)"
+        f"  on a machine with a display:  codev view {args.file}   "
+        f"(or rerun {args.file}; pip install 'rerun-sdk>=0.41,<0.42')\n"
+        f"  in a browser, served from here:  codev view --web {args.file}   "
+        f"(then open the address it prints; without a GPU add &renderer=webgl)\n"
+        f"  without the viewer:  codev report SESSION_DIR --out report.html"
     )
     return 0
+
+
+def run_viewer(cmd: list[str], *, grace: float = 3.0) -> int:
+    """Run a viewer in its own process group until it exits or Ctrl-C, then stop the group.
+
+    The ``rerun`` console script starts the viewer (and, with ``--web-viewer``, a server)
+    as child processes: stopping only the script leaves them running. The whole group is
+    sent SIGTERM, then SIGKILL after ``grace`` seconds.
+
+    Parameters
+    ----------
+    cmd : list of str
+        The command.
+    grace : float
+        Seconds between SIGTERM and SIGKILL.
+
+    Returns
+    -------
+    int
+        The viewer's exit status (130 after Ctrl-C).
+    """
+    import signal
+    import subprocess
+    import time
+
+    proc = subprocess.Popen(cmd, start_new_session=True)
+    status = 0
+    try:
+        status = proc.wait()
+    except KeyboardInterrupt:
+        status = 130
+    finally:
+        if hasattr(os, "killpg"):
+            for sig in (signal.SIGTERM, signal.SIGKILL):
+                try:
+                    os.killpg(proc.pid, sig)
+                except (ProcessLookupError, PermissionError):
+                    break  # the group is gone
+                deadline = time.monotonic() + grace
+                while time.monotonic() < deadline and _group_alive(proc.pid):
+                    proc.poll()
+                    time.sleep(0.05)
+                if not _group_alive(proc.pid):
+                    break
+        elif proc.poll() is None:
+            proc.kill()
+        proc.poll()
+    return status
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except (ProcessLookupError, PermissionError):
+        return False
+    return True
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from codev_engine.view.report import write_report
+
+    target = Path(args.target)
+    if target.is_dir():
+        problem, law, result = _from_session(target)
+    else:
+        from codev_engine.pipeline import load_spec
+        from codev_engine.synthesis import synthesize
+
+        problem = load_spec(target)
+        with _progress(f"synthesising {problem.name}", True) as update:
+            law = synthesize(problem, progress=update)
+        result = None
+        if problem.verify is not None:
+            from codev_engine.reach.verification import verify
+
+            print(f"verifying {problem.name}", file=sys.stderr)
+            result = verify(problem, law)
+    out = Path(args.out) if args.out else Path(f"{problem.name}-report.html")
+    if out.suffix.lower() not in (".html", ".htm"):
+        raise SpecError(f"a report is an .html file (got suffix {out.suffix!r})", field="--out")
+    path = write_report(out, problem, law, result, traces=args.traces, axes=args.axes)
+    print(f"report written to {path} ({path.stat().st_size / 1e6:.2f} MB; open it in a browser)")
+    return 0
+
+
+def _from_session(d: Path):
+    """The spec, the law and the result (or None) cached in a session folder."""
+    from codev_engine.law import ExplicitLaw
+    from codev_engine.reach.verification import VerificationResult
+    from codev_engine.session import Session
+
+    session = Session.open(d)
+    problem = session.problem()
+    status = {s.stage: s for s in session.status(problem)}
+    syn = status.get("synthesis")
+    if syn is None or syn.status != "cached":
+        raise SpecError(
+            f"the session has no cached law for its spec; run: codev run {session.spec_path()} "
+            f"--session {d}",
+            file=str(d),
+        )
+    law = ExplicitLaw.load(d / syn.artifact)
+    ver = status.get("verification")
+    result = None
+    if ver is not None and ver.status == "cached":
+        result = VerificationResult.load(d / ver.artifact)
+    return problem, law, result
 
 
 def _cmd_tui(args: argparse.Namespace) -> int:
@@ -420,7 +545,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 
 
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
-BENCHMARKS = ("mp", "synth", "session", "tui", "paper", "hylaa_peer")
+BENCHMARKS = ("mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -652,7 +777,30 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--print-only", action="store_true", help="only print how to open it, even with a display"
     )
+    p.add_argument(
+        "--web",
+        action="store_true",
+        help="serve it to a browser from here (127.0.0.1) until Ctrl-C, then stop the server",
+    )
+    p.add_argument(
+        "--port", type=int, default=9090, help="web viewer port (the data on PORT+1; default 9090)"
+    )
     p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser(
+        "report",
+        help="write a self-contained HTML report of a design (for any browser)",
+        description="Write one HTML file (figures inline, nothing fetched): the verdict, the "
+        "tube per state and in the plane, the partition, the inputs, the spec. From a session "
+        "folder its cached law and result are used; from a spec they are computed.",
+    )
+    p.add_argument("target", metavar="SESSION_DIR|SPEC.toml")
+    p.add_argument("--out", metavar="FILE.html", help="default ./<name>-report.html")
+    p.add_argument("--traces", type=int, default=16, metavar="K", help="simulated traces")
+    p.add_argument(
+        "--axes", type=_axes, default=(0, 1), metavar="I,J", help="the plane's state indices"
+    )
+    p.set_defaults(func=_cmd_report)
 
     p = sub.add_parser(
         "mpsolve", help="solve a multi-parametric LP/QP (.npz, the mp_testset convention)"

@@ -374,7 +374,9 @@ def verify(
         )
         stats["boxes"] = tube.num_boxes
     stats["seconds"] = time.perf_counter() - t0
-    return VerificationResult(verdict, reason, tube, hold, cex, stats)
+    result = VerificationResult(verdict, reason, tube, hold, cex, stats)
+    result.attach_display(problem=problem, law=law)  # state names and sets in the picture
+    return result
 
 
 def _confirm(

@@ -1,8 +1,11 @@
-"""The viewer layout (blueprint) a recording carries, so it opens on the codev views.
+"""The viewer layout (blueprint) a recording carries, so it opens on the story.
 
-Left: the plane (``/plane``), the state space (``/space``, n == 3) and the verdict; right:
-one ``<state>(t)`` view per state, then the input and unsafe-margin time series; the time
-panel expanded on the ``time`` timeline. See ``docs/recordings.md``.
+Left: the plane (``/plane``: partition, sets, tube, traces, counterexample; shown from the
+view origin ``/`` so the plane's normalising transform applies), the state space
+(``/space``, n == 3) and the verdict; right: one time-series view per state
+(``/time/<state>``), then ``u(t)`` per input and the margin to the unsafe sets. The
+selection and blueprint panels start closed, the time panel collapsed on the ``time``
+timeline, following (the cursor at the end). See ``docs/recordings.md``.
 """
 
 from __future__ import annotations
@@ -18,8 +21,7 @@ __all__ = ["blueprint"]
 
 
 def blueprint(entities: dict[str, int], content: RecordingContent):
-    """The viewer layout of a recording: plane (+ 3-D) views, state-vs-time views, series,
-    verdict; views without data are left out.
+    """The viewer layout of a recording; views without data are left out.
 
     Parameters
     ----------
@@ -41,14 +43,18 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         start=rrb.TimeRangeBoundary.infinite(),
         end=rrb.TimeRangeBoundary.cursor_relative(seconds=0.0),
     )
+    no_legend = rrb.PlotLegend(visible=False)
     left: list = []
     if any(k.startswith("/plane/") for k in e):
-        a, b = content.axes or (0, 1)
+        xname, yname = content.plane_names
         left.append(
             rrb.Spatial2DView(
-                origin="/plane",
-                name=f"plane: {states[a]} → right, {states[b]} ↓ down",
+                origin="/",
+                contents=["/plane/**"],
+                name=f"plane: {xname} → , {yname} ↑  (orange tube, red unsafe, blue initial, "
+                "grey traces)",
                 time_ranges=up_to_cursor,
+                background=(255, 255, 255),
             )
         )
     if any(k.startswith("/space/") for k in e):
@@ -57,37 +63,50 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         )
     left.append(rrb.TextDocumentView(origin="/verdict", name="verdict"))
     time_views = [
-        rrb.Spatial2DView(origin=f"/time/{s}", name=f"{s}(t) (↓ increasing)")
+        rrb.TimeSeriesView(
+            origin=f"/time/{s}",
+            name=f"{s}(t): tube orange, traces grey"
+            + (", counterexample red" if content.counterexample is not None else ""),
+            plot_legend=no_legend,
+        )
         for s in states
         if any(k.startswith(f"/time/{s}/") for k in e)
     ]
-    series = []
-    if len(content.inputs) == 1:
-        if any(k.startswith("/scalars/u/") for k in e):
-            series.append(rrb.TimeSeriesView(origin="/scalars/u", name="u(t)"))
-    else:  # one plot per input: their scales may differ
-        series += [
-            rrb.TimeSeriesView(origin=f"/scalars/u/{u}", name=f"{u}(t)")
-            for u in content.inputs
-            if any(k.startswith(f"/scalars/u/{u}/") for k in e)
-        ]
+    series = [
+        rrb.TimeSeriesView(
+            origin=f"/scalars/u/{u}", name=f"{u}(t), bounds black", plot_legend=no_legend
+        )
+        for u in content.inputs
+        if any(k.startswith(f"/scalars/u/{u}/") for k in e)
+    ]
     if any(k.startswith("/scalars/unsafe_distance/") for k in e):
         series.append(
-            rrb.TimeSeriesView(origin="/scalars/unsafe_distance", name="margin to unsafe sets")
+            rrb.TimeSeriesView(
+                origin="/scalars/unsafe_distance",
+                name="margin to the unsafe sets (< 0: inside)",
+                plot_legend=no_legend,
+            )
         )
     right: list = []
     if time_views:
-        right.append(rrb.Grid(*time_views) if len(time_views) > 1 else time_views[0])
+        right.append(rrb.Vertical(*time_views) if len(time_views) <= 3 else rrb.Grid(*time_views))
     if series:
         right.append(rrb.Horizontal(*series))
-    shares = [3, 3, 1] if len(left) == 3 else [4, 1]
+    if len(left) == 3:
+        shares = [4, 3, 2]
+    else:
+        shares = [5, 3]
     layout_left = rrb.Vertical(*left, row_shares=shares)
-    layout = rrb.Horizontal(layout_left, rrb.Vertical(*right)) if right else layout_left
-    parts: list = [layout]
-    if (
-        any(k in e for k in ("/plane/tube", "/space/tube"))
-        or content.num_traces
-        or (content.counterexample is not None)
-    ):
-        parts.append(rrb.TimePanel(timeline=TIMELINE, state="expanded"))
-    return rrb.Blueprint(*parts, auto_views=False, auto_layout=False)
+    if right:
+        right_col = rrb.Vertical(*right, row_shares=[2, 1] if len(right) == 2 else None)
+        layout = rrb.Horizontal(layout_left, right_col, column_shares=[1, 1])
+    else:
+        layout = layout_left
+    return rrb.Blueprint(
+        layout,
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed", play_state="following"),
+        auto_views=False,
+        auto_layout=False,
+    )

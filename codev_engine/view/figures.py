@@ -255,6 +255,12 @@ def _add_boxes(ax: Axes, lo: np.ndarray, hi: np.ndarray, **style: Any) -> None:
     ax.add_artist(PathPatch(Path(verts, codes), **style))
 
 
+def _min_size(lo: np.ndarray, hi: np.ndarray, least: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes ``[lo, hi]`` (K, 2) widened about their centres to at least ``least`` (2,)."""
+    mid, half = 0.5 * (lo + hi), np.maximum(0.5 * (hi - lo), 0.5 * np.asarray(least))
+    return mid - half, mid + half
+
+
 def _region_colours(index: np.ndarray) -> np.ndarray:
     """Distinct pastel colours (k, 3): hues spaced by the golden ratio, by region index."""
     from matplotlib.colors import hsv_to_rgb
@@ -471,8 +477,6 @@ def plot_tube(
     handles: list[Any] = []
     ylo, yhi, tmax = np.inf, -np.inf, 0.0
     if bands.shape[0]:
-        # edges in the face colour keep boxes thinner than a pixel visible
-        _add_boxes(ax, bands[:, [0, 2]], bands[:, [1, 3]], fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.8)
         ylo, yhi = float(bands[:, 2].min()), float(bands[:, 3].max())
         tmax = float(bands[:, 1].max())
         handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
@@ -490,6 +494,13 @@ def plot_tube(
     if problem is not None and problem.verify is not None:
         tmax = max(tmax, problem.verify.time_horizon)
     ylim = _padded(ylo, yhi)
+    if bands.shape[0]:
+        # at least 1 % of the axis high, so a thin tube does not read as a line (the
+        # picture only; edges in the face colour keep boxes narrower than a pixel visible)
+        lo_b, hi_b = _min_size(
+            bands[:, [0, 2]], bands[:, [1, 3]], np.array([0.0, 0.01 * (ylim[1] - ylim[0])])
+        )
+        _add_boxes(ax, lo_b, hi_b, fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.8)
     ax.set_ylim(*ylim)
     ax.set_xlim(0.0, tmax if tmax > 0 else 1.0)
     if problem is not None and problem.verify is not None:
@@ -590,7 +601,6 @@ def plot_plane(
     lo2 = np.unique(np.hstack([tube.lower[:, [i, j]], tube.upper[:, [i, j]]]), axis=0)
     pts = [lo2[:, :2], lo2[:, 2:]]
     if lo2.shape[0]:
-        _add_boxes(ax, lo2[:, :2], lo2[:, 2:], fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.5)
         handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
     ce = result.counterexample
     if ce is not None:
@@ -606,11 +616,37 @@ def plot_plane(
     if vs is not None:
         ilo, ihi = vs.initial_lower[[i, j]], vs.initial_upper[[i, j]]
         ax.add_patch(Rectangle(ilo, *(ihi - ilo), fill=False, ec=_INITIAL, lw=1.2, zorder=3))
+        initial_box = np.array([ilo, [ihi[0], ilo[1]], ihi, [ilo[0], ihi[1]]])
         handles.append(Patch(fill=False, ec=_INITIAL, label="initial set"))
         pts += [ilo[None], ihi[None]]
+    if vs is not None and vs.unsafe:
+        # the obstacles near what is drawn are in the picture too, the one the
+        # counterexample enters always (bounded ones: their bounds on the two states)
+        base = np.vstack(pts)
+        blo, bhi = np.nanmin(base, axis=0), np.nanmax(base, axis=0)
+        reach = 0.5 * np.maximum(bhi - blo, 1e-9)
+        for k, s in enumerate(vs.unsafe):
+            bx, by = _bounds_on(s, i, alone=False), _bounds_on(s, j, alone=False)
+            box = np.array([[bx[0], by[0]], [bx[1], by[1]]])
+            # an unbounded side: a sliver past the finite one (the edge comes into view),
+            # or what is drawn already when both sides are unbounded
+            lo_inf, hi_inf = ~np.isfinite(box[0]), ~np.isfinite(box[1])
+            both = lo_inf & hi_inf
+            box[0] = np.where(both, blo, np.where(lo_inf, box[1] - 0.1 * reach, box[0]))
+            box[1] = np.where(both, bhi, np.where(hi_inf, box[0] + 0.1 * reach, box[1]))
+            hit = ce is not None and ce.kind == "unsafe" and ce.index == k
+            near = np.all(box[0] <= bhi + reach) and np.all(box[1] >= blo - reach)
+            if hit or near:
+                pts.append(box)
     allpts = np.vstack(pts) if pts else np.zeros((0, 2))
     xlim = _padded(*_range(allpts[:, 0]))
     ylim = _padded(*_range(allpts[:, 1]))
+    if lo2.shape[0]:
+        # at least 0.6 % of the view wide and high, so a thin tube does not read as a line
+        # (the picture only: the boxes are widened about their centres)
+        span = np.array([xlim[1] - xlim[0], ylim[1] - ylim[0]])
+        blo, bhi = _min_size(lo2[:, :2], lo2[:, 2:], 0.006 * span)
+        _add_boxes(ax, blo, bhi, fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.5, zorder=2)
     # sets are clipped to a box a little larger than the view: no clipped edge shows
     margin = 0.1 * np.array([xlim[1] - xlim[0], ylim[1] - ylim[0]])
     view = (np.array([xlim[0], ylim[0]]) - margin, np.array([xlim[1], ylim[1]]) + margin)
@@ -626,12 +662,13 @@ def plot_plane(
                     if style == "safe" and _fills_view(poly, view):
                         continue  # the safe set contains the whole view: nothing to see
                     if style == "unsafe":
-                        ax.add_patch(Polygon(poly, fc=_UNSAFE, alpha=0.25, lw=0, zorder=0.5))
+                        ax.add_patch(Polygon(poly, fc=_UNSAFE, alpha=0.35, lw=0, zorder=0.5))
+                        _mark_if_small(ax, poly, xlim, ylim, _UNSAFE)
                     else:
                         ax.add_patch(Polygon(poly, fill=False, ec=_SAFE, ls="--", lw=1))
                     drawn = True
             if drawn and style == "unsafe":
-                handles.append(Patch(facecolor=_UNSAFE, alpha=0.25, label="unsafe"))
+                handles.append(Patch(facecolor=_UNSAFE, alpha=0.35, label="unsafe"))
             elif drawn:
                 handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe"))
         if skipped:
@@ -646,13 +683,25 @@ def plot_plane(
             ax.add_patch(Polygon(dom, fill=False, ec="#555555", ls=":", lw=1.2))
             word = "law domain" if law.n == 2 else "law domain (section)"
             handles.append(Line2D([], [], color="#555555", ls=":", label=word))
+    if vs is not None:
+        _mark_if_small(ax, initial_box, xlim, ylim, _INITIAL)
     ax.set_xlim(*xlim)
     ax.set_ylim(*ylim)
     ax.set_xlabel(names[i])
     ax.set_ylabel(names[j])
-    if handles:
-        ax.legend(handles=handles, fontsize="small", loc="upper right")
+    if handles:  # where it covers least (the tube is one patch: one box to avoid)
+        ax.legend(handles=handles, fontsize="small", loc="best", framealpha=0.85)
     return ax
+
+
+def _mark_if_small(
+    ax: Axes, poly: np.ndarray, xlim: tuple[float, float], ylim: tuple[float, float], colour: str
+) -> None:
+    """Ring a polygon smaller than 2 % of the view, so a small set is seen at all."""
+    span = np.ptp(poly, axis=0) / np.array([xlim[1] - xlim[0], ylim[1] - ylim[0]])
+    if np.all(span < 0.02):
+        c = poly.mean(axis=0)
+        ax.plot([c[0]], [c[1]], marker="o", ms=14, mfc="none", mec=colour, mew=1.5, zorder=4)
 
 
 def _split_trace(

@@ -11,7 +11,10 @@ type                   picture                         summary
 ``VerificationResult`` :func:`~.figures.figure_result`  :func:`~.figures.result_html`
 =====================  ==============================  ===========================
 
-:func:`mimebundle` renders the picture once for both the HTML and the PNG entries.
+:func:`mimebundle` renders the picture once for both the HTML and the PNG entries. What the
+producer attached to the object (:func:`codev_engine.display.context`: ``verify`` attaches
+the spec and the law to its result) is passed to the picture, so a result from ``verify``
+shows the state names, the sets and the law's domain.
 matplotlib is imported by the figures when they draw, not by this module.
 """
 
@@ -20,6 +23,7 @@ from __future__ import annotations
 import base64
 from typing import Any
 
+from codev_engine.display import context
 from codev_engine.law import ExplicitLaw
 from codev_engine.reach.verification import VerificationResult
 from codev_engine.view import figures
@@ -54,7 +58,7 @@ def png(obj: Any) -> bytes:
     bytes
     """
     figure, _ = _views(obj)
-    return figures.png_bytes(figure(obj))
+    return figures.png_bytes(figure(obj, **context(obj)))
 
 
 def html(obj: Any) -> str:
@@ -68,8 +72,8 @@ def html(obj: Any) -> str:
     -------
     str
     """
-    _, summary = _views(obj)
-    return summary(obj)
+    figure, summary = _views(obj)
+    return summary(obj, figures.png_bytes(figure(obj, **context(obj))))
 
 
 def mimebundle(obj: Any) -> dict[str, str]:
@@ -87,7 +91,7 @@ def mimebundle(obj: Any) -> dict[str, str]:
         both; the PNG is there for frontends and tools that only take images.
     """
     figure, summary = _views(obj)
-    picture = figures.png_bytes(figure(obj))
+    picture = figures.png_bytes(figure(obj, **context(obj)))
     return {
         "text/plain": obj.summary(),
         "text/html": summary(obj, picture),

@@ -24,7 +24,7 @@ from codev_engine.geometry.vertices import vertices_in_boxes, vertices_many
 from codev_engine.law import ExplicitLaw
 from codev_engine.reach.simulate import simulate_many
 from codev_engine.spec.problem import Problem, SetSpec
-from codev_engine.view.shapes import meshes, outline
+from codev_engine.view.shapes import meshes, outline, raster_boxes, raster_polygons
 
 if TYPE_CHECKING:
     from codev_engine.reach.tube import Tube
@@ -37,6 +37,7 @@ __all__ = [
     "RecordingOptions",
     "Traces",
     "simulate_traces",
+    "tube_envelope",
     "unsafe_margin",
 ]
 
@@ -47,8 +48,15 @@ TIMELINE = "time"
 _RED = (220, 40, 40)
 _GREEN = (40, 170, 60)
 _BLUE = (40, 110, 230)
-_TUBE = (255, 150, 0, 200)
-_TRACE = (90, 90, 90)
+_TUBE = (235, 120, 0, 255)
+_TUBE_FILL = (255, 165, 40, 170)
+_TRACE = (120, 120, 120)
+_AXIS = (30, 30, 30)
+_EDGE = (60, 60, 60, 90)
+#: pixels of a side of the plane's rasters (the partition, the filled sets and tube)
+_RASTER = 480
+#: the regions' edges are drawn as lines up to this many regions (the fill alone beyond)
+_MAX_EDGES = 3000
 
 #: feasibility tolerance of the drawn polytopes' vertices, ``_TOL * (1 + |b|)`` (the
 #: drawings' choice in ``geometry.vertices``)
@@ -223,6 +231,10 @@ class RecordingContent:
         What could not be drawn (shown in the verdict document).
     tube_boxes : int
         Tube boxes logged.
+    set_shapes : list or None
+        :meth:`set_polygons`, once computed.
+    set_rows : (list of ndarray, list of ndarray)
+        The rows of each set with the view box's, which its vertices came from.
     """
 
     problem: Problem
@@ -237,6 +249,8 @@ class RecordingContent:
     traces: Traces | None
     notes: list[str]
     tube_boxes: int = 0
+    set_shapes: list | None = None
+    set_rows: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
 
     @property
     def n(self) -> int:
@@ -362,6 +376,67 @@ class RecordingContent:
         content.tube_boxes = 0 if result is None else int(result.tube.num_boxes)
         return content
 
+    # ---- the plane --------------------------------------------------------------------
+
+    @property
+    def plane_names(self) -> tuple[str, str]:
+        """The plane's horizontal and vertical quantities (``time`` and the state for n == 1)."""
+        if self.axes is None:
+            return "time", self.states[0]
+        return self.states[self.axes[0]], self.states[self.axes[1]]
+
+    @property
+    def plane_window(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plane's window ``(lo, hi)``, each (2,): the view box on the plane's axes."""
+        if self.axes is None:
+            return (
+                np.array([0.0, self.view_lo[0]]),
+                np.array([self.horizon, self.view_hi[0]]),
+            )
+        ax = list(self.axes)
+        return self.view_lo[ax].copy(), self.view_hi[ax].copy()
+
+    def slice_point(self) -> np.ndarray | None:
+        """The values of the states off the plane (n > 2): the centre of the initial set
+        (else the centre of the law's domain); None when n <= 2."""
+        if self.n <= 2:
+            return None
+        vs = self.problem.verify
+        if vs is not None:
+            return 0.5 * (np.asarray(vs.initial_lower) + np.asarray(vs.initial_upper))
+        from codev_engine.view.figures import default_slice_point
+
+        return default_slice_point(self.law)
+
+    def region_polygons(self) -> tuple[list[np.ndarray], np.ndarray]:
+        """The regions in the plane, clipped to the window -> (polygons, region index).
+
+        n == 2: the regions; n > 2: their sections through :meth:`slice_point`; n == 1:
+        each interval as a band over ``[0, horizon]``.
+        """
+        lo, hi = self.plane_window
+        if self.axes is None:
+            polys, idx = [], []
+            for i, v in enumerate(self.region_vertices):
+                if v is None or v.shape[0] == 0:
+                    continue
+                a, b = float(v.min()), float(v.max())
+                if b > a:
+                    polys.append(np.array([[lo[0], a], [hi[0], a], [hi[0], b], [lo[0], b]]))
+                    idx.append(i)
+            return polys, np.array(idx, dtype=int)
+        from codev_engine.view.figures import section_polygons
+
+        i, j = self.axes
+        n = self.n
+        box = np.zeros((4, n))
+        box[[0, 2], i] = 1.0, -1.0
+        box[[1, 3], j] = 1.0, -1.0
+        rhs = np.array([hi[0], hi[1], -lo[0], -lo[1]])
+        A = [np.vstack([a, box]) for a in self.law.A]
+        b = [np.concatenate([bb, rhs]) for bb in self.law.b]
+        return section_polygons(A, b, axes=(i, j), at=self.slice_point())
+
     # ---- logging ---------------------------------------------------------------------
 
     def log(self, w: EntityWriter) -> None:
@@ -371,63 +446,112 @@ class RecordingContent:
         ----------
         w : EntityWriter
         """
+        self._log_frame(w)
         self._log_partition(w)
         self._log_sets(w)
+        self._log_overlay(w)
         self._log_tube(w)
         self._log_traces(w)
         self._log_counterexample(w)
+        self._log_bounds(w)
         self._log_verdict(w)
+
+    def _log_frame(self, w: EntityWriter) -> None:
+        """The plane's frame: the normalising transform, the window, ticks with true values."""
+        import rerun as rr
+
+        lo, hi = self.plane_window
+        span = np.maximum(hi - lo, 1e-12)
+        c = 0.5 * (lo + hi)
+        # true values are logged; this transform shows the window as a unit square, y up
+        w.static(
+            "/plane",
+            rr.Transform3D(
+                translation=[-c[0] / span[0], c[1] / span[1], 0.0],
+                scale=[1.0 / span[0], -1.0 / span[1], 1.0],
+            ),
+            0,
+        )
+        frame = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+        tick = 0.012 * span
+        xs, ys = _ticks(lo[0], hi[0]), _ticks(lo[1], hi[1])
+        strips = [np.vstack([frame, frame[:1]])]
+        strips += [np.array([[x, lo[1]], [x, lo[1] - tick[1]]]) for x in xs]
+        strips += [np.array([[lo[0], y], [lo[0] - tick[0], y]]) for y in ys]
+        w.static(
+            "/plane/axes/frame",
+            rr.LineStrips2D(strips, colors=[_AXIS], radii=rr.components.Radius.ui_points(0.75)),
+            len(strips),
+        )
+        xname, yname = self.plane_names
+        pos = [[x, lo[1] - 3.5 * tick[1]] for x in xs] + [[lo[0] - 4.5 * tick[0], y] for y in ys]
+        labels = [_fmt(x) for x in xs] + [_fmt(y) for y in ys]
+        pos += [[c[0], lo[1] - 9 * tick[1]], [lo[0], hi[1] + 6 * tick[1]]]
+        labels += [f"{xname} →", f"{yname} ↑"]
+        w.static(
+            "/plane/axes/ticks",
+            rr.Points2D(
+                pos,
+                labels=labels,
+                colors=[_AXIS],
+                radii=rr.components.Radius.ui_points(0.01),
+                show_labels=True,
+            ),
+            len(pos),
+        )
+
+    def _image_transform(self, shape: tuple[int, int]):
+        """Pixel -> true coordinates of a plane raster (``shapes``' convention)."""
+        import rerun as rr
+
+        lo, hi = self.plane_window
+        H, W = shape
+        return rr.Transform3D(
+            translation=[lo[0], lo[1], 0.0],
+            scale=[(hi[0] - lo[0]) / W, (hi[1] - lo[1]) / H, 1.0],
+        )
 
     def _log_partition(self, w: EntityWriter) -> None:
         import rerun as rr
 
-        n = self.n
-        ok = [i for i, v in enumerate(self.region_vertices) if v is not None and v.shape[0]]
-        if not ok:
+        if self.law.num_regions == 0:
             return
-        labels = [f"R{i}" for i in range(self.law.num_regions)]
-        if n == 1:
-            # intervals: bands over the time horizon in the one state-vs-time view
-            iv = np.array([[v.min(), v.max()] for v in (self.region_vertices[i] for i in ok)])
-            iv = iv.reshape(-1, 2)
-            T = self.horizon
-            w.static(
-                f"/time/{self.states[0]}/regions",
-                rr.Boxes2D(
-                    mins=np.column_stack([np.zeros(len(ok)), iv[:, 0]]),
-                    sizes=np.column_stack([np.full(len(ok), T), iv[:, 1] - iv[:, 0]]),
-                    colors=self.colors[ok],
-                    labels=[labels[i] for i in ok],
-                    draw_order=-10.0,
-                ),
-                len(ok),
-            )
-            return
-        assert self.axes is not None
-        strips, keep = [], []
-        for i in ok:
-            poly = outline(self.region_vertices[i], self.axes)
-            if poly is not None:
-                strips.append(poly)
-                keep.append(i)
-        if len(keep) < self.law.num_regions:
+        polys, index = self.region_polygons()
+        drawn = len(polys)
+        if drawn < self.law.num_regions:
+            where = "meet the section" if self.n > 2 else "could be drawn"
             self.notes.append(
-                f"{self.law.num_regions - len(keep)} degenerate or too complex region(s) not "
-                "drawn in the plane"
+                f"{drawn} of {self.law.num_regions} regions {where} in the plane"
+                + (" (through the initial set's centre)" if self.n > 2 else "")
             )
-        if strips:
+        if drawn:
+            shape = (_RASTER, _RASTER)
+            lo, hi = self.plane_window
+            # class id = region index + 1 (0: no region); class ids are 16-bit in rerun
+            ids = np.minimum(index + 1, 65535)
+            image = raster_polygons(polys, lo, hi, shape, ids).astype(np.uint16)
+            infos = [rr.AnnotationInfo(id=0, label="outside the law's domain", color=(0, 0, 0, 0))]
+            infos += [
+                rr.AnnotationInfo(id=int(k), label=f"R{int(r)}", color=tuple(int(c) for c in col))
+                for k, r, col in zip(ids, index, self.colors[index], strict=True)
+            ]
+            w.static("/plane/regions", rr.AnnotationContext(infos), 0)
+            w.static("/plane/regions", self._image_transform(shape), 0)
             w.static(
-                "/plane/regions",
-                rr.LineStrips2D(
-                    strips,
-                    colors=self.colors[keep],
-                    labels=[labels[i] for i in keep],
-                    radii=rr.components.Radius.ui_points(0.75),
-                    draw_order=-10.0,
-                ),
-                len(strips),
+                "/plane/regions", rr.SegmentationImage(image, opacity=1.0, draw_order=-20.0), drawn
             )
-        if n == 3:
+            if drawn <= _MAX_EDGES:
+                w.static(
+                    "/plane/edges",
+                    rr.LineStrips2D(
+                        [np.vstack([p, p[:1]]) for p in polys],
+                        colors=[_EDGE],
+                        radii=rr.components.Radius.ui_points(0.4),
+                        draw_order=-15.0,
+                    ),
+                    drawn,
+                )
+        if self.n == 3:
             V, tri, owner, meshed = meshes(self.region_vertices, *self.region_rows)
             if meshed:
                 w.static(
@@ -447,12 +571,22 @@ class RecordingContent:
         out += [(f"safe/{k}", s, _GREEN) for k, s in enumerate(vs.safe)]
         return out
 
-    def _log_sets(self, w: EntityWriter) -> None:
-        import rerun as rr
+    def set_polygons(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
+        """Each set of ``[verify]`` clipped to the view box: ``(name, vertices, plane polygon)``.
 
+        The vertices are (v, n) (None: empty in the view box); the polygon (p, 2) is the
+        projection on the plane (n == 1: the interval as a band over ``[0, horizon]``;
+        None: flat or empty). Computed once (the rows they came from are kept in
+        ``set_rows``).
+        """
+        if self.set_shapes is None:
+            self.set_shapes = self._set_shapes()
+        return self.set_shapes
+
+    def _set_shapes(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
         sets = self._sets()
         if not sets:
-            return
+            return []
         n = self.n
         lo, hi = self.view_lo, self.view_hi
         rows = [_set_rows(s) for _, s, _ in sets]
@@ -460,39 +594,46 @@ class RecordingContent:
         As = [np.vstack([A, eye]) for A, _ in rows]
         bs = [np.concatenate([b, hi, -lo]) for _, b in rows]
         V = vertices_many(As, bs, _TOL, rtol=_TOL, max_combos=_MAX_COMBOS)
-        for k, ((name, s, color), v) in enumerate(zip(sets, V, strict=True)):
+        self.set_rows = (As, bs)
+        out = []
+        plo, phi = self.plane_window
+        for (name, _, _), v in zip(sets, V, strict=True):
             if v is None or v.shape[0] == 0:
+                out.append((name, None, None))
+            elif self.axes is None:
+                a, b = float(v.min()), float(v.max())
+                band = np.array([[plo[0], a], [phi[0], a], [phi[0], b], [plo[0], b]])
+                out.append((name, v, band if b > a else None))
+            else:
+                poly = outline(v, self.axes)
+                out.append((name, v, None if poly is None else poly[:-1]))
+        return out
+
+    def _log_sets(self, w: EntityWriter) -> None:
+        import rerun as rr
+
+        sets = self._sets()
+        if not sets:
+            return
+        shapes = self.set_polygons()
+        As, bs = self.set_rows
+        for k, ((name, s, color), (_, v, poly)) in enumerate(zip(sets, shapes, strict=True)):
+            if v is None:
                 self.notes.append(f"set {name} is empty inside the view box: not drawn")
                 continue
-            width = 2.5 if name.startswith("unsafe") else 1.5
-            radius = rr.components.Radius.ui_points(width)
-            if n == 1:
-                T = self.horizon
-                a, b = float(v.min()), float(v.max())
-                w.static(
-                    f"/time/{self.states[0]}/{name}",
-                    rr.Boxes2D(
-                        mins=[[0.0, a]],
-                        sizes=[[T, b - a]],
-                        colors=[color],
-                        radii=radius,
-                        labels=[name],
-                        draw_order=-5.0,
-                    ),
-                    1,
-                )
-                continue
-            assert self.axes is not None
-            poly = outline(v, self.axes)
             if poly is not None:
+                initial = name == "initial"
                 w.static(
                     f"/plane/{name}",
                     rr.LineStrips2D(
-                        [poly], colors=[color], radii=radius, labels=[name], draw_order=-5.0
+                        [np.vstack([poly, poly[:1]])],
+                        colors=[color],
+                        radii=rr.components.Radius.ui_points(2.0 if initial else 1.5),
+                        draw_order=30.0 if initial else 0.0,
                     ),
                     1,
                 )
-            if n == 3:
+            if self.n == 3:
                 if s.kind == "box":
                     bl, bh = v.min(axis=0), v.max(axis=0)
                     w.static(
@@ -519,6 +660,51 @@ class RecordingContent:
                             1,
                         )
 
+    def tube_rectangles(self) -> tuple[np.ndarray, np.ndarray]:
+        """The tube's boxes in the plane -> (lower, upper), each (K, 2) (n == 1: time, state)."""
+        tube = self.tube
+        if tube is None or tube.num_boxes == 0:
+            return np.zeros((0, 2)), np.zeros((0, 2))
+        lo = np.asarray(tube.lower, dtype=float)
+        hi = np.asarray(tube.upper, dtype=float)
+        if self.axes is None:
+            ts = np.asarray(tube.t_start, dtype=float)
+            te = np.asarray(tube.t_end, dtype=float)
+            return np.column_stack([ts, lo[:, 0]]), np.column_stack([te, hi[:, 0]])
+        ax = list(self.axes)
+        return lo[:, ax], hi[:, ax]
+
+    def _log_overlay(self, w: EntityWriter) -> None:
+        """Unsafe sets filled (semi-transparent), the tube's footprint over them (at least
+        two pixels wide), where they meet in a third colour: one class image."""
+        import rerun as rr
+
+        shape = (_RASTER, _RASTER)
+        lo, hi = self.plane_window
+        unsafe = [p for nm, _, p in self.set_polygons() if nm.startswith("unsafe")]
+        unsafe = [p for p in unsafe if p is not None]
+        mask_u = raster_polygons(unsafe, lo, hi, shape) > 0 if unsafe else None
+        tl, th = self.tube_rectangles()
+        mask_t = raster_boxes(tl, th, lo, hi, shape) if tl.shape[0] else None
+        if mask_u is None and mask_t is None:
+            return
+        image = np.zeros(shape, dtype=np.uint8)
+        if mask_u is not None:
+            image[mask_u] = 1
+        if mask_t is not None:
+            image[mask_t] = 2
+            if mask_u is not None:
+                image[mask_t & mask_u] = 3
+        infos = [
+            rr.AnnotationInfo(id=0, label="", color=(0, 0, 0, 0)),
+            rr.AnnotationInfo(id=1, label="unsafe set", color=(255, 0, 0, 150)),
+            rr.AnnotationInfo(id=2, label="reachtube", color=_TUBE_FILL),
+            rr.AnnotationInfo(id=3, label="reachtube in an unsafe set", color=(150, 0, 120, 230)),
+        ]
+        w.static("/plane/overlay", rr.AnnotationContext(infos), 0)
+        w.static("/plane/overlay", self._image_transform(shape), 0)
+        w.static("/plane/overlay", rr.SegmentationImage(image, opacity=1.0, draw_order=-5.0), 1)
+
     def _log_tube(self, w: EntityWriter) -> None:
         import rerun as rr
 
@@ -534,15 +720,15 @@ class RecordingContent:
         times, counts = np.unique(ts[order], return_counts=True)
         rows = times.shape[0]
         color = np.tile(np.array(_TUBE, dtype=np.uint8), (rows, 1))
-        if self.axes is not None:
-            ax = list(self.axes)
-            c = 0.5 * (lo[order][:, ax] + hi[order][:, ax])
-            h = 0.5 * (hi[order][:, ax] - lo[order][:, ax])
-            cols = [
-                *rr.Boxes2D.columns(centers=c, half_sizes=h).partition(counts),
-                *rr.Boxes2D.columns(colors=color),
-            ]
-            w.columns("/plane/tube", times, cols, K)
+        radius = np.full(rows, float(rr.components.Radius.ui_points(0.75)), dtype=np.float32)
+        tl, th = self.tube_rectangles()
+        c = 0.5 * (tl[order] + th[order])
+        h = 0.5 * (th[order] - tl[order])
+        cols = [
+            *rr.Boxes2D.columns(centers=c, half_sizes=h).partition(counts),
+            *rr.Boxes2D.columns(colors=color, radii=radius, draw_order=np.full(rows, 20.0)),
+        ]
+        w.columns("/plane/tube", times, cols, K)
         if self.n == 3:
             c = 0.5 * (lo[order] + hi[order])
             h = 0.5 * (hi[order] - lo[order])
@@ -551,17 +737,20 @@ class RecordingContent:
                 *rr.Boxes3D.columns(colors=color),
             ]
             w.columns("/space/tube", times, cols, K)
+        # per state: the hull of the boxes over time, lower and upper bound as step series
+        t_env, lo_env, hi_env = tube_envelope(ts, te, lo, hi)
+        tt = np.repeat(t_env, 2)[1:-1]  # each interval's value at its start and its end
         for i, s in enumerate(self.states):
-            w.static(
-                f"/time/{s}/tube",
-                rr.Boxes2D(
-                    mins=np.column_stack([ts, lo[:, i]]),
-                    sizes=np.column_stack([te - ts, hi[:, i] - lo[:, i]]),
-                    colors=[_TUBE],
-                    radii=rr.components.Radius.ui_points(0.5),
-                ),
-                K,
-            )
+            for side, val in (("lower", lo_env[:, i]), ("upper", hi_env[:, i])):
+                entity = f"/time/{s}/tube/{side}"
+                w.static(
+                    entity,
+                    rr.SeriesLines(colors=[_TUBE[:3]], widths=[2.0], names=[f"tube {side}"]),
+                    0,
+                )
+                v = np.repeat(val, 2)
+                keep = np.isfinite(v)
+                w.columns(entity, tt[keep], [*rr.Scalars.columns(scalars=v[keep])], int(keep.sum()))
 
     def _log_traces(self, w: EntityWriter) -> None:
         import rerun as rr
@@ -571,34 +760,30 @@ class RecordingContent:
             return
         P = tr.X.shape[0]
         ok = np.all(np.isfinite(tr.X), axis=2)  # (P, K) state meaningful
-        names = [f"trace_{p}" for p in range(P)]
-        radius = rr.components.Radius.ui_points(1.0)
-        if self.axes is not None:
-            ax = list(self.axes)
-            strips = [tr.X[p][ok[p]][:, ax] for p in range(P)]
-            w.static(
-                "/plane/traces",
-                rr.LineStrips2D(strips, colors=[_TRACE], radii=radius, labels=names),
-                P,
-            )
+        radius = rr.components.Radius.ui_points(0.75)
+        strips = []
+        for p in range(P):
+            if self.axes is None:
+                strips.append(np.column_stack([tr.t[ok[p]], tr.X[p, ok[p], 0]]))
+            else:
+                strips.append(tr.X[p][ok[p]][:, list(self.axes)])
+        w.static(
+            "/plane/traces",
+            rr.LineStrips2D(strips, colors=[_TRACE], radii=radius, draw_order=10.0),
+            P,
+        )
         if self.n == 3:
             strips3 = [tr.X[p][ok[p]] for p in range(P)]
-            w.static(
-                "/space/traces",
-                rr.LineStrips3D(strips3, colors=[_TRACE], radii=radius, labels=names),
-                P,
-            )
-        for i, s in enumerate(self.states):
-            strips = [np.column_stack([tr.t[ok[p]], tr.X[p, ok[p], i]]) for p in range(P)]
-            w.static(
-                f"/time/{s}/traces",
-                rr.LineStrips2D(strips, colors=[_TRACE], radii=radius, labels=names),
-                P,
-            )
-        colors = _palette(P)
+            w.static("/space/traces", rr.LineStrips3D(strips3, colors=[_TRACE], radii=radius), P)
         for p in range(P):
-            color = tuple(int(c) for c in colors[p])
-            self._log_scalars(w, tr.t, tr.U[p], tr.X[p], tr.alive[p], names[p], color, 1.0)
+            name = f"trace_{p}"
+            for i, s in enumerate(self.states):
+                entity = f"/time/{s}/traces/{p}"
+                w.static(entity, rr.SeriesLines(colors=[_TRACE], widths=[0.75], names=[name]), 0)
+                k = ok[p]
+                cols = [*rr.Scalars.columns(scalars=tr.X[p, k, i])]
+                w.columns(entity, tr.t[k], cols, int(k.sum()))
+            self._log_scalars(w, tr.t, tr.U[p], tr.X[p], tr.alive[p], f"traces/{p}", _TRACE, 0.75)
 
     def _log_scalars(
         self,
@@ -617,12 +802,13 @@ class RecordingContent:
         """
         import rerun as rr
 
+        label = name.replace("traces/", "trace_")
         for j, u_name in enumerate(self.inputs):
             keep = alive & np.isfinite(U[:, j])
             if not np.any(keep):
                 continue
             entity = f"/scalars/u/{u_name}/{name}"
-            w.static(entity, rr.SeriesLines(colors=[color], widths=[width], names=[name]), 0)
+            w.static(entity, rr.SeriesLines(colors=[color], widths=[width], names=[label]), 0)
             w.columns(entity, t[keep], [*rr.Scalars.columns(scalars=U[keep, j])], int(keep.sum()))
         vs = self.problem.verify
         if vs is None or not vs.unsafe:
@@ -632,8 +818,30 @@ class RecordingContent:
         if not np.any(keep):
             return
         entity = f"/scalars/unsafe_distance/{name}"
-        w.static(entity, rr.SeriesLines(colors=[color], widths=[width], names=[name]), 0)
+        w.static(entity, rr.SeriesLines(colors=[color], widths=[width], names=[label]), 0)
         w.columns(entity, t[keep], [*rr.Scalars.columns(scalars=margin[keep])], int(keep.sum()))
+
+    def _log_bounds(self, w: EntityWriter) -> None:
+        """The input bounds in the u(t) views and the zero line of the margin view."""
+        import rerun as rr
+
+        T = np.array([0.0, self.horizon])
+        mpc = self.problem.mpc
+        for j, u_name in enumerate(self.inputs):
+            if not any(k.startswith(f"/scalars/u/{u_name}/") for k in w.entities):
+                continue
+            for side, v in (("min", mpc.u_min[j]), ("max", mpc.u_max[j])):
+                if not np.isfinite(v):
+                    continue
+                entity = f"/scalars/u/{u_name}/bounds/{side}"
+                w.static(
+                    entity, rr.SeriesLines(colors=[_AXIS], widths=[1.5], names=[f"u_{side}"]), 0
+                )
+                w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, float(v)))], 2)
+        if any(k.startswith("/scalars/unsafe_distance/") for k in w.entities):
+            entity = "/scalars/unsafe_distance/zero"
+            w.static(entity, rr.SeriesLines(colors=[_RED], widths=[1.0], names=["0"]), 0)
+            w.columns(entity, T, [*rr.Scalars.columns(scalars=np.zeros(2))], 2)
 
     def _log_counterexample(self, w: EntityWriter) -> None:
         import rerun as rr
@@ -646,92 +854,232 @@ class RecordingContent:
         X = np.asarray(trace.x, dtype=float)
         U = np.asarray(trace.u, dtype=float)
         ok = np.all(np.isfinite(X), axis=1)
-        label = f"counterexample ({cex.kind} at t = {cex.t:.4g} s)"
-        radius = rr.components.Radius.ui_points(3.0)
-        if self.axes is not None:
-            w.static(
-                "/plane/counterexample",
-                rr.LineStrips2D(
-                    [X[ok][:, list(self.axes)]],
-                    colors=[_RED],
-                    radii=radius,
-                    labels=[label],
-                    draw_order=10.0,
-                ),
-                1,
-            )
+        radius = rr.components.Radius.ui_points(2.5)
+        P = np.column_stack([t[ok], X[ok, 0]]) if self.axes is None else X[ok][:, list(self.axes)]
+        w.static(
+            "/plane/counterexample",
+            rr.LineStrips2D([P], colors=[_RED], radii=radius, draw_order=40.0),
+            1,
+        )
+        # the violation, marked where it happens
+        v = np.array([np.interp(cex.t, t[ok], X[ok, k]) for k in range(self.n)])
+        pv = [cex.t, v[0]] if self.axes is None else v[list(self.axes)]
+        w.static(
+            "/plane/counterexample/violation",
+            rr.Points2D(
+                [pv],
+                colors=[_RED],
+                radii=rr.components.Radius.ui_points(6.0),
+                labels=[f"{cex.kind} at t = {cex.t:.4g} s"],
+                draw_order=41.0,
+            ),
+            1,
+        )
         if self.n == 3:
             w.static(
                 "/space/counterexample",
-                rr.LineStrips3D([X[ok]], colors=[_RED], radii=radius, labels=[label]),
+                rr.LineStrips3D([X[ok]], colors=[_RED], radii=radius),
                 1,
             )
         for i, s in enumerate(self.states):
+            entity = f"/time/{s}/counterexample"
             w.static(
-                f"/time/{s}/counterexample",
-                rr.LineStrips2D(
-                    [np.column_stack([t[ok], X[ok, i]])],
-                    colors=[_RED],
-                    radii=radius,
-                    labels=[label],
-                    draw_order=10.0,
-                ),
-                1,
+                entity, rr.SeriesLines(colors=[_RED], widths=[2.5], names=["counterexample"]), 0
             )
+            w.columns(entity, t[ok], [*rr.Scalars.columns(scalars=X[ok, i])], int(ok.sum()))
         alive = np.asarray(trace.region) >= 0
-        self._log_scalars(w, t, U, X, alive, "counterexample", _RED, 3.0)
+        self._log_scalars(w, t, U, X, alive, "counterexample", _RED, 2.5)
 
-    def verdict_text(self) -> str:
-        """The verdict document.
+    def verdict_text(self, *, views: bool = True) -> str:
+        """The verdict document: it tells the story without the other views.
+
+        Parameters
+        ----------
+        views : bool
+            Add how to read the recording's views (the HTML report leaves it out).
 
         Returns
         -------
         str
-            Markdown: problem, verdict, sizes, the counterexample and the notes.
+            Markdown: the verdict and its reason in words, the counterexample (x0, time,
+            kind), sizes (regions, branches, boxes), the tube's width at the horizon,
+            timings, the spec (name, file, hash), the engine version, the command that
+            reproduces it, what the colours mean, and the notes.
         """
+        import hashlib
+
+        from codev_engine.version import __version__
+
         p, law, r = self.problem, self.law, self.result
         lines = [f"# {p.name}", ""]
         if r is None:
-            lines += ["**verdict:** not verified (partition and sets only)", ""]
+            lines += ["## not verified", "", "The partition and the sets only (no tube).", ""]
         else:
-            lines += [f"**verdict:** `{r.verdict}`" + (f" ({r.reason})" if r.reason else ""), ""]
+            lines += [f"## {_VERDICT_WORDS.get(r.verdict, r.verdict)}", ""]
+            lines += [_verdict_sentence(self), ""]
+        cex = self.counterexample
+        if cex is not None:
+            pairs = zip(self.states, np.asarray(cex.x0), strict=True)
+            x0 = ", ".join(f"{s} = {x:.6g}" for s, x in pairs)
+            describe = cex.describe()
+            lines += [
+                "### counterexample",
+                "",
+                f"- what: {describe} (`{cex.kind}`, index {cex.index})",
+                f"- when: t = {cex.t:.6g} s",
+                f"- from: x0 = ({x0})",
+                "- drawn thick red in every view; its end is marked in the plane",
+                "",
+            ]
+        lines += ["### sizes and times", "", "| | |", "|---|---|"]
         lines += [
-            "| | |",
-            "|---|---|",
             f"| states | {', '.join(p.plant.states)} |",
             f"| inputs | {', '.join(p.plant.inputs)} |",
             f"| regions | {law.num_regions} |",
         ]
         if r is not None:
+            branches = r.stats.get("branches", r.stats.get("partitions", "-"))
             lines += [
                 f"| hold | {r.hold} |",
-                f"| reason | {r.reason or '-'} |",
+                f"| branches | {branches} |",
                 f"| tube boxes | {r.tube.num_boxes} |",
-                f"| verification time | {r.seconds:.3f} s |",
             ]
-        if self.axes is not None:
-            a, b = self.axes
-            lines.append(f"| plane axes | {p.plant.states[a]} (x), {p.plant.states[b]} (y) |")
+            if r.tube.num_boxes:
+                width = r.width_at(float(np.max(r.tube.t_end)))
+                text = ", ".join(f"{s} {x:.3g}" for s, x in zip(self.states, width, strict=True))
+                lines.append(f"| tube width at t = {float(np.max(r.tube.t_end)):.4g} s | {text} |")
+            lines.append(f"| verification time | {r.seconds:.3f} s |")
+        if "seconds" in law.meta:
+            lines.append(f"| synthesis time | {float(law.meta['seconds']):.3f} s |")
         lines.append(f"| simulated traces | {self.num_traces} |")
-        cex = self.counterexample
-        if cex is not None:
-            x0 = np.array2string(np.asarray(cex.x0), precision=6, separator=", ")
-            lines += [
-                "",
-                "## counterexample",
-                "",
-                f"- kind: `{cex.kind}` (index {cex.index})",
-                f"- time: {cex.t:.6g} s",
-                f"- x0: `{x0}`",
-            ]
+        digest = hashlib.sha256(p.source.encode()).hexdigest()[:12] if p.source else "-"
+        lines += [
+            "",
+            "### provenance",
+            "",
+            f"- spec: `{p.path or '(built in code)'}`, sha256 `{digest}…`",
+            f"- engine: codev {__version__}",
+        ]
+        if p.path and p.path != "<string>":
+            lines.append(f"- reproduce: `codev run {p.path} --record OUT.rrd`")
+        if not views:
+            if self.notes:
+                lines += ["", "### notes", ""] + [f"- {s}" for s in self.notes]
+            return "\n".join(lines) + "\n"
+        xname, yname = self.plane_names
+        where = f"{xname} → right, {yname} ↑ up"
+        if self.n > 2:
+            s0 = self.slice_point()
+            assert s0 is not None and self.axes is not None
+            rest = ", ".join(
+                f"{self.states[k]} = {s0[k]:.3g}" for k in range(self.n) if k not in self.axes
+            )
+            where += f"; regions: the section at {rest}; sets, tube and traces: projections"
+        lines += [
+            "",
+            "### how to read the views",
+            "",
+            f"- **plane** ({where}), scaled to a square: regions filled (hover for the id "
+            "`R<i>`), unsafe sets red, the tube orange (at least two pixels wide), the "
+            "initial set blue, traces grey, the counterexample red",
+            "- **state views**: each state against time, the tube's lower and upper bound "
+            "orange, traces grey, the counterexample red",
+            "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "
+            "nearest unsafe set, 0 marked red (below 0 is inside)",
+        ]
         if self.notes:
-            lines += ["", "## notes", ""] + [f"- {s}" for s in self.notes]
+            lines += ["", "### notes", ""] + [f"- {s}" for s in self.notes]
         return "\n".join(lines) + "\n"
 
     def _log_verdict(self, w: EntityWriter) -> None:
         import rerun as rr
 
         w.static("/verdict", rr.TextDocument(self.verdict_text(), media_type="text/markdown"), 1)
+
+
+_VERDICT_WORDS = {
+    "robustly_safe": "verdict: ROBUSTLY SAFE",
+    "unsafe": "verdict: UNSAFE",
+    "unknown": "verdict: UNKNOWN",
+}
+
+
+def _verdict_sentence(content: RecordingContent) -> str:
+    """One sentence: what the verdict means for this design."""
+    r = content.result
+    assert r is not None
+    T = content.horizon
+    if r.verdict == "robustly_safe":
+        return (
+            f"Every closed-loop trajectory from the initial set stays out of the unsafe sets "
+            f"(and inside the law's domain) up to t = {T:.4g} s: the tube of "
+            f"{r.tube.num_boxes} boxes contains them all."
+        )
+    cex = r.counterexample
+    if r.verdict == "unsafe" and cex is not None:
+        describe = cex.describe()
+        return (
+            f"A trajectory from the initial set {describe} at t = {cex.t:.4g} s; it is "
+            "replayable (x0 below)."
+        )
+    return f"The verifier could not decide: {r.reason or 'no reason given'}."
+
+
+def tube_envelope(
+    t_start: np.ndarray, t_end: np.ndarray, lower: np.ndarray, upper: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The hull of a tube's boxes over time, per state, as a step function.
+
+    On each interval between consecutive box end points the bound is the minimum of the
+    ``lower`` (the maximum of the ``upper``) of the boxes that cover it: it contains every
+    box, so every trajectory the tube contains. Intervals that no box covers are NaN.
+
+    Parameters
+    ----------
+    t_start, t_end : (K,) ndarray
+    lower, upper : (K, n) ndarray
+
+    Returns
+    -------
+    t : (B,) ndarray
+        The breakpoints (sorted, distinct).
+    lo, hi : (B - 1, n) ndarray
+        The bounds on ``[t[k], t[k + 1]]``.
+    """
+    t = np.unique(np.concatenate([t_start, t_end]))
+    n = lower.shape[1]
+    B = t.shape[0]
+    lo = np.full((max(B - 1, 0), n), np.inf)
+    hi = np.full((max(B - 1, 0), n), -np.inf)
+    if B >= 2:
+        a = np.searchsorted(t, t_start)
+        b = np.searchsorted(t, t_end)
+        length = np.maximum(b - a, 0)
+        box = np.repeat(np.arange(t_start.shape[0]), length)
+        first = np.repeat(a - np.cumsum(np.r_[0, length[:-1]]), length)
+        seg = first + np.arange(box.shape[0])
+        np.minimum.at(lo, seg, lower[box])
+        np.maximum.at(hi, seg, upper[box])
+    lo[~np.isfinite(lo)] = np.nan
+    hi[~np.isfinite(hi)] = np.nan
+    return t, lo, hi
+
+
+def _ticks(lo: float, hi: float, k: int = 5) -> np.ndarray:
+    """About ``k`` round values in ``[lo, hi]``."""
+    span = hi - lo
+    if not (np.isfinite(span) and span > 0):
+        return np.array([lo])
+    raw = span / k
+    mag = 10.0 ** np.floor(np.log10(raw))
+    step = mag * min((s for s in (1.0, 2.0, 2.5, 5.0, 10.0) if s * mag >= raw), default=10.0)
+    first = np.ceil(lo / step) * step
+    ticks = np.arange(first, hi + 1e-9 * step, step)
+    return np.where(np.abs(ticks) < 1e-9 * step, 0.0, ticks)
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.4g}"
 
 
 def _set_rows(s: SetSpec) -> tuple[np.ndarray, np.ndarray]:
@@ -784,7 +1132,10 @@ def _ns(t: np.ndarray) -> np.ndarray:
 
 
 def _palette(k: int) -> np.ndarray:
-    """``k`` well-separated colours (golden-ratio hues) -> (k, 3) uint8."""
+    """``k`` muted, well-separated colours (golden-ratio hues, two lightness levels
+    alternating) -> (k, 3) uint8: light enough that the sets, the tube and the traces read
+    on top of them."""
     hues = (np.arange(k) * 0.618033988749895) % 1.0
-    rgb = [colorsys.hsv_to_rgb(h, 0.55, 0.92) for h in hues]
+    val = np.where(np.arange(k) % 2 == 0, 0.95, 0.84)
+    rgb = [colorsys.hsv_to_rgb(h, 0.30, v) for h, v in zip(hues, val, strict=True)]
     return (np.array(rgb, dtype=float).reshape(k, 3) * 255).round().astype(np.uint8)

@@ -1,8 +1,15 @@
-"""What a polytope looks like drawn: its outline in a plane, its triangle mesh in space.
+"""What a polytope looks like drawn: its outline in a plane, its triangle mesh in space,
+its pixels in a raster of the plane.
 
-Both are built from the polytope's vertices (:mod:`codev_engine.geometry.vertices`) with
+All are built from the polytope's vertices (:mod:`codev_engine.geometry.vertices`) with
 numpy; only the outline of a projection of a polytope of more than two dimensions calls
-Qhull (SciPy's 2-D convex hull). Used by the recordings (``codev_engine.view.records``).
+Qhull (SciPy's 2-D convex hull). Used by the recordings (``codev_engine.view.records``):
+the partition is a region-index image (:func:`raster_polygons`), the filled sets and the
+tube's footprint are masks (:func:`raster_polygons`, :func:`raster_boxes`).
+
+A raster of the window ``[lo, hi]`` with ``(H, W)`` pixels has pixel ``(r, c)`` covering
+``[lo_0 + c dx, lo_0 + (c + 1) dx] x [lo_1 + r dy, lo_1 + (r + 1) dy]`` (row 0 at the
+bottom, ``lo_1``); a pixel belongs to a polygon when its centre does.
 """
 
 from __future__ import annotations
@@ -11,7 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["meshes", "outline"]
+__all__ = ["meshes", "outline", "raster_boxes", "raster_polygons"]
 
 
 def outline(V: np.ndarray, axes: tuple[int, int]) -> np.ndarray | None:
@@ -142,3 +149,121 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
         ]
     )
+
+
+def raster_polygons(
+    polys: Sequence[np.ndarray],
+    lo: np.ndarray,
+    hi: np.ndarray,
+    shape: tuple[int, int],
+    values: np.ndarray | None = None,
+) -> np.ndarray:
+    """Rasterise convex polygons: each pixel whose centre is in polygon ``k`` gets ``values[k]``.
+
+    Each polygon is tested only on the pixels of its bounding box (the work is the sum of
+    the boxes' pixel counts times the edges: a partition of 10^3 regions at 600 x 600 in
+    tens of milliseconds). Later polygons overwrite earlier ones where they overlap.
+
+    Parameters
+    ----------
+    polys : sequence of (v_k, 2) ndarray
+        Convex polygons, vertices in order (either orientation).
+    lo, hi : (2,) ndarray
+        The window.
+    shape : (int, int)
+        ``(H, W)`` pixels.
+    values : (p,) ndarray of int, optional
+        The value of each polygon's pixels (default ``k + 1``); the rest is 0.
+
+    Returns
+    -------
+    (H, W) ndarray
+        ``uint32``; row 0 is the bottom of the window (``lo[1]``).
+    """
+    H, W = int(shape[0]), int(shape[1])
+    out = np.zeros((H, W), dtype=np.uint32)
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    dx, dy = (hi[0] - lo[0]) / W, (hi[1] - lo[1]) / H
+    if not (dx > 0 and dy > 0):
+        return out
+    vals = np.arange(1, len(polys) + 1) if values is None else np.asarray(values)
+    for k, P in enumerate(polys):
+        P = np.asarray(P, dtype=float)
+        if P.shape[0] < 3:
+            continue
+        c0 = max(int(np.floor((P[:, 0].min() - lo[0]) / dx - 0.5)), 0)
+        c1 = min(int(np.ceil((P[:, 0].max() - lo[0]) / dx - 0.5)), W - 1)
+        r0 = max(int(np.floor((P[:, 1].min() - lo[1]) / dy - 0.5)), 0)
+        r1 = min(int(np.ceil((P[:, 1].max() - lo[1]) / dy - 0.5)), H - 1)
+        if c1 < c0 or r1 < r0:
+            continue
+        xs = lo[0] + (np.arange(c0, c1 + 1) + 0.5) * dx
+        ys = lo[1] + (np.arange(r0, r1 + 1) + 0.5) * dy
+        E = np.roll(P, -1, axis=0) - P  # edges
+        # signed area: orient the edge test so "inside" is >= 0
+        area2 = np.sum(P[:, 0] * np.roll(P[:, 1], -1) - np.roll(P[:, 0], -1) * P[:, 1])
+        sign = 1.0 if area2 >= 0 else -1.0
+        inside = np.ones((ys.size, xs.size), dtype=bool)
+        for e in range(P.shape[0]):
+            cross = E[e, 0] * (ys[:, None] - P[e, 1]) - E[e, 1] * (xs[None, :] - P[e, 0])
+            inside &= sign * cross >= -1e-12 * (1.0 + np.abs(E[e]).max())
+        block = out[r0 : r1 + 1, c0 : c1 + 1]
+        block[inside] = vals[k]
+    return out
+
+
+def raster_boxes(
+    lower: np.ndarray,
+    upper: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    shape: tuple[int, int],
+    *,
+    min_pixels: int = 2,
+) -> np.ndarray:
+    """The union of boxes as a mask, each box at least ``min_pixels`` wide and high.
+
+    One pass for all boxes (a 2-D difference array: +1/-1 at the corners, then cumulative
+    sums): 10^4 boxes in a few milliseconds. A box narrower than ``min_pixels`` is widened
+    about its centre, so a thin tube stays visible (the picture, not the data: the boxes
+    themselves are logged unchanged).
+
+    Parameters
+    ----------
+    lower, upper : (K, 2) ndarray
+        The boxes.
+    lo, hi : (2,) ndarray
+        The window.
+    shape : (int, int)
+        ``(H, W)`` pixels.
+    min_pixels : int
+        The least width and height of a box in pixels.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        Row 0 is the bottom of the window.
+    """
+    H, W = int(shape[0]), int(shape[1])
+    lower = np.asarray(lower, dtype=float).reshape(-1, 2)
+    upper = np.asarray(upper, dtype=float).reshape(-1, 2)
+    lo = np.asarray(lo, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    size = np.array([W, H], dtype=float)
+    if lower.shape[0] == 0 or not np.all(hi > lo):
+        return np.zeros((H, W), dtype=bool)
+    a = (lower - lo) / (hi - lo) * size  # pixel coordinates
+    b = (upper - lo) / (hi - lo) * size
+    mid, half = 0.5 * (a + b), np.maximum(0.5 * (b - a), 0.5 * min_pixels)
+    ok = np.all(np.isfinite(mid) & np.isfinite(half), axis=1)
+    i0 = np.clip(np.floor(mid - half), 0, size).astype(int)[ok]
+    i1 = np.clip(np.ceil(mid + half), 0, size).astype(int)[ok]
+    keep = np.all(i1 > i0, axis=1)
+    i0, i1 = i0[keep], i1[keep]
+    diff = np.zeros((H + 1, W + 1), dtype=np.int32)
+    np.add.at(diff, (i0[:, 1], i0[:, 0]), 1)
+    np.add.at(diff, (i0[:, 1], i1[:, 0]), -1)
+    np.add.at(diff, (i1[:, 1], i0[:, 0]), -1)
+    np.add.at(diff, (i1[:, 1], i1[:, 0]), 1)
+    return np.cumsum(np.cumsum(diff, axis=0), axis=1)[:H, :W] > 0

@@ -14,8 +14,10 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import shutil
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
@@ -340,6 +342,128 @@ def test_view_print_only_and_no_display(base, capsys, monkeypatch):
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     code, out2, _ = cli(capsys, "view", rrd)
     assert code == 0 and "no display" in out2.lower() and str(rrd) in out2
+
+
+def test_report_from_a_session(base, tmp_path, capsys):
+    d = base[0]
+    before = sorted(p.name for p in (d / "artifacts").iterdir())
+    out_file = tmp_path / "r" / "di.html"
+    code, out, err = cli(capsys, "report", d, "--out", out_file, "--traces", "2")
+    assert code == 0, err
+    assert f"report written to {out_file}" in out
+    text = out_file.read_text()
+    assert text.startswith("<!DOCTYPE html>") and text.count("<figure") == 3
+    assert "ROBUSTLY SAFE" in text
+    assert sorted(p.name for p in (d / "artifacts").iterdir()) == before  # nothing computed
+    code, _, err = cli(capsys, "report", d, "--out", tmp_path / "r.pdf")
+    assert code == 2 and "--out" in one_error_line(err)
+
+
+def test_report_from_a_session_without_a_law(tmp_path, capsys):
+    from codev_engine.session import Session
+
+    d = tmp_path / "s"
+
+    session = Session.create(d)
+    session.save_spec(ce_load(DI_PATH))
+    code, _, err = cli(capsys, "report", d)
+    assert code == 2 and "codev run" in one_error_line(err)
+
+
+def ce_load(path: Path):
+    import codev_engine as ce
+
+    return ce.load_spec(path)
+
+
+def _gone(pid: int, seconds: float = 5.0) -> bool:
+    """Has process ``pid`` exited (absent, or a zombie waiting for its reaper)?"""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (FileNotFoundError, ProcessLookupError):
+            return True
+        if state == "Z":
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
+def test_run_viewer_stops_what_it_started(tmp_path):
+    """A viewer that leaves a child behind (as the rerun script leaves its server) has the
+    child stopped when codev's wait ends."""
+    from workbench.cli import run_viewer
+
+    pidfile = tmp_path / "pid"
+    code = run_viewer(["sh", "-c", f"sleep 300 & echo $! > {pidfile}; exit 3"], grace=2.0)
+    assert code == 3
+    assert _gone(int(pidfile.read_text()))
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
+def test_view_web_ctrl_c_leaves_no_server(base, tmp_path):
+    """``codev view --web``, then Ctrl-C: the rerun script and its server are gone."""
+    import signal
+    import socket
+    import subprocess
+    import sys
+
+    rrd = Path(base[1]["recording"])
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "workbench.cli", "view", "--web", "--port", str(port), str(rrd)],
+        start_new_session=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        up = False
+        while time.monotonic() < deadline and not up:
+            with socket.socket() as s:
+                up = s.connect_ex(("127.0.0.1", port)) == 0
+            time.sleep(0.2)
+        assert up, "the web viewer did not start"
+        group = [
+            int(p.name)
+            for p in Path("/proc").iterdir()
+            if p.name.isdigit()
+            and _pgid(int(p.name)) not in (None, proc.pid, os.getpgid(0))
+            and _ancestor(int(p.name), proc.pid)
+        ]
+        assert group, "the viewer runs in a process group of its own"
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 130
+        assert all(_gone(pid) for pid in group)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _pgid(pid: int) -> int | None:
+    try:
+        return os.getpgid(pid)
+    except ProcessLookupError:
+        return None
+
+
+def _ancestor(pid: int, root: int) -> bool:
+    """Is ``root`` an ancestor of ``pid``?"""
+    for _ in range(20):
+        try:
+            pid = int(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[1])
+        except (FileNotFoundError, ValueError, IndexError):
+            return False
+        if pid == root:
+            return True
+        if pid <= 1:
+            return False
+    return False
 
 
 # --------------------------------------------------------------------------------------------

@@ -36,11 +36,14 @@ DI_TEXT = (ROOT / "examples" / "double_integrator.toml").read_text()
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 # plus a half-plane in the (x1, x2) plane, far from the tube (drawn, never entered)
-UNSAFE_AND_HALF_PLANE = UNSAFE_ON_PATH + """
+UNSAFE_AND_HALF_PLANE = (
+    UNSAFE_ON_PATH
+    + """
 [[verify.unsafe]]
 A = [[1.0, 1.0]]
 b = [-7.0]
 """
+)
 
 
 def _axes() -> matplotlib.axes.Axes:
@@ -286,8 +289,16 @@ def test_plot_tube_draws_the_boxes_and_the_safe_bound(di, results):
     bands = figures.merge_bands(tube.t_start, tube.t_end, tube.lower[:, 0], tube.upper[:, 0])
     verts = _boxes_patch(ax).get_path().vertices.reshape(-1, 5, 2)
     assert verts.shape[0] == bands.shape[0] > 0
-    np.testing.assert_allclose(verts[:, 0], bands[:, [0, 2]])
-    np.testing.assert_allclose(verts[:, 2], bands[:, [1, 3]])
+    # each band drawn as itself, or widened about its centre to 1 % of the axis (visible)
+    least = 0.01 * np.ptp(ax.get_ylim())
+    lo, hi = verts[:, 0], verts[:, 2]
+    np.testing.assert_allclose(lo[:, 0], bands[:, 0])
+    np.testing.assert_allclose(hi[:, 0], bands[:, 1])
+    assert np.all(lo[:, 1] <= bands[:, 2] + 1e-12) and np.all(hi[:, 1] >= bands[:, 3] - 1e-12)
+    assert np.all(hi[:, 1] - lo[:, 1] >= least * (1 - 1e-9))
+    tall = bands[:, 3] - bands[:, 2] >= least
+    np.testing.assert_allclose(lo[tall, 1], bands[tall, 2])
+    np.testing.assert_allclose(0.5 * (lo[:, 1] + hi[:, 1]), bands[:, 2:].mean(axis=1))
     assert ax.get_ylim()[0] <= tube.lower[:, 0].min() and ax.get_ylim()[1] >= 10.0
     # the safe set's bound x1 <= 10 is in view: a horizontal line at 10
     assert any(np.allclose(line.get_ydata(), 10.0) for line in ax.lines)
@@ -327,8 +338,15 @@ def test_plane_of_a_3d_result_with_its_law(example_law):
     ax = figures.plot_plane(result, _axes(), axes=(0, 2), problem=problem, law=law)
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("x1", "x3")
     verts = _boxes_patch(ax).get_path().vertices.reshape(-1, 5, 2)
-    lo = verts[:, 0]
-    assert np.isin(result.tube.lower[:, 0], lo[:, 0]).all()
+    lo, hi = verts[:, 0], verts[:, 2]
+    # every box is drawn, as itself or widened about its centre (0.6 % of the view at least)
+    want_lo, want_hi = result.tube.lower[:, [0, 2]], result.tube.upper[:, [0, 2]]
+    covered = np.all(
+        (lo[None] <= want_lo[:, None] + 1e-12) & (hi[None] >= want_hi[:, None] - 1e-12), axis=2
+    )
+    assert covered.any(axis=1).all()
+    span = np.array([np.ptp(ax.get_xlim()), np.ptp(ax.get_ylim())])
+    assert np.all(hi - lo >= 0.006 * span * (1 - 1e-9))
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert "initial set" in labels and any(s.startswith("counterexample") for s in labels)
     with pytest.raises(ValueError, match="axes"):
@@ -396,3 +414,34 @@ def test_result_repr_is_quick_for_a_large_tube():
     seconds = time.perf_counter() - t0
     assert "unknown (max_depth)" in bundle["text/html"]
     assert seconds < 6.0, f"{K} boxes displayed in {seconds:.2f} s"
+
+
+def test_bare_result_display_has_state_names_and_obstacles(results, tmp_path, monkeypatch):
+    """A result of ``verify`` displays with its spec (names, sets): ``verify`` attaches it;
+    a result loaded from a file has none and falls back to ``x[i]``."""
+    from codev_engine.display import context
+
+    result, problem = results["unsafe"], results["unsafe_problem"]
+    assert context(result)["problem"] is problem and "law" in context(result)
+    drawn = []
+    real = figures.figure_result
+    monkeypatch.setattr(
+        figures, "figure_result", lambda r, *a, **k: drawn.append(real(r, *a, **k)) or drawn[-1]
+    )
+    result._repr_png_()
+    (fig,) = drawn
+    labels = [a.get_ylabel() for a in fig.axes]
+    assert labels[:2] == ["x1", "x2"]
+    plane = fig.axes[-1]
+    assert plane.get_xlabel() == "x1"
+    texts = [t.get_text() for t in plane.get_legend().get_texts()]
+    assert "unsafe" in texts and any(t.startswith("counterexample") for t in texts)
+    # the set the counterexample enters is in view
+    box = problem.verify.unsafe[0]
+    (x0, x1), (y0, y1) = plane.get_xlim(), plane.get_ylim()
+    assert x0 <= box.lower[0] and box.upper[0] <= x1 and y0 <= box.lower[1] <= y1
+    loaded = VerificationResult.load(result.save(tmp_path / "r.npz"))
+    assert context(loaded) == {} and loaded.verdict == result.verdict
+    drawn.clear()
+    loaded._repr_png_()
+    assert drawn[0].axes[0].get_ylabel() == "x[0]"

@@ -173,20 +173,56 @@ def test_summary_is_consistent(di, di_recording):
     assert check_for_rrd_footer(str(summary.path))
 
 
+def view_kinds(path: Path) -> dict[str, str]:
+    """Display name -> view class (``2D``, ``3D``, ``TimeSeries``, ``TextDocument``)."""
+    reader = RrdReader(path)
+    out = {}
+    for store in reader.blueprints():
+        for chunk in reader.stream(store=store).to_chunks():
+            rb = chunk.to_record_batch()
+            if "ViewBlueprint:class_identifier" in rb.schema.names:
+                kinds = rb.column("ViewBlueprint:class_identifier").to_pylist()
+                names = rb.column("ViewBlueprint:display_name").to_pylist()
+                for k, n in zip(kinds, names, strict=True):
+                    out[(n or ["?"])[0]] = k[0]
+    return out
+
+
+def segmentation(entities: dict[str, Entity], path: str):
+    """(image (H, W), class id -> label, pixel -> true coordinates (scale, translation))."""
+    e = entities[path]
+    fmt = e.per_row("SegmentationImage:format")[0][0]
+    buf = np.asarray(e.per_row("SegmentationImage:buffer")[0][0], dtype=np.uint8)
+    dtype = {6: np.uint8, 8: np.uint16}[fmt["channel_datatype"]]
+    image = buf.view(dtype).reshape(fmt["height"], fmt["width"])
+    ctx = e.per_row("AnnotationContext:context")[0][0]
+    labels = {c["class_id"]: c["class_description"]["info"]["label"] for c in ctx}
+    scale = np.array(e.per_row("Transform3D:scale")[0][0], dtype=float)
+    shift = np.array(e.per_row("Transform3D:translation")[0][0], dtype=float)
+    return image, labels, scale, shift
+
+
 def test_entity_layout(di_recording):
     summary, entities = di_recording
     expected = {
+        "/plane",
         "/plane/regions",
+        "/plane/edges",
+        "/plane/overlay",
+        "/plane/axes/ticks",
         "/plane/initial",
         "/plane/safe/0",
         "/plane/tube",
         "/plane/traces",
-        "/time/x1/tube",
-        "/time/x2/tube",
-        "/time/x1/traces",
-        "/time/x2/traces",
-        "/scalars/u/u/trace_0",
-        "/scalars/u/u/trace_15",
+        "/time/x1/tube/lower",
+        "/time/x1/tube/upper",
+        "/time/x2/tube/lower",
+        "/time/x1/traces/0",
+        "/time/x2/traces/15",
+        "/scalars/u/u/traces/0",
+        "/scalars/u/u/traces/15",
+        "/scalars/u/u/bounds/min",
+        "/scalars/u/u/bounds/max",
         "/verdict",
     }
     assert expected <= set(entities)
@@ -194,8 +230,36 @@ def test_entity_layout(di_recording):
     assert not any("counterexample" in k for k in entities)
     # no unsafe sets: no margin series
     assert not any(k.startswith("/scalars/unsafe_distance") for k in entities)
-    for k in ("/plane/regions", "/plane/traces", "/time/x1/tube", "/verdict"):
+    for k in ("/plane/regions", "/plane/traces", "/verdict"):
         assert entities[k].static
+    # the plane's transform shows the window as a unit square with y up
+    scale = np.array(entities["/plane"].per_row("Transform3D:scale")[0][0])
+    assert scale[0] > 0 > scale[1]
+
+
+def test_state_series_on_the_time_timeline(di, di_recording):
+    """Each state's tube bounds and each trace are scalar series on ``time``, and the
+    bounds contain every box of the tube."""
+    _, _, result = di
+    _, entities = di_recording
+    tube = result.tube
+    for i, s in enumerate(("x1", "x2")):
+        lo, hi = entities[f"/time/{s}/tube/lower"], entities[f"/time/{s}/tube/upper"]
+        assert lo.instances("Scalars:scalars") == len(lo.time) > 0
+        t = lo.time / 1e9
+        vlo, vhi = lo.values("Scalars:scalars"), hi.values("Scalars:scalars")
+        assert np.array_equal(lo.time, hi.time) and np.all(np.diff(lo.time) >= 0)
+        assert t[0] == pytest.approx(tube.t_start.min()) and t[-1] == pytest.approx(9.0)
+        # a step function: each box is inside the bounds over its interval (float32 file)
+        for k in range(0, tube.num_boxes, 37):
+            mid = 0.5 * (tube.t_start[k] + tube.t_end[k])
+            j = np.searchsorted(t, mid)  # rows come in (start, end) pairs of an interval
+            assert vlo[j] <= tube.lower[k, i] + 1e-5 and vhi[j] >= tube.upper[k, i] - 1e-5
+        styles = lo.per_row("SeriesLines:names")
+        assert styles == [["tube lower"]]
+        tr = entities[f"/time/{s}/traces/0"]
+        assert tr.instances("Scalars:scalars") == len(tr.time) > 10
+        assert tr.values("Scalars:scalars")[0] == pytest.approx([9.0, -5.0][i], abs=1e-6)
 
 
 def test_tube_boxes_and_times(di, di_recording):
@@ -220,28 +284,30 @@ def test_tube_boxes_and_times(di, di_recording):
     got = np.unique(np.round(np.hstack([c - h, c + h]), 5), axis=0)
     want = np.unique(np.round(np.hstack([tube.lower, tube.upper]), 5), axis=0)
     assert np.allclose(got, want, atol=1e-4)  # float32 in the file
-    # per-state views: [t_start, t_end] x [lower_i, upper_i]
-    for i, s in enumerate(("x1", "x2")):
-        b = entities[f"/time/{s}/tube"]
-        assert b.instances("Boxes2D:half_sizes") == tube.num_boxes
-        c = b.values("Boxes2D:centers").reshape(-1, 2)
-        h = b.values("Boxes2D:half_sizes").reshape(-1, 2)
-        assert np.allclose(np.sort(c[:, 0] - h[:, 0]), np.sort(tube.t_start), atol=1e-5)
-        assert np.allclose(np.sort(c[:, 1] + h[:, 1]), np.sort(tube.upper[:, i]), atol=1e-4)
 
 
-def test_partition_strips(di, di_recording):
+def test_partition_filled(di, di_recording):
+    """The partition is a region-index image: one class per region (labelled ``R<i>``),
+    every pixel's centre inside the region it names, every region with area on it."""
     _, law, _ = di
     summary, entities = di_recording
-    e = entities["/plane/regions"]
-    assert len(e.per_row("LineStrips2D:strips")[0]) == law.num_regions
+    image, labels, scale, shift = segmentation(entities, "/plane/regions")
     assert summary.entities["/plane/regions"] == law.num_regions
-    labels = e.per_row("LineStrips2D:labels")[0]
-    assert labels == [f"R{i}" for i in range(law.num_regions)]
-    for i, strip in enumerate(e.per_row("LineStrips2D:strips")[0]):
-        P = np.array(strip, dtype=float)
-        assert P.shape[0] >= 4 and np.allclose(P[0], P[-1])  # closed, >= 3 corners
-        assert np.all(P @ law.A[i].T <= law.b[i] + 1e-4)  # the corners are in region i
+    assert labels[0] and all(labels[i + 1] == f"R{i}" for i in range(law.num_regions))
+    H, W = image.shape
+    ids = np.unique(image)
+    assert set(ids.tolist()) - {0} == set(range(1, law.num_regions + 1))  # all regions show
+    rng = np.random.default_rng(0)
+    rows, cols = np.nonzero(image)
+    pick = rng.choice(rows.size, 2000, replace=False)
+    for r, c in zip(rows[pick], cols[pick], strict=True):
+        x = shift[:2] + (np.array([c, r]) + 0.5) * scale[:2]
+        i = int(image[r, c]) - 1
+        assert np.all(law.A[i] @ x <= law.b[i] + 1e-6 * (1 + np.abs(law.b[i])) + 1e-3)
+    # outlines on top, without labels
+    edges = entities["/plane/edges"]
+    assert len(edges.per_row("LineStrips2D:strips")[0]) == law.num_regions
+    assert "LineStrips2D:labels" not in edges.columns
 
 
 def test_traces_and_scalars(di_recording):
@@ -249,23 +315,32 @@ def test_traces_and_scalars(di_recording):
     strips = entities["/plane/traces"].per_row("LineStrips2D:strips")[0]
     assert len(strips) == 16
     assert np.allclose(np.array(strips[0])[0], [9.0, -5.0], atol=1e-6)  # the centre first
-    u = entities["/scalars/u/u/trace_0"]
-    assert len(u.time) == summary.entities["/scalars/u/u/trace_0"] > 0  # + 1 static row
+    assert "LineStrips2D:labels" not in entities["/plane/traces"].columns  # no label each
+    u = entities["/scalars/u/u/traces/0"]
+    assert len(u.time) == summary.entities["/scalars/u/u/traces/0"] > 0  # + 1 static row
     assert np.all(np.diff(u.time) >= 0) and u.time[-1] == ns(9.0)
     values = u.values("Scalars:scalars")
     assert np.all(np.abs(values) <= 1.0 + 1e-6)  # u_min, u_max
+    assert np.allclose(entities["/scalars/u/u/bounds/max"].values("Scalars:scalars"), 1.0)
+    assert np.allclose(entities["/scalars/u/u/bounds/min"].values("Scalars:scalars"), -1.0)
 
 
 def test_verdict_and_blueprint(di, di_recording):
-    _, _, result = di
+    problem, _, result = di
     summary, entities = di_recording
     text = entities["/verdict"].per_row("TextDocument:text")[0][0]
-    assert result.verdict in text and f"| tube boxes | {result.tube.num_boxes} |" in text
+    assert "ROBUSTLY SAFE" in text and f"| tube boxes | {result.tube.num_boxes} |" in text
+    assert "tube width at t = 9 s" in text and "codev 0." in text and "sha256" in text
+    assert "| branches |" in text and "stays out of the unsafe sets" in text
     reader = RrdReader(summary.path)
     assert len(reader.recordings()) == 1 and len(reader.blueprints()) == 1
-    names = view_names(summary.path)
-    assert any(n.startswith("plane") for n in names)
-    assert {"verdict", "u(t)", "x1(t) (↓ increasing)", "x2(t) (↓ increasing)"} <= set(names)
+    kinds = view_kinds(summary.path)
+    plane = [n for n in kinds if n.startswith("plane")]
+    assert len(plane) == 1 and kinds[plane[0]] == "2D"
+    assert kinds["verdict"] == "TextDocument"
+    assert kinds["u(t), bounds black"] == "TimeSeries"
+    states = [n for n in kinds if n.startswith(("x1(t)", "x2(t)"))]
+    assert len(states) == 2 and all(kinds[n] == "TimeSeries" for n in states)
 
 
 # ---------------------------------------------------------------------------------------
@@ -284,13 +359,21 @@ def test_three_states_magnetic_pointer(magnetic, tmp_path):
     T = mesh.values("Mesh3D:triangle_indices").reshape(-1, 3).astype(int)
     assert T.size and T.max() < V.shape[0]
     assert mesh.instances("Mesh3D:vertex_colors") == V.shape[0]
-    assert summary.entities["/space/regions"] == law.num_regions  # every region meshed
-    # the projection onto (x1, x2) keeps one outline per region
-    assert len(entities["/plane/regions"].per_row("LineStrips2D:strips")[0]) == law.num_regions
-    for k in ("/space/tube", "/space/traces", "/space/initial", "/space/safe/0", "/time/x3/tube"):
+    # the plane is the section through the initial set's centre: a subset of the regions
+    image, labels, scale, shift = segmentation(entities, "/plane/regions")
+    assert 0 < summary.entities["/plane/regions"] < law.num_regions
+    x3 = 0.5 * (problem.verify.initial_lower[2] + problem.verify.initial_upper[2])
+    rows, cols = np.nonzero(image)
+    for r, c in list(zip(rows, cols, strict=True))[::997]:
+        xy = shift[:2] + (np.array([c, r]) + 0.5) * scale[:2]
+        i = int(image[r, c]) - 1
+        x = np.array([xy[0], xy[1], x3])
+        assert np.all(law.A[i] @ x <= law.b[i] + 1e-3)
+    for k in ("/space/tube", "/space/traces", "/space/initial", "/space/safe/0"):
         assert k in entities, k
+    assert "/time/x3/tube/upper" in entities
     assert entities["/space/tube"].instances("Boxes3D:half_sizes") == result.tube.num_boxes
-    assert any(n == "state space" for n in view_names(summary.path))
+    assert view_kinds(summary.path)["state space"] == "3D"
 
 
 def test_projection_axes(magnetic, tmp_path):
@@ -303,6 +386,8 @@ def test_projection_axes(magnetic, tmp_path):
     assert np.allclose(box.min(axis=0), [lo[2], lo[0]], atol=1e-6)
     assert np.allclose(box.max(axis=0), [hi[2], hi[0]], atol=1e-6)
     assert "/plane/traces" not in entities and summary.traces == 0
+    ticks = entities["/plane/axes/ticks"].per_row("Points2D:labels")[0]
+    assert "x3 →" in ticks and "x1 ↑" in ticks
 
 
 def test_counterexample(unsafe_case):
@@ -316,20 +401,31 @@ def test_counterexample(unsafe_case):
     for k in (
         "/time/x1/counterexample",
         "/time/x2/counterexample",
+        "/plane/counterexample/violation",
         "/scalars/u/u/counterexample",
         "/scalars/unsafe_distance/counterexample",
-        "/scalars/unsafe_distance/trace_0",
+        "/scalars/unsafe_distance/traces/0",
+        "/scalars/unsafe_distance/zero",
         "/plane/unsafe/0",
     ):
         assert k in entities, k
+    series = entities["/time/x1/counterexample"]
+    assert series.instances("Scalars:scalars") == len(series.time) > 1
     margin = entities["/scalars/unsafe_distance/counterexample"]
     m = margin.values("Scalars:scalars")
     t = margin.time
     assert m[0] > 0 and np.min(m) <= 0  # starts outside, enters the unsafe box
     assert t[np.argmax(m <= 0)] == ns(cex.t)  # first at the counterexample's time
     text = entities["/verdict"].per_row("TextDocument:text")[0][0]
-    assert "unsafe" in text and "counterexample" in text
+    assert "UNSAFE" in text and "counterexample" in text and "enters unsafe set 0" in text
     assert summary.boxes == result.tube.num_boxes
+    # the unsafe box is filled in the overlay (class 1 or 3 where the tube meets it)
+    image, labels, scale, shift = segmentation(entities, "/plane/overlay")
+    assert labels[1] == "unsafe set" and labels[2] == "reachtube"
+    rows, cols = np.nonzero(np.isin(image, (1, 3)))
+    xy = shift[:2] + (np.column_stack([cols, rows]) + 0.5) * scale[:2]
+    assert rows.size and np.all(np.abs(xy) <= 1.0 + 1e-9)  # the box [-1, 1]^2
+    assert "counterexample red" in " ".join(view_kinds(summary.path))
 
 
 def test_without_result(di, tmp_path):
@@ -338,7 +434,7 @@ def test_without_result(di, tmp_path):
     entities = read(summary.path)
     assert summary.boxes == 0 and summary.traces == 16
     assert "/plane/regions" in entities and "/plane/initial" in entities
-    assert not any(k.endswith("/tube") for k in entities)
+    assert not any("/tube" in k for k in entities)
     assert "not verified" in entities["/verdict"].per_row("TextDocument:text")[0][0]
     check_recording(summary.path)
 
@@ -348,7 +444,13 @@ def test_without_verify_section(tmp_path):
     assert problem.verify is None
     law = ce.synthesize(problem)
     summary = write_recording(tmp_path / "bare.rrd", problem, law)
-    assert set(summary.entities) == {"/plane/regions", "/verdict"}
+    assert {k for k, v in summary.entities.items() if v} == {
+        "/plane/regions",
+        "/plane/edges",
+        "/plane/axes/frame",
+        "/plane/axes/ticks",
+        "/verdict",
+    }
     assert summary.traces == 0
     check_recording(summary.path)
 
@@ -356,15 +458,17 @@ def test_without_verify_section(tmp_path):
 def test_one_state(tmp_path):
     problem = ce.load_spec(EXAMPLES / "cruise_control.toml")
     law = ce.synthesize(problem)
-    # axes are ignored for n == 1 (no plane view)
+    # axes are ignored for n == 1: the plane is (time, v)
     opts = RecordingOptions(axes=(0, 5), traces=3)
     summary = write_recording(tmp_path / "cc.rrd", problem, law, None, options=opts)
     entities = read(summary.path)
-    assert not any(k.startswith("/plane/") for k in entities)
-    regions = entities["/time/v/regions"]
-    assert regions.instances("Boxes2D:half_sizes") == law.num_regions
-    for k in ("/time/v/initial", "/time/v/unsafe/0", "/time/v/unsafe/1", "/time/v/traces"):
+    image, labels, scale, shift = segmentation(entities, "/plane/regions")
+    assert summary.entities["/plane/regions"] == law.num_regions
+    for k in ("/plane/initial", "/plane/unsafe/0", "/plane/unsafe/1", "/plane/traces"):
         assert k in entities, k
+    assert "/time/v/traces/2" in entities
+    ticks = entities["/plane/axes/ticks"].per_row("Points2D:labels")[0]
+    assert "time →" in ticks and "v ↑" in ticks
     assert summary.traces == 3
 
 
@@ -470,7 +574,7 @@ def test_many_boxes(di, tmp_path):
     assert summary.boxes == K and summary.entities["/plane/tube"] == K
     entities = read(summary.path)
     assert entities["/plane/tube"].instances("Boxes2D:half_sizes") == K
-    assert entities["/time/x1/tube"].instances("Boxes2D:half_sizes") == K
+    assert entities["/time/x1/tube/upper"].instances("Scalars:scalars") > 0
     assert len(np.unique(entities["/plane/tube"].time)) == 2_000
 
 
@@ -489,3 +593,64 @@ def test_unsafe_margin():
     both = unsafe_margin([box, half], X)
     assert np.allclose(both, np.minimum(unsafe_margin([box], X), unsafe_margin([half], X)))
     assert np.all(unsafe_margin([], X) == np.inf)
+
+
+# ---------------------------------------------------------------------------------------
+# rasters and the tube's hull (what the plane and the state views are drawn from)
+# ---------------------------------------------------------------------------------------
+
+
+def test_raster_polygons_pixel_centres():
+    from codev_engine.view.shapes import raster_polygons
+
+    tri = np.array([[0.0, 0.0], [4.0, 0.0], [0.0, 4.0]])  # counter-clockwise
+    sq = np.array([[3.0, 3.0], [3.0, 4.0], [4.0, 4.0], [4.0, 3.0]])  # clockwise
+    lo, hi = np.array([0.0, 0.0]), np.array([4.0, 4.0])
+    img = raster_polygons([tri, sq], lo, hi, (40, 40), np.array([7, 9]))
+    assert img.dtype == np.uint32 and img.shape == (40, 40)
+    r, c = np.mgrid[0:40, 0:40]
+    x, y = (c + 0.5) * 0.1, (r + 0.5) * 0.1  # row 0 at the bottom
+    assert np.array_equal(img == 7, (x + y <= 4.0) & ~((x >= 3) & (y >= 3)))
+    assert np.array_equal(img == 9, (x >= 3) & (y >= 3))  # later polygons on top
+    # outside the window: nothing; a flat polygon: nothing
+    far = raster_polygons([tri + 10.0, tri[:2]], lo, hi, (8, 8))
+    assert not far.any()
+
+
+def test_raster_boxes_union_and_least_width():
+    from codev_engine.view.shapes import raster_boxes
+
+    lo, hi = np.array([0.0, 0.0]), np.array([10.0, 10.0])
+    lower = np.array([[1.0, 1.0], [2.0, 2.0], [5.0, 5.0]])
+    upper = np.array([[3.0, 3.0], [4.0, 4.0], [5.0001, 9.0]])  # the last: thinner than a pixel
+    m = raster_boxes(lower, upper, lo, hi, (10, 10), min_pixels=2)
+    want = np.zeros((10, 10), dtype=bool)
+    want[1:3, 1:3] = want[2:4, 2:4] = True
+    assert np.array_equal(m[:, :4], want[:, :4]) and not m[:5, 4:].any() and not m[9:].any()
+    thin = m[5:9, 4:]  # widened about x = 5 to 2 pixels (3 when it straddles pixel edges)
+    assert thin[:, :2].all() and 2 <= thin.sum(axis=1).min() <= thin.sum(axis=1).max() <= 3
+    assert not raster_boxes(np.zeros((0, 2)), np.zeros((0, 2)), lo, hi, (4, 4)).any()
+
+
+def test_tube_envelope_contains_every_box():
+    from codev_engine.view.record_content import tube_envelope
+
+    ts = np.array([0.0, 0.0, 1.0, 2.5])
+    te = np.array([1.0, 2.0, 2.0, 3.0])  # [2, 2.5] uncovered
+    lo = np.array([[0.0], [-1.0], [0.5], [3.0]])
+    hi = np.array([[1.0], [0.5], [2.0], [4.0]])
+    t, elo, ehi = tube_envelope(ts, te, lo, hi)
+    assert np.array_equal(t, [0.0, 1.0, 2.0, 2.5, 3.0])
+    assert np.array_equal(elo[:, 0], [-1.0, -1.0, np.nan, 3.0], equal_nan=True)
+    assert np.array_equal(ehi[:, 0], [1.0, 2.0, np.nan, 4.0], equal_nan=True)
+    rng = np.random.default_rng(1)
+    K = 500
+    ts = np.round(rng.uniform(0, 5, K), 2)
+    te = ts + np.round(rng.uniform(0.01, 1, K), 2)
+    lo = rng.normal(size=(K, 3))
+    hi = lo + rng.uniform(0, 1, (K, 3))
+    t, elo, ehi = tube_envelope(ts, te, lo, hi)
+    for k in range(K):
+        seg = (t[:-1] >= ts[k]) & (t[1:] <= te[k])
+        assert seg.any()
+        assert np.all(elo[seg] <= lo[k]) and np.all(ehi[seg] >= hi[k])
