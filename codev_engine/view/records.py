@@ -114,12 +114,7 @@ def write_recording(
             f"a recording must be a .rrd file (got suffix {path.suffix!r})", file=str(path)
         )
     n = problem.plant.n
-    if law.n > n and law.parameters:
-        # theta = (x, u_prev, r): the partition is drawn as the section at the operating
-        # input and the middle of the reference box; the closed loop over u_prev is not
-        # simulated yet, so no traces (their loop would not be the controller's)
-        law = law.section(_section_point(problem, law))
-        options = dataclasses.replace(options, traces=0)
+    law, options = drawable(problem, law, options)
     if law.n != n or law.m != problem.plant.m:
         raise SpecError(
             f"the law has n={law.n}, m={law.m} but the spec has n={n}, m={problem.plant.m}",
@@ -247,6 +242,32 @@ def _has_footer(path: Path) -> bool:
 def _send_blueprint(w: EntityWriter, content: RecordingContent) -> None:
     """Send the viewer layout (after the data: it shows the views that have data)."""
     w.rec.send_blueprint(blueprint(w.entities, content))
+
+
+def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
+             ) -> tuple[ExplicitLaw, RecordingOptions]:
+    """The law and options a picture of ``problem`` draws.
+
+    For a law over ``theta = (x, u_prev, r)``: its section at the operating input and the
+    middle of the reference box (:meth:`ExplicitLaw.section`), and no traces -- the closed
+    loop over ``u_prev`` is not simulated yet, and a trace of another loop would mislead.
+
+    Parameters
+    ----------
+    problem : Problem
+    law : ExplicitLaw
+    options : RecordingOptions
+
+    Returns
+    -------
+    law : ExplicitLaw
+        In the states.
+    options : RecordingOptions
+    """
+    if law.n > problem.plant.n and law.parameters:
+        law = law.section(_section_point(problem, law))
+        options = dataclasses.replace(options, traces=0)
+    return law, options
 
 
 def _section_point(problem: Problem, law: ExplicitLaw) -> np.ndarray:

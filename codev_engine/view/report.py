@@ -74,9 +74,9 @@ def report_html(
         One HTML document: figures as inline SVG, no external reference.
     """
     from codev_engine.view.record_content import RecordingContent, RecordingOptions
-    from codev_engine.view.records import _check_options
+    from codev_engine.view.records import _check_options, drawable
 
-    options = RecordingOptions(axes=axes, traces=traces)
+    law, options = drawable(problem, law, RecordingOptions(axes=axes, traces=traces))
     plane = _check_options(options, problem.plant.n)
     content = RecordingContent.build(problem, law, result, options, plane)
     parts: list[tuple[str, str]] = []

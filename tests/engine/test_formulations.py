@@ -482,3 +482,18 @@ def test_verifying_a_law_with_parameters_is_an_unknown_verdict():
     law = ce.synthesize(problem)
     res = ce.verify(problem, law)
     assert res.verdict == "unknown" and res.reason == "law_parameters"
+
+
+# --- the bundled examples of the formulations ---------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "fname", ["double_integrator_lqr.toml", "mass_spring_soft.toml", "two_carts_mixed.toml"]
+)
+def test_formulation_examples_verify_robustly_safe(fname):
+    from pathlib import Path
+
+    problem = ce.load_spec(Path(__file__).resolve().parents[2] / "examples" / fname)
+    law = ce.synthesize(problem)
+    res = ce.verify(problem, law)
+    assert res.verdict == "robustly_safe", res.summary() if hasattr(res, "summary") else res

@@ -129,10 +129,31 @@ NONLINEAR = {
 }
 
 
+#: examples of the formulations of docs/spec.md (terminal ingredients, soft outputs, mixed
+#: constraints and move blocking): file -> (name, fields that must be set as given)
+FORMULATIONS = {
+    "double_integrator_lqr.toml": ("double-integrator-lqr",
+                                   dict(terminal_cost="lqr", terminal_set="lqr", P=None)),
+    "mass_spring_soft.toml": ("mass-spring-soft", dict(soft=("y_max",), soft_weight=1000.0)),
+    "two_carts_mixed.toml": ("two-carts-mixed", dict(control_horizon=2)),
+}
+
+
 def test_all_examples_are_listed():
     assert not set(EXPECTED) & set(NONLINEAR)
-    assert sorted(p.name for p in EXAMPLES.glob("*.toml")) == sorted({**EXPECTED, **NONLINEAR})
+    listed = {**EXPECTED, **NONLINEAR, **FORMULATIONS}
+    assert sorted(p.name for p in EXAMPLES.glob("*.toml")) == sorted(listed)
     assert len(EXPECTED) == 6  # the paper's examples, all still there
+
+
+@pytest.mark.parametrize("fname", sorted(FORMULATIONS))
+def test_formulation_examples_load(fname):
+    name, fields = FORMULATIONS[fname]
+    p = load_spec(EXAMPLES / fname)
+    assert p.name == name
+    for key, value in fields.items():
+        assert getattr(p.mpc, key) == value, key
+    assert p.verify is not None and p.verify.hold == "zoh"
 
 
 @pytest.mark.parametrize("fname", sorted(EXPECTED))

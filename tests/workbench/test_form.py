@@ -60,7 +60,29 @@ def test_every_example_is_found():
     assert len(EXAMPLES) >= 5, EXAMPLES
 
 
-@pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
+#: examples with [mpc] fields the form has no entries for yet (the formulations issue's
+#: TUI part): the form refuses them with a one-line error; strict, so that entries for them
+#: make this list shrink
+NO_ENTRIES_YET = {"double_integrator_lqr", "mass_spring_soft", "two_carts_mixed"}
+
+
+def _example_param(p):
+    marks = ()
+    if p.stem in NO_ENTRIES_YET:
+        marks = pytest.mark.xfail(strict=True, raises=ce.SpecError,
+                                  reason="the form has no entries for these [mpc] fields yet")
+    return pytest.param(p, id=p.stem, marks=marks)
+
+
+def test_the_form_refuses_fields_it_has_no_entry_for_in_one_line():
+    text = (ROOT / "examples" / "two_carts_mixed.toml").read_text(encoding="utf-8")
+    with pytest.raises(ce.SpecError) as err:
+        form_from_text(text)
+    assert err.value.field == "mpc.control_horizon"
+    assert "edit the spec file as text" in str(err.value)
+
+
+@pytest.mark.parametrize("path", [_example_param(p) for p in EXAMPLES])
 def test_example_round_trip_keeps_the_stage_keys(path):
     text = path.read_text(encoding="utf-8")
     values, has_verify = form_from_text(text)
