@@ -96,6 +96,7 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
         "problem": problem.name,
         "verdict": result.verdict,
         "reason": result.reason,
+        "detail": result.detail,
         "hold": result.hold,
         "regions": law.num_regions,
         "synthesis_seconds": synth_seconds,

@@ -118,12 +118,16 @@ class Finding:
         The time (s) of the violation, or of the segment that could not be decided.
     alpha : (n,) ndarray or None
         The initial state's coordinates in the initial box (``[-1, 1]^n``).
+    detail : str or None
+        For ``"enclosure"`` (an interval enclosure met a singularity, e.g. a division by an
+        interval containing 0): the operation, the expression and the time, in words.
     """
 
-    kind: str  # "unsafe", "safe", "input_bounds", "undefined"
+    kind: str  # "unsafe", "safe", "input_bounds", "undefined", "max_depth", "enclosure"
     index: int
     t: float
     alpha: np.ndarray | None
+    detail: str | None = None
 
 
 class ClosedLoopSetup:

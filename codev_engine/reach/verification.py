@@ -11,8 +11,11 @@ Verdicts
     simulation (scipy ``solve_ivp``, tight tolerances) from the reported initial state.
 ``unknown``
     With ``reason`` ``"max_depth"`` (refinement budget exhausted while the
-    over-approximation still meets a property boundary) or ``"infeasible_region"`` (only the
-    over-approximation leaves the law's domain).
+    over-approximation still meets a property boundary), ``"infeasible_region"`` (only the
+    over-approximation leaves the law's domain) or ``"enclosure"`` (refinement budget
+    exhausted on an interval enclosure that meets a singularity: ``detail`` names the
+    operation, the expression and the time). A limitation of the verifier is a verdict,
+    never an error blamed on the input.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.display import Displayable
-from codev_engine.errors import SpecError
+from codev_engine.errors import SolverError, SpecError
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
 from codev_engine.reach.linear import LinearReach, affine_plant
@@ -51,6 +54,7 @@ VIOLATION_WORDS = {
 UNKNOWN_WORDS = {
     "max_depth": "max_depth reached",
     "infeasible_region": "the reach set leaves the law's domain",
+    "enclosure": "an interval enclosure meets a singularity",
 }
 
 
@@ -110,6 +114,10 @@ class VerificationResult(Displayable):
     stats : dict
         Counters of the run (``branches``, ``refinements``, ``boxes``, ``partitions``,
         ``method``, ``seconds``, ...), for reports.
+    detail : str or None
+        Why, in words, when the reason needs more than its name (``"enclosure"``: the
+        operation, the expression and the time, e.g. ``division by an interval containing
+        0 in -8750/T at t = 0.35``).
     """
 
     verdict: str
@@ -118,6 +126,7 @@ class VerificationResult(Displayable):
     hold: str
     counterexample: Counterexample | None = None
     stats: dict = field(default_factory=dict)
+    detail: str | None = None
 
     @property
     def seconds(self) -> float:
@@ -158,6 +167,7 @@ class VerificationResult(Displayable):
             "reason": np.array(self.reason or ""),
             "hold": np.array(self.hold),
             "stats": np.array(json.dumps(self.stats, default=_json_scalar)),
+            "detail": np.array(self.detail or ""),
             **self.tube.arrays("tube_"),
         }
         ce = self.counterexample
@@ -247,7 +257,8 @@ class VerificationResult(Displayable):
                 trace=trace,
             )
         reason = text(data, "reason") or None
-        return cls(verdict, reason, tube, hold, cex, stats)
+        detail = (text(data, "detail") or None) if "detail" in data else None
+        return cls(verdict, reason, tube, hold, cex, stats, detail)
 
     def summary(self) -> str:
         """The verdict and why, the tube's size and the time; the counterexample, if any."""
@@ -256,6 +267,8 @@ class VerificationResult(Displayable):
             line += f" ({self.counterexample.describe()})"
         elif self.reason:
             line += f" ({UNKNOWN_WORDS.get(self.reason, self.reason)})"
+            if self.detail:
+                line += f" [{self.detail}]"
         line += f"; hold {self.hold}; {self.tube.num_boxes} boxes"
         line += f"; {self.stats.get('branches', 0)} branches in {self.seconds:.3f} s"
         if self.counterexample is not None:
@@ -344,14 +357,21 @@ def verify(
         if cex is not None:
             verdict, reason = "unsafe", cex.kind
             break
+    detail = None
     if verdict != "unsafe" and findings:
         kinds = {f.kind for f in findings}
         verdict = "unknown"
-        reason = "infeasible_region" if "undefined" in kinds else "max_depth"
+        if "undefined" in kinds:
+            reason = "infeasible_region"
+        elif "enclosure" in kinds:
+            reason = "enclosure"
+            detail = next(f.detail for f in findings if f.kind == "enclosure")
+        else:
+            reason = "max_depth"
         # a possible violation is worth a few concrete simulations
         cex = _search(problem, law, hold)
         if cex is not None:
-            verdict, reason = "unsafe", cex.kind
+            verdict, reason, detail = "unsafe", cex.kind, None
     if verdict == "unsafe" and cex is not None and tube.num_boxes:
         # exploration stopped at the counterexample: the tube is partial, keep what
         # precedes it (docs/verification.md)
@@ -365,7 +385,7 @@ def verify(
         )
         stats["boxes"] = tube.num_boxes
     stats["seconds"] = time.perf_counter() - t0
-    return VerificationResult(verdict, reason, tube, hold, cex, stats)
+    return VerificationResult(verdict, reason, tube, hold, cex, stats, detail)
 
 
 def _confirm(
@@ -376,7 +396,10 @@ def _confirm(
 
     vs = problem.verify
     x0 = np.clip(x0, vs.initial_lower, vs.initial_upper)
-    trace = simulate(problem, law, x0, hold=hold)
+    try:
+        trace = simulate(problem, law, x0, hold=hold)
+    except SolverError:  # not finite (a singularity): no confirmed counterexample
+        return None
     v = first_violation(problem, law, trace)
     if v is None:
         return None
@@ -397,7 +420,17 @@ def _search(
     )
     rng = np.random.default_rng(0)
     X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples], rng.uniform(lo, hi, (samples, n))])
-    t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+    with np.errstate(all="ignore"):
+        try:
+            t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+        except SolverError:  # a trajectory is not finite: search the others
+            X0 = X0[[_finite_run(problem, law, hold, x) for x in X0]]
+            if X0.shape[0] == 0:
+                return None
+            try:
+                t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+            except SolverError:
+                return None
     bad, _ = violations_many(problem, t, X, U, alive)
     for p in np.flatnonzero(bad):
         cex = _confirm(problem, law, hold, X0[p])
@@ -410,3 +443,14 @@ def with_hold(problem: Problem, hold: str) -> Problem:
     """A copy of ``problem`` whose verify section uses ``hold``."""
     assert problem.verify is not None
     return replace(problem, verify=replace(problem.verify, hold=hold))
+
+
+def _finite_run(problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray) -> bool:
+    """Does the fast simulation from x0 stay finite?"""
+    from codev_engine.reach.simulate import simulate_many
+
+    try:
+        simulate_many(problem, law, x0[None], hold=hold)
+    except SolverError:
+        return False
+    return True
