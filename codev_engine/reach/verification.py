@@ -14,8 +14,12 @@ Verdicts
     over-approximation still meets a property boundary), ``"infeasible_region"`` (only the
     over-approximation leaves the law's domain) or ``"enclosure"`` (refinement budget
     exhausted on an interval enclosure that meets a singularity: ``detail`` names the
-    operation, the expression and the time). A limitation of the verifier is a verdict,
-    never an error blamed on the input.
+    operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
+    "inf"``: no invariance certificate within ``max_samples``). A limitation of the verifier
+    is a verdict, never an error blamed on the input.
+
+With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
+``certificate`` (re-checked by LP when loaded).
 """
 
 from __future__ import annotations
@@ -55,6 +59,8 @@ UNKNOWN_WORDS = {
     "max_depth": "max_depth reached",
     "infeasible_region": "the reach set leaves the law's domain",
     "enclosure": "an interval enclosure meets a singularity",
+    "no_invariant": "no invariance certificate within max_samples",
+    "invariant": "for all time: an invariance certificate",
 }
 
 
@@ -118,6 +124,12 @@ class VerificationResult(Displayable):
         Why, in words, when the reason needs more than its name (``"enclosure"``: the
         operation, the expression and the time, e.g. ``division by an interval containing
         0 in -8750/T at t = 0.35``).
+    certificate : dict or None
+        With ``time_horizon = "inf"`` and verdict ``robustly_safe`` (reason
+        ``"invariant"``): the invariant set's rows ``H`` (r, n), ``h`` (r,) and the points
+        ``points`` (p, n) with their error half-widths ``pads`` (p, n) whose boxes hold
+        every state at the closing sample (``stats["certificate"]`` says which samples).
+        Re-checked by LP when a saved result is loaded.
     """
 
     verdict: str
@@ -127,6 +139,7 @@ class VerificationResult(Displayable):
     counterexample: Counterexample | None = None
     stats: dict = field(default_factory=dict)
     detail: str | None = None
+    certificate: dict | None = None
 
     @property
     def seconds(self) -> float:
@@ -168,6 +181,10 @@ class VerificationResult(Displayable):
             "hold": np.array(self.hold),
             "stats": np.array(json.dumps(self.stats, default=_json_scalar)),
             "detail": np.array(self.detail or ""),
+            **{
+                f"cert_{k}": np.asarray(v, dtype=float)
+                for k, v in (self.certificate or {}).items()
+            },
             **self.tube.arrays("tube_"),
         }
         ce = self.counterexample
@@ -258,7 +275,22 @@ class VerificationResult(Displayable):
             )
         reason = text(data, "reason") or None
         detail = (text(data, "detail") or None) if "detail" in data else None
-        return cls(verdict, reason, tube, hold, cex, stats, detail)
+        certificate = None
+        if "cert_H" in data:
+            H = real(data, "cert_H", ndim=2)
+            r = H.shape[0]
+            certificate = {
+                "H": H,
+                "h": real(data, "cert_h", shape=(r,)),
+                "points": real(data, "cert_points", ndim=2),
+                "pads": real(data, "cert_pads", ndim=2),
+            }
+            if not check_certificate(certificate):
+                raise SpecError(
+                    "the invariance certificate does not hold (a point outside the set)",
+                    field="cert_points",
+                )
+        return cls(verdict, reason, tube, hold, cex, stats, detail, certificate)
 
     def summary(self) -> str:
         """The verdict and why, the tube's size and the time; the counterexample, if any."""
@@ -278,6 +310,57 @@ class VerificationResult(Displayable):
                 f"{ce.kind} at t = {ce.t:.4f}"
             )
         return line
+
+
+def check_certificate(certificate: dict) -> bool:
+    """Re-check an invariance certificate by LP: every point's box lies in ``H x <= h``.
+
+    For each row ``H_r``, the LP ``max sum_i lam_i (H_r p_i + |H_r| pad_i)`` over the
+    simplex (the largest value of the row over the convex hull of the widened points) must
+    be at most ``h_r``; a polytope that holds those boxes holds their convex hull.
+
+    Parameters
+    ----------
+    certificate : dict
+        ``H`` (r, n), ``h`` (r,), ``points`` (p, n), ``pads`` (p, n), as in
+        :attr:`VerificationResult.certificate`.
+
+    Returns
+    -------
+    bool
+        True when the containment holds (False also for inconsistent shapes or values).
+    """
+    from codev_engine.geometry.polytope import solve_lp
+
+    H = np.asarray(certificate.get("H"), float)
+    h = np.asarray(certificate.get("h"), float)
+    P = np.asarray(certificate.get("points"), float)
+    pads = np.asarray(certificate.get("pads"), float)
+    if (
+        H.ndim != 2
+        or h.shape != (H.shape[0],)
+        or P.ndim != 2
+        or P.shape[1] != H.shape[1]
+        or pads.shape != P.shape
+        or P.shape[0] == 0
+        or not all(np.all(np.isfinite(a)) for a in (H, h, P, pads))
+        or np.any(pads < 0)
+    ):
+        return False
+    p = P.shape[0]
+    vals = P @ H.T + pads @ np.abs(H).T  # (p, r)
+    ones = np.ones((1, p))
+    for r in range(H.shape[0]):
+        lam, st, _ = solve_lp(
+            -vals[:, r], np.zeros((0, p)), np.zeros(0), Aeq=ones, beq=np.ones(1), lb=np.zeros(p)
+        )
+        if st != "optimal":
+            return False
+        best = float(vals[:, r] @ lam)
+        # the LP's own tolerance: the value of the best vertex decides when it is larger
+        if max(best, float(vals[:, r].max())) > h[r]:
+            return False
+    return True
 
 
 def check_law_matches(problem: Problem, law: ExplicitLaw, *, file: str | None = None) -> None:
@@ -333,10 +416,36 @@ def verify(
         raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
     depth = vs.max_depth if max_depth is None else max_depth
     t0 = time.perf_counter()
+    unbounded = not np.isfinite(vs.time_horizon)
+    if unbounded:
+        # safety for all time: explore up to max_samples samples for a certificate (and
+        # simulate that long for counterexamples)
+        bounded = vs.max_samples * float(problem.model.sample_time)
+        problem = replace(problem, verify=replace(vs, time_horizon=bounded))
+        vs = problem.verify
     plant = affine_plant(problem)
+    certificate = None
+    if unbounded and plant is None:
+        # invariance certificates are built by the linear engine only: no claim, but a
+        # counterexample is still looked for
+        tube = Tube.empty(problem.plant.n)
+        cex = _search(problem, law, hold)
+        stats = {"branches": 0, "boxes": 0, "seconds": time.perf_counter() - t0}
+        if cex is not None:
+            return VerificationResult("unsafe", cex.kind, tube, hold, cex, stats)
+        return VerificationResult(
+            "unknown",
+            "no_invariant",
+            tube,
+            hold,
+            None,
+            stats,
+            "invariance certificates are computed for affine plants only",
+        )
     if plant is not None:
-        eng = LinearReach(problem, law, plant, hold, depth)
+        eng = LinearReach(problem, law, plant, hold, depth, unbounded=unbounded)
         eng.run()
+        certificate = eng.certificate
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
         stats["partitions"] = 1
@@ -372,6 +481,23 @@ def verify(
         cex = _search(problem, law, hold)
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
+    if unbounded and verdict == "robustly_safe":
+        c = stats.get("certificate")
+        if c is None or certificate is None or not check_certificate(certificate):
+            verdict, reason, certificate = "unknown", "no_invariant", None
+            detail = f"no invariance certificate within max_samples = {vs.max_samples} samples"
+            cex = _search(problem, law, hold)
+            if cex is not None:
+                verdict, reason, detail = "unsafe", cex.kind, None
+        else:
+            reason = "invariant"
+            detail = (
+                f"every reach set at sample {c['closed_sample']} (t = {c['closed_time']:g}) "
+                f"lies in the set anchored at sample {c['anchor_sample']} "
+                f"(t = {c['anchor_time']:g}): the tube repeats with period {c['period']:g}"
+            )
+    if verdict != "robustly_safe":
+        certificate = None
     if verdict == "unsafe" and cex is not None and tube.num_boxes:
         # exploration stopped at the counterexample: the tube is partial, keep what
         # precedes it (docs/verification.md)
@@ -385,7 +511,7 @@ def verify(
         )
         stats["boxes"] = tube.num_boxes
     stats["seconds"] = time.perf_counter() - t0
-    return VerificationResult(verdict, reason, tube, hold, cex, stats, detail)
+    return VerificationResult(verdict, reason, tube, hold, cex, stats, detail, certificate)
 
 
 def _confirm(

@@ -488,7 +488,9 @@ def plot_tube(
         ylo, yhi = min(ylo, float(xh.min())), max(yhi, float(xh.max()))
         tmax = max(tmax, float(tt[-1]))
     if problem is not None and problem.verify is not None:
-        tmax = max(tmax, problem.verify.time_horizon)
+        from codev_engine.reach.simulate import shown_horizon
+
+        tmax = max(tmax, shown_horizon(problem))
     ylim = _padded(ylo, yhi)
     ax.set_ylim(*ylim)
     ax.set_xlim(0.0, tmax if tmax > 0 else 1.0)

@@ -108,3 +108,92 @@ def test_a_possible_violation_on_a_merged_set_is_decided_exactly(di_long):
     else:
         assert merged.verdict != "robustly_safe", (merged.summary(), exact_kinds)
 
+
+# ---------------------------------------------------------------------------------------
+# safety for all time: time_horizon = "inf"
+# ---------------------------------------------------------------------------------------
+
+
+def _di_inf(extra: str = "") -> ce.Problem:
+    text = DI_PATH.read_text().replace("time_horizon = 9.0", 'time_horizon = "inf"' + extra)
+    return ce.loads_spec(text, path="<double integrator for all time>")
+
+
+@pytest.fixture(scope="module")
+def di_inf():
+    problem = _di_inf()
+    law = ce.synthesize(problem)
+    return problem, law, verify(problem, law)
+
+
+def test_the_spec_takes_an_infinite_horizon_and_max_samples():
+    p = _di_inf()
+    assert p.verify.time_horizon == np.inf and p.verify.max_samples == 1000
+    assert _di_inf("\nmax_samples = 15").verify.max_samples == 15
+    with pytest.raises(ce.SpecError, match="max_samples"):
+        _di_inf("\nmax_samples = 0")
+    with pytest.raises(ce.SpecError, match="time_horizon"):
+        ce.loads_spec(DI_PATH.read_text().replace("time_horizon = 9.0", 'time_horizon = "-inf"'))
+
+
+def test_safety_for_all_time_by_an_invariance_certificate(di_inf, tmp_path):
+    problem, law, result = di_inf
+    assert (result.verdict, result.reason) == ("robustly_safe", "invariant"), result.summary()
+    cert = result.stats["certificate"]
+    assert "sample" in result.detail and str(cert["closed_sample"]) in result.detail
+    C = result.certificate
+    assert C is not None and C["H"].shape[1] == problem.plant.n
+    # the tube stops at the certificate (it repeats from there)
+    assert result.tube.t_end.max() == pytest.approx(cert["closed_time"])
+    # stored with the result and re-checked by LP on load
+    path = tmp_path / "forever.npz"
+    result.save(path)
+    back = VerificationResult.load(path)
+    assert (back.verdict, back.reason) == ("robustly_safe", "invariant")
+    assert np.array_equal(back.certificate["H"], C["H"])
+    # a tampered certificate is refused
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["cert_h"] = arrays["cert_h"] - 1.0
+    bad = tmp_path / "tampered.npz"
+    np.savez(bad, **arrays)
+    with pytest.raises(ce.SpecError, match="certificate"):
+        VerificationResult.load(bad)
+
+
+def test_the_certificate_holds_for_fifty_times_its_time(di_inf):
+    """Simulate 50x the certificate's closing time from random initial states: no property
+    is violated, and at every closing time t_k + m L every state is in the invariant set."""
+    problem, law, result = di_inf
+    cert = result.stats["certificate"]
+    t_close, L = cert["closed_time"], cert["period"]
+    T = 50 * t_close
+    text = DI_PATH.read_text().replace("time_horizon = 9.0", f"time_horizon = {T}")
+    long = ce.loads_spec(text, path="<50x>")
+    vs = long.verify
+    rng = np.random.default_rng(26)
+    X0 = np.vstack(
+        [_initial_states(vs.initial_lower, vs.initial_upper, 0, 0), rng.uniform(
+            vs.initial_lower, vs.initial_upper, (40, problem.plant.n))]
+    )
+    t, X, U, alive = simulate_many(long, law, X0, hold=result.hold, dt=0.01, dt_out=0.5)
+    bad, t_first = violations_many(long, t, X, U, alive)
+    assert not bad.any(), f"violation at t = {t_first[np.argmax(bad)]}"
+    H, h = result.certificate["H"], result.certificate["h"]
+    checked = 0
+    for m in range(int((T - t_close) / L) + 1):
+        k = np.flatnonzero(np.isclose(t, t_close + m * L, atol=1e-9))
+        if k.size == 0:
+            continue
+        x = X[:, k[0], :]
+        assert np.all(x @ H.T <= h + 1e-9), f"a state outside the invariant set at t = {t[k[0]]}"
+        checked += 1
+    assert checked >= 10
+
+
+def test_no_certificate_within_max_samples_is_unknown():
+    problem = _di_inf("\nmax_samples = 15")
+    result = verify(problem, ce.synthesize(problem))
+    assert (result.verdict, result.reason) == ("unknown", "no_invariant"), result.summary()
+    assert "max_samples = 15" in result.detail
+    assert result.certificate is None
