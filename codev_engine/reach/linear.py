@@ -728,8 +728,11 @@ class LinearReach(ClosedLoopSetup):
                     groups.setdefault(i, []).append(child)
             children = []
             if not failed:
+                few = sum(len(g) for g in groups.values()) <= _MERGE_ABOVE
                 for i, members in groups.items():
-                    if len(members) == 1:
+                    if few:  # few sets: kept exact (tighter, exact counterexamples)
+                        children.extend((i, m) for m in members)
+                    elif len(members) == 1:
                         children.append((i, members[0]))
                     else:
                         children.append((i, self._hull(members, i)))
@@ -765,6 +768,9 @@ class LinearReach(ClosedLoopSetup):
 _ANCHOR_BUDGET = 200
 #: anchor only when at least this many samples remain (a short horizon needs no certificate)
 _ANCHOR_MIN_SAMPLES = 20
+#: the sets of a sample are merged by region only when there are more than this many
+#: (fewer stay exact: tighter tubes and exact counterexamples)
+_MERGE_ABOVE = 8
 #: time refinements of a suspicious segment of a merged set
 _MERGED_DEPTH = 2
 #: anchors tried per run (each undone one costs the samples it ran)
