@@ -86,16 +86,25 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
+def _horizon_shown(problem, result) -> float:
+    """The verified horizon; for one verified for all time, the end of the stored tube."""
+    T = problem.verify.time_horizon
+    if T == float("inf"):
+        return float(result.tube.t_end.max(initial=0.0))
+    return T
+
+
 def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
     """The JSON summary of a verification (``codev verify --json``, ``codev run --json``)."""
     import numpy as np
 
-    width = result.width_at(problem.verify.time_horizon)
+    width = result.width_at(_horizon_shown(problem, result))
     cex = result.counterexample
     return {
         "problem": problem.name,
         "verdict": result.verdict,
         "reason": result.reason,
+        "detail": result.detail,
         "hold": result.hold,
         "regions": law.num_regions,
         "synthesis_seconds": synth_seconds,
@@ -115,7 +124,7 @@ def _print_result(problem, law, result, tube_path) -> None:
     import numpy as np
 
     print(f"{problem.name}: {law.num_regions} regions; " + result.summary())
-    width = result.width_at(problem.verify.time_horizon)
+    width = result.width_at(_horizon_shown(problem, result))
     print("  tube width at the horizon: " + np.array2string(width, precision=4))
     if tube_path:
         print(f"tube written to {tube_path}")

@@ -22,6 +22,7 @@ points, where it is bounded as follows (the soundness argument, see docs/verific
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -98,6 +99,13 @@ class _Star:
     err: np.ndarray  # (n,)
     k: int  # sample index
     path: tuple[int, ...] = ()
+    #: False for a merged set (a sound hull in state coordinates: ``c = 0``, ``V = I``): its
+    #: points are no longer tied to initial states, so a violation on it is only possible
+    exact: bool = True
+
+
+class _NeedExactError(Exception):
+    """The merged exploration met a possible violation: redo it without merging."""
 
 
 @dataclass(frozen=True)
@@ -118,12 +126,16 @@ class Finding:
         The time (s) of the violation, or of the segment that could not be decided.
     alpha : (n,) ndarray or None
         The initial state's coordinates in the initial box (``[-1, 1]^n``).
+    detail : str or None
+        For ``"enclosure"`` (an interval enclosure met a singularity, e.g. a division by an
+        interval containing 0): the operation, the expression and the time, in words.
     """
 
-    kind: str  # "unsafe", "safe", "input_bounds", "undefined"
+    kind: str  # "unsafe", "safe", "input_bounds", "undefined", "max_depth", "enclosure"
     index: int
     t: float
     alpha: np.ndarray | None
+    detail: str | None = None
 
 
 class ClosedLoopSetup:
@@ -179,7 +191,15 @@ class LinearReach(ClosedLoopSetup):
         it in four).
     stats : dict
         Counters: ``branches`` and ``refinements``, updated by :meth:`run` (``boxes`` is
-        counted by ``verify``, on the tube).
+        counted by ``verify``, on the tube); ``merges`` and, when an invariance certificate
+        closed the run, ``certificate`` (anchor and closing samples, period).
+    merge : bool
+        Merge the sets of a sample that lie in one region and look for an invariance
+        certificate, falling back to the exact exploration at a possible violation on a
+        merged set (docs/verification.md); False: every branch separately.
+    unbounded : bool
+        Safety for all time: the run ends at an invariance certificate (the tube is not
+        repeated) or at the horizon ``max_samples`` sample times (no certificate).
     """
 
     problem: Problem
@@ -188,6 +208,12 @@ class LinearReach(ClosedLoopSetup):
     hold: str
     max_depth: int
     stats: dict = field(default_factory=lambda: {"branches": 0, "refinements": 0, "boxes": 0})
+    #: merge the sets of one sample that lie in one region and look for an invariance
+    #: certificate (:meth:`_run_merged`); False: every branch separately
+    merge: bool = True
+    #: safety for all time: stop at the certificate without repeating the tube, and never
+    #: fall back to the exact exploration (it would not end)
+    unbounded: bool = False
 
     def __post_init__(self) -> None:
         p = self.problem
@@ -195,6 +221,8 @@ class LinearReach(ClosedLoopSetup):
         self._init_properties()
         self.step = float(vs.step)
         self._flows: dict = {}
+        #: the arrays of an invariance certificate (H, h, points, pads), when one closed
+        self.certificate: dict | None = None
 
     # ---- flows --------------------------------------------------------------------------
 
@@ -375,7 +403,7 @@ class LinearReach(ClosedLoopSetup):
                 return None
         if t_k + tau_end >= self.T - 1e-12:
             return None
-        return _Star(X[-1], W[-1], s.H, s.h, s.verts, err[-1], s.k + 1, s.path)
+        return _Star(X[-1], W[-1], s.H, s.h, s.verts, err[-1], s.k + 1, s.path, s.exact)
 
     def _resolve(self, s, i, ta, tb, depth, blo, bhi, branch) -> bool:
         """Decide a suspicious segment: exact violation, or refine it in time.
@@ -397,7 +425,10 @@ class LinearReach(ClosedLoopSetup):
                     )
                 )
                 return False
-        if depth >= self.max_depth:
+        # a merged set is an over-approximation: refining it in time cannot remove what it
+        # adds, so it gets few levels (the exact run decides what it cannot)
+        limit = self.max_depth if s.exact else min(self.max_depth, _MERGED_DEPTH)
+        if depth >= limit:
             self.findings.append(Finding("max_depth", -1, t_k + ta, None))
             self.tubes.append(
                 Tube(
@@ -461,13 +492,38 @@ class LinearReach(ClosedLoopSetup):
             if piece is None:
                 continue
             H, h, verts = piece
-            children.append((int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),))))
+            children.append(
+                (int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),), s.exact))
+            )
         if not children:
             self.findings.append(Finding("undefined", -1, t, None))
         return children
 
     def run(self) -> None:
-        """Explore every branch; results in ``self.tubes`` and ``self.findings``."""
+        """Explore every branch; results in ``self.tubes`` and ``self.findings``.
+
+        First with merging and invariance certificates (:meth:`_run_merged`); when that
+        meets a possible violation on a merged set, again exactly (every branch kept).
+        """
+        if self.merge or self.unbounded:
+            try:
+                self._run_merged()
+                return
+            except _NeedExactError:
+                if self.unbounded:
+                    if not self.findings:
+                        self.findings.append(Finding("max_depth", -1, 0.0, None))
+                    return
+                self.stats["merged_attempt"] = {
+                    k: self.stats[k] for k in ("branches", "refinements")
+                }
+                self.tubes, self.findings = [], []
+                self.stats.update(branches=0, refinements=0)
+                self.stats.pop("certificate", None)
+        self._run_exact()
+
+    def _run_exact(self) -> None:
+        """Every branch explored separately (depth first), nothing merged."""
         n = self.n
         H0 = np.vstack([np.eye(n), -np.eye(n)])
         h0 = np.ones(2 * n)
@@ -488,6 +544,237 @@ class LinearReach(ClosedLoopSetup):
                     return
                 if nxt is not None:
                     stack.append(nxt)
+
+
+    # ---- merging and invariance certificates --------------------------------------------
+
+    def _directions(self, members: list[_Star], i: int | None) -> np.ndarray:
+        """Unit directions (k, n) of a merged set's template: the axes, the pairwise
+        diagonals, region i's rows (if any) and the members' own facets (in state
+        coordinates)."""
+        n = self.n
+        eye = np.eye(n)
+        rows = [eye, -eye]
+        for a, b in itertools.combinations(range(n), 2):
+            for sg in (1.0, -1.0):
+                d = (eye[a] + sg * eye[b]) / np.sqrt(2.0)
+                rows += [d[None], -d[None]]
+        if i is not None:
+            rows.append(self.law.A[i])
+        for s in members:
+            if not s.exact:
+                rows.append(s.H)
+            elif np.linalg.cond(s.V) < 1e8:
+                rows.append(s.H @ np.linalg.inv(s.V))  # any direction is sound
+        D = np.vstack(rows)
+        D = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-300)
+        _, keep = np.unique(np.round(D, 6), axis=0, return_index=True)
+        return D[np.sort(keep)]
+
+    def _hull(
+        self, members: list[_Star], i: int | None, extra: np.ndarray | None = None
+    ) -> _Star:
+        """One set in region i containing every member (and the points ``extra``); with
+        ``i`` None, not cut by a region (a set at a sample, before its split).
+
+        The template polytope ``{x : d' x <= e_d}``: ``e_d`` is the largest value of
+        ``d' x`` over the members' vertices widened by their error boxes and by the rounding
+        of the vertex images and of the products (1e-12 relative, far above it), so every
+        point of every member satisfies every row; cut by region i's rows (+1e-9, as a
+        split): the members' states that use law i are in the region. The result is in
+        state coordinates (``c = 0``, ``V = I``, no error) and not ``exact``.
+        """
+        D = self._directions(members, i)
+        absD = np.abs(D)
+        e = np.full(D.shape[0], -np.inf)
+        mag = np.zeros(D.shape[0])
+        for s in members:
+            X = s.c[None, :] + s.verts @ s.V.T  # (nv, n)
+            pad = _REL * (np.abs(s.c)[None, :] + np.abs(s.verts) @ np.abs(s.V).T) + s.err
+            e = np.maximum(e, (X @ D.T + pad @ absD.T).max(axis=0))
+            mag = np.maximum(mag, ((np.abs(X) + pad) @ absD.T).max(axis=0))
+        if extra is not None:
+            e = np.maximum(e, (extra @ D.T).max(axis=0))
+            mag = np.maximum(mag, (np.abs(extra) @ absD.T).max(axis=0))
+        e = e + _REL * (1.0 + mag) + 1e-300
+        if i is not None:
+            A, b = self.law.A[i], self.law.b[i]
+            D, e = np.vstack([D, A]), np.concatenate([e, b + 1e-9])
+        piece = checked_piece(D, e)
+        if piece is None:  # cannot happen for non-empty members; never drop a set
+            raise _NeedExactError
+        H, h, verts = piece
+        n = self.n
+        k = members[0].k
+        path = () if i is None else (i,)
+        return _Star(np.zeros(n), np.eye(n), H, h, verts, np.zeros(n), k, path, exact=False)
+
+    def _inside(self, s: _Star, S: _Star) -> bool:
+        """Is every point of star s (its error box included) in the merged set S?
+
+        S is in state coordinates (``H x <= h``); s lies in the hull of its vertex images
+        widened by its error box and their rounding, and a polytope contains a convex hull
+        when it contains the points.
+        """
+        X = s.c[None, :] + s.verts @ s.V.T
+        pad = _REL * (np.abs(s.c)[None, :] + np.abs(s.verts) @ np.abs(s.V).T) + s.err
+        absH = np.abs(S.H)
+        vals = X @ S.H.T + pad @ absH.T + _REL * (1.0 + np.abs(X) @ absH.T)
+        return bool(np.all(vals <= S.h[None, :]))
+
+    def _anchor(self, frontier: list[_Star]) -> _Star:
+        """A set containing every set of the sample and a small box around the MPC's
+        operating point (where the loop is steered): the candidate invariant set."""
+        lo = np.min([(s.c[None, :] + s.verts @ s.V.T).min(axis=0) - s.err for s in frontier], 0)
+        hi = np.max([(s.c[None, :] + s.verts @ s.V.T).max(axis=0) + s.err for s in frontier], 0)
+        xs = np.asarray(self.problem.model.x_op, float)
+        delta = 0.05 * (np.maximum(hi, xs) - np.minimum(lo, xs)) + 1e-9 * (1.0 + np.abs(xs))
+        return self._hull(frontier, None, extra=box_corners(xs - delta, xs + delta))
+
+    def _close(self, anchor: dict, k: int) -> None:
+        """Every set at sample k lies in the anchor's set S (sample ka < k): the tube of
+        [t_ka, t_k] repeats with period (k - ka) Ts up to the horizon (docs/verification.md,
+        "Invariance certificates")."""
+        ka = anchor["k"]
+        L = (k - ka) * self.Ts
+        t_k = k * self.Ts
+        self.stats["certificate"] = {
+            "kind": "invariant",
+            "anchor_sample": int(ka),
+            "closed_sample": int(k),
+            "anchor_time": float(ka * self.Ts),
+            "closed_time": float(t_k),
+            "period": float(L),
+        }
+        # what the containment rests on, for an independent re-check (verification.py):
+        # the anchor's rows and the sets' points widened by what _inside widens them by
+        S = anchor["S"]
+        pts, pads = [], []
+        for s in anchor["closing"]:
+            X = s.c[None, :] + s.verts @ s.V.T
+            pad = _REL * (np.abs(s.c)[None, :] + np.abs(s.verts) @ np.abs(s.V).T) + s.err
+            pts.append(X)
+            pads.append(pad + _REL * (1.0 + np.abs(X)))
+        self.certificate = {
+            "H": S.H.copy(),
+            "h": S.h.copy(),
+            "points": np.vstack(pts),
+            "pads": np.vstack(pads),
+        }
+        if self.unbounded or t_k >= self.T:
+            return
+        seg = Tube.concatenate(self.tubes[anchor["ntubes"] :], self.n)
+        copies = int(np.ceil((self.T - t_k) / L - 1e-12))
+        shift = np.repeat(np.arange(1, copies + 1) * L, seg.num_boxes)
+        t0 = np.tile(seg.t_start, copies) + shift
+        t1 = np.tile(seg.t_end, copies) + shift
+        keep = t0 < self.T
+        self.tubes.append(
+            Tube(
+                t0[keep],
+                np.minimum(t1[keep], self.T),
+                np.tile(seg.lower, (copies, 1))[keep],
+                np.tile(seg.upper, (copies, 1))[keep],
+                np.tile(seg.branch, copies)[keep],
+            )
+        )
+
+    def _run_merged(self) -> None:
+        """Breadth first over samples; the sets of a sample that lie in one region become
+        one (``_hull``), and a set anchored at an attracting fixed point is checked for an
+        invariance certificate at every later sample.
+
+        Raises ``_NeedExactError`` at a possible violation on a merged set (the exact run
+        decides); a possible violation after an anchor first undoes the anchor.
+        """
+        n = self.n
+        H0 = np.vstack([np.eye(n), -np.eye(n)])
+        frontier = [
+            _Star(self.c0.copy(), self.V0.copy(), H0, np.ones(2 * n),
+                  box_corners(-np.ones(n), np.ones(n)), np.zeros(n), 0)
+        ]
+        anchor: dict | None = None
+        next_try, attempts = 1, 0
+        while frontier:
+            k = frontier[0].k
+            if anchor is not None and k > anchor["k"]:
+                if all(self._inside(s, anchor["S"]) for s in frontier):
+                    anchor["closing"] = frontier
+                    self._close(anchor, k)
+                    return
+                if k - anchor["k"] > _ANCHOR_BUDGET:
+                    anchor, next_try = None, k + 10  # keep the (sound, wider) sets
+            remaining = (self.T - k * self.Ts) / self.Ts
+            if (
+                anchor is None
+                and k >= next_try
+                and attempts < _ANCHOR_ATTEMPTS
+                and remaining >= _ANCHOR_MIN_SAMPLES
+            ):
+                attempts += 1
+                S = self._anchor(frontier)
+                anchor = {"k": k, "S": S, "ntubes": len(self.tubes), "frontier": frontier}
+                frontier = [S]
+            groups: dict[int, list[_Star]] = {}
+            failed = False
+            for s in frontier:
+                out = self._split(s)
+                if isinstance(out, Finding):
+                    self.findings.append(out)
+                if self.findings:
+                    failed = True
+                    break
+                for i, child in out:
+                    groups.setdefault(i, []).append(child)
+            children = []
+            if not failed:
+                few = sum(len(g) for g in groups.values()) <= _MERGE_ABOVE
+                for i, members in groups.items():
+                    if few:  # few sets: kept exact (tighter, exact counterexamples)
+                        children.extend((i, m) for m in members)
+                    elif len(members) == 1:
+                        children.append((i, members[0]))
+                    else:
+                        children.append((i, self._hull(members, i)))
+                        self.stats["merges"] = self.stats.get("merges", 0) + len(members) - 1
+            nexts = []
+            if not failed:
+                for i, child in children:
+                    self.stats["branches"] += 1
+                    nxt = self._period(child, i)
+                    if self.findings:
+                        failed = True
+                        concrete = child.exact and all(
+                            f.alpha is not None for f in self.findings
+                        )
+                        if concrete and anchor is None:
+                            return  # a real counterexample (an exact star's initial state)
+                        break
+                    if nxt is not None:
+                        nexts.append(nxt)
+            if failed:
+                if anchor is None:
+                    raise _NeedExactError
+                # undo the anchor: back to its sample; inflate again only later
+                self.findings = []
+                del self.tubes[anchor["ntubes"] :]
+                next_try = k + 2 * (k - anchor["k"]) + 5
+                frontier, anchor = anchor["frontier"], None
+                continue
+            frontier = nexts
+
+
+#: samples an anchored set may take to return into itself before it is given up
+_ANCHOR_BUDGET = 200
+#: anchor only when at least this many samples remain (a short horizon needs no certificate)
+_ANCHOR_MIN_SAMPLES = 20
+#: the sets of a sample are merged by region only when there are more than this many
+#: (fewer stay exact: tighter tubes and exact counterexamples)
+_MERGE_ABOVE = 8
+#: time refinements of a suspicious segment of a merged set
+_MERGED_DEPTH = 2
+#: anchors tried per run (each undone one costs the samples it ran)
+_ANCHOR_ATTEMPTS = 5
 
 
 def _grid(tau_end: float, step: float) -> np.ndarray:

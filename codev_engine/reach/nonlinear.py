@@ -41,10 +41,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 
+from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import linearize, plant_model
+from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import ClosedLoopSetup, Finding
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
@@ -176,6 +178,9 @@ class NonlinearReach(ClosedLoopSetup):
         self.wrow = np.linalg.norm(self.Winv, axis=1) * self.winv_pad
         self._u_ok: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._rho_hint = 0.0
+        #: the last interval operation outside its domain (names the expression), if any
+        self.domain_note: str | None = None
+        self._failed: Finding | None = None
 
     # ---- metric ---------------------------------------------------------------------
 
@@ -193,10 +198,19 @@ class NonlinearReach(ClosedLoopSetup):
             if i >= 0:
                 A = Ac + Bc @ self.law.F[i]
                 if np.all(np.linalg.eigvals(A).real < 0):
-                    P = solve_continuous_lyapunov(A.T, -np.eye(self.n))
+                    # in the states scaled by the initial set's half-widths: a state that
+                    # varies by 0.01 next to one that varies by 1 K (a reactor's
+                    # concentration and temperature) must not share one ball's radius
+                    vs = p.verify
+                    half = 0.5 * (vs.initial_upper - vs.initial_lower)
+                    sc = np.where(half > 0, half, max(float(half.max()), 1.0))
+                    sc = sc / sc.max()
+                    As = A * sc[None, :] / sc[:, None]  # S^-1 A S
+                    P = solve_continuous_lyapunov(As.T, -np.eye(self.n))
                     P = 0.5 * (P + P.T)
                     P /= np.max(np.linalg.eigvalsh(P))
-                    W = np.linalg.cholesky(P).T
+                    W = np.linalg.cholesky(P).T / sc[None, :]  # |v|_W = |Ws S^-1 v|
+                    W /= np.linalg.norm(W, 2)
                     if np.linalg.cond(W) < 1e6:
                         return W, np.linalg.inv(W)
         except Exception:  # the metric is only a tightness heuristic
@@ -311,11 +325,37 @@ class NonlinearReach(ClosedLoopSetup):
         lo, hi = self._region_u(i)
         return bool(np.all(lo >= self.u_min) and np.all(hi <= self.u_max))
 
+    def _eval(self, fn, zlo, zhi):
+        """``fn`` over joint boxes, a box meeting a singularity giving ``[-inf, inf]``.
+
+        An interval operation outside its domain (division by an interval containing 0, log
+        of an interval reaching 0, ...) means that box has no finite enclosure: its outputs
+        become infinite (sound: every enclosure that uses them fails or is unbounded) and the
+        reason, naming the expression, is kept in ``self.domain_note`` for the verdict.
+        """
+        try:
+            return fn(zlo, zhi)
+        except IntervalDomainError as exc:
+            self.domain_note = str(exc)
+            bad = exc.boxes
+        zlo, zhi = np.asarray(zlo, float), np.asarray(zhi, float)
+        shape = fn.shape if zlo.ndim == 1 else (zlo.shape[0], *fn.shape)
+        lo, hi = np.full(shape, -np.inf), np.full(shape, np.inf)
+        if zlo.ndim == 1 or bad is None:
+            return lo, hi
+        good = np.ones(zlo.shape[0], dtype=bool)
+        good[bad] = False
+        idx = np.flatnonzero(good)
+        if idx.size:
+            glo, ghi = self._eval(fn, zlo[idx], zhi[idx])
+            lo[idx], hi[idx] = glo, ghi
+        return lo, hi
+
     def _fb(self, lo, hi, i, ulo, uhi):
         """f over boxes (N, n); ulo None: continuous hold, u = F x + G over the box."""
         if ulo is None:
             ulo, uhi = self._u_boxes(i, lo, hi)
-        return self.enc.f(lo, hi, ulo, uhi)
+        return self._eval(self.enc.f_fn, *self.enc.box(lo, hi, ulo, uhi))
 
     def _u_boxes(self, i, lo, hi):
         F, G = self.law.F[i], self.law.G[i]
@@ -367,13 +407,20 @@ class NonlinearReach(ClosedLoopSetup):
             pad = 0.1 * (nhi - nlo) + 1e-12 * (1.0 + np.abs(nlo) + np.abs(nhi))
             lo[todo] = np.minimum(lo[todo], nlo - pad)
             hi[todo] = np.maximum(hi[todo], nhi + pad)
+            # a candidate that is no longer finite (f unbounded on it: a singularity, an
+            # overflow) cannot become an enclosure: that row fails
+            fin = np.all(np.isfinite(lo[todo]), axis=1) & np.all(np.isfinite(hi[todo]), axis=1)
+            todo = todo[fin]
+            if todo.size == 0:
+                break
         return Blo, Bhi, Flo, Fhi, ok
 
     def _jac(self, lo, hi, i, ulo, uhi):
         """Interval Jacobians (Jx, Ju) over boxes, for the mode's input."""
         if ulo is None:
             ulo, uhi = self._u_boxes(i, lo, hi)
-        return self.enc.jac_x(lo, hi, ulo, uhi), self.enc.jac_u(lo, hi, ulo, uhi)
+        z = self.enc.box(lo, hi, ulo, uhi)
+        return self._eval(self.enc.jac_x_fn, *z), self._eval(self.enc.jac_u_fn, *z)
 
     # ---- one period ------------------------------------------------------------------
 
@@ -413,8 +460,15 @@ class NonlinearReach(ClosedLoopSetup):
             Y[j + 1] = x
         return Y
 
+    def _failure(self, t: float) -> Finding:
+        """The finding of an enclosure that could not be established at time t."""
+        if self.domain_note:
+            return Finding("enclosure", -1, t, None, f"{self.domain_note} at t = {t:.6g}")
+        return Finding("max_depth", -1, t, None)
+
     def _period(self, s: _Set, i: int):
         """Reach over one period in region i: (next set, tube, findings, record)."""
+        self.domain_note = None
         n, m = self.n, self.m
         F, G = self.law.F[i], self.law.G[i]
         t_k = s.k * self.Ts
@@ -449,13 +503,13 @@ class NonlinearReach(ClosedLoopSetup):
             Y = np.full((N + 1, n), np.nan)
         Y0 = Y[:-1]
         if not np.all(np.isfinite(Y)):
-            return None, _empty_tube(n), [Finding("max_depth", -1, t_k, None)], None
+            return None, _empty_tube(n), [self._failure(t_k)], None
         uC = (None, None) if not zoh else (uc, uc)
         Bclo, Bchi, _, _, okc = self._picard(Y0, Y0, i, uC[0], uC[1], hs)
         fyl, fyh = self._fb(Y0, Y0, i, *uC)
         if not okc.all():
             j = int(np.argmin(okc))
-            return None, _empty_tube(n), [Finding("max_depth", -1, t_k + taus[j], None)], None
+            return None, _empty_tube(n), [self._failure(t_k + taus[j])], None
         (jxl, jxh), (jul, juh) = self._jac(Bclo, Bchi, i, *uC)
         gl, gh = self._fb(Bclo, Bchi, i, *uC)
         if zoh:
@@ -477,6 +531,9 @@ class NonlinearReach(ClosedLoopSetup):
 
         # 2. Jacobian at the centre and the linear flow Phi (exact up to rounding)
         (cxl, cxh), (cul, cuh) = self._jac(Y0, Y0, i, *uC)
+        if not (np.all(np.isfinite(cxl + cxh)) and np.all(np.isfinite(cul + cuh))):
+            j = int(np.argmin(np.all(np.isfinite(cxl + cxh), axis=(1, 2))))
+            return None, _empty_tube(n), [self._failure(t_k + taus[j])], None
         Jxc = 0.5 * (cxl + cxh)
         Juc = 0.5 * (cul + cuh)
         if zoh:
@@ -579,7 +636,7 @@ class NonlinearReach(ClosedLoopSetup):
                     zl = np.hstack([Hlo[jfin], ul_])
                     zh = np.hstack([Hhi[jfin], uh_])
                 Dz = np.hstack([Dx, Du_]) * (1 + 1e-12)
-                hl, hh = self.hess(zl, zh)
+                hl, hh = self._eval(self.hess, zl, zh)
                 k = n + m
                 Hm = np.maximum(np.abs(hl), np.abs(hh)).reshape(-1, n, k, k)
                 Hm = np.where(np.isnan(Hm), np.inf, Hm)
@@ -598,13 +655,10 @@ class NonlinearReach(ClosedLoopSetup):
                 Rx = np.maximum(np.abs(Xl - Jxc[jfin]), np.abs(Xh - Jxc[jfin]))
                 Ru = np.maximum(np.abs(Ul - Juc[jfin]), np.abs(Uh - Juc[jfin]))
                 R = Rx if zoh else Rx + Ru @ np.abs(F)
-                a[jfin] = (
-                    np.linalg.norm(self.absW @ R @ self.absWinv, 2, axis=(1, 2))
-                    * (1 + 1e-12)
-                    * self.winv_pad
-                )
-                if zoh:
-                    b[jfin] = np.linalg.norm(self.absW @ Ru, 2, axis=(1, 2)) * (1 + 1e-12) * du_norm
+                with np.errstate(invalid="ignore"):
+                    a[jfin] = _norm2(self.absW @ R @ self.absWinv) * (1 + 1e-12) * self.winv_pad
+                    if zoh:
+                        b[jfin] = _norm2(self.absW @ Ru) * (1 + 1e-12) * du_norm
             rho = np.zeros(N + 1)
             bad, r, last = -1, 0.0, N
             for j in range(N):
@@ -615,9 +669,18 @@ class NonlinearReach(ClosedLoopSetup):
                         bad = j
                     last = j
                     break
-                r1 = _gronwall(r, mu[j], a[j], Sfull[j], hs[j], b[j])
-                r2 = _gronwall(r, mu[j], 0.0, 0.0, hs[j], c2[j]) if np.isfinite(c2[j]) else r1
-                r = (min(r1, r2) + eps_w[j] + fpm[j]) * (1 + 1e-12)
+                with np.errstate(all="ignore"):
+                    r1 = _gronwall(r, mu[j], a[j], Sfull[j], hs[j], b[j])
+                    r2 = _gronwall(r, mu[j], 0.0, 0.0, hs[j], c2[j]) if np.isfinite(c2[j]) else r1
+                    r = (np.fmin(r1, r2) + eps_w[j] + fpm[j]) * (1 + 1e-12)
+                if not np.isfinite(r):
+                    # no finite bound (an enclosure met a singularity): the substep fails
+                    okb = okb.copy()
+                    okb[j] = False
+                    if bad < 0:
+                        bad = j
+                    last = j
+                    break
                 rho[j + 1] = r
             if bad < 0:
                 break
@@ -636,7 +699,7 @@ class NonlinearReach(ClosedLoopSetup):
                 Bhi[:bad],
                 self.stats["branches"],
             )
-            return None, tube, [Finding("max_depth", -1, t_k + taus[bad], None)], None
+            return None, tube, [self._failure(t_k + taus[bad])], None
         self._rho_hint = 0.5 * self._rho_hint + 0.5 * float(rho[N])
         tube = _tube(t_k + taus[:-1], t_k + taus[1:], Blo, Bhi, self.stats["branches"])
         swlo = _dn(hc * np.minimum(flo, 0.0))
@@ -790,6 +853,8 @@ class NonlinearReach(ClosedLoopSetup):
                     tubes.append(tube)
                     if findings:
                         # the enclosure failed: this branch cannot go on, even when complete
+                        if findings[0].kind == "enclosure" and self._failed is None:
+                            self._failed = findings[0]
                         flag("violation", findings[0].t)
                         return status, tubes, first_t
                     if self._violations(tube, i, child, rec):
@@ -937,6 +1002,7 @@ class NonlinearReach(ClosedLoopSetup):
         while queue:
             lo, hi, depth = queue.pop()
             self.stats["partitions"] += 1
+            self._failed = None
             status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
             if status == "ok":
                 self.tubes.extend(tubes)
@@ -945,10 +1011,16 @@ class NonlinearReach(ClosedLoopSetup):
             # fast fixed-step simulation, confirmed with the reference integrator)
             x0 = 0.5 * (lo + hi)
             v = None
-            sims = simulate_many(self.problem, self.law, x0[None], hold=self.hold, dt=self.h)
-            if violations_many(self.problem, *sims)[0][0]:
-                trace = simulate(self.problem, self.law, x0, hold=self.hold)
-                v = first_violation(self.problem, self.law, trace)
+            try:
+                with np.errstate(all="ignore"):
+                    sims = simulate_many(
+                        self.problem, self.law, x0[None], hold=self.hold, dt=self.h
+                    )
+                if violations_many(self.problem, *sims)[0][0]:
+                    trace = simulate(self.problem, self.law, x0, hold=self.hold)
+                    v = first_violation(self.problem, self.law, trace)
+            except SolverError:
+                v = None  # the trajectory is not finite (a singularity): no counterexample
             if v is not None:
                 rad = np.diag(self.V0)
                 alpha = np.where(rad > 0, (x0 - self.c0) / np.where(rad > 0, rad, 1.0), 0.0)
@@ -956,8 +1028,11 @@ class NonlinearReach(ClosedLoopSetup):
                 self.tubes.extend(tubes)
                 return
             if depth >= self.max_depth:
-                kind = "undefined" if status == "undefined" else "max_depth"
-                self.findings.append(Finding(kind, -1, float(t_bad or 0.0), None))
+                if self._failed is not None:
+                    self.findings.append(self._failed)  # names the singular expression
+                else:
+                    kind = "undefined" if status == "undefined" else "max_depth"
+                    self.findings.append(Finding(kind, -1, float(t_bad or 0.0), None))
                 self.tubes.extend(tubes)
                 continue
             self.stats["refinements"] += 1
@@ -986,6 +1061,16 @@ def _tube(t0, t1, lo, hi, branch) -> Tube:
 
 def _empty_tube(n: int) -> Tube:
     return Tube.empty(n)
+
+
+def _norm2(mats: np.ndarray) -> np.ndarray:
+    """Spectral norms of a batch (P, r, c) of matrices; inf where an entry is not finite (an
+    enclosure that met a singularity)."""
+    fin = np.all(np.isfinite(mats), axis=(1, 2))
+    out = np.full(mats.shape[0], np.inf)
+    if fin.any():
+        out[fin] = np.linalg.norm(mats[fin], 2, axis=(1, 2))
+    return out
 
 
 def _gronwall(rho: float, mu: float, a: float, S: float, h: float, b: float) -> float:

@@ -140,6 +140,30 @@ class Violation:
 # ---------------------------------------------------------------------------------------
 
 
+#: sample times simulated and shown for a spec verified for all time (time_horizon = "inf")
+SHOWN_SAMPLES = 50
+
+
+def shown_horizon(problem: Problem) -> float:
+    """The time simulations and figures cover by default: ``verify.time_horizon``, or for
+    a spec verified for all time (``"inf"``) ``min(max_samples, 50)`` sample times.
+
+    Parameters
+    ----------
+    problem : Problem
+        With a ``[verify]`` section.
+
+    Returns
+    -------
+    float
+        A finite time (s).
+    """
+    vs = problem.verify
+    if math.isfinite(vs.time_horizon):
+        return float(vs.time_horizon)
+    return min(vs.max_samples, SHOWN_SAMPLES) * float(problem.model.sample_time)
+
+
 def _settings(problem: Problem, hold, t_end, dt, dt_factor: float) -> tuple[str, float, float]:
     v = problem.verify
     hold = hold if hold is not None else (v.hold if v is not None else "zoh")
@@ -148,7 +172,7 @@ def _settings(problem: Problem, hold, t_end, dt, dt_factor: float) -> tuple[str,
     if t_end is None:
         if v is None:
             raise ValueError("the problem has no [verify] section: give t_end")
-        t_end = v.time_horizon
+        t_end = shown_horizon(problem)
     t_end = float(t_end)
     if not (math.isfinite(t_end) and t_end >= 0.0):
         raise ValueError(f"t_end must be finite and >= 0, got {t_end}")

@@ -11,8 +11,15 @@ Verdicts
     simulation (scipy ``solve_ivp``, tight tolerances) from the reported initial state.
 ``unknown``
     With ``reason`` ``"max_depth"`` (refinement budget exhausted while the
-    over-approximation still meets a property boundary) or ``"infeasible_region"`` (only the
-    over-approximation leaves the law's domain).
+    over-approximation still meets a property boundary), ``"infeasible_region"`` (only the
+    over-approximation leaves the law's domain) or ``"enclosure"`` (refinement budget
+    exhausted on an interval enclosure that meets a singularity: ``detail`` names the
+    operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
+    "inf"``: no invariance certificate within ``max_samples``). A limitation of the verifier
+    is a verdict, never an error blamed on the input.
+
+With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
+``certificate`` (re-checked by LP when loaded).
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.display import Displayable
-from codev_engine.errors import SpecError
+from codev_engine.errors import SolverError, SpecError
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
 from codev_engine.reach.linear import LinearReach, affine_plant
@@ -53,6 +60,9 @@ UNKNOWN_WORDS = {
     "infeasible_region": "the reach set leaves the law's domain",
     "law_parameters": "the law also takes the previous input or a reference, which the "
     "reach engines do not track yet",
+    "enclosure": "an interval enclosure meets a singularity",
+    "no_invariant": "no invariance certificate within max_samples",
+    "invariant": "for all time: an invariance certificate",
 }
 
 
@@ -112,6 +122,16 @@ class VerificationResult(Displayable):
     stats : dict
         Counters of the run (``branches``, ``refinements``, ``boxes``, ``partitions``,
         ``method``, ``seconds``, ...), for reports.
+    detail : str or None
+        Why, in words, when the reason needs more than its name (``"enclosure"``: the
+        operation, the expression and the time, e.g. ``division by an interval containing
+        0 in -8750/T at t = 0.35``).
+    certificate : dict or None
+        With ``time_horizon = "inf"`` and verdict ``robustly_safe`` (reason
+        ``"invariant"``): the invariant set's rows ``H`` (r, n), ``h`` (r,) and the points
+        ``points`` (p, n) with their error half-widths ``pads`` (p, n) whose boxes hold
+        every state at the closing sample (``stats["certificate"]`` says which samples).
+        Re-checked by LP when a saved result is loaded.
     """
 
     verdict: str
@@ -120,6 +140,8 @@ class VerificationResult(Displayable):
     hold: str
     counterexample: Counterexample | None = None
     stats: dict = field(default_factory=dict)
+    detail: str | None = None
+    certificate: dict | None = None
 
     @property
     def seconds(self) -> float:
@@ -160,6 +182,11 @@ class VerificationResult(Displayable):
             "reason": np.array(self.reason or ""),
             "hold": np.array(self.hold),
             "stats": np.array(json.dumps(self.stats, default=_json_scalar)),
+            "detail": np.array(self.detail or ""),
+            **{
+                f"cert_{k}": np.asarray(v, dtype=float)
+                for k, v in (self.certificate or {}).items()
+            },
             **self.tube.arrays("tube_"),
         }
         ce = self.counterexample
@@ -249,7 +276,23 @@ class VerificationResult(Displayable):
                 trace=trace,
             )
         reason = text(data, "reason") or None
-        return cls(verdict, reason, tube, hold, cex, stats)
+        detail = (text(data, "detail") or None) if "detail" in data else None
+        certificate = None
+        if "cert_H" in data:
+            H = real(data, "cert_H", ndim=2)
+            r = H.shape[0]
+            certificate = {
+                "H": H,
+                "h": real(data, "cert_h", shape=(r,)),
+                "points": real(data, "cert_points", ndim=2),
+                "pads": real(data, "cert_pads", ndim=2),
+            }
+            if not check_certificate(certificate):
+                raise SpecError(
+                    "the invariance certificate does not hold (a point outside the set)",
+                    field="cert_points",
+                )
+        return cls(verdict, reason, tube, hold, cex, stats, detail, certificate)
 
     def summary(self) -> str:
         """The verdict and why, the tube's size and the time; the counterexample, if any."""
@@ -258,6 +301,8 @@ class VerificationResult(Displayable):
             line += f" ({self.counterexample.describe()})"
         elif self.reason:
             line += f" ({UNKNOWN_WORDS.get(self.reason, self.reason)})"
+            if self.detail:
+                line += f" [{self.detail}]"
         line += f"; hold {self.hold}; {self.tube.num_boxes} boxes"
         line += f"; {self.stats.get('branches', 0)} branches in {self.seconds:.3f} s"
         if self.counterexample is not None:
@@ -267,6 +312,57 @@ class VerificationResult(Displayable):
                 f"{ce.kind} at t = {ce.t:.4f}"
             )
         return line
+
+
+def check_certificate(certificate: dict) -> bool:
+    """Re-check an invariance certificate by LP: every point's box lies in ``H x <= h``.
+
+    For each row ``H_r``, the LP ``max sum_i lam_i (H_r p_i + |H_r| pad_i)`` over the
+    simplex (the largest value of the row over the convex hull of the widened points) must
+    be at most ``h_r``; a polytope that holds those boxes holds their convex hull.
+
+    Parameters
+    ----------
+    certificate : dict
+        ``H`` (r, n), ``h`` (r,), ``points`` (p, n), ``pads`` (p, n), as in
+        :attr:`VerificationResult.certificate`.
+
+    Returns
+    -------
+    bool
+        True when the containment holds (False also for inconsistent shapes or values).
+    """
+    from codev_engine.geometry.polytope import solve_lp
+
+    H = np.asarray(certificate.get("H"), float)
+    h = np.asarray(certificate.get("h"), float)
+    P = np.asarray(certificate.get("points"), float)
+    pads = np.asarray(certificate.get("pads"), float)
+    if (
+        H.ndim != 2
+        or h.shape != (H.shape[0],)
+        or P.ndim != 2
+        or P.shape[1] != H.shape[1]
+        or pads.shape != P.shape
+        or P.shape[0] == 0
+        or not all(np.all(np.isfinite(a)) for a in (H, h, P, pads))
+        or np.any(pads < 0)
+    ):
+        return False
+    p = P.shape[0]
+    vals = P @ H.T + pads @ np.abs(H).T  # (p, r)
+    ones = np.ones((1, p))
+    for r in range(H.shape[0]):
+        lam, st, _ = solve_lp(
+            -vals[:, r], np.zeros((0, p)), np.zeros(0), Aeq=ones, beq=np.ones(1), lb=np.zeros(p)
+        )
+        if st != "optimal":
+            return False
+        best = float(vals[:, r] @ lam)
+        # the LP's own tolerance: the value of the best vertex decides when it is larger
+        if max(best, float(vals[:, r].max())) > h[r]:
+            return False
+    return True
 
 
 def check_law_matches(problem: Problem, law: ExplicitLaw, *, file: str | None = None) -> None:
@@ -325,14 +421,43 @@ def verify(
     t0 = time.perf_counter()
     if law.n > problem.plant.n:
         # theta = (x, u_prev, r): the closed loop's state is longer than the plant's; a
-        # limitation of the verifier, so a verdict and not an error
+        # limitation of the verifier, so a verdict and not an error (and no certificate
+        # on x alone, which would be unsound for a law that depends on u_prev)
         stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
-        return VerificationResult("unknown", "law_parameters", Tube.empty(problem.plant.n),
-                                  hold, None, stats)
+        result = VerificationResult("unknown", "law_parameters", Tube.empty(problem.plant.n),
+                                    hold, None, stats)
+        result.attach_display(problem=problem, law=law)
+        return result
+    unbounded = not np.isfinite(vs.time_horizon)
+    if unbounded:
+        # safety for all time: explore up to max_samples samples for a certificate (and
+        # simulate that long for counterexamples)
+        bounded = vs.max_samples * float(problem.model.sample_time)
+        problem = replace(problem, verify=replace(vs, time_horizon=bounded))
+        vs = problem.verify
     plant = affine_plant(problem)
+    certificate = None
+    if unbounded and plant is None:
+        # invariance certificates are built by the linear engine only: no claim, but a
+        # counterexample is still looked for
+        tube = Tube.empty(problem.plant.n)
+        cex = _search(problem, law, hold)
+        stats = {"branches": 0, "boxes": 0, "seconds": time.perf_counter() - t0}
+        if cex is not None:
+            return VerificationResult("unsafe", cex.kind, tube, hold, cex, stats)
+        return VerificationResult(
+            "unknown",
+            "no_invariant",
+            tube,
+            hold,
+            None,
+            stats,
+            "invariance certificates are computed for affine plants only",
+        )
     if plant is not None:
-        eng = LinearReach(problem, law, plant, hold, depth)
+        eng = LinearReach(problem, law, plant, hold, depth, unbounded=unbounded)
         eng.run()
+        certificate = eng.certificate
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
         stats["partitions"] = 1
@@ -353,14 +478,38 @@ def verify(
         if cex is not None:
             verdict, reason = "unsafe", cex.kind
             break
+    detail = None
     if verdict != "unsafe" and findings:
         kinds = {f.kind for f in findings}
         verdict = "unknown"
-        reason = "infeasible_region" if "undefined" in kinds else "max_depth"
+        if "undefined" in kinds:
+            reason = "infeasible_region"
+        elif "enclosure" in kinds:
+            reason = "enclosure"
+            detail = next(f.detail for f in findings if f.kind == "enclosure")
+        else:
+            reason = "max_depth"
         # a possible violation is worth a few concrete simulations
         cex = _search(problem, law, hold)
         if cex is not None:
-            verdict, reason = "unsafe", cex.kind
+            verdict, reason, detail = "unsafe", cex.kind, None
+    if unbounded and verdict == "robustly_safe":
+        c = stats.get("certificate")
+        if c is None or certificate is None or not check_certificate(certificate):
+            verdict, reason, certificate = "unknown", "no_invariant", None
+            detail = f"no invariance certificate within max_samples = {vs.max_samples} samples"
+            cex = _search(problem, law, hold)
+            if cex is not None:
+                verdict, reason, detail = "unsafe", cex.kind, None
+        else:
+            reason = "invariant"
+            detail = (
+                f"every reach set at sample {c['closed_sample']} (t = {c['closed_time']:g}) "
+                f"lies in the set anchored at sample {c['anchor_sample']} "
+                f"(t = {c['anchor_time']:g}): the tube repeats with period {c['period']:g}"
+            )
+    if verdict != "robustly_safe":
+        certificate = None
     if verdict == "unsafe" and cex is not None and tube.num_boxes:
         # exploration stopped at the counterexample: the tube is partial, keep what
         # precedes it (docs/verification.md)
@@ -374,7 +523,7 @@ def verify(
         )
         stats["boxes"] = tube.num_boxes
     stats["seconds"] = time.perf_counter() - t0
-    result = VerificationResult(verdict, reason, tube, hold, cex, stats)
+    result = VerificationResult(verdict, reason, tube, hold, cex, stats, detail, certificate)
     result.attach_display(problem=problem, law=law)  # state names and sets in the picture
     return result
 
@@ -387,7 +536,10 @@ def _confirm(
 
     vs = problem.verify
     x0 = np.clip(x0, vs.initial_lower, vs.initial_upper)
-    trace = simulate(problem, law, x0, hold=hold)
+    try:
+        trace = simulate(problem, law, x0, hold=hold)
+    except SolverError:  # not finite (a singularity): no confirmed counterexample
+        return None
     v = first_violation(problem, law, trace)
     if v is None:
         return None
@@ -408,7 +560,17 @@ def _search(
     )
     rng = np.random.default_rng(0)
     X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples], rng.uniform(lo, hi, (samples, n))])
-    t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+    with np.errstate(all="ignore"):
+        try:
+            t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+        except SolverError:  # a trajectory is not finite: search the others
+            X0 = X0[[_finite_run(problem, law, hold, x) for x in X0]]
+            if X0.shape[0] == 0:
+                return None
+            try:
+                t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+            except SolverError:
+                return None
     bad, _ = violations_many(problem, t, X, U, alive)
     for p in np.flatnonzero(bad):
         cex = _confirm(problem, law, hold, X0[p])
@@ -421,3 +583,14 @@ def with_hold(problem: Problem, hold: str) -> Problem:
     """A copy of ``problem`` whose verify section uses ``hold``."""
     assert problem.verify is not None
     return replace(problem, verify=replace(problem.verify, hold=hold))
+
+
+def _finite_run(problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray) -> bool:
+    """Does the fast simulation from x0 stay finite?"""
+    from codev_engine.reach.simulate import simulate_many
+
+    try:
+        simulate_many(problem, law, x0[None], hold=hold)
+    except SolverError:
+        return False
+    return True

@@ -24,8 +24,9 @@ first screen before sympy and scipy are loaded.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -289,10 +290,16 @@ def _verification_inputs(
 ) -> dict | None:
     if problem.verify is None:
         return None
+    vs = _effective_verify(problem, options)
+    verify_fields = {f.name: getattr(vs, f.name) for f in fields(vs)}
+    if math.isfinite(vs.time_horizon):
+        # max_samples only matters for time_horizon = "inf": left out, the keys of every
+        # bounded verification are the ones sessions recorded before it existed
+        del verify_fields["max_samples"]
     return {
         "synthesis": keys["synthesis"],
         "plant": problem.plant,
-        "verify": _effective_verify(problem, options),
+        "verify": verify_fields,
     }
 
 

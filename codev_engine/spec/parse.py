@@ -56,6 +56,7 @@ _MPC = (
 )  # fmt: skip
 _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
+    "max_samples",
 )  # fmt: skip
 
 
@@ -446,7 +447,14 @@ def _verify(value: Any, n: int) -> VerifySpec:
         required=("time_horizon", "initial_set"),
         optional=tuple(k for k in _VERIFY if k not in ("time_horizon", "initial_set")),
     )
-    horizon = _positive(t["time_horizon"], "verify.time_horizon")
+    raw = t["time_horizon"]
+    if isinstance(raw, str) and raw.strip().lower() == "inf":
+        raw = math.inf  # safety for all time: an invariance certificate or unknown
+    if isinstance(raw, float) and math.isinf(raw) and raw > 0:
+        horizon = math.inf
+    else:
+        horizon = _positive(raw, "verify.time_horizon")
+    max_samples = _integer(t.get("max_samples", 1000), "verify.max_samples", minimum=1)
     hold = _choice(t.get("hold", "zoh"), "verify.hold", HOLDS)
     max_depth = _integer(t.get("max_depth", 6), "verify.max_depth", minimum=0)
     step = _positive(t.get("step", 0.01), "verify.step")
@@ -472,6 +480,7 @@ def _verify(value: Any, n: int) -> VerifySpec:
         input_bounds=input_bounds,
         unsafe=unsafe,
         safe=safe,
+        max_samples=max_samples,
     )
 
 

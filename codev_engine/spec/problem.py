@@ -307,7 +307,8 @@ class VerifySpec:
     Attributes
     ----------
     time_horizon : float
-        Length of the verified time interval (s).
+        Length of the verified time interval (s); ``inf`` (the spec's ``"inf"``): safety for
+        all time, proved by an invariance certificate.
     initial_lower, initial_upper : (n,) ndarray
         The box of initial states.
     hold : str
@@ -323,6 +324,9 @@ class VerifySpec:
         Sets the state must never enter.
     safe : tuple of SetSpec
         Sets the state must always stay inside (every one of them).
+    max_samples : int
+        With an infinite ``time_horizon``: the samples within which an invariance
+        certificate must close (else the verdict is ``unknown``, ``no_invariant``).
     """
 
     time_horizon: float
@@ -334,6 +338,7 @@ class VerifySpec:
     input_bounds: bool = False
     unsafe: tuple[SetSpec, ...] = ()
     safe: tuple[SetSpec, ...] = ()
+    max_samples: int = 1000
 
 
 @dataclass(frozen=True)

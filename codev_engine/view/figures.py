@@ -492,7 +492,9 @@ def plot_tube(
         ylo, yhi = min(ylo, float(xh.min())), max(yhi, float(xh.max()))
         tmax = max(tmax, float(tt[-1]))
     if problem is not None and problem.verify is not None:
-        tmax = max(tmax, problem.verify.time_horizon)
+        from codev_engine.reach.simulate import shown_horizon
+
+        tmax = max(tmax, shown_horizon(problem))
     ylim = _padded(ylo, yhi)
     if bands.shape[0]:
         # at least 1 % of the axis high, so a thin tube does not read as a line (the

@@ -287,7 +287,9 @@ class RecordingContent:
         """The time axis' extent: ``verify.time_horizon``, else ten sample times."""
         vs = self.problem.verify
         if vs is not None:
-            return float(vs.time_horizon)
+            from codev_engine.reach.simulate import shown_horizon
+
+            return shown_horizon(self.problem)  # finite, also for time_horizon = "inf"
         return 10.0 * float(self.problem.model.sample_time)
 
     @classmethod

@@ -94,7 +94,8 @@ EXPECTED = {
 
 
 #: examples added since the paper: nonlinear plants (``dynamics`` only, linearised at the
-#: origin), digital controllers (hold "zoh"), input bounds checked, terminal weights P
+#: origin unless an operating point is given), digital controllers (hold "zoh"), input
+#: bounds checked, terminal weights P
 NONLINEAR = {
     "pendulum.toml": dict(
         name="pendulum", states=("th", "w"), inputs=("T",),
@@ -115,6 +116,18 @@ NONLINEAR = {
         u_min=[-0.65], u_max=[0.65], domain_bound=2.5,
         time_horizon=10.0, initial=([0.6, -0.7, -0.4, 0.5], [0.63, -0.67, -0.37, 0.53]),
         unsafe=[], safe=[("box", [-2.0] * 4, [2.0] * 4)],
+    ),
+    "cstr.toml": dict(
+        name="cstr", states=("CA", "T"), inputs=("Tc",),
+        dynamics=("(1.0 - CA) - 7.2e10*exp(-8750/T)*CA",
+                  "(350.0 - T) + 209.2050209*7.2e10*exp(-8750/T)*CA + 2.092050209*(Tc - T)"),
+        sample_time=0.05, horizon=5, norm="2",
+        Q=[[100.0, 0.0], [0.0, 1.0]], R=[[0.1]], P=[[5550.0, 99.37], [99.37, 5.704]],
+        x_min=[0.0, 320.0], x_max=[1.0, 380.0], u_min=[280.0], u_max=[320.0],
+        domain_bound=100.0, x_op=[0.5, 350.0], u_op=[300.0],
+        time_horizon=3.0, initial=([0.52, 351.0], [0.56, 354.0]),
+        unsafe=[("box", [-np.inf, 365.0], [np.inf, np.inf])],
+        safe=[("box", [0.0, 320.0], [1.0, 380.0])],
     ),
     "vanderpol.toml": dict(
         name="vanderpol", states=("x1", "x2"), inputs=("u",),
@@ -207,10 +220,10 @@ def test_nonlinear_examples_load(fname):
     assert (p.plant.n, p.plant.m) == (n, m)
     assert p.plant.dynamics == want["dynamics"]
     assert p.plant.A is None and p.plant.B is None
-    # model: linearised at the origin, sampled with zoh
+    # model: linearised at the origin (or the given operating point), sampled with zoh
     assert (p.model.method, p.model.sample_time) == ("zoh", want["sample_time"])
-    assert p.model.x_op.shape == (n,) and not p.model.x_op.any()
-    assert p.model.u_op.shape == (m,) and not p.model.u_op.any()
+    assert p.model.x_op.tolist() == want.get("x_op", [0.0] * n)
+    assert p.model.u_op.tolist() == want.get("u_op", [0.0] * m)
     assert p.model.A is None and p.model.B is None
     # mpc
     mpc = p.mpc

@@ -75,6 +75,8 @@ NONLINEAR_FAST = [
     ("vanderpol", "continuous"),
     ("tora", "zoh"),
     ("tora", "continuous"),
+    ("cstr", "zoh"),
+    ("cstr", "continuous"),
 ]
 #: None at the moment (kept for cases that outgrow the default run).
 NONLINEAR_SLOW: list[tuple[str, str]] = []
@@ -232,7 +234,7 @@ def _assert_sound(problem, law, result: VerificationResult, label: str, sims=Non
     # that time -- which branch, the tube does not say, so coverage is not checked then
     stopped_branches = (
         result.verdict == "unknown"
-        and result.reason == "max_depth"
+        and result.reason in ("max_depth", "enclosure")
         and affine_plant(problem) is None
     )
     if result.verdict == "unsafe":
@@ -243,7 +245,7 @@ def _assert_sound(problem, law, result: VerificationResult, label: str, sims=Non
             f"{label}: {result.verdict} but the tube ends at {tube.t_end.max()}"
         )
         if result.verdict == "unknown":
-            assert result.reason in ("max_depth", "infeasible_region"), label
+            assert result.reason in ("max_depth", "infeasible_region", "enclosure"), label
         else:
             assert result.reason is None
 
@@ -603,6 +605,71 @@ def test_nonlinear_examples_are_robustly_safe(verified, stem, hold):
     # simulation finds no violation with the continuous hold either)
     _, _, result = verified(stem, hold)
     assert (result.verdict, result.reason) == ("robustly_safe", None), result.summary()
+
+
+def test_cstr_is_robustly_safe(verified):
+    # examples/cstr.toml: an Arrhenius rate k0 exp(-E/(R T)) with k0 = 7.2e10 at T ~ 350 K,
+    # operated far from the origin; "the verification should show, over 3 min, with a
+    # digital (zoh) controller" no violation (issue 26: it used to end in exit 2,
+    # "division by an interval containing 0 in -8750/T")
+    _, _, result = verified("cstr", "zoh")
+    assert (result.verdict, result.reason) == ("robustly_safe", None), result.summary()
+
+
+#: a plant with a pole at x = 3 inside the initial set: no enclosure of f exists there
+SINGULAR = """
+name = "singular"
+
+[plant]
+states = ["x"]
+inputs = ["u"]
+dynamics = ["-x + u + 0.01/(x - 3)"]
+
+[model]
+sample_time = 0.1
+
+[mpc]
+horizon = 2
+norm = "2"
+Q = [[1.0]]
+R = [[1.0]]
+x_min = [-5.0]
+x_max = [5.0]
+u_min = [-1.0]
+u_max = [1.0]
+
+[verify]
+time_horizon = 0.5
+max_depth = 1
+initial_set = { lower = [2.9], upper = [3.1] }
+"""
+
+
+def test_a_singular_enclosure_is_a_verdict_not_bad_input(tmp_path):
+    """Issue 26: an enclosure meeting a singularity refines, then ends in ``unknown`` with a
+    reason naming the expression and the time (exit 1); exit 2 is for malformed input."""
+    spec = tmp_path / "singular.toml"
+    spec.write_text(SINGULAR)
+    out = tmp_path / "result.npz"
+    proc = run_codev("verify", spec, "--json", cwd=tmp_path)
+    assert proc.returncode == 1, (proc.returncode, proc.stdout, proc.stderr)
+    assert "Traceback" not in proc.stderr and "error" not in proc.stderr, proc.stderr
+    payload = json.loads(proc.stdout)
+    assert (payload["verdict"], payload["reason"]) == ("unknown", "enclosure"), payload
+    assert "division by an interval containing 0" in payload["detail"], payload
+    assert "0.01/(x - 3)" in payload["detail"] and "at t = 0" in payload["detail"]
+    # the plain output says it too, and the reason survives a save and a load
+    plain = run_codev("verify", spec, cwd=tmp_path)
+    assert plain.returncode == 1, plain.stderr
+    assert "interval enclosure meets a singularity" in plain.stdout
+    assert "0.01/(x - 3)" in plain.stdout
+    problem = ce.loads_spec(SINGULAR)
+    result = verify(problem, ce.synthesize(problem))
+    assert (result.verdict, result.reason) == ("unknown", "enclosure")
+    assert result.stats["refinements"] >= 1  # the initial set was split before giving up
+    result.save(out)
+    back = VerificationResult.load(out)
+    assert (back.verdict, back.reason, back.detail) == ("unknown", "enclosure", result.detail)
 
 
 def test_tora_zoh_is_fast(verified):
