@@ -35,6 +35,7 @@ from codev_engine.geometry.polytope import (
 from codev_engine.geometry.vertices import box_corners, checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import symbolic_model
+from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -163,8 +164,13 @@ class ClosedLoopSetup:
         self.u_min = np.asarray(p.mpc.u_min, float) - 1e-7 * (1 + np.abs(p.mpc.u_min))
         self.u_max = np.asarray(p.mpc.u_max, float) + 1e-7 * (1 + np.abs(p.mpc.u_max))
         self.boxes_lo, self.boxes_hi = self.law.boxes
-        self.c0 = 0.5 * (vs.initial_lower + vs.initial_upper)
-        self.V0 = np.diag(0.5 * (vs.initial_upper - vs.initial_lower))
+        # the closed loop's state is the law's parameter theta = (x, u_prev, r): u_prev is
+        # the input held over the last period, r a constant (d = n for a law in x alone)
+        self.d = int(self.law.n) if self.law.num_regions else self.n
+        lo, hi = theta_initial_box(p) if self.d > self.n else (vs.initial_lower,
+                                                                 vs.initial_upper)
+        self.c0 = 0.5 * (lo + hi)
+        self.V0 = np.diag(0.5 * (hi - lo))
         self.tubes: list[Tube] = []
         self.findings: list[Finding] = []
 
@@ -269,6 +275,9 @@ class LinearReach(ClosedLoopSetup):
             F, G = self.law.F[i], self.law.G[i]
             E11, E12, E13 = E[:, :n, :n], E[:, :n, n : n + self.m], E[:, :n, -1]
             M11, M12, M13 = Emag[:, :n, :n], Emag[:, :n, n : n + self.m], Emag[:, :n, -1]
+            if self.d > n:  # x(tau) from theta_k = (x_k, u_prev, r): pad with zeros
+                pad = np.zeros((E11.shape[0], n, self.d - n))
+                E11, M11 = np.concatenate([E11, pad], 2), np.concatenate([M11, pad], 2)
             Phi = E11 + E12 @ F
             g = np.einsum("jnm,m->jn", E12, G) + E13
             Pm = M11 + M12 @ np.abs(F)
@@ -403,7 +412,34 @@ class LinearReach(ClosedLoopSetup):
                 return None
         if t_k + tau_end >= self.T - 1e-12:
             return None
+        if self.d > self.n:
+            return self._next_theta(s, i, X[-1], W[-1], err[-1])
         return _Star(X[-1], W[-1], s.H, s.h, s.verts, err[-1], s.k + 1, s.path, s.exact)
+
+    def _next_theta(self, s: _Star, i: int, X: np.ndarray, W: np.ndarray, err: np.ndarray
+                    ) -> _Star:
+        """theta at the next sample: (x(T), the input just held, r) -- exact affine maps.
+
+        The held input ``u = F_i theta + G_i`` is affine in alpha; its rounding error is
+        bounded like the flow's (``|F| err`` propagated, ``_REL`` of the terms added).
+        """
+        n, m = self.n, self.m
+        F, G = self.law.F[i], self.law.G[i]
+        parts_c, parts_V, parts_e = [X], [W], [err]
+        if self.problem.mpc.has_rates:
+            uc = F @ s.c + G
+            uV = F @ s.V
+            ue = (np.abs(F) @ s.err + _REL * (np.abs(F) @ np.abs(s.c)
+                  + (np.abs(F) @ np.abs(s.V)).sum(axis=1) + np.abs(G)) + 1e-300)
+            parts_c.append(uc)
+            parts_V.append(uV)
+            parts_e.append(ue)
+        r0 = n + (m if self.problem.mpc.has_rates else 0)
+        parts_c.append(s.c[r0:])
+        parts_V.append(s.V[r0:])
+        parts_e.append(s.err[r0:])
+        return _Star(np.concatenate(parts_c), np.vstack(parts_V), s.H, s.h, s.verts,
+                     np.concatenate(parts_e), s.k + 1, s.path, s.exact)
 
     def _resolve(self, s, i, ta, tb, depth, blo, bhi, branch) -> bool:
         """Decide a suspicious segment: exact violation, or refine it in time.
@@ -505,7 +541,7 @@ class LinearReach(ClosedLoopSetup):
         First with merging and invariance certificates (:meth:`_run_merged`); when that
         meets a possible violation on a merged set, again exactly (every branch kept).
         """
-        if self.merge or self.unbounded:
+        if (self.merge or self.unbounded) and self.d == self.n:
             try:
                 self._run_merged()
                 return
@@ -524,7 +560,7 @@ class LinearReach(ClosedLoopSetup):
 
     def _run_exact(self) -> None:
         """Every branch explored separately (depth first), nothing merged."""
-        n = self.n
+        n = self.d  # alpha: the coordinates of the initial theta box
         H0 = np.vstack([np.eye(n), -np.eye(n)])
         h0 = np.ones(2 * n)
         verts0 = box_corners(-np.ones(n), np.ones(n))  # P's vertices, exact

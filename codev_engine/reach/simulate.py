@@ -186,8 +186,69 @@ def _settings(problem: Problem, hold, t_end, dt, dt_factor: float) -> tuple[str,
 
 def _check_law(problem: Problem, law: ExplicitLaw) -> None:
     n, m = problem.plant.n, problem.plant.m
-    if law.num_regions and (law.n != n or law.m != m):
-        raise ValueError(f"the law is for n={law.n}, m={law.m}, the problem has n={n}, m={m}")
+    d = n + extra_length(problem)
+    if law.num_regions and (law.n != d or law.m != m):
+        raise ValueError(f"the law is for n={law.n}, m={law.m}, the problem has n={d}, m={m}")
+
+
+def extra_length(problem: Problem) -> int:
+    """The length of the law's parameters after the state (``u_prev``, then ``r``).
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    int
+    """
+    mpc = problem.mpc
+    k = problem.plant.m if mpc.has_rates else 0
+    if mpc.free_reference:
+        assert mpc.reference is not None and mpc.reference.lower is not None
+        k += int(mpc.reference.lower.shape[0])
+    return k
+
+
+def theta_initial_box(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """The box of the closed loop's initial ``theta = (x_0, u_prev_0, r)``.
+
+    ``x_0`` in ``verify.initial_set``; ``u_prev_0`` (with input rates) in
+    ``verify.initial_input`` (default: the operating input); ``r`` (a free reference) in
+    ``verify.reference`` (default: the whole box of ``mpc.reference``).
+
+    Parameters
+    ----------
+    problem : Problem
+        With a ``[verify]`` section.
+
+    Returns
+    -------
+    lo, hi : (d,) ndarray
+    """
+    vs = problem.verify
+    assert vs is not None
+    mpc = problem.mpc
+    lo, hi = [vs.initial_lower], [vs.initial_upper]
+    if mpc.has_rates:
+        if vs.initial_input_lower is not None:
+            lo.append(vs.initial_input_lower)
+            hi.append(vs.initial_input_upper)
+        else:
+            u_op = np.asarray(problem.model.u_op, dtype=float)
+            u_op = u_op if u_op.size else np.zeros(problem.plant.m)
+            lo.append(u_op)
+            hi.append(u_op)
+    if mpc.free_reference:
+        ref = mpc.reference
+        assert ref is not None
+        if vs.reference_lower is not None:
+            lo.append(vs.reference_lower)
+            hi.append(vs.reference_upper)
+        else:
+            lo.append(ref.lower)
+            hi.append(ref.upper)
+    return (np.concatenate(lo).astype(float), np.concatenate(hi).astype(float))
 
 
 def _affine(law: ExplicitLaw, region: np.ndarray, X: np.ndarray) -> np.ndarray:
@@ -266,6 +327,7 @@ def simulate(
     method: str = "auto",
     rtol: float = 1e-10,
     atol: float = 1e-12,
+    extra0=None,
 ) -> Trace:
     """Simulate the sampled closed loop from ``x0`` (see the module docstring).
 
@@ -288,6 +350,10 @@ def simulate(
         ``solve_ivp`` method; ``"auto"`` is ``"DOP853"``.
     rtol, atol : float
         ``solve_ivp`` tolerances.
+    extra0 : (d - n,) array_like, optional
+        For a law over ``theta = (x, u_prev, r)``: the initial ``(u_prev, r)``; default
+        the centre of :func:`theta_initial_box` after the state. ``u_prev`` then follows
+        the applied input, ``r`` stays constant.
 
     Returns
     -------
@@ -306,6 +372,8 @@ def simulate(
         raise ValueError(f"x0 must have {n} entries, got {x.size}")
     x0 = x.copy()
     x0.setflags(write=False)
+    extra = _extra0(problem, extra0, 1)[0]
+    rates = problem.mpc.has_rates
     f = _dynamics(problem)[0]
     Ts = float(problem.model.sample_time)
     eps = _TIME_EPS * Ts
@@ -319,7 +387,8 @@ def simulate(
     k = 0
     while True:
         a = k * Ts
-        i = int(law.locate(x[None, :])[0])
+        theta = np.concatenate([x, extra])
+        i = int(law.locate(theta[None, :])[0])
         if i < 0:
             ts.append(a)
             xs.append(x.copy())
@@ -327,8 +396,12 @@ def simulate(
             rs.append(-1)
             undefined_at = a
             break
-        Fi, Gi = law.F[i], law.G[i]
+        # the law in the state during this period: (u_prev, r) are fixed at the sample
+        Fi = law.F[i][:, :n]
+        Gi = law.G[i] + law.F[i][:, n:] @ extra
         ua = Fi @ x + Gi
+        if rates:
+            extra[:m] = ua  # the next sample's previous input
         ts.append(a)
         xs.append(x.copy())
         us.append(ua)
@@ -438,6 +511,7 @@ def simulate_many(
     t_end: float | None = None,
     dt: float | None = None,
     dt_out: float | None = None,
+    extra0=None,
 ) -> ManyTraces:
     """Simulate many closed-loop trajectories at once with vectorised fixed-step RK4.
 
@@ -461,6 +535,8 @@ def simulate_many(
         Output spacing, rounded to a multiple of ``h`` (memory is ``P * K * (n + m)``
         floats); default ``problem.verify.step / 4``. Pass ``dt_out=dt`` to keep every
         step. Sample times and ``t_end`` are always output.
+    extra0 : (P, d - n) array_like, optional
+        As in :func:`simulate`, one row per trajectory.
 
     Returns
     -------
@@ -477,6 +553,8 @@ def simulate_many(
     if X0.ndim != 2 or X0.shape[1] != n:
         raise ValueError(f"X0 must have shape (P, {n}), got {X0.shape}")
     P = X0.shape[0]
+    extra = _extra0(problem, extra0, P)
+    rates = problem.mpc.has_rates
     f = _dynamics(problem)[1]
     Ts = float(problem.model.sample_time)
     S = max(1, math.ceil(Ts / dt - 1e-9))  # RK4 steps per period
@@ -524,14 +602,18 @@ def simulate_many(
                 uleft[idx] = u_of(x[idx], idx)
             record(tj, x, uleft, alive)
         idx = np.flatnonzero(alive)
-        reg = law.locate(x[idx]) if idx.size else np.zeros(0, dtype=int)
+        theta = np.hstack([x[idx], extra[idx]])
+        reg = law.locate(theta) if idx.size else np.zeros(0, dtype=int)
         dead = idx[reg < 0]
         alive[dead] = False
         ok = idx[reg >= 0]
         region[ok] = reg[reg >= 0]
-        Fi[ok] = law.F[region[ok]]
-        Gi[ok] = law.G[region[ok]]
+        Fr = law.F[region[ok]]
+        Fi[ok] = Fr[:, :, :n]
+        Gi[ok] = law.G[region[ok]] + np.einsum("pij,pj->pi", Fr[:, :, n:], extra[ok])
         u[ok] = np.einsum("pij,pj->pi", Fi[ok], x[ok]) + Gi[ok]
+        if rates:
+            extra[ok, :m] = u[ok]
         u[dead] = np.nan
         record(tj, x, u, alive)
 
@@ -688,3 +770,16 @@ def violations_many(problem: Problem, t, X, U, alive) -> tuple[np.ndarray, np.nd
     violated = bad.any(axis=1)
     t_first = np.where(violated, t[np.argmax(bad, axis=1)], np.inf)
     return violated, t_first
+
+
+def _extra0(problem: Problem, extra0, P: int) -> np.ndarray:
+    """(P, d - n) initial (u_prev, r): as given, or the centre of their initial box."""
+    k = extra_length(problem)
+    if extra0 is None:
+        if k == 0 or problem.verify is None:
+            return np.zeros((P, k))
+        lo, hi = theta_initial_box(problem)
+        n = problem.plant.n
+        return np.tile(0.5 * (lo[n:] + hi[n:]), (P, 1))
+    E = np.array(extra0, dtype=float).reshape(P, k)
+    return E

@@ -89,6 +89,9 @@ class Counterexample:
         Which unsafe/safe set or input (-1 for ``"undefined"``).
     trace : object
         The simulated ``simulate.Trace`` (t, x, u, region).
+    extra0 : (d - n,) ndarray
+        For a law over ``theta = (x, u_prev, r)``: the initial previous input, then the
+        reference (empty for a law in the state alone).
     """
 
     x0: np.ndarray
@@ -96,6 +99,7 @@ class Counterexample:
     kind: str
     index: int
     trace: object
+    extra0: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def describe(self) -> str:
         """The violation in words: ``enters unsafe set 0``, ``input 1 leaves its bounds``."""
@@ -195,6 +199,7 @@ class VerificationResult(Displayable):
             undefined = getattr(tr, "undefined_at", None)
             arrays.update(
                 cex_x0=np.asarray(ce.x0, dtype=float),
+                **({"cex_extra0": np.asarray(ce.extra0, dtype=float)} if ce.extra0.size else {}),
                 cex_t=np.array(float(ce.t)),
                 cex_kind=np.array(ce.kind),
                 cex_index=np.array(int(ce.index)),
@@ -268,12 +273,14 @@ class VerificationResult(Displayable):
                 undefined_at=None if np.isnan(undefined) else undefined,
             )
             kind = text(data, "cex_kind")
+            extra0 = real(data, "cex_extra0", ndim=1) if "cex_extra0" in data else np.zeros(0)
             cex = Counterexample(
                 x0=x0,
                 t=float(real(data, "cex_t", shape=())),
                 kind=kind,
                 index=int(real(data, "cex_index", shape=())),
                 trace=trace,
+                extra0=extra0,
             )
         reason = text(data, "reason") or None
         detail = (text(data, "detail") or None) if "detail" in data else None
@@ -419,8 +426,11 @@ def verify(
         raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
     depth = vs.max_depth if max_depth is None else max_depth
     t0 = time.perf_counter()
-    if law.n > problem.plant.n:
-        # theta = (x, u_prev, r): the closed loop's state is longer than the plant's; a
+    if law.n > problem.plant.n and (
+        hold != "zoh" or not np.isfinite(vs.time_horizon) or affine_plant(problem) is None
+    ):
+        # theta = (x, u_prev, r): the closed loop's state is longer than the plant's. The
+        # linear engine follows it under zoh over a bounded horizon; elsewhere this is a
         # limitation of the verifier, so a verdict and not an error (and no certificate
         # on x alone, which would be unsound for a law that depends on u_prev)
         stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
@@ -532,29 +542,32 @@ def _confirm(
     problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray
 ) -> Counterexample | None:
     """Simulate from x0 (independent integrator); a Counterexample if it violates."""
-    from codev_engine.reach.simulate import first_violation, simulate
+    from codev_engine.reach.simulate import first_violation, simulate, theta_initial_box
 
-    vs = problem.verify
-    x0 = np.clip(x0, vs.initial_lower, vs.initial_upper)
+    n = problem.plant.n
+    lo, hi = theta_initial_box(problem)  # x0 may be theta0 = (x0, u_prev0, r)
+    theta0 = np.clip(np.asarray(x0, dtype=float), lo[: np.size(x0)], hi[: np.size(x0)])
+    x0, extra0 = theta0[:n], theta0[n:]
     try:
-        trace = simulate(problem, law, x0, hold=hold)
+        trace = simulate(problem, law, x0, hold=hold, extra0=extra0 if extra0.size else None)
     except SolverError:  # not finite (a singularity): no confirmed counterexample
         return None
     v = first_violation(problem, law, trace)
     if v is None:
         return None
-    return Counterexample(x0=x0, t=float(v.t), kind=v.kind, index=int(v.index), trace=trace)
+    return Counterexample(x0=x0, t=float(v.t), kind=v.kind, index=int(v.index), trace=trace,
+                          extra0=extra0)
 
 
 def _search(
     problem: Problem, law: ExplicitLaw, hold: str, samples: int = 64
 ) -> Counterexample | None:
     """Concrete simulations from corners, centre and random initial states."""
-    from codev_engine.reach.simulate import simulate_many, violations_many
+    from codev_engine.reach.simulate import simulate_many, theta_initial_box, violations_many
 
-    vs = problem.verify
-    lo, hi = vs.initial_lower, vs.initial_upper
+    lo, hi = theta_initial_box(problem)  # (x0, u_prev0, r): the law's parameters
     n = lo.shape[0]
+    nx = problem.plant.n
     corners = (
         np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij")).reshape(n, -1).T
     )
@@ -562,13 +575,15 @@ def _search(
     X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples], rng.uniform(lo, hi, (samples, n))])
     with np.errstate(all="ignore"):
         try:
-            t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+            t, X, U, alive = simulate_many(problem, law, X0[:, :nx], hold=hold,
+                                           extra0=X0[:, nx:] if n > nx else None)
         except SolverError:  # a trajectory is not finite: search the others
             X0 = X0[[_finite_run(problem, law, hold, x) for x in X0]]
             if X0.shape[0] == 0:
                 return None
             try:
-                t, X, U, alive = simulate_many(problem, law, X0, hold=hold)
+                t, X, U, alive = simulate_many(problem, law, X0[:, :nx], hold=hold,
+                                               extra0=X0[:, nx:] if n > nx else None)
             except SolverError:
                 return None
     bad, _ = violations_many(problem, t, X, U, alive)
@@ -589,8 +604,10 @@ def _finite_run(problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray) -
     """Does the fast simulation from x0 stay finite?"""
     from codev_engine.reach.simulate import simulate_many
 
+    nx = problem.plant.n
     try:
-        simulate_many(problem, law, x0[None], hold=hold)
+        simulate_many(problem, law, x0[None, :nx], hold=hold,
+                      extra0=x0[None, nx:] if x0.shape[0] > nx else None)
     except SolverError:
         return False
     return True

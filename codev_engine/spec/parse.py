@@ -56,7 +56,7 @@ _MPC = (
 )  # fmt: skip
 _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
-    "max_samples",
+    "max_samples", "initial_input", "reference",
 )  # fmt: skip
 
 
@@ -172,6 +172,7 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
     verify = None
     if "verify" in data:
         verify = _verify(data["verify"], n)
+        verify = _verify_theta(data["verify"], verify, mpc, m)
         if mpc.has_rates and verify.hold == "continuous":
             raise SpecError(
                 'input rates (du_min, du_max, Rd) need a sampled controller: hold = "continuous" '
@@ -482,6 +483,56 @@ def _verify(value: Any, n: int) -> VerifySpec:
         safe=safe,
         max_samples=max_samples,
     )
+
+
+def _verify_theta(t: dict[str, Any], verify: VerifySpec, mpc: MpcSpec, m: int) -> VerifySpec:
+    """``initial_input`` and ``reference``: the law's parameters after the state."""
+    import dataclasses
+
+    changes: dict[str, np.ndarray] = {}
+    if "initial_input" in t:
+        field = "verify.initial_input"
+        if not mpc.has_rates:
+            raise SpecError(
+                "the law takes no previous input (give du_min, du_max or Rd in [mpc])",
+                field=field,
+            )
+        lo, hi = _value_or_box(t["initial_input"], field, m)
+        bad = np.flatnonzero((lo < mpc.u_min) | (hi > mpc.u_max))
+        if bad.size:
+            i = int(bad[0])
+            raise SpecError(
+                f"input {i} is outside the input bounds [{mpc.u_min[i]:g}, {mpc.u_max[i]:g}] "
+                "(the law's domain in the previous input)",
+                field=field,
+            )
+        changes.update(initial_input_lower=lo, initial_input_upper=hi)
+    if "reference" in t:
+        field = "verify.reference"
+        ref = mpc.reference
+        if ref is None or not ref.free:
+            raise SpecError(
+                "the law takes no reference (give [mpc.reference] with lower and upper)",
+                field=field,
+            )
+        assert ref.lower is not None and ref.upper is not None
+        lo, hi = _value_or_box(t["reference"], field, ref.lower.shape[0])
+        if np.any(lo < ref.lower) or np.any(hi > ref.upper):
+            raise SpecError("must lie inside the box of mpc.reference", field=field)
+        changes.update(reference_lower=lo, reference_upper=hi)
+    return dataclasses.replace(verify, **changes) if changes else verify
+
+
+def _value_or_box(value: Any, field: str, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """A list of k numbers (one value) or ``{ lower, upper }``."""
+    if isinstance(value, dict):
+        b = _table(value, field, required=("lower", "upper"))
+        lo = _vector(b["lower"], f"{field}.lower", k)
+        hi = _vector(b["upper"], f"{field}.upper", k)
+        _ordered(lo, hi, f"{field}.lower", "lower", "upper")
+        return lo, hi
+    v = _vector(value, field, k)
+    return v, v
 
 
 def _sets(value: Any, field: str, n: int) -> tuple[SetSpec, ...]:

@@ -327,6 +327,12 @@ class VerifySpec:
     max_samples : int
         With an infinite ``time_horizon``: the samples within which an invariance
         certificate must close (else the verdict is ``unknown``, ``no_invariant``).
+    initial_input_lower, initial_input_upper : (m,) ndarray or None
+        The input applied before ``t = 0`` (``u_prev`` at the first sample), a box, for a
+        law with input rates; None: the operating input.
+    reference_lower, reference_upper : (p,) ndarray or None
+        The reference, an unknown constant in this box, for a law with a free reference;
+        None: the whole box of ``mpc.reference``.
     """
 
     time_horizon: float
@@ -339,6 +345,10 @@ class VerifySpec:
     unsafe: tuple[SetSpec, ...] = ()
     safe: tuple[SetSpec, ...] = ()
     max_samples: int = 1000
+    initial_input_lower: np.ndarray | None = _since_v2(None)
+    initial_input_upper: np.ndarray | None = _since_v2(None)
+    reference_lower: np.ndarray | None = _since_v2(None)
+    reference_upper: np.ndarray | None = _since_v2(None)
 
 
 @dataclass(frozen=True)
