@@ -30,7 +30,12 @@ from codev_engine.plant import LinearModel
 from codev_engine.spec.problem import MpcSpec
 from codev_engine.terminal import lqr_terms, maximal_invariant_set
 
-__all__ = ["Formulation", "formulation", "parameter_names"]
+__all__ = ["Formulation", "formulation", "parameter_names", "U_PREV_MARGIN"]
+
+#: The law's domain in ``u_prev`` is ``[u_min, u_max]`` widened by this much (relative, floor
+#: 1): the law is exact there too (the MPC is solved as stated, ``u_prev`` only enters the
+#: rate rows), and a held input on its bound keeps its rounding error inside the domain.
+U_PREV_MARGIN = 1e-6
 
 
 @dataclass(frozen=True)
@@ -296,10 +301,15 @@ def _derive(spec: MpcSpec, model: LinearModel) -> Formulation:
     hi_x = np.where(np.isfinite(xmax) & ("x_max" not in soft), xmax, D)
     lo, hi = [lo_x], [hi_x]
     if rates:
+        # u_prev in the input box, widened by U_PREV_MARGIN: a held input on its bound
+        # (the law saturates there) stays inside the law's domain with its rounding error,
+        # so the verifier's reach set of (x, u_prev) does not leave the domain at a bound
         umin = np.asarray(spec.u_min, dtype=float) - u_op
         umax = np.asarray(spec.u_max, dtype=float) - u_op
-        lo.append(np.where(np.isfinite(umin), umin, -D))
-        hi.append(np.where(np.isfinite(umax), umax, D))
+        pad_lo = U_PREV_MARGIN * np.maximum(1.0, np.abs(np.asarray(spec.u_min, dtype=float)))
+        pad_hi = U_PREV_MARGIN * np.maximum(1.0, np.abs(np.asarray(spec.u_max, dtype=float)))
+        lo.append(np.where(np.isfinite(umin), umin - pad_lo, -D))
+        hi.append(np.where(np.isfinite(umax), umax + pad_hi, D))
     if nr:
         assert ref is not None and ref.lower is not None and ref.upper is not None
         lo.append(np.asarray(ref.lower, dtype=float))

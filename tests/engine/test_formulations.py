@@ -608,3 +608,27 @@ def test_initial_input_and_reference_bad_input():
         with pytest.raises(ce.SpecError) as err:
             loads_spec(base + mpc_extra + verify.replace("{}", v_extra))
         assert err.value.field == field and words in str(err.value), str(err.value)
+
+
+def test_examples_over_theta_match_online_mpc(example_law):
+    """The bundled examples whose law takes (x, u_prev, r), through this file's oracle."""
+    from test_synthesis_oracle import THETA_EXAMPLES
+
+    assert THETA_EXAMPLES == ["dc_motor_servo.toml"]
+    for fname in THETA_EXAMPLES:
+        problem, law = example_law(fname)
+        fails = oracle(problem, discretize(problem), law, N_FAST)
+        assert not fails, f"{fname}: {len(fails)} failures\n" + "\n".join(fails[:8])
+
+
+@pytest.mark.slow
+def test_dc_motor_servo_verifies_robustly_safe(request):
+    if not (os.environ.get("CODEV_SLOW") or request.config.getoption("-m") == "slow"):
+        pytest.skip("~5 s of verification (3000 branches over theta): run with -m slow")
+    from pathlib import Path
+
+    problem = ce.load_spec(Path(__file__).resolve().parents[2] / "examples" / "dc_motor_servo.toml")
+    law = ce.synthesize(problem)
+    assert law.parameter_names == ("angle", "speed", "prev_V", "ref_y0")
+    res = ce.verify(problem, law)
+    assert res.verdict == "robustly_safe"

@@ -149,6 +149,7 @@ FORMULATIONS = {
                                    dict(terminal_cost="lqr", terminal_set="lqr", P=None)),
     "mass_spring_soft.toml": ("mass-spring-soft", dict(soft=("y_max",), soft_weight=1000.0)),
     "two_carts_mixed.toml": ("two-carts-mixed", dict(control_horizon=2)),
+    "dc_motor_servo.toml": ("dc-motor-servo", dict(has_rates=True, free_reference=True)),
 }
 
 

@@ -63,7 +63,14 @@ PROBE_OFFSET = 1e-5  # facet probes sit this far (times 1 + |e|_inf) from the ex
 N_UNIFORM = 150
 N_RAYS = 25  # two probes per ray
 EXAMPLES_DIR = Path(__file__).resolve().parents[2] / "examples"
-EXAMPLES = sorted(p.name for p in EXAMPLES_DIR.glob("*.toml"))
+def _law_in_x(path: Path) -> bool:
+    """The law's parameter is the state (laws over (x, u_prev, r): test_formulations.py)."""
+    mpc = ce.load_spec(path, check_mpc=False).mpc
+    return not (mpc.has_rates or mpc.free_reference)
+
+
+EXAMPLES = sorted(p.name for p in EXAMPLES_DIR.glob("*.toml") if _law_in_x(p))
+THETA_EXAMPLES = sorted(p.name for p in EXAMPLES_DIR.glob("*.toml") if not _law_in_x(p))
 
 
 # ---------------------------------------------------------------------------------------
