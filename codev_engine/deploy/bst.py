@@ -222,6 +222,8 @@ def build_tree(
     b: np.ndarray,
     off: np.ndarray,
     boxes: tuple[np.ndarray, np.ndarray],
+    *,
+    prune: bool = True,
 ) -> Tree:
     """The binary search tree of regions ``{theta : A[off[i]:off[i+1]] theta <= b[...]}``.
 
@@ -234,6 +236,9 @@ def build_tree(
     boxes : (lo, hi), each (R, d) ndarray
         Bounding boxes of the regions (``ExplicitLaw.boxes``): the fallback for a region
         whose vertices cannot be trusted.
+    prune : bool
+        Take off a leaf's member list every region that an LP proves apart from the leaf's
+        cell (see :func:`_prune_members`).
 
     Returns
     -------
@@ -257,6 +262,8 @@ def build_tree(
 
     # the candidate hyperplanes: the regions' rows, unit, signed canonically, deduplicated
     An, bn = _normalised(A, b)
+    nrm = np.linalg.norm(A, axis=1)
+    nrm[nrm == 0] = 1.0
     Ac, bc, sign = _canonical(An, bn)
     first = unique_rows(np.column_stack([Ac, bc]), 9)
     key_rows = np.column_stack([Ac, bc])
@@ -312,7 +319,7 @@ def build_tree(
                     gap = np.abs(Ac[j] - H_A[h]).sum() * xmax + abs(bc[j] - H_b[h])
                     skip[q] = gap <= 0.25 * DELTA["double"] * (1.0 + abs(H_b[h]))
             fast = rows[~skip]
-        leaves.append((own, general or P.size > 1, fast, members, len(path)))
+        leaves.append([own, general or P.size > 1, fast, members, len(path), list(path)])
         return -1 - (len(leaves) - 1)
 
     # depth-first, an explicit stack: (proper, members, path, parent node, side)
@@ -355,6 +362,8 @@ def build_tree(
         grow(np.arange(R, dtype=np.int64), np.zeros(0, dtype=np.int64), [])
     finally:
         sys.setrecursionlimit(limit)
+    if prune:
+        _prune_members(leaves, An, bn + LOCATE_TOL / nrm, off, H_A, H_b, box_lo, box_hi, xmax)
     node_next = np.array(nodes_next, dtype=np.int64).reshape(-1, 2)
     return Tree(
         d=d,
@@ -372,6 +381,45 @@ def build_tree(
         seconds=time.perf_counter() - t0,
         stats={"hyperplanes": int(H), "vertices": int(V.shape[0])},
     )
+
+
+def _prune_members(leaves, An, be, off, H_A, H_b, box_lo, box_hi, xmax) -> None:
+    """Drop from each leaf's members the regions that cannot reach its cell.
+
+    The vertices sort a region by one hyperplane at a time; a region may pass each test of
+    a path and still miss the cell they cut out. A member is dropped when the largest ball
+    in (the region enlarged by the locator's tolerance) and (the cell widened by
+    ``1e-9 (1 + |b|)`` per test) and the box has a radius whose upper bound by weak
+    duality (``lp_kernel.chebyshev``) is negative: the two are apart, whatever the LP's
+    accuracy. On any doubt (an LP not solved) the member stays.
+    """
+    from codev_engine.geometry.lp_kernel import OPTIMAL, chebyshev
+
+    d = An.shape[1]
+    eye = np.vstack([np.eye(d), -np.eye(d)])
+    box_b = np.concatenate([box_hi, -box_lo])
+    bound = xmax + 1.0
+    for lf in leaves:
+        members, path = lf[3], lf[5]
+        if members.size <= 1:
+            continue
+        if path:
+            hs = np.array([h for h, _ in path])
+            sg = np.array([1.0 if side == 0 else -1.0 for _, side in path])
+            PA = H_A[hs] * sg[:, None]
+            Pb = H_b[hs] * sg + 1e-9 * (1.0 + np.abs(H_b[hs]))
+        else:
+            PA, Pb = np.zeros((0, d)), np.zeros(0)
+        keep = np.ones(members.size, dtype=bool)
+        for q, r in enumerate(members):
+            if r == lf[0]:
+                continue
+            Ar = np.ascontiguousarray(np.vstack([An[off[r] : off[r + 1]], PA, eye]))
+            br = np.concatenate([be[off[r] : off[r + 1]], Pb, box_b])
+            status, _, _, upper = chebyshev(Ar, br, 0.5 * (box_lo + box_hi), bound, 500)
+            if status == OPTIMAL and upper < 0.0:
+                keep[q] = False
+        lf[3] = members[keep]
 
 
 def sequential_tree(A: np.ndarray, b: np.ndarray, off: np.ndarray, box_lo, box_hi) -> Tree:
