@@ -192,6 +192,7 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU]);
     if t.num_nodes:
         walk = f"""    k = 0;
     while (k >= 0) {{
+        {up}_TICK();
         s = -node_b[k];
         for (t = 0; t < {d}; ++t) {{
             s += node_a[k][t] * theta[t];
@@ -209,6 +210,15 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU]);
 #include <stdint.h>
 #include "{name}.h"
 
+/* -D{up}_COUNT counts the hyperplane / row evaluations of every call in {name}_count (a
+   check of the worst case in the header); without it the macro is empty */
+#ifdef {up}_COUNT
+long {name}_count = 0;
+#define {up}_TICK() (++{name}_count)
+#else
+#define {up}_TICK() ((void)0)
+#endif
+
 {chr(10).join(decl)}
 
 /* the largest violation of region i's rows (-1 without rows), summed as
@@ -219,6 +229,7 @@ static {real} violation(int32_t i, const {real} theta[{up}_NTHETA])
     int t;
     {real} v = -1, a;
     for (j = row_start[i]; j < row_start[i + 1]; ++j) {{
+        {up}_TICK();
         a = -row_b[j];
         for (t = 0; t < {d}; ++t) {{
             a += row_a[j][t] * theta[t];
@@ -251,6 +262,7 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU])
         v = -1;
         for (q = leaf_fast[leaf]; q < leaf_fast[leaf + 1]; ++q) {{
             j = fast_rows[q];
+            {up}_TICK();
             s = -row_b[j];
             for (t = 0; t < {d}; ++t) {{
                 s += row_a[j][t] * theta[t];
