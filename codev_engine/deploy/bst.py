@@ -53,6 +53,8 @@ LOCATE_TOL = 1e-9
 EPS = 1e-8
 #: the run-time "near a tested hyperplane" margin (relative to ``1 + |b|``), per precision
 DELTA = {"double": 1e-6, "float": 1e-4}
+#: below this many hyperplanes x regions, their extents are tabulated once
+TABLE_ENTRIES = 4_000_000
 #: the deepest tree built; a node deeper becomes a leaf that checks all its members
 MAX_DEPTH = 64
 
@@ -254,7 +256,6 @@ def build_tree(
     d = A.shape[1]
     V, owner = _enlarged_vertices(A, b, off, boxes)
     vcount = np.bincount(owner, minlength=R)
-    vstart = np.concatenate([[0], np.cumsum(vcount)[:-1]])
     pad = 1e-6 * (1.0 + np.abs(V).max(initial=1.0))
     box_lo = (V.min(axis=0) if V.shape[0] else np.zeros(d)) - pad
     box_hi = (V.max(axis=0) if V.shape[0] else np.zeros(d)) + pad
@@ -278,22 +279,34 @@ def build_tree(
     pos = np.searchsorted(ukeys[order], keys)
     row_h = order[pos]
 
-    # every region's extent along every hyperplane: min / max of s over its vertices
-    lo = np.empty((H, R))
-    hi = np.empty((H, R))
-    has = vcount > 0
-    step = max(1, 4_000_000 // max(1, V.shape[0]))
-    for h0 in range(0, H, step):
-        S = H_A[h0 : h0 + step] @ V.T - H_b[h0 : h0 + step, None]
-        lo[h0 : h0 + step] = np.inf
-        hi[h0 : h0 + step] = -np.inf
+    # a region's extent along hyperplanes: min / max of s over its (enlarged) vertices,
+    # computed per node for the candidates and regions at hand (no hyperplanes x regions
+    # table: 10^4 regions have ~10^5 distinct facets)
+    vend = np.cumsum(vcount)
+
+    def extents(hs: np.ndarray, regs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if table is not None:
+            return table[0][np.ix_(hs, regs)], table[1][np.ix_(hs, regs)]
+        return extents_now(hs, regs)
+
+    def extents_now(hs: np.ndarray, regs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cnt = vcount[regs]
+        seg = np.cumsum(cnt) - cnt
+        idx = np.repeat(vend[regs] - cnt - seg, cnt) + np.arange(int(cnt.sum()))
+        S = H_A[hs] @ V[idx].T - H_b[hs][:, None]
+        lo = np.full((hs.size, regs.size), np.inf)
+        hi = np.full((hs.size, regs.size), -np.inf)
+        has = cnt > 0
         if np.any(has):
-            lo[h0 : h0 + step, has] = np.minimum.reduceat(S, vstart[has], axis=1)
-            hi[h0 : h0 + step, has] = np.maximum.reduceat(S, vstart[has], axis=1)
-    eps = EPS * (1.0 + np.abs(H_b))[:, None]
-    member_l, proper_l = lo <= eps, lo < -eps
-    member_r, proper_r = hi >= -eps, hi > eps
-    del lo, hi
+            lo[:, has] = np.minimum.reduceat(S, seg[has], axis=1)
+            hi[:, has] = np.maximum.reduceat(S, seg[has], axis=1)
+        eps = EPS * (1.0 + np.abs(H_b[hs]))[:, None]
+        return lo / eps, hi / eps  # in units of eps: proper beyond -1 / 1, member within
+
+    # a small law: every hyperplane against every region once (at most 64 MB)
+    table = None
+    if H * R <= TABLE_ENTRIES:
+        table = extents_now(np.arange(H), np.arange(R))
 
     # the hyperplanes of each region (its facets' ids)
     region_h = [np.unique(row_h[off[i] : off[i + 1]]) for i in range(R)]
@@ -334,23 +347,38 @@ def build_tree(
             cand = cand[~np.isin(cand, np.fromiter(used, dtype=np.int64))]
         if cand.size == 0:
             return leaf(P, M, path, True)
-        nl = proper_l[np.ix_(cand, P)].sum(axis=1)
-        nr = proper_r[np.ix_(cand, P)].sum(axis=1)
-        worst = np.maximum(nl, nr)
-        score = worst * (2 * P.size + 1) + (nl + nr)
-        k = int(np.argmin(score))
-        if worst[k] >= P.size:
+        # the candidates in chunks of at most ~2e7 vertex evaluations; the best of the
+        # first chunk that takes a proper region off each side
+        per = int(np.clip(2e7 / max(1, int(vcount[P].sum())), 16, 4096))
+        if cand.size > per:
+            cand = np.random.default_rng(len(nodes_b)).permutation(cand)
+        best_h, best = -1, None
+        for c0 in range(0, cand.size, per):
+            chunk = cand[c0 : c0 + per]
+            lo, hi = extents(chunk, P)
+            nl = (lo < -1.0).sum(axis=1)
+            nr = (hi > 1.0).sum(axis=1)
+            worst = np.maximum(nl, nr)
+            score = worst * (2 * P.size + 1) + (nl + nr)
+            k = int(np.argmin(score))
+            if best is None or score[k] < best[0]:
+                best_h, best = int(chunk[k]), (int(score[k]), int(worst[k]))
+            if best[1] < P.size:
+                break
+        if best[1] >= P.size:
             return leaf(P, M, path, True)
-        h = int(cand[k])
+        h = best_h
         node = len(nodes_b)
         nodes_a.append(H_A[h])
         nodes_b.append(float(H_b[h]))
         nodes_next.append([0, 0])
         allm = np.union1d(P, M)
-        for side, (mem, prop) in enumerate(((member_l, proper_l), (member_r, proper_r))):
-            Pc = P[prop[h, P]]
-            Mc = allm[mem[h, allm]]
-            Mc = np.setdiff1d(Mc, Pc, assume_unique=True)
+        lo, hi = extents(np.array([h]), allm)
+        inP = np.isin(allm, P)
+        sides = ((lo[0] <= 1.0, lo[0] < -1.0), (hi[0] >= -1.0, hi[0] > 1.0))
+        for side, (mem, prop) in enumerate(sides):
+            Pc = allm[prop & inP]
+            Mc = allm[mem & ~(prop & inP)]
             nodes_next[node][side] = grow(Pc, Mc, path + [(h, side)])
         return node
 
@@ -393,33 +421,33 @@ def _prune_members(leaves, An, be, off, H_A, H_b, box_lo, box_hi, xmax) -> None:
     duality (``lp_kernel.chebyshev``) is negative: the two are apart, whatever the LP's
     accuracy. On any doubt (an LP not solved) the member stays.
     """
-    from codev_engine.geometry.lp_kernel import OPTIMAL, chebyshev
+    from codev_engine.deploy.prune_kernel import apart
 
     d = An.shape[1]
-    eye = np.vstack([np.eye(d), -np.eye(d)])
-    box_b = np.concatenate([box_hi, -box_lo])
-    bound = xmax + 1.0
+    PAs, Pbs, plen, mems, mlen, owners = [], [], [], [], [], []
     for lf in leaves:
-        members, path = lf[3], lf[5]
-        if members.size <= 1:
-            continue
-        if path:
-            hs = np.array([h for h, _ in path])
-            sg = np.array([1.0 if side == 0 else -1.0 for _, side in path])
-            PA = H_A[hs] * sg[:, None]
-            Pb = H_b[hs] * sg + 1e-9 * (1.0 + np.abs(H_b[hs]))
-        else:
-            PA, Pb = np.zeros((0, d)), np.zeros(0)
-        keep = np.ones(members.size, dtype=bool)
-        for q, r in enumerate(members):
-            if r == lf[0]:
-                continue
-            Ar = np.ascontiguousarray(np.vstack([An[off[r] : off[r + 1]], PA, eye]))
-            br = np.concatenate([be[off[r] : off[r + 1]], Pb, box_b])
-            status, _, _, upper = chebyshev(Ar, br, 0.5 * (box_lo + box_hi), bound, 500)
-            if status == OPTIMAL and upper < 0.0:
-                keep[q] = False
-        lf[3] = members[keep]
+        path = lf[5]
+        hs = np.array([h for h, _ in path], dtype=np.int64)
+        sg = np.array([1.0 if side == 0 else -1.0 for _, side in path])
+        PAs.append(H_A[hs] * sg[:, None])
+        Pbs.append(H_b[hs] * sg + 1e-9 * (1.0 + np.abs(H_b[hs])))
+        plen.append(hs.size)
+        mems.append(lf[3])
+        mlen.append(lf[3].size)
+        owners.append(lf[0])
+    members = np.concatenate(mems).astype(np.int64)
+    drop = apart(
+        np.ascontiguousarray(An), np.ascontiguousarray(be), off.astype(np.int64),
+        np.ascontiguousarray(np.vstack(PAs)).reshape(-1, d), np.concatenate(Pbs),
+        np.concatenate([[0], np.cumsum(plen)]).astype(np.int64), members,
+        np.concatenate([[0], np.cumsum(mlen)]).astype(np.int64),
+        np.array(owners, dtype=np.int64), np.vstack([np.eye(d), -np.eye(d)]),
+        np.concatenate([box_hi, -box_lo]), 0.5 * (box_lo + box_hi), xmax + 1.0, 500,
+    )
+    start = 0
+    for lf, k in zip(leaves, mlen, strict=True):
+        lf[3] = lf[3][~drop[start : start + k]]
+        start += k
 
 
 def sequential_tree(A: np.ndarray, b: np.ndarray, off: np.ndarray, box_lo, box_hi) -> Tree:
