@@ -39,7 +39,6 @@ def tables(ex: Export, float32: bool) -> dict[str, tuple[str, np.ndarray]]:
     """
     t, dep = ex.tree, ex.dep
     real = "float" if float32 else "double"
-    delta = DELTA["float" if float32 else "double"] * (1.0 + np.abs(t.node_b))
     owner = np.where(t.leaf_general, -2, t.leaf_owner)
     fast_start = np.concatenate([[0], np.cumsum([f.size for f in t.leaf_fast])])
     mem_start = np.concatenate([[0], np.cumsum([m.size for m in t.leaf_members])])
@@ -58,9 +57,13 @@ def tables(ex: Export, float32: bool) -> dict[str, tuple[str, np.ndarray]]:
     put("box_lo", t.box_lo, "real")
     put("box_hi", t.box_hi, "real")
     if t.num_nodes:
-        put("node_a", t.node_a, "real")
-        put("node_b", t.node_b, "real")
-        put("node_d", delta, "real")
+        # the nodes test few distinct hyperplanes (120 for 429 nodes): held once each
+        planes, which = np.unique(
+            np.column_stack([t.node_a, t.node_b]), axis=0, return_inverse=True
+        )
+        put("plane_a", planes[:, :-1], "real")
+        put("plane_b", planes[:, -1], "real")
+        put("node_plane", which.ravel(), "int")
         put("node_next", t.node_next, "int")
     put("leaf_owner", owner, "int")
     put("leaf_fast", fast_start, "int")
@@ -187,17 +190,22 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU]);
     for k, (c, a) in tabs.items():
         decl.append(f"static const {c} {k}{_dims(a)} = {_initialiser(a, c, float32)};")
     zero = "0.0f" if float32 else "0.0"
+    one = "1.0f" if float32 else "1.0"
+    delta = _number(DELTA["float" if float32 else "double"], float32)
     tol = _number(LOCATE_TOL, float32)
     walk = ""
     if t.num_nodes:
         walk = f"""    k = 0;
     while (k >= 0) {{
         {up}_TICK();
-        s = -node_b[k];
+        h = node_plane[k];
+        s = -plane_b[h];
         for (t = 0; t < {d}; ++t) {{
-            s += node_a[k][t] * theta[t];
+            s += plane_a[h][t] * theta[t];
         }}
-        if (s <= node_d[k] && s >= -node_d[k]) {{
+        /* near: |s| <= delta (1 + |b|) */
+        v = {delta} * ({one} + (plane_b[h] < {zero} ? -plane_b[h] : plane_b[h]));
+        if (s <= v && s >= -v) {{
             near = 1;
         }}
         k = node_next[k][s > {zero} ? 1 : 0];
@@ -243,11 +251,12 @@ static {real} violation(int32_t i, const {real} theta[{up}_NTHETA])
 
 int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU])
 {{
-    int32_t k, leaf, r = -1, q, j;
+    int32_t k, leaf, r = -1, q, j, h;
     int t, near = 0, i;
     {real} s, v, best = {zero};
     (void)s;
     (void)k;
+    (void)h;
     for (t = 0; t < {d}; ++t) {{
         if (!(theta[t] >= box_lo[t] && theta[t] <= box_hi[t])) {{
             return -1; /* outside the box of all regions (or not a number) */
