@@ -83,14 +83,14 @@ void bench(int P, const double *X, double *ns, int *idx, int reps, int rounds)
 """
 
 
-def states_inside(law, count: int, seed: int) -> np.ndarray:
-    lo, hi = law.boxes
+def states_inside(law, dep, count: int, seed: int) -> np.ndarray:
+    lo, hi = dep.boxes
     lo, hi = lo.min(axis=0), hi.max(axis=0)
     rng = np.random.default_rng(seed)
     out, have = [], 0
     while have < count:
         X = rng.uniform(lo, hi, size=(4 * count, lo.size))
-        X = X[law.locate(X) >= 0] if hasattr(law, "locate") else X
+        X = X[law.locate(X) >= 0]
         out.append(X)
         have += X.shape[0]
     return np.vstack(out)[:count]
@@ -180,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--states", type=int, default=100_000)
     ap.add_argument("--problems", default=",".join(PROBLEMS))
     ap.add_argument("--solution", action="append", default=[],
-                    help="an mp_testset problem (.npz) to solve and export")
+                    help="an mp_testset problem (.npz) to solve and export, or a solution "
+                    "saved by codev mpsolve --out")
     ap.add_argument("--no-peer", action="store_true")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
@@ -199,6 +200,10 @@ def main(argv: list[str] | None = None) -> int:
     for path in args.solution:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in keys if k in z.files}
+            solved = "format" in z.files and str(z["format"]).startswith("codev-mp-solution")
+        if solved:  # a solution saved by `codev mpsolve --out`
+            objs.append((Path(path).stem, ce.MpSolution.load(path)))
+            continue
         t0 = time.perf_counter()
         sol = ce.mpsolve(ce.MpProgram(**data, name=Path(path).stem))
         print(f"{Path(path).stem}: {sol.num_regions} regions solved in "
@@ -207,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name, obj in objs:
         dep = deployable(obj)
-        X = states_inside(obj, args.states, seed=0)
+        X = states_inside(obj, dep, args.states, seed=0)
         ref = obj.locate(X)
         R, d = dep.num_regions, dep.F.shape[2]
         with tempfile.TemporaryDirectory() as tmp:

@@ -420,7 +420,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 
 
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
-BENCHMARKS = ("mp", "synth", "session", "tui", "paper", "hylaa_peer")
+BENCHMARKS = ("mp", "synth", "session", "tui", "paper", "hylaa_peer", "export")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
