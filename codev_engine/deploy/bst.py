@@ -84,8 +84,9 @@ class Tree:
         The regions evaluated near a tested hyperplane, ascending.
     leaf_depth : (L,) ndarray of int
         The number of tests on the path to the leaf.
-    box_lo, box_hi : (d,) ndarray
-        Outside this box no region holds or is near a point.
+    box_lo, box_hi : (d,) ndarray or None
+        Outside this box no region holds or is near a point (None: no box, only
+        non-finite parameters are turned away before the search).
     row_off : (R + 1,) ndarray of int
         Region ``i``'s stored rows are ``row_off[i]:row_off[i + 1]``.
     seconds : float
@@ -103,8 +104,8 @@ class Tree:
     leaf_fast: list[np.ndarray]
     leaf_members: list[np.ndarray]
     leaf_depth: np.ndarray
-    box_lo: np.ndarray
-    box_hi: np.ndarray
+    box_lo: np.ndarray | None
+    box_hi: np.ndarray | None
     row_off: np.ndarray
     seconds: float = 0.0
     stats: dict = field(default_factory=dict)
@@ -450,7 +451,9 @@ def _prune_members(leaves, An, be, off, H_A, H_b, box_lo, box_hi, xmax) -> None:
         start += k
 
 
-def sequential_tree(A: np.ndarray, b: np.ndarray, off: np.ndarray, box_lo, box_hi) -> Tree:
+def sequential_tree(
+    A: np.ndarray, b: np.ndarray, off: np.ndarray, box_lo=None, box_hi=None
+) -> Tree:
     """The degenerate tree of the sequential search: no test, one leaf checking every
     region in index order (the rule of ``locate`` over all of them).
 
@@ -460,8 +463,9 @@ def sequential_tree(A: np.ndarray, b: np.ndarray, off: np.ndarray, box_lo, box_h
         The regions' stored rows, region after region.
     b : (N,) ndarray
     off : (R + 1,) ndarray of int
-    box_lo, box_hi : (d,) ndarray
-        Outside this box no region holds or is near a point.
+    box_lo, box_hi : (d,) ndarray, optional
+        Outside this box no region holds or is near a point; without it only a
+        non-finite ``theta`` is turned away before the search.
 
     Returns
     -------
@@ -479,7 +483,7 @@ def sequential_tree(A: np.ndarray, b: np.ndarray, off: np.ndarray, box_lo, box_h
         leaf_fast=[np.zeros(0, dtype=np.int64)],
         leaf_members=[np.arange(R, dtype=np.int64)],
         leaf_depth=np.array([0]),
-        box_lo=np.asarray(box_lo, dtype=float),
-        box_hi=np.asarray(box_hi, dtype=float),
+        box_lo=None if box_lo is None else np.asarray(box_lo, dtype=float),
+        box_hi=None if box_hi is None else np.asarray(box_hi, dtype=float),
         row_off=np.asarray(off, dtype=np.int64),
     )

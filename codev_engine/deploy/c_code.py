@@ -54,8 +54,9 @@ def tables(ex: Export, float32: bool) -> dict[str, tuple[str, np.ndarray]]:
             ctype = real
         out[name] = (ctype, arr)
 
-    put("box_lo", t.box_lo, "real")
-    put("box_hi", t.box_hi, "real")
+    if t.box_lo is not None:
+        put("box_lo", t.box_lo, "real")
+        put("box_hi", t.box_hi, "real")
     if t.num_nodes:
         # the nodes test few distinct hyperplanes (120 for 429 nodes): held once each
         planes, which = np.unique(
@@ -142,6 +143,11 @@ def c_source(ex: Export, name: str, float32: bool) -> tuple[str, str]:
     params = "\n".join(f" *   theta[{i}] = {n}" for i, n in enumerate(dep.parameter_names))
     outs = "\n".join(f" *   {what}[{i}] = {n}" for i, n in enumerate(dep.output_names))
     guard = f"{up}_H"
+    box_text = (
+        f"{2 * d} comparisons against the box of all regions"
+        if t.box_lo is not None
+        else f"{d} checks that theta is finite"
+    )
     method_text = (
         "a binary search tree (Toendel, Johansen & Bemporad 2003)"
         if ex.method == "bst"
@@ -162,7 +168,7 @@ def c_source(ex: Export, name: str, float32: bool) -> tuple[str, str]:
 {2 * ceil_log2(R) + d})
  *   hyperplane / row evaluations: {ex.tests}
  *   multiply-adds: {ex.macs} ({d} per evaluation + {m * d} for the affine map)
- *   plus {2 * d} comparisons against the domain's box
+ *   plus {box_text}
  * ROM (constant tables): {rom} bytes; no RAM beyond a few locals; no library calls.
  *
  * Region choice (the rule of ExplicitLaw.locate, tolerance {LOCATE_TOL:g}): region i's
@@ -193,6 +199,20 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU]);
     one = "1.0f" if float32 else "1.0"
     delta = _number(DELTA["float" if float32 else "double"], float32)
     tol = _number(LOCATE_TOL, float32)
+    if t.box_lo is not None:
+        entry = f"""    for (t = 0; t < {d}; ++t) {{
+        if (!(theta[t] >= box_lo[t] && theta[t] <= box_hi[t])) {{
+            return -1; /* outside the box of all regions (or not a number) */
+        }}
+    }}
+"""
+    else:
+        entry = f"""    for (t = 0; t < {d}; ++t) {{
+        if (!(theta[t] - theta[t] == {zero})) {{
+            return -1; /* infinite or not a number */
+        }}
+    }}
+"""
     walk = ""
     if t.num_nodes:
         walk = f"""    k = 0;
@@ -257,12 +277,7 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU])
     (void)s;
     (void)k;
     (void)h;
-    for (t = 0; t < {d}; ++t) {{
-        if (!(theta[t] >= box_lo[t] && theta[t] <= box_hi[t])) {{
-            return -1; /* outside the box of all regions (or not a number) */
-        }}
-    }}
-{walk}    if (!near && leaf_owner[leaf] != -2) {{
+{entry}{walk}    if (!near && leaf_owner[leaf] != -2) {{
         /* more than delta inside every tested half-space: only the owner can hold theta */
         r = leaf_owner[leaf];
         if (r < 0) {{

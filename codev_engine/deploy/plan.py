@@ -14,7 +14,7 @@ import numpy as np
 from codev_engine.deploy.bst import Tree, build_tree, sequential_tree
 from codev_engine.errors import SpecError
 
-__all__ = ["Deployable", "Export", "build_tree_box", "ceil_log2", "deployable", "plan", "rom_bytes"]
+__all__ = ["Deployable", "Export", "ceil_log2", "deployable", "plan", "rom_bytes"]
 
 METHODS = ("bst", "sequential", "auto")
 
@@ -172,8 +172,10 @@ def plan(obj, method: str = "auto") -> Export:
     if method in ("bst", "auto"):
         choices.append(("bst", build_tree(dep.A, dep.b, dep.off, dep.boxes)))
     if method in ("sequential", "auto"):
-        box = choices[0][1] if choices else build_tree_box(dep)
-        lo, hi = (box.box_lo, box.box_hi) if isinstance(box, Tree) else box
+        # the tree's box when there is one (from the enlarged regions' vertices); without
+        # it the sequential search checks only that theta is finite
+        lo = choices[0][1].box_lo if choices else None
+        hi = choices[0][1].box_hi if choices else None
         choices.append(("sequential", sequential_tree(dep.A, dep.b, dep.off, lo, hi)))
     best = None
     for name, tree in choices:
@@ -182,24 +184,6 @@ def plan(obj, method: str = "auto") -> Export:
         if best is None or e.macs < best.macs:
             best = e
     return best
-
-
-def build_tree_box(dep: Deployable) -> tuple[np.ndarray, np.ndarray]:
-    """The box outside which no region holds or is near a point (the regions' boxes,
-    widened by the locator's tolerance and their rounding).
-
-    Parameters
-    ----------
-    dep : Deployable
-
-    Returns
-    -------
-    lo, hi : (d,) ndarray
-    """
-    lo, hi = dep.boxes
-    lo, hi = lo.min(axis=0), hi.max(axis=0)
-    pad = 1e-6 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
-    return lo - pad, hi + pad
 
 
 def rom_bytes(tables: dict[str, tuple[int, int]]) -> int:

@@ -55,6 +55,8 @@ outputs = {tuple(dep.output_names)!r}
 ``u = F theta + G`` (None outside the domain).
 """
 
+import math
+
 import numpy as np
 
 NTHETA = {d}
@@ -64,8 +66,8 @@ OUTPUT_NAMES = {tuple(dep.output_names)!r}
 FINGERPRINT = {dep.fingerprint!r}
 TOL = {LOCATE_TOL!r}
 
-BOX_LO = {_lit(t.box_lo)}
-BOX_HI = {_lit(t.box_hi)}
+BOX_LO = {None if t.box_lo is None else _lit(t.box_lo)}
+BOX_HI = {None if t.box_hi is None else _lit(t.box_hi)}
 NODE_A = {_lit(t.node_a)}
 NODE_B = {_lit(t.node_b)}
 NODE_D = {_lit(delta)}
@@ -104,7 +106,10 @@ def locate(theta):
     if len(x) != NTHETA:
         raise ValueError(f"expected {{NTHETA}} parameters, got {{len(x)}}")
     for t in range(NTHETA):
-        if not (BOX_LO[t] <= x[t] <= BOX_HI[t]):
+        if BOX_LO is None:
+            if not math.isfinite(x[t]):
+                return -1
+        elif not (BOX_LO[t] <= x[t] <= BOX_HI[t]):
             return -1
     near = False
     k = 0 if NODE_B else -1

@@ -217,6 +217,8 @@ def test_sequential_search_agrees_too(key, tmp_path):
     assert "sequential search" in C.header
     assert_agrees(lw, C, random_points(lw, 2000, seed=3))
     assert_agrees(lw, C, facet_points(lw, 2, seed=4, cap=3000))
+    idx, U = C(outside_points(lw, lw.n))
+    assert np.all(idx == -1) and np.all(U == SENTINEL)
 
 
 @needs_cc
