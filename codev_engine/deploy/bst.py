@@ -42,10 +42,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import unique_rows
 from codev_engine.geometry.vertices import box_corners, packed_vertices
 
-__all__ = ["LOCATE_TOL", "Tree", "build_tree", "sequential_tree"]
+__all__ = ["LOCATE_TOL", "Tree", "TreeTooLargeError", "build_tree", "sequential_tree"]
+
+
+class TreeTooLargeError(SolverError):
+    """The tree would exceed its node budget (regions the vertex sort cannot tell apart:
+    high dimension, boxes instead of vertices); the sequential search remains."""
 
 #: the locator's tolerance (``PointLocator``'s default): near a region means ``v <= tol``
 LOCATE_TOL = 1e-9
@@ -55,6 +61,10 @@ EPS = 1e-8
 DELTA = {"double": 1e-6, "float": 1e-4}
 #: below this many hyperplanes x regions, their extents are tabulated once
 TABLE_ENTRIES = 4_000_000
+#: the most internal nodes per region (a tree past it is given up: TreeTooLargeError)
+NODES_PER_REGION = 100
+#: seconds of construction after which the tree is given up (TreeTooLargeError)
+TIME_LIMIT = 60.0
 #: the deepest tree built; a node deeper becomes a leaf that checks all its members
 MAX_DEPTH = 64
 
@@ -185,7 +195,8 @@ def _enlarged_vertices(
     """Points whose convex hull contains each region enlarged by ``LOCATE_TOL``: its
     vertices when they span its bounding box, else the corners of that box (widened).
 
-    Returns the points (V, d) and the region of each (V,), non-decreasing.
+    Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
+    regions that fell back on their box.
     """
     R = off.size - 1
     d = A.shape[1]
@@ -217,7 +228,7 @@ def _enlarged_vertices(
         own.append(np.full(C.shape[0], i))
     P, O = np.concatenate(pts), np.concatenate(own)
     order = np.argsort(O, kind="stable")
-    return P[order], O[order]
+    return P[order], O[order], int(np.count_nonzero(~ok))
 
 
 def build_tree(
@@ -246,6 +257,12 @@ def build_tree(
     Returns
     -------
     Tree
+
+    Raises
+    ------
+    TreeTooLargeError
+        Past ``NODES_PER_REGION`` internal nodes per region or ``TIME_LIMIT`` seconds, or
+        when the vertices of over a quarter of the regions cannot be enumerated.
     """
     import time
 
@@ -255,7 +272,15 @@ def build_tree(
     off = np.asarray(off, dtype=np.int64)
     R = off.size - 1
     d = A.shape[1]
-    V, owner = _enlarged_vertices(A, b, off, boxes)
+    V, owner, boxed = _enlarged_vertices(A, b, off, boxes)
+    if boxed > max(8, R // 4):
+        # boxes overlap wherever the regions are thin and oblique: the sort by hyperplanes
+        # would copy most regions into most leaves (pop_mpqp_007, d = 8, 12,232 regions
+        # of 22-45 rows: every region boxed, no tree after 10 minutes)
+        raise TreeTooLargeError(
+            f"the vertices of {boxed} of {R} regions could not be enumerated (too many "
+            f"rows in {d} dimensions): no search tree (use the sequential search)"
+        )
     vcount = np.bincount(owner, minlength=R)
     pad = 1e-6 * (1.0 + np.abs(V).max(initial=1.0))
     box_lo = (V.min(axis=0) if V.shape[0] else np.zeros(d)) - pad
@@ -312,6 +337,7 @@ def build_tree(
     # the hyperplanes of each region (its facets' ids)
     region_h = [np.unique(row_h[off[i] : off[i + 1]]) for i in range(R)]
 
+    max_nodes = NODES_PER_REGION * R + 1000
     nodes_a: list[np.ndarray] = []
     nodes_b: list[float] = []
     nodes_next: list[list[int]] = []
@@ -370,6 +396,11 @@ def build_tree(
             return leaf(P, M, path, True)
         h = best_h
         node = len(nodes_b)
+        if node >= max_nodes or (node % 256 == 0 and time.perf_counter() - t0 > TIME_LIMIT):
+            raise TreeTooLargeError(
+                f"the search tree for {R} regions in {d} dimensions would exceed "
+                f"{max_nodes} nodes or {TIME_LIMIT:g} s (use the sequential search)"
+            )
         nodes_a.append(H_A[h])
         nodes_b.append(float(H_b[h]))
         nodes_next.append([0, 0])

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from codev_engine.deploy.bst import Tree, build_tree, sequential_tree
+from codev_engine.deploy.bst import Tree, TreeTooLargeError, build_tree, sequential_tree
 from codev_engine.errors import SpecError
 
 __all__ = ["Deployable", "Export", "ceil_log2", "deployable", "plan", "rom_bytes"]
@@ -163,6 +163,14 @@ def plan(obj, method: str = "auto") -> Export:
     Returns
     -------
     Export
+
+    Raises
+    ------
+    SpecError
+        An unknown method, or nothing to export.
+    TreeTooLargeError
+        ``method="bst"`` and the tree exceeds its node budget (``auto`` then takes the
+        sequential search).
     """
     if method not in METHODS:
         raise SpecError(f"unknown method {method!r} (one of {', '.join(METHODS)})")
@@ -170,7 +178,12 @@ def plan(obj, method: str = "auto") -> Export:
     d, m = dep.F.shape[2], dep.F.shape[1]
     choices = []
     if method in ("bst", "auto"):
-        choices.append(("bst", build_tree(dep.A, dep.b, dep.off, dep.boxes)))
+        try:
+            choices.append(("bst", build_tree(dep.A, dep.b, dep.off, dep.boxes)))
+        except TreeTooLargeError:
+            if method == "bst":
+                raise
+
     if method in ("sequential", "auto"):
         # the tree's box when there is one (from the enlarged regions' vertices); without
         # it the sequential search checks only that theta is finite

@@ -364,3 +364,19 @@ def test_magnetic_pointer_1008_regions_1e5_states(tmp_path):
     C = Compiled(lw, tmp_path, method="bst")
     assert_agrees(lw, C, random_points(lw, 100_000, seed=12))
     assert_agrees(lw, C, facet_points(lw, 3, seed=13, cap=100_000))
+
+
+def test_a_tree_past_its_budget_leaves_the_sequential_search(monkeypatch, tmp_path, capsys):
+    """The voronoi law needs over 7,000 nodes: with a budget of 1,000, ``auto`` takes the
+    sequential search and ``bst`` says why in one line (exit 1: not the input's fault)."""
+    import codev_engine.deploy.bst as bst
+
+    monkeypatch.setattr(bst, "NODES_PER_REGION", 0)
+    lw = law("voronoi")
+    assert plan(lw, "auto").method == "sequential"
+    with pytest.raises(bst.TreeTooLargeError):
+        plan(lw, "bst")
+    f = lw.save(tmp_path / "v.npz")
+    assert main(["export", str(f), "--c", str(tmp_path), "--method", "bst"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "sequential search" in err
