@@ -215,12 +215,23 @@ def main(argv: list[str] | None = None) -> int:
         X = states_inside(obj, dep, args.states, seed=0)
         ref = obj.locate(X)
         R, d = dep.num_regions, dep.F.shape[2]
+        from codev_engine.deploy.bst import TreeTooLargeError
+
         with tempfile.TemporaryDirectory() as tmp:
-            res = [run_c(obj, m, X, ref, Path(tmp)) for m in ("bst", "sequential")]
+            s = run_c(obj, "sequential", X, ref, Path(tmp))
+            try:
+                b = run_c(obj, "bst", X, ref, Path(tmp))
+            except TreeTooLargeError as exc:
+                b = None
+                print(f"{name}: no tree: {exc}", flush=True)
         peer = None if args.no_peer else run_ppopt(dep, X, ref)
         rows.append({"problem": name, "regions": R, "n": d, "target_tests":
-                     2 * ceil_log2(R) + d, "c": res, "ppopt": peer})
-        b, s = res
+                     2 * ceil_log2(R) + d, "c": [r for r in (b, s) if r], "ppopt": peer})
+        if b is None:
+            print(f"{name}: {R} regions, n={d} | sequential: worst {s['worst_tests']} rows, "
+                  f"ROM {s['rom_bytes']} B, median {s['median_ns']:.0f} ns, worst "
+                  f"{s['worst_ns']:.0f} ns, mismatches {s['mismatches']}", flush=True)
+            continue
         print(
             f"{name}: {R} regions, n={d} | bst: build {b['build_s']:.2f} s, depth "
             f"{b['depth']} (target {2 * ceil_log2(R) + d}), worst {b['worst_tests']} rows / "
