@@ -313,6 +313,11 @@ def test_mp_solution_exports_its_primal(tmp_path):
     inside = ref >= 0
     assert np.any(inside)
     assert np.allclose(Z[inside], sol.primal(X[inside]), rtol=1e-12, atol=1e-12)
+    # the same through the command line, from the saved solution
+    f = sol.save(tmp_path / "sol.npz")
+    assert main(["export", str(f), "--c", str(tmp_path / "cli"), "--name", "sol"]) == 0
+    header = (tmp_path / "cli" / "sol.h").read_text()
+    assert "mp solution" in header and f"#define SOL_NTHETA {prog.d}" in header
 
 
 def test_python_export_agrees_with_locate(tmp_path):
