@@ -554,7 +554,10 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 
 
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
-BENCHMARKS = ("mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer")
+BENCHMARKS = (
+    "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
+    "long_horizon", "formulations",
+)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -669,6 +672,47 @@ def _cmd_mpsolve(args: argparse.Namespace) -> int:
     )
     if out:
         print(f"solution written to {out}")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from codev_engine.deploy.export import export_c, export_python
+    from codev_engine.deploy.plan import METHODS, ceil_log2, plan
+    from codev_engine.io.npz import read_npz, text
+
+    if not args.c and not args.python:
+        raise SpecError("give --c DIR and/or --python FILE.py", field="codev export")
+    if args.method not in METHODS:  # (argparse checks too; kept for direct calls)
+        raise SpecError(f"must be one of {', '.join(METHODS)}", field="--method")
+    data = read_npz(args.file, "law or solution file")
+    try:
+        tag = text(data, "format") if "format" in data else ""
+    except SpecError as exc:
+        raise exc.with_file(str(args.file)) from None
+    if tag.startswith("codev-mp-solution/"):
+        from codev_engine.mp.solution import MpSolution
+
+        obj = MpSolution.load(args.file)
+    else:
+        from codev_engine.law import ExplicitLaw
+
+        obj = ExplicitLaw.load(args.file)
+    try:
+        ex = plan(obj, args.method)
+    except SpecError as exc:
+        raise (exc if exc.file else exc.with_file(str(args.file))) from None
+    R, d = ex.dep.num_regions, ex.dep.F.shape[2]
+    print(
+        f"{args.file}: {R} regions, theta of length {d}; {ex.method}: worst case "
+        f"{ex.depth} tests on the path (2 ceil(log2 R) + n = {2 * ceil_log2(R) + d}), "
+        f"{ex.tests} row evaluations, {ex.macs} multiply-adds per call"
+    )
+    if args.c:
+        h, c = export_c(obj, args.c, name=args.name, float32=args.float32, method=ex.method)
+        print(f"C written to {h} and {c}")
+    if args.python:
+        path = export_python(obj, args.python, method=ex.method)
+        print(f"Python written to {path}")
     return 0
 
 
@@ -830,6 +874,19 @@ def _build_parser() -> argparse.ArgumentParser:
         help="give up past N critical regions (exit 1; default 1,000,000, ~2.5 GB)",
     )
     p.set_defaults(func=_cmd_mpsolve)
+
+    p = sub.add_parser(
+        "export", help="write a law (or an mp solution) as C99 or Python code"
+    )
+    p.add_argument("file", metavar="LAW.npz|SOLUTION.npz")
+    p.add_argument("--c", metavar="DIR", help="write DIR/PREFIX.h and DIR/PREFIX.c")
+    p.add_argument("--python", metavar="FILE.py", help="write a numpy-only Python module")
+    p.add_argument("--name", default="codev_law", metavar="PREFIX",
+                   help="file and symbol prefix of the C code (default codev_law)")
+    p.add_argument("--float32", action="store_true", help="float instead of double in C")
+    p.add_argument("--method", default="auto", choices=("bst", "sequential", "auto"),
+                   help="binary search tree, sequential search, or the cheaper (default)")
+    p.set_defaults(func=_cmd_export)
     return parser
 
 

@@ -24,7 +24,7 @@ from scipy.optimize import linprog
 
 from codev_engine.geometry.polytope import solve_lp
 
-__all__ = ["PointLocator", "bounding_boxes"]
+__all__ = ["PointLocator", "bounding_boxes", "row_values"]
 
 
 class _Grid(NamedTuple):
@@ -343,7 +343,7 @@ class PointLocator:
         SA, Sb = self._shared
         if Sb.size == 0:
             return np.full(X.shape[0], -np.inf)
-        return (X @ SA.T - Sb).max(axis=1)
+        return row_values(SA, Sb, X).max(axis=0)
 
     @property
     def box_lo(self) -> np.ndarray:
@@ -552,7 +552,7 @@ class PointLocator:
             # whole regions, about ``step`` rows
             j = int(np.searchsorted(off, off[i] + step, side="right")) - 1
             j = min(max(j, i + 1), regions.size)
-            V = A[off[i] : off[j]] @ Xs.T - b[off[i] : off[j], None]
+            V = row_values(A[off[i] : off[j]], b[off[i] : off[j]], Xs)
             lens = np.diff(off[i : j + 1])
             M = np.full((j - i, sel.size), -1.0)  # (regions, points); no rows: all space
             has = lens > 0
@@ -568,6 +568,31 @@ class PointLocator:
             idx = np.where(held[h, cols], h, n)
             _merge(out, best, sel, regions[i + idx], M[idx, cols], self.tol)
             i = j
+
+
+def row_values(A: np.ndarray, b: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``A x - b`` for every row and point, summed as ``-b_j + A_j0 x_0 + A_j1 x_1 + ...``.
+
+    The order of the compiled walk (``locate_kernel.walk``) and of the exported code
+    (``codev_engine.deploy``), each product rounded on its own (no fused multiply-add): a
+    point on a shared facet gets the same region from brute force, the grid and the
+    exported C (a matrix product sums in another order and put such points on the other
+    side of a tie).
+
+    Parameters
+    ----------
+    A : (r, d) ndarray
+    b : (r,) ndarray
+    X : (P, d) ndarray
+
+    Returns
+    -------
+    (r, P) ndarray
+    """
+    V = -b[:, None] + A[:, :1] * X[None, :, 0]
+    for t in range(1, A.shape[1]):
+        V += A[:, t : t + 1] * X[None, :, t]
+    return V
 
 
 def _merge(

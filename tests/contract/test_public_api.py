@@ -39,6 +39,9 @@ PINNED = {
     # new with the layout change
     "Session": "codev_engine.session.session",
     "RunOptions": "codev_engine.session.options",
+    # the law as code (issue 27)
+    "export_c": "codev_engine.deploy.export",
+    "export_python": "codev_engine.deploy.export",
 }
 
 

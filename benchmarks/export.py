@@ -1,0 +1,253 @@
+"""Benchmark: the exported C of the paper's laws, binary search tree against sequential search.
+
+Usage::
+
+    python benchmarks/export.py [--states 100000] [--problems a,b] [--solution FILE.npz]
+                                [--no-peer] [--json OUT]
+
+For every problem (``examples/<name>.toml``, synthesised with ``ce.synthesize``) and both
+methods: the construction time of the search (``plan``, tree and member LPs; the compiled
+code warmed up first), the certified worst case from the header (tests on the path, row
+evaluations, multiply-adds), the ROM of the tables, and the time of one call of the
+compiled C (``gcc -O2``) on ``--states`` states drawn uniformly from the law's domain
+(rejection from its box): per state the best of 3 rounds of 8 calls, ``clock_gettime``;
+the median and the worst over the states. Every state's region is checked against
+``law.locate`` on the way (a mismatch is printed). ``--solution`` adds an mp problem of the
+mp_testset (its ``.npz``, solved by ``ce.mpsolve``) exported as ``MpSolution``.
+
+The peer: PPOPT 1.6.12's C++ export (``ppopt.upop.linear_code_gen.generate_code_cpp``)
+cannot be imported (the template module ``ppopt.upop.lib_upop`` is missing from the
+wheel) and its tree export (``ucontroller.generate_code``) is a stub returning
+``["None"]``; its usable evaluator is ``ppopt.upop.point_location.PointLocation``, a numba
+sequential search called from Python, timed here on the same regions and states (per call,
+``perf_counter_ns``, the Python call included, as a user would call it).
+
+It is a benchmark, not a test: it prints a table and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+PROBLEMS = ("double_integrator", "cruise_control", "navigation", "magnetic_pointer_c",
+            "magnetic_pointer_a")
+
+DRIVER = r"""
+#define _POSIX_C_SOURCE 199309L
+#include <time.h>
+#include "{name}.h"
+
+static double now_ns(void)
+{{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec * 1e9 + (double)t.tv_nsec;
+}}
+
+/* per state: the best of `rounds` rounds of `reps` calls, ns per call; idx: its region */
+void bench(int P, const double *X, double *ns, int *idx, int reps, int rounds)
+{{
+    double u[{up}_NU];
+    volatile int sink = 0;
+    int p, r, k;
+    for (p = 0; p < P; ++p) {{
+        double best = 1e300;
+        for (r = 0; r < rounds; ++r) {{
+            double t0 = now_ns(), t1;
+            for (k = 0; k < reps; ++k) {{
+                sink += {name}_evaluate(X + p * {up}_NTHETA, u);
+            }}
+            t1 = now_ns();
+            if ((t1 - t0) / reps < best) {{
+                best = (t1 - t0) / reps;
+            }}
+        }}
+        ns[p] = best;
+        idx[p] = {name}_evaluate(X + p * {up}_NTHETA, u);
+    }}
+    (void)sink;
+}}
+"""
+
+
+def states_inside(law, dep, count: int, seed: int) -> np.ndarray:
+    lo, hi = dep.boxes
+    lo, hi = lo.min(axis=0), hi.max(axis=0)
+    rng = np.random.default_rng(seed)
+    out, have = [], 0
+    while have < count:
+        X = rng.uniform(lo, hi, size=(4 * count, lo.size))
+        X = X[law.locate(X) >= 0]
+        out.append(X)
+        have += X.shape[0]
+    return np.vstack(out)[:count]
+
+
+def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path) -> dict:
+    from codev_engine.deploy.export import export_c
+    from codev_engine.deploy.plan import plan
+
+    t0 = time.perf_counter()
+    ex = plan(obj, method)
+    build = time.perf_counter() - t0
+    name = f"b_{method}"
+    h, c = export_c(obj, tmp, name=name, method=method)
+    (tmp / f"drv_{method}.c").write_text(DRIVER.format(name=name, up=name.upper()))
+    so = tmp / f"{name}.so"
+    subprocess.run(
+        ["gcc", "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-shared",
+         "-fPIC", "-o", str(so), str(c), str(tmp / f"drv_{method}.c")],
+        check=True,
+    )
+    lib = ctypes.CDLL(str(so))
+    P = X.shape[0]
+    ns = np.empty(P)
+    idx = np.empty(P, dtype=np.intc)
+    ptr = np.ctypeslib.ndpointer
+    lib.bench.argtypes = [ctypes.c_int, ptr(np.float64), ptr(np.float64), ptr(np.intc),
+                          ctypes.c_int, ctypes.c_int]
+    lib.bench(P, np.ascontiguousarray(X), ns, idx, 8, 3)
+    header = h.read_text()
+    rom = int(header.split(f"#define {name.upper()}_ROM_BYTES ")[1].split()[0])
+    return {
+        "method": ex.method,
+        "build_s": build,
+        "depth": ex.depth,
+        "worst_tests": ex.tests,
+        "worst_macs": ex.macs,
+        "rom_bytes": rom,
+        "median_ns": float(np.median(ns)),
+        "worst_ns": float(ns.max()),
+        "p99_ns": float(np.percentile(ns, 99)),
+        "mismatches": int(np.count_nonzero(idx != ref)),
+        "leaves": int(ex.tree.num_leaves),
+    }
+
+
+def run_ppopt(dep, X: np.ndarray, ref: np.ndarray) -> dict | None:
+    try:
+        from ppopt.critical_region import CriticalRegion
+        from ppopt.solution import Solution
+        from ppopt.upop.point_location import PointLocation
+    except ImportError:
+        return None
+    regions = []
+    for i in range(dep.num_regions):
+        r0, r1 = dep.off[i], dep.off[i + 1]
+        regions.append(CriticalRegion(
+            A=dep.F[i], b=dep.G[i][:, None], C=np.zeros((0, 0)), d=np.zeros((0, 1)),
+            E=dep.A[r0:r1], f=dep.b[r0:r1][:, None], active_set=[],
+        ))
+    pl = PointLocation(Solution(program=None, critical_regions=regions, is_overlapping=False))
+    P = min(X.shape[0], 20_000)
+    ns = np.empty(P)
+    idx = np.empty(P, dtype=int)
+    pl.locate(X[0][:, None])  # compile
+    for p in range(P):
+        th = X[p][:, None]
+        best = np.inf
+        for _ in range(3):
+            t0 = time.perf_counter_ns()
+            k = pl.locate(th)
+            best = min(best, time.perf_counter_ns() - t0)
+        ns[p] = best
+        idx[p] = k
+    return {
+        "method": "ppopt-PointLocation",
+        "median_ns": float(np.median(ns)),
+        "worst_ns": float(ns.max()),
+        "states": P,
+        # (its rule: the first region whose rows hold, no tolerance)
+        "disagreements": int(np.count_nonzero(idx != ref[:P])),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--states", type=int, default=100_000)
+    ap.add_argument("--problems", default=",".join(PROBLEMS))
+    ap.add_argument("--solution", action="append", default=[],
+                    help="an mp_testset problem (.npz) to solve and export, or a solution "
+                    "saved by codev mpsolve --out")
+    ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--json")
+    args = ap.parse_args(argv)
+    if shutil.which("gcc") is None:
+        print("no gcc on PATH: nothing to measure")
+        return 0
+    import codev_engine as ce
+    from codev_engine.deploy.plan import ceil_log2, deployable, plan
+
+    # warm up the compiled code (numba caches) on a small law
+    plan(ce.synthesize(ce.load_spec(ROOT / "examples" / "double_integrator.toml")), "bst")
+    objs = []
+    for name in [p for p in args.problems.split(",") if p]:
+        objs.append((name, ce.synthesize(ce.load_spec(ROOT / "examples" / f"{name}.toml"))))
+    keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta", "Aeq", "beq", "Feq")
+    for path in args.solution:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in keys if k in z.files}
+            solved = "format" in z.files and str(z["format"]).startswith("codev-mp-solution")
+        if solved:  # a solution saved by `codev mpsolve --out`
+            objs.append((Path(path).stem, ce.MpSolution.load(path)))
+            continue
+        t0 = time.perf_counter()
+        sol = ce.mpsolve(ce.MpProgram(**data, name=Path(path).stem))
+        print(f"{Path(path).stem}: {sol.num_regions} regions solved in "
+              f"{time.perf_counter() - t0:.1f} s", flush=True)
+        objs.append((Path(path).stem, sol))
+    rows = []
+    for name, obj in objs:
+        dep = deployable(obj)
+        X = states_inside(obj, dep, args.states, seed=0)
+        ref = obj.locate(X)
+        R, d = dep.num_regions, dep.F.shape[2]
+        from codev_engine.deploy.bst import TreeTooLargeError
+
+        with tempfile.TemporaryDirectory() as tmp:
+            s = run_c(obj, "sequential", X, ref, Path(tmp))
+            try:
+                b = run_c(obj, "bst", X, ref, Path(tmp))
+            except TreeTooLargeError as exc:
+                b = None
+                print(f"{name}: no tree: {exc}", flush=True)
+        peer = None if args.no_peer else run_ppopt(dep, X, ref)
+        rows.append({"problem": name, "regions": R, "n": d, "target_tests":
+                     2 * ceil_log2(R) + d, "c": [r for r in (b, s) if r], "ppopt": peer})
+        if b is None:
+            print(f"{name}: {R} regions, n={d} | sequential: worst {s['worst_tests']} rows, "
+                  f"ROM {s['rom_bytes']} B, median {s['median_ns']:.0f} ns, worst "
+                  f"{s['worst_ns']:.0f} ns, mismatches {s['mismatches']}", flush=True)
+            continue
+        print(
+            f"{name}: {R} regions, n={d} | bst: build {b['build_s']:.2f} s, depth "
+            f"{b['depth']} (target {2 * ceil_log2(R) + d}), worst {b['worst_tests']} rows / "
+            f"{b['worst_macs']} MACs, ROM {b['rom_bytes']} B, median {b['median_ns']:.0f} ns, "
+            f"worst {b['worst_ns']:.0f} ns, mismatches {b['mismatches']} | sequential: worst "
+            f"{s['worst_tests']} rows, ROM {s['rom_bytes']} B, median {s['median_ns']:.0f} ns, "
+            f"worst {s['worst_ns']:.0f} ns, mismatches {s['mismatches']}"
+            + ("" if peer is None else f" | PPOPT PointLocation: median "
+               f"{peer['median_ns']:.0f} ns, worst {peer['worst_ns']:.0f} ns "
+               f"({peer['disagreements']} disagreements)"),
+            flush=True,
+        )
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

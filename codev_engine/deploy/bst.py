@@ -1,0 +1,520 @@
+"""A binary search tree over a law's regions (Tøndel, Johansen & Bemporad 2003), exact.
+
+The tree answers the question ``ExplicitLaw.locate`` answers, with the same answer at
+every point, boundaries included. ``locate``'s rule (``geometry.locate``): region ``i``'s
+*violation* at ``theta`` is ``v_i = max_j (A_i theta - b_i)_j`` (its stored rows; -1 for a
+region without rows). The region is the lowest index with ``v_i <= 0`` (holds); when none
+holds, the one with the smallest ``v_i <= tol`` (near; the lowest index on ties); else -1.
+
+How the tree keeps that rule
+----------------------------
+Each internal node tests a hyperplane ``s = a theta - b`` (unit ``a``; one of the regions'
+facets, duplicates merged) and goes left when ``s <= 0``. The regions are sorted into the
+children by the vertices of each region *enlarged by* ``tol`` (every point that can hold or
+be near the region is in their convex hull): a region is a *member* of the left child when
+some vertex has ``s <= eps`` and *proper* there when some vertex has ``s < -eps`` (right:
+mirrored), with ``eps = 1e-9 (1 + |b|)``. A member that is not proper only touches the
+hyperplane (a neighbour across a shared facet). Splitting stops when at most one proper
+region is left (the leaf's *owner*), and no hyperplane takes a proper region off.
+
+At run time every test also notes whether ``|s| <= delta`` (``delta = 1e-7 (1 + |b|)``,
+float32: ``1e-4 (1 + |b|)``): the point is *near* a tested hyperplane.
+
+* Not near (the fast path): the point is more than ``delta`` inside every tested
+  half-space, so it is outside every region that was dropped or only touches (each lies,
+  enlarged, within ``eps`` beyond some tested hyperplane): only the owner can hold it or
+  be near it. The owner's rows are evaluated (those equal to a tested hyperplane, on the
+  side taken, are negative there and skipped) and the rule decides between the owner and
+  -1.
+* Near: the rule is evaluated over the leaf's members (owner and touching regions, in
+  index order, every stored row): they include every region the point can hold or be near.
+
+Either way the answer is ``locate``'s, evaluated in the same arithmetic as its compiled
+walk (``-b_j + sum_t A_jt theta_t`` in order of ``t``, no fused multiply-add). A box around
+all (enlarged) regions is checked first: outside it no region holds or is near.
+
+The cost of a call is bounded by the tree: :meth:`Tree.cost` walks every leaf.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from codev_engine.errors import SolverError
+from codev_engine.geometry.polytope import unique_rows
+from codev_engine.geometry.vertices import box_corners, packed_vertices
+
+__all__ = ["LOCATE_TOL", "Tree", "TreeTooLargeError", "build_tree", "sequential_tree"]
+
+
+class TreeTooLargeError(SolverError):
+    """The tree would exceed its node budget (regions the vertex sort cannot tell apart:
+    high dimension, boxes instead of vertices); the sequential search remains."""
+
+#: the locator's tolerance (``PointLocator``'s default): near a region means ``v <= tol``
+LOCATE_TOL = 1e-9
+#: classification slack (relative to ``1 + |b|``) of the vertices against a hyperplane
+EPS = 1e-8
+#: the run-time "near a tested hyperplane" margin (relative to ``1 + |b|``), per precision
+DELTA = {"double": 1e-6, "float": 1e-4}
+#: below this many hyperplanes x regions, their extents are tabulated once
+TABLE_ENTRIES = 4_000_000
+#: the most internal nodes per region (a tree past it is given up: TreeTooLargeError)
+NODES_PER_REGION = 100
+#: seconds of construction after which the tree is given up (TreeTooLargeError)
+TIME_LIMIT = 60.0
+#: the deepest tree built; a node deeper becomes a leaf that checks all its members
+MAX_DEPTH = 64
+
+
+@dataclass
+class Tree:
+    """A point-location tree over regions (from :func:`build_tree`).
+
+    Attributes
+    ----------
+    d : int
+        The parameter's dimension.
+    node_a : (N, d) ndarray
+        The tested hyperplanes (unit rows), one per internal node.
+    node_b : (N,) ndarray
+    node_next : (N, 2) ndarray of int
+        The child taken when ``s <= 0`` (column 0) and ``s > 0`` (column 1): a node index
+        (>= 0) or ``-1 - leaf``.
+    leaf_owner : (L,) ndarray of int
+        The leaf's single proper region, -1 for none.
+    leaf_general : (L,) ndarray of bool
+        A leaf with several proper regions (no hyperplane separates them, or too deep):
+        it always checks all its members.
+    leaf_fast : list of (q_l,) ndarray of int
+        The owner's rows (global row numbers) the fast path evaluates.
+    leaf_members : list of (p_l,) ndarray of int
+        The regions evaluated near a tested hyperplane, ascending.
+    leaf_depth : (L,) ndarray of int
+        The number of tests on the path to the leaf.
+    box_lo, box_hi : (d,) ndarray or None
+        Outside this box no region holds or is near a point (None: no box, only
+        non-finite parameters are turned away before the search).
+    row_off : (R + 1,) ndarray of int
+        Region ``i``'s stored rows are ``row_off[i]:row_off[i + 1]``.
+    seconds : float
+        Construction time.
+    stats : dict
+        Counters of the construction (``hyperplanes``: distinct ones, ``vertices``).
+    """
+
+    d: int
+    node_a: np.ndarray
+    node_b: np.ndarray
+    node_next: np.ndarray
+    leaf_owner: np.ndarray
+    leaf_general: np.ndarray
+    leaf_fast: list[np.ndarray]
+    leaf_members: list[np.ndarray]
+    leaf_depth: np.ndarray
+    box_lo: np.ndarray | None
+    box_hi: np.ndarray | None
+    row_off: np.ndarray
+    seconds: float = 0.0
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def num_nodes(self) -> int:
+        """Internal nodes (hyperplane tests)."""
+        return self.node_b.shape[0]
+
+    @property
+    def num_leaves(self) -> int:
+        """Leaves."""
+        return self.leaf_owner.shape[0]
+
+    def cost(self) -> dict:
+        """The worst case of one call, by exhaustive traversal of every leaf.
+
+        Returns
+        -------
+        dict
+            ``depth``: the most hyperplane tests on a path; ``fast``: the most tests plus
+            owner rows on the fast path; ``tests``: the most tests plus rows on any path
+            (fast or near a hyperplane): the certified worst case of hyperplane
+            evaluations, each ``d`` multiply-adds.
+        """
+        nrows = np.diff(self.row_off)
+        depth = fast = tests = 0
+        for leaf in range(self.num_leaves):
+            dep = int(self.leaf_depth[leaf])
+            members = int(nrows[self.leaf_members[leaf]].sum())
+            own = members if self.leaf_general[leaf] else int(self.leaf_fast[leaf].size)
+            depth = max(depth, dep)
+            fast = max(fast, dep + own)
+            tests = max(tests, dep + max(own, members))
+        return {"depth": depth, "fast": fast, "tests": tests}
+
+    def traverse_depths(self) -> np.ndarray:
+        """Depth of each leaf found by walking the node table from the root (a check of
+        ``leaf_depth``).
+
+        Returns
+        -------
+        (L,) ndarray of int
+        """
+        out = np.full(self.num_leaves, -1, dtype=np.int64)
+        if self.num_nodes == 0:
+            out[:] = 0
+            return out
+        stack = [(0, 0)]
+        while stack:
+            k, dep = stack.pop()
+            for child in self.node_next[k]:
+                if child >= 0:
+                    stack.append((int(child), dep + 1))
+                else:
+                    out[-1 - int(child)] = dep + 1
+        return out
+
+
+def _normalised(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    nrm = np.linalg.norm(A, axis=1)
+    nrm[nrm == 0] = 1.0
+    return A / nrm[:, None], b / nrm
+
+
+def _canonical(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each unit row signed so that its largest entry in magnitude is positive (first on
+    ties); returns the signed rows and the signs (+1 / -1)."""
+    j = np.argmax(np.abs(A) + 1e-12 * np.arange(A.shape[1], 0, -1), axis=1)
+    sign = np.where(A[np.arange(A.shape[0]), j] < 0, -1.0, 1.0)
+    return A * sign[:, None], b * sign, sign
+
+
+def _enlarged_vertices(
+    A: np.ndarray, b: np.ndarray, off: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points whose convex hull contains each region enlarged by ``LOCATE_TOL``: its
+    vertices when they span its bounding box, else the corners of that box (widened).
+
+    Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
+    regions that fell back on their box.
+    """
+    R = off.size - 1
+    d = A.shape[1]
+    An, bn = _normalised(A, b)
+    # the enlarged region {A x <= b + tol} in unit rows
+    nrm = np.linalg.norm(A, axis=1)
+    nrm[nrm == 0] = 1.0
+    be = bn + LOCATE_TOL / nrm
+    V, owner, done = packed_vertices(An, be, off, 1e-10, rtol=1e-12)
+    lo, hi = boxes
+    pad = 1e-7 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
+    wlo, whi = lo - pad, hi + pad
+    counts = np.bincount(owner, minlength=R)
+    vlo = np.full((R, d), np.inf)
+    vhi = np.full((R, d), -np.inf)
+    if V.shape[0]:
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        has = counts > 0
+        vlo[has] = np.minimum.reduceat(V, starts[has], axis=0)
+        vhi[has] = np.maximum.reduceat(V, starts[has], axis=0)
+    # vertices must reach every side of the region's box (else some were lost)
+    gap = 1e-6 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
+    ok = done & (counts > d) & np.all(vlo <= lo + gap, axis=1) & np.all(vhi >= hi - gap, axis=1)
+    keep = ok[owner]
+    pts, own = [V[keep]], [owner[keep]]
+    for i in np.flatnonzero(~ok):
+        C = box_corners(wlo[i], whi[i])
+        pts.append(C)
+        own.append(np.full(C.shape[0], i))
+    P, O = np.concatenate(pts), np.concatenate(own)
+    order = np.argsort(O, kind="stable")
+    return P[order], O[order], int(np.count_nonzero(~ok))
+
+
+def build_tree(
+    A: np.ndarray,
+    b: np.ndarray,
+    off: np.ndarray,
+    boxes: tuple[np.ndarray, np.ndarray],
+    *,
+    prune: bool = True,
+) -> Tree:
+    """The binary search tree of regions ``{theta : A[off[i]:off[i+1]] theta <= b[...]}``.
+
+    Parameters
+    ----------
+    A : (N, d) ndarray
+        The regions' stored rows, region after region.
+    b : (N,) ndarray
+    off : (R + 1,) ndarray of int
+    boxes : (lo, hi), each (R, d) ndarray
+        Bounding boxes of the regions (``ExplicitLaw.boxes``): the fallback for a region
+        whose vertices cannot be trusted.
+    prune : bool
+        Take off a leaf's member list every region that an LP proves apart from the leaf's
+        cell (see :func:`_prune_members`).
+
+    Returns
+    -------
+    Tree
+
+    Raises
+    ------
+    TreeTooLargeError
+        Past ``NODES_PER_REGION`` internal nodes per region or ``TIME_LIMIT`` seconds, or
+        when the vertices of over a quarter of the regions cannot be enumerated.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    A = np.asarray(A, dtype=float)
+    b = np.asarray(b, dtype=float)
+    off = np.asarray(off, dtype=np.int64)
+    R = off.size - 1
+    d = A.shape[1]
+    V, owner, boxed = _enlarged_vertices(A, b, off, boxes)
+    if boxed > max(8, R // 4):
+        # boxes overlap wherever the regions are thin and oblique: the sort by hyperplanes
+        # would copy most regions into most leaves (pop_mpqp_007, d = 8, 12,232 regions
+        # of 22-45 rows: every region boxed, no tree after 10 minutes)
+        raise TreeTooLargeError(
+            f"the vertices of {boxed} of {R} regions could not be enumerated (too many "
+            f"rows in {d} dimensions): no search tree (use the sequential search)"
+        )
+    vcount = np.bincount(owner, minlength=R)
+    pad = 1e-6 * (1.0 + np.abs(V).max(initial=1.0))
+    box_lo = (V.min(axis=0) if V.shape[0] else np.zeros(d)) - pad
+    box_hi = (V.max(axis=0) if V.shape[0] else np.zeros(d)) + pad
+    xmax = float(np.abs(np.concatenate([box_lo, box_hi])).max(initial=0.0))
+
+    # the candidate hyperplanes: the regions' rows, unit, signed canonically, deduplicated
+    An, bn = _normalised(A, b)
+    nrm = np.linalg.norm(A, axis=1)
+    nrm[nrm == 0] = 1.0
+    Ac, bc, sign = _canonical(An, bn)
+    first = unique_rows(np.column_stack([Ac, bc]), 9)
+    key_rows = np.column_stack([Ac, bc])
+    H_A, H_b = Ac[first], bc[first]
+    H = first.size
+    # each row's hyperplane (rows equal to 9 decimals share one)
+    from codev_engine.geometry.polytope import row_keys
+
+    keys = row_keys(key_rows, 9)
+    ukeys = keys[first]
+    order = np.argsort(ukeys)
+    pos = np.searchsorted(ukeys[order], keys)
+    row_h = order[pos]
+
+    # a region's extent along hyperplanes: min / max of s over its (enlarged) vertices,
+    # computed per node for the candidates and regions at hand (no hyperplanes x regions
+    # table: 10^4 regions have ~10^5 distinct facets)
+    vend = np.cumsum(vcount)
+
+    def extents(hs: np.ndarray, regs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if table is not None:
+            return table[0][np.ix_(hs, regs)], table[1][np.ix_(hs, regs)]
+        return extents_now(hs, regs)
+
+    def extents_now(hs: np.ndarray, regs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cnt = vcount[regs]
+        seg = np.cumsum(cnt) - cnt
+        idx = np.repeat(vend[regs] - cnt - seg, cnt) + np.arange(int(cnt.sum()))
+        S = H_A[hs] @ V[idx].T - H_b[hs][:, None]
+        lo = np.full((hs.size, regs.size), np.inf)
+        hi = np.full((hs.size, regs.size), -np.inf)
+        has = cnt > 0
+        if np.any(has):
+            lo[:, has] = np.minimum.reduceat(S, seg[has], axis=1)
+            hi[:, has] = np.maximum.reduceat(S, seg[has], axis=1)
+        eps = EPS * (1.0 + np.abs(H_b[hs]))[:, None]
+        return lo / eps, hi / eps  # in units of eps: proper beyond -1 / 1, member within
+
+    # a small law: every hyperplane against every region once (at most 64 MB)
+    table = None
+    if H * R <= TABLE_ENTRIES:
+        table = extents_now(np.arange(H), np.arange(R))
+
+    # the hyperplanes of each region (its facets' ids)
+    region_h = [np.unique(row_h[off[i] : off[i + 1]]) for i in range(R)]
+
+    max_nodes = NODES_PER_REGION * R + 1000
+    nodes_a: list[np.ndarray] = []
+    nodes_b: list[float] = []
+    nodes_next: list[list[int]] = []
+    leaves: list[tuple] = []
+
+    def leaf(P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]], general: bool) -> int:
+        members = np.union1d(P, M).astype(np.int64)
+        own = int(P[0]) if P.size == 1 and not general else -1
+        fast = np.zeros(0, dtype=np.int64)
+        if own >= 0:
+            rows = np.arange(off[own], off[own + 1])
+            # a row equal to a tested hyperplane, on the side taken, is negative there
+            # (equal to within a quarter of delta at the largest |theta| of the box)
+            taken = {(h, side) for h, side in path}
+            skip = np.zeros(rows.size, dtype=bool)
+            for q, j in enumerate(rows):
+                h = int(row_h[j])
+                if (h, 0 if sign[j] > 0 else 1) in taken:
+                    gap = np.abs(Ac[j] - H_A[h]).sum() * xmax + abs(bc[j] - H_b[h])
+                    skip[q] = gap <= 0.25 * DELTA["double"] * (1.0 + abs(H_b[h]))
+            fast = rows[~skip]
+        leaves.append([own, general or P.size > 1, fast, members, len(path), list(path)])
+        return -1 - (len(leaves) - 1)
+
+    # depth-first, an explicit stack: (proper, members, path, parent node, side)
+    def grow(P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]]) -> int:
+        if P.size <= 1:
+            return leaf(P, M, path, False)
+        if len(path) >= MAX_DEPTH:
+            return leaf(P, M, path, True)
+        used = {h for h, _ in path}
+        cand = np.unique(np.concatenate([region_h[i] for i in P]))
+        if used:
+            cand = cand[~np.isin(cand, np.fromiter(used, dtype=np.int64))]
+        if cand.size == 0:
+            return leaf(P, M, path, True)
+        # the candidates in chunks of at most ~2e7 vertex evaluations; the best of the
+        # first chunk that takes a proper region off each side
+        per = int(np.clip(2e7 / max(1, int(vcount[P].sum())), 16, 4096))
+        if cand.size > per:
+            cand = np.random.default_rng(len(nodes_b)).permutation(cand)
+        best_h, best = -1, None
+        for c0 in range(0, cand.size, per):
+            chunk = cand[c0 : c0 + per]
+            lo, hi = extents(chunk, P)
+            nl = (lo < -1.0).sum(axis=1)
+            nr = (hi > 1.0).sum(axis=1)
+            worst = np.maximum(nl, nr)
+            score = worst * (2 * P.size + 1) + (nl + nr)
+            k = int(np.argmin(score))
+            if best is None or score[k] < best[0]:
+                best_h, best = int(chunk[k]), (int(score[k]), int(worst[k]))
+            if best[1] < P.size:
+                break
+        if best[1] >= P.size:
+            return leaf(P, M, path, True)
+        h = best_h
+        node = len(nodes_b)
+        if node >= max_nodes or (node % 256 == 0 and time.perf_counter() - t0 > TIME_LIMIT):
+            raise TreeTooLargeError(
+                f"the search tree for {R} regions in {d} dimensions would exceed "
+                f"{max_nodes} nodes or {TIME_LIMIT:g} s (use the sequential search)"
+            )
+        nodes_a.append(H_A[h])
+        nodes_b.append(float(H_b[h]))
+        nodes_next.append([0, 0])
+        allm = np.union1d(P, M)
+        lo, hi = extents(np.array([h]), allm)
+        inP = np.isin(allm, P)
+        sides = ((lo[0] <= 1.0, lo[0] < -1.0), (hi[0] >= -1.0, hi[0] > 1.0))
+        for side, (mem, prop) in enumerate(sides):
+            Pc = allm[prop & inP]
+            Mc = allm[mem & ~(prop & inP)]
+            nodes_next[node][side] = grow(Pc, Mc, path + [(h, side)])
+        return node
+
+    import sys
+
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 10 * MAX_DEPTH + 1000))
+    try:
+        grow(np.arange(R, dtype=np.int64), np.zeros(0, dtype=np.int64), [])
+    finally:
+        sys.setrecursionlimit(limit)
+    if prune:
+        _prune_members(leaves, An, bn + LOCATE_TOL / nrm, off, H_A, H_b, box_lo, box_hi, xmax)
+    node_next = np.array(nodes_next, dtype=np.int64).reshape(-1, 2)
+    return Tree(
+        d=d,
+        node_a=np.array(nodes_a, dtype=float).reshape(-1, d),
+        node_b=np.array(nodes_b, dtype=float),
+        node_next=node_next,
+        leaf_owner=np.array([lf[0] for lf in leaves], dtype=np.int64),
+        leaf_general=np.array([lf[1] for lf in leaves], dtype=bool),
+        leaf_fast=[lf[2] for lf in leaves],
+        leaf_members=[lf[3] for lf in leaves],
+        leaf_depth=np.array([lf[4] for lf in leaves], dtype=np.int64),
+        box_lo=box_lo,
+        box_hi=box_hi,
+        row_off=off,
+        seconds=time.perf_counter() - t0,
+        stats={"hyperplanes": int(H), "vertices": int(V.shape[0])},
+    )
+
+
+def _prune_members(leaves, An, be, off, H_A, H_b, box_lo, box_hi, xmax) -> None:
+    """Drop from each leaf's members the regions that cannot reach its cell.
+
+    The vertices sort a region by one hyperplane at a time; a region may pass each test of
+    a path and still miss the cell they cut out. A member is dropped when the largest ball
+    in (the region enlarged by the locator's tolerance) and (the cell widened by
+    ``1e-9 (1 + |b|)`` per test) and the box has a radius whose upper bound by weak
+    duality (``lp_kernel.chebyshev``) is negative: the two are apart, whatever the LP's
+    accuracy. On any doubt (an LP not solved) the member stays.
+    """
+    from codev_engine.deploy.prune_kernel import apart
+
+    d = An.shape[1]
+    PAs, Pbs, plen, mems, mlen, owners = [], [], [], [], [], []
+    for lf in leaves:
+        path = lf[5]
+        hs = np.array([h for h, _ in path], dtype=np.int64)
+        sg = np.array([1.0 if side == 0 else -1.0 for _, side in path])
+        PAs.append(H_A[hs] * sg[:, None])
+        Pbs.append(H_b[hs] * sg + 1e-9 * (1.0 + np.abs(H_b[hs])))
+        plen.append(hs.size)
+        mems.append(lf[3])
+        mlen.append(lf[3].size)
+        owners.append(lf[0])
+    members = np.concatenate(mems).astype(np.int64)
+    drop = apart(
+        np.ascontiguousarray(An), np.ascontiguousarray(be), off.astype(np.int64),
+        np.ascontiguousarray(np.vstack(PAs)).reshape(-1, d), np.concatenate(Pbs),
+        np.concatenate([[0], np.cumsum(plen)]).astype(np.int64), members,
+        np.concatenate([[0], np.cumsum(mlen)]).astype(np.int64),
+        np.array(owners, dtype=np.int64), np.vstack([np.eye(d), -np.eye(d)]),
+        np.concatenate([box_hi, -box_lo]), 0.5 * (box_lo + box_hi), xmax + 1.0, 500,
+    )
+    start = 0
+    for lf, k in zip(leaves, mlen, strict=True):
+        lf[3] = lf[3][~drop[start : start + k]]
+        start += k
+
+
+def sequential_tree(
+    A: np.ndarray, b: np.ndarray, off: np.ndarray, box_lo=None, box_hi=None
+) -> Tree:
+    """The degenerate tree of the sequential search: no test, one leaf checking every
+    region in index order (the rule of ``locate`` over all of them).
+
+    Parameters
+    ----------
+    A : (N, d) ndarray
+        The regions' stored rows, region after region.
+    b : (N,) ndarray
+    off : (R + 1,) ndarray of int
+    box_lo, box_hi : (d,) ndarray, optional
+        Outside this box no region holds or is near a point; without it only a
+        non-finite ``theta`` is turned away before the search.
+
+    Returns
+    -------
+    Tree
+    """
+    d = np.asarray(A).shape[1]
+    R = np.asarray(off).size - 1
+    return Tree(
+        d=d,
+        node_a=np.zeros((0, d)),
+        node_b=np.zeros(0),
+        node_next=np.zeros((0, 2), dtype=np.int64),
+        leaf_owner=np.array([-1]),
+        leaf_general=np.array([True]),
+        leaf_fast=[np.zeros(0, dtype=np.int64)],
+        leaf_members=[np.arange(R, dtype=np.int64)],
+        leaf_depth=np.array([0]),
+        box_lo=None if box_lo is None else np.asarray(box_lo, dtype=float),
+        box_hi=None if box_hi is None else np.asarray(box_hi, dtype=float),
+        row_off=np.asarray(off, dtype=np.int64),
+    )

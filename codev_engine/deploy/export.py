@@ -1,0 +1,95 @@
+"""Export an explicit law (or an ``MpSolution``) as code: C99 or Python.
+
+``export_c(law, dir)`` writes ``dir/PREFIX.h`` and ``dir/PREFIX.c``: a table-driven
+binary search tree (``bst.py``) or a sequential search, the affine law of every region and
+nothing else (no dynamic allocation, no library call); ``export_python`` a numpy-only
+module walking the same tables.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from codev_engine.deploy.c_code import c_source
+from codev_engine.deploy.plan import plan
+from codev_engine.deploy.python_code import python_source
+from codev_engine.errors import SpecError
+from codev_engine.io.atomic import write_text
+
+__all__ = ["export_c", "export_python"]
+
+
+def _check_name(name: str) -> str:
+    if not name or not (name[0].isalpha() or name[0] == "_") or not all(
+        c.isalnum() or c == "_" for c in name
+    ):
+        raise SpecError(f"name {name!r} is not a C identifier", field="name")
+    return name
+
+
+def export_c(
+    obj,
+    directory: str | os.PathLike,
+    *,
+    name: str = "codev_law",
+    float32: bool = False,
+    method: str = "auto",
+) -> tuple[Path, Path]:
+    """Write the law as C99: ``directory/name.h`` and ``directory/name.c``.
+
+    ``int name_evaluate(const double theta[NAME_NTHETA], double u[NAME_NU])`` returns the
+    region ``ExplicitLaw.locate`` returns (>= 0) and writes ``u = F_i theta + G_i``, or -1
+    outside the law's domain, leaving ``u`` untouched (``float`` with ``float32``).
+
+    Parameters
+    ----------
+    obj : ExplicitLaw or MpSolution
+    directory : path-like
+        Created if missing.
+    name : str
+        The prefix of the files and of every C name (a C identifier).
+    float32 : bool
+        ``float`` tables and arithmetic instead of ``double``.
+    method : {"auto", "bst", "sequential"}
+        The search (``auto``: fewer worst-case multiply-adds).
+
+    Returns
+    -------
+    header, source : Path
+
+    Raises
+    ------
+    SpecError
+        A bad name or method, or nothing to export.
+    """
+    _check_name(name)
+    ex = plan(obj, method)
+    header, source = c_source(ex, name, float32)
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    h, c = directory / f"{name}.h", directory / f"{name}.c"
+    write_text(h, header)
+    write_text(c, source)
+    return h, c
+
+
+def export_python(obj, path: str | os.PathLike, *, method: str = "auto") -> Path:
+    """Write the law as a Python module (numpy only) with ``evaluate(theta)``.
+
+    Parameters
+    ----------
+    obj : ExplicitLaw or MpSolution
+    path : path-like
+        The ``.py`` file to write.
+    method : {"auto", "bst", "sequential"}
+
+    Returns
+    -------
+    Path
+    """
+    ex = plan(obj, method)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, python_source(ex))
+    return path

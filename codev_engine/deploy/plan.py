@@ -1,0 +1,227 @@
+"""The plan of an export: what is evaluated (``Deployable``), the search and its cost.
+
+Both searches, the tree (``bst.py``) and the sequential one, return the region
+``ExplicitLaw.locate`` returns at every point (see ``bst.py`` for the rule and why).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from codev_engine.deploy.bst import Tree, TreeTooLargeError, build_tree, sequential_tree
+from codev_engine.errors import SpecError
+
+__all__ = ["Deployable", "Export", "ceil_log2", "deployable", "plan", "rom_bytes"]
+
+METHODS = ("bst", "sequential", "auto")
+
+
+@dataclass(frozen=True)
+class Deployable:
+    """What the exported code evaluates: regions in ``theta``-space and an affine map each.
+
+    Attributes
+    ----------
+    A : (N, d) ndarray
+        The regions' rows as stored (region after region).
+    b : (N,) ndarray
+    off : (R + 1,) ndarray of int
+    F : (R, m, d) ndarray
+    G : (R, m) ndarray
+    boxes : (lo, hi), each (R, d) ndarray
+        The regions' bounding boxes.
+    parameter_names, output_names : tuple of str
+    fingerprint : str
+    kind : str
+        ``"law"`` (u = F theta + G) or ``"mp-solution"`` (z = F theta + G).
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    off: np.ndarray
+    F: np.ndarray
+    G: np.ndarray
+    boxes: tuple[np.ndarray, np.ndarray]
+    parameter_names: tuple[str, ...]
+    output_names: tuple[str, ...]
+    fingerprint: str
+    kind: str
+
+    @property
+    def num_regions(self) -> int:
+        """The number of regions ``R``."""
+        return self.off.size - 1
+
+
+def deployable(obj) -> Deployable:
+    """The regions and maps of an ``ExplicitLaw`` or an ``MpSolution``.
+
+    Parameters
+    ----------
+    obj : ExplicitLaw or MpSolution
+
+    Returns
+    -------
+    Deployable
+
+    Raises
+    ------
+    SpecError
+        Neither a law nor a solution, or one without regions.
+    """
+    from codev_engine.law import ExplicitLaw
+
+    if isinstance(obj, ExplicitLaw):
+        if obj.num_regions == 0:
+            raise SpecError("the law has no region to export")
+        d = obj.F.shape[2]
+        off = np.cumsum([0] + [a.shape[0] for a in obj.A]).astype(np.int64)
+        names = tuple(obj.parameter_names)
+        if len(names) != d:
+            names = tuple(f"theta{i}" for i in range(d))
+        outs = tuple(obj.inputs) if len(obj.inputs) == obj.m else tuple(
+            f"u{i}" for i in range(obj.m)
+        )
+        return Deployable(
+            A=np.vstack(obj.A).astype(float), b=np.concatenate(obj.b).astype(float), off=off,
+            F=np.asarray(obj.F, dtype=float), G=np.asarray(obj.G, dtype=float),
+            boxes=obj.boxes, parameter_names=names, output_names=outs,
+            fingerprint=obj.fingerprint, kind="law",
+        )
+    from codev_engine.mp.solution import MpSolution
+
+    if isinstance(obj, MpSolution):
+        return _from_solution(obj)
+    raise SpecError(f"cannot export a {type(obj).__name__} (an ExplicitLaw or MpSolution)")
+
+
+def _from_solution(sol) -> Deployable:
+    """An ``MpSolution``'s regions (the shared rows made explicit) and primal maps."""
+    reg = sol.regions
+    R = sol.num_regions
+    if R == 0:
+        raise SpecError("the solution has no region to export")
+    rows = [reg.rows(i) for i in range(R)]
+    As, bs = [r[0] for r in rows], [r[1] for r in rows]
+    off = np.cumsum([0] + [a.shape[0] for a in As]).astype(np.int64)
+    F = np.asarray(reg.K, dtype=float)
+    G = np.asarray(reg.k, dtype=float)
+    d = F.shape[2]
+    from codev_engine.geometry.locate import bounding_boxes
+    from codev_engine.law import fingerprint_arrays
+
+    domain = None if sol.domain_A is None else (sol.domain_A, sol.domain_b)
+    boxes = bounding_boxes(As, bs, domain=domain)
+    return Deployable(
+        A=np.vstack(As), b=np.concatenate(bs), off=off, F=F, G=G, boxes=boxes,
+        parameter_names=tuple(f"theta{i}" for i in range(d)),
+        output_names=tuple(f"z{i}" for i in range(F.shape[1])),
+        fingerprint=fingerprint_arrays(np.vstack(As), np.concatenate(bs), F, G),
+        kind="mp-solution",
+    )
+
+
+@dataclass(frozen=True)
+class Export:
+    """An export's plan: the tree (or the sequential search) and its certified cost.
+
+    Attributes
+    ----------
+    dep : Deployable
+    tree : Tree
+    method : str
+        ``"bst"`` or ``"sequential"``.
+    depth : int
+        Most hyperplane tests on a path of the tree.
+    tests : int
+        Most hyperplane (row) evaluations of one call, by exhaustive traversal of the tree.
+    macs : int
+        Most multiply-adds of one call: ``d`` per hyperplane evaluation plus ``m d`` for the
+        law.
+    """
+
+    dep: Deployable
+    tree: Tree
+    method: str
+    depth: int
+    tests: int
+    macs: int
+
+
+def plan(obj, method: str = "auto") -> Export:
+    """Build the search of an export.
+
+    Parameters
+    ----------
+    obj : ExplicitLaw, MpSolution or Deployable
+    method : {"auto", "bst", "sequential"}
+        ``auto``: the one of fewer worst-case multiply-adds.
+
+    Returns
+    -------
+    Export
+
+    Raises
+    ------
+    SpecError
+        An unknown method, or nothing to export.
+    TreeTooLargeError
+        ``method="bst"`` and the tree exceeds its node budget (``auto`` then takes the
+        sequential search).
+    """
+    if method not in METHODS:
+        raise SpecError(f"unknown method {method!r} (one of {', '.join(METHODS)})")
+    dep = obj if isinstance(obj, Deployable) else deployable(obj)
+    d, m = dep.F.shape[2], dep.F.shape[1]
+    choices = []
+    if method in ("bst", "auto"):
+        try:
+            choices.append(("bst", build_tree(dep.A, dep.b, dep.off, dep.boxes)))
+        except TreeTooLargeError:
+            if method == "bst":
+                raise
+
+    if method in ("sequential", "auto"):
+        # the tree's box when there is one (from the enlarged regions' vertices); without
+        # it the sequential search checks only that theta is finite
+        lo = choices[0][1].box_lo if choices else None
+        hi = choices[0][1].box_hi if choices else None
+        choices.append(("sequential", sequential_tree(dep.A, dep.b, dep.off, lo, hi)))
+    best = None
+    for name, tree in choices:
+        c = tree.cost()
+        e = Export(dep, tree, name, c["depth"], c["tests"], c["tests"] * d + m * d)
+        if best is None or e.macs < best.macs:
+            best = e
+    return best
+
+
+def rom_bytes(tables: dict[str, tuple[int, int]]) -> int:
+    """Total size of constant tables, ``{name: (count, element bytes)}``.
+
+    Parameters
+    ----------
+    tables : dict
+
+    Returns
+    -------
+    int
+    """
+    return int(sum(n * s for n, s in tables.values()))
+
+
+def ceil_log2(k: int) -> int:
+    """``ceil(log2(k))`` (0 for k <= 1).
+
+    Parameters
+    ----------
+    k : int
+
+    Returns
+    -------
+    int
+    """
+    return 0 if k <= 1 else math.ceil(math.log2(k))

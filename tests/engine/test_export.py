@@ -1,0 +1,387 @@
+"""The exported C (and Python) against the law: compiled by the system C compiler with
+``-Wall -Wextra -Werror -pedantic -std=c99`` and called through ctypes.
+
+At random states in and around the domain, at points on the regions' facets (shared
+facets, where a discontinuous mp-LP law jumps, and the domain's boundary) and at their
+vertices, at states outside the domain and at non-finite ones: the C returns the region
+``ExplicitLaw.locate`` returns (0 mismatches), ``u`` within 1e-12 of ``law.evaluate``
+(relative to ``|F||theta| + |G|``), and leaves ``u`` untouched where it returns -1. The
+header's worst case equals the exhaustive traversal of the tree, and a counting build of
+the same code never exceeds it. Laws: the three norms, merged and unmerged, degenerate
+mp-LPs (R = 0), a Voronoi partition, overlapping simplices with gaps (where the lowest
+index rule decides), and an ``MpSolution``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import codev_engine as ce
+from codev_engine.deploy.plan import ceil_log2, plan
+from codev_engine.geometry.vertices import vertices_many
+from tests.engine.test_law import simplex_law, voronoi_law
+from workbench.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+CC = shutil.which("gcc") or shutil.which("cc")
+needs_cc = pytest.mark.skipif(
+    CC is None, reason="no C compiler (gcc or cc) on PATH: the exported C cannot be compiled"
+)
+FLAGS = ["-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-std=c99"]
+N_RANDOM = 10_000
+SENTINEL = 777.0
+
+
+# ---------------------------------------------------------------------------------------
+# laws
+# ---------------------------------------------------------------------------------------
+
+
+def _variant(name: str, norm: str, simplify: bool, extra: dict[str, str] | None = None):
+    text = (ROOT / "examples" / name).read_text()
+    text = re.sub(r'^norm = ".*"$', f'norm = "{norm}"', text, flags=re.M)
+    for key, value in (extra or {}).items():
+        text = re.sub(rf"^{key} = .*$", f"{key} = {value}", text, flags=re.M)
+    return ce.synthesize(ce.loads_spec(text), simplify=simplify)
+
+
+@functools.cache
+def law(key: str) -> ce.ExplicitLaw:
+    if key == "voronoi":
+        return voronoi_law(300, 3, seed=4)
+    if key == "simplices":
+        return simplex_law(200, 2, seed=5)
+    name, norm, simp, *rest = key.split(":")
+    extra = {"R": "[[0.0]]"} if rest == ["R0"] else {}
+    if norm == "2":
+        extra["Q"] = "[[1.0, 0.0], [0.0, 1.0]]"
+    return _variant(f"{name}.toml", norm, simp == "merged", extra)
+
+
+LAWS = [
+    "double_integrator:inf:merged",
+    "double_integrator:inf:unmerged",
+    "double_integrator:1:unmerged",
+    "double_integrator:2:unmerged",
+    "double_integrator:2:merged",
+    "double_integrator:1:unmerged:R0",  # a degenerate mp-LP (no input weight)
+    "double_integrator:inf:unmerged:R0",
+    "magnetic_pointer_c:inf:unmerged",
+    "voronoi",
+    "simplices",
+]
+
+
+# ---------------------------------------------------------------------------------------
+# compiling and calling the export
+# ---------------------------------------------------------------------------------------
+
+DRIVER = """#include "{name}.h"
+void {name}_batch(int P, const {real} *X, {real} *U, int *idx)
+{{
+    int p;
+    for (p = 0; p < P; ++p) {{
+        idx[p] = {name}_evaluate(X + p * {up}_NTHETA, U + p * {up}_NU);
+    }}
+}}
+"""
+
+
+class Compiled:
+    """The exported C of a law, compiled into a shared library (with a batch driver)."""
+
+    def __init__(self, obj, tmp: Path, *, float32=False, method="auto", count=False):
+        name = "lawc"
+        self.h, c = ce.export_c(obj, tmp, name=name, float32=float32, method=method)
+        real = "float" if float32 else "double"
+        (tmp / "driver.c").write_text(DRIVER.format(name=name, real=real, up=name.upper()))
+        so = tmp / "lawc.so"
+        extra = [f"-D{name.upper()}_COUNT"] if count else []
+        cmd = [CC, *FLAGS, *extra, "-shared", "-fPIC", "-o", str(so), str(c),
+               str(tmp / "driver.c")]
+        run = subprocess.run(cmd, capture_output=True, text=True)
+        assert run.returncode == 0, run.stderr
+        self.lib = ctypes.CDLL(str(so))
+        self.dtype = np.float32 if float32 else np.float64
+        self.header = self.h.read_text()
+        self.n = int(re.search(r"#define LAWC_NTHETA (\d+)", self.header).group(1))
+        self.m = int(re.search(r"#define LAWC_NU (\d+)", self.header).group(1))
+        self.count = ctypes.c_long.in_dll(self.lib, "lawc_count") if count else None
+
+    def define(self, key: str) -> int:
+        return int(re.search(rf"#define LAWC_{key} (\d+)", self.header).group(1))
+
+    def __call__(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        X = np.ascontiguousarray(X, dtype=self.dtype)
+        P = X.shape[0]
+        U = np.full((P, self.m), SENTINEL, dtype=self.dtype)
+        idx = np.empty(P, dtype=np.intc)
+        ptr = np.ctypeslib.ndpointer
+        f = self.lib.lawc_batch
+        f.argtypes = [ctypes.c_int, ptr(self.dtype), ptr(self.dtype), ptr(np.intc)]
+        f(P, X, U, idx)
+        return idx.astype(int), U.astype(float)
+
+
+# ---------------------------------------------------------------------------------------
+# points
+# ---------------------------------------------------------------------------------------
+
+
+def random_points(lw, count: int, seed: int) -> np.ndarray:
+    lo, hi = lw.boxes
+    lo, hi = lo.min(axis=0), hi.max(axis=0)
+    span = hi - lo
+    rng = np.random.default_rng(seed)
+    return rng.uniform(lo - 0.2 * span, hi + 0.2 * span, size=(count, lo.size))
+
+
+def facet_points(lw, per_facet: int, seed: int, cap: int = 20_000) -> np.ndarray:
+    """Points on every region's facets (convex combinations of the facet's vertices, as
+    rounded), and the vertices."""
+    rng = np.random.default_rng(seed)
+    pts = []
+    for A, b, V in zip(lw.A, lw.b, vertices_many(lw.A, lw.b, 1e-9), strict=True):
+        if V is None or V.shape[0] == 0:
+            continue
+        pts.append(V)
+        for j in range(A.shape[0]):
+            on = V[np.abs(V @ A[j] - b[j]) < 1e-9]
+            if on.shape[0]:
+                pts.append(rng.dirichlet(np.ones(on.shape[0]), size=per_facet) @ on)
+    X = np.vstack(pts)
+    if X.shape[0] > cap:
+        X = X[rng.choice(X.shape[0], cap, replace=False)]
+    return X
+
+
+def outside_points(lw, n: int) -> np.ndarray:
+    lo, hi = lw.boxes
+    far = 10.0 * (np.abs(lo).max() + np.abs(hi).max() + 1.0)
+    rows = [np.full(n, far), np.full(n, -far), np.full(n, np.nan), np.full(n, np.inf)]
+    mixed = np.zeros(n)
+    mixed[0] = np.nan
+    return np.vstack(rows + [mixed])
+
+
+def scale(lw, idx: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """``|F_i| |theta| + |G_i|`` per point (the size of the sums that make u)."""
+    return np.einsum("pij,pj->pi", np.abs(lw.F[idx]), np.abs(X)) + np.abs(lw.G[idx])
+
+
+def assert_agrees(lw, C: Compiled, X: np.ndarray, rtol: float = 1e-12) -> None:
+    idx, U = C(X)
+    ref = lw.locate(X)
+    bad = np.flatnonzero(idx != ref)
+    assert bad.size == 0, f"{bad.size} of {X.shape[0]} regions differ, e.g. {X[bad[:3]]}"
+    inside = ref >= 0
+    assert np.all(U[~inside] == SENTINEL), "u written outside the domain"
+    if np.any(inside):
+        want = lw.evaluate(X[inside])
+        err = np.abs(U[inside] - want) / np.maximum(scale(lw, ref[inside], X[inside]), 1e-300)
+        assert err.max() <= rtol, f"u off by {err.max():.3g} (relative)"
+
+
+# ---------------------------------------------------------------------------------------
+# tests
+# ---------------------------------------------------------------------------------------
+
+
+@needs_cc
+@pytest.mark.parametrize("key", LAWS)
+def test_c_returns_the_region_and_law_of_locate(key, tmp_path):
+    lw = law(key)
+    C = Compiled(lw, tmp_path, method="bst")
+    assert_agrees(lw, C, random_points(lw, N_RANDOM, seed=1))
+    assert_agrees(lw, C, facet_points(lw, 3, seed=2))
+    X = outside_points(lw, lw.n)
+    idx, U = C(X)
+    assert np.all(idx == -1) and np.all(U == SENTINEL)
+    assert np.all(lw.locate(X) == -1)
+
+
+@needs_cc
+@pytest.mark.parametrize("key", ["double_integrator:1:unmerged:R0", "simplices"])
+def test_sequential_search_agrees_too(key, tmp_path):
+    lw = law(key)
+    C = Compiled(lw, tmp_path, method="sequential")
+    assert "sequential search" in C.header
+    assert_agrees(lw, C, random_points(lw, 2000, seed=3))
+    assert_agrees(lw, C, facet_points(lw, 2, seed=4, cap=3000))
+    idx, U = C(outside_points(lw, lw.n))
+    assert np.all(idx == -1) and np.all(U == SENTINEL)
+
+
+@needs_cc
+@pytest.mark.parametrize("key", ["double_integrator:2:unmerged", "magnetic_pointer_c:inf:unmerged"])
+def test_float32_within_1e5(key, tmp_path):
+    """float: the region of locate except within float rounding of a facet; u within 1e-5
+    (relative to |F||theta| + |G|) wherever the region is the same."""
+    lw = law(key)
+    C = Compiled(lw, tmp_path, float32=True)
+    assert "float theta[" in C.header
+    X = random_points(lw, N_RANDOM, seed=6).astype(np.float32).astype(float)
+    idx, U = C(X)
+    ref = lw.locate(X)
+    same = idx == ref
+    for p in np.flatnonzero(~same):  # only at a facet: the C's region within 1e-5 of X
+        k = idx[p] if idx[p] >= 0 else ref[p]
+        v = np.max(lw.A[k] @ X[p] - lw.b[k])
+        assert abs(v) <= 1e-5 * (1.0 + np.abs(X[p]).sum()), (p, idx[p], ref[p], v)
+    assert same.mean() > 0.999
+    inside = same & (ref >= 0)
+    sc = np.maximum(scale(lw, ref[inside], X[inside]), 1e-300)
+    err = np.abs(U[inside] - lw.evaluate(X[inside])) / sc
+    assert err.max() <= 1e-5
+    assert np.all(U[idx < 0] == SENTINEL)
+
+
+@needs_cc
+@pytest.mark.parametrize(
+    "key", ["double_integrator:1:unmerged:R0", "magnetic_pointer_c:inf:unmerged"]
+)
+def test_worst_case_is_the_deepest_path(key, tmp_path):
+    """The header's worst case is the exhaustive traversal of the tree's tables, and no call
+    of a counting build exceeds it (the deepest tests are within the target)."""
+    lw = law(key)
+    ex = plan(lw, "bst")
+    t = ex.tree
+    # walk the tables from the root: every leaf once, its depth and its rows
+    nrows = np.diff(t.row_off)
+    worst = depth = 0
+    stack = [(0, 0)] if t.num_nodes else [(-1, 0)]
+    seen = 0
+    while stack:
+        k, dep = stack.pop()
+        if k < 0:
+            leaf = -1 - k
+            seen += 1
+            members = int(nrows[t.leaf_members[leaf]].sum())
+            fast = members if t.leaf_general[leaf] else t.leaf_fast[leaf].size
+            worst = max(worst, dep + max(fast, members))
+            depth = max(depth, dep)
+            continue
+        for child in t.node_next[k]:
+            stack.append((int(child), dep + 1))
+    assert seen == t.num_leaves
+    assert (ex.depth, ex.tests) == (depth, worst)
+    assert ex.macs == worst * lw.n + lw.n * lw.m
+    assert depth <= 2 * ceil_log2(lw.num_regions) + lw.n
+    C = Compiled(lw, tmp_path, method="bst", count=True)
+    assert C.define("WORST_TESTS") == worst
+    assert f"hyperplane tests on the path: {depth}" in C.header
+    most = 0
+    for X in (random_points(lw, 3000, seed=8), facet_points(lw, 2, seed=9, cap=3000)):
+        for p in range(X.shape[0]):
+            C.count.value = 0
+            C(X[p : p + 1])
+            most = max(most, C.count.value)
+    assert 0 < most <= worst
+
+
+@needs_cc
+def test_header_names_theta_and_the_fingerprint(tmp_path):
+    lw = law("magnetic_pointer_c:inf:unmerged")
+    C = Compiled(lw, tmp_path)
+    assert lw.fingerprint in C.header
+    for i, name in enumerate(lw.parameter_names):
+        assert f"theta[{i}] = {name}" in C.header
+    assert C.define("NTHETA") == lw.F.shape[2]
+    assert C.define("ROM_BYTES") > 0
+
+
+@needs_cc
+def test_mp_solution_exports_its_primal(tmp_path):
+    from tests.engine.test_mpsolve import random_program
+
+    prog = random_program(3, lp=False)
+    sol = ce.mpsolve(prog)
+    C = Compiled(sol, tmp_path)
+    X = np.random.default_rng(1).uniform(-2, 2, size=(3000, prog.d))
+    idx, Z = C(X)
+    ref = sol.locate(X)
+    assert np.array_equal(idx, ref)
+    inside = ref >= 0
+    assert np.any(inside)
+    assert np.allclose(Z[inside], sol.primal(X[inside]), rtol=1e-12, atol=1e-12)
+    # the same through the command line, from the saved solution
+    f = sol.save(tmp_path / "sol.npz")
+    assert main(["export", str(f), "--c", str(tmp_path / "cli"), "--name", "sol"]) == 0
+    header = (tmp_path / "cli" / "sol.h").read_text()
+    assert "mp solution" in header and f"#define SOL_NTHETA {prog.d}" in header
+
+
+def test_python_export_agrees_with_locate(tmp_path):
+    lw = law("magnetic_pointer_c:inf:unmerged")
+    path = ce.export_python(lw, tmp_path / "lawpy.py")
+    sys.path.insert(0, str(tmp_path))
+    try:
+        import lawpy
+    finally:
+        sys.path.remove(str(tmp_path))
+    X = np.vstack([random_points(lw, 300, seed=10), facet_points(lw, 1, seed=11, cap=300)])
+    ref = lw.locate(X)
+    U = lw.evaluate(X)
+    for p in range(X.shape[0]):
+        r, u = lawpy.evaluate(X[p])
+        assert r == ref[p]
+        if r >= 0:
+            assert np.allclose(u, U[p], rtol=1e-12, atol=1e-12)
+        else:
+            assert u is None
+    assert lawpy.PARAMETER_NAMES == lw.parameter_names
+    assert "import numpy" in path.read_text() and "codev" not in lawpy.__dict__
+
+
+def test_cli_exports_and_refuses_bad_input(tmp_path, capsys):
+    lw = law("double_integrator:inf:merged")
+    f = lw.save(tmp_path / "law.npz")
+    out = tmp_path / "c"
+    assert main(["export", str(f), "--c", str(out), "--name", "di", "--python",
+                 str(tmp_path / "di.py")]) == 0
+    assert (out / "di.h").exists() and (out / "di.c").exists() and (tmp_path / "di.py").exists()
+    capsys.readouterr()
+    (tmp_path / "junk.npz").write_text("not a zip")
+    for argv in (
+        ["export", str(tmp_path / "missing.npz"), "--c", str(out)],
+        ["export", str(f), "--c", str(out), "--name", "9lives"],
+        ["export", str(f)],
+        ["export", str(tmp_path / "junk.npz"), "--c", str(out)],
+    ):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and err.startswith("codev: error:"), err
+
+
+@needs_cc
+@pytest.mark.slow
+def test_magnetic_pointer_1008_regions_1e5_states(tmp_path):
+    lw = ce.synthesize(ce.load_spec(ROOT / "examples" / "magnetic_pointer_a.toml"))
+    C = Compiled(lw, tmp_path, method="bst")
+    assert_agrees(lw, C, random_points(lw, 100_000, seed=12))
+    assert_agrees(lw, C, facet_points(lw, 3, seed=13, cap=100_000))
+
+
+def test_a_tree_past_its_budget_leaves_the_sequential_search(monkeypatch, tmp_path, capsys):
+    """The voronoi law needs over 7,000 nodes: with a budget of 1,000, ``auto`` takes the
+    sequential search and ``bst`` says why in one line (exit 1: not the input's fault)."""
+    import codev_engine.deploy.bst as bst
+
+    monkeypatch.setattr(bst, "NODES_PER_REGION", 0)
+    lw = law("voronoi")
+    assert plan(lw, "auto").method == "sequential"
+    with pytest.raises(bst.TreeTooLargeError):
+        plan(lw, "bst")
+    f = lw.save(tmp_path / "v.npz")
+    assert main(["export", str(f), "--c", str(tmp_path), "--method", "bst"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "sequential search" in err
