@@ -60,6 +60,8 @@ def law(key: str) -> ce.ExplicitLaw:
         return voronoi_law(300, 3, seed=4)
     if key == "simplices":
         return simplex_law(200, 2, seed=5)
+    if key == "servo_theta":  # theta = (angle, speed, prev_V, ref_y0)
+        return ce.synthesize(ce.load_spec(ROOT / "examples" / "dc_motor_servo.toml"))
     name, norm, simp, *rest = key.split(":")
     extra = {"R": "[[0.0]]"} if rest == ["R0"] else {}
     if norm == "2":
@@ -78,6 +80,7 @@ LAWS = [
     "magnetic_pointer_c:inf:unmerged",
     "voronoi",
     "simplices",
+    "servo_theta",  # a law over (x, u_prev, r): d = 4 > n = 2
 ]
 
 
@@ -385,3 +388,12 @@ def test_a_tree_past_its_budget_leaves_the_sequential_search(monkeypatch, tmp_pa
     assert main(["export", str(f), "--c", str(tmp_path), "--method", "bst"]) == 1
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "sequential search" in err
+
+
+@needs_cc
+def test_header_names_u_prev_and_the_reference(tmp_path):
+    lw = law("servo_theta")
+    C = Compiled(lw, tmp_path)
+    assert C.define("NTHETA") == 4
+    for i, name in enumerate(("angle", "speed", "prev_V", "ref_y0")):
+        assert f"theta[{i}] = {name}" in C.header
