@@ -22,7 +22,7 @@ from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import normalize_rows
 from codev_engine.geometry.vertices import vertices_in_boxes, vertices_many
 from codev_engine.law import ExplicitLaw
-from codev_engine.reach.simulate import simulate_many
+from codev_engine.reach.simulate import simulate_many, theta_initial_box
 from codev_engine.spec.problem import Problem, SetSpec
 from codev_engine.view.shapes import meshes, outline, raster_boxes, raster_polygons
 
@@ -196,10 +196,16 @@ def simulate_traces(
     corners = np.where(bits == 1, hi, lo)
     rng = np.random.default_rng(options.seed)
     X0 = np.vstack([0.5 * (lo + hi), corners, rng.uniform(lo, hi, (max(0, P - 1 - k), n))])[:P]
+    extra0 = None
+    if law.n > n:  # theta = (x, u_prev, r): the rest from its initial box, seeded
+        tlo, thi = theta_initial_box(problem)
+        extra0 = rng.uniform(tlo[n:], thi[n:], (X0.shape[0], law.n - n))
+        extra0[0] = 0.5 * (tlo[n:] + thi[n:])
     try:
         # for display: RK4 steps of step/2, not the default step/10 (5x faster; measured
         # difference <= 6e-10 of the states' scale on the examples); output every step
-        t, X, U, alive = simulate_many(problem, law, X0, hold=hold, dt=vs.step / 2, dt_out=vs.step)
+        t, X, U, alive = simulate_many(problem, law, X0, hold=hold, dt=vs.step / 2, dt_out=vs.step,
+                                       extra0=extra0)
     except SolverError as exc:
         notes.append(f"traces not simulated: {exc}")
         return None
@@ -300,6 +306,7 @@ class RecordingContent:
         result: VerificationResult | None,
         options: RecordingOptions,
         axes: tuple[int, int] | None,
+        trace_law: ExplicitLaw | None = None,
     ) -> RecordingContent:
         """Simulate the traces, choose the view box, enumerate the regions' vertices.
 
@@ -307,10 +314,14 @@ class RecordingContent:
         ----------
         problem : Problem
         law : ExplicitLaw
+            The law drawn (in the states: a section for a law over ``(x, u_prev, r)``).
         result : VerificationResult or None
         options : RecordingOptions
         axes : (int, int) or None
             The checked plane axes (None when n == 1).
+        trace_law : ExplicitLaw, optional
+            The law the traces are simulated with (default ``law``): the whole law over
+            ``(x, u_prev, r)`` when ``law`` is its section.
 
         Returns
         -------
@@ -323,7 +334,7 @@ class RecordingContent:
         traces = None
         if vs is not None and options.traces > 0:
             hold = result.hold if result is not None else vs.hold
-            traces = simulate_traces(problem, law, options, hold, notes)
+            traces = simulate_traces(problem, trace_law or law, options, hold, notes)
         # the law's domain box, widened to what else is shown
         if law.num_regions:
             blo, bhi = law.boxes

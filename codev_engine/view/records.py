@@ -14,7 +14,6 @@ strict mode are left as they were.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 import uuid
@@ -114,6 +113,7 @@ def write_recording(
             f"a recording must be a .rrd file (got suffix {path.suffix!r})", file=str(path)
         )
     n = problem.plant.n
+    full_law = law
     law, options = drawable(problem, law, options)
     if law.n != n or law.m != problem.plant.m:
         raise SpecError(
@@ -121,7 +121,7 @@ def write_recording(
             file=problem.path,
         )
     axes = _check_options(options, n)
-    content = RecordingContent.build(problem, law, result, options, axes)
+    content = RecordingContent.build(problem, law, result, options, axes, trace_law=full_law)
 
     import rerun as rr
     from rerun.error_utils import catch_and_log_exceptions
@@ -248,9 +248,9 @@ def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
              ) -> tuple[ExplicitLaw, RecordingOptions]:
     """The law and options a picture of ``problem`` draws.
 
-    For a law over ``theta = (x, u_prev, r)``: its section at the operating input and the
-    middle of the reference box (:meth:`ExplicitLaw.section`), and no traces -- the closed
-    loop over ``u_prev`` is not simulated yet, and a trace of another loop would mislead.
+    For a law over ``theta = (x, u_prev, r)``: its section at the middle of the initial
+    ``u_prev`` and ``r`` boxes (:meth:`ExplicitLaw.section`); the traces are simulated with
+    the whole law (``RecordingContent.build``'s ``trace_law``), over its own ``u_prev``.
 
     Parameters
     ----------
@@ -266,13 +266,19 @@ def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
     """
     if law.n > problem.plant.n and law.parameters:
         law = law.section(_section_point(problem, law))
-        options = dataclasses.replace(options, traces=0)
     return law, options
 
 
 def _section_point(problem: Problem, law: ExplicitLaw) -> np.ndarray:
-    """The default values of the parameters after the states: ``u_op`` for ``prev_*``,
-    the middle of the reference box for ``ref_*``."""
+    """The default values of the parameters after the states: the middle of the initial
+    ``u_prev`` and ``r`` boxes of ``[verify]`` (``u_op`` and the middle of the reference box
+    without one)."""
+    if problem.verify is not None:
+        from codev_engine.reach.simulate import theta_initial_box
+
+        lo, hi = theta_initial_box(problem)
+        n = problem.plant.n
+        return 0.5 * (lo[n:] + hi[n:])
     mpc = problem.mpc
     out: list[float] = []
     if mpc.has_rates:

@@ -76,9 +76,10 @@ def report_html(
     from codev_engine.view.record_content import RecordingContent, RecordingOptions
     from codev_engine.view.records import _check_options, drawable
 
+    full_law = law
     law, options = drawable(problem, law, RecordingOptions(axes=axes, traces=traces))
     plane = _check_options(options, problem.plant.n)
-    content = RecordingContent.build(problem, law, result, options, plane)
+    content = RecordingContent.build(problem, law, result, options, plane, trace_law=full_law)
     parts: list[tuple[str, str]] = []
     if result is not None:
         fig = figures.figure_result(result, problem, law=law, max_states=min(problem.plant.n, 8))
