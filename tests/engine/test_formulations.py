@@ -243,9 +243,12 @@ def test_parameter_names_and_order():
 
 def test_law_domain_in_u_prev_and_r_is_their_box():
     problem, model, law = design("servo_2")
+    from codev_engine.formulation import U_PREV_MARGIN
+
     lo, hi = law.boxes[0].min(axis=0), law.boxes[1].max(axis=0)
-    np.testing.assert_allclose(lo[2:], [-1.0, -1.0], atol=1e-7)
-    np.testing.assert_allclose(hi[2:], [1.0, 1.0], atol=1e-7)
+    # u_prev: the input box widened by U_PREV_MARGIN; r: the reference box
+    np.testing.assert_allclose(lo[2:], [-1.0 - U_PREV_MARGIN, -1.0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(hi[2:], [1.0 + U_PREV_MARGIN, 1.0], rtol=0, atol=1e-9)
 
 
 def test_law_with_parameters_saves_and_loads(tmp_path):
