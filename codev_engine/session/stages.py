@@ -291,7 +291,13 @@ def _verification_inputs(
     if problem.verify is None:
         return None
     vs = _effective_verify(problem, options)
-    verify_fields = {f.name: getattr(vs, f.name) for f in fields(vs)}
+    # fields added since (initial_input, reference) are left out at their defaults, as in
+    # keys.canon: the keys of sessions recorded before them stay the same
+    verify_fields = {
+        f.name: getattr(vs, f.name)
+        for f in fields(vs)
+        if not (f.metadata.get("key_omit_default") and getattr(vs, f.name) is None)
+    }
     if math.isfinite(vs.time_horizon):
         # max_samples only matters for time_horizon = "inf": left out, the keys of every
         # bounded verification are the ones sessions recorded before it existed
