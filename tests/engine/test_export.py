@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import os
 import re
 import shutil
 import subprocess
@@ -367,7 +368,11 @@ def test_cli_exports_and_refuses_bad_input(tmp_path, capsys):
 
 @needs_cc
 @pytest.mark.slow
-def test_magnetic_pointer_1008_regions_1e5_states(tmp_path):
+def test_magnetic_pointer_1008_regions_1e5_states(tmp_path, request):
+    if "slow" not in (request.config.getoption("markexpr") or "") and not os.environ.get(
+        "CODEV_SLOW"
+    ):
+        pytest.skip("10^5 states through the 1008-region tree: run with -m slow")
     lw = ce.synthesize(ce.load_spec(ROOT / "examples" / "magnetic_pointer_a.toml"))
     C = Compiled(lw, tmp_path, method="bst")
     assert_agrees(lw, C, random_points(lw, 100_000, seed=12))
