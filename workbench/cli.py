@@ -400,11 +400,14 @@ def _cmd_view(args: argparse.Namespace) -> int:
         subprocess.Popen([*cmd, str(args.file)], start_new_session=True)
         print(f"opening {args.file} in the Rerun viewer")
         return 0
+    from .commands import runnable
+
+    rerun = runnable("rerun")  # works from here, venv activated or not
     print(
         f"{args.file} is a valid recording. There is no display here; to look at it:\n"
-        f"  on a machine with a display:  rerun {args.file}   "
+        f"  on a machine with a display:  {rerun} {args.file}   "
         f"(pip install 'rerun-sdk>=0.41,<0.42')\n"
-        f"  in a browser, served from here:  rerun --web-viewer {args.file}   "
+        f"  in a browser, served from here:  {rerun} --web-viewer {args.file}   "
         f"(then open http://localhost:9090)"
     )
     return 0

@@ -12,6 +12,7 @@ from textual import work
 from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.message import Message
+from textual.widget import Widget
 from textual.widgets import Input, Label, Select, Static, Switch, TextArea
 
 from .form import FIELD_BY_NAME, FieldDef
@@ -76,32 +77,42 @@ class FieldEntry(Vertical):
         fd = self.field
         star = " *" if fd.required else ""
         yield Label(f"{fd.label}{star}  [dim]{fd.name}[/dim]")
+        # an empty optional entry shows the value the engine takes for it
+        shown = f"default: {fd.default}" if fd.default else ""
         if fd.kind in ("expressions", "sets"):
-            yield TextArea(self._text, id="editor", soft_wrap=False, show_line_numbers=False)
+            yield TextArea(
+                self._text,
+                id="editor",
+                soft_wrap=False,
+                show_line_numbers=False,
+                placeholder=shown,
+            )
         elif fd.kind == "choice":
             options = [(c, c) for c in fd.choices]
             value = self._text if self._text in fd.choices else Select.NULL
+            # blank allowed even for a required choice: it starts empty, not on its first
+            # option (the check reports it as required)
             yield Select(
                 options,
                 value=value,
                 id="editor",
-                allow_blank=not fd.required,
-                prompt="(default)",
+                allow_blank=True,
+                prompt=shown or "choose: " + ", ".join(fd.choices),
                 compact=True,
             )
         elif fd.kind == "bool":
             yield Switch(value=self._text.strip().lower() == "true", id="editor")
         else:
-            yield Input(
-                self._text,
-                id="editor",
-                compact=True,
-                placeholder="(default)" if not fd.required else "",
-            )
-        yield Static(fd.help, classes="help")
+            yield Input(self._text, id="editor", compact=True, placeholder=shown)
+        yield Static(fd.help, classes="help", id="help")
 
     def on_mount(self) -> None:
         self._loading = False
+
+    @property
+    def editor(self) -> Widget:
+        """The entry's editor: the widget that takes the keys typed into the field."""
+        return self.query_one("#editor")
 
     # ---- value -----------------------------------------------------------------------
 
@@ -150,7 +161,7 @@ class FieldEntry(Vertical):
             return  # every form check calls this on every entry
         self._error = message
         self.set_class(message is not None, "-error")
-        self.query_one(".help", Static).update(
+        self.query_one("#help", Static).update(
             Text(f"✗ {message}") if message else Text(self.field.help)
         )
 
