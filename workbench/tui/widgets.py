@@ -103,7 +103,11 @@ class FieldEntry(Vertical):
         elif fd.kind == "bool":
             yield Switch(value=self._text.strip().lower() == "true", id="editor")
         else:
-            yield Input(self._text, id="editor", compact=True, placeholder=shown)
+            # the focus puts the cursor at the end: a key typed after F1 adds to the name,
+            # it does not replace the selected name
+            yield Input(
+                self._text, id="editor", compact=True, placeholder=shown, select_on_focus=False
+            )
         yield Static(fd.help, classes="help", id="help")
 
     def on_mount(self) -> None:

@@ -12,7 +12,7 @@ from textual.widgets import Button, DataTable, Input, Label, Static
 
 from codev_engine.session import RunReport
 
-from ..design import locate_state, region_rows
+from ..design import locate_state, region_rows, shared_laws
 from ..messages import CancelRequested, RunRequested
 from ..parsers import parse_axes, parse_state
 from ..views import partition_text
@@ -38,6 +38,8 @@ class SynthesisPane(Vertical):
     _law: ExplicitLaw | None = None
     _current = False
     _busy: str | None = None
+    _shared_for: object = None  # the law _shared was counted for
+    _shared = 0
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="bar"):
@@ -203,9 +205,16 @@ class SynthesisPane(Vertical):
             norm = law.meta.get("norm", "")
             seconds = law.meta.get("seconds")
             took = f" · synthesised in {seconds:.2f} s" if isinstance(seconds, float) else ""
+            if law is not self._shared_for:
+                self._shared_for, self._shared = law, shared_laws(law)
+            merge = (
+                f" · {self._shared} repeat another region's law: Merge regions (F2) joins them"
+                if self._shared
+                else ""
+            )
             status.update(
                 f"{law.num_regions} critical regions · n={law.n}, m={law.m}"
-                f"{f', norm {norm}' if norm else ''}{took} · {state}"
+                f"{f', norm {norm}' if norm else ''}{took} · {state}{merge}"
             )
         if law is not self._law_shown or force:
             # the picture and the table depend on the law only: a form check (every few
