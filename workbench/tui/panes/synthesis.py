@@ -208,7 +208,7 @@ class SynthesisPane(Vertical):
             if law is not self._shared_for:
                 self._shared_for, self._shared = law, shared_laws(law)
             merge = (
-                f" · {self._shared} repeat another region's law: Merge regions (F2) joins them"
+                f" · {self._shared} share a law: Merge regions (F2)"
                 if self._shared
                 else ""
             )
