@@ -166,6 +166,49 @@ def test_ctrl_g_before_the_first_check_waits_for_it(tmp_path, monkeypatch):
     run(scenario())
 
 
+def test_synthesis_runs_while_verify_is_unfinished(tmp_path):
+    """[verify] is on by default: with its fields still empty, F3 ctrl+g synthesises all
+    the same (the synthesis needs none of them), and the law shown is current."""
+    app = CodevApp(open_target(None, sessions_root=tmp_path / "sessions"))
+    values = {
+        "name": "msd",
+        "plant.states": "p, v",
+        "plant.inputs": "u",
+        "plant.dynamics": "v\n-2*p - 0.5*v + u",
+        "model.sample_time": "0.2",
+        "mpc.norm": "inf",
+        "mpc.u_min": "-1",
+        "mpc.u_max": "1",
+        "mpc.x_min": "-5 -5",
+        "mpc.x_max": "5 5",
+    }
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            for name, text in values.items():
+                entry(app, name).set_text(text)
+                app.values[name] = text
+            app._schedule_check()
+            await settle(pilot, app)
+            assert not app.check.ok and set(app.check.errors) <= {
+                "verify.time_horizon",
+                "verify.initial_set.lower",
+                "verify.initial_set.upper",
+            }
+            await pilot.press("f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.law is not None, [n.message for n in app._notifications]
+            assert app.law_current() and "current" in text_of(app, "#synth-status")
+            # the MPC preview runs too
+            await pilot.press("f2", "ctrl+g")
+            await settle(pilot, app)
+            assert app.query_one("#preview-x0", Input).value
+            assert "steps" in text_of(app, "#preview-status")
+
+    run(scenario())
+
+
 def test_a_change_of_size_flags_every_entry_that_no_longer_fits(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     app = CodevApp(open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="s"))
@@ -217,6 +260,12 @@ def test_empty_optional_entries_show_their_default(tmp_path):
             assert norm.is_blank() and "required" in str(
                 entry(app, "mpc.norm").query_one("#help", Static).render()
             )
+            # a character typed on the closed choice picks it: i -> inf, 2 -> 2
+            await pilot.press("f2", "tab", "i")
+            await settle(pilot, app)
+            assert norm.value == "inf" and app.values["mpc.norm"] == "inf"
+            await pilot.press("2")
+            assert norm.value == "2"
 
     run(scenario())
 

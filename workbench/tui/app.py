@@ -219,6 +219,9 @@ class CodevApp(App):
         self._plant_report_key: str | None = None
         self._checking = False  # a form check is in flight (its answer not applied yet)
         self._pending_run: str | None = None  # ctrl+g pressed before the check answered
+        # the spec without its unfinished [verify] section, when that is all that is wrong:
+        # the model and the synthesis run on it
+        self._before_verify: Problem | None = None
         # a new untitled session is renamed after the design until its first run
         self._follow_name = opened.follow_name
 
@@ -284,10 +287,16 @@ class CodevApp(App):
         # the plant report needs the plant and model entries only (issue 23): checked alone
         # when the whole form is not valid yet
         plant: tuple[Problem, str] | None = None
+        before_verify: Problem | None = None
         if not chk.ok:
             pchk = check_plant(values)
             if pchk.ok and pchk.problem is not None:
                 plant = (pchk.problem, stage_keys(pchk.problem, self.options)["model"])
+            if has_verify and chk.errors and all(k.startswith("verify.") for k in chk.errors):
+                # only [verify] is unfinished: the MPC preview and the synthesis need none of it
+                before_verify = check_form(
+                    values, with_verify=False, path=str(self.session.spec_path())
+                ).problem
         statuses: dict[str, StageStatus] = {}
         keys: dict[str, str] = {}
         try:
@@ -302,8 +311,12 @@ class CodevApp(App):
                 write_draft(self.session, values, has_verify)
         except (CodevError, OSError) as exc:
             self.call_from_thread(self.notify, f"session: {exc}", severity="error")
+        if before_verify is not None:
+            # the law of the spec before its [verify] section is current, not stale
+            every = stage_keys(before_verify, self.options)
+            keys = {k: every[k] for k in ("model", "synthesis") if k in every}
         loaded = self._load_cached(chk, statuses, keys)
-        self.call_from_thread(self._apply_check, chk, statuses, keys, loaded, plant)
+        self.call_from_thread(self._apply_check, chk, statuses, keys, loaded, plant, before_verify)
 
     def _load_cached(
         self, chk: FormCheck, statuses: dict[str, StageStatus], keys: dict[str, str]
@@ -335,6 +348,7 @@ class CodevApp(App):
         keys: dict[str, str],
         loaded: dict[str, Any],
         plant_only: tuple[Problem, str] | None = None,
+        before_verify: Problem | None = None,
     ) -> None:
         self._checking = self._check_timer is not None
         self.statuses = statuses
@@ -351,7 +365,8 @@ class CodevApp(App):
             self.result, self.result_key = loaded["verification"], keys.get("verification")
             self.result_problem = chk.problem
         self._show_pipeline()
-        self.query_one(MpcPane).set_problem(chk.problem if chk.ok else None)
+        self._before_verify = before_verify
+        self.query_one(MpcPane).set_problem(chk.problem if chk.ok else before_verify)
         self._show_results()
         self.query_one(SessionPane).show_session(self.session, self.statuses)
         plant = self.query_one(PlantPane)
@@ -480,7 +495,10 @@ class CodevApp(App):
                 self._schedule_check_now()
             self.notify(f"{upto} starts once the spec is checked", timeout=3)
             return
-        if not chk.ok or chk.problem is None:
+        problem = chk.problem
+        if problem is None and upto in ("model", "synthesis"):
+            problem = self._before_verify  # the stage needs none of the [verify] fields
+        if problem is None:
             where = fields_by_tab(chk.errors)
             if upto == "model" and self._plant_report_key is not None:
                 self.notify(
@@ -493,7 +511,7 @@ class CodevApp(App):
             msg = f"fix the fields marked in red — {where}" if where else chk.general
             self.notify(f"the spec is not valid yet: {msg}", severity="error", timeout=8)
             return
-        if upto in ("verification", "recording") and chk.problem.verify is None:
+        if upto in ("verification", "recording") and problem.verify is None:
             self.notify(
                 "the spec has no [verify] section: switch it on in the Verification tab",
                 severity="error",
@@ -504,7 +522,7 @@ class CodevApp(App):
         self.progress = (upto, 0, time.perf_counter())
         self._show_pipeline()
         self._show_busy()
-        self._stage_worker(chk.problem, replace(self.options, upto=upto))
+        self._stage_worker(problem, replace(self.options, upto=upto))
 
     @work(thread=True, exclusive=True, group="stage")
     def _stage_worker(self, problem: Problem, options: RunOptions) -> None:

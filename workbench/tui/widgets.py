@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from rich.text import Text
-from textual import work
+from textual import events, work
 from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.message import Message
@@ -183,6 +183,21 @@ class FieldEntry(Vertical):
     def on_text_area_changed(self, event: TextArea.Changed) -> None:
         event.stop()
         self._changed(event.text_area.text)
+
+    def on_key(self, event: events.Key) -> None:
+        """A character typed on a closed choice picks the (next) choice starting with it:
+        ``i`` on Norm is ``inf``, no list to open and no arrow keys to time."""
+        editor = self.query_one("#editor")
+        if not isinstance(editor, Select) or editor.expanded or not event.character:
+            return
+        c = event.character.lower()
+        matches = [ch for ch in self.field.choices if ch.lower().startswith(c)]
+        if not matches:
+            return
+        event.stop()
+        event.prevent_default()
+        now = editor.value if editor.value in matches else None
+        editor.value = matches[(matches.index(now) + 1) % len(matches)] if now else matches[0]
 
     def on_select_changed(self, event: Select.Changed) -> None:
         event.stop()
