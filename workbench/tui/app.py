@@ -218,6 +218,7 @@ class CodevApp(App):
         # the model key of the plant report shown or being derived
         self._plant_report_key: str | None = None
         self._checking = False  # a form check is in flight (its answer not applied yet)
+        self._check_seq = 0  # the latest check started (older answers are dropped)
         self._pending_run: str | None = None  # ctrl+g pressed before the check answered
         # the spec without its unfinished [verify] section, when that is all that is wrong:
         # the model and the synthesis run on it
@@ -279,10 +280,13 @@ class CodevApp(App):
     def _run_check(self) -> None:
         self._check_timer = None
         self._checking = True
-        self._check_worker(dict(self.values), self.has_verify, self._dirty)
+        self._check_seq += 1
+        self._check_worker(dict(self.values), self.has_verify, self._dirty, self._check_seq)
 
     @work(thread=True, exclusive=True, group="check")
-    def _check_worker(self, values: dict[str, str], has_verify: bool, dirty: bool) -> None:
+    def _check_worker(
+        self, values: dict[str, str], has_verify: bool, dirty: bool, seq: int = 0
+    ) -> None:
         chk = check_form(values, with_verify=has_verify, path=str(self.session.spec_path()))
         # the plant report needs the plant and model entries only (issue 23): checked alone
         # when the whole form is not valid yet
@@ -316,7 +320,9 @@ class CodevApp(App):
             every = stage_keys(before_verify, self.options)
             keys = {k: every[k] for k in ("model", "synthesis") if k in every}
         loaded = self._load_cached(chk, statuses, keys)
-        self.call_from_thread(self._apply_check, chk, statuses, keys, loaded, plant, before_verify)
+        self.call_from_thread(
+            self._apply_check, chk, statuses, keys, loaded, plant, before_verify, seq
+        )
 
     def _load_cached(
         self, chk: FormCheck, statuses: dict[str, StageStatus], keys: dict[str, str]
@@ -349,7 +355,12 @@ class CodevApp(App):
         loaded: dict[str, Any],
         plant_only: tuple[Problem, str] | None = None,
         before_verify: Problem | None = None,
+        seq: int = 0,
     ) -> None:
+        if seq != self._check_seq:
+            # an older check (its worker was replaced, but a thread runs to its end): the
+            # form has changed since; the latest check's answer is on its way
+            return
         self._checking = self._check_timer is not None
         self.statuses = statuses
         self.keys = keys
