@@ -14,7 +14,12 @@ a later stage belong to that stage and are run here, after parsing, by :func:`lo
   the synthesis stage's precondition (an LP; it loads python-control, so sessions run it only
   when the synthesis is not cached).
 
-Both raise the same ``SpecError`` as a field error would: naming the file and the field.
+Before them, :func:`check_size` refuses work too large to end (docs/spec.md, "Limits"):
+it estimates the size of each stage from the fields (states, horizon, samples, tube steps)
+before any of it is done, so a typo such as ``step = 1e-12`` is a one-line error naming the
+field, not a MemoryError or a run that never ends.
+
+All raise the same ``SpecError`` as a field error would: naming the file and the field.
 """
 
 from __future__ import annotations
@@ -28,7 +33,16 @@ from codev_engine.errors import SpecError
 from codev_engine.spec.parse import parse_spec, read_spec
 from codev_engine.spec.problem import Problem
 
-__all__ = ["load_spec", "loads_spec", "check_model", "check_mpc_feasible"]
+__all__ = ["LIMITS", "load_spec", "loads_spec", "check_model", "check_mpc_feasible", "check_size"]
+
+#: The documented limits of :func:`check_size` (docs/spec.md, "Limits").
+LIMITS = {
+    "states": 64,  # n: the plant's states
+    "inputs": 64,  # m
+    "decisions": 1000,  # horizon × m: the MPC's decision variables
+    "samples": 100_000,  # verify.time_horizon / model.sample_time: controller steps verified
+    "tube_steps": 1_000_000,  # verify.time_horizon / verify.step: reachtube time steps
+}
 
 
 def load_spec(path: str | Path, *, check_mpc: bool = True) -> Problem:
@@ -84,10 +98,76 @@ def loads_spec(text: str, *, path: str = "<string>", check_mpc: bool = True) -> 
 
 
 def _checked(problem: Problem, *, check_mpc: bool) -> Problem:
+    check_size(problem)
     check_model(problem)
     if check_mpc:
         check_mpc_feasible(problem)
     return problem
+
+
+def check_size(problem: Problem) -> None:
+    """Refuse a spec whose work would exceed :data:`LIMITS`, before any of it is done.
+
+    Parameters
+    ----------
+    problem : Problem
+        A parsed problem.
+
+    Raises
+    ------
+    SpecError
+        Naming the field to change: ``plant.states`` / ``plant.inputs`` (too many),
+        ``mpc.horizon`` (horizon × m decision variables), ``verify.time_horizon``
+        (time_horizon / sample_time controller steps) or ``verify.step`` (time_horizon /
+        step reachtube steps).
+    """
+    file = problem.path or "<string>"
+    n, m = problem.plant.n, problem.plant.m
+
+    def refuse(field: str, what: str, value: float, limit: int, fix: str) -> None:
+        raise SpecError(
+            f"{what} = {value:.3g} exceeds the limit {limit:,}: {fix}", field=field, file=file
+        )
+
+    if n > LIMITS["states"]:
+        refuse("plant.states", "states", n, LIMITS["states"], "codev handles smaller plants")
+    if m > LIMITS["inputs"]:
+        refuse("plant.inputs", "inputs", m, LIMITS["inputs"], "codev handles fewer inputs")
+    decisions = problem.mpc.Nc * m  # the free moves (move blocking: control_horizon)
+    if decisions > LIMITS["decisions"]:
+        refuse(
+            "mpc.horizon",
+            "horizon × inputs (the MPC's decision variables)",
+            decisions,
+            LIMITS["decisions"],
+            "shorten mpc.horizon",
+        )
+    vs = problem.verify
+    if vs is None:
+        return
+    # time_horizon = "inf": the verifier looks at most max_samples samples far
+    horizon = vs.time_horizon
+    if not np.isfinite(horizon):
+        horizon = vs.max_samples * problem.model.sample_time
+    with np.errstate(all="ignore"):
+        samples = horizon / problem.model.sample_time
+        steps = horizon / vs.step
+    if not samples <= LIMITS["samples"]:
+        refuse(
+            "verify.time_horizon",
+            "time_horizon / sample_time (controller steps verified)",
+            samples,
+            LIMITS["samples"],
+            "shorten verify.time_horizon or raise model.sample_time",
+        )
+    if not steps <= LIMITS["tube_steps"]:
+        refuse(
+            "verify.step",
+            "time_horizon / step (reachtube steps)",
+            steps,
+            LIMITS["tube_steps"],
+            "raise verify.step or shorten verify.time_horizon",
+        )
 
 
 def check_model(problem: Problem) -> None:

@@ -426,13 +426,16 @@ def _cmd_view(args: argparse.Namespace) -> int:
     if has_display and not args.print_only:
         print(f"opening {args.file} in the Rerun viewer (closing it or Ctrl-C ends codev view)")
         return run_viewer([*cmd, str(args.file)])
+    from .commands import runnable
+
+    codev = runnable("codev")  # works from here, venv activated or not
     print(
         f"{args.file} is a valid recording. There is no display here; to look at it:\n"
-        f"  on a machine with a display:  codev view {args.file}   "
+        f"  on a machine with a display:  {codev} view {args.file}   "
         f"(or rerun {args.file}; pip install 'rerun-sdk>=0.41,<0.42')\n"
-        f"  in a browser, served from here:  codev view --web {args.file}   "
+        f"  in a browser, served from here:  {codev} view --web {args.file}   "
         f"(then open the address it prints; without a GPU add &renderer=webgl)\n"
-        f"  without the viewer:  codev report SESSION_DIR --out report.html"
+        f"  without the viewer:  {codev} report SESSION_DIR --out report.html"
     )
     return 0
 

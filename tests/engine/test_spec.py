@@ -389,6 +389,14 @@ def test_explicit_discrete_model_without_plant_dynamics():
     assert info.value.field == "verify"
 
 
+def test_mpc_defaults_horizon_q_r():
+    """horizon, Q and R may be left out: 5 and identities (docs/spec.md)."""
+    gone = [("horizon = 2\n", ""), ("Q = [[1.0, 0.0], [0.0, 1.0]]\n", ""), ("R = [[0.8]]\n", "")]
+    p = loads_spec(edit(*gone))
+    assert p.mpc.horizon == 5
+    assert p.mpc.Q.tolist() == [[1.0, 0.0], [0.0, 1.0]] and p.mpc.R.tolist() == [[1.0]]
+
+
 def test_matrix_plant_ints_accepted():
     p = loads_spec(edit(('dynamics = ["x2", "u"]', "A = [[0, 1], [0, 0]]\nB = [[0], [1]]")))
     assert p.plant.A.dtype == float and p.plant.B.tolist() == [[0.0], [1.0]]
@@ -398,7 +406,7 @@ def test_matrix_plant_ints_accepted():
 
 BAD = [
     # id, replacements, field, reason fragment
-    ("missing-field", [("horizon = 2\n", "")], "mpc.horizon", "missing required field"),
+    ("missing-field", [('norm = "inf"\n', "")], "mpc.norm", "missing required field"),
     (
         "missing-section",
         [("[verify]\ntime_horizon = 3.0\n", "[verify]\n")],

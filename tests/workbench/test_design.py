@@ -3,13 +3,20 @@
 from __future__ import annotations
 
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import codev_engine as ce
-from workbench.tui.design import locate_state, mpc_preview, plant_report, region_rows
+from workbench.tui.design import (
+    locate_state,
+    mpc_preview,
+    plant_report,
+    region_rows,
+    shared_laws,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 PENDULUM = ROOT / "examples" / "pendulum.toml"
@@ -209,6 +216,24 @@ def test_region_rows_double_integrator(di):
             assert float(a) == pytest.approx(lo[k, j], rel=1e-2, abs=1e-9)
             assert float(b) == pytest.approx(hi[k, j], rel=1e-2, abs=1e-9)
     assert len(region_rows(law, limit=3)) == 3
+
+
+def test_region_rows_drop_round_off_coefficients(di):
+    """A saturated region's law reads +1, not -1.665e-16·x1 +6.661e-16·x2 +1 (issue 23), and
+    regions whose laws are equal are counted for the merge hint."""
+    _, law = di
+    k = next(k for k in range(law.num_regions) if np.allclose(law.F[k], 0))
+    F = np.array(law.F, dtype=float)
+    F[k] = [[-1.665e-16, 6.661e-16]]
+    noisy = replace(law, F=F)
+    text = region_rows(noisy)[k][2]
+    assert "e-16" not in text and "·" not in text, text
+    assert text == f"{law.G[k][0]:+.4g}"
+    # a small but real gain stays
+    F[k] = [[-1e-3, 0.0]]
+    assert "-0.001·x1" in region_rows(replace(law, F=F))[k][2]
+    # the double integrator's saturated regions share u = +1 or u = -1
+    assert shared_laws(law) >= 1
 
 
 def test_region_rows_show_rounding_bounds_as_zero():

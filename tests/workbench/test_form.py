@@ -234,8 +234,8 @@ def test_missing_required_entry(name):
 
 
 def test_all_entry_syntax_errors_are_reported_together():
-    chk = _check(**{"mpc.Q": "a", "mpc.horizon": "", "verify.unsafe": "[{"})
-    assert set(chk.errors) == {"mpc.Q", "mpc.horizon", "verify.unsafe"}
+    chk = _check(**{"mpc.Q": "a", "mpc.norm": "", "verify.unsafe": "[{"})
+    assert set(chk.errors) == {"mpc.Q", "mpc.norm", "verify.unsafe"}
 
 
 def test_nan_is_pinned_with_its_index():

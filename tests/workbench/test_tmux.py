@@ -164,3 +164,45 @@ def test_workbench_in_tmux(tmux, tmp_path):
         "the pipeline line (stage statuses under the header) never appeared on the terminal: "
         "the screen is one line taller than the terminal and ends up scrolled under the header"
     )
+
+
+def test_a_plant_typed_from_scratch_without_a_tab_first(tmux, tmp_path):
+    """Issue 23: the keys typed right after start go to Name (no Tab first), Tab moves field
+    by field even when typed fast, and the derived model appears with only the plant valid."""
+    session = tmp_path / "s"
+    app = shlex.join(
+        ["env", "-u", "COLUMNS", "-u", "LINES", sys.executable, "-m", "workbench.cli", "tui"]
+        + ["--session", str(session)]
+    )
+    tmux("new-session", "-d", "-s", tmux.name, "-x", str(WIDTH), "-y", str(HEIGHT))
+    tmux("send-keys", "-t", tmux.name, f"{app}; echo CODEV-EXIT=$?; sleep 600", "Enter")
+    tmux.wait_for(lambda s: "Plant [F1]" in s, 60, "the first screen")
+
+    def typed(text: str) -> None:
+        tmux("send-keys", "-t", tmux.name, "-l", "--", text)
+
+    typed("msd")
+    tmux.keys("Tab")
+    typed("p, v")
+    tmux.keys("Tab")
+    typed("u")
+    tmux.keys("Tab")
+    typed("v")
+    tmux.keys("Enter")
+    typed("-2*p - 0.5*v + u")
+    tmux.keys("Tab", "Tab", "Tab")
+    typed("0.2")
+    screen, _ = tmux.wait_for(lambda s: "controllability rank 2 of 2" in s, 60, "the derived model")
+    assert "Plant (F1)" not in screen.split("\n")[0], screen  # no plant entry left to fix
+    tmux.keys("C-s")  # the form is not a valid spec yet: its entries go to the draft
+    draft = session / "tui-draft.json"
+    t0 = time.perf_counter()
+    while not draft.is_file() and time.perf_counter() - t0 < 10:
+        time.sleep(0.1)
+    values = json.loads(draft.read_text(encoding="utf-8"))["values"]
+    assert values["name"] == "msd"
+    assert values["plant.states"] == "p, v" and values["plant.inputs"] == "u"
+    assert values["plant.dynamics"] == "v\n-2*p - 0.5*v + u"
+    assert values["model.sample_time"] == "0.2"
+    tmux.keys("C-q")
+    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")

@@ -307,3 +307,28 @@ def test_series_text_steps_nan_and_empty():
     assert series_text(t, np.full((6, 1), np.nan), ("u",), 30, 8).plain == "(no data)"
     # a label missing: y<k>
     assert "■ y1" in series_text(t, np.ones((6, 2)), ("a",), 30, 8).plain
+
+
+def test_plane_text_frames_an_unsafe_box_near_the_tube(safe_result):
+    """Issue 23: an unsafe set just past the tube (p >= 1.5 while the tube ends at 1.16) is
+    in the picture; one far away does not squash the tube."""
+    from dataclasses import replace
+
+    from codev_engine.spec.problem import SetSpec
+
+    problem, result = safe_result
+    hi = float(result.tube.upper[:, 0].max())
+    lo = float(result.tube.lower[:, 0].min())
+    near = hi + 0.3 * (hi - lo)
+    box = SetSpec(
+        kind="box", lower=np.array([near, -np.inf]), upper=np.array([np.inf, np.inf])
+    )
+    shown = replace(problem, verify=replace(problem.verify, unsafe=(box,)))
+    width, height = 80, 24
+    pix = _pixels(plane_text(result, width, height, problem=shown), height)
+    assert _count(pix, COLOURS["unsafe"]) > 0
+    far = replace(box, lower=np.array([hi + 1e6, -np.inf]))
+    shown = replace(problem, verify=replace(problem.verify, unsafe=(far,)))
+    pix = _pixels(plane_text(result, width, height, problem=shown), height)
+    assert _count(pix, COLOURS["unsafe"]) == 0
+    assert _count(pix, COLOURS["tube"]) > 0.02 * width * 2 * height

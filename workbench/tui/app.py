@@ -27,6 +27,7 @@ The stylesheet is ``workbench.tcss`` beside this module (``CSS_PATH``).
 from __future__ import annotations
 
 import os
+import re
 import threading
 import time
 from dataclasses import replace
@@ -37,7 +38,7 @@ from rich.markup import escape
 from textual import work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.widgets import Footer, Static, TabbedContent, TabPane
+from textual.widgets import Footer, Static, TabbedContent, TabPane, Tabs
 
 from codev_engine.errors import CodevError
 from codev_engine.session import (
@@ -49,7 +50,7 @@ from codev_engine.session import (
     stage_keys,
 )
 
-from .form import FormCheck, check_form, field_for_error
+from .form import FIELD_BY_NAME, FormCheck, check_form, check_plant, field_for_error
 from .messages import (
     CancelRequested,
     ExportRequested,
@@ -90,6 +91,41 @@ TAB_STAGE = {
     "verification": "verification",
     "session": "recording",
 }
+
+
+# the tab that holds each section's entries, in screen order
+SECTION_TAB = {
+    "": "Plant (F1)",
+    "plant": "Plant (F1)",
+    "model": "Plant (F1)",
+    "mpc": "MPC (F2)",
+    "verify": "Verification (F4)",
+}
+TAB_ORDER = ("Plant (F1)", "MPC (F2)", "Verification (F4)")
+
+#: a design's name, as the spec loader takes it (the session folder may follow it)
+_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+def fields_by_tab(errors: dict[str, str]) -> str:
+    """The entries at fault, grouped by the tab that holds them.
+
+    Parameters
+    ----------
+    errors : dict of str to str
+        Field name → message (a :attr:`FormCheck.errors`).
+
+    Returns
+    -------
+    str
+        ``"Plant (F1): name, plant.states · MPC (F2): mpc.norm"``.
+    """
+    groups: dict[str, list[str]] = {}
+    for name in errors:
+        fd = FIELD_BY_NAME.get(name)
+        tab = SECTION_TAB.get(fd.section if fd is not None else "", "Plant (F1)")
+        groups.setdefault(tab, []).append(name)
+    return " · ".join(f"{tab}: {', '.join(groups[tab])}" for tab in TAB_ORDER if tab in groups)
 
 
 class RunCancelledError(Exception):
@@ -149,6 +185,12 @@ class CodevApp(App):
         Binding("escape", "cancel", "Cancel", show=False),
         Binding("ctrl+s", "save", "Save", priority=True),
         Binding("ctrl+q", "quit", "Quit", priority=True),
+        # Tab and shift+Tab move the focus at once, in the order the keys came: as a
+        # widget's own (non-priority) binding the move waited in the entry's queue while
+        # the characters typed after it were still sent to the entry (seen in tmux: "4",
+        # Tab, "0.9" gave a time horizon of 40.9)
+        Binding("tab", "focus_next", "Next field", show=False, priority=True),
+        Binding("shift+tab", "focus_previous", "Previous field", show=False, priority=True),
     ]
 
     def __init__(self, opened: Opened, *, traces: int = 16) -> None:
@@ -175,6 +217,14 @@ class CodevApp(App):
         self._check_timer: Any = None
         # the model key of the plant report shown or being derived
         self._plant_report_key: str | None = None
+        self._checking = False  # a form check is in flight (its answer not applied yet)
+        self._check_seq = 0  # the latest check started (older answers are dropped)
+        self._pending_run: str | None = None  # ctrl+g pressed before the check answered
+        # the spec without its unfinished [verify] section, when that is all that is wrong:
+        # the model and the synthesis run on it
+        self._before_verify: Problem | None = None
+        # a new untitled session is renamed after the design until its first run
+        self._follow_name = opened.follow_name
 
     # ---- layout ----------------------------------------------------------------------
 
@@ -194,6 +244,11 @@ class CodevApp(App):
         yield Footer()
 
     def on_mount(self) -> None:
+        # the tab bar is no Tab stop (F1-F5 and the mouse switch tabs): keys typed at start
+        # go to the first field, and Tab moves between fields only
+        for tabs in self.query(Tabs):
+            tabs.can_focus = False
+        self.screen.set_focus(self.query_one(PlantPane).first_field())
         self._show_pipeline()
         self.set_interval(0.1, self._tick)
         if self.start_note:
@@ -217,13 +272,35 @@ class CodevApp(App):
             self._check_timer.stop()
         self._check_timer = self.set_timer(0.15, self._run_check)
 
+    def _schedule_check_now(self) -> None:
+        if self._check_timer is not None:
+            self._check_timer.stop()
+        self._run_check()
+
     def _run_check(self) -> None:
         self._check_timer = None
-        self._check_worker(dict(self.values), self.has_verify, self._dirty)
+        self._checking = True
+        self._check_seq += 1
+        self._check_worker(dict(self.values), self.has_verify, self._dirty, self._check_seq)
 
     @work(thread=True, exclusive=True, group="check")
-    def _check_worker(self, values: dict[str, str], has_verify: bool, dirty: bool) -> None:
+    def _check_worker(
+        self, values: dict[str, str], has_verify: bool, dirty: bool, seq: int = 0
+    ) -> None:
         chk = check_form(values, with_verify=has_verify, path=str(self.session.spec_path()))
+        # the plant report needs the plant and model entries only (issue 23): checked alone
+        # when the whole form is not valid yet
+        plant: tuple[Problem, str] | None = None
+        before_verify: Problem | None = None
+        if not chk.ok:
+            pchk = check_plant(values)
+            if pchk.ok and pchk.problem is not None:
+                plant = (pchk.problem, stage_keys(pchk.problem, self.options)["model"])
+            if has_verify and chk.errors and all(k.startswith("verify.") for k in chk.errors):
+                # only [verify] is unfinished: the MPC preview and the synthesis need none of it
+                before_verify = check_form(
+                    values, with_verify=False, path=str(self.session.spec_path())
+                ).problem
         statuses: dict[str, StageStatus] = {}
         keys: dict[str, str] = {}
         try:
@@ -238,8 +315,14 @@ class CodevApp(App):
                 write_draft(self.session, values, has_verify)
         except (CodevError, OSError) as exc:
             self.call_from_thread(self.notify, f"session: {exc}", severity="error")
+        if before_verify is not None:
+            # the law of the spec before its [verify] section is current, not stale
+            every = stage_keys(before_verify, self.options)
+            keys = {k: every[k] for k in ("model", "synthesis") if k in every}
         loaded = self._load_cached(chk, statuses, keys)
-        self.call_from_thread(self._apply_check, chk, statuses, keys, loaded)
+        self.call_from_thread(
+            self._apply_check, chk, statuses, keys, loaded, plant, before_verify, seq
+        )
 
     def _load_cached(
         self, chk: FormCheck, statuses: dict[str, StageStatus], keys: dict[str, str]
@@ -270,7 +353,15 @@ class CodevApp(App):
         statuses: dict[str, StageStatus],
         keys: dict[str, str],
         loaded: dict[str, Any],
+        plant_only: tuple[Problem, str] | None = None,
+        before_verify: Problem | None = None,
+        seq: int = 0,
     ) -> None:
+        if seq != self._check_seq:
+            # an older check (its worker was replaced, but a thread runs to its end): the
+            # form has changed since; the latest check's answer is on its way
+            return
+        self._checking = self._check_timer is not None
         self.statuses = statuses
         self.keys = keys
         for entry in self.query(FieldEntry):
@@ -285,17 +376,50 @@ class CodevApp(App):
             self.result, self.result_key = loaded["verification"], keys.get("verification")
             self.result_problem = chk.problem
         self._show_pipeline()
-        self.query_one(MpcPane).set_problem(chk.problem if chk.ok else None)
+        self._before_verify = before_verify
+        self.query_one(MpcPane).set_problem(chk.problem if chk.ok else before_verify)
         self._show_results()
         self.query_one(SessionPane).show_session(self.session, self.statuses)
         plant = self.query_one(PlantPane)
+        # the report depends on the model stage's inputs only: re-derived when they change
         if chk.ok and chk.problem is not None:
-            # the report depends on the model stage's inputs only: re-derived when they change
-            if keys.get("model") != self._plant_report_key:
-                self._plant_report_key = keys.get("model")
-                plant.show_report(chk.problem)
+            report_of: tuple[Problem, str | None] | None = (chk.problem, keys.get("model"))
+        else:
+            report_of = plant_only
+        if report_of is not None:
+            if report_of[1] != self._plant_report_key:
+                self._plant_report_key = report_of[1]
+                plant.show_report(report_of[0])
         elif plant.show_invalid(chk):
             self._plant_report_key = None  # the report was replaced by a message
+        self._follow_design_name(chk)
+        if self._pending_run is not None and not self._checking:
+            stage, self._pending_run = self._pending_run, None
+            self.run_stage(stage)
+
+    def _follow_design_name(self, chk: FormCheck) -> None:
+        """A new session (``sessions/untitled``) is renamed after the design's name, until
+        its first stage run; an existing folder of that name is never touched."""
+        if not self._follow_name or self._checking or self.busy is not None:
+            return
+        name = self.values.get("name", "").strip()
+        if "name" in chk.errors or not _NAME_RE.fullmatch(name):
+            return
+        old = self.session.path
+        new = old.parent / name
+        if new == old or new.exists():
+            return
+        try:
+            if self.session.journal():
+                self._follow_name = False  # a stage ran here: the folder keeps its name
+                return
+            old.rename(new)
+            self.session = Session.open(new)
+        except (CodevError, OSError):
+            self._follow_name = False
+            return
+        self._show_pipeline()
+        self.query_one(SessionPane).show_session(self.session, self.statuses)
 
     def _show_pipeline(self) -> None:
         """The top line: the session and each stage's cache status for the current spec."""
@@ -306,8 +430,8 @@ class CodevApp(App):
             bar.update(head + "checking the spec…")
             return
         if not chk.ok:
-            bad = ", ".join(sorted(chk.errors)) or chk.general or "?"
-            bar.update(head + f"[red]✗ spec not valid[/red] — fix: {escape(bad)}")
+            bad = fields_by_tab(chk.errors) or chk.general or "?"
+            bar.update(head + f"[red]✗ spec not valid[/red] — fix {escape(bad)}")
             return
         parts = []
         for stage in STAGES:
@@ -375,10 +499,30 @@ class CodevApp(App):
             self.notify(f"{self.busy} is running: wait, or cancel it (Esc)", severity="warning")
             return
         chk = self.check
-        if chk is None or not chk.ok or chk.problem is None:
-            self.notify("the spec is not valid yet: fix the fields marked in red", severity="error")
+        if chk is None or self._checking:
+            # the form is being checked (the keys just typed): run once the answer is in
+            self._pending_run = upto
+            if self._check_timer is not None:
+                self._schedule_check_now()
+            self.notify(f"{upto} starts once the spec is checked", timeout=3)
             return
-        if upto in ("verification", "recording") and chk.problem.verify is None:
+        problem = chk.problem
+        if problem is None and upto in ("model", "synthesis"):
+            problem = self._before_verify  # the stage needs none of the [verify] fields
+        if problem is None:
+            where = fields_by_tab(chk.errors)
+            if upto == "model" and self._plant_report_key is not None:
+                self.notify(
+                    "the plant and model are valid: the derived model is on the right. "
+                    f"The later stages need: {where}",
+                    severity="warning",
+                    timeout=8,
+                )
+                return
+            msg = f"fix the fields marked in red — {where}" if where else chk.general
+            self.notify(f"the spec is not valid yet: {msg}", severity="error", timeout=8)
+            return
+        if upto in ("verification", "recording") and problem.verify is None:
             self.notify(
                 "the spec has no [verify] section: switch it on in the Verification tab",
                 severity="error",
@@ -389,7 +533,7 @@ class CodevApp(App):
         self.progress = (upto, 0, time.perf_counter())
         self._show_pipeline()
         self._show_busy()
-        self._stage_worker(chk.problem, replace(self.options, upto=upto))
+        self._stage_worker(problem, replace(self.options, upto=upto))
 
     @work(thread=True, exclusive=True, group="stage")
     def _stage_worker(self, problem: Problem, options: RunOptions) -> None:
@@ -492,11 +636,23 @@ class CodevApp(App):
         if tabs.active == tab:
             return
         # drop the focus first: a focused widget left in the hidden pane would pull the tabs
-        # back to it (TabbedContent shows the pane holding the focus). Nothing is focused
-        # after the switch (Tab enters the pane): moving the focus into the new pane
-        # restyles both panes, which took 100-200 ms per switch against 8 ms without.
+        # back to it (TabbedContent shows the pane holding the focus)
         self.screen.set_focus(None)
         tabs.active = tab
+        # then straight into the tab's first field (set now, not after a refresh: a key
+        # typed right after F2 is already queued behind this one)
+        self.screen.set_focus(self._pane(tab).first_field())
+
+    def _pane(self, tab: str) -> Any:
+        return self.query_one(
+            {
+                "plant": PlantPane,
+                "mpc": MpcPane,
+                "synthesis": SynthesisPane,
+                "verification": VerificationPane,
+                "session": SessionPane,
+            }[tab]
+        )
 
     def action_go(self) -> None:
         tab = self.query_one("#tabs", TabbedContent).active
@@ -565,17 +721,33 @@ class CodevApp(App):
         self.values = dict(opened.values)
         self.has_verify = opened.has_verify
         self._dirty = opened.save_now
+        self._follow_name = opened.follow_name
         self.law = self.result = None
-        self.law_key = self.result_key = None
+        self.law_key = self.result_key = self.result_problem = None
         self._plant_report_key = None
+        self._pending_run = None
+        # nothing of the design before stays: its check, statuses, messages and every
+        # pane's own state (preview, lookup, pictures, the recording's copy path)
+        self.check = None
+        self.statuses, self.keys = {}, {}
+        self.clear_notifications()
+        for pane in (
+            self.query_one(MpcPane),
+            self.query_one(SynthesisPane),
+            self.query_one(VerificationPane),
+            self.query_one(SessionPane),
+        ):
+            pane.reset()
+        self.query_one(MpcPane).set_problem(None)
         self._show_pipeline()
         for entry in self.query(FieldEntry):
             entry.set_text(self.values.get(entry.field_name, ""))
+            entry.set_error(None)
         self.query_one(VerificationPane).set_enabled(self.has_verify)
         self._show_results()
         if opened.note:
             self.notify(opened.note)
-        self._run_check()
+        self._schedule_check_now()
 
 
 def _lower_priority(niceness: int = 10) -> None:

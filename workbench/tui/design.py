@@ -17,7 +17,14 @@ import numpy as np
 if TYPE_CHECKING:
     from codev_engine import ExplicitLaw, LinearModel, Problem
 
-__all__ = ["MpcPreview", "locate_state", "mpc_preview", "plant_report", "region_rows"]
+__all__ = [
+    "MpcPreview",
+    "locate_state",
+    "mpc_preview",
+    "plant_report",
+    "region_rows",
+    "shared_laws",
+]
 
 
 def _fmt(M: np.ndarray, indent: str = "  ") -> str:
@@ -223,11 +230,46 @@ def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
         F, G = law.F[k], law.G[k]
         laws = []
         for i in range(law.m):
-            terms = " ".join(f"{F[i, j]:+.4g}·{names[j]}" for j in range(law.n) if F[i, j] != 0)
-            laws.append((terms + f" {G[i]:+.4g}").strip())
+            # coefficients within a relative 1e-12 of the row's largest are round-off: 0
+            # (a saturated region reads +1, not -1.665e-16·p +6.661e-16·v +1)
+            big = max(float(np.max(np.abs(F[i]), initial=0.0)), abs(float(G[i])))
+            cut = 1e-12 * big
+            terms = " ".join(
+                f"{F[i, j]:+.4g}·{names[j]}" for j in range(law.n) if abs(F[i, j]) > cut
+            )
+            g = float(G[i]) if abs(G[i]) > cut else 0.0
+            laws.append((terms + f" {g:+.4g}").strip())
         box = " × ".join(f"[{bound(a)}, {bound(b)}]" for a, b in zip(lo[k], hi[k], strict=True))
         rows.append((str(k), str(len(law.b[k])), "; ".join(laws), box))
     return rows
+
+
+def shared_laws(law: ExplicitLaw, rtol: float = 1e-9) -> int:
+    """How many regions could go: regions whose affine law equals another region's.
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    rtol : float
+        Laws equal up to this relative round-off (of the largest coefficient) count as one.
+
+    Returns
+    -------
+    int
+        ``num_regions`` minus the number of distinct laws (0: every law is its own).
+    """
+    if law.num_regions < 2:
+        return 0
+    FG = np.concatenate(
+        [
+            np.asarray(law.F).reshape(law.num_regions, -1),
+            np.asarray(law.G).reshape(law.num_regions, -1),
+        ],
+        axis=1,
+    )
+    scale = max(float(np.max(np.abs(FG), initial=0.0)), 1e-300)
+    keys = np.round(FG / (scale * rtol)).astype(np.int64)
+    return law.num_regions - int(np.unique(keys, axis=0).shape[0])
 
 
 def locate_state(law: ExplicitLaw, x: np.ndarray) -> tuple[int, np.ndarray | None]:

@@ -30,9 +30,11 @@ __all__ = [
     "FieldDef",
     "FormCheck",
     "check_form",
+    "check_plant",
     "compose",
     "field_for_error",
     "form_from_text",
+    "size_errors",
     "toml_value",
 ]
 
@@ -60,6 +62,9 @@ class FieldDef:
         For ``choice``.
     required : bool
         An empty optional entry is left out of the document (the engine's default applies).
+    default : str
+        What the engine takes for an empty optional entry, as shown in the empty entry
+        (``"zoh"``, ``"identity"``; docs/spec.md is the reference).
     """
 
     path: tuple[str, ...]
@@ -68,6 +73,7 @@ class FieldDef:
     help: str = ""
     choices: tuple[str, ...] = ()
     required: bool = False
+    default: str = ""
 
     @property
     def name(self) -> str:
@@ -95,18 +101,38 @@ FIELDS: tuple[FieldDef, ...] = (
         "Dynamics dx/dt = f(x, u)",
         "one expression per state, in state order (or give A and B below)",
     ),
-    _f("plant.A", "matrix", "Continuous A", "instead of dynamics: dx/dt = A x + B u"),
-    _f("plant.B", "matrix", "Continuous B", "n×m, rows separated by ;"),
+    _f(
+        "plant.A",
+        "matrix",
+        "Continuous A",
+        "instead of dynamics: dx/dt = A x + B u",
+        default="none: the dynamics",
+    ),
+    _f("plant.B", "matrix", "Continuous B", "n×m, rows separated by ;", default="none"),
     _f("model.sample_time", "number", "Sample time (s)", "controller period dt > 0", required=True),
-    _f("model.method", "choice", "Discretisation", "python-control method", choices=METHODS),
+    _f(
+        "model.method",
+        "choice",
+        "Discretisation",
+        "python-control method",
+        choices=METHODS,
+        default="zoh",
+    ),
     _f(
         "model.operating_point.x",
         "vector",
         "Operating point x",
-        "linearisation point and MPC reference (default zeros)",
+        "linearisation point and MPC reference",
+        default="zeros",
     ),
-    _f("model.operating_point.u", "vector", "Operating point u", "default zeros"),
-    _f("mpc.horizon", "integer", "Horizon N", "prediction steps ≥ 1", required=True),
+    _f(
+        "model.operating_point.u",
+        "vector",
+        "Operating point u",
+        "input at the operating point",
+        default="zeros",
+    ),
+    _f("mpc.horizon", "integer", "Horizon N", "prediction steps ≥ 1", default="5"),
     _f(
         "mpc.norm",
         "choice",
@@ -115,20 +141,38 @@ FIELDS: tuple[FieldDef, ...] = (
         choices=NORMS,
         required=True,
     ),
-    _f("mpc.Q", "matrix", "Q", "state weight (norm 2: n×n PSD; else q×n)", required=True),
-    _f("mpc.R", "matrix", "R", "input weight (norm 2: m×m PD; else r×m)", required=True),
-    _f("mpc.P", "matrix", "P", "terminal weight (empty: none)"),
-    _f("mpc.x_min", "vector", "x min", "n numbers, -inf allowed"),
-    _f("mpc.x_max", "vector", "x max", "n numbers, inf allowed"),
-    _f("mpc.u_min", "vector", "u min", "m numbers"),
-    _f("mpc.u_max", "vector", "u max", "m numbers"),
+    _f(
+        "mpc.Q",
+        "matrix",
+        "Q",
+        "state weight (norm 2: n×n PSD; else q×n)",
+        default="identity",
+    ),
+    _f(
+        "mpc.R",
+        "matrix",
+        "R",
+        "input weight (norm 2: m×m PD; else r×m)",
+        default="identity",
+    ),
+    _f("mpc.P", "matrix", "P", "terminal weight", default="none"),
+    _f("mpc.x_min", "vector", "x min", "n numbers, -inf allowed", default="-inf (unbounded)"),
+    _f("mpc.x_max", "vector", "x max", "n numbers, inf allowed", default="inf (unbounded)"),
+    _f("mpc.u_min", "vector", "u min", "m numbers", default="-inf (unbounded)"),
+    _f("mpc.u_max", "vector", "u max", "m numbers", default="inf (unbounded)"),
     _f(
         "mpc.domain_bound",
         "number",
         "Domain bound",
-        "half-width of the law's box on unbounded state axes (default 100)",
+        "half-width of the law's box on unbounded state axes",
+        default="100",
     ),
-    _f("mpc.simplify", "bool", "Merge regions", "merge regions with the same affine law"),
+    _f(
+        "mpc.simplify",
+        "bool",
+        "Merge regions",
+        "merge regions with the same affine law (default off)",
+    ),
     _f(
         "verify.time_horizon",
         "number",
@@ -144,17 +188,36 @@ FIELDS: tuple[FieldDef, ...] = (
         "Hold",
         "zoh: u held over each sample; continuous: u = F x(t) + G",
         choices=HOLDS,
+        default="zoh",
     ),
-    _f("verify.max_depth", "integer", "Max depth", "initial-set refinement depth (maxPart)"),
-    _f("verify.step", "number", "Tube step (s)", "time step of the reachtube (default 0.01)"),
-    _f("verify.input_bounds", "bool", "Check input bounds", "u(t) within [u_min, u_max]"),
+    _f(
+        "verify.max_depth",
+        "integer",
+        "Max depth",
+        "initial-set refinement depth (maxPart)",
+        default="6",
+    ),
+    _f("verify.step", "number", "Tube step (s)", "time step of the reachtube", default="0.01"),
+    _f(
+        "verify.input_bounds",
+        "bool",
+        "Check input bounds",
+        "u(t) within [u_min, u_max] (default off)",
+    ),
     _f(
         "verify.unsafe",
         "sets",
         "Unsafe sets",
         "TOML list: [{lower = [..], upper = [..]}, {A = [[..]], b = [..]}]",
+        default="none",
     ),
-    _f("verify.safe", "sets", "Safe sets", "the state must stay inside every one"),
+    _f(
+        "verify.safe",
+        "sets",
+        "Safe sets",
+        "the state must stay inside every one",
+        default="none",
+    ),
 )
 
 FIELD_BY_NAME: dict[str, FieldDef] = {f.name: f for f in FIELDS}
@@ -492,6 +555,147 @@ def field_for_error(field: str | None) -> str | None:
     return best
 
 
+# --------------------------------------------------------------------------------------------
+# Sizes: every entry whose shape no longer fits the states and inputs
+# --------------------------------------------------------------------------------------------
+
+
+def _parsed(fd: FieldDef, text: str) -> Any:
+    """The entry's value as TOML reads it, or None (empty or not a value: reported elsewhere)."""
+    try:
+        lit = entry_to_toml(fd.kind, text)
+        return tomllib.loads(f"v = {lit}")["v"] if lit else None
+    except (ValueError, RecursionError):
+        return None
+
+
+def _rows_cols(value: Any) -> tuple[int, int] | None:
+    if not isinstance(value, list) or not value or not all(isinstance(r, list) for r in value):
+        return None
+    lengths = {len(r) for r in value}
+    return (len(value), lengths.pop()) if len(lengths) == 1 else None
+
+
+def size_errors(values: dict[str, str], *, with_verify: bool = True) -> dict[str, str]:
+    """Every entry whose size does not fit the states and inputs typed.
+
+    The engine's loader stops at its first error; after a change of the number of states
+    ``n`` or inputs ``m`` every vector and matrix that no longer fits is flagged at once
+    (the dynamics, ``A``, ``B``, ``Q``, ``R``, ``P``, the bounds, the operating point, the
+    initial set and the sets).
+
+    Parameters
+    ----------
+    values : dict of str to str
+        The entries: field name → text.
+    with_verify : bool
+        Check the ``[verify]`` entries too.
+
+    Returns
+    -------
+    dict of str to str
+        Field name → message (empty when ``n`` or ``m`` cannot be read yet).
+    """
+    names = {}
+    for key in ("plant.states", "plant.inputs"):
+        v = _parsed(FIELD_BY_NAME[key], values.get(key, ""))
+        if not isinstance(v, list) or not v or not all(_is_name(x) for x in v):
+            return {}  # the names themselves are wrong: the loader says why
+        names[key] = v
+    n, m = len(names["plant.states"]), len(names["plant.inputs"])
+    norm = values.get("mpc.norm", "").strip().strip("\"'")
+    square = norm == "2"
+    x, u = (n, "state"), (m, "input")
+    vectors = {
+        "model.operating_point.x": x,
+        "model.operating_point.u": u,
+        "mpc.x_min": x,
+        "mpc.x_max": x,
+        "mpc.u_min": u,
+        "mpc.u_max": u,
+        "verify.initial_set.lower": x,
+        "verify.initial_set.upper": x,
+    }
+    # (rows or None for any, columns)
+    matrices = {
+        "plant.A": (n, n),
+        "plant.B": (n, m),
+        "mpc.Q": (n if square else None, n),
+        "mpc.R": (m if square else None, m),
+        "mpc.P": (n if square else None, n),
+    }
+    errors: dict[str, str] = {}
+    for fd in FIELDS:
+        if fd.section == "verify" and not with_verify:
+            continue
+        value = _parsed(fd, values.get(fd.name, ""))
+        if value is None:
+            continue
+        if fd.name == "plant.dynamics" and isinstance(value, list) and len(value) != n:
+            errors[fd.name] = f"expected {n} expressions (one per state), got {len(value)}"
+        elif fd.name in vectors and isinstance(value, list):
+            k, per = vectors[fd.name]
+            if len(value) != k:
+                errors[fd.name] = f"expected {k} numbers (one per {per}), got {len(value)}"
+        elif fd.name in matrices:
+            shape = _rows_cols(value)
+            rows, cols = matrices[fd.name]
+            if shape is not None and (shape[1] != cols or (rows is not None and shape[0] != rows)):
+                want = f"{rows}×{cols}" if rows is not None else f"{cols} columns"
+                errors[fd.name] = f"expected {want}, got {shape[0]}×{shape[1]}"
+        elif fd.kind == "sets" and isinstance(value, list):
+            for i, item in enumerate(value):
+                bad = _set_size(item, n)
+                if bad:
+                    errors[fd.name] = f"{fd.name}[{i}].{bad}"  # as the loader words it
+                    break
+    return errors
+
+
+def _is_name(x: Any) -> bool:
+    return isinstance(x, str) and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", x) is not None
+
+
+def _set_size(item: Any, n: int) -> str | None:
+    if not isinstance(item, dict):
+        return None
+    for key in ("lower", "upper"):
+        v = item.get(key)
+        if isinstance(v, list) and len(v) != n:
+            return f"{key}: expected {n} numbers (one per state), got {len(v)}"
+    shape = _rows_cols(item.get("A"))
+    if shape is not None and shape[1] != n:
+        return f"A: expected {n} columns, got {shape[1]}"
+    return None
+
+
+def check_plant(values: dict[str, str], path: str = "<workbench>") -> FormCheck:
+    """Validate the plant and model entries alone (the Plant tab's report needs no more).
+
+    The document is the ``[plant]`` and ``[model]`` entries with a placeholder name and the
+    engine's default MPC (``norm = "inf"``, the other fields' defaults), so an MPC or verify
+    entry still to fill in does not hold back the derived model.
+
+    Parameters
+    ----------
+    values : dict of str to str
+        The entries: field name → text (only ``plant.*`` and ``model.*`` are read).
+    path : str
+        The spec's name in the engine's messages.
+
+    Returns
+    -------
+    FormCheck
+        Its problem carries the plant and model typed; errors name plant or model entries.
+    """
+    own = {k: v for k, v in values.items() if k.split(".")[0] in ("plant", "model")}
+    own["name"] = "plant"
+    own["mpc.norm"] = "inf"
+    chk = check_form(own, with_verify=False, path=path)
+    errors = {k: v for k, v in chk.errors.items() if k.split(".")[0] in ("plant", "model")}
+    return FormCheck(chk.text, chk.problem, errors, chk.general)
+
+
 def check_form(
     values: dict[str, str], *, with_verify: bool, check_mpc: bool = False, path: str = "<workbench>"
 ) -> FormCheck:
@@ -518,6 +722,8 @@ def check_form(
         The problem, or the errors: per entry, or one general error.
     """
     text, errors = compose(values, with_verify=with_verify)
+    for name, msg in size_errors(values, with_verify=with_verify).items():
+        errors.setdefault(name, msg)
     if errors:
         return FormCheck(text, None, errors)
     try:

@@ -43,6 +43,9 @@ class Opened:
         Write the form to the session's ``spec.toml`` at once (a spec file was opened into
         the session); otherwise ``spec.toml`` is written on the first edit, so merely
         opening a session never rewrites its spec.
+    follow_name : bool
+        A new session in the default folder (``sessions/untitled``): the workbench renames
+        it after the design's name as soon as one is typed, until a stage has run in it.
     """
 
     session: Session
@@ -50,6 +53,7 @@ class Opened:
     has_verify: bool
     note: str | None = None
     save_now: bool = False
+    follow_name: bool = False
 
 
 def _blank() -> tuple[dict[str, str], bool]:
@@ -119,6 +123,7 @@ def open_target(
         values,
         has_verify,
         f"new session {folder}: fill in the plant, or open a spec (Session tab)",
+        follow_name=session_dir is None,
     )
 
 

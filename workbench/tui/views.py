@@ -170,6 +170,14 @@ def tube_time_text(
     return plot_text(r, xlabel="t (s)", ylabel=name, legend=legend)
 
 
+def _with_edges_near(values: np.ndarray, edges: list[float]) -> np.ndarray:
+    """``values`` plus the finite ``edges`` within one extent of ``values`` of their range."""
+    lo, hi = float(values.min()), float(values.max())
+    near = max(hi - lo, 1e-9 * max(1.0, abs(lo), abs(hi)))
+    extra = [float(e) for e in edges if np.isfinite(e) and lo - near <= e <= hi + near]
+    return np.concatenate([values, np.asarray(extra, dtype=float)]) if extra else values
+
+
 def plane_text(
     result: VerificationResult,
     width: int,
@@ -215,6 +223,12 @@ def plane_text(
     allx, ally = allx[np.isfinite(allx)], ally[np.isfinite(ally)]
     if allx.size == 0:
         return Text("(nothing to draw)")
+    if vs is not None:
+        # the unsafe boxes' edges near the tube (within its extent again) are in the window:
+        # the margin to them is what the picture is for; farther ones would squash the tube
+        boxes = [s for s in vs.unsafe if s.kind == "box"]
+        allx = _with_edges_near(allx, [v for s in boxes for v in (s.lower[i], s.upper[i])])
+        ally = _with_edges_near(ally, [v for s in boxes for v in (s.lower[j], s.upper[j])])
     r = Raster(
         width, height, nice_limits(allx.min(), allx.max()), nice_limits(ally.min(), ally.max())
     )

@@ -8,10 +8,11 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from rich.text import Text
-from textual import work
+from textual import events, work
 from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.message import Message
+from textual.widget import Widget
 from textual.widgets import Input, Label, Select, Static, Switch, TextArea
 
 from .form import FIELD_BY_NAME, FieldDef
@@ -76,32 +77,46 @@ class FieldEntry(Vertical):
         fd = self.field
         star = " *" if fd.required else ""
         yield Label(f"{fd.label}{star}  [dim]{fd.name}[/dim]")
+        # an empty optional entry shows the value the engine takes for it
+        shown = f"default: {fd.default}" if fd.default else ""
         if fd.kind in ("expressions", "sets"):
-            yield TextArea(self._text, id="editor", soft_wrap=False, show_line_numbers=False)
+            yield TextArea(
+                self._text,
+                id="editor",
+                soft_wrap=False,
+                show_line_numbers=False,
+                placeholder=shown,
+            )
         elif fd.kind == "choice":
             options = [(c, c) for c in fd.choices]
             value = self._text if self._text in fd.choices else Select.NULL
+            # blank allowed even for a required choice: it starts empty, not on its first
+            # option (the check reports it as required)
             yield Select(
                 options,
                 value=value,
                 id="editor",
-                allow_blank=not fd.required,
-                prompt="(default)",
+                allow_blank=True,
+                prompt=shown or "choose: " + ", ".join(fd.choices),
                 compact=True,
             )
         elif fd.kind == "bool":
             yield Switch(value=self._text.strip().lower() == "true", id="editor")
         else:
+            # the focus puts the cursor at the end: a key typed after F1 adds to the name,
+            # it does not replace the selected name
             yield Input(
-                self._text,
-                id="editor",
-                compact=True,
-                placeholder="(default)" if not fd.required else "",
+                self._text, id="editor", compact=True, placeholder=shown, select_on_focus=False
             )
-        yield Static(fd.help, classes="help")
+        yield Static(fd.help, classes="help", id="help")
 
     def on_mount(self) -> None:
         self._loading = False
+
+    @property
+    def editor(self) -> Widget:
+        """The entry's editor: the widget that takes the keys typed into the field."""
+        return self.query_one("#editor")
 
     # ---- value -----------------------------------------------------------------------
 
@@ -150,7 +165,7 @@ class FieldEntry(Vertical):
             return  # every form check calls this on every entry
         self._error = message
         self.set_class(message is not None, "-error")
-        self.query_one(".help", Static).update(
+        self.query_one("#help", Static).update(
             Text(f"✗ {message}") if message else Text(self.field.help)
         )
 
@@ -168,6 +183,21 @@ class FieldEntry(Vertical):
     def on_text_area_changed(self, event: TextArea.Changed) -> None:
         event.stop()
         self._changed(event.text_area.text)
+
+    def on_key(self, event: events.Key) -> None:
+        """A character typed on a closed choice picks the (next) choice starting with it:
+        ``i`` on Norm is ``inf``, no list to open and no arrow keys to time."""
+        editor = self.query_one("#editor")
+        if not isinstance(editor, Select) or editor.expanded or not event.character:
+            return
+        c = event.character.lower()
+        matches = [ch for ch in self.field.choices if ch.lower().startswith(c)]
+        if not matches:
+            return
+        event.stop()
+        event.prevent_default()
+        now = editor.value if editor.value in matches else None
+        editor.value = matches[(matches.index(now) + 1) % len(matches)] if now else matches[0]
 
     def on_select_changed(self, event: Select.Changed) -> None:
         event.stop()

@@ -9,6 +9,7 @@ import numpy as np
 from textual import work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.widget import Widget
 from textual.widgets import Button, Input, Label, Static
 
 from codev_engine.errors import CodevError
@@ -47,10 +48,11 @@ class MpcPane(Horizontal):
         self._values = values
         self._stop = threading.Event()
         self._problem: Problem | None = None  # the valid spec of the last form check
+        self._x0_filled = ""  # the default state last filled in (not typed by the user)
         self.last: MpcPreview | None = None
 
     def compose(self) -> ComposeResult:
-        with VerticalScroll(classes="form"):
+        with VerticalScroll(classes="form", can_focus=False):
             for name in MPC_FIELDS:
                 yield FieldEntry(name, self._values.get(name, ""))
         with Vertical(classes="output"):
@@ -79,6 +81,27 @@ class MpcPane(Horizontal):
             event.stop()
             self.run_preview()
 
+    def first_field(self) -> Widget:
+        """The widget the focus goes to when the tab is shown: the first entry's editor
+        (the horizon).
+
+        Returns
+        -------
+        Widget
+        """
+        return self.query_one(FieldEntry).editor
+
+    def reset(self) -> None:
+        """Forget the preview of the design before (another design was opened): the state
+        and steps typed, the status line and both pictures."""
+        self._stop.set()
+        self.last = None
+        self.query_one("#preview-x0", Input).value = self._x0_filled = ""
+        self.query_one("#preview-steps", Input).value = "20"
+        self.query_one("#preview-status", Static).update("")
+        self.query_one("#preview-states", Plot).set_draw(None, "states appear here")
+        self.query_one("#preview-inputs", Plot).set_draw(None, "inputs appear here")
+
     def set_problem(self, problem: Problem | None) -> None:
         """Set the spec a preview runs on.
 
@@ -88,6 +111,9 @@ class MpcPane(Horizontal):
             The form's valid spec; None while the form is not valid (or not checked yet).
         """
         self._problem = problem
+        status = self.query_one("#preview-status", Static)
+        if problem is not None and "not valid yet" in str(status.render()):
+            status.update("")  # the spec is valid now: the refusal is no longer true
 
     def cancel_preview(self) -> None:
         """Stop the preview in flight before its next MPC solve (none: nothing happens)."""
@@ -106,9 +132,11 @@ class MpcPane(Horizontal):
             status.update("[red]✗ the spec is not valid yet (fields marked in red)[/red]")
             return
         x_text = self.query_one("#preview-x0", Input).value
-        if not x_text.strip():
+        if not x_text.strip() or x_text == self._x0_filled:
+            # empty, or the default filled in before: the default of the spec as it is now
             x0 = _default_state(problem)
-            self.query_one("#preview-x0", Input).value = ", ".join(f"{v:g}" for v in x0)
+            self._x0_filled = ", ".join(f"{v:g}" for v in x0)
+            self.query_one("#preview-x0", Input).value = self._x0_filled
         else:
             try:
                 x0 = parse_state(x_text, problem.plant.n)
@@ -152,6 +180,8 @@ class MpcPane(Horizontal):
             self.query_one("#preview-inputs", Plot).set_draw(
                 lambda w, h: series_text(prev.t[:k], prev.U, inputs, w, h, steps=True)
             )
+        else:
+            self.query_one("#preview-inputs", Plot).set_draw(None, "no input: no step was solved")
 
 
 def _default_state(problem: Problem) -> np.ndarray:

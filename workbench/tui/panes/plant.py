@@ -8,6 +8,7 @@ from rich.markdown import Markdown
 from textual import work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
+from textual.widget import Widget
 from textual.widgets import Static
 
 from codev_engine.errors import CodevError
@@ -45,11 +46,22 @@ class PlantPane(Horizontal):
         self.report_text = ""
 
     def compose(self) -> ComposeResult:
-        with VerticalScroll(classes="form"):
+        # the form column scrolls with the focus: it is no Tab stop of its own
+        with VerticalScroll(classes="form", can_focus=False):
             for name in PLANT_FIELDS:
                 yield FieldEntry(name, self._values.get(name, ""))
         with VerticalScroll(classes="output"):
             yield Static("checking the spec…", id="plant-report")
+
+    def first_field(self) -> Widget:
+        """The widget the focus goes to when the tab is shown: the first entry's editor
+        (the spec's name).
+
+        Returns
+        -------
+        Widget
+        """
+        return self.query_one(FieldEntry).editor
 
     def show_invalid(self, chk: FormCheck) -> bool:
         """Replace the report by a message if a plant or model entry is wrong.

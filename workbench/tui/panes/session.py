@@ -8,11 +8,13 @@ from pathlib import Path
 
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
+from textual.widget import Widget
 from textual.widgets import Button, DataTable, Input, Label, Static
 
 from codev_engine import CodevError
 from codev_engine.session import RunReport, Session, StageStatus
 
+from ...commands import runnable
 from ..messages import ExportRequested, OpenRequested, RunRequested, SaveRequested
 
 
@@ -38,9 +40,10 @@ class SessionPane(VerticalScroll):
         yield DataTable(id="stages", cursor_type="row")
         yield Label("Journal (every stage run, replayable with codev replay)")
         yield DataTable(id="journal", cursor_type="row", zebra_stripes=True)
+        # the copy's path before the button that uses it (Tab goes top to bottom, left to right)
         with Horizontal(classes="bar"):
-            yield Button("Export Rerun recording \\[ctrl+g]", id="export", variant="primary")
             yield Input(id="export-path", placeholder="also copy it to FILE.rrd (optional)")
+            yield Button("Export Rerun recording \\[ctrl+g]", id="export", variant="primary")
         yield Static("", id="export-out", classes="small")
 
     def on_mount(self) -> None:
@@ -48,6 +51,24 @@ class SessionPane(VerticalScroll):
         self.query_one("#journal", DataTable).add_columns(
             "run", "stage", "status", "seconds", "outcome"
         )
+
+    def first_field(self) -> Widget:
+        """The widget the focus goes to when the tab is shown: the folder or spec to open.
+
+        Returns
+        -------
+        Widget
+        """
+        return self.query_one("#open-path", Input)
+
+    def reset(self) -> None:
+        """Forget what was typed and shown for the design before (another design was opened):
+        the recording's copy path (a copy of the new design's recording must not overwrite
+        the old one's), the export line, the journal shown, the path opened."""
+        for name in ("#open-path", "#export-path"):
+            self.query_one(name, Input).value = ""
+        self.query_one("#export-out", Static).update("")
+        self._journal_stamp = None
 
     def on_button_pressed(self, event: Button.Pressed) -> None:
         event.stop()
@@ -173,5 +194,7 @@ class SessionPane(VerticalScroll):
             path = copied
         elif error is not None:
             lines.append(f"[red]✗ cannot copy to {dest}: {error}[/red]")
-        lines.append(f"open it with:  codev view {path}   (or: rerun {path})")
+        lines.append(
+            f"open it with:  {runnable('codev')} view {path}   (or: {runnable('rerun')} {path})"
+        )
         self.query_one("#export-out", Static).update("\n".join(lines))

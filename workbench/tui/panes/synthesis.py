@@ -7,11 +7,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
+from textual.widget import Widget
 from textual.widgets import Button, DataTable, Input, Label, Static
 
 from codev_engine.session import RunReport
 
-from ..design import locate_state, region_rows
+from ..design import locate_state, region_rows, shared_laws
 from ..messages import CancelRequested, RunRequested
 from ..parsers import parse_axes, parse_state
 from ..views import partition_text
@@ -37,6 +38,8 @@ class SynthesisPane(Vertical):
     _law: ExplicitLaw | None = None
     _current = False
     _busy: str | None = None
+    _shared_for: object = None  # the law _shared was counted for
+    _shared = 0
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="bar"):
@@ -46,18 +49,38 @@ class SynthesisPane(Vertical):
         with Horizontal(id="synth-main"):
             yield Plot("the partition appears here after synthesis", id="partition")
             with Vertical(id="synth-side"):
-                yield Label("axes (2 states)")
-                yield Input(id="synth-axes", placeholder="e.g. x1, x2")
-                yield Label("slice: other states at (n > 2)")
-                yield Input(id="synth-at", placeholder="default: the domain's centre")
+                # top to bottom is the Tab order: the lookup first (the tab's first field)
                 yield Label("locate a state")
                 yield Input(id="locate-x", placeholder="e.g. 1.5, -2  (Enter)")
                 yield Static("", id="locate-out", classes="small")
+                yield Label("axes (2 states)")
+                yield Input(id="synth-axes", placeholder="default: the first two states")
+                yield Label("slice: other states at (n > 2)")
+                yield Input(id="synth-at", placeholder="default: the domain's centre")
         yield DataTable(id="regions", zebra_stripes=True, cursor_type="row")
 
     def on_mount(self) -> None:
         table = self.query_one("#regions", DataTable)
         table.add_columns("region", "facets", "u = F x + G", "bounding box")
+
+    def first_field(self) -> Widget:
+        """The widget the focus goes to when the tab is shown: *locate a state*.
+
+        Returns
+        -------
+        Widget
+        """
+        return self.query_one("#locate-x", Input)
+
+    def reset(self) -> None:
+        """Forget what was typed and shown for the design before (another design was opened):
+        the lookup and its answer, the marker, the axes and slice, the last run's note."""
+        for name in ("#locate-x", "#synth-axes", "#synth-at"):
+            self.query_one(name, Input).value = ""
+        self.query_one("#locate-out", Static).update("")
+        self._marker = None
+        self._note = ""
+        self._law_shown = None
 
     # ---- events ----------------------------------------------------------------------
 
@@ -180,9 +203,18 @@ class SynthesisPane(Vertical):
                 else "[yellow]stale: the spec changed since; ctrl+g recomputes[/yellow]"
             )
             norm = law.meta.get("norm", "")
+            seconds = law.meta.get("seconds")
+            took = f" · synthesised in {seconds:.2f} s" if isinstance(seconds, float) else ""
+            if law is not self._shared_for:
+                self._shared_for, self._shared = law, shared_laws(law)
+            merge = (
+                f" · {self._shared} share a law: Merge regions (F2)"
+                if self._shared
+                else ""
+            )
             status.update(
                 f"{law.num_regions} critical regions · n={law.n}, m={law.m}"
-                f"{f', norm {norm}' if norm else ''} · {state}"
+                f"{f', norm {norm}' if norm else ''}{took} · {state}{merge}"
             )
         if law is not self._law_shown or force:
             # the picture and the table depend on the law only: a form check (every few

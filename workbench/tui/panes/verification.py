@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.widget import Widget
 from textual.widgets import Button, Input, Label, Static, Switch
 
 from codev_engine.session import RunReport
@@ -68,10 +69,10 @@ class VerificationPane(Horizontal):
         self._enabled = enabled
 
     def compose(self) -> ComposeResult:
-        with VerticalScroll(classes="form"):
+        with VerticalScroll(classes="form", can_focus=False):
             with Horizontal(classes="bar"):
                 yield Switch(value=self._enabled, id="verify-enabled")
-                yield Label(" verify the closed loop (the \\[verify] section)")
+                yield Label(" verify the closed loop (\\[verify])")
             for name in VERIFY_FIELDS:
                 yield FieldEntry(name, self._values.get(name, ""))
         with Vertical(classes="output"):
@@ -92,6 +93,27 @@ class VerificationPane(Horizontal):
 
     def on_mount(self) -> None:
         self.set_enabled(self._enabled)
+
+    def first_field(self) -> Widget:
+        """The widget the focus goes to when the tab is shown: the first entry's editor
+        (the time horizon), or the ``[verify]`` switch while the section is off.
+
+        Returns
+        -------
+        Widget
+        """
+        if self._enabled:
+            return self.query_one(FieldEntry).editor
+        return self.query_one("#verify-enabled", Switch)
+
+    def reset(self) -> None:
+        """Forget what was typed and shown for the design before (another design was opened):
+        the state and plane typed, the status line, the counterexample line."""
+        for name in ("#tube-state", "#plane-axes"):
+            self.query_one(name, Input).value = ""
+        self.query_one("#verify-status", Static).update("")
+        self.query_one("#cex", Static).update("")
+        self._result_shown = None
 
     def set_enabled(self, enabled: bool) -> None:
         """Switch the [verify] section on or off (a loaded spec) without posting
@@ -135,9 +157,14 @@ class VerificationPane(Horizontal):
         Parameters
         ----------
         stage : str or None
-            The stage running (None: none).
+            The stage running (None: none); a verification or recording run puts a
+            "verifying" line in the banner until its first progress line.
         """
         self._busy = stage
+        if stage in ("verification", "recording"):
+            banner = self.query_one("#verdict", Static)
+            banner.remove_class("-safe", "-unsafe", "-unknown", "-stale")
+            banner.update(f"[cyan]running {stage}…  Esc cancels[/cyan]")
 
     def show_progress(self, stage: str, text: str) -> None:
         """Show the progress of the run in flight, if it was started for this pane.
@@ -152,6 +179,7 @@ class VerificationPane(Horizontal):
         """
         if self._busy in ("verification", "recording"):
             self.query_one("#verify-status", Static).update(f"[cyan]{text}[/cyan]")
+            self.query_one("#verdict", Static).update(f"[cyan]running: {text}[/cyan]")
 
     def show_result(
         self, result: VerificationResult | None, *, problem: Problem | None, current: bool
@@ -208,8 +236,8 @@ class VerificationPane(Horizontal):
             if sr is not None and sr.status == "failed":
                 status.update(f"[red]✗ {sr.outcome.get('message', 'failed')}[/red]")
             elif sr is not None:
-                status.update(sr.status)  # the seconds are in the toast and the journal
-            self.refresh_result()
+                status.update(f"{sr.status} in {sr.seconds:.2f} s")
+        self.refresh_result()
 
     _result_shown: object = None  # the result whose pictures are on screen
 
@@ -239,7 +267,7 @@ class VerificationPane(Horizontal):
         lines = [f"{title} — {meaning}" + (f": {reason}" if reason and cls != "-unsafe" else "")]
         lines.append(
             f"hold {result.hold} · {result.tube.num_boxes} boxes · "
-            f"{result.stats.get('branches', '?')} branches"
+            f"{result.stats.get('branches', '?')} branches · verified in {result.seconds:.2f} s"
         )
         if not self._current:
             lines.append("⟳ stale: the spec changed since this verdict; ctrl+g re-verifies")

@@ -1,0 +1,63 @@
+"""Work too large is refused before it starts (issue 23): one line naming the field, exit 2.
+
+The specs are the bundled double integrator with one field typed wrong; before the limits,
+``step = 1e-12`` ended in ``internal error (MemoryError ...)`` and the others ran for
+minutes without end. Checked as a real ``codev run`` process.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from cli_process import run_codev
+
+from codev_engine import SpecError, loads_spec
+from codev_engine.pipeline import LIMITS
+
+ROOT = Path(__file__).resolve().parents[2]
+DI = (ROOT / "examples" / "double_integrator.toml").read_text(encoding="utf-8")
+
+CASES = [
+    ("step = 0.01", "step = 1e-12", "verify.step"),
+    ("time_horizon = 9.0", "time_horizon = 1e9", "verify.time_horizon"),
+    ("sample_time = 1.0", "sample_time = 1e-9", "verify.time_horizon"),
+    ("horizon = 2\n", "horizon = 100000\n", "mpc.horizon"),
+]
+
+
+@pytest.mark.parametrize(("old", "new", "field"), CASES)
+def test_too_large_is_a_field_error(old, new, field):
+    with pytest.raises(SpecError) as err:
+        loads_spec(DI.replace(old, new), check_mpc=False)
+    assert err.value.field == field
+    assert "exceeds the limit" in str(err.value)
+
+
+def test_too_many_states_is_a_field_error():
+    n = LIMITS["states"] + 1
+    names = ", ".join(f'"x{i}"' for i in range(n))
+    text = (
+        f'name = "big"\n[plant]\nstates = [{names}]\ninputs = ["u"]\n'
+        f"A = [{', '.join('[' + ', '.join(['0'] * n) + ']' for _ in range(n))}]\n"
+        f"B = [{', '.join(['[1]'] * n)}]\n[model]\nsample_time = 1.0\n[mpc]\nnorm = 2\n"
+    )
+    with pytest.raises(SpecError) as err:
+        loads_spec(text, check_mpc=False)
+    assert err.value.field == "plant.states"
+
+
+def test_the_bundled_examples_are_within_the_limits():
+    for spec in sorted((ROOT / "examples").glob("*.toml")):
+        loads_spec(spec.read_text(encoding="utf-8"), check_mpc=False)
+
+
+@pytest.mark.parametrize(("old", "new", "field"), CASES[:2])
+def test_codev_run_refuses_in_one_line(tmp_path, old, new, field):
+    spec = tmp_path / "big.toml"
+    spec.write_text(DI.replace(old, new), encoding="utf-8")
+    out = run_codev("run", spec, "--session", tmp_path / "s", cwd=tmp_path, timeout=60)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and field in lines[0] and "exceeds the limit" in lines[0], lines
+    assert "internal error" not in out.stderr and "Traceback" not in out.stderr
