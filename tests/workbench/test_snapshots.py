@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 from pilot_tools import EXAMPLES, ROOT, settle
-from textual.widgets import Input, Static
+from textual.widgets import DataTable, Input, Static
 
 from workbench.tui.app import CodevApp
 from workbench.tui.state import open_target
@@ -61,6 +61,13 @@ def _steps(*keys: str):
         status = app.query_one("#verify-status", Static)
         if "computed in" in str(status.render()):
             status.update("computed in 0.50 s")
+        await pilot.pause(0.1)
+        # a DataTable sizes its columns on a later refresh: under load the picture was
+        # taken before (the region table's columns came out narrower, one run in three)
+        for _ in range(100):
+            if not any(t._require_update_dimensions or t._new_rows for t in app.query(DataTable)):
+                break
+            await pilot.pause(0.05)
         await pilot.pause(0.1)
 
     return run_before
