@@ -58,7 +58,7 @@ _LAZY: dict[str, str] = {
     "RunOptions": "session",
     "Session": "session",
     "Executor": "executor",
-    "sweep": "sweep",
+    "sweep": "sweeps",
 }
 
 

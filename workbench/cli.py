@@ -599,7 +599,7 @@ def _sweep_cell(v) -> str:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from codev_engine.executor import Executor
     from codev_engine.pipeline import load_spec
-    from codev_engine.sweep import design_texts, sweep
+    from codev_engine.sweeps import design_texts, sweep
 
     if not args.set:
         raise SpecError("give at least one --set FIELD=V1,V2,...", field="--set")

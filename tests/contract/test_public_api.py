@@ -44,7 +44,7 @@ PINNED = {
     "export_python": "codev_engine.deploy.export",
     # scale out (issue 28)
     "Executor": "codev_engine.executor",
-    "sweep": "codev_engine.sweep",
+    "sweep": "codev_engine.sweeps",
 }
 
 
