@@ -298,10 +298,12 @@ def closed_loop_cost(problem, law) -> float | None:
     n = problem.plant.n
     centre = 0.5 * (lo + hi)
     T = shown_horizon(problem)
-    trace = simulate(problem, law, centre[:n], t_end=T, extra0=centre[n:] if lo.size > n else None)
+    Ts = float(problem.model.sample_time)
+    # the output grid is the sample times (the cost's), the integration as tight as ever
+    extra0 = centre[n:] if lo.size > n else None
+    trace = simulate(problem, law, centre[:n], t_end=T, dt=Ts, extra0=extra0)
     if trace.undefined_at is not None:
         return None
-    Ts = float(problem.model.sample_time)
     K = int(np.floor(T / Ts + 1e-9))
     idx = [int(np.argmin(np.abs(trace.t - k * Ts))) for k in range(K)]
     x_op = np.asarray(problem.model.x_op, dtype=float)
