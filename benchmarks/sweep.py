@@ -15,7 +15,9 @@ and verified (``ce.sweep``): ``balanced`` is ``mpc.horizon = 5, 6, 7, 8`` x
   ``start`` (the cluster up and every worker's modules loaded by one small design run on
   each, ``client.run``), ``sweep`` (the table on the warm cluster) and ``cold`` (start +
   one sweep: what ``codev sweep --workers W`` costs from nothing);
-- speed-up and efficiency from 1 to W workers (``T_1 / (W T_W)``, warm);
+- speed-up and efficiency from 1 to W workers (``T_1 / (W T_W)``, warm), and the workers'
+  CPU share (their CPU time over ``W`` times the wall time: below 1 when other work on the
+  machine held the cores);
 - the scheduler's per-task overhead on the largest cluster: 2000 no-op tasks (``abs``)
   submitted at once (wall time per task), and the round trip of one task (median of 50).
 
@@ -99,11 +101,16 @@ def main(argv: list[str] | None = None) -> int:
             t1 = time.perf_counter()
             first = ce.sweep(problem, GRID, executor=executor)
             cold = start + time.perf_counter() - t1
+            cpu0 = sum(client.run(time.process_time).values())
             warm, rows = best(lambda ex=executor: ce.sweep(problem, GRID, executor=ex),
                               args.repeat)
+            # the workers' CPU time over W cores' wall time: below 1 when the machine's other
+            # work took the cores (a shared machine), whatever the executor does
+            cpu = sum(client.run(time.process_time).values()) - cpu0
             same = exact(first) == reference and exact(rows) == reference
             out["workers"][w] = {"start_seconds": start, "sweep_seconds": warm,
-                                 "cold_seconds": cold, "rows_equal_serial": same}
+                                 "cold_seconds": cold, "rows_equal_serial": same,
+                                 "cpu_share": cpu / (args.repeat * warm * w)}
             if w == max(counts):
                 n = 2000
                 t1 = time.perf_counter()
@@ -120,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
             executor.close()
     base = out["workers"].get(1, {}).get("sweep_seconds")
     print(f"\n{'workers':>7} {'start s':>8} {'sweep s':>8} {'cold s':>7} {'vs serial':>9} "
-          f"{'speed-up':>8} {'efficiency':>10}  rows")
+          f"{'speed-up':>8} {'efficiency':>10} {'cpu share':>9}  rows")
     for w, d in out["workers"].items():
         d["speedup_vs_serial"] = serial / d["sweep_seconds"]
         if base:
@@ -129,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{w:>7} {d['start_seconds']:>8.2f} {d['sweep_seconds']:>8.3f} "
               f"{d['cold_seconds']:>7.2f} {d['speedup_vs_serial']:>9.2f} "
               f"{d.get('speedup', float('nan')):>8.2f} {d.get('efficiency', float('nan')):>10.2f}"
-              f"  {'equal' if d['rows_equal_serial'] else 'DIFFER'}")
+              f" {d['cpu_share']:>9.2f}  {'equal' if d['rows_equal_serial'] else 'DIFFER'}")
     if overhead:
         out["overhead"] = overhead
         print(f"\nscheduler: {1e3 * overhead['per_task_seconds']:.2f} ms per task (2000 no-ops "

@@ -19,6 +19,7 @@ default); the client sees each result once. See docs/scale.md.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
@@ -89,13 +90,17 @@ class Executor:
             from distributed import Client, LocalCluster
 
             if self.kind == "local":
-                self._cluster = LocalCluster(
-                    n_workers=self._workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=40,  # logging.ERROR: the nanny's restart notes stay quiet
-                )
+                with warnings.catch_warnings():
+                    # the scheduler's HTTP routes (no dashboard) take another port when
+                    # 8787 is taken, with a warning that is no news on a shared machine
+                    warnings.filterwarnings("ignore", message="Port .* is already in use")
+                    self._cluster = LocalCluster(
+                        n_workers=self._workers,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=None,
+                        silence_logs=40,  # logging.ERROR: the nanny's restart notes stay quiet
+                    )
                 self._client = Client(self._cluster)
             else:
                 self._client = Client(self._scheduler)

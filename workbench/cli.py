@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
@@ -556,7 +557,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations",
+    "long_horizon", "formulations", "sweep",
 )
 
 
@@ -599,7 +600,7 @@ def _sweep_cell(v) -> str:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from codev_engine.executor import Executor
     from codev_engine.pipeline import load_spec
-    from codev_engine.sweeps import design_texts, sweep
+    from codev_engine.sweeps import sweep
 
     if not args.set:
         raise SpecError("give at least one --set FIELD=V1,V2,...", field="--set")
@@ -607,7 +608,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise SpecError("must be a positive number of workers", field="--workers")
     grid = _sweep_grid(args.set)
     problem = load_spec(args.spec)
-    count = len(design_texts(problem, grid))  # every design checked before a worker starts
+    count = math.prod(len(v) for v in grid.values())
     executor = Executor(workers=args.workers, scheduler=args.scheduler)
     t0 = time.perf_counter()
     done = [0]
@@ -618,7 +619,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         outcome = row["error"] or f"{row['regions']} regions, {row['verdict']}"
         print(f"design {done[0]}/{count} [{values}]: {outcome}", file=sys.stderr, flush=True)
 
-    with executor:
+    with executor:  # (every design is read by the loader before the cluster starts)
         rows = sweep(problem, grid, executor=executor, progress=progress)
     seconds = time.perf_counter() - t0
     if args.json:

@@ -134,3 +134,21 @@ def test_a_worker_killed_mid_sweep_changes_nothing(cluster, serial_rows):
             break
         time.sleep(0.2)
     assert killed[0][1] not in client.run(os.getpid).values()
+
+
+def test_a_spec_error_travels_whole():
+    # a worker's SpecError comes back through pickle with its file and field
+    import pickle
+
+    from codev_engine.session.store import SessionError
+
+    for cls in (ce.SpecError, SessionError):
+        err = pickle.loads(pickle.dumps(cls("must be >= 1", file="a.toml", field="mpc.horizon")))
+        assert type(err) is cls and (err.file, err.field) == ("a.toml", "mpc.horizon")
+        assert str(err) == "a.toml: mpc.horizon: must be >= 1"
+
+
+def test_the_executor_keeps_the_input_order_and_refuses_two_targets():
+    assert ce.Executor().map(divmod, [(7, 2), (9, 4)]) == [(3, 1), (2, 1)]
+    with pytest.raises(ValueError, match="not both"):
+        ce.Executor(workers=2, scheduler="tcp://127.0.0.1:1")
