@@ -54,7 +54,9 @@ class Executor:
     Notes
     -----
     The cluster is started (or connected to) on first use and stopped by :meth:`close`
-    (or on leaving a ``with`` block); a remote cluster is left running.
+    (or on leaving a ``with`` block); a remote cluster is left running. Local workers are
+    spawned processes: a script that starts them needs the ``if __name__ == "__main__":``
+    guard.
 
     Examples
     --------
