@@ -117,6 +117,11 @@ def design_texts(problem, grid: Mapping[str, Sequence[Any]]) -> list[str]:
         if isinstance(vals, (str, bytes)) or not isinstance(vals, Sequence) or not len(vals):
             raise SpecError("a swept field needs a non-empty list of values", file=file,
                             field=name)
+        for v in vals:
+            try:
+                _inline(v)
+            except SpecError as exc:
+                raise SpecError(exc.reason, file=file, field=name) from None
     texts = []
     for values in _value_rows(grid):
         data = json.loads(json.dumps(base))  # a deep copy of plain TOML data
@@ -194,6 +199,8 @@ def _key(k: str) -> str:
 
 
 def _inline(v: Any) -> str:
+    if hasattr(v, "tolist") and not isinstance(v, (list, dict)):
+        v = v.tolist()  # numpy scalars and arrays as Python values
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
@@ -231,7 +238,8 @@ def design_row(text: str, path: str) -> dict:
     dict
         ``regions``, ``synthesis_seconds``, ``verdict``, ``reason``,
         ``verification_seconds``, ``tube_width_at_horizon`` ((n,) list of float or None),
-        ``closed_loop_cost`` and ``error``. The closed-loop cost is that of the nominal
+        ``closed_loop_cost`` and ``error`` (a solver's message, see :func:`sweep`). The
+        closed-loop cost is that of the nominal
         trajectory from the centre of ``verify.initial_set``, simulated with the spec's
         hold over the verified horizon: the sum over the sample times ``k Ts < T`` of the
         MPC's stage cost in deviation from the operating point (``x'Qx + u'Ru`` for norm
@@ -259,7 +267,11 @@ def design_row(text: str, path: str) -> dict:
     from codev_engine.reach.simulate import shown_horizon
     from codev_engine.reach.verification import verify
 
-    result = verify(problem, law)
+    try:
+        result = verify(problem, law)
+    except SolverError as exc:
+        row["error"] = str(exc)
+        return row
     row["verdict"] = result.verdict
     row["reason"] = result.reason
     row["verification_seconds"] = round(result.seconds, 6)

@@ -641,10 +641,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             table.add_column(head)
         for row in rows:
             cells = [_sweep_cell(row["values"][k]) for k in grid]
-            if row["error"]:
-                cells += ["-", "-", "error", row["error"], "-", "-", "-"]
-            else:
-                cells += [_sweep_cell(row[c]) for c in cols]
+            shown = dict(row, verdict="error", reason=row["error"]) if row["error"] else row
+            cells += [_sweep_cell(shown[c]) for c in cols]
             table.add_row(*cells)
         Console(width=max(100, _terminal_width())).print(table)
     return 1 if any(row["error"] for row in rows) else 0

@@ -152,3 +152,13 @@ def test_the_executor_keeps_the_input_order_and_refuses_two_targets():
     assert ce.Executor().map(divmod, [(7, 2), (9, 4)]) == [(3, 1), (2, 1)]
     with pytest.raises(ValueError, match="not both"):
         ce.Executor(workers=2, scheduler="tcp://127.0.0.1:1")
+
+
+def test_numpy_values_are_toml_values_and_a_bad_one_names_its_field():
+    import numpy as np
+
+    problem = ce.load_spec(DI)
+    rows = ce.sweep(problem, {"mpc.horizon": [np.int64(2)], "mpc.R": [np.array([[0.8]])]})
+    assert rows[0]["regions"] == 10
+    with pytest.raises(ce.SpecError, match="mpc.R: not a TOML value: object"):
+        ce.sweep(problem, {"mpc.R": [object()]})
