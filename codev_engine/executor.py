@@ -155,7 +155,7 @@ class Executor:
             The first exception a call raised (re-raised here, the other calls cancelled).
         """
         calls = [tuple(a) for a in args]
-        if self.kind == "serial":
+        if self.kind == "serial" or not calls:
             results = []
             for i, a in enumerate(calls):
                 results.append(fn(*a))
