@@ -19,19 +19,23 @@ field varies slowest), whatever the executor.
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import json
 import math
+import os
 import re
 import time
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 
-__all__ = ["sweep", "design_texts", "set_field", "dumps_toml", "TIMING_FIELDS"]
+__all__ = ["sweep", "design_texts", "design_id", "design_row", "set_field", "dumps_toml",
+           "TIMING_FIELDS"]
 
 #: the row fields that are wall times (they differ run to run; everything else is exact)
 TIMING_FIELDS = ("synthesis_seconds", "verification_seconds")
@@ -43,6 +47,7 @@ def sweep(
     *,
     executor: Executor | None = None,
     progress: Callable[[int, dict], None] | None = None,
+    session: str | os.PathLike | None = None,
 ) -> list[dict]:
     """Synthesise and verify every design of a grid of spec values.
 
@@ -57,6 +62,12 @@ def sweep(
         What runs the designs; default serial in this process.
     progress : callable, optional
         Called as ``progress(i, row)`` in this process as design ``i`` finishes.
+    session : path-like, optional
+        A folder for the sweep: each design runs as a session (``codev_engine.session``) in
+        ``session/<id>``, ``id`` the first 16 hex digits of the SHA-256 of its TOML text, so
+        a rerun loads the stages of unchanged designs from their caches and ``codev replay
+        session/<id>`` reproduces one; ``session/sweep.json`` lists the designs and their
+        rows (written atomically). The folders must be on a disk every worker sees.
 
     Returns
     -------
@@ -76,12 +87,56 @@ def sweep(
     texts = design_texts(problem, grid)
     executor = executor if executor is not None else Executor()
     values = _value_rows(grid)
-    rows = executor.map(
-        design_row, [(text, problem.path or "<string>") for text in texts], on_result=None
-        if progress is None
-        else (lambda i, row: progress(i, {"values": values[i], **row}))
-    )
-    return [{"values": v, **row} for v, row in zip(values, rows, strict=True)]
+    # equal designs (a value listed twice) run once: one task, one session folder
+    unique = list(dict.fromkeys(texts))
+    first = {text: texts.index(text) for text in unique}
+    folders = None
+    if session is not None:
+        root = Path(session)
+        folders = {text: str(root / design_id(text)) for text in unique}
+
+    def on_result(j: int, row: dict) -> None:
+        if progress is not None:
+            i = first[unique[j]]
+            progress(i, {"values": values[i], **row})
+
+    path = problem.path or "<string>"
+    calls = [(text, path, None if folders is None else folders[text]) for text in unique]
+    done = dict(zip(unique, executor.map(design_row, calls, on_result=on_result), strict=True))
+    rows = [{"values": v, **done[text]} for v, text in zip(values, texts, strict=True)]
+    if session is not None:
+        from codev_engine.io.atomic import write_text
+
+        summary = {
+            "spec": path,
+            "grid": {k: list(v) for k, v in grid.items()},
+            "designs": [
+                {"values": v, "folder": design_id(text)}
+                for v, text in zip(values, texts, strict=True)
+            ],
+            "rows": rows,
+        }
+        write_text(Path(session) / "sweep.json", json.dumps(summary, indent=1, default=_plain))
+    return rows
+
+
+def design_id(text: str) -> str:
+    """The name of a design's session folder: 16 hex digits of the SHA-256 of its text.
+
+    Parameters
+    ----------
+    text : str
+        The design's TOML document.
+
+    Returns
+    -------
+    str
+    """
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def _plain(v: Any) -> Any:
+    return v.tolist() if hasattr(v, "tolist") else str(v)
 
 
 def _value_rows(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
@@ -223,7 +278,7 @@ def _inline(v: Any) -> str:
 # -- one design (runs on a worker) ---------------------------------------------------------
 
 
-def design_row(text: str, path: str) -> dict:
+def design_row(text: str, path: str, session: str | None = None) -> dict:
     """Synthesise and verify one design given as TOML text: its row of the sweep table.
 
     Parameters
@@ -232,6 +287,10 @@ def design_row(text: str, path: str) -> dict:
         The design's TOML document (from :func:`design_texts`, so already checked).
     path : str
         The base spec's path, for messages.
+    session : str, optional
+        A session folder to run the design in (created if new): its cached stages are
+        loaded, the others computed and cached; the wall times are then those recorded
+        when each stage was computed.
 
     Returns
     -------
@@ -254,6 +313,8 @@ def design_row(text: str, path: str) -> dict:
         ("regions", "synthesis_seconds", "verdict", "reason", "verification_seconds",
          "tube_width_at_horizon", "closed_loop_cost", "error")
     )  # fmt: skip
+    if session is not None:
+        return _session_row(problem, session, row)
     t0 = time.perf_counter()
     try:
         law = synthesize(problem)
@@ -264,7 +325,6 @@ def design_row(text: str, path: str) -> dict:
     row["synthesis_seconds"] = round(time.perf_counter() - t0, 6)
     if problem.verify is None:
         return row
-    from codev_engine.reach.simulate import shown_horizon
     from codev_engine.reach.verification import verify
 
     try:
@@ -272,6 +332,32 @@ def design_row(text: str, path: str) -> dict:
     except SolverError as exc:
         row["error"] = str(exc)
         return row
+    return _verified_row(problem, law, result, row)
+
+
+def _session_row(problem, folder: str, row: dict) -> dict:
+    from codev_engine.session import RunOptions, Session
+
+    upto = "verification" if problem.verify is not None else "synthesis"
+    report = Session.open_or_create(folder).run(
+        problem, RunOptions(upto=upto), raise_errors=False
+    )
+    failed = next((s for s in report.stages if s.status == "failed"), None)
+    law, result = report.law, report.result
+    if law is not None:
+        row["regions"] = int(law.num_regions)
+        row["synthesis_seconds"] = round(float(law.meta.get("seconds", 0.0)), 6)
+    if failed is not None:
+        row["error"] = str(failed.outcome.get("message", failed.outcome))
+        return row
+    if result is None:
+        return row
+    return _verified_row(problem, law, result, row)
+
+
+def _verified_row(problem, law, result, row: dict) -> dict:
+    from codev_engine.reach.simulate import shown_horizon
+
     row["verdict"] = result.verdict
     row["reason"] = result.reason
     row["verification_seconds"] = round(result.seconds, 6)

@@ -620,7 +620,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         print(f"design {done[0]}/{count} [{values}]: {outcome}", file=sys.stderr, flush=True)
 
     with executor:  # (every design is read by the loader before the cluster starts)
-        rows = sweep(problem, grid, executor=executor, progress=progress)
+        rows = sweep(problem, grid, executor=executor, progress=progress, session=args.session)
     seconds = time.perf_counter() - t0
     if args.json:
         print(json.dumps({"problem": problem.name, "executor": executor.kind,
@@ -891,6 +891,12 @@ def _build_parser() -> argparse.ArgumentParser:
     where.add_argument("--scheduler", metavar="ADDR",
                        help="run them on a running Dask cluster (tcp://HOST:PORT; default "
                        "$CODEV_SCHEDULER, else serial)")
+    p.add_argument(
+        "--session",
+        metavar="DIR",
+        help="run each design as a session in DIR/<id> (a rerun loads unchanged designs from "
+        "their caches; codev replay DIR/<id> reproduces one); DIR/sweep.json lists them",
+    )
     p.add_argument("--json", action="store_true", help="print the rows as JSON only")
     p.set_defaults(func=_cmd_sweep)
 

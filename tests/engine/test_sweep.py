@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -86,6 +87,25 @@ def test_cli_bad_value_is_one_line_exit_2(value, words):
     assert words in lines[0]
 
 
+def test_a_session_sweep_reruns_from_the_cache_and_each_design_replays(tmp_path):
+    from codev_engine.session import Session
+
+    problem = ce.load_spec(DI)
+    grid = {"mpc.horizon": [2, 3, 2]}  # a value twice: one design, one folder
+    out = tmp_path / "sweep"
+    first = ce.sweep(problem, grid, session=out)
+    summary = json.loads((out / "sweep.json").read_text(encoding="utf-8"))
+    folders = [d["folder"] for d in summary["designs"]]
+    assert folders[0] == folders[2] != folders[1] and summary["rows"] == first
+    again = ce.sweep(problem, grid, session=out)
+    assert again == first  # the recorded wall times included: nothing was recomputed
+    for folder in set(folders):
+        journal = Session.open(out / folder).journal()
+        assert [r["status"] for r in journal if r["run"] == 2] == ["cached"] * 3
+        done = run_codev("replay", out / folder, "--json", cwd=ROOT)
+        assert done.returncode == 0 and json.loads(done.stdout)["match"], done.stderr
+
+
 # -- a real cluster ------------------------------------------------------------------------
 
 
@@ -101,9 +121,13 @@ def serial_rows():
     return ce.sweep(ce.load_spec(DI), GRID)
 
 
-def test_cluster_rows_equal_serial_rows(cluster, serial_rows):
+def test_cluster_rows_equal_serial_rows(cluster, serial_rows, tmp_path):
     rows = ce.sweep(ce.load_spec(DI), GRID, executor=cluster)
     assert exact(rows) == exact(serial_rows)
+    # in session folders too (the workers write them; the client writes sweep.json)
+    rows = ce.sweep(ce.load_spec(DI), GRID, executor=cluster, session=tmp_path / "s")
+    assert exact(rows) == exact(serial_rows)
+    assert len(json.loads((tmp_path / "s" / "sweep.json").read_text())["designs"]) == 8
     # both workers took part (the merge order is not the order of arrival)
     ran_on = cluster.client.run(os.getpid)
     assert len(set(ran_on.values())) == 2
