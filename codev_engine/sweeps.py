@@ -59,7 +59,8 @@ def sweep(
         Dotted spec field -> the values it takes (TOML values: numbers, strings, lists);
         the designs are the Cartesian product, the first field varying slowest.
     executor : Executor, optional
-        What runs the designs; default serial in this process.
+        What runs the designs; default ``Executor()``: serial in this process, or the
+        cluster of ``$CODEV_SCHEDULER`` when set (connected to for this sweep only).
     progress : callable, optional
         Called as ``progress(i, row)`` in this process as design ``i`` finishes.
     session : path-like, optional
@@ -84,8 +85,10 @@ def sweep(
         A value the loader rejects (naming the design's values and the field), an empty
         grid field, or a name that is not a spec field.
     """
-    texts = design_texts(problem, grid)
-    executor = executor if executor is not None else Executor()
+    if executor is None:  # serial, or $CODEV_SCHEDULER's cluster: closed when done
+        with Executor() as own:
+            return sweep(problem, grid, executor=own, progress=progress, session=session)
+    texts = design_texts(problem, grid)  # every design read by the loader before any runs
     values = _value_rows(grid)
     # equal designs (a value listed twice) run once: one task, one session folder
     unique = list(dict.fromkeys(texts))
