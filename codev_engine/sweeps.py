@@ -77,7 +77,8 @@ def sweep(
         ``regions``, ``synthesis_seconds``, ``verdict``, ``reason``,
         ``verification_seconds``, ``tube_width_at_horizon`` ((n,) list, None where
         undefined), ``closed_loop_cost`` (see :func:`design_row`) and ``error`` (None, or
-        the solver's message when synthesis broke down: the other fields are then None).
+        the solver's message when synthesis or verification broke down: the fields not
+        computed are then None).
 
     Raises
     ------
@@ -92,7 +93,9 @@ def sweep(
     values = _value_rows(grid)
     # equal designs (a value listed twice) run once: one task, one session folder
     unique = list(dict.fromkeys(texts))
-    first = {text: texts.index(text) for text in unique}
+    where: dict[str, list[int]] = {}
+    for i, text in enumerate(texts):
+        where.setdefault(text, []).append(i)
     folders = None
     if session is not None:
         root = Path(session)
@@ -100,8 +103,8 @@ def sweep(
 
     def on_result(j: int, row: dict) -> None:
         if progress is not None:
-            i = first[unique[j]]
-            progress(i, {"values": values[i], **row})
+            for i in where[unique[j]]:  # each design of the grid reported, equal ones too
+                progress(i, {"values": values[i], **row})
 
     path = problem.path or "<string>"
     calls = [(text, path, None if folders is None else folders[text]) for text in unique]
