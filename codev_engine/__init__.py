@@ -57,6 +57,8 @@ _LAZY: dict[str, str] = {
     "verify": "reach.verification",
     "RunOptions": "session",
     "Session": "session",
+    "Executor": "executor",
+    "sweep": "sweeps",
 }
 
 
@@ -102,4 +104,6 @@ __all__ = [
     "verify",
     "RunOptions",
     "Session",
+    "Executor",
+    "sweep",
 ]

@@ -36,6 +36,10 @@ class SpecError(CodevError, ValueError):
         where = ": ".join(p for p in (self.file, self.field) if p)
         return f"{where}: {self.reason}" if where else self.reason
 
+    def __reduce__(self):
+        # pickled whole (file and field kept) when it travels back from a Dask worker
+        return (_spec_error, (type(self), self.reason, self.file, self.field))
+
     def with_file(self, file: str) -> SpecError:
         """Return a copy that names ``file`` (used when the loader knows the path).
 
@@ -54,3 +58,8 @@ class SpecError(CodevError, ValueError):
 
 class SolverError(CodevError, RuntimeError):
     """A numerical solver failed in a way the engine could not recover from."""
+
+
+def _spec_error(cls: type, reason: str, file: str | None, field: str | None) -> SpecError:
+    return cls(reason, file=file, field=field)
+

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import sys
@@ -559,8 +560,101 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations",
+    "long_horizon", "formulations", "sweep",
 )
+
+
+
+def _sweep_grid(sets: list[str]) -> dict:
+    """``--set FIELD=V1,V2,...`` options -> {field: [values]} (each value a TOML value)."""
+    import tomllib
+
+    grid: dict[str, list] = {}
+    for item in sets:
+        name, eq, text = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise SpecError(f"expected FIELD=V1,V2,... got {item!r}", field="--set")
+        if name in grid:
+            raise SpecError("set twice", field=f"--set {name}")
+        try:
+            values = tomllib.loads(f"v = [{text}]")["v"]
+        except tomllib.TOMLDecodeError:
+            raise SpecError(
+                f"not a list of TOML values: {text!r} (strings need quotes: '\"a\",\"b\"')",
+                field=f"--set {name}",
+            ) from None
+        if not values:
+            raise SpecError("no values", field=f"--set {name}")
+        grid[name] = values
+    return grid
+
+
+def _sweep_cell(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list) and all(isinstance(x, float) or x is None for x in v):
+        return "[" + ", ".join(_sweep_cell(x) for x in v) + "]"
+    return json.dumps(v) if not isinstance(v, str) else v
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from codev_engine.executor import Executor
+    from codev_engine.pipeline import load_spec
+    from codev_engine.sweeps import sweep
+
+    if not args.set:
+        raise SpecError("give at least one --set FIELD=V1,V2,...", field="--set")
+    if args.workers is not None and args.workers < 1:
+        raise SpecError("must be a positive number of workers", field="--workers")
+    grid = _sweep_grid(args.set)
+    problem = load_spec(args.spec)
+    count = math.prod(len(v) for v in grid.values())
+    executor = Executor(workers=args.workers, scheduler=args.scheduler)
+    t0 = time.perf_counter()
+    done = [0]
+
+    def progress(i: int, row: dict) -> None:
+        done[0] += 1
+        values = ", ".join(f"{k} = {_sweep_cell(v)}" for k, v in row["values"].items())
+        outcome = row["error"] or f"{row['regions']} regions, {row['verdict']}"
+        print(f"design {done[0]}/{count} [{values}]: {outcome}", file=sys.stderr, flush=True)
+
+    with executor:  # (every design is read by the loader before the cluster starts)
+        rows = sweep(problem, grid, executor=executor, progress=progress, session=args.session)
+    seconds = time.perf_counter() - t0
+    if args.json:
+        print(json.dumps({"problem": problem.name, "executor": executor.kind,
+                          "seconds": round(seconds, 6), "rows": rows}))
+    else:
+        from rich.console import Console
+        from rich.table import Table
+
+        table = Table(title=f"{problem.name}: {count} designs in {seconds:.2f} s "
+                      f"({executor.kind})")
+        cols = ("regions", "synthesis_seconds", "verdict", "reason", "verification_seconds",
+                "tube_width_at_horizon", "closed_loop_cost")
+        heads = ("regions", "synth s", "verdict", "reason", "verify s", "tube width at T",
+                 "cost")
+        for name in grid:
+            table.add_column(name)
+        for head in heads:
+            table.add_column(head)
+        for row in rows:
+            cells = [_sweep_cell(row["values"][k]) for k in grid]
+            shown = dict(row, verdict="error", reason=row["error"]) if row["error"] else row
+            cells += [_sweep_cell(shown[c]) for c in cols]
+            table.add_row(*cells)
+        Console(width=max(100, _terminal_width())).print(table)
+    return 1 if any(row["error"] for row in rows) else 0
+
+
+def _terminal_width() -> int:
+    import shutil
+
+    return shutil.get_terminal_size((120, 24)).columns
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -781,6 +875,33 @@ def _build_parser() -> argparse.ArgumentParser:
             p.set_defaults(func=_cmd_run, law=None)
         else:
             p.set_defaults(func=_cmd_verify, law=None, session=None)
+
+    p = sub.add_parser(
+        "sweep",
+        help="synthesise and verify every design of a grid of spec values (a table)",
+        description="The Cartesian product of the --set values, each design synthesised and "
+        "verified: a table (JSON rows with --json), progress per design on stderr. Values are "
+        "TOML values: --set mpc.horizon=2,4,6 --set 'mpc.R=[[0.1]],[[1.0]]' "
+        "--set 'mpc.norm=\"inf\",\"1\"'. Exit 2 on a bad value, 1 when a design's "
+        "synthesis broke down.",
+    )
+    p.add_argument("spec", help="the base design (TOML)")
+    p.add_argument("--set", action="append", metavar="FIELD=V1,V2,...",
+                   help="a dotted spec field and its values (repeat for more fields)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N",
+                       help="run the designs on a local Dask cluster of N worker processes")
+    where.add_argument("--scheduler", metavar="ADDR",
+                       help="run them on a running Dask cluster (tcp://HOST:PORT; default "
+                       "$CODEV_SCHEDULER, else serial)")
+    p.add_argument(
+        "--session",
+        metavar="DIR",
+        help="run each design as a session in DIR/<id> (a rerun loads unchanged designs from "
+        "their caches; codev replay DIR/<id> reproduces one); DIR/sweep.json lists them",
+    )
+    p.add_argument("--json", action="store_true", help="print the rows as JSON only")
+    p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("replay", help="re-execute a session's journal and compare outcomes")
     p.add_argument("dir", metavar="DIR", help="the session folder")

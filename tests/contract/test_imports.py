@@ -135,6 +135,8 @@ def test_importing_the_engine_loads_no_front_end():
     assert loaded.isdisjoint(FRONT_END), loaded & set(FRONT_END)
     # and no numerical stack either (codev_engine/__init__.py: public names are lazy)
     assert loaded.isdisjoint({"numpy", "scipy", "sympy"}), loaded
+    # nor the executor's cluster (codev_engine/executor.py: dask on first use)
+    assert loaded.isdisjoint({"dask", "distributed"}), loaded
 
 
 def test_the_engine_modules_and_the_cli_load_no_front_end_on_import():
@@ -145,10 +147,12 @@ def test_the_engine_modules_and_the_cli_load_no_front_end_on_import():
         "codev_engine.reach.verification",
         "codev_engine.view.figures",
         "codev_engine.view.records",
+        "codev_engine.sweeps",
         "workbench.cli",
     )
     assert "codev_engine" in loaded and "workbench" in loaded
     assert loaded.isdisjoint(FRONT_END), loaded & set(FRONT_END)
+    assert loaded.isdisjoint({"dask", "distributed"}), loaded  # a cluster is started on use
 
 
 def test_the_workbench_starts_without_the_solvers():
@@ -157,7 +161,8 @@ def test_the_workbench_starts_without_the_solvers():
     # geometry in view.figures once cost the first screen ~0.3 s (scipy.optimize).
     code = (
         "import sys\nimport workbench.tui.app\n"
-        "heavy = ('scipy.optimize', 'sympy', 'control', 'cvxpy', 'numba', 'matplotlib', 'rerun')\n"
+        "heavy = ('scipy.optimize', 'sympy', 'control', 'cvxpy', 'numba', 'matplotlib', 'rerun',"
+        " 'distributed')\n"
         "print(','.join(m for m in heavy if m in sys.modules))"
     )
     out = subprocess.run(

@@ -42,6 +42,9 @@ PINNED = {
     # the law as code (issue 27)
     "export_c": "codev_engine.deploy.export",
     "export_python": "codev_engine.deploy.export",
+    # scale out (issue 28)
+    "Executor": "codev_engine.executor",
+    "sweep": "codev_engine.sweeps",
 }
 
 
