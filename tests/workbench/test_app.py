@@ -314,3 +314,54 @@ def test_a_late_picture_does_not_replace_the_latest():
             assert str(plot.render()) == "new picture"
 
     run(scenario())
+
+
+def test_synthesis_tab_exports_the_law_as_c(di_session, tmp_path):
+    """F3: a folder typed in *export the law as C99* gets the .h and .c of the law on screen,
+    and they compile (the C itself is checked against locate in tests/engine/test_export.py)."""
+    import shutil
+    import subprocess
+
+    app = CodevApp(di_session)
+    dest = tmp_path / "law_c"
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f3")
+            await settle(pilot, app)
+            box = app.query_one("#law-export-dir", Input)
+            box.focus()
+            await pilot.press("enter")  # empty: says what to do
+            await pilot.pause(0.1)
+            assert "type a folder first" in text_of(app, "#law-export-out")
+            await pilot.press(*"law", "enter")  # no law yet
+            await pilot.pause(0.1)
+            assert "synthesize first" in text_of(app, "#law-export-out")
+            await pilot.press("ctrl+g")
+            await settle(pilot, app)
+            assert app.law is not None
+            box.value = str(dest)
+            box.focus()
+            await pilot.press("enter")
+            for _ in range(600):  # the tree and its kernel: seconds on a cold cache
+                await pilot.pause(0.05)
+                if "wrote" in text_of(app, "#law-export-out") or "failed" in text_of(
+                    app, "#law-export-out"
+                ):
+                    break
+            out = text_of(app, "#law-export-out")
+            assert "wrote" in out and "worst case multiply-adds" in out, out
+
+    asyncio.run(scenario())
+    headers = sorted(dest.glob("*.h"))
+    assert len(headers) == 1 and headers[0].with_suffix(".c").exists()
+    assert app.law.fingerprint in headers[0].read_text()
+    cc = shutil.which("gcc") or shutil.which("cc")
+    if cc:
+        run = subprocess.run(
+            [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic", "-c",
+             str(headers[0].with_suffix(".c")), "-o", str(tmp_path / "law.o")],
+            capture_output=True, text=True,
+        )
+        assert run.returncode == 0, run.stderr

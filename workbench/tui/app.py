@@ -54,6 +54,7 @@ from .form import FIELD_BY_NAME, FormCheck, check_form, check_plant, field_for_e
 from .messages import (
     CancelRequested,
     ExportRequested,
+    LawExportRequested,
     OpenRequested,
     RunRequested,
     SaveRequested,
@@ -702,6 +703,43 @@ class CodevApp(App):
             pane.show_export(event.recording, event.dest, error=str(exc.strerror or exc))
             return
         pane.show_export(event.recording, event.dest, copied=out)
+
+    def on_law_export_requested(self, event: LawExportRequested) -> None:
+        law = self.law
+        if law is None:
+            self.query_one(SynthesisPane).show_law_export(event.dest, error="no law yet")
+            return
+        dest = Path(event.dest).expanduser()
+        if not dest.is_absolute():
+            dest = Path.cwd() / dest
+        self._law_export_worker(law, dest, event.dest)
+
+    @work(thread=True, exclusive=True, group="export")
+    def _law_export_worker(self, law: ExplicitLaw, dest: Path, typed: str) -> None:
+        # the tree can take seconds (and compiles a kernel once): off the UI thread
+        import re
+
+        from codev_engine import export_c
+
+        stem = re.sub(r"\W", "_", str(law.meta.get("problem", "") or "codev_law")).strip("_")
+        name = stem if stem[:1].isalpha() else f"law_{stem}"
+        pane = self.query_one(SynthesisPane)
+        try:
+            h, c = export_c(law, dest, name=name or "codev_law")
+        except (CodevError, OSError, ValueError) as exc:
+            self.call_from_thread(pane.show_law_export, typed, error=str(exc))
+            return
+        text = h.read_text(encoding="utf-8")
+        up = name.upper()
+        nums = {k: re.search(rf"#define {up}_{k} (\d+)", text) for k in ("WORST_MACS", "ROM_BYTES")}
+        summary = ", ".join(
+            f"{label} {m.group(1)}"
+            for label, m in (("worst case multiply-adds", nums["WORST_MACS"]),
+                             ("ROM bytes", nums["ROM_BYTES"]))
+            if m
+        )
+        self.call_from_thread(pane.show_law_export, typed, files=(str(h), c.name),
+                              summary=summary)
 
     def load(self, opened: Opened) -> None:
         """Switch to another session / spec (the Session tab's Open).

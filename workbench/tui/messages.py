@@ -16,6 +16,7 @@ from textual.message import Message
 __all__ = [
     "CancelRequested",
     "ExportRequested",
+    "LawExportRequested",
     "OpenRequested",
     "RunRequested",
     "SaveRequested",
@@ -87,4 +88,17 @@ class ExportRequested(Message):
     """
 
     recording: Path
+    dest: str
+
+
+@dataclass
+class LawExportRequested(Message):
+    """Write the law on screen as C99 (a header and a source) into a folder.
+
+    Attributes
+    ----------
+    dest : str
+        The folder, as typed by the user (created if missing).
+    """
+
     dest: str

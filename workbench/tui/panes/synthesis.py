@@ -13,7 +13,7 @@ from textual.widgets import Button, DataTable, Input, Label, Static
 from codev_engine.session import RunReport
 
 from ..design import locate_state, region_rows, shared_laws
-from ..messages import CancelRequested, RunRequested
+from ..messages import CancelRequested, LawExportRequested, RunRequested
 from ..parsers import parse_axes, parse_state
 from ..views import partition_text
 from ..widgets import Plot
@@ -57,6 +57,9 @@ class SynthesisPane(Vertical):
                 yield Input(id="synth-axes", placeholder="default: the first two states")
                 yield Label("slice: other states at (n > 2)")
                 yield Input(id="synth-at", placeholder="default: the domain's centre")
+                yield Label("export the law as C99 into a folder")
+                yield Input(id="law-export-dir", placeholder="e.g. law_c  (Enter: .h and .c)")
+                yield Static("", id="law-export-out", classes="small")
         yield DataTable(id="regions", zebra_stripes=True, cursor_type="row")
 
     def on_mount(self) -> None:
@@ -75,9 +78,10 @@ class SynthesisPane(Vertical):
     def reset(self) -> None:
         """Forget what was typed and shown for the design before (another design was opened):
         the lookup and its answer, the marker, the axes and slice, the last run's note."""
-        for name in ("#locate-x", "#synth-axes", "#synth-at"):
+        for name in ("#locate-x", "#synth-axes", "#synth-at", "#law-export-dir"):
             self.query_one(name, Input).value = ""
         self.query_one("#locate-out", Static).update("")
+        self.query_one("#law-export-out", Static).update("")
         self._marker = None
         self._note = ""
         self._law_shown = None
@@ -99,6 +103,39 @@ class SynthesisPane(Vertical):
         elif event.input.id in ("synth-axes", "synth-at"):
             event.stop()
             self.refresh_law(force=True)
+        elif event.input.id == "law-export-dir":
+            event.stop()
+            dest = event.value.strip()
+            out = self.query_one("#law-export-out", Static)
+            if not dest:
+                out.update("[red]type a folder first[/red]")
+            elif self._law is None:
+                out.update("[red]no law yet: synthesize first (ctrl+g)[/red]")
+            else:
+                out.update(f"exporting to {dest} …")
+                self.post_message(LawExportRequested(dest))
+
+    def show_law_export(self, dest: str, *, files: tuple[str, ...] = (), summary: str = "",
+                        error: str | None = None) -> None:
+        """Show the outcome of a C export: the files written and the search's cost, or why
+        it failed.
+
+        Parameters
+        ----------
+        dest : str
+            The folder asked for.
+        files : tuple of str
+            The files written.
+        summary : str
+            The method and worst case, from the header.
+        error : str, optional
+            Why the export failed.
+        """
+        out = self.query_one("#law-export-out", Static)
+        if error is not None:
+            out.update(f"[red]export to {dest} failed: {error}[/red]")
+        else:
+            out.update(f"wrote {', '.join(files)}" + (f" · {summary}" if summary else ""))
 
     # ---- showing the law -------------------------------------------------------------
 
