@@ -53,12 +53,20 @@ class AffinePlant:
     Ac : (n, n) ndarray
     Bc : (n, m) ndarray
     f0 : (n,) ndarray
-        The drift at ``x = 0, u = 0``.
+        The drift at ``x = 0, u = 0`` (with a disturbance: at its box's centre).
+    E : (n, d) ndarray or None
+        The disturbance input: ``dx/dt = Ac x + Bc u + f0 + E delta(t)``, ``delta(t)`` any
+        measurable signal with ``|delta| <= w_radius`` (the box about its centre, which
+        ``f0`` already holds); None without disturbances.
+    w_radius : (d,) ndarray or None
+        The half-widths of the disturbance box.
     """
 
     Ac: np.ndarray
     Bc: np.ndarray
     f0: np.ndarray
+    E: np.ndarray | None = None
+    w_radius: np.ndarray | None = None
 
 
 def affine_plant(problem: Problem) -> AffinePlant | None:
@@ -74,20 +82,45 @@ def affine_plant(problem: Problem) -> AffinePlant | None:
     Returns
     -------
     AffinePlant or None
+        None also for a plant with uncertain parameters (not followed by this engine), and
+        for one whose disturbances enter non-affinely.
     """
     pl = problem.plant
+    if pl.parameters is not None:
+        return None
+    w = pl.disturbances
     if pl.A is not None and pl.B is not None:
-        return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
+        if w is None:
+            return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
+        E = np.asarray(pl.E, float)
+        return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float),
+                           E @ np.asarray(w.centre, float), E, np.asarray(w.radius, float))
     if pl.dynamics is None:
         return None
     sym = symbolic_model(problem)
     if sym.Jx.free_symbols or sym.Ju.free_symbols:
         return None
     zero = {s: 0 for s in (*sym.x, *sym.u)}
-    f0 = np.array([float(e.subs(zero)) for e in sym.f], dtype=float)
-    return AffinePlant(
-        np.array(sym.Jx.tolist(), dtype=float), np.array(sym.Ju.tolist(), dtype=float), f0
-    )
+    if w is None:
+        f0 = np.array([float(e.subs(zero)) for e in sym.f], dtype=float)
+        return AffinePlant(
+            np.array(sym.Jx.tolist(), dtype=float), np.array(sym.Ju.tolist(), dtype=float), f0
+        )
+    # the field before the nominal values: affine in (x, u, w) with constant Jacobians
+    import sympy
+
+    from codev_engine.plant import _full_field
+
+    f, xs, us, ws, _ = _full_field(pl)
+    J = f.jacobian(sympy.Matrix([*xs, *us, *ws]))
+    if J.free_symbols:
+        return None
+    n, m = pl.n, pl.m
+    Jn = np.array(J.tolist(), dtype=float)
+    at = {**{s: 0 for s in (*xs, *us)}, **dict(zip(ws, w.centre.tolist(), strict=True))}
+    f0 = np.array([float(e.subs(at)) for e in f], dtype=float)
+    return AffinePlant(Jn[:, :n], Jn[:, n : n + m], f0, Jn[:, n + m :],
+                       np.asarray(w.radius, float))
 
 
 @dataclass
@@ -285,6 +318,42 @@ class LinearReach(ClosedLoopSetup):
             return Phi, g, Pm, gm
         return E[:, :n, :n], E[:, :n, -1], Emag[:, :n, :n], Emag[:, :n, -1]
 
+    def _disturbance(self, i: int, taus: np.ndarray) -> np.ndarray | None:
+        """(J, n) bounds ``D(tau)`` on ``|int_0^tau e^{M (tau - s)} E delta(s) ds|`` for
+        every measurable ``|delta| <= w_radius``; None without disturbances.
+
+        On a grid ``s_j = j h`` of the period, ``|e^{M s} E| <= e^{|M| h} |e^{M s_j} E|``
+        for ``s in [s_j, s_j + h]`` (element-wise, ``|e^{M r}| <= e^{|M| r}``), so
+        ``D(s_J) = sum_{j<J} h e^{|M| h} (|e^{M s_j} E| + rounding) w_radius`` bounds the
+        integral up to ``s_J``; ``D`` is non-decreasing, and ``tau`` takes the value of the
+        grid point at or after it (docs/verification.md, "Disturbances").
+        """
+        pl = self.plant
+        if pl.E is None:
+            return None
+        key = ("w", i if self.hold == "continuous" else -1)
+        hit = self._flows.get(key)
+        if hit is None:
+            M, _ = self._mode(i)
+            M = M[:, : self.n]
+            h = min(self.step, self.Ts) / 4.0
+            K = int(np.ceil(self.Ts / h)) + 2
+            sj = np.arange(K) * h
+            Ex = expm(sj[:, None, None] * M[None])
+            Em = expm(sj[:, None, None] * np.abs(M)[None])
+            absE = np.abs(pl.E)
+            G = np.abs(Ex @ pl.E) + _REL * (Em @ absE) + 1e-300  # (K, n, d)
+            growth = expm(h * np.abs(M)) * (1.0 + 1e-9)
+            incr = h * np.einsum("ab,jbd,d->ja", growth, G, pl.w_radius)
+            D = np.vstack([np.zeros((1, self.n)), np.cumsum(incr, axis=0)]) * (1.0 + 1e-9)
+            hit = (h, D)
+            self._flows[key] = hit
+        h, D = hit
+        idx = np.ceil(taus / h).astype(int)
+        if np.any(idx >= D.shape[0]):  # cannot happen: taus lie in one period
+            raise _NeedExactError
+        return D[idx]
+
     # ---- one period of one branch ----------------------------------------------------
 
     def _images(self, s: _Star, i: int, taus: np.ndarray):
@@ -297,6 +366,9 @@ class LinearReach(ClosedLoopSetup):
         err = (
             bound @ s.err + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm) + 1e-300
         )
+        D = self._disturbance(i, taus)
+        if D is not None:  # the disturbance's part of the state, bounded on its own
+            err = err + D
         return X, W, Y, err
 
     def _segments(self, s: _Star, i: int, taus: np.ndarray):
@@ -318,9 +390,18 @@ class LinearReach(ClosedLoopSetup):
             acc = Y @ (M @ M).T + (M @ v)[None, None]
         amax = np.abs(acc).max(axis=1)  # (J, n)
         amax = amax * (1 + 1e-9) + err @ (np.abs(M) @ np.abs(M)).T
+        D = self._disturbance(i, taus)
+        if D is not None and self.hold == "zoh":
+            # the state's error at the sample also moves the held input: its part p of the
+            # state has p'' = Ac (Ac p + Bc F e), |e| <= s.err
+            amax = amax + (np.abs(pl.Ac) @ np.abs(pl.Bc) @ np.abs(F) @ s.err)[None, :]
         hseg = np.diff(taus)
         growth = expm(hseg[:, None, None] * np.abs(M)[None])
         E = (hseg**2 / 8.0)[:, None] * np.einsum("jab,jb->ja", growth, amax[:-1])
+        if D is not None:
+            # err holds D(tau_j) at the ends; between them the disturbance's part may grow
+            # to D(tau_{j+1}): the hull is widened by the difference (docs/verification.md)
+            E = E + (D[1:] - D[:-1])
         slo = np.minimum(lo[:-1], lo[1:]) - E
         shi = np.maximum(hi[:-1], hi[1:]) + E
         if self.hold == "continuous":
@@ -463,7 +544,10 @@ class LinearReach(ClosedLoopSetup):
                 return False
         # a merged set is an over-approximation: refining it in time cannot remove what it
         # adds, so it gets few levels (the exact run decides what it cannot)
-        limit = self.max_depth if s.exact else min(self.max_depth, _MERGED_DEPTH)
+        # (so does a disturbance's box: time refinement shrinks the interpolation error,
+        # not the disturbance's part of the set)
+        exact = s.exact and self.plant.E is None
+        limit = self.max_depth if exact else min(self.max_depth, _MERGED_DEPTH)
         if depth >= limit:
             self.findings.append(Finding("max_depth", -1, t_k + ta, None))
             self.tubes.append(
@@ -546,7 +630,10 @@ class LinearReach(ClosedLoopSetup):
                 self._run_merged()
                 return
             except _NeedExactError:
-                if self.unbounded:
+                if self.unbounded or self.plant.E is not None:
+                    # (with a disturbance the exact exploration is no more exact than the
+                    # merged one -- its sets carry the disturbance's box -- and its branches
+                    # multiply: a possible violation stays possible, the verdict unknown)
                     if not self.findings:
                         self.findings.append(Finding("max_depth", -1, 0.0, None))
                     return
