@@ -33,6 +33,7 @@ __all__ = [
     "PlantModel",
     "SymbolicPlant",
     "clear_plant_models",
+    "full_field",
     "discretize",
     "linearize",
     "model_derivations",
@@ -232,8 +233,24 @@ def _uncertain_symbols(plant: PlantSpec) -> tuple[tuple, tuple]:
     return w, p
 
 
-def _full_field(plant: PlantSpec) -> tuple[sympy.ImmutableMatrix, tuple, tuple, tuple, tuple]:
-    """``f(x, u, w, p)`` as parsed, before the nominal values are put in."""
+def full_field(plant: PlantSpec) -> tuple[sympy.ImmutableMatrix, tuple, tuple, tuple, tuple]:
+    """The vector field ``f(x, u, w, p)`` as parsed, before the nominal values are put in.
+
+    Parameters
+    ----------
+    plant : PlantSpec
+
+    Returns
+    -------
+    f : (n, 1) sympy.ImmutableMatrix
+    x, u, w, p : tuple of sympy.Symbol
+        The state, input, disturbance and parameter symbols (``w``, ``p`` may be empty).
+
+    Raises
+    ------
+    SpecError
+        If the plant has no continuous-time dynamics.
+    """
     x = tuple(make_symbol(s) for s in plant.states)
     u = tuple(make_symbol(s) for s in plant.inputs)
     w, p = _uncertain_symbols(plant)
@@ -274,7 +291,7 @@ def _derive(plant: PlantSpec) -> SymbolicPlant:
     design stages use (the verifier reads the uncertain field, :attr:`PlantModel.uncertain`).
     """
     if plant.dynamics is not None or (plant.A is not None and plant.B is not None):
-        f, x, u, w, p = _full_field(plant)
+        f, x, u, w, p = full_field(plant)
         if w or p:
             nominal = plant.nominal_values()
             names = [*(plant.disturbances.names if plant.disturbances else ()),
@@ -438,7 +455,7 @@ class PlantModel:
     def uncertain(self) -> Callable[..., np.ndarray]:
         """``f(X (P, n), U (P, m), W (P, d), Q (P, q)) -> (P, n)``: the vector field with
         the disturbances ``W`` and the parameters ``Q`` as arguments (their spec order)."""
-        f, x, u, w, p = _full_field(self.plant)
+        f, x, u, w, p = full_field(self.plant)
         n = self.n
         compiled = sympy.lambdify((*x, *u, *w, *p), list(f), modules="numpy", dummify=True)
 

@@ -109,9 +109,9 @@ def affine_plant(problem: Problem) -> AffinePlant | None:
     # the field before the nominal values: affine in (x, u, w) with constant Jacobians
     import sympy
 
-    from codev_engine.plant import _full_field
+    from codev_engine.plant import full_field
 
-    f, xs, us, ws, _ = _full_field(pl)
+    f, xs, us, ws, _ = full_field(pl)
     J = f.jacobian(sympy.Matrix([*xs, *us, *ws]))
     if J.free_symbols:
         return None

@@ -29,9 +29,9 @@ from codev_engine.spec.problem import (
     MpcSpec,
     PlantSpec,
     Problem,
-    Uncertain,
     ReferenceSpec,
     SetSpec,
+    Uncertain,
     VerifySpec,
 )
 
