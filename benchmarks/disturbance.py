@@ -86,7 +86,8 @@ def main() -> None:
         tlo, thi = result.tube.hull_at(t[k])
         sim = np.nanmax(X[:, k], 0) - np.nanmin(X[:, k], 0)
         ratio = float(np.max((thi - tlo) / np.maximum(sim, 1e-12)))
-        print(f"{stem:22s} {result.hold:10s} {result.verdict + ('/' + result.reason if result.reason else ''):14s} "
+        verdict = result.verdict + ("/" + result.reason if result.reason else "")
+        print(f"{stem:22s} {result.hold:10s} {verdict:14s} "
               f"{best:8.3f} {result.stats.get('branches', 0):8d} {ratio:14.2f}  (t = {t[k]:.2f})",
               flush=True)
 

@@ -261,3 +261,27 @@ def test_nonlinear_plant_with_a_disturbance_is_a_verdict_not_an_error():
     assert result.verdict in ("unknown", "unsafe")
     if result.verdict == "unknown":
         assert result.reason == "uncertain"
+
+
+def test_cruise_grade_is_safe_for_all_time_and_the_invariant_set_holds_disturbed_runs():
+    text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
+        "time_horizon = 40.0", 'time_horizon = "inf"')
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe" and result.reason == "invariant", result.summary()
+    c = result.stats["certificate"]
+    H, h = result.certificate["H"], result.certificate["h"]
+    # 50 times the certificate's closing time, under bang-bang and random grade profiles
+    T = 50 * c["closed_time"]
+    bounded = loads_spec(text.replace('time_horizon = "inf"', f"time_horizon = {T}"))
+    rng = np.random.default_rng(4)
+    X0 = rng.uniform(problem.verify.initial_lower, problem.verify.initial_upper, (80, 1))
+    piece, W, Q = _signals(bounded, 80, seed=5)
+    t, X, U, alive = simulate_many(bounded, law, X0, disturbance=(piece, W, Q))
+    bad, _ = violations_many(bounded, t, X, U, alive)
+    assert not bad.any()
+    Ts = problem.model.sample_time
+    for k in range(c["closed_sample"], int(T / Ts) + 1, c["closed_sample"] - c["anchor_sample"]):
+        j = np.flatnonzero(np.isclose(t, k * Ts))[-1]
+        assert np.all(X[:, j] @ H.T <= h + 1e-9), f"a disturbed state outside S at t = {t[j]}"
