@@ -136,6 +136,11 @@ class _Star:
     #: False for a merged set (a sound hull in state coordinates: ``c = 0``, ``V = I``): its
     #: points are no longer tied to initial states, so a violation on it is only possible
     exact: bool = True
+    #: with a disturbance: generators (d, g) of the disturbance accumulated over earlier
+    #: periods, and the rest of the error (rounding, boxed generators) ``eround`` (d,);
+    #: ``err >= eround + |Gw| 1`` is their box (what every reader of ``err`` uses)
+    Gw: np.ndarray | None = None
+    eround: np.ndarray | None = None
 
 
 class _NeedExactError(Exception):
@@ -363,9 +368,19 @@ class LinearReach(ClosedLoopSetup):
         Y = X[:, None, :] + np.einsum("jna,va->jvn", W, s.verts)  # (J, nv, n)
         # the true Phi is within _REL * Pm of the computed one (element-wise), likewise g
         bound = np.abs(Phi) + _REL * Pm
-        err = (
-            bound @ s.err + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm) + 1e-300
-        )
+        if s.Gw is None:
+            err = (
+                bound @ s.err + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm)
+                + 1e-300
+            )
+        else:  # the accumulated disturbance as generators: mapped exactly, no wrapping
+            err = (
+                bound @ s.eround
+                + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm
+                          + (Pm @ np.abs(s.Gw)).sum(axis=2))
+                + np.abs(Phi @ s.Gw).sum(axis=2) * (1.0 + 1e-12)
+                + 1e-300
+            )
         D = self._disturbance(i, taus)
         if D is not None:  # the disturbance's part of the state, bounded on its own
             err = err + D
@@ -383,8 +398,13 @@ class LinearReach(ClosedLoopSetup):
             xk = s.c[None, :] + s.verts @ s.V.T  # (nv, n) states at the sample
             uv = xk @ F.T + G  # (nv, m)
             acc = Y @ (pl.Ac @ pl.Ac).T + ((uv @ pl.Bc.T + pl.f0) @ pl.Ac.T)[None]
-            u_lo = np.repeat((uv.min(axis=0) - np.abs(F) @ s.err)[None], len(taus) - 1, 0)
-            u_hi = np.repeat((uv.max(axis=0) + np.abs(F) @ s.err)[None], len(taus) - 1, 0)
+            ue = np.abs(F) @ s.err
+            if s.Gw is not None:
+                ue = np.minimum(ue, (np.abs(F) @ s.eround + np.abs(F @ s.Gw).sum(axis=1)
+                                     + _REL * (np.abs(F) @ np.abs(s.Gw)).sum(axis=1))
+                                * (1.0 + 1e-12))
+            u_lo = np.repeat((uv.min(axis=0) - ue)[None], len(taus) - 1, 0)
+            u_hi = np.repeat((uv.max(axis=0) + ue)[None], len(taus) - 1, 0)
         else:
             _, v = self._mode(i)
             acc = Y @ (M @ M).T + (M @ v)[None, None]
@@ -493,9 +513,62 @@ class LinearReach(ClosedLoopSetup):
                 return None
         if t_k + tau_end >= self.T - 1e-12:
             return None
+        if self.plant.E is not None:
+            return self._next_disturbed(s, i, taus[-1:], X[-1], W[-1])
         if self.d > self.n:
             return self._next_theta(s, i, X[-1], W[-1], err[-1])
         return _Star(X[-1], W[-1], s.H, s.h, s.verts, err[-1], s.k + 1, s.path, s.exact)
+
+    def _next_disturbed(self, s: _Star, i: int, tau: np.ndarray, X: np.ndarray,
+                        W: np.ndarray) -> _Star:
+        """The star at the next sample with the disturbance's part as generators.
+
+        ``x = Phi (star + e + Gw beta) + g + d``: the rounding ``e`` is propagated as in
+        :meth:`_images`, the generators exactly (``Phi Gw``, its rounding into ``eround``),
+        and this period's ``d``, ``|d| <= D(T)``, becomes ``n`` new generators
+        ``diag(D(T))``; beyond ``4 d`` generators the smallest are boxed into ``eround``.
+        """
+        Phi, g, Pm, gm = self._flow(i, tau)
+        Phi, Pm, gm = Phi[0], Pm[0], gm[0]
+        base = s.err if s.Gw is None else s.eround
+        er = ((np.abs(Phi) + _REL * Pm) @ base
+              + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=1) + gm) + 1e-300)
+        D = self._disturbance(i, tau)[0]
+        cols = [np.diag(D)]
+        if s.Gw is not None:
+            er = er + _REL * (Pm @ np.abs(s.Gw)).sum(axis=1)
+            cols.insert(0, Phi @ s.Gw)
+        Gx = np.hstack(cols)  # (n, g)
+        if self.d > self.n:  # theta = (x, u_prev, r): the held input and r take their parts
+            n, m = self.n, self.m
+            F, G = self.law.F[i], self.law.G[i]
+            nd = self.n  # the new columns (this period's d) touch x only
+            Gs = s.Gw if s.Gw is not None else np.zeros((self.d, 0))
+            rows_G, rows_e = [Gx], [er]
+            if self.problem.mpc.has_rates:
+                uG = np.hstack([F @ Gs, np.zeros((m, nd))])
+                ue = (np.abs(F) @ base + _REL * (np.abs(F) @ np.abs(s.c)
+                      + (np.abs(F) @ np.abs(s.V)).sum(axis=1) + np.abs(G)
+                      + (np.abs(F) @ np.abs(Gs)).sum(axis=1)) + 1e-300)
+                rows_G.append(uG)
+                rows_e.append(ue)
+            r0 = n + (m if self.problem.mpc.has_rates else 0)
+            rows_G.append(np.hstack([Gs[r0:], np.zeros((self.d - r0, nd))]))
+            rows_e.append(base[r0:])
+            Gx, er = np.vstack(rows_G), np.concatenate(rows_e)
+            uc = F @ s.c + G
+            parts_c = [X] + ([uc] if self.problem.mpc.has_rates else []) + [s.c[r0:]]
+            parts_V = [W] + ([F @ s.V] if self.problem.mpc.has_rates else []) + [s.V[r0:]]
+            X, W = np.concatenate(parts_c), np.vstack(parts_V)
+        limit = 4 * Gx.shape[0]
+        if Gx.shape[1] > limit:  # box the smallest generators (Girard's order)
+            score = np.abs(Gx).sum(axis=0) - np.abs(Gx).max(axis=0)
+            order = np.argsort(score)
+            drop = order[: Gx.shape[1] - limit]
+            er = er + np.abs(Gx[:, drop]).sum(axis=1) * (1.0 + 1e-12)
+            Gx = Gx[:, np.sort(order[Gx.shape[1] - limit :])]
+        err = (er + np.abs(Gx).sum(axis=1)) * (1.0 + 1e-12)
+        return _Star(X, W, s.H, s.h, s.verts, err, s.k + 1, s.path, s.exact, Gx, er)
 
     def _next_theta(self, s: _Star, i: int, X: np.ndarray, W: np.ndarray, err: np.ndarray
                     ) -> _Star:
@@ -613,7 +686,8 @@ class LinearReach(ClosedLoopSetup):
                 continue
             H, h, verts = piece
             children.append(
-                (int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),), s.exact))
+                (int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),), s.exact,
+                               s.Gw, s.eround))
             )
         if not children:
             self.findings.append(Finding("undefined", -1, t, None))
