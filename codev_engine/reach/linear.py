@@ -681,12 +681,18 @@ class LinearReach(ClosedLoopSetup):
             A, b = law.A[r], law.b[r]
             Hn = A @ s.V
             hn = b - A @ s.c + np.abs(A) @ s.err + 1e-9
-            piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))
+            exact = s.exact
+            try:
+                piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))
+            except ValueError:
+                # the vertex enumeration could not close the cut polytope (degenerate
+                # rows): keep the uncut one, a superset, and no longer call it exact
+                piece, exact = (s.H, s.h, s.verts), False
             if piece is None:
                 continue
             H, h, verts = piece
             children.append(
-                (int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),), s.exact,
+                (int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),), exact,
                                s.Gw, s.eround))
             )
         if not children:
