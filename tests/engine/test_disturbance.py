@@ -285,3 +285,18 @@ def test_cruise_grade_is_safe_for_all_time_and_the_invariant_set_holds_disturbed
     for k in range(c["closed_sample"], int(T / Ts) + 1, c["closed_sample"] - c["anchor_sample"]):
         j = np.flatnonzero(np.isclose(t, k * Ts))[-1]
         assert np.all(X[:, j] @ H.T <= h + 1e-9), f"a disturbed state outside S at t = {t[j]}"
+
+
+def test_law_over_theta_with_a_disturbance_keeps_every_disturbed_run():
+    # the DC-motor servo (theta = (angle, speed, prev_V, ref)) pushed on its acceleration:
+    # the generators get the held input's rows and the reference's (docs/verification.md)
+    text = (EXAMPLES / "dc_motor_servo.toml").read_text()
+    text = text.replace("B = [[0.0], [10.0]]", "B = [[0.0], [10.0]]\nE = [[0.0], [1.0]]\n"
+                        "disturbances = { w = [-0.2, 0.2] }")
+    text = text.replace("time_horizon = 2.0", "time_horizon = 0.4")
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    assert law.n == 4
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe", result.summary()
+    _assert_sound(problem, law, result, P=60)
