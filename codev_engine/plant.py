@@ -33,6 +33,7 @@ __all__ = [
     "PlantModel",
     "SymbolicPlant",
     "clear_plant_models",
+    "full_field",
     "discretize",
     "linearize",
     "model_derivations",
@@ -225,12 +226,47 @@ def _no_continuous_plant() -> SpecError:
     )
 
 
-def _derive(plant: PlantSpec) -> SymbolicPlant:
-    """Parse the dynamics (or ``A x + B u``) and differentiate: the one derivation."""
+def _uncertain_symbols(plant: PlantSpec) -> tuple[tuple, tuple]:
+    """The symbols of the disturbances ``w`` and of the parameters ``p`` (may be empty)."""
+    w = tuple(make_symbol(s) for s in (plant.disturbances.names if plant.disturbances else ()))
+    p = tuple(make_symbol(s) for s in (plant.parameters.names if plant.parameters else ()))
+    return w, p
+
+
+def full_field(plant: PlantSpec) -> tuple[sympy.ImmutableMatrix, tuple, tuple, tuple, tuple]:
+    """The vector field ``f(x, u, w, p)`` as parsed, before the nominal values are put in.
+
+    Parameters
+    ----------
+    plant : PlantSpec
+
+    Returns
+    -------
+    f : (n, 1) sympy.ImmutableMatrix
+    x, u, w, p : tuple of sympy.Symbol
+        The state, input, disturbance and parameter symbols (``w``, ``p`` may be empty).
+
+    Raises
+    ------
+    SpecError
+        If the plant has no continuous-time dynamics.
+    """
     x = tuple(make_symbol(s) for s in plant.states)
     u = tuple(make_symbol(s) for s in plant.inputs)
+    w, p = _uncertain_symbols(plant)
     if plant.dynamics is not None:
-        names = dict(zip((*plant.states, *plant.inputs), (*x, *u), strict=True))
+        names = dict(
+            zip(
+                (
+                    *plant.states,
+                    *plant.inputs,
+                    *(plant.disturbances.names if plant.disturbances else ()),
+                    *(plant.parameters.names if plant.parameters else ()),
+                ),
+                (*x, *u, *w, *p),
+                strict=True,
+            )
+        )
         exprs = [
             parse_expression(text, names, field=f"plant.dynamics[{i}]")
             for i, text in enumerate(plant.dynamics)
@@ -239,7 +275,33 @@ def _derive(plant: PlantSpec) -> SymbolicPlant:
     elif plant.A is not None and plant.B is not None:
         A = sympy.Matrix(np.asarray(plant.A, dtype=float).tolist())
         B = sympy.Matrix(np.asarray(plant.B, dtype=float).tolist())
-        f = sympy.ImmutableMatrix(A * sympy.Matrix(x) + B * sympy.Matrix(u))
+        fm = A * sympy.Matrix(x) + B * sympy.Matrix(u)
+        if plant.E is not None and w:
+            fm = fm + sympy.Matrix(np.asarray(plant.E, dtype=float).tolist()) * sympy.Matrix(w)
+        f = sympy.ImmutableMatrix(fm)
+    else:
+        raise _no_continuous_plant()
+    return f, x, u, w, p
+
+
+def _derive(plant: PlantSpec) -> SymbolicPlant:
+    """Parse the dynamics (or ``A x + B u``) and differentiate: the one derivation.
+
+    Disturbances and uncertain parameters take their nominal values: this is the model the
+    design stages use (the verifier reads the uncertain field, :attr:`PlantModel.uncertain`).
+    """
+    if plant.dynamics is not None or (plant.A is not None and plant.B is not None):
+        f, x, u, w, p = full_field(plant)
+        if w or p:
+            nominal = plant.nominal_values()
+            names = [*(plant.disturbances.names if plant.disturbances else ()),
+                     *(plant.parameters.names if plant.parameters else ())]
+            # an exact zero for a zero nominal disturbance (the term drops out)
+            values = {
+                s: (sympy.S.Zero if nominal[nm] == 0 else sympy.Float(nominal[nm]))
+                for s, nm in zip((*w, *p), names, strict=True)
+            }
+            f = sympy.ImmutableMatrix(f.subs(values))
     else:
         raise _no_continuous_plant()
     Jx = sympy.ImmutableMatrix(f.jacobian(sympy.Matrix(x)))
@@ -278,15 +340,18 @@ def _vectorised(
 
 
 def _matrix_dynamics(plant: PlantSpec) -> NumericDynamics:
-    """Exact matrix products of a plant given by ``A``, ``B``."""
+    """Exact matrix products of a plant given by ``A``, ``B`` (``+ E w_nominal``)."""
     n, m = plant.n, plant.m
     A = np.array(plant.A, dtype=float)
     B = np.array(plant.B, dtype=float)
+    drift = _nominal_drift(plant)
 
     def f(x, u):
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
-        return x @ A.T + u @ B.T
+        if drift is None:
+            return x @ A.T + u @ B.T
+        return x @ A.T + u @ B.T + drift
 
     def jac_x(x, u):
         batch = np.broadcast_shapes(np.shape(x)[:-1], np.shape(u)[:-1])
@@ -297,6 +362,14 @@ def _matrix_dynamics(plant: PlantSpec) -> NumericDynamics:
         return np.broadcast_to(B, (*batch, n, m)).copy()
 
     return NumericDynamics(f, jac_x, jac_u)
+
+
+def _nominal_drift(plant: PlantSpec) -> np.ndarray | None:
+    """``E w_nominal`` (n,) of a matrix plant, None when there is none or it is zero."""
+    if plant.E is None or plant.disturbances is None:
+        return None
+    drift = np.asarray(plant.E, dtype=float) @ np.asarray(plant.disturbances.nominal, float)
+    return drift if np.any(drift != 0.0) else None
 
 
 @dataclass(frozen=True, eq=False)
@@ -379,6 +452,24 @@ class PlantModel:
         return f_point, f_batch
 
     @functools.cached_property
+    def uncertain(self) -> Callable[..., np.ndarray]:
+        """``f(X (P, n), U (P, m), W (P, d), Q (P, q)) -> (P, n)``: the vector field with
+        the disturbances ``W`` and the parameters ``Q`` as arguments (their spec order)."""
+        f, x, u, w, p = full_field(self.plant)
+        n = self.n
+        compiled = sympy.lambdify((*x, *u, *w, *p), list(f), modules="numpy", dummify=True)
+
+        def call(X, U, W, Q):
+            P = X.shape[0]
+            values = compiled(*X.T, *U.T, *W.T, *Q.T)
+            out = np.empty((P, n))
+            for k, v in enumerate(values):
+                out[:, k] = v
+            return out
+
+        return call
+
+    @functools.cached_property
     def scalar_field(self) -> Callable[..., list[float]]:
         """``f`` on Python floats: ``scalar_field(*x, *u) -> n floats`` (not rigorous).
 
@@ -403,6 +494,7 @@ class _PlantKey:
     dynamics: tuple[str, ...] | None
     A: tuple[tuple[int, ...], bytes] | None
     B: tuple[tuple[int, ...], bytes] | None
+    uncertain: tuple
     plant: PlantSpec = field(compare=False, repr=False)
 
 
@@ -452,9 +544,23 @@ def plant_model(problem_or_plant: Problem | PlantSpec) -> PlantModel:
         dyn,
         _matrix_key(plant.A),
         _matrix_key(plant.B),
+        _uncertain_key(plant),
         plant,
     )
     return _model_of(key)
+
+
+def _uncertain_key(plant: PlantSpec) -> tuple:
+    """The disturbances, parameters and ``E`` by value (empty when there are none)."""
+    out: list = []
+    for box in (getattr(plant, "disturbances", None), getattr(plant, "parameters", None)):
+        if box is not None:
+            out.append((box.names, _matrix_key(box.lower), _matrix_key(box.upper),
+                        _matrix_key(box.nominal)))
+        else:
+            out.append(None)
+    out.append(_matrix_key(getattr(plant, "E", None)))
+    return tuple(out) if any(v is not None for v in out) else ()
 
 
 def model_derivations() -> int:
@@ -540,7 +646,9 @@ def linearize(
             raise _no_continuous_plant()
         Ac = np.array(plant.A, dtype=float)
         Bc = np.array(plant.B, dtype=float)
-        return Ac, Bc, Ac @ x_op + Bc @ u_op
+        drift = _nominal_drift(plant)
+        f0 = Ac @ x_op + Bc @ u_op
+        return Ac, Bc, f0 if drift is None else f0 + drift
     f, jac_x = (nd := numeric_dynamics(plant))
     return jac_x(x_op, u_op), nd.jac_u(x_op, u_op), f(x_op, u_op)
 

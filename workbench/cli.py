@@ -116,7 +116,11 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
         "tube_width_at_horizon": [None if not np.isfinite(w) else float(w) for w in width],
         "counterexample": None
         if cex is None
-        else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind, "index": cex.index},
+        else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind, "index": cex.index,
+              **({} if cex.disturbance is None else {"disturbance": {
+                  "piece": cex.disturbance.piece,
+                  "values": cex.disturbance.values.tolist(),
+                  "parameters": cex.disturbance.parameters.tolist()}})},
         "tube": tube_path,
     }
 

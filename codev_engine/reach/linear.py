@@ -53,12 +53,20 @@ class AffinePlant:
     Ac : (n, n) ndarray
     Bc : (n, m) ndarray
     f0 : (n,) ndarray
-        The drift at ``x = 0, u = 0``.
+        The drift at ``x = 0, u = 0`` (with a disturbance: at its box's centre).
+    E : (n, d) ndarray or None
+        The disturbance input: ``dx/dt = Ac x + Bc u + f0 + E delta(t)``, ``delta(t)`` any
+        measurable signal with ``|delta| <= w_radius`` (the box about its centre, which
+        ``f0`` already holds); None without disturbances.
+    w_radius : (d,) ndarray or None
+        The half-widths of the disturbance box.
     """
 
     Ac: np.ndarray
     Bc: np.ndarray
     f0: np.ndarray
+    E: np.ndarray | None = None
+    w_radius: np.ndarray | None = None
 
 
 def affine_plant(problem: Problem) -> AffinePlant | None:
@@ -74,20 +82,45 @@ def affine_plant(problem: Problem) -> AffinePlant | None:
     Returns
     -------
     AffinePlant or None
+        None also for a plant with uncertain parameters (not followed by this engine), and
+        for one whose disturbances enter non-affinely.
     """
     pl = problem.plant
+    if pl.parameters is not None:
+        return None
+    w = pl.disturbances
     if pl.A is not None and pl.B is not None:
-        return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
+        if w is None:
+            return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
+        E = np.asarray(pl.E, float)
+        return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float),
+                           E @ np.asarray(w.centre, float), E, np.asarray(w.radius, float))
     if pl.dynamics is None:
         return None
     sym = symbolic_model(problem)
     if sym.Jx.free_symbols or sym.Ju.free_symbols:
         return None
     zero = {s: 0 for s in (*sym.x, *sym.u)}
-    f0 = np.array([float(e.subs(zero)) for e in sym.f], dtype=float)
-    return AffinePlant(
-        np.array(sym.Jx.tolist(), dtype=float), np.array(sym.Ju.tolist(), dtype=float), f0
-    )
+    if w is None:
+        f0 = np.array([float(e.subs(zero)) for e in sym.f], dtype=float)
+        return AffinePlant(
+            np.array(sym.Jx.tolist(), dtype=float), np.array(sym.Ju.tolist(), dtype=float), f0
+        )
+    # the field before the nominal values: affine in (x, u, w) with constant Jacobians
+    import sympy
+
+    from codev_engine.plant import full_field
+
+    f, xs, us, ws, _ = full_field(pl)
+    J = f.jacobian(sympy.Matrix([*xs, *us, *ws]))
+    if J.free_symbols:
+        return None
+    n, m = pl.n, pl.m
+    Jn = np.array(J.tolist(), dtype=float)
+    at = {**{s: 0 for s in (*xs, *us)}, **dict(zip(ws, w.centre.tolist(), strict=True))}
+    f0 = np.array([float(e.subs(at)) for e in f], dtype=float)
+    return AffinePlant(Jn[:, :n], Jn[:, n : n + m], f0, Jn[:, n + m :],
+                       np.asarray(w.radius, float))
 
 
 @dataclass
@@ -103,6 +136,11 @@ class _Star:
     #: False for a merged set (a sound hull in state coordinates: ``c = 0``, ``V = I``): its
     #: points are no longer tied to initial states, so a violation on it is only possible
     exact: bool = True
+    #: with a disturbance: generators (d, g) of the disturbance accumulated over earlier
+    #: periods, and the rest of the error (rounding, boxed generators) ``eround`` (d,);
+    #: ``err >= eround + |Gw| 1`` is their box (what every reader of ``err`` uses)
+    Gw: np.ndarray | None = None
+    eround: np.ndarray | None = None
 
 
 class _NeedExactError(Exception):
@@ -285,6 +323,42 @@ class LinearReach(ClosedLoopSetup):
             return Phi, g, Pm, gm
         return E[:, :n, :n], E[:, :n, -1], Emag[:, :n, :n], Emag[:, :n, -1]
 
+    def _disturbance(self, i: int, taus: np.ndarray) -> np.ndarray | None:
+        """(J, n) bounds ``D(tau)`` on ``|int_0^tau e^{M (tau - s)} E delta(s) ds|`` for
+        every measurable ``|delta| <= w_radius``; None without disturbances.
+
+        On a grid ``s_j = j h`` of the period, ``|e^{M s} E| <= e^{|M| h} |e^{M s_j} E|``
+        for ``s in [s_j, s_j + h]`` (element-wise, ``|e^{M r}| <= e^{|M| r}``), so
+        ``D(s_J) = sum_{j<J} h e^{|M| h} (|e^{M s_j} E| + rounding) w_radius`` bounds the
+        integral up to ``s_J``; ``D`` is non-decreasing, and ``tau`` takes the value of the
+        grid point at or after it (docs/verification.md, "Disturbances").
+        """
+        pl = self.plant
+        if pl.E is None:
+            return None
+        key = ("w", i if self.hold == "continuous" else -1)
+        hit = self._flows.get(key)
+        if hit is None:
+            M, _ = self._mode(i)
+            M = M[:, : self.n]
+            h = min(self.step, self.Ts) / 4.0
+            K = int(np.ceil(self.Ts / h)) + 2
+            sj = np.arange(K) * h
+            Ex = expm(sj[:, None, None] * M[None])
+            Em = expm(sj[:, None, None] * np.abs(M)[None])
+            absE = np.abs(pl.E)
+            G = np.abs(Ex @ pl.E) + _REL * (Em @ absE) + 1e-300  # (K, n, d)
+            growth = expm(h * np.abs(M)) * (1.0 + 1e-9)
+            incr = h * np.einsum("ab,jbd,d->ja", growth, G, pl.w_radius)
+            D = np.vstack([np.zeros((1, self.n)), np.cumsum(incr, axis=0)]) * (1.0 + 1e-9)
+            hit = (h, D)
+            self._flows[key] = hit
+        h, D = hit
+        idx = np.ceil(taus / h).astype(int)
+        if np.any(idx >= D.shape[0]):  # cannot happen: taus lie in one period
+            raise _NeedExactError
+        return D[idx]
+
     # ---- one period of one branch ----------------------------------------------------
 
     def _images(self, s: _Star, i: int, taus: np.ndarray):
@@ -294,9 +368,22 @@ class LinearReach(ClosedLoopSetup):
         Y = X[:, None, :] + np.einsum("jna,va->jvn", W, s.verts)  # (J, nv, n)
         # the true Phi is within _REL * Pm of the computed one (element-wise), likewise g
         bound = np.abs(Phi) + _REL * Pm
-        err = (
-            bound @ s.err + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm) + 1e-300
-        )
+        if s.Gw is None:
+            err = (
+                bound @ s.err + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm)
+                + 1e-300
+            )
+        else:  # the accumulated disturbance as generators: mapped exactly, no wrapping
+            err = (
+                bound @ s.eround
+                + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=2) + gm
+                          + (Pm @ np.abs(s.Gw)).sum(axis=2))
+                + np.abs(Phi @ s.Gw).sum(axis=2) * (1.0 + 1e-12)
+                + 1e-300
+            )
+        D = self._disturbance(i, taus)
+        if D is not None:  # the disturbance's part of the state, bounded on its own
+            err = err + D
         return X, W, Y, err
 
     def _segments(self, s: _Star, i: int, taus: np.ndarray):
@@ -311,16 +398,30 @@ class LinearReach(ClosedLoopSetup):
             xk = s.c[None, :] + s.verts @ s.V.T  # (nv, n) states at the sample
             uv = xk @ F.T + G  # (nv, m)
             acc = Y @ (pl.Ac @ pl.Ac).T + ((uv @ pl.Bc.T + pl.f0) @ pl.Ac.T)[None]
-            u_lo = np.repeat((uv.min(axis=0) - np.abs(F) @ s.err)[None], len(taus) - 1, 0)
-            u_hi = np.repeat((uv.max(axis=0) + np.abs(F) @ s.err)[None], len(taus) - 1, 0)
+            ue = np.abs(F) @ s.err
+            if s.Gw is not None:
+                ue = np.minimum(ue, (np.abs(F) @ s.eround + np.abs(F @ s.Gw).sum(axis=1)
+                                     + _REL * (np.abs(F) @ np.abs(s.Gw)).sum(axis=1))
+                                * (1.0 + 1e-12))
+            u_lo = np.repeat((uv.min(axis=0) - ue)[None], len(taus) - 1, 0)
+            u_hi = np.repeat((uv.max(axis=0) + ue)[None], len(taus) - 1, 0)
         else:
             _, v = self._mode(i)
             acc = Y @ (M @ M).T + (M @ v)[None, None]
         amax = np.abs(acc).max(axis=1)  # (J, n)
         amax = amax * (1 + 1e-9) + err @ (np.abs(M) @ np.abs(M)).T
+        D = self._disturbance(i, taus)
+        if D is not None and self.hold == "zoh":
+            # the state's error at the sample also moves the held input: its part p of the
+            # state has p'' = Ac (Ac p + Bc F e), |e| <= s.err
+            amax = amax + (np.abs(pl.Ac) @ np.abs(pl.Bc) @ np.abs(F) @ s.err)[None, :]
         hseg = np.diff(taus)
         growth = expm(hseg[:, None, None] * np.abs(M)[None])
         E = (hseg**2 / 8.0)[:, None] * np.einsum("jab,jb->ja", growth, amax[:-1])
+        if D is not None:
+            # err holds D(tau_j) at the ends; between them the disturbance's part may grow
+            # to D(tau_{j+1}): the hull is widened by the difference (docs/verification.md)
+            E = E + (D[1:] - D[:-1])
         slo = np.minimum(lo[:-1], lo[1:]) - E
         shi = np.maximum(hi[:-1], hi[1:]) + E
         if self.hold == "continuous":
@@ -412,9 +513,62 @@ class LinearReach(ClosedLoopSetup):
                 return None
         if t_k + tau_end >= self.T - 1e-12:
             return None
+        if self.plant.E is not None:
+            return self._next_disturbed(s, i, taus[-1:], X[-1], W[-1])
         if self.d > self.n:
             return self._next_theta(s, i, X[-1], W[-1], err[-1])
         return _Star(X[-1], W[-1], s.H, s.h, s.verts, err[-1], s.k + 1, s.path, s.exact)
+
+    def _next_disturbed(self, s: _Star, i: int, tau: np.ndarray, X: np.ndarray,
+                        W: np.ndarray) -> _Star:
+        """The star at the next sample with the disturbance's part as generators.
+
+        ``x = Phi (star + e + Gw beta) + g + d``: the rounding ``e`` is propagated as in
+        :meth:`_images`, the generators exactly (``Phi Gw``, its rounding into ``eround``),
+        and this period's ``d``, ``|d| <= D(T)``, becomes ``n`` new generators
+        ``diag(D(T))``; beyond ``4 d`` generators the smallest are boxed into ``eround``.
+        """
+        Phi, g, Pm, gm = self._flow(i, tau)
+        Phi, Pm, gm = Phi[0], Pm[0], gm[0]
+        base = s.err if s.Gw is None else s.eround
+        er = ((np.abs(Phi) + _REL * Pm) @ base
+              + _REL * (Pm @ np.abs(s.c) + (Pm @ np.abs(s.V)).sum(axis=1) + gm) + 1e-300)
+        D = self._disturbance(i, tau)[0]
+        cols = [np.diag(D)]
+        if s.Gw is not None:
+            er = er + _REL * (Pm @ np.abs(s.Gw)).sum(axis=1)
+            cols.insert(0, Phi @ s.Gw)
+        Gx = np.hstack(cols)  # (n, g)
+        if self.d > self.n:  # theta = (x, u_prev, r): the held input and r take their parts
+            n, m = self.n, self.m
+            F, G = self.law.F[i], self.law.G[i]
+            nd = self.n  # the new columns (this period's d) touch x only
+            Gs = s.Gw if s.Gw is not None else np.zeros((self.d, 0))
+            rows_G, rows_e = [Gx], [er]
+            if self.problem.mpc.has_rates:
+                uG = np.hstack([F @ Gs, np.zeros((m, nd))])
+                ue = (np.abs(F) @ base + _REL * (np.abs(F) @ np.abs(s.c)
+                      + (np.abs(F) @ np.abs(s.V)).sum(axis=1) + np.abs(G)
+                      + (np.abs(F) @ np.abs(Gs)).sum(axis=1)) + 1e-300)
+                rows_G.append(uG)
+                rows_e.append(ue)
+            r0 = n + (m if self.problem.mpc.has_rates else 0)
+            rows_G.append(np.hstack([Gs[r0:], np.zeros((self.d - r0, nd))]))
+            rows_e.append(base[r0:])
+            Gx, er = np.vstack(rows_G), np.concatenate(rows_e)
+            uc = F @ s.c + G
+            parts_c = [X] + ([uc] if self.problem.mpc.has_rates else []) + [s.c[r0:]]
+            parts_V = [W] + ([F @ s.V] if self.problem.mpc.has_rates else []) + [s.V[r0:]]
+            X, W = np.concatenate(parts_c), np.vstack(parts_V)
+        limit = 4 * Gx.shape[0]
+        if Gx.shape[1] > limit:  # box the smallest generators (Girard's order)
+            score = np.abs(Gx).sum(axis=0) - np.abs(Gx).max(axis=0)
+            order = np.argsort(score)
+            drop = order[: Gx.shape[1] - limit]
+            er = er + np.abs(Gx[:, drop]).sum(axis=1) * (1.0 + 1e-12)
+            Gx = Gx[:, np.sort(order[Gx.shape[1] - limit :])]
+        err = (er + np.abs(Gx).sum(axis=1)) * (1.0 + 1e-12)
+        return _Star(X, W, s.H, s.h, s.verts, err, s.k + 1, s.path, s.exact, Gx, er)
 
     def _next_theta(self, s: _Star, i: int, X: np.ndarray, W: np.ndarray, err: np.ndarray
                     ) -> _Star:
@@ -463,7 +617,10 @@ class LinearReach(ClosedLoopSetup):
                 return False
         # a merged set is an over-approximation: refining it in time cannot remove what it
         # adds, so it gets few levels (the exact run decides what it cannot)
-        limit = self.max_depth if s.exact else min(self.max_depth, _MERGED_DEPTH)
+        # (so does a disturbance's box: time refinement shrinks the interpolation error,
+        # not the disturbance's part of the set)
+        exact = s.exact and self.plant.E is None
+        limit = self.max_depth if exact else min(self.max_depth, _MERGED_DEPTH)
         if depth >= limit:
             self.findings.append(Finding("max_depth", -1, t_k + ta, None))
             self.tubes.append(
@@ -524,12 +681,19 @@ class LinearReach(ClosedLoopSetup):
             A, b = law.A[r], law.b[r]
             Hn = A @ s.V
             hn = b - A @ s.c + np.abs(A) @ s.err + 1e-9
-            piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))
+            exact = s.exact
+            try:
+                piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))
+            except ValueError:
+                # the vertex enumeration could not close the cut polytope (degenerate
+                # rows): keep the uncut one, a superset, and no longer call it exact
+                piece, exact = (s.H, s.h, s.verts), False
             if piece is None:
                 continue
             H, h, verts = piece
             children.append(
-                (int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),), s.exact))
+                (int(r), _Star(s.c, s.V, H, h, verts, s.err, s.k, s.path + (int(r),), exact,
+                               s.Gw, s.eround))
             )
         if not children:
             self.findings.append(Finding("undefined", -1, t, None))
@@ -546,7 +710,10 @@ class LinearReach(ClosedLoopSetup):
                 self._run_merged()
                 return
             except _NeedExactError:
-                if self.unbounded:
+                if self.unbounded or self.plant.E is not None:
+                    # (with a disturbance the exact exploration is no more exact than the
+                    # merged one -- its sets carry the disturbance's box -- and its branches
+                    # multiply: a possible violation stays possible, the verdict unknown)
                     if not self.findings:
                         self.findings.append(Finding("max_depth", -1, 0.0, None))
                     return

@@ -53,6 +53,7 @@ from codev_engine.spec.choices import HOLDS
 from codev_engine.spec.problem import Problem, VerifySpec
 
 __all__ = [
+    "DisturbanceSignal",
     "Trace",
     "Violation",
     "ManyTraces",
@@ -133,6 +134,71 @@ class Violation:
     index: int
     t: float
     x: np.ndarray
+
+
+@dataclass(frozen=True)
+class DisturbanceSignal:
+    """A concrete disturbance signal and parameter values: what a counterexample replays.
+
+    ``w(t) = values[min(floor(t / piece), K - 1)]``: piecewise constant on pieces of
+    length ``piece`` from ``t = 0`` (the last value held after the end).
+
+    Attributes
+    ----------
+    piece : float
+        Length of each piece (s), > 0.
+    values : (K, d) ndarray
+        The disturbance on each piece (``d`` = the plant's disturbances; may be 0).
+    parameters : (q,) ndarray
+        The uncertain parameters' values, fixed over the run (``q`` may be 0).
+    """
+
+    piece: float
+    values: np.ndarray
+    parameters: np.ndarray
+
+    def index(self, t: float) -> int:
+        """The piece in force at time ``t`` (s).
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        int
+        """
+        return int(min(max(math.floor(t / self.piece + 1e-12), 0), self.values.shape[0] - 1))
+
+    def at(self, t: float) -> np.ndarray:
+        """The disturbance (d,) in force at time ``t`` (s).
+
+        Parameters
+        ----------
+        t : float
+
+        Returns
+        -------
+        (d,) ndarray
+        """
+        return self.values[self.index(t)]
+
+
+def nominal_signal(problem: Problem) -> DisturbanceSignal:
+    """The nominal values as a (constant) signal.
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    DisturbanceSignal
+    """
+    pl = problem.plant
+    w = np.asarray(pl.disturbances.nominal, float) if pl.disturbances else np.zeros(0)
+    q = np.asarray(pl.parameters.nominal, float) if pl.parameters else np.zeros(0)
+    return DisturbanceSignal(float(problem.model.sample_time), w[None, :], q)
 
 
 # ---------------------------------------------------------------------------------------
@@ -328,6 +394,7 @@ def simulate(
     rtol: float = 1e-10,
     atol: float = 1e-12,
     extra0=None,
+    disturbance: DisturbanceSignal | None = None,
 ) -> Trace:
     """Simulate the sampled closed loop from ``x0`` (see the module docstring).
 
@@ -354,6 +421,10 @@ def simulate(
         For a law over ``theta = (x, u_prev, r)``: the initial ``(u_prev, r)``; default
         the centre of :func:`theta_initial_box` after the state. ``u_prev`` then follows
         the applied input, ``r`` stays constant.
+    disturbance : DisturbanceSignal, optional
+        The plant's disturbance signal and parameter values; default: the nominal values
+        (the design model). Each period is integrated piece by piece, so the signal's
+        jumps are integration end points.
 
     Returns
     -------
@@ -417,19 +488,25 @@ def simulate(
         grid = grid[(grid > a + eps) & (grid < b - eps)]
         t_eval = np.concatenate([[a], grid, [b]])
 
-        sol = solve_ivp(
-            _period_rhs(f, hold, Fi, Gi, ua),
-            (a, b),
-            x,
-            method=solver,
-            t_eval=t_eval,
-            rtol=rtol,
-            atol=atol,
-            max_step=dt,
-        )
-        if sol.status < 0 or sol.y.shape[1] != t_eval.size:
-            raise SolverError(f"closed-loop integration failed on [{a:g}, {b:g}] s: {sol.message}")
-        Y = sol.y.T  # (len(t_eval), n)
+        if disturbance is None:
+            sol = solve_ivp(
+                _period_rhs(f, hold, Fi, Gi, ua),
+                (a, b),
+                x,
+                method=solver,
+                t_eval=t_eval,
+                rtol=rtol,
+                atol=atol,
+                max_step=dt,
+            )
+            if sol.status < 0 or sol.y.shape[1] != t_eval.size:
+                raise SolverError(
+                    f"closed-loop integration failed on [{a:g}, {b:g}] s: {sol.message}"
+                )
+            Y = sol.y.T  # (len(t_eval), n)
+        else:
+            Y = _pieces(problem, disturbance, hold, Fi, Gi, ua, x, t_eval,
+                        dict(method=solver, rtol=rtol, atol=atol, max_step=dt))
         for tj, yj in zip(t_eval[1:-1], Y[1:-1], strict=True):
             ts.append(float(tj))
             xs.append(yj.copy())
@@ -461,6 +538,42 @@ def simulate(
         hold=hold,
         undefined_at=undefined_at,
     )
+
+
+def _pieces(problem, sig, hold, Fi, Gi, ua, x, t_eval, opts) -> np.ndarray:
+    """One period under a disturbance signal, integrated piece by piece: (len(t_eval), n)."""
+    fu = plant_model(problem).uncertain
+    q = np.asarray(sig.parameters, float)[None, :]
+    a, b = float(t_eval[0]), float(t_eval[-1])
+    cuts = [a]
+    k = sig.index(a) + 1
+    while k * sig.piece < b - _TIME_EPS * sig.piece and k < sig.values.shape[0]:
+        if k * sig.piece > a + _TIME_EPS * sig.piece:
+            cuts.append(k * sig.piece)
+        k += 1
+    cuts.append(b)
+    Y = np.empty((t_eval.size, x.size))
+    Y[0] = x
+    y = x
+    for c0, c1 in zip(cuts[:-1], cuts[1:], strict=True):
+        w = sig.at(0.5 * (c0 + c1))[None, :]
+        if hold == "zoh":
+            def rhs(_t, z, w=w):
+                return fu(z[None, :], ua[None, :], w, q)[0]
+        else:
+            def rhs(_t, z, w=w):
+                return fu(z[None, :], (Fi @ z + Gi)[None, :], w, q)[0]
+        inside = (t_eval > c0) & (t_eval <= c1)
+        te = np.concatenate([[c0], t_eval[inside & (t_eval < c1)], [c1]])
+        sol = solve_ivp(rhs, (c0, c1), y, t_eval=te, **opts)
+        if sol.status < 0 or sol.y.shape[1] != te.size:
+            raise SolverError(f"closed-loop integration failed on [{c0:g}, {c1:g}] s: "
+                              f"{sol.message}")
+        Yp = sol.y.T
+        Y[np.flatnonzero(inside & (t_eval < c1))] = Yp[1:-1]
+        y = Yp[-1]
+        Y[np.flatnonzero(t_eval == c1)] = y
+    return Y
 
 
 # ---------------------------------------------------------------------------------------
@@ -512,6 +625,7 @@ def simulate_many(
     dt: float | None = None,
     dt_out: float | None = None,
     extra0=None,
+    disturbance: tuple[float, np.ndarray, np.ndarray] | None = None,
 ) -> ManyTraces:
     """Simulate many closed-loop trajectories at once with vectorised fixed-step RK4.
 
@@ -537,6 +651,11 @@ def simulate_many(
         step. Sample times and ``t_end`` are always output.
     extra0 : (P, d - n) array_like, optional
         As in :func:`simulate`, one row per trajectory.
+    disturbance : (piece, W, Q), optional
+        Disturbance signals and parameter values, one per trajectory: ``W`` (P, K, d) the
+        values on pieces of length ``piece`` (as :class:`DisturbanceSignal`), ``Q`` (P, q)
+        the parameters; each RK4 step takes the piece in force at its start. Default: the
+        nominal values.
 
     Returns
     -------
@@ -617,6 +736,9 @@ def simulate_many(
         u[dead] = np.nan
         record(tj, x, u, alive)
 
+    fu = plant_model(problem).uncertain if disturbance is not None else None
+    t_now = 0.0
+
     def step(hh: float):
         nonlocal x
         idx = np.flatnonzero(alive)
@@ -624,8 +746,16 @@ def simulate_many(
             return
         y = x[idx]
 
-        def rhs(z):
-            return f(z, u_of(z, idx))
+        if disturbance is None:
+            def rhs(z):
+                return f(z, u_of(z, idx))
+        else:
+            piece, Wd, Qd = disturbance
+            kw = min(max(math.floor(t_now / piece + 1e-9), 0), Wd.shape[1] - 1)
+            wz, qz = Wd[idx, kw], Qd[idx]
+
+            def rhs(z):
+                return fu(z, u_of(z, idx), wz, qz)
 
         k1 = rhs(y)
         k2 = rhs(y + 0.5 * hh * k1)
@@ -650,11 +780,13 @@ def simulate_many(
         dead_state |= ~alive
         if j == J:
             break
+        t_now = tj
         step(h)
         if not np.all(np.isfinite(x[alive])):
             raise SolverError(f"closed-loop state not finite near t = {time(j + 1):g} s")
     if partial:
         x[dead_state] = np.nan
+        t_now = J * h
         step(t_end - J * h)
         uj = u.copy()
         if hold == "continuous":

@@ -63,6 +63,8 @@ UNKNOWN_WORDS = {
     "enclosure": "an interval enclosure meets a singularity",
     "no_invariant": "no invariance certificate within max_samples",
     "invariant": "for all time: an invariance certificate",
+    "uncertain": "the reach engines do not follow this plant's disturbances or uncertain "
+    "parameters yet",
 }
 
 
@@ -92,6 +94,9 @@ class Counterexample:
     extra0 : (d - n,) ndarray
         For a law over ``theta = (x, u_prev, r)``: the initial previous input, then the
         reference (empty for a law in the state alone).
+    disturbance : DisturbanceSignal or None
+        For a plant with disturbances or uncertain parameters: the signal and the parameter
+        values the trajectory was simulated (and confirmed) with.
     """
 
     x0: np.ndarray
@@ -100,6 +105,7 @@ class Counterexample:
     index: int
     trace: object
     extra0: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    disturbance: object | None = None
 
     def describe(self) -> str:
         """The violation in words: ``enters unsafe set 0``, ``input 1 leaves its bounds``."""
@@ -209,6 +215,12 @@ class VerificationResult(Displayable):
                 trace_region=np.asarray(tr.region, dtype=np.int64),
                 trace_undefined_at=np.array(np.nan if undefined is None else float(undefined)),
             )
+            if ce.disturbance is not None:
+                arrays.update(
+                    cex_w_piece=np.array(float(ce.disturbance.piece)),
+                    cex_w_values=np.asarray(ce.disturbance.values, dtype=float),
+                    cex_parameters=np.asarray(ce.disturbance.parameters, dtype=float),
+                )
         return save_npz(path, _RESULT_FILE, arrays)
 
     @classmethod
@@ -274,6 +286,17 @@ class VerificationResult(Displayable):
             )
             kind = text(data, "cex_kind")
             extra0 = real(data, "cex_extra0", ndim=1) if "cex_extra0" in data else np.zeros(0)
+            signal = None
+            if "cex_w_piece" in data:
+                from codev_engine.reach.simulate import DisturbanceSignal
+
+                piece = float(real(data, "cex_w_piece", shape=()))
+                if not piece > 0:
+                    raise SpecError("must be positive", field="cex_w_piece")
+                values = real(data, "cex_w_values", ndim=2)
+                if values.shape[0] < 1:
+                    raise SpecError("must have at least one row", field="cex_w_values")
+                signal = DisturbanceSignal(piece, values, real(data, "cex_parameters", ndim=1))
             cex = Counterexample(
                 x0=x0,
                 t=float(real(data, "cex_t", shape=())),
@@ -281,6 +304,7 @@ class VerificationResult(Displayable):
                 index=int(real(data, "cex_index", shape=())),
                 trace=trace,
                 extra0=extra0,
+                disturbance=signal,
             )
         reason = text(data, "reason") or None
         detail = (text(data, "detail") or None) if "detail" in data else None
@@ -426,6 +450,27 @@ def verify(
         raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
     depth = vs.max_depth if max_depth is None else max_depth
     t0 = time.perf_counter()
+    if problem.plant.uncertain and affine_plant(problem) is None:
+        # uncertain parameters, or disturbances of a nonlinear plant: not followed by the
+        # reach engines yet -- a limitation, so a verdict; a counterexample is still sought
+        # under concrete signals and parameter values
+        bounded = problem
+        if not np.isfinite(vs.time_horizon):
+            bounded = replace(problem, verify=replace(
+                vs, time_horizon=vs.max_samples * float(problem.model.sample_time)))
+        cex = _search(bounded, law, hold)
+        stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
+        tube = Tube.empty(problem.plant.n)
+        if cex is not None:
+            result = VerificationResult("unsafe", cex.kind, tube, hold, cex, stats)
+        else:
+            result = VerificationResult(
+                "unknown", "uncertain", tube, hold, None, stats,
+                "uncertain parameters, or disturbances of a nonlinear plant, are verified "
+                "for linear plants with disturbances only",
+            )
+        result.attach_display(problem=problem, law=law)
+        return result
     if law.n > problem.plant.n and (
         hold != "zoh" or not np.isfinite(vs.time_horizon) or affine_plant(problem) is None
     ):
@@ -539,24 +584,86 @@ def verify(
 
 
 def _confirm(
-    problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray
+    problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray, signals=None
 ) -> Counterexample | None:
-    """Simulate from x0 (independent integrator); a Counterexample if it violates."""
+    """Simulate from x0 (independent integrator); a Counterexample if it violates.
+
+    For an uncertain plant each of ``signals`` (default :func:`_signals` of one
+    trajectory: the box's centre, its corners held constant, bang-bang and random pieces) is
+    replayed until one violates; the counterexample keeps it.
+    """
     from codev_engine.reach.simulate import first_violation, simulate, theta_initial_box
 
     n = problem.plant.n
     lo, hi = theta_initial_box(problem)  # x0 may be theta0 = (x0, u_prev0, r)
     theta0 = np.clip(np.asarray(x0, dtype=float), lo[: np.size(x0)], hi[: np.size(x0)])
     x0, extra0 = theta0[:n], theta0[n:]
-    try:
-        trace = simulate(problem, law, x0, hold=hold, extra0=extra0 if extra0.size else None)
-    except SolverError:  # not finite (a singularity): no confirmed counterexample
-        return None
-    v = first_violation(problem, law, trace)
-    if v is None:
-        return None
-    return Counterexample(x0=x0, t=float(v.t), kind=v.kind, index=int(v.index), trace=trace,
-                          extra0=extra0)
+    if signals is None:
+        signals = _signal_list(problem) if problem.plant.uncertain else [None]
+    for sig in signals:
+        try:
+            trace = simulate(problem, law, x0, hold=hold, extra0=extra0 if extra0.size else None,
+                             disturbance=sig)
+        except SolverError:  # not finite (a singularity): no confirmed counterexample
+            continue
+        v = first_violation(problem, law, trace)
+        if v is None:
+            continue
+        return Counterexample(x0=x0, t=float(v.t), kind=v.kind, index=int(v.index),
+                              trace=trace, extra0=extra0, disturbance=sig)
+    return None
+
+
+def _signals(problem: Problem, P: int, seed: int = 0):
+    """``P`` concrete disturbance signals and parameter values for the search.
+
+    Returns ``(piece, W (P, K, d), Q (P, q))``: row 0 the centre of the boxes, then every
+    corner held constant, then bang-bang signals (a random corner on each piece), then
+    uniformly random ones; pieces of about the reach step, a multiple of the RK4 step of
+    :func:`~codev_engine.reach.simulate.simulate_many` (so the search simulates the signal
+    the replay does). Parameters: centre, corners, random.
+    """
+    pl, vs = problem.plant, problem.verify
+    Ts = float(problem.model.sample_time)
+    S = max(1, int(np.ceil(Ts / (vs.step / 10.0) - 1e-9)))
+    h = Ts / S
+    piece = h * max(1, round(vs.step / h))
+    K = int(np.ceil(vs.time_horizon / piece)) + 1
+    rng = np.random.default_rng(seed)
+
+    def draws(box, per_piece: bool):
+        if box is None:
+            return np.zeros((P, K if per_piece else 1, 0))
+        d = box.d
+        lo, hi = np.asarray(box.lower, float), np.asarray(box.upper, float)
+        corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(d)],
+                                       indexing="ij")).reshape(d, -1).T
+        L = K if per_piece else 1
+        out = np.empty((P, L, d))
+        out[0] = 0.5 * (lo + hi)
+        c = min(corners.shape[0], max(0, P - 1))
+        out[1 : 1 + c] = corners[:c, None, :]
+        rest = P - 1 - c
+        half = rest // 2
+        bang = rng.integers(0, 2, (half, L, d))
+        out[1 + c : 1 + c + half] = np.where(bang == 1, hi, lo)
+        out[1 + c + half :] = rng.uniform(lo, hi, (rest - half, L, d))
+        return out
+
+    W = draws(pl.disturbances, True)
+    Q = draws(pl.parameters, False)[:, 0, :]
+    if pl.parameters is not None and pl.disturbances is not None:
+        Q = Q[rng.permutation(P)]  # parameter draws not tied to signal kinds
+        Q[0] = np.asarray(pl.parameters.centre, float)
+    return piece, W, Q
+
+
+def _signal_list(problem: Problem, P: int = 16) -> list:
+    """:func:`_signals` as :class:`DisturbanceSignal` objects (for :func:`_confirm`)."""
+    from codev_engine.reach.simulate import DisturbanceSignal
+
+    piece, W, Q = _signals(problem, P)
+    return [DisturbanceSignal(piece, W[p], Q[p]) for p in range(P)]
 
 
 def _search(
@@ -573,11 +680,22 @@ def _search(
     )
     rng = np.random.default_rng(0)
     X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples], rng.uniform(lo, hi, (samples, n))])
+    dist = None
+    if problem.plant.uncertain:
+        # every initial state under every signal kind: centre, constant corners, bang-bang
+        # and random pieces (_signals), each replayed exactly before it is reported
+        per = 8
+        piece, W, Q = _signals(problem, X0.shape[0] * per)
+        X0 = np.repeat(X0, per, axis=0)
+        dist = (piece, W, Q)
     with np.errstate(all="ignore"):
         try:
             t, X, U, alive = simulate_many(problem, law, X0[:, :nx], hold=hold,
-                                           extra0=X0[:, nx:] if n > nx else None)
+                                           extra0=X0[:, nx:] if n > nx else None,
+                                           disturbance=dist)
         except SolverError:  # a trajectory is not finite: search the others
+            if dist is not None:
+                return None
             X0 = X0[[_finite_run(problem, law, hold, x) for x in X0]]
             if X0.shape[0] == 0:
                 return None
@@ -587,8 +705,13 @@ def _search(
             except SolverError:
                 return None
     bad, _ = violations_many(problem, t, X, U, alive)
-    for p in np.flatnonzero(bad):
-        cex = _confirm(problem, law, hold, X0[p])
+    from codev_engine.reach.simulate import DisturbanceSignal
+
+    for p in np.flatnonzero(bad)[: 20 if dist is not None else None]:
+        signals = None
+        if dist is not None:
+            signals = [DisturbanceSignal(dist[0], dist[1][p], dist[2][p])]
+        cex = _confirm(problem, law, hold, X0[p], signals)
         if cex is not None:
             return cex
     return None

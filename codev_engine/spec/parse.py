@@ -31,6 +31,7 @@ from codev_engine.spec.problem import (
     Problem,
     ReferenceSpec,
     SetSpec,
+    Uncertain,
     VerifySpec,
 )
 
@@ -48,7 +49,7 @@ DEFAULT_HORIZON = 5  # mpc.horizon when the spec leaves it out (docs/spec.md)
 _SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
 
 _TOP = ("name", "plant", "model", "mpc", "verify")
-_PLANT = ("states", "inputs", "dynamics", "A", "B")
+_PLANT = ("states", "inputs", "dynamics", "A", "B", "disturbances", "parameters", "nominal", "E")
 _MODEL = ("sample_time", "method", "operating_point", "A", "B")
 _MPC = (
     "horizon", "norm", "Q", "R", "P", "x_min", "x_max", "u_min", "u_max", "simplify",
@@ -143,7 +144,7 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
     _table(data, "", required=("name", "plant", "model", "mpc"), optional=("verify",))
     name = _spec_name(data["name"], "name")
     plant_t = _table(
-        data["plant"], "plant", required=("states", "inputs"), optional=("dynamics", "A", "B")
+        data["plant"], "plant", required=("states", "inputs"), optional=_PLANT[2:]
     )
     model_t = _table(
         data["model"],
@@ -203,6 +204,35 @@ def _plant(
             "give either dynamics or the matrices A and B, not both", field=f"plant.{key}"
         )
     dynamics = A = B = None
+    disturbances = _uncertain(t, "disturbances", (*states, *inputs))
+    taken = (*states, *inputs, *(disturbances.names if disturbances else ()))
+    parameters = _uncertain(t, "parameters", taken)
+    disturbances, parameters = _nominal(t, disturbances, parameters)
+    if parameters is not None and not has_dyn:
+        raise SpecError(
+            "uncertain parameters appear in dynamics expressions: give plant.dynamics",
+            field="plant.parameters",
+        )
+    if has_dyn and "E" in t:
+        raise SpecError(
+            "E goes with the matrices A and B; with dynamics, use the disturbance names in "
+            "the expressions",
+            field="plant.E",
+        )
+    E = None
+    if "E" in t:
+        if disturbances is None:
+            raise SpecError(
+                "E needs the disturbances it multiplies: give plant.disturbances",
+                field="plant.E",
+            )
+        E = _matrix(t["E"], "plant.E", n, disturbances.d)
+    elif disturbances is not None and not has_dyn:
+        raise SpecError(
+            "a matrix plant's disturbances enter through E (n x d, dx/dt = A x + B u + E w): "
+            "give plant.E",
+            field="plant.E",
+        )
     if has_dyn:
         dyn = t["dynamics"]
         if not isinstance(dyn, list):
@@ -217,6 +247,8 @@ def _plant(
                 field="plant.dynamics",
             )
         symbols = {s: make_symbol(s) for s in (*states, *inputs)}
+        for box in (disturbances, parameters):
+            symbols.update({s: make_symbol(s) for s in (box.names if box else ())})
         for i, item in enumerate(dyn):
             f = f"plant.dynamics[{i}]"
             if not isinstance(item, str):
@@ -237,7 +269,92 @@ def _plant(
             "or an explicit discrete model (model.A, model.B)",
             field="plant.dynamics",
         )
-    return PlantSpec(states=states, inputs=inputs, dynamics=dynamics, A=A, B=B)
+    return PlantSpec(
+        states=states,
+        inputs=inputs,
+        dynamics=dynamics,
+        A=A,
+        B=B,
+        disturbances=disturbances,
+        parameters=parameters,
+        E=E,
+    )
+
+
+def _uncertain(t: dict[str, Any], key: str, taken: tuple[str, ...]) -> Uncertain | None:
+    """``plant.disturbances`` / ``plant.parameters``: ``{ name = [lower, upper], ... }``."""
+    field = f"plant.{key}"
+    if key not in t:
+        return None
+    value = t[key]
+    if not isinstance(value, dict):
+        raise SpecError(
+            f"expected a table of intervals {{ name = [lower, upper] }}, got {_kind(value)}",
+            field=field,
+        )
+    if not value:
+        raise SpecError("the table is empty (leave the field out instead)", field=field)
+    names = _names(list(value), field)
+    lower, upper = [], []
+    for name in names:
+        f = f"{field}.{name}"
+        if name in taken:
+            raise SpecError(
+                f"{name!r} is already a state, input or disturbance name", field=f
+            )
+        iv = _vector(value[name], f, 2)
+        if iv[0] > iv[1]:
+            raise SpecError(
+                f"expected [lower, upper] with lower <= upper, got [{iv[0]:g}, {iv[1]:g}]",
+                field=f,
+            )
+        lower.append(iv[0])
+        upper.append(iv[1])
+    lo, hi = np.array(lower, dtype=float), np.array(upper, dtype=float)
+    nominal = 0.5 * (lo + hi) if key == "parameters" else np.clip(0.0, lo, hi)
+    return Uncertain(names, _frozen(lo), _frozen(hi), nominal)
+
+
+def _nominal(
+    t: dict[str, Any], disturbances: Uncertain | None, parameters: Uncertain | None
+) -> tuple[Uncertain | None, Uncertain | None]:
+    """``plant.nominal``: the design values of some disturbances and parameters."""
+    field = "plant.nominal"
+    value = t.get("nominal", {})
+    if not isinstance(value, dict):
+        raise SpecError(f"expected a table {{ name = value }}, got {_kind(value)}", field=field)
+    boxes = [b for b in (disturbances, parameters) if b is not None]
+    known = [nm for b in boxes for nm in b.names]
+    if value and not known:
+        raise SpecError(
+            "nominal values need plant.disturbances or plant.parameters", field=field
+        )
+    for name in value:
+        if name not in known:
+            close = difflib.get_close_matches(str(name), known, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise SpecError(
+                f"{name!r} is not a disturbance or parameter (known: {', '.join(known)}){hint}",
+                field=f"{field}.{name}",
+            )
+    out = []
+    for box in (disturbances, parameters):
+        if box is None:
+            out.append(None)
+            continue
+        nom = np.array(box.nominal, dtype=float)
+        for j, name in enumerate(box.names):
+            if name in value:
+                v = _number(value[name], f"{field}.{name}")
+                if not box.lower[j] <= v <= box.upper[j]:
+                    raise SpecError(
+                        f"must lie in the interval [{box.lower[j]:g}, {box.upper[j]:g}], "
+                        f"got {v:g}",
+                        field=f"{field}.{name}",
+                    )
+                nom[j] = v
+        out.append(Uncertain(box.names, box.lower, box.upper, _frozen(nom)))
+    return out[0], out[1]
 
 
 def _model(t: dict[str, Any], n: int, m: int) -> ModelSpec:

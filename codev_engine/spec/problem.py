@@ -13,6 +13,7 @@ import numpy as np
 
 __all__ = [
     "PlantSpec",
+    "Uncertain",
     "ModelSpec",
     "MpcSpec",
     "MixedConstraint",
@@ -31,6 +32,42 @@ def _since_v2(default):
     """A field added after the first spec contract: omitted from session keys while it
     keeps its default, so that the sessions of older specs keep their keys."""
     return field(default=default, metadata={"key_omit_default": True})
+
+
+@dataclass(frozen=True)
+class Uncertain:
+    """Named scalars known only within intervals (``[plant] disturbances`` or ``parameters``).
+
+    Attributes
+    ----------
+    names : tuple of str
+        The d names, in the order the spec's table gives them.
+    lower, upper : (d,) ndarray
+        The intervals, ``lower <= upper`` (finite).
+    nominal : (d,) ndarray
+        The values the MPC design uses (``[plant] nominal``; default the midpoints for
+        parameters, 0 clipped into the interval for disturbances).
+    """
+
+    names: tuple[str, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    nominal: np.ndarray
+
+    @property
+    def d(self) -> int:
+        """How many names."""
+        return len(self.names)
+
+    @property
+    def centre(self) -> np.ndarray:
+        """(d,) midpoints of the intervals."""
+        return 0.5 * (self.lower + self.upper)
+
+    @property
+    def radius(self) -> np.ndarray:
+        """(d,) half-widths of the intervals."""
+        return 0.5 * (self.upper - self.lower)
 
 
 @dataclass(frozen=True)
@@ -53,6 +90,18 @@ class PlantSpec:
         Linear plant ``dx/dt = A x + B u``, with ``B``.
     B : (n, m) ndarray or None
         See ``A``.
+    disturbances : Uncertain or None
+        Bounded disturbances ``w(t)``: any measurable signal with values in the box (names
+        usable in ``dynamics``; with ``A``, ``B`` they enter through ``E``).
+    parameters : Uncertain or None
+        Uncertain constants of ``dynamics``, fixed during a run.
+    E : (n, d) ndarray or None
+        A matrix plant's disturbance input: ``dx/dt = A x + B u + E w``.
+
+    Notes
+    -----
+    Every stage that designs (linearisation, the MPC, simulation without a disturbance
+    signal) uses the nominal values; the verification covers the whole boxes.
     """
 
     states: tuple[str, ...]
@@ -60,6 +109,9 @@ class PlantSpec:
     dynamics: tuple[str, ...] | None = None
     A: np.ndarray | None = None
     B: np.ndarray | None = None
+    disturbances: Uncertain | None = _since_v2(None)
+    parameters: Uncertain | None = _since_v2(None)
+    E: np.ndarray | None = _since_v2(None)
 
     @property
     def n(self) -> int:
@@ -70,6 +122,19 @@ class PlantSpec:
     def m(self) -> int:
         """Number of inputs."""
         return len(self.inputs)
+
+    @property
+    def uncertain(self) -> bool:
+        """True when the plant has disturbances or uncertain parameters."""
+        return self.disturbances is not None or self.parameters is not None
+
+    def nominal_values(self) -> dict[str, float]:
+        """The nominal value of every disturbance and parameter name."""
+        out: dict[str, float] = {}
+        for box in (self.disturbances, self.parameters):
+            if box is not None:
+                out.update(zip(box.names, (float(v) for v in box.nominal), strict=True))
+        return out
 
 
 @dataclass(frozen=True)

@@ -153,9 +153,27 @@ FORMULATIONS = {
 }
 
 
+#: examples with bounded disturbances / uncertain parameters: file -> (name, disturbance
+#: names, their intervals)
+UNCERTAIN = {
+    "cruise_grade.toml": ("cruise-grade", ("w",), [[-98.1, 98.1]]),
+}
+
+
+@pytest.mark.parametrize("fname", sorted(UNCERTAIN))
+def test_uncertain_examples_load(fname):
+    name, names, boxes = UNCERTAIN[fname]
+    p = load_spec(EXAMPLES / fname)
+    assert p.name == name
+    w = p.plant.disturbances
+    assert w is not None and w.names == names
+    np.testing.assert_array_equal(np.stack([w.lower, w.upper], 1), boxes)
+    np.testing.assert_array_equal(w.nominal, np.zeros(len(names)))
+
+
 def test_all_examples_are_listed():
     assert not set(EXPECTED) & set(NONLINEAR)
-    listed = {**EXPECTED, **NONLINEAR, **FORMULATIONS}
+    listed = {**EXPECTED, **NONLINEAR, **FORMULATIONS, **UNCERTAIN}
     assert sorted(p.name for p in EXAMPLES.glob("*.toml")) == sorted(listed)
     assert len(EXPECTED) == 6  # the paper's examples, all still there
 

@@ -1,0 +1,96 @@
+"""Benchmark: the linear paper benchmarks under a bounded disturbance (issue 26, Targets 1).
+
+Usage::
+
+    python benchmarks/disturbance.py [--repeats 3] [--sims 200] [--fraction 0.01]
+
+Cases: the six linear paper examples (``examples/{double_integrator, cruise_control,
+magnetic_pointer_a, magnetic_pointer_b, magnetic_pointer_c, navigation}.toml``), each with
+its own hold, given a disturbance on every state derivative, ``dx/dt = A x + B u + w``
+(``E = I``), ``|w_i| <= 0.01 * range_i``, ``range_i`` the width of the state's MPC bounds
+(``x_max - x_min``; ``2 * domain_bound`` on an unbounded axis): a box of 1 % of the state
+range. Per case: verdict, wall seconds of ``verify`` (best of ``--repeats``), branches, and
+the tube's width at the horizon against the hull of ``--sims`` simulations from the corners
+and random states of the initial set under extreme signals (each corner of the box held,
+bang-bang pieces of the reach step, random pieces; ``verification._signals``): the ratio
+per state, its maximum reported. The verdicts of the nominal examples are not the point:
+a disturbance of this size can make a property fail or unknown (the input bounds of a
+saturating law, see docs/verification.md).
+Targets: under 1 s each, the tube within 1.5x of the simulated hull.
+
+A benchmark, not a test: it asserts nothing and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+import codev_engine as ce
+from codev_engine.reach.linear import affine_plant
+from codev_engine.reach.simulate import simulate_many
+from codev_engine.reach.verification import _signals, verify
+from codev_engine.spec.problem import PlantSpec, Uncertain
+
+ROOT = Path(__file__).resolve().parent.parent
+STEMS = ["double_integrator", "cruise_control", "magnetic_pointer_a", "magnetic_pointer_b",
+         "magnetic_pointer_c", "navigation"]
+
+
+def disturbed(problem: ce.Problem, fraction: float = 0.01) -> ce.Problem:
+    """The problem with ``|w_i| <= fraction * range_i`` on every state derivative."""
+    ap = affine_plant(problem)
+    mpc = problem.mpc
+    span = np.where(np.isfinite(mpc.x_max - mpc.x_min), mpc.x_max - mpc.x_min,
+                    2 * mpc.domain_bound)
+    n = problem.plant.n
+    r = fraction * span
+    box = Uncertain(tuple(f"w{i}" for i in range(n)), -r, r, np.zeros(n))
+    plant = PlantSpec(problem.plant.states, problem.plant.inputs, A=ap.Ac, B=ap.Bc,
+                      disturbances=box, E=np.eye(n))
+    return replace(problem, plant=plant)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--sims", type=int, default=200)
+    ap.add_argument("--fraction", type=float, default=0.01,
+                    help="disturbance half-width as a fraction of the state range")
+    args = ap.parse_args()
+    print(f"{'example':22s} {'hold':10s} {'verdict':14s} {'seconds':>8s} {'branches':>8s} "
+          f"{'tube/sim at T':>14s}")
+    for stem in STEMS:
+        base = ce.load_spec(ROOT / "examples" / f"{stem}.toml")
+        law = ce.synthesize(base)
+        problem = disturbed(base, args.fraction)
+        best, result = np.inf, None
+        for _ in range(args.repeats):
+            t0 = time.perf_counter()
+            result = verify(problem, law)
+            best = min(best, time.perf_counter() - t0)
+        vs = problem.verify
+        n = problem.plant.n
+        lo, hi = vs.initial_lower, vs.initial_upper
+        rng = np.random.default_rng(0)
+        corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij"))
+        X0 = np.vstack([corners.reshape(n, -1).T, rng.uniform(lo, hi, (args.sims, n))])
+        piece, W, Q = _signals(problem, X0.shape[0], seed=1)
+        t, X, _, _ = simulate_many(problem, law, X0, hold=result.hold, disturbance=(piece, W, Q))
+        T = float(result.tube.t_end.max()) if result.tube.num_boxes else 0.0
+        k = int(np.argmin(abs(t - 0.999 * T)))
+        tlo, thi = result.tube.hull_at(t[k])
+        sim = np.nanmax(X[:, k], 0) - np.nanmin(X[:, k], 0)
+        ratio = float(np.max((thi - tlo) / np.maximum(sim, 1e-12)))
+        verdict = result.verdict + ("/" + result.reason if result.reason else "")
+        print(f"{stem:22s} {result.hold:10s} {verdict:14s} "
+              f"{best:8.3f} {result.stats.get('branches', 0):8d} {ratio:14.2f}  (t = {t[k]:.2f})",
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()

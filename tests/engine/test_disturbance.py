@@ -1,0 +1,302 @@
+"""Bounded disturbances and uncertain parameters: the spec contract, the nominal design, the
+linear engine's tube against dense simulation under random and bang-bang signals, and
+counterexamples found under a concrete signal and replayed.
+
+The oracle: every simulated state (RK4, signals piecewise constant on pieces of about the
+reach step: the box's centre, its corners held, bang-bang and uniformly random pieces) lies
+in a box of the tube active at its time; a ``robustly_safe`` verdict is never contradicted
+by a simulated violation.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from codev_engine.errors import SpecError
+from codev_engine.pipeline import loads_spec
+from codev_engine.plant import discretize, linearize
+from codev_engine.reach.linear import affine_plant
+from codev_engine.reach.simulate import (
+    DisturbanceSignal,
+    first_violation,
+    simulate,
+    simulate_many,
+    violations_many,
+)
+from codev_engine.reach.verification import VerificationResult, _signals, verify
+from codev_engine.session.keys import canon
+from codev_engine.spec.parse import parse_spec
+from codev_engine.synthesis import synthesize
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+TOL = 1e-9
+
+#: the double integrator (zoh) pushed by a force w on its acceleration
+DI_W = """
+name = "di-w"
+[plant]
+states = ["p", "v"]
+inputs = ["a"]
+{plant}
+[model]
+sample_time = 0.1
+[mpc]
+horizon = 5
+norm = "inf"
+Q = [[1.0, 0.0], [0.0, 1.0]]
+R = [[0.1]]
+x_min = [-5.0, -5.0]
+x_max = [5.0, 5.0]
+u_min = [-1.0]
+u_max = [1.0]
+[verify]
+time_horizon = {T}
+hold = "{hold}"
+initial_set = {{ lower = [0.5, -0.1], upper = [1.0, 0.1] }}
+unsafe = [ {{ lower = [{edge}, -inf], upper = [inf, inf] }} ]
+"""
+MATRIX = """A = [[0.0, 1.0], [0.0, 0.0]]
+B = [[0.0], [1.0]]
+disturbances = { w = [-0.1, 0.1] }
+E = [[0.0], [1.0]]"""
+EXPRS = """dynamics = ["v", "a + w"]
+disturbances = { w = [-0.1, 0.1] }"""
+
+
+def _di(plant: str = MATRIX, hold: str = "zoh", T: float = 2.0, edge: float = 2.0):
+    return loads_spec(DI_W.format(plant=plant, hold=hold, T=T, edge=edge))
+
+
+def _outside(tube, t, X) -> tuple[int, float]:
+    """States outside every box active at their time: (count, worst excess)."""
+    count, worst = 0, 0.0
+    te = float(tube.t_end.max())
+    for k in range(t.size):
+        if t[k] > te + 1e-12:
+            break
+        sel = (tube.t_start <= t[k] + 1e-12) & (tube.t_end >= t[k] - 1e-12)
+        x = X[:, k]
+        x = x[np.all(np.isfinite(x), axis=1)]
+        if not sel.any() or x.shape[0] == 0:
+            continue
+        lo, hi = tube.lower[sel], tube.upper[sel]
+        exc = np.maximum(lo[None] - x[:, None], x[:, None] - hi[None]).max(-1).min(-1)
+        count += int((exc > TOL).sum())
+        worst = max(worst, float(exc.max()))
+    return count, worst
+
+
+def _assert_sound(problem, law, result, P: int = 120, seed: int = 1) -> None:
+    vs = problem.verify
+    rng = np.random.default_rng(seed)
+    n = problem.plant.n
+    lo, hi = vs.initial_lower, vs.initial_upper
+    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij"))
+    X0 = np.vstack([corners.reshape(n, -1).T, rng.uniform(lo, hi, (P, n))])
+    piece, W, Q = _signals(problem, X0.shape[0], seed=seed)
+    t, X, U, alive = simulate_many(problem, law, X0, hold=result.hold,
+                                   disturbance=(piece, W, Q))
+    count, worst = _outside(result.tube, t, X)
+    assert count == 0, f"{count} simulated states outside the tube (worst {worst:g})"
+    if result.verdict == "robustly_safe":
+        bad, _ = violations_many(problem, t, X, U, alive)
+        assert not bad.any(), "a simulated violation contradicts robustly_safe"
+
+
+# --- the spec contract ------------------------------------------------------------------------
+
+
+def test_fields_parse_with_defaults_and_nominal():
+    p = _di(EXPRS.replace('disturbances = { w = [-0.1, 0.1] }',
+                          'disturbances = { w = [-0.1, 0.3] }\nparameters = { k = [0.5, 1.5] }'
+                          ).replace('"a + w"', '"k*a + w"'))
+    w, k = p.plant.disturbances, p.plant.parameters
+    assert w.names == ("w",) and k.names == ("k",)
+    assert w.nominal.tolist() == [0.0] and k.nominal.tolist() == [1.0]
+    p2 = _di(EXPRS.replace('disturbances = { w = [-0.1, 0.1] }',
+                           'disturbances = { w = [0.1, 0.3] }\nparameters = { k = [0.5, 1.5] }\n'
+                           'nominal = { k = 0.8 }').replace('"a + w"', '"k*a + w"'))
+    # 0 clipped into the interval; the given nominal used by the design
+    assert p2.plant.disturbances.nominal.tolist() == [0.1]
+    Ac, Bc, f0 = linearize(p2.plant, np.zeros(2), np.zeros(1))
+    np.testing.assert_allclose(Bc, [[0.0], [0.8]])
+    np.testing.assert_allclose(f0, [0.0, 0.1])
+
+
+BAD = [
+    ('disturbances = { w = [0.2, 0.1] }\nE = [[0.0], [1.0]]', "plant.disturbances.w", "lower"),
+    ('disturbances = { w = [0.1] }\nE = [[0.0], [1.0]]', "plant.disturbances.w", None),
+    ('disturbances = [0.1, 0.2]\nE = [[0.0], [1.0]]', "plant.disturbances", "table"),
+    ('disturbances = {}\nE = [[0.0], [1.0]]', "plant.disturbances", "empty"),
+    ('disturbances = { p = [0.0, 1.0] }\nE = [[0.0], [1.0]]', "plant.disturbances.p",
+     "already"),
+    ('disturbances = { w = [-0.1, 0.1] }', "plant.E", "give plant.E"),
+    ('E = [[0.0], [1.0]]', "plant.E", "disturbances"),
+    ('disturbances = { w = [-0.1, 0.1] }\nE = [[0.0, 1.0]]', "plant.E", None),
+    ('disturbances = { w = [-0.1, 0.1] }\nE = [[0.0], [1.0]]\nnominal = { w = 0.5 }',
+     "plant.nominal.w", "interval"),
+    ('disturbances = { w = [-0.1, 0.1] }\nE = [[0.0], [1.0]]\nnominal = { x = 0.0 }',
+     "plant.nominal.x", "not a disturbance"),
+    ('nominal = { w = 0.0 }', "plant.nominal", "need"),
+    ('parameters = { k = [0.5, 1.5] }', "plant.parameters", "dynamics"),
+    ("disturbances = { w = [-inf, 0.1] }\nE = [[0.0], [1.0]]", "plant.disturbances.w[0]", None),
+]
+
+
+@pytest.mark.parametrize("extra, field, words", BAD)
+def test_bad_fields_are_one_spec_error_naming_the_field(extra, field, words):
+    text = DI_W.format(plant="A = [[0.0, 1.0], [0.0, 0.0]]\nB = [[0.0], [1.0]]\n" + extra,
+                       hold="zoh", T=2.0, edge=2.0)
+    with pytest.raises(SpecError) as exc:
+        parse_spec(text)
+    assert exc.value.field == field
+    if words:
+        assert words in str(exc.value)
+
+
+def test_expression_plant_rejects_E_and_unknown_names():
+    with pytest.raises(SpecError) as exc:
+        parse_spec(DI_W.format(plant=EXPRS + "\nE = [[0.0], [1.0]]", hold="zoh", T=2.0,
+                               edge=2.0))
+    assert exc.value.field == "plant.E"
+    with pytest.raises(SpecError) as exc:
+        parse_spec(DI_W.format(plant='dynamics = ["v", "a + q"]', hold="zoh", T=2.0, edge=2.0))
+    assert exc.value.field == "plant.dynamics[1]"
+
+
+def test_session_keys_of_specs_without_the_fields_are_unchanged():
+    p = loads_spec((EXAMPLES / "double_integrator.toml").read_text())
+    keys = canon(p.plant)
+    assert set(keys) == {"states", "inputs", "dynamics", "A", "B"}
+    assert "disturbances" in canon(_di().plant)
+
+
+def test_design_uses_the_nominal_model():
+    nominal = _di(plant="A = [[0.0, 1.0], [0.0, 0.0]]\nB = [[0.0], [1.0]]")
+    assert np.array_equal(discretize(_di()).A, discretize(nominal).A)
+    assert np.array_equal(discretize(_di()).B, discretize(nominal).B)
+    ap = affine_plant(_di(EXPRS))
+    np.testing.assert_array_equal(ap.E, [[0.0], [1.0]])
+    np.testing.assert_array_equal(ap.w_radius, [0.1])
+
+
+# --- soundness: dense simulation under signals --------------------------------------------
+
+
+@pytest.mark.parametrize("plant, hold", [(MATRIX, "zoh"), (EXPRS, "zoh"), (MATRIX, "continuous")])
+def test_linear_tube_contains_disturbed_simulations(plant, hold):
+    problem = _di(plant, hold)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe", result.summary()
+    _assert_sound(problem, law, result)
+    # the disturbance widens the tube: the nominal one is strictly inside at the end
+    nominal = _di(plant="A = [[0.0, 1.0], [0.0, 0.0]]\nB = [[0.0], [1.0]]", hold=hold)
+    w_nom = verify(nominal, law).width_at(1.9)
+    assert np.all(result.width_at(1.9) > w_nom)
+
+
+def test_cruise_grade_example_is_robustly_safe_and_sound():
+    from codev_engine.pipeline import load_spec
+
+    problem = load_spec(EXAMPLES / "cruise_grade.toml")
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe", result.summary()
+    _assert_sound(problem, law, result, P=60)
+
+
+def test_signal_of_the_simulator_is_replayed_piece_by_piece():
+    problem = _di()
+    law = synthesize(problem)
+    sig = DisturbanceSignal(0.05, np.array([[0.1], [-0.1]] * 20), np.zeros(0))
+    tr = simulate(problem, law, [0.7, 0.0], disturbance=sig)
+    piece, W = 0.05, np.array([[[0.1], [-0.1]] * 40])
+    t, X, _, _ = simulate_many(problem, law, np.array([[0.7, 0.0]]),
+                               disturbance=(piece, W, np.zeros((1, 0))))
+    k = np.argmin(abs(t - 2.0))
+    np.testing.assert_allclose(X[0, k], tr.x[-1], atol=1e-8)
+    nominal = simulate(problem, law, [0.7, 0.0])
+    assert not np.allclose(nominal.x[-1], tr.x[-1], atol=1e-6)
+
+
+# --- counterexamples under disturbances ---------------------------------------------------
+
+
+def test_safe_nominally_unsafe_under_disturbance_with_a_replayed_signal(tmp_path):
+    # the cruise control against a steep uphill: the engine cannot hold the speed when the
+    # grade force exceeds what is left of its 1500 N
+    text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
+        "disturbances = { w = [-98.1, 98.1] }", "disturbances = { w = [0.0, 2000.0] }"
+    ).replace("time_horizon = 40.0", "time_horizon = 20.0")
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    nominal = loads_spec(text.replace("disturbances = { w = [0.0, 2000.0] }", "")
+                         .replace("E = [[-0.001]]", ""))
+    assert verify(nominal, law).verdict == "robustly_safe"
+    result = verify(problem, law)
+    assert result.verdict == "unsafe", result.summary()
+    ce = result.counterexample
+    assert ce.disturbance is not None and ce.kind == "unsafe" and ce.index == 1
+    tr = simulate(problem, law, ce.x0, disturbance=ce.disturbance)
+    v = first_violation(problem, law, tr)
+    assert v is not None and v.kind == "unsafe"
+    assert np.all(ce.disturbance.values >= 0.0) and np.all(ce.disturbance.values <= 2000.0)
+    path = result.save(tmp_path / "r.npz")
+    back = VerificationResult.load(path)
+    np.testing.assert_array_equal(back.counterexample.disturbance.values, ce.disturbance.values)
+    assert back.counterexample.disturbance.piece == ce.disturbance.piece
+
+
+def test_nonlinear_plant_with_a_disturbance_is_a_verdict_not_an_error():
+    text = (EXAMPLES / "pendulum.toml").read_text()
+    text = text.replace('"9.81*sin(th) - 0.5*w + T"', '"9.81*sin(th) - 0.5*w + T + d"')
+    text = text.replace("[model]", "disturbances = { d = [-0.01, 0.01] }\n\n[model]", 1)
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict in ("unknown", "unsafe")
+    if result.verdict == "unknown":
+        assert result.reason == "uncertain"
+
+
+def test_cruise_grade_is_safe_for_all_time_and_the_invariant_set_holds_disturbed_runs():
+    text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
+        "time_horizon = 40.0", 'time_horizon = "inf"')
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe" and result.reason == "invariant", result.summary()
+    c = result.stats["certificate"]
+    H, h = result.certificate["H"], result.certificate["h"]
+    # 50 times the certificate's closing time, under bang-bang and random grade profiles
+    T = 50 * c["closed_time"]
+    bounded = loads_spec(text.replace('time_horizon = "inf"', f"time_horizon = {T}"))
+    rng = np.random.default_rng(4)
+    X0 = rng.uniform(problem.verify.initial_lower, problem.verify.initial_upper, (80, 1))
+    piece, W, Q = _signals(bounded, 80, seed=5)
+    t, X, U, alive = simulate_many(bounded, law, X0, disturbance=(piece, W, Q))
+    bad, _ = violations_many(bounded, t, X, U, alive)
+    assert not bad.any()
+    Ts = problem.model.sample_time
+    for k in range(c["closed_sample"], int(T / Ts) + 1, c["closed_sample"] - c["anchor_sample"]):
+        j = np.flatnonzero(np.isclose(t, k * Ts))[-1]
+        assert np.all(X[:, j] @ H.T <= h + 1e-9), f"a disturbed state outside S at t = {t[j]}"
+
+
+def test_law_over_theta_with_a_disturbance_keeps_every_disturbed_run():
+    # the DC-motor servo (theta = (angle, speed, prev_V, ref)) pushed on its acceleration:
+    # the generators get the held input's rows and the reference's (docs/verification.md)
+    text = (EXAMPLES / "dc_motor_servo.toml").read_text()
+    text = text.replace("B = [[0.0], [10.0]]", "B = [[0.0], [10.0]]\nE = [[0.0], [1.0]]\n"
+                        "disturbances = { w = [-0.2, 0.2] }")
+    text = text.replace("time_horizon = 2.0", "time_horizon = 0.4")
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    assert law.n == 4
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe", result.summary()
+    _assert_sound(problem, law, result, P=60)
