@@ -71,7 +71,7 @@ def _example_param(p):
     marks = ()
     if p.stem in NO_ENTRIES_YET:
         marks = pytest.mark.xfail(strict=True, raises=ce.SpecError,
-                                  reason="the form has no entries for these [mpc] fields yet")
+                                  reason="the form has no entries for these fields yet")
     return pytest.param(p, id=p.stem, marks=marks)
 
 
