@@ -411,9 +411,10 @@ class LinearReach(ClosedLoopSetup):
         amax = np.abs(acc).max(axis=1)  # (J, n)
         amax = amax * (1 + 1e-9) + err @ (np.abs(M) @ np.abs(M)).T
         D = self._disturbance(i, taus)
-        if D is not None and self.hold == "zoh":
+        if self.hold == "zoh":
             # the state's error at the sample also moves the held input: its part p of the
-            # state has p'' = Ac (Ac p + Bc F e), |e| <= s.err
+            # state has p'' = Ac (Ac p + Bc F e), |e| <= s.err (rounding alone: ~1e-15; with
+            # a disturbance, the disturbance's part too)
             amax = amax + (np.abs(pl.Ac) @ np.abs(pl.Bc) @ np.abs(F) @ s.err)[None, :]
         hseg = np.diff(taus)
         growth = expm(hseg[:, None, None] * np.abs(M)[None])
