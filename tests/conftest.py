@@ -51,3 +51,20 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
         terminalreporter.section("mp_testset: regions found (ref = reference count)")
         for _, line in sorted(lines.items()):
             terminalreporter.write_line(line)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Skip tests marked ``slow`` unless asked for (``-m slow`` or ``CODEV_SLOW=1``).
+
+    One gate for the whole suite, so that a new slow test cannot creep into the default run
+    (the suite must stay under 10 minutes on 2 cores); the checks run before an issue is
+    resolved with ``pytest -m slow``.
+    """
+    import os
+
+    if "slow" in (config.getoption("markexpr") or "") or os.environ.get("CODEV_SLOW"):
+        return
+    skip = pytest.mark.skip(reason="slow: run with -m slow (or CODEV_SLOW=1)")
+    for item in items:
+        if "slow" in item.keywords:
+            item.add_marker(skip)
