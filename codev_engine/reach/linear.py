@@ -267,6 +267,28 @@ class LinearReach(ClosedLoopSetup):
         self._flows: dict = {}
         #: the arrays of an invariance certificate (H, h, points, pads), when one closed
         self.certificate: dict | None = None
+        # measurement noise (docs/verification.md, "Measurement noise"): the law sees
+        # theta + v, v in the box (centre vc, radius vr; zero on u_prev and r). Region i
+        # applies F_i (theta + vc) + G_i + F_i delta, |delta| <= vr: the centre goes into
+        # the law's offset Gn, the rest is an input disturbance (Bc F_i, vr) of the period
+        F = self.law.F
+        self.vc = self.vr = None
+        self.Gn = self.law.G
+        if vs.noisy:
+            pad = np.zeros(self.d - self.n)
+            lo, hi = np.asarray(vs.noise_lower, float), np.asarray(vs.noise_upper, float)
+            self.vc = np.concatenate([0.5 * (lo + hi), pad])
+            self.vr = np.concatenate([0.5 * (hi - lo), pad]) * (1.0 + 1e-12)
+            if self.law.num_regions:
+                self.Gn = self.law.G + np.einsum("rmd,d->rm", F, self.vc)
+        #: a bound on the rounding of Gn (per region, (R, m)): an input disturbance too
+        self.Gn_err = (
+            4e-16 * (self.d + 2) * (np.abs(self.law.G) + np.einsum("rmd,d->rm", np.abs(F),
+                                                                   np.abs(self.vc)))
+            if self.vc is not None and self.law.num_regions else None
+        )
+        #: disturbances or noise: the star carries generators, nothing is exact
+        self.uncertain = self.plant.E is not None or self.vr is not None
 
     # ---- flows --------------------------------------------------------------------------
 
@@ -275,7 +297,7 @@ class LinearReach(ClosedLoopSetup):
         pl = self.plant
         if self.hold == "zoh":
             return pl.Ac, pl.f0
-        F, G = self.law.F[i], self.law.G[i]
+        F, G = self.law.F[i], self.Gn[i]
         return pl.Ac + pl.Bc @ F, pl.Bc @ G + pl.f0
 
     def _flow(self, i: int, taus: np.ndarray):
@@ -310,7 +332,7 @@ class LinearReach(ClosedLoopSetup):
         E, Emag = hit
         n = self.n
         if self.hold == "zoh":
-            F, G = self.law.F[i], self.law.G[i]
+            F, G = self.law.F[i], self.Gn[i]
             E11, E12, E13 = E[:, :n, :n], E[:, :n, n : n + self.m], E[:, :n, -1]
             M11, M12, M13 = Emag[:, :n, :n], Emag[:, :n, n : n + self.m], Emag[:, :n, -1]
             if self.d > n:  # x(tau) from theta_k = (x_k, u_prev, r): pad with zeros
@@ -323,6 +345,37 @@ class LinearReach(ClosedLoopSetup):
             return Phi, g, Pm, gm
         return E[:, :n, :n], E[:, :n, -1], Emag[:, :n, :n], Emag[:, :n, -1]
 
+    def _inputs(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The bounded inputs of region i's period: ``(E (n, k), |E| (n, k), radius (k,))``
+        with ``dx/dt = ... + E delta(t)``, ``|delta| <= radius``; None when there are none.
+
+        The plant's disturbance ``(E, w_radius)``; with measurement noise also
+        ``(Bc F_i, vr)`` (the law's reaction to the noise about its centre, held over the
+        period -- a constant is one of the signals bounded) and ``(Bc, Gn_err_i)`` (the
+        rounding of the noisy law's offset). ``|E|`` bounds the rounding of E's entries
+        (``|Bc| |F_i|`` for a product that may cancel).
+        """
+        pl = self.plant
+        cols: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        if pl.E is not None:
+            cols.append((pl.E, np.abs(pl.E), pl.w_radius))
+        if self.vr is not None:
+            F = self.law.F[i][:, : self.n]
+            cols.append((pl.Bc @ F, np.abs(pl.Bc) @ np.abs(F) * (1.0 + 1e-12),
+                         self.vr[: self.n]))
+            cols.append((pl.Bc, np.abs(pl.Bc), self.Gn_err[i]))
+        if not cols:
+            return None
+        return (np.hstack([c[0] for c in cols]), np.hstack([c[1] for c in cols]),
+                np.concatenate([c[2] for c in cols]))
+
+    def _noise_input(self, i: int) -> np.ndarray:
+        """(m,) bound on the input's part from the noise about its centre (and the rounding
+        of the noisy offset): ``|F_i| vr + Gn_err_i``; zeros without noise."""
+        if self.vr is None:
+            return np.zeros(self.m)
+        return (np.abs(self.law.F[i]) @ self.vr + self.Gn_err[i]) * (1.0 + 1e-12)
+
     def _disturbance(self, i: int, taus: np.ndarray) -> np.ndarray | None:
         """(J, n) bounds ``D(tau)`` on ``|int_0^tau e^{M (tau - s)} E delta(s) ds|`` for
         every measurable ``|delta| <= w_radius``; None without disturbances.
@@ -333,12 +386,13 @@ class LinearReach(ClosedLoopSetup):
         integral up to ``s_J``; ``D`` is non-decreasing, and ``tau`` takes the value of the
         grid point at or after it (docs/verification.md, "Disturbances").
         """
-        pl = self.plant
-        if pl.E is None:
+        w = self._inputs(i)
+        if w is None:
             return None
-        key = ("w", i if self.hold == "continuous" else -1)
+        key = ("w", i if self.hold == "continuous" or self.vr is not None else -1)
         hit = self._flows.get(key)
         if hit is None:
+            Ew, absE, radius = w
             M, _ = self._mode(i)
             M = M[:, : self.n]
             h = min(self.step, self.Ts) / 4.0
@@ -346,10 +400,9 @@ class LinearReach(ClosedLoopSetup):
             sj = np.arange(K) * h
             Ex = expm(sj[:, None, None] * M[None])
             Em = expm(sj[:, None, None] * np.abs(M)[None])
-            absE = np.abs(pl.E)
-            G = np.abs(Ex @ pl.E) + _REL * (Em @ absE) + 1e-300  # (K, n, d)
+            G = np.abs(Ex @ Ew) + _REL * (Em @ absE) + 1e-300  # (K, n, d)
             growth = expm(h * np.abs(M)) * (1.0 + 1e-9)
-            incr = h * np.einsum("ab,jbd,d->ja", growth, G, pl.w_radius)
+            incr = h * np.einsum("ab,jbd,d->ja", growth, G, radius)
             D = np.vstack([np.zeros((1, self.n)), np.cumsum(incr, axis=0)]) * (1.0 + 1e-9)
             hit = (h, D)
             self._flows[key] = hit
@@ -392,7 +445,7 @@ class LinearReach(ClosedLoopSetup):
         lo = Y.min(axis=1) - err
         hi = Y.max(axis=1) + err
         pl = self.plant
-        F, G = self.law.F[i], self.law.G[i]
+        F, G = self.law.F[i], self.Gn[i]
         M, _ = self._mode(i)
         if self.hold == "zoh":
             xk = s.c[None, :] + s.verts @ s.V.T  # (nv, n) states at the sample
@@ -403,6 +456,7 @@ class LinearReach(ClosedLoopSetup):
                 ue = np.minimum(ue, (np.abs(F) @ s.eround + np.abs(F @ s.Gw).sum(axis=1)
                                      + _REL * (np.abs(F) @ np.abs(s.Gw)).sum(axis=1))
                                 * (1.0 + 1e-12))
+            ue = ue + self._noise_input(i)
             u_lo = np.repeat((uv.min(axis=0) - ue)[None], len(taus) - 1, 0)
             u_hi = np.repeat((uv.max(axis=0) + ue)[None], len(taus) - 1, 0)
         else:
@@ -427,7 +481,7 @@ class LinearReach(ClosedLoopSetup):
         shi = np.maximum(hi[:-1], hi[1:]) + E
         if self.hold == "continuous":
             U = Y @ F.T + G  # (J, nv, m)
-            ue = np.abs(F) @ err.T  # (m, J)
+            ue = np.abs(F) @ err.T + self._noise_input(i)[:, None]  # (m, J)
             ulo = U.min(axis=1) - ue.T
             uhi = U.max(axis=1) + ue.T
             uE = E @ np.abs(F).T
@@ -480,7 +534,7 @@ class LinearReach(ClosedLoopSetup):
                 if st == "optimal" and A[r] @ (X + W @ x) > b[r] + margin:
                     return Finding("safe", idx, t, x)
         if self.check_u:
-            F, G = self.law.F[i], self.law.G[i]
+            F, G = self.law.F[i], self.Gn[i]
             if self.hold == "zoh":
                 Xu, Wu = s.c, s.V
             else:
@@ -514,7 +568,7 @@ class LinearReach(ClosedLoopSetup):
                 return None
         if t_k + tau_end >= self.T - 1e-12:
             return None
-        if self.plant.E is not None:
+        if self.uncertain:
             return self._next_disturbed(s, i, taus[-1:], X[-1], W[-1])
         if self.d > self.n:
             return self._next_theta(s, i, X[-1], W[-1], err[-1])
@@ -542,7 +596,7 @@ class LinearReach(ClosedLoopSetup):
         Gx = np.hstack(cols)  # (n, g)
         if self.d > self.n:  # theta = (x, u_prev, r): the held input and r take their parts
             n, m = self.n, self.m
-            F, G = self.law.F[i], self.law.G[i]
+            F, G = self.law.F[i], self.Gn[i]
             nd = self.n  # the new columns (this period's d) touch x only
             Gs = s.Gw if s.Gw is not None else np.zeros((self.d, 0))
             rows_G, rows_e = [Gx], [er]
@@ -550,7 +604,8 @@ class LinearReach(ClosedLoopSetup):
                 uG = np.hstack([F @ Gs, np.zeros((m, nd))])
                 ue = (np.abs(F) @ base + _REL * (np.abs(F) @ np.abs(s.c)
                       + (np.abs(F) @ np.abs(s.V)).sum(axis=1) + np.abs(G)
-                      + (np.abs(F) @ np.abs(Gs)).sum(axis=1)) + 1e-300)
+                      + (np.abs(F) @ np.abs(Gs)).sum(axis=1)) + 1e-300
+                      + self._noise_input(i))  # the held input saw the noise too
                 rows_G.append(uG)
                 rows_e.append(ue)
             r0 = n + (m if self.problem.mpc.has_rates else 0)
@@ -579,7 +634,7 @@ class LinearReach(ClosedLoopSetup):
         bounded like the flow's (``|F| err`` propagated, ``_REL`` of the terms added).
         """
         n, m = self.n, self.m
-        F, G = self.law.F[i], self.law.G[i]
+        F, G = self.law.F[i], self.Gn[i]
         parts_c, parts_V, parts_e = [X], [W], [err]
         if self.problem.mpc.has_rates:
             uc = F @ s.c + G
@@ -620,7 +675,7 @@ class LinearReach(ClosedLoopSetup):
         # adds, so it gets few levels (the exact run decides what it cannot)
         # (so does a disturbance's box: time refinement shrinks the interpolation error,
         # not the disturbance's part of the set)
-        exact = s.exact and self.plant.E is None
+        exact = s.exact and not self.uncertain
         limit = self.max_depth if exact else min(self.max_depth, _MERGED_DEPTH)
         if depth >= limit:
             self.findings.append(Finding("max_depth", -1, t_k + ta, None))
@@ -655,19 +710,40 @@ class LinearReach(ClosedLoopSetup):
 
     # ---- samples: domain check and split --------------------------------------------
 
+    def _reach_rows(self, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The right-hand side of ``{theta : A (theta + v) <= b for some v in the noise
+        box}`` (a superset: row by row, ``b - A vc + |A| vr`` and its rounding); ``b``
+        without noise."""
+        if self.vr is None:
+            return b
+        absA = np.abs(A)
+        return (b - A @ self.vc + absA @ self.vr
+                + 1e-12 * (np.abs(b) + absA @ (np.abs(self.vc) + self.vr)))
+
     def _split(self, s: _Star) -> list[tuple[int, _Star]] | Finding:
-        """Children of s, one per region it meets, or a Finding if it leaves the domain."""
+        """Children of s, one per region it meets, or a Finding if it leaves the domain.
+
+        With measurement noise, one child per region that the star's Minkowski sum with
+        the noise box meets: the child holds the states whose measurement may select it.
+        """
         Y = s.c[None, :] + s.verts @ s.V.T
         lo = Y.min(axis=0) - s.err
         hi = Y.max(axis=0) + s.err
+        if self.vr is not None:  # what the law may see: theta + v
+            lo, hi = lo + self.vc - self.vr, hi + self.vc + self.vr
         law = self.law
         t = s.k * self.Ts
         if law.domain_A is not None and law.domain_A.shape[0]:
             A, b = law.domain_A, law.domain_b
-            viol = Y @ A.T + (np.abs(A) @ s.err)[None, :] - b[None, :]  # (nv, r)
+            # (with noise: the largest A v over the box, so any measurement that may leave)
+            viol = Y @ A.T + (np.abs(A) @ s.err)[None, :] - b[None, :]
+            if self.vr is not None:
+                viol = viol + (A @ self.vc + np.abs(A) @ self.vr)[None, :] * (1.0 + 1e-12)
             if np.max(viol) > 0:
                 v = int(np.argmax(np.max(viol, axis=1)))
-                exact = np.max(Y[v] @ A.T - b) > 10 * np.max(s.err) + 1e-12
+                # (a measured state that may leave the domain is no concrete violation: the
+                # concrete search decides, under noise sequences)
+                exact = self.vr is None and np.max(Y[v] @ A.T - b) > 10 * np.max(s.err) + 1e-12
                 if exact:
                     return Finding("undefined", -1, t, s.verts[v])
                 # only the over-approximation leaves the domain: say so, and go on with the
@@ -681,7 +757,7 @@ class LinearReach(ClosedLoopSetup):
         for r in cand:
             A, b = law.A[r], law.b[r]
             Hn = A @ s.V
-            hn = b - A @ s.c + np.abs(A) @ s.err + 1e-9
+            hn = self._reach_rows(A, b) - A @ s.c + np.abs(A) @ s.err + 1e-9
             exact = s.exact
             try:
                 piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))
@@ -711,7 +787,7 @@ class LinearReach(ClosedLoopSetup):
                 self._run_merged()
                 return
             except _NeedExactError:
-                if self.unbounded or self.plant.E is not None:
+                if self.unbounded or self.uncertain:
                     # (with a disturbance the exact exploration is no more exact than the
                     # merged one -- its sets carry the disturbance's box -- and its branches
                     # multiply: a possible violation stays possible, the verdict unknown)
@@ -803,7 +879,7 @@ class LinearReach(ClosedLoopSetup):
         e = e + _REL * (1.0 + mag) + 1e-300
         if i is not None:
             A, b = self.law.A[i], self.law.b[i]
-            D, e = np.vstack([D, A]), np.concatenate([e, b + 1e-9])
+            D, e = np.vstack([D, A]), np.concatenate([e, self._reach_rows(A, b) + 1e-9])
         piece = checked_piece(D, e)
         if piece is None:  # cannot happen for non-empty members; never drop a set
             raise _NeedExactError

@@ -41,7 +41,7 @@ a violation strictly between two grid points can be missed.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -151,11 +151,30 @@ class DisturbanceSignal:
         The disturbance on each piece (``d`` = the plant's disturbances; may be 0).
     parameters : (q,) ndarray
         The uncertain parameters' values, fixed over the run (``q`` may be 0).
+    noise : (S, n) ndarray or None
+        Measurement noise: the law sees ``x(t_k) + noise[min(k, S - 1)]`` at sample ``k``;
+        None: no noise.
     """
 
     piece: float
     values: np.ndarray
     parameters: np.ndarray
+    noise: np.ndarray | None = None
+
+    def noise_at(self, k: int) -> np.ndarray | None:
+        """The measurement noise (n,) at sample ``k``, or None without noise.
+
+        Parameters
+        ----------
+        k : int
+
+        Returns
+        -------
+        (n,) ndarray or None
+        """
+        if self.noise is None:
+            return None
+        return self.noise[min(max(k, 0), self.noise.shape[0] - 1)]
 
     def index(self, t: float) -> int:
         """The piece in force at time ``t`` (s).
@@ -424,7 +443,8 @@ def simulate(
     disturbance : DisturbanceSignal, optional
         The plant's disturbance signal and parameter values; default: the nominal values
         (the design model). Each period is integrated piece by piece, so the signal's
-        jumps are integration end points.
+        jumps are integration end points. Its ``noise``, if any, is added to the state the
+        law sees at each sample (region and input: ``u = F_i (x + v_k) + G_i``).
 
     Returns
     -------
@@ -456,9 +476,13 @@ def simulate(
     rs: list[int] = []
     undefined_at = None
     k = 0
+    noisy = disturbance is not None and disturbance.noise is not None
+    if disturbance is not None and not problem.plant.uncertain:
+        disturbance = replace(disturbance, values=np.zeros((1, 0)))
     while True:
         a = k * Ts
-        theta = np.concatenate([x, extra])
+        vk = disturbance.noise_at(k) if noisy else np.zeros(n)
+        theta = np.concatenate([x + vk, extra])
         i = int(law.locate(theta[None, :])[0])
         if i < 0:
             ts.append(a)
@@ -469,7 +493,7 @@ def simulate(
             break
         # the law in the state during this period: (u_prev, r) are fixed at the sample
         Fi = law.F[i][:, :n]
-        Gi = law.G[i] + law.F[i][:, n:] @ extra
+        Gi = law.G[i] + law.F[i][:, n:] @ extra + Fi @ vk  # the measured state x + v_k
         ua = Fi @ x + Gi
         if rates:
             extra[:m] = ua  # the next sample's previous input
@@ -488,7 +512,9 @@ def simulate(
         grid = grid[(grid > a + eps) & (grid < b - eps)]
         t_eval = np.concatenate([[a], grid, [b]])
 
-        if disturbance is None:
+        if disturbance is None or disturbance.values.shape[1] == 0 and (
+            disturbance.parameters.size == 0
+        ):
             sol = solve_ivp(
                 _period_rhs(f, hold, Fi, Gi, ua),
                 (a, b),
@@ -603,6 +629,9 @@ class ManyTraces:
         ``law.locate`` returned -1.
     h : float
         The RK4 step actually used (``Ts / ceil(Ts / dt)``).
+    noise : (P, S, n) ndarray or None
+        The measurement noise the law saw at each of the ``S`` sample times (0 where not
+        alive); None when simulated without noise.
     """
 
     t: np.ndarray
@@ -610,6 +639,7 @@ class ManyTraces:
     U: np.ndarray
     alive: np.ndarray
     h: float
+    noise: np.ndarray | None = None
 
     def __iter__(self):
         return iter((self.t, self.X, self.U, self.alive))
@@ -626,6 +656,7 @@ def simulate_many(
     dt_out: float | None = None,
     extra0=None,
     disturbance: tuple[float, np.ndarray, np.ndarray] | None = None,
+    noise=None,
 ) -> ManyTraces:
     """Simulate many closed-loop trajectories at once with vectorised fixed-step RK4.
 
@@ -656,6 +687,11 @@ def simulate_many(
         values on pieces of length ``piece`` (as :class:`DisturbanceSignal`), ``Q`` (P, q)
         the parameters; each RK4 step takes the piece in force at its start. Default: the
         nominal values.
+    noise : (P, S, n) ndarray or callable, optional
+        Measurement noise: at sample ``k`` the law of trajectory ``p`` sees
+        ``x + noise[p, min(k, S - 1)]``. A callable ``noise(k, X (q, n), idx (q,)) -> (q, n)``
+        chooses it from the states of the trajectories ``idx`` still alive (a feedback
+        adversary); the values used are returned in ``ManyTraces.noise``. Default: none.
 
     Returns
     -------
@@ -711,6 +747,8 @@ def simulate_many(
             return u[idx]
         return np.einsum("pij,pj->pi", Fi[idx], xx) + Gi[idx]
 
+    used: list[np.ndarray] = []  # the noise of each sample
+
     def at_sample(tj: float):
         nonlocal x, u
         if tj > 0:
@@ -721,7 +759,15 @@ def simulate_many(
                 uleft[idx] = u_of(x[idx], idx)
             record(tj, x, uleft, alive)
         idx = np.flatnonzero(alive)
-        theta = np.hstack([x[idx], extra[idx]])
+        v = np.zeros((P, n))
+        if noise is not None:
+            ks = len(used)
+            if callable(noise):
+                v[idx] = noise(ks, x[idx].copy(), idx)
+            else:
+                v[idx] = noise[idx, min(ks, noise.shape[1] - 1)]
+            used.append(v)
+        theta = np.hstack([x[idx] + v[idx], extra[idx]])
         reg = law.locate(theta) if idx.size else np.zeros(0, dtype=int)
         dead = idx[reg < 0]
         alive[dead] = False
@@ -729,7 +775,8 @@ def simulate_many(
         region[ok] = reg[reg >= 0]
         Fr = law.F[region[ok]]
         Fi[ok] = Fr[:, :, :n]
-        Gi[ok] = law.G[region[ok]] + np.einsum("pij,pj->pi", Fr[:, :, n:], extra[ok])
+        Gi[ok] = (law.G[region[ok]] + np.einsum("pij,pj->pi", Fr[:, :, n:], extra[ok])
+                  + np.einsum("pij,pj->pi", Fi[ok], v[ok]))  # the law sees x + v
         u[ok] = np.einsum("pij,pj->pi", Fi[ok], x[ok]) + Gi[ok]
         if rates:
             extra[ok, :m] = u[ok]
@@ -798,7 +845,8 @@ def simulate_many(
     X = np.stack(Xs, axis=1)
     U = np.stack(Us, axis=1)
     A = np.stack(As, axis=1)
-    return ManyTraces(t=t, X=X, U=U, alive=A, h=h)
+    N = np.stack(used, axis=1) if used else None
+    return ManyTraces(t=t, X=X, U=U, alive=A, h=h, noise=N)
 
 
 # ---------------------------------------------------------------------------------------

@@ -65,6 +65,7 @@ UNKNOWN_WORDS = {
     "invariant": "for all time: an invariance certificate",
     "uncertain": "the reach engines do not follow this plant's disturbances or uncertain "
     "parameters yet",
+    "noise": "the nonlinear engine does not follow measurement noise yet",
 }
 
 
@@ -221,6 +222,8 @@ class VerificationResult(Displayable):
                     cex_w_values=np.asarray(ce.disturbance.values, dtype=float),
                     cex_parameters=np.asarray(ce.disturbance.parameters, dtype=float),
                 )
+                if ce.disturbance.noise is not None:
+                    arrays["cex_noise"] = np.asarray(ce.disturbance.noise, dtype=float)
         return save_npz(path, _RESULT_FILE, arrays)
 
     @classmethod
@@ -296,7 +299,13 @@ class VerificationResult(Displayable):
                 values = real(data, "cex_w_values", ndim=2)
                 if values.shape[0] < 1:
                     raise SpecError("must have at least one row", field="cex_w_values")
-                signal = DisturbanceSignal(piece, values, real(data, "cex_parameters", ndim=1))
+                noise = None
+                if "cex_noise" in data:
+                    noise = real(data, "cex_noise", ndim=2)
+                    if noise.shape[0] < 1 or noise.shape[1] != n:
+                        raise SpecError(f"must be (S, {n}) with S >= 1", field="cex_noise")
+                signal = DisturbanceSignal(piece, values, real(data, "cex_parameters", ndim=1),
+                                           noise)
             cex = Counterexample(
                 x0=x0,
                 t=float(real(data, "cex_t", shape=())),
@@ -450,6 +459,12 @@ def verify(
         raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
     depth = vs.max_depth if max_depth is None else max_depth
     t0 = time.perf_counter()
+    if vs.noisy and affine_plant(problem) is None:
+        # measurement noise on a nonlinear plant: not followed by the nonlinear engine yet
+        # -- a limitation, so a verdict; a counterexample is still sought under concrete
+        # noise sequences (and signals)
+        return _limited(problem, law, hold, t0, "noise",
+                        "measurement noise is verified for affine plants only")
     if problem.plant.uncertain and affine_plant(problem) is None:
         # uncertain parameters, or disturbances of a nonlinear plant: not followed by the
         # reach engines yet -- a limitation, so a verdict; a counterexample is still sought
@@ -583,6 +598,32 @@ def verify(
     return result
 
 
+def _limited(problem: Problem, law: ExplicitLaw, hold: str, t0: float, reason: str,
+             detail: str) -> VerificationResult:
+    """``unknown`` with ``reason`` (a limitation of the engines) unless the concrete search
+    finds a replayed counterexample."""
+    vs = problem.verify
+    bounded = problem
+    if not np.isfinite(vs.time_horizon):
+        bounded = replace(problem, verify=replace(
+            vs, time_horizon=vs.max_samples * float(problem.model.sample_time)))
+    cex = _search(bounded, law, hold)
+    stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
+    tube = Tube.empty(problem.plant.n)
+    if cex is not None:
+        result = VerificationResult("unsafe", cex.kind, tube, hold, cex, stats)
+    else:
+        result = VerificationResult("unknown", reason, tube, hold, None, stats, detail)
+    result.attach_display(problem=problem, law=law)
+    return result
+
+
+def _uncertain(problem: Problem) -> bool:
+    """Disturbances, uncertain parameters or measurement noise: searched under signals."""
+    return bool(problem.plant.uncertain or (problem.verify is not None
+                                            and problem.verify.noisy))
+
+
 def _confirm(
     problem: Problem, law: ExplicitLaw, hold: str, x0: np.ndarray, signals=None
 ) -> Counterexample | None:
@@ -590,13 +631,16 @@ def _confirm(
 
     For an uncertain plant each of ``signals`` (default :func:`_signals` of one
     trajectory: the box's centre, its corners held constant, bang-bang and random pieces) is
-    replayed until one violates; the counterexample keeps it.
+    replayed until one violates; the counterexample keeps it. With measurement noise and no
+    ``signals``, the noise sequences of :func:`_search` from x0 (adversaries included).
     """
     from codev_engine.reach.simulate import first_violation, simulate, theta_initial_box
 
     n = problem.plant.n
     lo, hi = theta_initial_box(problem)  # x0 may be theta0 = (x0, u_prev0, r)
     theta0 = np.clip(np.asarray(x0, dtype=float), lo[: np.size(x0)], hi[: np.size(x0)])
+    if signals is None and problem.verify.noisy:
+        return _search(problem, law, hold, X0=theta0[None, :])
     x0, extra0 = theta0[:n], theta0[n:]
     if signals is None:
         signals = _signal_list(problem) if problem.plant.uncertain else [None]
@@ -666,35 +710,160 @@ def _signal_list(problem: Problem, P: int = 16) -> list:
     return [DisturbanceSignal(piece, W[p], Q[p]) for p in range(P)]
 
 
+def noise_sequences(problem: Problem, P: int, seed: int = 0) -> np.ndarray:
+    """``P`` concrete measurement-noise sequences, one value per sample time.
+
+    Row 0 the box's centre, then its corners held constant, then bang-bang sequences (a
+    random corner at each sample), then uniformly random ones.
+
+    Parameters
+    ----------
+    problem : Problem
+        With ``verify.measurement_noise``.
+    P : int
+    seed : int
+
+    Returns
+    -------
+    (P, S, n) ndarray
+        ``S`` = the sample times up to the horizon.
+    """
+    vs = problem.verify
+    lo, hi = np.asarray(vs.noise_lower, float), np.asarray(vs.noise_upper, float)
+    n = lo.shape[0]
+    Ts = float(problem.model.sample_time)
+    S = int(np.ceil(vs.time_horizon / Ts - 1e-9)) + 1
+    rng = np.random.default_rng(seed + 7)
+    out = np.empty((P, S, n))
+    out[0] = 0.5 * (lo + hi)
+    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
+                                   indexing="ij")).reshape(n, -1).T
+    c = min(corners.shape[0], max(0, P - 1))
+    out[1 : 1 + c] = corners[:c, None, :]
+    rest = P - 1 - c
+    half = rest // 2
+    out[1 + c : 1 + c + half] = np.where(rng.integers(0, 2, (half, S, n)) == 1, hi, lo)
+    out[1 + c + half :] = rng.uniform(lo, hi, (rest - half, S, n))
+    return out
+
+
+def noise_adversary(problem: Problem, law: ExplicitLaw, directions: np.ndarray,
+                    seed: int = 0) -> Callable:
+    """A feedback adversary for :func:`~codev_engine.reach.simulate.simulate_many`: at each
+    sample, the noise value (a corner of the box, or its centre) whose region and law push
+    the next state furthest along the trajectory's direction.
+
+    The next state is predicted by the discretised model ``A x + B u``; the candidate
+    values meet region boundaries where a noisy state may select a neighbouring region with
+    a very different input (docs/verification.md, "Measurement noise").
+
+    Parameters
+    ----------
+    problem : Problem
+        With ``verify.measurement_noise``.
+    law : ExplicitLaw
+    directions : (P, n) ndarray
+        One direction per trajectory (rows of the ``X0`` given to ``simulate_many``).
+    seed : int
+        For the sample of corners when there are more than 32.
+
+    Returns
+    -------
+    callable
+        ``(k, X (q, n), idx (q,)) -> (q, n)``.
+    """
+    from codev_engine.plant import discretize
+
+    vs = problem.verify
+    lo, hi = np.asarray(vs.noise_lower, float), np.asarray(vs.noise_upper, float)
+    n = lo.shape[0]
+    if n <= 5:
+        cand = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
+                                    indexing="ij")).reshape(n, -1).T
+    else:
+        rng = np.random.default_rng(seed)
+        cand = np.where(rng.integers(0, 2, (32, n)) == 1, hi, lo)
+    cand = np.vstack([0.5 * (lo + hi), cand])  # (c, n)
+    lm = discretize(problem)
+    B = np.asarray(lm.B, float)[:n]
+    dirs = np.asarray(directions, float)
+
+    def choose(_k: int, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        q, c = X.shape[0], cand.shape[0]
+        Y = (X[:, None, :] + cand[None, :, :]).reshape(q * c, n)
+        if law.n > n:  # theta = (x, u_prev, r): the adversary looks at the state part only
+            Y = np.hstack([Y, np.zeros((q * c, law.n - n))])
+        reg = law.locate(Y)
+        U = np.einsum("pij,pj->pi", law.F[np.maximum(reg, 0)], Y) + law.G[np.maximum(reg, 0)]
+        score = (U @ B.T * np.repeat(dirs[idx], c, axis=0)).sum(axis=1)
+        score = np.where(reg < 0, np.inf, score)  # leaving the law's domain is a violation
+        best = np.argmax(score.reshape(q, c), axis=1)
+        return cand[best]
+
+    return choose
+
+
 def _search(
-    problem: Problem, law: ExplicitLaw, hold: str, samples: int = 64
+    problem: Problem, law: ExplicitLaw, hold: str, samples: int = 64,
+    X0: np.ndarray | None = None,
 ) -> Counterexample | None:
-    """Concrete simulations from corners, centre and random initial states."""
-    from codev_engine.reach.simulate import simulate_many, theta_initial_box, violations_many
+    """Concrete simulations from corners, centre and random initial states (or from the
+    rows of ``X0``); with measurement noise, each under noise sequences (:func:`noise_sequences`
+    and :func:`noise_adversary`), every violation replayed before it is reported."""
+    from codev_engine.reach.simulate import theta_initial_box
 
     lo, hi = theta_initial_box(problem)  # (x0, u_prev0, r): the law's parameters
     n = lo.shape[0]
     nx = problem.plant.n
-    corners = (
-        np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij")).reshape(n, -1).T
-    )
-    rng = np.random.default_rng(0)
-    X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples], rng.uniform(lo, hi, (samples, n))])
+    if X0 is None:
+        corners = np.array(
+            np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij")
+        ).reshape(n, -1).T
+        rng = np.random.default_rng(0)
+        X0 = np.vstack([0.5 * (lo + hi), corners[: 4 * samples],
+                        rng.uniform(lo, hi, (samples, n))])
+    if problem.verify.noisy:
+        # each initial state under fixed sequences and under adversaries with random
+        # directions; the sequences the adversaries chose are replayed like the others
+        per = 8
+        reps = X0.shape[0] * per
+        seqs = noise_sequences(problem, reps)
+        X0r = np.repeat(X0, per, axis=0)
+        dirs = np.random.default_rng(3).normal(size=(reps, nx))
+        cex = None
+        for noise in (seqs, noise_adversary(problem, law, dirs)):
+            cex = _search_runs(problem, law, hold, X0r, noise)
+            if cex is not None:
+                return cex
+        return None
+    return _search_runs(problem, law, hold, X0, None)
+
+
+def _search_runs(problem: Problem, law: ExplicitLaw, hold: str, X0: np.ndarray,
+                 noise) -> Counterexample | None:
+    """Simulate from the rows of X0 (under signals when uncertain, and ``noise``); the
+    first replayed violation."""
+    from codev_engine.reach.simulate import simulate_many, theta_initial_box, violations_many
+
+    lo, _ = theta_initial_box(problem)
+    n = lo.shape[0]
+    nx = problem.plant.n
     dist = None
     if problem.plant.uncertain:
         # every initial state under every signal kind: centre, constant corners, bang-bang
         # and random pieces (_signals), each replayed exactly before it is reported
-        per = 8
+        per = 8 if noise is None else 1
         piece, W, Q = _signals(problem, X0.shape[0] * per)
         X0 = np.repeat(X0, per, axis=0)
         dist = (piece, W, Q)
     with np.errstate(all="ignore"):
         try:
-            t, X, U, alive = simulate_many(problem, law, X0[:, :nx], hold=hold,
-                                           extra0=X0[:, nx:] if n > nx else None,
-                                           disturbance=dist)
+            runs = simulate_many(problem, law, X0[:, :nx], hold=hold,
+                                 extra0=X0[:, nx:] if n > nx else None,
+                                 disturbance=dist, noise=noise)
+            t, X, U, alive = runs
         except SolverError:  # a trajectory is not finite: search the others
-            if dist is not None:
+            if dist is not None or noise is not None:
                 return None
             X0 = X0[[_finite_run(problem, law, hold, x) for x in X0]]
             if X0.shape[0] == 0:
@@ -707,10 +876,18 @@ def _search(
     bad, _ = violations_many(problem, t, X, U, alive)
     from codev_engine.reach.simulate import DisturbanceSignal
 
-    for p in np.flatnonzero(bad)[: 20 if dist is not None else None]:
+    replayed = dist is not None or noise is not None
+    for p in np.flatnonzero(bad)[: 20 if replayed else None]:
         signals = None
-        if dist is not None:
-            signals = [DisturbanceSignal(dist[0], dist[1][p], dist[2][p])]
+        if replayed:
+            if dist is not None:
+                sig = DisturbanceSignal(dist[0], dist[1][p], dist[2][p])
+            else:
+                sig = DisturbanceSignal(float(problem.model.sample_time), np.zeros((1, 0)),
+                                        np.zeros(0))
+            if noise is not None:
+                sig = replace(sig, noise=runs.noise[p])
+            signals = [sig]
         cex = _confirm(problem, law, hold, X0[p], signals)
         if cex is not None:
             return cex

@@ -58,7 +58,7 @@ _MPC = (
 )  # fmt: skip
 _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
-    "max_samples", "initial_input", "reference",
+    "max_samples", "initial_input", "reference", "measurement_noise",
 )  # fmt: skip
 
 
@@ -590,6 +590,14 @@ def _verify(value: Any, n: int) -> VerifySpec:
     input_bounds = _boolean(t.get("input_bounds", False), "verify.input_bounds")
     unsafe = _sets(t.get("unsafe", []), "verify.unsafe", n)
     safe = _sets(t.get("safe", []), "verify.safe", n)
+    noise: dict[str, np.ndarray] = {}
+    if "measurement_noise" in t:
+        f = "verify.measurement_noise"
+        b = _table(t["measurement_noise"], f, required=("lower", "upper"))
+        nlo = _vector(b["lower"], f"{f}.lower", n)
+        nhi = _vector(b["upper"], f"{f}.upper", n)
+        _ordered(nlo, nhi, f"{f}.lower", "lower", "upper")
+        noise = {"noise_lower": nlo, "noise_upper": nhi}
     return VerifySpec(
         time_horizon=horizon,
         initial_lower=_frozen(lower),
@@ -601,6 +609,7 @@ def _verify(value: Any, n: int) -> VerifySpec:
         unsafe=unsafe,
         safe=safe,
         max_samples=max_samples,
+        **noise,
     )
 
 

@@ -398,6 +398,10 @@ class VerifySpec:
     reference_lower, reference_upper : (p,) ndarray or None
         The reference, an unknown constant in this box, for a law with a free reference;
         None: the whole box of ``mpc.reference``.
+    noise_lower, noise_upper : (n,) ndarray or None
+        Measurement noise (``measurement_noise``): at each sample the law sees
+        ``x(t_k) + v_k`` with ``v_k`` any value in this box (chosen anew at every sample);
+        None: the law sees the state exactly.
     """
 
     time_horizon: float
@@ -414,6 +418,15 @@ class VerifySpec:
     initial_input_upper: np.ndarray | None = _since_v2(None)
     reference_lower: np.ndarray | None = _since_v2(None)
     reference_upper: np.ndarray | None = _since_v2(None)
+    noise_lower: np.ndarray | None = _since_v2(None)
+    noise_upper: np.ndarray | None = _since_v2(None)
+
+    @property
+    def noisy(self) -> bool:
+        """Does the law see the state through measurement noise (a box other than {0})?"""
+        return self.noise_lower is not None and bool(
+            np.any(self.noise_lower != 0) or np.any(self.noise_upper != 0)
+        )
 
 
 @dataclass(frozen=True)
