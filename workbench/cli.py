@@ -120,7 +120,9 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
               **({} if cex.disturbance is None else {"disturbance": {
                   "piece": cex.disturbance.piece,
                   "values": cex.disturbance.values.tolist(),
-                  "parameters": cex.disturbance.parameters.tolist()}})},
+                  "parameters": cex.disturbance.parameters.tolist(),
+                  **({} if cex.disturbance.noise is None
+                     else {"noise": cex.disturbance.noise.tolist()})}})},
         "tube": tube_path,
     }
 

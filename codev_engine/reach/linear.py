@@ -60,6 +60,16 @@ class AffinePlant:
         ``f0`` already holds); None without disturbances.
     w_radius : (d,) ndarray or None
         The half-widths of the disturbance box.
+    dA, dB : (n, n), (n, m) ndarray or None
+        With uncertain parameters ``p`` (the field affine in ``(x, u, w)`` for each ``p``,
+        ``Ac``, ``Bc``, ``E``, ``f0`` at the nominal ``p``): element-wise bounds on
+        ``|A(p) - Ac|``, ``|B(p) - Bc|`` over the parameter box (interval enclosures).
+    dE : (n, d) ndarray or None
+        Likewise ``|E(p) - E|`` (zeros without disturbances: shape (n, 0)).
+    dc : (n,) ndarray or None
+        Likewise ``|c(p) - c(p_nom)|``, ``c(p) = f(0, 0, 0, p)``.
+    w_abs : (d,) ndarray or None
+        ``max |w|`` over the disturbance box (zeros (0,) without disturbances).
     """
 
     Ac: np.ndarray
@@ -67,6 +77,11 @@ class AffinePlant:
     f0: np.ndarray
     E: np.ndarray | None = None
     w_radius: np.ndarray | None = None
+    dA: np.ndarray | None = None
+    dB: np.ndarray | None = None
+    dE: np.ndarray | None = None
+    dc: np.ndarray | None = None
+    w_abs: np.ndarray | None = None
 
 
 def affine_plant(problem: Problem) -> AffinePlant | None:
@@ -82,12 +97,12 @@ def affine_plant(problem: Problem) -> AffinePlant | None:
     Returns
     -------
     AffinePlant or None
-        None also for a plant with uncertain parameters (not followed by this engine), and
-        for one whose disturbances enter non-affinely.
+        None also for a plant whose disturbances enter non-affinely, or whose field is not
+        affine in ``(x, u, w)`` for each value of its uncertain parameters.
     """
     pl = problem.plant
     if pl.parameters is not None:
-        return None
+        return _parametric_plant(problem)
     w = pl.disturbances
     if pl.A is not None and pl.B is not None:
         if w is None:
@@ -121,6 +136,57 @@ def affine_plant(problem: Problem) -> AffinePlant | None:
     f0 = np.array([float(e.subs(at)) for e in f], dtype=float)
     return AffinePlant(Jn[:, :n], Jn[:, n : n + m], f0, Jn[:, n + m :],
                        np.asarray(w.radius, float))
+
+
+def _parametric_plant(problem: Problem) -> AffinePlant | None:
+    """An expression plant with uncertain parameters ``p``: ``f = A(p) x + B(p) u + E(p) w +
+    c(p)`` (the Jacobian in ``(x, u, w)`` free of ``x, u, w``), as the nominal affine plant
+    and interval bounds on the deviations over the parameter box (docs/verification.md,
+    "Uncertain parameters"); None when it is not of that form."""
+    import sympy
+
+    from codev_engine.plant import full_field
+    from codev_engine.reach.interval_function import compile_interval
+
+    pl = problem.plant
+    if pl.dynamics is None:
+        return None
+    f, xs, us, ws, ps = full_field(pl)
+    J = f.jacobian(sympy.Matrix([*xs, *us, *ws]))
+    if J.free_symbols - set(ps):
+        return None
+    n, m, d = pl.n, pl.m, len(ws)
+    zero = {s: 0 for s in (*xs, *us, *ws)}
+    c = sympy.Matrix(f).subs(zero)  # (n, 1): c(p)
+    box = pl.parameters
+    nom = dict(zip(ps, box.nominal.tolist(), strict=True))
+    try:
+        Jn = np.array(J.subs(nom).tolist(), dtype=float)
+        cn = np.array(c.subs(nom).tolist(), dtype=float).reshape(n)
+        Jf = compile_interval(J, ps)
+        cf = compile_interval(c, ps)
+        lo, hi = np.asarray(box.lower, float), np.asarray(box.upper, float)
+        Jlo, Jhi = (np.asarray(a, float) for a in Jf(lo, hi))
+        clo, chi = (np.asarray(a, float).reshape(n) for a in cf(lo, hi))
+    except (TypeError, ValueError, ArithmeticError, NotImplementedError):
+        return None  # (an enclosure that cannot be computed: not followed by this engine)
+    dJ = np.maximum(np.abs(Jhi - Jn), np.abs(Jn - Jlo)) * (1.0 + 1e-12) + 1e-12 * np.abs(Jn)
+    dc = np.maximum(np.abs(chi - cn), np.abs(cn - clo)) * (1.0 + 1e-12) + 1e-12 * np.abs(cn)
+    if not (np.all(np.isfinite(dJ)) and np.all(np.isfinite(dc))):
+        return None
+    Ac, Bc, En = Jn[:, :n], Jn[:, n : n + m], Jn[:, n + m :]
+    if d:
+        wl, wh = np.asarray(pl.disturbances.lower, float), np.asarray(pl.disturbances.upper,
+                                                                        float)
+        wc, wr = 0.5 * (wl + wh), 0.5 * (wh - wl)
+        f0 = cn + En @ wc
+        dc = dc + 1e-12 * (np.abs(En) @ np.abs(wc))  # (the rounding of f0's product)
+        w_abs = np.maximum(np.abs(wl), np.abs(wh))
+        E, w_radius = En, wr
+    else:
+        f0, w_abs, E, w_radius = cn, np.zeros(0), None, None
+    return AffinePlant(Ac, Bc, f0, E, w_radius, dJ[:, :n], dJ[:, n : n + m], dJ[:, n + m :],
+                       dc, w_abs)
 
 
 @dataclass
@@ -287,8 +353,12 @@ class LinearReach(ClosedLoopSetup):
                                                                    np.abs(self.vc)))
             if self.vc is not None and self.law.num_regions else None
         )
-        #: disturbances or noise: the star carries generators, nothing is exact
-        self.uncertain = self.plant.E is not None or self.vr is not None
+        #: uncertain parameters: their deviation from the nominal model is an additive
+        #: disturbance whose radius ``_prad`` (n,) is bounded per period (:meth:`_param_bound`)
+        self.param = self.plant.dA is not None
+        self._prad = np.zeros(self.n)
+        #: disturbances, noise or parameters: the star carries generators, nothing is exact
+        self.uncertain = self.plant.E is not None or self.vr is not None or self.param
 
     # ---- flows --------------------------------------------------------------------------
 
@@ -364,6 +434,9 @@ class LinearReach(ClosedLoopSetup):
             cols.append((pl.Bc @ F, np.abs(pl.Bc) @ np.abs(F) * (1.0 + 1e-12),
                          self.vr[: self.n]))
             cols.append((pl.Bc, np.abs(pl.Bc), self.Gn_err[i]))
+        if self.param:  # the parameters' deviation, bounded for this period (_param_bound)
+            eye = np.eye(self.n)
+            cols.append((eye, eye, self._prad))
         if not cols:
             return None
         return (np.hstack([c[0] for c in cols]), np.hstack([c[1] for c in cols]),
@@ -389,10 +462,10 @@ class LinearReach(ClosedLoopSetup):
         w = self._inputs(i)
         if w is None:
             return None
+        Ew, absE, radius = w
         key = ("w", i if self.hold == "continuous" or self.vr is not None else -1)
         hit = self._flows.get(key)
         if hit is None:
-            Ew, absE, radius = w
             M, _ = self._mode(i)
             M = M[:, : self.n]
             h = min(self.step, self.Ts) / 4.0
@@ -402,15 +475,18 @@ class LinearReach(ClosedLoopSetup):
             Em = expm(sj[:, None, None] * np.abs(M)[None])
             G = np.abs(Ex @ Ew) + _REL * (Em @ absE) + 1e-300  # (K, n, d)
             growth = expm(h * np.abs(M)) * (1.0 + 1e-9)
-            incr = h * np.einsum("ab,jbd,d->ja", growth, G, radius)
-            D = np.vstack([np.zeros((1, self.n)), np.cumsum(incr, axis=0)]) * (1.0 + 1e-9)
-            hit = (h, D)
+            # per unit radius of each column: the radius (the parameters' part is set per
+            # period) is applied at the call, D being linear in it
+            incr = h * np.einsum("ab,jbd->jad", growth, G)
+            Du = np.concatenate([np.zeros((1, self.n, Ew.shape[1])), np.cumsum(incr, axis=0)],
+                                axis=0) * (1.0 + 1e-9)
+            hit = (h, Du)
             self._flows[key] = hit
-        h, D = hit
+        h, Du = hit
         idx = np.ceil(taus / h).astype(int)
-        if np.any(idx >= D.shape[0]):  # cannot happen: taus lie in one period
+        if np.any(idx >= Du.shape[0]):  # cannot happen: taus lie in one period
             raise _NeedExactError
-        return D[idx]
+        return (Du[idx] @ radius) * (1.0 + 1e-12)
 
     # ---- one period of one branch ----------------------------------------------------
 
@@ -549,11 +625,53 @@ class LinearReach(ClosedLoopSetup):
                         return Finding("input_bounds", r, t, x)
         return None
 
+    def _param_bound(self, s: _Star, i: int, taus: np.ndarray) -> bool:
+        """Set ``_prad``, the radius of the parameters' deviation over this period.
+
+        ``f(x, u, w, p) - f_nom = dA(p) x + dB(p) u + dE(p) w + dc(p)``: with ``x`` in a box
+        ``B``, ``u`` in its range, ``|.| <= |dA| |x|_B + |dB| |u| + |dE| |w| + |dc|``. ``B``
+        is found by bootstrapping: if the period's tube computed with the bound of ``B``
+        lies in ``B``'s interior, every trajectory stays in ``B`` over the period (at the
+        first time one would leave ``B`` it is still in the tube, inside the interior: a
+        contradiction), so the bound holds (docs/verification.md, "Uncertain parameters").
+        False when no such ``B`` is found in a few rounds.
+        """
+        pl = self.plant
+        self._prad = np.zeros(self.n)
+        _, _, _, slo, shi, u_lo, u_hi = self._segments(s, i, taus)
+        lo, hi = slo.min(axis=0), shi.max(axis=0)
+        wterm = pl.dE @ pl.w_abs if pl.w_abs is not None and pl.w_abs.size else 0.0
+        for _ in range(8):
+            pad = 0.25 * (hi - lo) + 1e-9 * (1.0 + np.abs(lo) + np.abs(hi))
+            blo, bhi = lo - pad, hi + pad
+            xa = np.maximum(np.abs(blo), np.abs(bhi))
+            if self.hold == "zoh":  # the held input: from the sample, this period's B aside
+                ua = np.maximum(np.abs(u_lo), np.abs(u_hi)).max(axis=0)
+            else:  # u = F (x + v) + G over B
+                F = self.law.F[i][:, : self.n]
+                xc, xr = 0.5 * (blo + bhi), 0.5 * (bhi - blo)
+                uc = F @ xc + self.Gn[i]
+                if self.d > self.n:  # (not reached: theta laws are verified under zoh)
+                    raise _NeedExactError
+                ua = (np.abs(uc) + np.abs(F) @ xr + self._noise_input(i)) * (1.0 + 1e-12)
+            self._prad = (pl.dA @ xa + pl.dB @ ua + wterm + pl.dc) * (1.0 + 1e-12) + 1e-300
+            _, _, _, slo, shi, _, _ = self._segments(s, i, taus)
+            nlo, nhi = slo.min(axis=0), shi.max(axis=0)
+            if np.all(nlo > blo) and np.all(nhi < bhi):
+                return True
+            lo, hi = np.minimum(lo, nlo), np.maximum(hi, nhi)
+        return False
+
     def _period(self, s: _Star, i: int) -> _Star | None:
         """Propagate star s (at sample k, in region i) through one period; check it."""
         t_k = s.k * self.Ts
         tau_end = min(self.Ts, self.T - t_k)
         taus = _grid(tau_end, self.step)
+        if self.param and not self._param_bound(s, i, taus):
+            # the parameters' effect could not be bounded over this period: a possible
+            # violation the engine cannot decide (the tube stops holding this branch)
+            self.findings.append(Finding("max_depth", -1, t_k, None))
+            return None
         X, W, err, slo, shi, u_lo, u_hi = self._segments(s, i, taus)
         bad = self._bad_segments(slo, shi, u_lo, u_hi)
         t0 = np.full(len(taus) - 1, t_k) + taus[:-1]
