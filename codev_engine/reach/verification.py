@@ -63,8 +63,8 @@ UNKNOWN_WORDS = {
     "enclosure": "an interval enclosure meets a singularity",
     "no_invariant": "no invariance certificate within max_samples",
     "invariant": "for all time: an invariance certificate",
-    "uncertain": "the reach engines do not follow this plant's disturbances or uncertain "
-    "parameters yet",
+    "uncertain": "the reach engines do not follow a nonlinear plant's disturbances or "
+    "uncertain parameters yet",
     "noise": "the nonlinear engine does not follow measurement noise yet",
 }
 
@@ -481,8 +481,8 @@ def verify(
         else:
             result = VerificationResult(
                 "unknown", "uncertain", tube, hold, None, stats,
-                "uncertain parameters, or disturbances of a nonlinear plant, are verified "
-                "for linear plants with disturbances only",
+                "disturbances and uncertain parameters are verified for plants affine in "
+                "the states, inputs and disturbances (for each parameter value) only",
             )
         result.attach_display(problem=problem, law=law)
         return result

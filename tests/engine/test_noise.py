@@ -236,7 +236,8 @@ def test_safe_without_noise_unsafe_with_it_and_the_sequence_is_replayed(tmp_path
     ce = result.counterexample
     assert ce.kind == "unsafe" and ce.disturbance is not None and ce.disturbance.noise is not None
     noise = ce.disturbance.noise
-    assert np.all(noise >= problem.verify.noise_lower) and np.all(noise <= problem.verify.noise_upper)
+    vs = problem.verify
+    assert np.all(noise >= vs.noise_lower) and np.all(noise <= vs.noise_upper)
     tr = simulate(problem, law, ce.x0, disturbance=ce.disturbance)
     v = first_violation(problem, law, tr)
     assert v is not None and v.kind == "unsafe"
