@@ -165,6 +165,12 @@ class NonlinearReach(ClosedLoopSetup):
         self.enc = plant_enclosures(p)
         self.hess = plant_hessian(p)
         self._init_properties()
+        # disturbances and uncertain parameters (docs/verification.md, "Nonlinear plants
+        # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
+        self.xlo = self.xhi = self.xnom = self.xdev = None
+        if p.plant.uncertain:
+            self.enc, self.xlo, self.xhi, self.xnom = _uncertain_enclosures(p)
+            self.xdev = np.maximum(self.xhi - self.xnom, self.xnom - self.xlo) * (1 + 1e-12)
         self._fnum = plant_model(p).scalar_field  # the (non-rigorous) centre trajectory
         self.h = float(vs.step)
         self.W, self.Winv = self._metric()
@@ -351,11 +357,28 @@ class NonlinearReach(ClosedLoopSetup):
             lo[idx], hi[idx] = glo, ghi
         return lo, hi
 
-    def _fb(self, lo, hi, i, ulo, uhi):
-        """f over boxes (N, n); ulo None: continuous hold, u = F x + G over the box."""
+    def _fb(self, lo, hi, i, ulo, uhi, nom=False):
+        """f over boxes (N, n); ulo None: continuous hold, u = F x + G over the box.
+
+        With disturbances or parameters the input box gets their box appended (their
+        nominal values for the centre, ``nom``), unless it already has them.
+        """
         if ulo is None:
             ulo, uhi = self._u_boxes(i, lo, hi)
+        ulo, uhi = self._with_extra(ulo, uhi, nom)
         return self._eval(self.enc.f_fn, *self.enc.box(lo, hi, ulo, uhi))
+
+    def _with_extra(self, ulo, uhi, nom=False):
+        """``(u, w, p)`` boxes from ``u`` boxes (unchanged for a certain plant)."""
+        if self.xlo is None or np.shape(ulo)[-1] != self.m:
+            return ulo, uhi
+        elo, ehi = (self.xnom, self.xnom) if nom else (self.xlo, self.xhi)
+        ulo, uhi = np.asarray(ulo, float), np.asarray(uhi, float)
+        if ulo.ndim == 2:
+            P = ulo.shape[0]
+            return (np.hstack([ulo, np.broadcast_to(elo, (P, elo.size))]),
+                    np.hstack([uhi, np.broadcast_to(ehi, (P, ehi.size))]))
+        return np.concatenate([ulo, elo]), np.concatenate([uhi, ehi])
 
     def _u_boxes(self, i, lo, hi):
         F, G = self.law.F[i], self.law.G[i]
@@ -365,7 +388,7 @@ class NonlinearReach(ClosedLoopSetup):
         pad = 4 * _U * (np.abs(c) @ np.abs(F).T + np.abs(G) + rad) + 1e-300
         return _dn(mid - rad - pad), _up(mid + rad + pad)
 
-    def _picard(self, slo, shi, i, ulo, uhi, h):
+    def _picard(self, slo, shi, i, ulo, uhi, h, nom=False):
         """Boxes B (N, n) with S + [0, h] f(B, U) inside B, batched over rows.
 
         Returns (Blo, Bhi, flo, fhi, ok): f over the box of the last containment check (the
@@ -374,7 +397,7 @@ class NonlinearReach(ClosedLoopSetup):
         """
         N = slo.shape[0]
         hc = h[:, None]
-        flo, fhi = self._fb(slo, shi, i, ulo, uhi)
+        flo, fhi = self._fb(slo, shi, i, ulo, uhi, nom)
         grow = np.maximum(np.abs(flo), np.abs(fhi)) * hc
         lo = slo - 1.5 * grow - 1e-12 * (1.0 + np.abs(slo))
         hi = shi + 1.5 * grow + 1e-12 * (1.0 + np.abs(shi))
@@ -389,7 +412,7 @@ class NonlinearReach(ClosedLoopSetup):
             if ulo is not None:
                 ul = ulo if ulo.ndim == 1 else ulo[todo]
                 uh = uhi if uhi.ndim == 1 else uhi[todo]
-            flo, fhi = self._fb(lo[todo], hi[todo], i, ul, uh)
+            flo, fhi = self._fb(lo[todo], hi[todo], i, ul, uh, nom)
             hh = hc[todo]
             dlo, dhi = hh * np.minimum(flo, 0.0), hh * np.maximum(fhi, 0.0)
             s0, s1 = slo[todo], shi[todo]
@@ -415,10 +438,12 @@ class NonlinearReach(ClosedLoopSetup):
                 break
         return Blo, Bhi, Flo, Fhi, ok
 
-    def _jac(self, lo, hi, i, ulo, uhi):
-        """Interval Jacobians (Jx, Ju) over boxes, for the mode's input."""
+    def _jac(self, lo, hi, i, ulo, uhi, nom=False):
+        """Interval Jacobians (Jx, Ju) over boxes, for the mode's input (Ju also in the
+        disturbances and parameters, after the inputs' m columns, when there are any)."""
         if ulo is None:
             ulo, uhi = self._u_boxes(i, lo, hi)
+        ulo, uhi = self._with_extra(ulo, uhi, nom)
         z = self.enc.box(lo, hi, ulo, uhi)
         return self._eval(self.enc.jac_x_fn, *z), self._eval(self.enc.jac_u_fn, *z)
 
@@ -505,13 +530,14 @@ class NonlinearReach(ClosedLoopSetup):
         if not np.all(np.isfinite(Y)):
             return None, _empty_tube(n), [self._failure(t_k)], None
         uC = (None, None) if not zoh else (uc, uc)
-        Bclo, Bchi, _, _, okc = self._picard(Y0, Y0, i, uC[0], uC[1], hs)
-        fyl, fyh = self._fb(Y0, Y0, i, *uC)
+        Bclo, Bchi, _, _, okc = self._picard(Y0, Y0, i, uC[0], uC[1], hs, nom=True)
+        fyl, fyh = self._fb(Y0, Y0, i, *uC, nom=True)
         if not okc.all():
             j = int(np.argmin(okc))
             return None, _empty_tube(n), [self._failure(t_k + taus[j])], None
-        (jxl, jxh), (jul, juh) = self._jac(Bclo, Bchi, i, *uC)
-        gl, gh = self._fb(Bclo, Bchi, i, *uC)
+        (jxl, jxh), (jul, juh) = self._jac(Bclo, Bchi, i, *uC, nom=True)
+        jul, juh = jul[..., :m], juh[..., :m]  # (the inputs' columns)
+        gl, gh = self._fb(Bclo, Bchi, i, *uC, nom=True)
         if zoh:
             Jl, Jh = jxl, jxh
         else:
@@ -530,7 +556,8 @@ class NonlinearReach(ClosedLoopSetup):
         eps_w = np.linalg.norm(eps @ self.absW.T, axis=1) * (1 + 1e-12)
 
         # 2. Jacobian at the centre and the linear flow Phi (exact up to rounding)
-        (cxl, cxh), (cul, cuh) = self._jac(Y0, Y0, i, *uC)
+        (cxl, cxh), (cul, cuh) = self._jac(Y0, Y0, i, *uC, nom=True)
+        cul, cuh = cul[..., :m], cuh[..., :m]
         if not (np.all(np.isfinite(cxl + cxh)) and np.all(np.isfinite(cul + cuh))):
             j = int(np.argmin(np.all(np.isfinite(cxl + cxh), axis=(1, 2))))
             return None, _empty_tube(n), [self._failure(t_k + taus[j])], None
@@ -621,7 +648,7 @@ class NonlinearReach(ClosedLoopSetup):
             a = np.full(N, np.inf)
             b = np.zeros(N)
             c2 = np.full(N, np.inf)
-            if jfin.size:
+            if jfin.size and self.xlo is None:
                 # second-order bound of the nonlinear forcing (no feedback through psi):
                 # |w_i| <= 1/2 Dz' |H_i| Dz + (Rc Dz)_i, Dz the a-priori bound of |x - z|
                 # (and |u - uc|) over the substep, from the enclosures
@@ -648,10 +675,21 @@ class NonlinearReach(ClosedLoopSetup):
                 with np.errstate(invalid="ignore"):
                     c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
                 c2 = np.where(np.isnan(c2), np.inf, c2)
+            if jfin.size:
                 if zoh:
                     (Xl, Xh), (Ul, Uh) = self._jac(Hlo[jfin], Hhi[jfin], i, ulo, uhi)
                 else:
                     (Xl, Xh), (Ul, Uh) = self._jac(Hlo[jfin], Hhi[jfin], i, None, None)
+                if self.xlo is not None:
+                    # the disturbances' and parameters' deviation from the centre's nominal
+                    # values: a forcing |Jw| |w - w_nom| (mean value over the boxes)
+                    Jw = np.maximum(np.abs(Ul[..., m:]), np.abs(Uh[..., m:]))
+                    with np.errstate(invalid="ignore"):
+                        bw = np.linalg.norm((Jw @ self.xdev) @ self.absW.T, axis=1)
+                    bw = np.where(np.isnan(bw), np.inf, bw) * (1 + 1e-10) + 1e-300
+                    Ul, Uh = Ul[..., :m], Uh[..., :m]
+                else:
+                    bw = 0.0
                 Rx = np.maximum(np.abs(Xl - Jxc[jfin]), np.abs(Xh - Jxc[jfin]))
                 Ru = np.maximum(np.abs(Ul - Juc[jfin]), np.abs(Uh - Juc[jfin]))
                 R = Rx if zoh else Rx + Ru @ np.abs(F)
@@ -659,6 +697,7 @@ class NonlinearReach(ClosedLoopSetup):
                     a[jfin] = _norm2(self.absW @ R @ self.absWinv) * (1 + 1e-12) * self.winv_pad
                     if zoh:
                         b[jfin] = _norm2(self.absW @ Ru) * (1 + 1e-12) * du_norm
+                b[jfin] = (b[jfin] + bw) * (1 + 1e-12)
             rho = np.zeros(N + 1)
             bad, r, last = -1, 0.0, N
             for j in range(N):
@@ -1122,3 +1161,38 @@ def _dn(x):
 
 def _up(x):
     return np.nextafter(np.nextafter(x, np.inf), np.inf)
+
+
+def _uncertain_enclosures(problem: Problem):
+    """Enclosures of ``f(x, u, w, p)`` (the field before the nominal values are put in):
+    ``(enclosures over (x, (u, w, p)), lower, upper, nominal)`` of the ``(w, p)`` box."""
+    import sympy
+
+    from codev_engine.plant import full_field
+    from codev_engine.reach.enclosure import PlantEnclosures
+    from codev_engine.reach.interval_function import compile_interval
+
+    pl = problem.plant
+    f, xs, us, ws, ps = full_field(pl)
+    args = (*xs, *us, *ws, *ps)
+    ext = sympy.Matrix([*us, *ws, *ps])
+    sym = _AugSym(xs, (*us, *ws, *ps))
+    enc = PlantEnclosures(
+        sym=sym,  # type: ignore[arg-type]
+        f_fn=compile_interval(list(f), args),
+        jac_x_fn=compile_interval(f.jacobian(sympy.Matrix(xs)), args),
+        jac_u_fn=compile_interval(f.jacobian(ext), args),
+    )
+    boxes = [b for b in (pl.disturbances, pl.parameters) if b is not None]
+    lo = np.concatenate([np.asarray(b.lower, float) for b in boxes])
+    hi = np.concatenate([np.asarray(b.upper, float) for b in boxes])
+    nom = np.concatenate([np.asarray(b.nominal, float) for b in boxes])
+    return enc, lo, hi, nom
+
+
+@dataclass(frozen=True)
+class _AugSym:
+    """The symbols a :class:`PlantEnclosures` reads its sizes from (x, and u with w, p)."""
+
+    x: tuple
+    u: tuple

@@ -465,27 +465,6 @@ def verify(
         # noise sequences (and signals)
         return _limited(problem, law, hold, t0, "noise",
                         "measurement noise is verified for affine plants only")
-    if problem.plant.uncertain and affine_plant(problem) is None:
-        # uncertain parameters, or disturbances of a nonlinear plant: not followed by the
-        # reach engines yet -- a limitation, so a verdict; a counterexample is still sought
-        # under concrete signals and parameter values
-        bounded = problem
-        if not np.isfinite(vs.time_horizon):
-            bounded = replace(problem, verify=replace(
-                vs, time_horizon=vs.max_samples * float(problem.model.sample_time)))
-        cex = _search(bounded, law, hold)
-        stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
-        tube = Tube.empty(problem.plant.n)
-        if cex is not None:
-            result = VerificationResult("unsafe", cex.kind, tube, hold, cex, stats)
-        else:
-            result = VerificationResult(
-                "unknown", "uncertain", tube, hold, None, stats,
-                "disturbances and uncertain parameters are verified for plants affine in "
-                "the states, inputs and disturbances (for each parameter value) only",
-            )
-        result.attach_display(problem=problem, law=law)
-        return result
     if law.n > problem.plant.n and (
         hold != "zoh" or not np.isfinite(vs.time_horizon) or affine_plant(problem) is None
     ):
