@@ -169,7 +169,7 @@ class NonlinearReach(ClosedLoopSetup):
         # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
         self.xlo = self.xhi = self.xnom = self.xdev = None
         if p.plant.uncertain:
-            self.enc, self.xlo, self.xhi, self.xnom = _uncertain_enclosures(p)
+            self.enc, self.hess, self.xlo, self.xhi, self.xnom = _uncertain_enclosures(p)
             self.xdev = np.maximum(self.xhi - self.xnom, self.xnom - self.xlo) * (1 + 1e-12)
         self._fnum = plant_model(p).scalar_field  # the (non-rigorous) centre trajectory
         self.h = float(vs.step)
@@ -536,6 +536,9 @@ class NonlinearReach(ClosedLoopSetup):
             j = int(np.argmin(okc))
             return None, _empty_tube(n), [self._failure(t_k + taus[j])], None
         (jxl, jxh), (jul, juh) = self._jac(Bclo, Bchi, i, *uC, nom=True)
+        # |df/d(w, p)| along the centre's substeps (nominal values): the first-order part of
+        # the disturbances' and parameters' forcing
+        Jwc = np.maximum(np.abs(jul[..., m:]), np.abs(juh[..., m:]))
         jul, juh = jul[..., :m], juh[..., :m]  # (the inputs' columns)
         gl, gh = self._fb(Bclo, Bchi, i, *uC, nom=True)
         if zoh:
@@ -648,7 +651,7 @@ class NonlinearReach(ClosedLoopSetup):
             a = np.full(N, np.inf)
             b = np.zeros(N)
             c2 = np.full(N, np.inf)
-            if jfin.size and self.xlo is None:
+            if jfin.size:
                 # second-order bound of the nonlinear forcing (no feedback through psi):
                 # |w_i| <= 1/2 Dz' |H_i| Dz + (Rc Dz)_i, Dz the a-priori bound of |x - z|
                 # (and |u - uc|) over the substep, from the enclosures
@@ -662,16 +665,23 @@ class NonlinearReach(ClosedLoopSetup):
                     ul_, uh_ = self._u_boxes(i, Hlo[jfin], Hhi[jfin])
                     zl = np.hstack([Hlo[jfin], ul_])
                     zh = np.hstack([Hhi[jfin], uh_])
+                if self.xlo is not None:  # (w, p) vary in their boxes about the nominal
+                    e = self.xlo.size
+                    zl = np.hstack([zl, np.broadcast_to(self.xlo, (jfin.size, e))])
+                    zh = np.hstack([zh, np.broadcast_to(self.xhi, (jfin.size, e))])
+                    Du_ = np.hstack([Du_, np.broadcast_to(self.xdev, (jfin.size, e))])
                 Dz = np.hstack([Dx, Du_]) * (1 + 1e-12)
                 hl, hh = self._eval(self.hess, zl, zh)
-                k = n + m
+                k = zl.shape[1]
                 Hm = np.maximum(np.abs(hl), np.abs(hh)).reshape(-1, n, k, k)
                 Hm = np.where(np.isnan(Hm), np.inf, Hm)
                 q = 0.5 * np.einsum("pikl,pk,pl->pi", Hm, Dz, Dz)
                 if zoh:
-                    q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz)
+                    q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, : n + m])
                 else:
                     q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, :n])
+                if self.xlo is not None:
+                    q = q + Jwc[jfin] @ self.xdev
                 with np.errstate(invalid="ignore"):
                     c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
                 c2 = np.where(np.isnan(c2), np.inf, c2)
@@ -1165,7 +1175,8 @@ def _up(x):
 
 def _uncertain_enclosures(problem: Problem):
     """Enclosures of ``f(x, u, w, p)`` (the field before the nominal values are put in):
-    ``(enclosures over (x, (u, w, p)), lower, upper, nominal)`` of the ``(w, p)`` box."""
+    ``(enclosures over (x, (u, w, p)), its second derivatives, lower, upper, nominal)``
+    (the last three of the ``(w, p)`` box)."""
     import sympy
 
     from codev_engine.plant import full_field
@@ -1177,6 +1188,8 @@ def _uncertain_enclosures(problem: Problem):
     args = (*xs, *us, *ws, *ps)
     ext = sympy.Matrix([*us, *ws, *ps])
     sym = _AugSym(xs, (*us, *ws, *ps))
+    hess = compile_interval([sympy.diff(fi, za, zb) for fi in f for za in args for zb in args],
+                            args)
     enc = PlantEnclosures(
         sym=sym,  # type: ignore[arg-type]
         f_fn=compile_interval(list(f), args),
@@ -1187,7 +1200,7 @@ def _uncertain_enclosures(problem: Problem):
     lo = np.concatenate([np.asarray(b.lower, float) for b in boxes])
     hi = np.concatenate([np.asarray(b.upper, float) for b in boxes])
     nom = np.concatenate([np.asarray(b.nominal, float) for b in boxes])
-    return enc, lo, hi, nom
+    return enc, hess, lo, hi, nom
 
 
 @dataclass(frozen=True)
