@@ -942,8 +942,25 @@ class RecordingContent:
                 f"- when: t = {cex.t:.6g} s",
                 f"- from: x0 = ({x0})",
                 "- drawn thick red in every view; its end is marked in the plane",
-                "",
             ]
+            sig = cex.disturbance
+            if sig is not None:
+                if sig.values.size:
+                    lo, hi = sig.values.min(axis=0), sig.values.max(axis=0)
+                    lines.append(
+                        f"- disturbance signal: {sig.values.shape[0]} pieces of "
+                        f"{sig.piece:.4g} s, values in "
+                        + ", ".join(f"[{a:.4g}, {b:.4g}]" for a, b in zip(lo, hi, strict=True))
+                    )
+                if sig.parameters.size:
+                    lines.append("- parameters: " + ", ".join(
+                        f"{name} = {v:.6g}" for name, v in zip(
+                            p.plant.parameters.names, sig.parameters, strict=True)))
+                if sig.noise is not None:
+                    lines.append(f"- measurement noise: one value per sample "
+                                 f"({sig.noise.shape[0]} samples), replayed with the signal")
+            lines.append("")
+        lines += _uncertainty_lines(p, r)
         lines += ["### sizes and times", "", "| | |", "|---|---|"]
         lines += [
             f"| states | {', '.join(p.plant.states)} |",
@@ -1010,6 +1027,43 @@ class RecordingContent:
         w.static("/verdict", rr.TextDocument(self.verdict_text(), media_type="text/markdown"), 1)
 
 
+def _uncertainty_lines(p, r) -> list[str]:
+    """The boxes the verdict covers (disturbances, parameters, measurement noise) and the
+    invariance certificate, as markdown lines (none for a nominal, bounded verification)."""
+    lines: list[str] = []
+    rows = []
+    for kind, box in (("disturbance", p.plant.disturbances),
+                      ("parameter", p.plant.parameters)):
+        if box is not None:
+            for name, a, b, c in zip(box.names, box.lower, box.upper, box.nominal,
+                                     strict=True):
+                rows.append(f"| {kind} {name} | [{a:.6g}, {b:.6g}] (nominal {c:.6g}) |")
+    vs = p.verify
+    if vs is not None and vs.noise_lower is not None:
+        for name, a, b in zip(p.plant.states, vs.noise_lower, vs.noise_upper, strict=True):
+            rows.append(f"| measurement noise on {name} | [{a:.6g}, {b:.6g}] |")
+    if rows:
+        lines += ["### uncertainty covered", "",
+                  "The verdict holds for every disturbance signal, parameter value and noise "
+                  "sequence in these boxes.", "", "| | |", "|---|---|", *rows, ""]
+    if r is not None and r.certificate is not None:
+        c = r.stats.get("certificate", {})
+        lines += ["### invariance certificate", ""]
+        if c:
+            lines.append(
+                f"- every reach set at sample {c.get('closed_sample')} (t = "
+                f"{float(c.get('closed_time', 0.0)):.4g} s) lies in the set anchored at sample "
+                f"{c.get('anchor_sample')} (t = {float(c.get('anchor_time', 0.0)):.4g} s): the "
+                f"tube repeats with period {float(c.get('period', 0.0)):.4g} s, for all time")
+        lines += [
+            f"- the set: {r.certificate['H'].shape[0]} half-planes; "
+            f"{r.certificate['points'].shape[0]} points with their error boxes inside it, "
+            "re-checked by LP when the result is loaded",
+            "",
+        ]
+    return lines
+
+
 _VERDICT_WORDS = {
     "robustly_safe": "verdict: ROBUSTLY SAFE",
     "unsafe": "verdict: UNSAFE",
@@ -1022,6 +1076,12 @@ def _verdict_sentence(content: RecordingContent) -> str:
     r = content.result
     assert r is not None
     T = content.horizon
+    if r.verdict == "robustly_safe" and r.reason == "invariant":
+        return (
+            "Every closed-loop trajectory from the initial set stays out of the unsafe sets "
+            "(and inside the law's domain) for all time: an invariance certificate closes "
+            f"the induction; the views show the first {T:.4g} s."
+        )
     if r.verdict == "robustly_safe":
         return (
             f"Every closed-loop trajectory from the initial set stays out of the unsafe sets "

@@ -299,3 +299,22 @@ def test_noise_is_safe_for_all_time_with_a_certificate_holding_noisy_runs():
         for k in range(c["closed_sample"], int(T / Ts) + 1, period):
             j = np.flatnonzero(np.isclose(t, k * Ts))[-1]
             assert np.all(X[:, j] @ H.T <= h + 1e-9), f"a noisy state outside S at t = {t[j]}"
+
+
+def test_verdict_panel_names_the_boxes_and_the_certificate():
+    from codev_engine.view.record_content import RecordingContent, RecordingOptions
+
+    problem = _di(T=0.5)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    text = RecordingContent.build(problem, law, result, RecordingOptions(traces=2),
+                                  None).verdict_text(views=False)
+    assert "| measurement noise on p | [-0.05, 0.05] |" in text
+    assert "invariance certificate" not in text
+    inf = loads_spec(DI_V.format(plant=MATRIX, hold="zoh", T='"inf"', edge=-1.0, noise=""))
+    result = verify(inf, law)
+    assert result.reason == "invariant", result.summary()
+    text = RecordingContent.build(inf, law, result, RecordingOptions(traces=2),
+                                  None).verdict_text(views=False)
+    assert "### invariance certificate" in text and "for all time" in text
+    assert "uncertainty covered" not in text
