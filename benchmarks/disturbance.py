@@ -18,6 +18,12 @@ a disturbance of this size can make a property fail or unknown (the input bounds
 saturating law, see docs/verification.md).
 Targets: under 1 s each, the tube within 1.5x of the simulated hull.
 
+With ``--noise``: measurement noise instead, ``|v_i| <= fraction * range_i`` on every state
+the law sees (``[verify] measurement_noise``); the simulations then run under noise
+sequences (centre, corners held, bang-bang, random: ``verification.noise_sequences``) and
+under the feedback adversary (``verification.noise_adversary``, random directions), the hull
+taken over both.
+
 A benchmark, not a test: it asserts nothing and exits 0.
 """
 
@@ -33,7 +39,12 @@ import numpy as np
 import codev_engine as ce
 from codev_engine.reach.linear import affine_plant
 from codev_engine.reach.simulate import simulate_many
-from codev_engine.reach.verification import _signals, verify
+from codev_engine.reach.verification import (
+    _signals,
+    noise_adversary,
+    noise_sequences,
+    verify,
+)
 from codev_engine.spec.problem import PlantSpec, Uncertain
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -55,19 +66,30 @@ def disturbed(problem: ce.Problem, fraction: float = 0.01) -> ce.Problem:
     return replace(problem, plant=plant)
 
 
+def noisy(problem: ce.Problem, fraction: float = 0.01) -> ce.Problem:
+    """The problem whose law sees ``x + v``, ``|v_i| <= fraction * range_i``."""
+    mpc = problem.mpc
+    span = np.where(np.isfinite(mpc.x_max - mpc.x_min), mpc.x_max - mpc.x_min,
+                    2 * mpc.domain_bound)
+    r = fraction * span
+    return replace(problem, verify=replace(problem.verify, noise_lower=-r, noise_upper=r))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--sims", type=int, default=200)
     ap.add_argument("--fraction", type=float, default=0.01,
                     help="disturbance half-width as a fraction of the state range")
+    ap.add_argument("--noise", action="store_true",
+                    help="measurement noise of that size instead of a disturbance")
     args = ap.parse_args()
     print(f"{'example':22s} {'hold':10s} {'verdict':14s} {'seconds':>8s} {'branches':>8s} "
           f"{'tube/sim at T':>14s}")
     for stem in STEMS:
         base = ce.load_spec(ROOT / "examples" / f"{stem}.toml")
         law = ce.synthesize(base)
-        problem = disturbed(base, args.fraction)
+        problem = (noisy if args.noise else disturbed)(base, args.fraction)
         best, result = np.inf, None
         for _ in range(args.repeats):
             t0 = time.perf_counter()
@@ -79,8 +101,17 @@ def main() -> None:
         rng = np.random.default_rng(0)
         corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij"))
         X0 = np.vstack([corners.reshape(n, -1).T, rng.uniform(lo, hi, (args.sims, n))])
-        piece, W, Q = _signals(problem, X0.shape[0], seed=1)
-        t, X, _, _ = simulate_many(problem, law, X0, hold=result.hold, disturbance=(piece, W, Q))
+        if args.noise:
+            dirs = rng.normal(size=(X0.shape[0], n))
+            runs = [simulate_many(problem, law, X0, hold=result.hold, noise=noise)
+                    for noise in (noise_sequences(problem, X0.shape[0], seed=1),
+                                  noise_adversary(problem, law, dirs))]
+            t = runs[0].t
+            X = np.concatenate([r.X for r in runs], axis=0)
+        else:
+            piece, W, Q = _signals(problem, X0.shape[0], seed=1)
+            t, X, _, _ = simulate_many(problem, law, X0, hold=result.hold,
+                                       disturbance=(piece, W, Q))
         T = float(result.tube.t_end.max()) if result.tube.num_boxes else 0.0
         k = int(np.argmin(abs(t - 0.999 * T)))
         tlo, thi = result.tube.hull_at(t[k])

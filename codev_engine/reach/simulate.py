@@ -101,6 +101,9 @@ class Trace:
     undefined_at : float or None
         The sample time at which ``law.locate`` returned -1 (the trace ends there), or
         None if the law was defined at every sample time.
+    noise : (K, n) ndarray or None
+        With measurement noise: the noise the law saw in the period of each entry (at a
+        sample time, the new period's); None without noise.
     """
 
     t: np.ndarray
@@ -110,6 +113,7 @@ class Trace:
     x0: np.ndarray
     hold: str
     undefined_at: float | None = None
+    noise: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -474,6 +478,7 @@ def simulate(
     xs: list[np.ndarray] = []
     us: list[np.ndarray] = []
     rs: list[int] = []
+    vs: list[np.ndarray] = []  # the noise in force at each entry
     undefined_at = None
     k = 0
     noisy = disturbance is not None and disturbance.noise is not None
@@ -489,6 +494,7 @@ def simulate(
             xs.append(x.copy())
             us.append(np.full(m, np.nan))
             rs.append(-1)
+            vs.append(vk)
             undefined_at = a
             break
         # the law in the state during this period: (u_prev, r) are fixed at the sample
@@ -501,6 +507,7 @@ def simulate(
         xs.append(x.copy())
         us.append(ua)
         rs.append(i)
+        vs.append(vk)
         if a >= t_end - eps:
             break
         b_sample = (k + 1) * Ts
@@ -538,6 +545,7 @@ def simulate(
             xs.append(yj.copy())
             us.append(ua if hold == "zoh" else Fi @ yj + Gi)
             rs.append(i)
+            vs.append(vk)
         x = Y[-1].copy()
         if not np.all(np.isfinite(x)):
             raise SolverError(f"closed-loop state not finite at t = {b:g} s")
@@ -546,6 +554,7 @@ def simulate(
             xs.append(x.copy())
             us.append(ua if hold == "zoh" else Fi @ x + Gi)
             rs.append(i)
+            vs.append(vk)
             break
         k += 1
 
@@ -563,6 +572,7 @@ def simulate(
         x0=x0,
         hold=hold,
         undefined_at=undefined_at,
+        noise=frozen(vs, (K, n)) if noisy else None,
     )
 
 
@@ -890,7 +900,9 @@ def first_violation(problem: Problem, law: ExplicitLaw, trace: Trace) -> Violati
         if trace.hold == "zoh":
             U_left[ok] = U[ok - 1]
         else:
-            U_left[ok] = _affine(law, R[ok - 1], X[ok])
+            # (the law saw x + v: the ending period's noise, with measurement noise)
+            seen = X[ok] if trace.noise is None else X[ok] + trace.noise[ok - 1]
+            U_left[ok] = _affine(law, R[ok - 1], seen)
     bad_left = _input_flags(problem, U_left)
     undefined = R < 0
 

@@ -318,3 +318,18 @@ def test_verdict_panel_names_the_boxes_and_the_certificate():
                                   None).verdict_text(views=False)
     assert "### invariance certificate" in text and "for all time" in text
     assert "uncertainty covered" not in text
+
+
+def test_trace_keeps_the_noise_for_the_left_limits_of_a_continuous_input():
+    problem = _di(hold="continuous", T=0.5)
+    law = synthesize(problem)
+    seq = noise_sequences(problem, 6, seed=4)[5]
+    sig = DisturbanceSignal(0.1, np.zeros((1, 0)), np.zeros(0), seq)
+    tr = simulate(problem, law, [0.7, 0.0], disturbance=sig)
+    Ts = problem.model.sample_time
+    k = np.floor(tr.t / Ts + 1e-9).astype(int)
+    np.testing.assert_array_equal(tr.noise, seq[np.minimum(k, seq.shape[0] - 1)])
+    # the input in force inside a period is the law at the measured state x + v_k
+    j = np.flatnonzero((tr.t > 0.01) & (tr.t < 0.09))[0]
+    i = tr.region[j]
+    np.testing.assert_allclose(tr.u[j], law.F[i] @ (tr.x[j] + seq[0]) + law.G[i], atol=1e-12)
