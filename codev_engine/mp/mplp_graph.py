@@ -166,6 +166,7 @@ class _Search:
         self.zero = 1e-9 * max(self.scale, 1.0)
         #: pivots between fresh factorisations in the dual simplex
         self.refresh = 1
+        self.known: dict[bytes, int] = {}
 
     # ---- one basis --------------------------------------------------------------------
 
@@ -179,7 +180,9 @@ class _Search:
             raise _NotExactError("a basis matrix is numerically singular")
         return lu, piv
 
-    def _settle(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
+    def _settle(
+        self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None, verified: bool = False
+    ):
         """The optimal basis of the doubly perturbed LP at ``theta + t a`` (t -> 0+), by a
         lexicographic dual simplex from the (c, r)-optimal basis ``B``, primal feasible at
         ``theta``; None when the LP is infeasible there (past a boundary facet).
@@ -187,14 +190,20 @@ class _Search:
         The final basis is checked with the explorer's own test
         (``mplp._Explorer._lex_state``) from a fresh factorisation; the pivots in between
         update the tableau of the rows tight at ``theta`` (the only rows that can enter:
-        the vertex at ``theta`` does not move).
+        the vertex at ``theta`` does not move). ``verified``: B passed that test already
+        (it is not repeated when no pivot is made), nor for a basis found before.
         """
         B = np.array(B, dtype=np.intp)
+        start = np.sort(B)
         for _ in range(4):
             B, done = self._settle_once(B, theta, a)
             if B is None:
                 return None
-            if done and self._lex_ok(B):
+            if done and (
+                np.array_equal(np.sort(B), start) and verified
+                or np.sort(B).tobytes() in self.known
+                or self._lex_ok(B)
+            ):
                 return B
         raise _NotExactError("the lexicographic dual simplex did not settle")
 
@@ -377,6 +386,7 @@ class _Search:
         regions: list[CriticalRegion] = []
         marks: list[np.ndarray] = []
         known: dict[bytes, int] = {}
+        self.known = known
 
         def add(B, out) -> int:
             reg, mark = out
@@ -412,7 +422,7 @@ class _Search:
                     & (np.abs(self.r.At @ centre - self.r.bt) <= 1e-9 * self.scale)
                 ):
                     continue  # a slack's row on the parameter set's boundary
-                nbr = self._settle(B, centre, a)
+                nbr = self._settle(B, centre, a, verified=True)
                 if nbr is None:
                     continue  # the LP is infeasible past the facet: the feasible set's boundary
                 key = np.sort(nbr).tobytes()
