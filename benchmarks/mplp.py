@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/mplp.py [--repeats 2] [--horizons 20] [--json OUT]
+    python benchmarks/mplp.py [--repeats 2] [--horizons 20] [--testset DIR] [--json OUT]
 
 For each of the five paper mp-LPs (the condensed MPC of ``examples/<name>.toml``) it
 times ``mpsolve`` with ``SolveOptions(mplp="facets")`` (the geometric explorer, the engine
@@ -11,7 +11,8 @@ before issue 29) and ``mplp="bases"`` (the basis graph of ``mp/mplp_graph.py``),
 same number of regions. Next to them: the same MPC with ``norm = "2"`` (the mp-QP
 active-set search), its time per region. Then the double integrator with norms inf and 1
 at each of ``--horizons`` (``mplp="auto"``: the graph, or the explorer where the graph
-falls back), with its outcome. Prints a table; asserts nothing.
+falls back), with its outcome. With ``--testset``: the mp-LPs of that folder (the shared
+mp test set), facets against auto. Prints a table; asserts nothing.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--horizons", default="20", help="comma-separated horizons")
+    ap.add_argument("--testset", default=None, help="folder of .npz programs")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
     print(f"load: {os.getloadavg()}")
@@ -100,6 +102,23 @@ def main() -> None:
             rows.append(dict(problem=f"double_integrator norm={norm} N={n}", seconds=dt,
                              outcome=out))
             print(f"double integrator norm={norm:3s} N={n:3d}: {dt:7.2f} s  {out}")
+    if args.testset:
+        tot = {"facets": 0.0, "auto": 0.0}
+        for path in sorted(Path(args.testset).glob("*.npz")):
+            prog = ce.MpProgram.load(path)
+            if not prog.is_lp:
+                continue
+            tf, sf = timed(prog, "facets", 1)
+            ta, sa = timed(prog, "auto", 1)
+            tot["facets"] += tf
+            tot["auto"] += ta
+            rows.append(dict(problem=path.stem, regions_facets=len(sf.regions),
+                             regions_auto=len(sa.regions), facets_s=tf, auto_s=ta,
+                             engine=sa.stats.get("mplp")))
+            print(f"{path.stem:28s} {len(sf.regions):6d} {len(sa.regions):6d} {tf:8.3f} "
+                  f"{ta:8.3f} {tf / ta:6.2f} {sa.stats.get('mplp')}")
+        print(f"{'test-set mp-LPs together':28s} {'':13s} {tot['facets']:8.3f} "
+              f"{tot['auto']:8.3f} {tot['facets'] / tot['auto']:6.2f}")
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
 

@@ -125,3 +125,32 @@ def test_paper_mpcs_same_laws(example, mpc):
 def test_paper_mpcs_same_laws_dense(example, mpc):
     prog = _mpc(example, **mpc)
     _same_laws(_solve(prog, "bases"), _solve(prog, "facets"))
+
+
+def _di_problem(norm: str, horizon: int):
+    prob = load_spec(EXAMPLES / "double_integrator.toml")
+    return dataclasses.replace(prob, mpc=dataclasses.replace(prob.mpc, norm=norm, horizon=horizon))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("norm, horizon", [("inf", 20), ("1", 8), ("inf", 8)])
+def test_double_integrator_long_horizon_passes_the_oracle(norm, horizon):
+    """The synthesis oracle (online MPC at random points and across facets) on the law the
+    basis graph gives the double integrator."""
+    from tests.engine.test_synthesis_oracle import _check, compare
+
+    prob = _di_problem(norm, horizon)
+    model = discretize(prob)
+    sol = ce.mpsolve(build_program(prob.mpc, model).program)
+    assert sol.stats["mplp"] == "bases"
+    law = ce.synthesize(prob, model=model)
+    _check(compare(f"di_{norm}_{horizon}", prob.mpc, model, law))
+
+
+@pytest.mark.slow
+def test_too_degenerate_mp_lp_names_what_to_change():
+    """The double integrator with norm inf and N = 50: neither engine is exact there (the
+    tail's slacks decay to rounding level); the error says what to change, never "could
+    not identify a full-dimensional critical region"."""
+    with pytest.raises(ce.SolverError, match="mpc.horizon"):
+        ce.synthesize(_di_problem("inf", 50))
