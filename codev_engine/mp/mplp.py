@@ -238,7 +238,10 @@ class _Explorer:
             q = self._jitter(q, jitter)
             self.stats["jitters"] += 1
         raise _NoRegionError(
-            f"could not identify a full-dimensional critical region near theta={q}"
+            "the mp-LP is too degenerate to solve exactly near theta="
+            f"{np.array2string(q, precision=4)} (many constraints tight at once: with norm 1 "
+            "or inf, typically a long horizon whose tail rests at the target); shorten "
+            "mpc.horizon, or use norm = \"2\""
         )
 
     def _jitter(self, q: np.ndarray, size: float) -> np.ndarray:

@@ -8,7 +8,9 @@ set, then hands it on:
   lexicographic selection of the optimizer, refused when the constraints leave a direction
   of recession) go to the active-set graph search of ``mpqp.py``, from a point inside
   the feasible set;
-- **mp-LPs** go to the geometric exploration of ``mplp.py``.
+- **mp-LPs** go to the search on the graph of optimal bases of ``mplp_graph.py`` when
+  the cost does not depend on the parameter, else (or when that search cannot be made
+  exact) to the geometric exploration of ``mplp.py``.
 
 Then, for both, the **domain**: an H-representation of the feasible parameter set from the
 regions' rows (its facets are the regions' facets on its boundary), and the laws are mapped
@@ -26,6 +28,7 @@ import numpy as np
 from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
 from codev_engine.mp.mplp import COUNTERS, explore_facets
+from codev_engine.mp.mplp_graph import explore_bases
 from codev_engine.mp.mpqp import explore_active_sets
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.reduce import Reduced, lifted, parameter_box, reduce_program, start_point
@@ -55,6 +58,12 @@ class SolveOptions:
     workers : int or None
         Processes that evaluate mp-QP candidates once the search is large (None: the CPUs
         this process may use; 1: serial). The result does not depend on it.
+    mplp : str
+        The mp-LP algorithm: ``"auto"`` (the basis graph of ``mplp_graph.py`` when the
+        cost does not depend on the parameter, else, or when it cannot be made exact, the
+        geometric explorer of ``mplp.py``), ``"bases"`` (the graph only: a
+        ``SolverError`` when it cannot be made exact) or ``"facets"`` (the explorer
+        only). The laws do not depend on it.
     """
 
     region_tol: float = 1e-9
@@ -63,6 +72,7 @@ class SolveOptions:
     seed: int = 0
     max_regions: int = 1_000_000
     workers: int | None = None
+    mplp: str = "auto"
 
 
 def mpsolve(
@@ -100,17 +110,7 @@ def mpsolve(
     # measured both programs: the reports keep their keys)
     stats = dict.fromkeys(COUNTERS, 0)
     if not np.any(red.H):
-        found = explore_facets(
-            red,
-            size,
-            region_tol=region_tol,
-            step=opts.step * size.scale,
-            lp_perturbation=opts.lp_perturbation,
-            seed=opts.seed,
-            max_regions=opts.max_regions,
-            progress=progress,
-            stats=stats,
-        )
+        found = _solve_mplp(red, size, region_tol, opts, progress, stats)
         regions = RegionArrays.from_regions(found, nz, d)
     else:
         # combinatorial adjacency over active sets (mpqp.py)
@@ -150,6 +150,52 @@ def mpsolve(
         domain_A=domain[0],
         domain_b=domain[1],
         seconds=time.perf_counter() - t0,
+        stats=stats,
+    )
+
+
+def _solve_mplp(
+    red: Reduced,
+    size,
+    region_tol: float,
+    opts: SolveOptions,
+    progress: Callable[[int], None] | None,
+    stats: dict,
+) -> list[CriticalRegion]:
+    """The mp-LP's regions: the basis graph when it applies and is exact, else the
+    geometric explorer (``SolveOptions.mplp``)."""
+    if opts.mplp not in ("auto", "bases", "facets"):
+        raise ValueError(f"SolveOptions.mplp must be auto, bases or facets, got {opts.mplp!r}")
+    if opts.mplp != "facets":
+        if np.any(red.C):
+            if opts.mplp == "bases":
+                raise SolverError("the basis graph needs a cost without the parameter (C = 0)")
+        else:
+            found = explore_bases(
+                red,
+                size,
+                region_tol=region_tol,
+                lp_perturbation=opts.lp_perturbation,
+                seed=opts.seed,
+                max_regions=opts.max_regions,
+                progress=progress,
+                stats=stats,
+            )
+            if found is not None:
+                stats["mplp"] = "bases"
+                return found
+            if opts.mplp == "bases":
+                raise SolverError(f"the basis graph is not exact here: {stats['graph_fallback']}")
+    stats["mplp"] = "facets"
+    return explore_facets(
+        red,
+        size,
+        region_tol=region_tol,
+        step=opts.step * size.scale,
+        lp_perturbation=opts.lp_perturbation,
+        seed=opts.seed,
+        max_regions=opts.max_regions,
+        progress=progress,
         stats=stats,
     )
 

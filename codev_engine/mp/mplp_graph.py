@@ -1,0 +1,449 @@
+"""Exact mp-LP on the graph of optimal bases (the parameter in the right-hand side only).
+
+``mpsolve`` (``solve.py``) hands a reduced mp-LP whose cost does not depend on the
+parameter (``C = 0``: every MPC with norm 1 or inf) to :func:`explore_bases`. The law is the
+one the geometric explorer (``mplp.py``) selects: at every parameter the optimal vertex
+that is lexicographically optimal for ``(c, r)``, ``r`` the explorer's fixed generic
+direction (same seed, same draw), so at every parameter the law is the explorer's.
+
+**Bases.** A basis ``B`` (``nw`` linearly independent rows of ``G``) gives the affine law
+``w_B(theta) = G_B^-1 (w0_B + S_B theta)`` and the slack of every other row, an affine
+function of theta. Its critical region is where all slacks are >= 0. Under primal
+degeneracy (the tail of a long horizon that sits at the origin: both rows ``+-M v <= t``
+tight at ``v = 0, t = 0``, hundreds of tight rows for each vertex) a vertex has
+exponentially many bases and most of them have lower-dimensional regions: picking one at
+a point and hoping it is full-dimensional is what made the explorer give up ("could not
+identify a full-dimensional critical region").
+
+**Unique basis.** The right-hand side is perturbed lexicographically as well
+(Jones, Kerrigan & Maciejowski 2007): row ``i`` gets ``+ eps_i`` with
+``eps_1 >> eps_2 >> ...`` (relaxing every row, so feasibility is unchanged). With the
+cost perturbed lexicographically by ``r`` the perturbed LP is non-degenerate both ways:
+at every parameter exactly one basis is optimal, its vertex is the ``(c, r)``-optimal one
+(the explorer's law), its region is full-dimensional, and the regions form a
+facet-to-facet partition of the feasible set. Regions of equal laws have equal rows, so
+the regions are the explorer's (one per law).
+
+**Neighbours by pivoting.** Across facet ``F`` of a region, at its Chebyshev centre
+``theta0`` and direction ``a`` (its outer normal), the neighbour's basis is the optimal
+basis of the perturbed LP at ``theta0 + t a`` for an infinitesimal ``t > 0``: a
+lexicographic dual simplex from ``B`` whose right-hand side is ordered
+``(w0 + S theta0, S a, eps)``. Only rows tight at ``theta0`` ever enter (the vertex at
+``theta0`` does not move), the ratio test is lexicographic in ``(c, r)`` with the
+explorer's classification of tied duals, and a row with no positive ratio means the LP is
+infeasible past ``F`` (it is on the feasible set's boundary). No step, no LP solve at a
+point and no coverage of facets by pieces: one region per basis, found once.
+
+When a step of the search cannot be made exact (a basis matrix numerically singular, a
+region that comes out thinner than ``region_tol``, a neighbour that does not touch the
+facet) :func:`explore_bases` returns None and the caller uses the geometric explorer.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections import deque
+from collections.abc import Callable
+
+import numpy as np
+from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+
+from codev_engine.errors import SolverError
+from codev_engine.geometry.polytope import certified_minimal_rows, chebyshev_ball
+from codev_engine.mp.mplp import _TIE, _Explorer
+from codev_engine.mp.reduce import ParameterBox, Reduced, start_point
+from codev_engine.mp.solution import CriticalRegion, too_many_regions
+
+__all__ = ["explore_bases"]
+
+
+class _NotExactError(Exception):
+    """A step of the basis search could not be made exact here (the caller falls back)."""
+
+
+def explore_bases(
+    red: Reduced,
+    size: ParameterBox,
+    *,
+    region_tol: float,
+    lp_perturbation: float,
+    seed: int,
+    max_regions: int,
+    progress: Callable[[int], None] | None = None,
+    stats: dict | None = None,
+) -> list[CriticalRegion] | None:
+    """The critical regions of the mp-LP ``red`` (``H = 0``, ``C = 0``) by a search on
+    the graph of its lexicographically optimal bases; None when the search could not be
+    made exact (then the geometric explorer, ``mplp.explore_facets``, is used).
+
+    Parameters
+    ----------
+    red : Reduced
+        With ``H = 0`` and ``C = 0``.
+    size : ParameterBox
+        Of ``red``'s parameter set.
+    region_tol : float
+        A region whose inscribed ball is smaller is lower-dimensional (absolute).
+    lp_perturbation : float
+        Relative size of the generic cost perturbation of the LP solves at the start
+        point (the selection itself is exact, lexicographic).
+    seed : int
+        Of the generic direction and the start point (as the explorer's).
+    max_regions : int
+        More regions raise a ``SolverError``.
+    progress : callable, optional
+        Called with the number of regions found so far each time one is added.
+    stats : dict, optional
+        Counters are added to it (``bases``, ``pivots``, ``facets``).
+
+    Returns
+    -------
+    list of CriticalRegion or None
+        In the order found; empty when the program is infeasible for every parameter.
+    """
+    if np.any(red.H) or np.any(red.C):
+        raise ValueError("explore_bases solves mp-LPs with a parameter-free cost (H = 0, C = 0)")
+    stats = {} if stats is None else stats
+    try:
+        return _Search(
+            red,
+            size,
+            region_tol=region_tol,
+            lp_perturbation=lp_perturbation,
+            seed=seed,
+            max_regions=max_regions,
+            progress=progress,
+            stats=stats,
+        ).run()
+    except _NotExactError as e:
+        stats["graph_fallback"] = str(e)
+        return None
+
+
+class _Search:
+    """The search of :func:`explore_bases` (see the module docstring)."""
+
+    def __init__(
+        self,
+        red: Reduced,
+        size: ParameterBox,
+        *,
+        region_tol: float,
+        lp_perturbation: float,
+        seed: int,
+        max_regions: int,
+        progress: Callable | None,
+        stats: dict,
+    ):
+        self.r = red
+        self.size = size
+        self.scale = size.scale
+        self.region_tol = region_tol
+        self.max_regions = max_regions
+        self.progress = progress
+        self.stats = stats
+        for key in ("bases", "pivots", "facets"):
+            stats.setdefault(key, 0)
+        # the explorer draws the generic direction first, then the start point: the same
+        # draws here give the same selection (and the same start point)
+        self.ex = _Explorer(
+            red,
+            size,
+            region_tol=region_tol,
+            step=1e-6 * size.scale,
+            lp_perturbation=lp_perturbation,
+            seed=seed,
+            max_regions=max_regions,
+            progress=None,
+            stats=stats,
+        )
+        self.pert = self.ex.pert
+        self.cmag = self.ex.cmag
+        self.m, self.nw = red.G.shape
+        self.d = red.At.shape[1]
+        # a slack is zero at a point below this (absolute, in the reduced rows, which are
+        # unit rows of G: a length in w)
+        self.zero = 1e-9 * max(self.scale, 1.0)
+        #: pivots between fresh factorisations in the dual simplex
+        self.refresh = 1
+        self.known: dict[bytes, int] = {}
+
+    # ---- one basis --------------------------------------------------------------------
+
+    def _lu(self, B: np.ndarray):
+        GB = self.r.G[B]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LinAlgWarning)
+            lu, piv = lu_factor(GB, check_finite=False)
+        diag = np.abs(np.diag(lu))
+        if not np.all(np.isfinite(lu)) or np.min(diag) <= 1e-12 * max(1.0, np.max(diag)):
+            raise _NotExactError("a basis matrix is numerically singular")
+        return lu, piv
+
+    def _settle(
+        self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None, verified: bool = False
+    ):
+        """The optimal basis of the doubly perturbed LP at ``theta + t a`` (t -> 0+), by a
+        lexicographic dual simplex from the (c, r)-optimal basis ``B``, primal feasible at
+        ``theta``; None when the LP is infeasible there (past a boundary facet).
+
+        The final basis is checked with the explorer's own test
+        (``mplp._Explorer._lex_state``) from a fresh factorisation; the pivots in between
+        update the tableau of the rows tight at ``theta`` (the only rows that can enter:
+        the vertex at ``theta`` does not move). ``verified``: B passed that test already
+        (it is not repeated when no pivot is made), nor for a basis found before.
+        """
+        B = np.array(B, dtype=np.intp)
+        start = np.sort(B)
+        for _ in range(4):
+            B, done = self._settle_once(B, theta, a)
+            if B is None:
+                return None
+            if done and (
+                np.array_equal(np.sort(B), start) and verified
+                or np.sort(B).tobytes() in self.known
+                or self._lex_ok(B)
+            ):
+                return B
+        raise _NotExactError("the lexicographic dual simplex did not settle")
+
+    def _lex_ok(self, B: np.ndarray) -> bool:
+        st = self.ex._lex_state(B, np.zeros(self.d))
+        if st is None:
+            return False
+        _, d0, d1, tie, _ = st
+        return not np.any(self.ex._lex_negative(d0, d1, tie))
+
+    def _settle_once(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
+        r = self.r
+        h = r.w + r.S @ theta
+        ha = r.S @ a if a is not None else np.zeros(self.m)
+        lu = self._lu(B)
+        x = lu_solve(lu, h[B], check_finite=False)
+        s = h - r.G @ x
+        nb = np.ones(self.m, dtype=bool)
+        nb[B] = False
+        if np.any(s[nb] < -1e3 * self.zero):
+            raise _NotExactError("a basis is not primal feasible where it should be")
+        tight = np.flatnonzero(nb & (s <= self.zero))
+        if tight.size == 0:
+            return B, True
+        # the local tableau: rows T (the basis, then the tight rows), in basis coordinates
+        T = np.concatenate([B, tight])
+        Binv = lu_solve(lu, np.eye(self.nw), check_finite=False)
+        M = r.G[T] @ Binv  # (|T|, nw); row g = M_g' G_B
+        M[: self.nw] = np.eye(self.nw)
+        pos_of = np.full(T.size, -1, dtype=np.intp)  # position in the basis, or -1
+        pos_of[: self.nw] = np.arange(self.nw)
+        Bloc = np.arange(self.nw)  # local index of the basis's rows
+        d0 = -(r.c @ Binv)
+        d1 = -(self.pert @ Binv)
+        cap = 1e-9 * self.cmag
+        absc = np.abs(r.c)
+        haT = ha[T]
+        seen: set[bytes] = set()
+        since = 0
+        for _ in range(20 * self.nw + 200):
+            if since >= self.refresh:
+                # rounding accumulates in the updates: a fresh factorisation now and then
+                since = 0
+                lu = self._lu(T[Bloc])
+                Binv = lu_solve(lu, np.eye(self.nw), check_finite=False)
+                M = r.G[T] @ Binv
+                M[Bloc] = np.eye(self.nw)
+                d0 = -(r.c @ Binv)
+                d1 = -(self.pert @ Binv)
+            since += 1
+            key = np.sort(T[Bloc]).tobytes()
+            if key in seen:
+                raise _NotExactError("the lexicographic dual simplex cycled")
+            seen.add(key)
+            nbl = np.flatnonzero(pos_of < 0)
+            Mn = M[nbl]
+            der = haT[nbl] - Mn @ haT[Bloc]
+            dtol = 1e-9 * (np.abs(haT[nbl]) + np.abs(Mn) @ np.abs(haT[Bloc]) + 1e-3)
+            negd = der < -dtol
+            if np.any(negd):
+                kk = int(np.argmin(np.where(negd, der, np.inf)))
+            else:
+                # the eps part of slack g: +eps_g - sum_j M_gj eps_{B_j}; its sign is that
+                # of the lowest-numbered row with a nonzero coefficient
+                zerod = np.abs(der) <= dtol
+                absM = np.abs(Mn)
+                big = absM > 1e-9 * np.maximum(absM.max(axis=1, keepdims=True), 1.0)
+                rowsB = T[Bloc]
+                cand = np.where(big, rowsB[None, :], self.m)
+                first = cand.argmin(axis=1)
+                lowB = cand[np.arange(nbl.size), first]
+                epsneg = zerod & (lowB < T[nbl]) & (Mn[np.arange(nbl.size), first] > 0)
+                if not np.any(epsneg):
+                    return T[Bloc].copy(), True
+                kk = int(np.flatnonzero(epsneg)[np.argmin(T[nbl][epsneg])])
+            k = int(nbl[kk])
+            al = M[k].copy()
+            al[np.abs(al) <= 1e-9 * max(1.0, float(np.max(np.abs(al))))] = 0.0  # rounding
+            pos = np.flatnonzero(al > 0)
+            if pos.size == 0:
+                if negd[kk]:
+                    return None, True  # dual unbounded: the LP is infeasible past theta
+                raise _NotExactError("an infinitesimal infeasibility (rounding)")
+            # ties: the explorer's rule (_Explorer._lex_state), from the updated inverse
+            err0 = np.abs(Binv.T) @ (absc + np.abs(r.G[T[Bloc]].T) @ np.abs(d0))
+            thr = np.minimum(_TIE * (err0 + self.cmag), cap)
+            d0 = np.where(np.abs(d0) <= thr, 0.0, d0)
+            if np.any(d0 < 0):
+                return T[Bloc].copy(), False  # drifted: refactorise
+            # the lexicographic ratio test, with ties as the zeroing above makes them: a
+            # dual that the step brings within the cap of zero is a tie, and the ties are
+            # decided by r (so that every tie the step makes has d1 >= 0)
+            r0 = d0[pos] / al[pos]
+            rmin = float(np.min(r0))
+            cand_i = pos[d0[pos] - rmin * al[pos] <= thr[pos]]
+            i = int(cand_i[np.argmin(d1[cand_i] / al[cand_i])])
+            if rmin == 0.0 and d1[i] < 0:
+                return T[Bloc].copy(), False  # drifted: refactorise
+            self.stats["pivots"] += 1
+            t0, t1 = rmin, d1[i] / al[i]
+            d0 = d0 - t0 * al
+            d0[i] = t0
+            d1 = d1 - t1 * al
+            d1[i] = t1
+            col = M[:, i] / al[i]
+            M -= np.outer(col, al)
+            M[:, i] = col
+            col = Binv[:, i] / al[i]
+            Binv -= np.outer(col, al)
+            Binv[:, i] = col
+            pos_of[Bloc[i]] = -1
+            pos_of[k] = i
+            Bloc[i] = k
+        raise _NotExactError("the lexicographic dual simplex did not settle")
+
+    def _region(self, B: np.ndarray):
+        """The critical region of basis B -> (CriticalRegion, from_theta) where
+        ``from_theta`` marks the rows of the parameter set; None when thinner than
+        ``region_tol``."""
+        r = self.r
+        lu = self._lu(B)
+        Z = lu_solve(lu, np.hstack([r.w[B, None], r.S[B]]), check_finite=False)
+        k0, K = Z[:, 0], Z[:, 1:]
+        Ar = r.G @ K - r.S
+        br = r.w - r.G @ k0
+        nb = np.ones(self.m, dtype=bool)
+        nb[B] = False
+        Ar, br = Ar[nb], br[nb]
+        # slacks identically zero (degenerate rows the perturbation has settled) go
+        flat = (np.max(np.abs(Ar), axis=1) <= 1e-10) & (np.abs(br) <= 1e3 * self.zero)
+        Ar, br = Ar[~flat], br[~flat]
+        p = r.At.shape[0]
+        Ar = np.vstack([Ar, r.At])
+        br = np.concatenate([br, r.bt])
+        mark = np.zeros(Ar.shape[0], dtype=bool)
+        mark[-p:] = True
+        nrm = np.linalg.norm(Ar, axis=1)
+        if np.any(nrm <= 1e-12):
+            zero_rows = nrm <= 1e-12
+            if np.any(br[zero_rows] < -1e3 * self.zero):
+                return None
+            Ar, br, mark, nrm = Ar[~zero_rows], br[~zero_rows], mark[~zero_rows], nrm[~zero_rows]
+        Ar, br = Ar / nrm[:, None], br / nrm
+        centre, radius = chebyshev_ball(Ar, br)
+        if not radius > self.region_tol:
+            return None
+        keep = certified_minimal_rows(Ar, br, self.size.bound)
+        active = tuple(int(i) for i in np.sort(B))
+        reg = CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=active)
+        return reg, mark[keep]
+
+    # ---- the search -------------------------------------------------------------------
+
+    def _start(self):
+        """The optimal basis at a start point and its region, or None (infeasible)."""
+        ex = self.ex
+        q = start_point(self.r, self.scale, self.region_tol, ex.rng)
+        if q is None:
+            return None
+        for _ in range(8):
+            sol = ex._solve_at(q)
+            if sol is None:
+                return None
+            if not isinstance(sol, str):
+                act = ex._lp_basis(q, sol[1])
+                if act is not None:
+                    B = self._settle(act, q, None)
+                    if B is not None:
+                        out = self._region(B)
+                        if out is not None:
+                            return B, out
+            # q on a degenerate spot: move off it
+            q = ex._jitter(q, 1e-3 * self.scale)
+        raise _NotExactError("no full-dimensional region at the start point")
+
+    def run(self) -> list[CriticalRegion]:
+        first = self._start()
+        if first is None:
+            return []
+        regions: list[CriticalRegion] = []
+        marks: list[np.ndarray] = []
+        known: dict[bytes, int] = {}
+        self.known = known
+
+        def add(B, out) -> int:
+            reg, mark = out
+            known[np.sort(B).tobytes()] = len(regions)
+            regions.append(reg)
+            marks.append(mark)
+            self.stats["bases"] += 1
+            if self.progress is not None:
+                self.progress(len(regions))
+            if len(regions) > self.max_regions:
+                raise SolverError(too_many_regions(self.max_regions))
+            return len(regions) - 1
+
+        queue = deque([add(*first)])
+        while queue:
+            i = queue.popleft()
+            reg = regions[i]
+            B = np.array(reg.active, dtype=np.intp)
+            for j in np.flatnonzero(~marks[i]):
+                self.stats["facets"] += 1
+                a, beta = reg.A[j], reg.b[j]
+                others = np.delete(np.arange(reg.A.shape[0]), j)
+                centre, rho = chebyshev_ball(
+                    reg.A[others], reg.b[others], a[None, :], np.array([beta])
+                )
+                if not rho > self.region_tol:
+                    # a row kept without a proof of redundancy that only touches the
+                    # region (at a vertex, say): not a facet, nothing to cross
+                    self.stats["touching_rows"] = self.stats.get("touching_rows", 0) + 1
+                    continue
+                if np.any(
+                    (self.r.At @ a >= 1.0 - 1e-9)
+                    & (np.abs(self.r.At @ centre - self.r.bt) <= 1e-9 * self.scale)
+                ):
+                    continue  # a slack's row on the parameter set's boundary
+                nbr = self._settle(B, centre, a, verified=True)
+                if nbr is None:
+                    continue  # the LP is infeasible past the facet: the feasible set's boundary
+                key = np.sort(nbr).tobytes()
+                if key in known:
+                    kn = known[key]
+                    o = regions[kn]
+                    marks[kn] |= (np.max(np.abs(o.A + a), axis=1) <= 1e-9) & (
+                        np.abs(o.b + beta) <= 1e-9 * self.scale
+                    )
+                    continue
+                out = self._region(nbr)
+                if out is None:
+                    raise _NotExactError("a neighbour's region is lower-dimensional")
+                nreg = out[0]
+                if np.any(nreg.A @ centre - nreg.b > 1e-7 * self.scale):
+                    raise _NotExactError("a neighbour does not touch the facet crossed")
+                k = add(nbr, out)
+                # facet to facet: the neighbour's facet back across this one is done
+                back = (np.max(np.abs(nreg.A + a), axis=1) <= 1e-9) & (
+                    np.abs(nreg.b + beta) <= 1e-9 * self.scale
+                )
+                marks[k] = marks[k] | back
+                queue.append(k)
+        return regions
