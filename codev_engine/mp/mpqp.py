@@ -754,7 +754,16 @@ def _start_pool(kernel: _Kernel, nworkers: int):
         ctx = mp.get_context("fork")
     except ValueError:  # pragma: no cover - no fork on this platform: stay serial
         return None
-    return ctx.Pool(nworkers)
+    return ctx.Pool(nworkers, initializer=_ignore_interrupt)
+
+
+def _ignore_interrupt() -> None:
+    """A pool worker ignores Ctrl-C (SIGINT, sent to the terminal's whole process group):
+    the process that started the pool stops on it and terminates the pool, so no worker
+    prints a traceback of its own."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _merge_equal_laws(regions: RegionArrays, scale: float, stats: dict) -> RegionArrays:

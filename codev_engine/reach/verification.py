@@ -15,8 +15,10 @@ Verdicts
     over-approximation leaves the law's domain) or ``"enclosure"`` (refinement budget
     exhausted on an interval enclosure that meets a singularity: ``detail`` names the
     operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
-    "inf"``: no invariance certificate within ``max_samples``). A limitation of the verifier
-    is a verdict, never an error blamed on the input.
+    "inf"``: no invariance certificate within ``max_samples``), or ``"limit"`` (the
+    exploration grew past ``linear.REACH_LIMITS``, branches or reachtube memory: ``detail``
+    says which and what to change). A limitation of the verifier is a verdict, never an error
+    blamed on the input.
 
 With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
 ``certificate`` (re-checked by LP when loaded).
@@ -62,6 +64,7 @@ UNKNOWN_WORDS = {
     "reach engines do not track yet",
     "enclosure": "an interval enclosure meets a singularity",
     "no_invariant": "no invariance certificate within max_samples",
+    "limit": "the exploration grew past the verifier's limits",
     "invariant": "for all time: an invariance certificate",
     "uncertain": "the reach engines do not follow this plant's disturbances or uncertain "
     "parameters yet",
@@ -436,7 +439,8 @@ def verify(
     max_depth : int, optional
         Refinement budget; default ``problem.verify.max_depth``.
     progress : callable, optional
-        Called with a dict of counters now and then.
+        Called with a dict of counters after each branch period: ``branches``,
+        ``samples`` (the sample reached), ``boxes`` (the reachtube's boxes so far), ...
 
     Returns
     -------
@@ -510,7 +514,9 @@ def verify(
             "invariance certificates are computed for affine plants only",
         )
     if plant is not None:
-        eng = LinearReach(problem, law, plant, hold, depth, unbounded=unbounded)
+        eng = LinearReach(
+            problem, law, plant, hold, depth, unbounded=unbounded, progress=progress
+        )
         eng.run()
         certificate = eng.certificate
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
@@ -537,7 +543,10 @@ def verify(
     if verdict != "unsafe" and findings:
         kinds = {f.kind for f in findings}
         verdict = "unknown"
-        if "undefined" in kinds:
+        if "limit" in kinds:
+            reason = "limit"
+            detail = next(f.detail for f in findings if f.kind == "limit")
+        elif "undefined" in kinds:
             reason = "infeasible_region"
         elif "enclosure" in kinds:
             reason = "enclosure"

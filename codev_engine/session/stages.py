@@ -77,14 +77,15 @@ class StageRun:
     path : Path
         Where the artifact goes (the stage writes it, atomically).
     progress : callable
-        ``progress(count)``: regions found, branches explored, ...
+        ``progress(count, **extra)``: regions found, branches explored, ...; ``extra``
+        (e.g. ``samples``, ``boxes``) goes into the progress event's data.
     """
 
     problem: Problem
     options: StageOptions
     upstream: Mapping[str, Any]
     path: Path
-    progress: Callable[[int], None]
+    progress: Callable[..., None]
 
 
 @dataclass(frozen=True)
@@ -317,7 +318,9 @@ def _verification_compute(run: StageRun) -> Any:
         run.upstream["synthesis"],
         hold=run.options.hold,
         max_depth=run.options.max_depth,
-        progress=lambda st: run.progress(st.get("branches", 0)),
+        progress=lambda st: run.progress(
+            st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
+        ),
     )
     result.save(run.path)
     return result
