@@ -20,7 +20,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import linprog
 
 from codev_engine.geometry.polytope import solve_lp
 
@@ -201,6 +200,8 @@ def _highs(
     f: np.ndarray, A: np.ndarray, b: np.ndarray, options: dict | None = None
 ) -> np.ndarray | None:
     """``argmin f'x s.t. A x <= b`` by HiGHS; None unless optimal (and finite)."""
+    from scipy.optimize import linprog  # (~0.4 s of imports, spared to a cached run)
+
     try:
         res = linprog(
             f, A_ub=A, b_ub=b, bounds=(None, None), method="highs", options=options or {}

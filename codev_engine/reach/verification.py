@@ -39,7 +39,6 @@ from codev_engine.display import Displayable
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
-from codev_engine.reach.linear import LinearReach, affine_plant
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -446,6 +445,10 @@ def verify(
     -------
     VerificationResult
     """
+    # the reach engines (scipy, the plant model): imported when a verification runs, not
+    # when a cached result is loaded
+    from codev_engine.reach.linear import LinearReach, affine_plant
+
     if problem.verify is None:
         raise SpecError("the spec has no [verify] section", file=problem.path, field="verify")
     vs = problem.verify
