@@ -35,27 +35,19 @@ from codev_engine.geometry.polytope import (
 )
 from codev_engine.geometry.vertices import box_corners, checked_piece
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import limits
 from codev_engine.plant import symbolic_model
 from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
-__all__ = ["AffinePlant", "affine_plant", "LinearReach", "Finding", "REACH_LIMITS"]
+__all__ = ["AffinePlant", "affine_plant", "LinearReach", "Finding"]
 
 _REL = 1e-12  # relative floating-point margin per propagated quantity
 
-#: The documented limits of a reach exploration (docs/verification.md, "Limits"): the
-#: work that grows while it runs, which no field bounds before it starts. Past either, the
-#: exploration stops and the verdict is ``unknown`` with reason ``"limit"``.
-REACH_LIMITS = {
-    "branches": 500_000,  # branch periods explored (one set through one sample period)
-    "tube_bytes": 2**31,  # the reachtube's boxes held in memory: (2 n + 3) × 8 bytes each
-}
-
-
 class ExplorationLimitError(Exception):
-    """The exploration grew past :data:`REACH_LIMITS` (the message says which, and what
-    to change); ``t`` is the time reached."""
+    """The exploration grew past ``codev_engine.limits`` (``branches``, ``tube_bytes``; the
+    message says which, and what to change); ``t`` is the time reached."""
 
     def __init__(self, message: str, t: float):
         super().__init__(message)
@@ -177,7 +169,7 @@ class Finding:
     kind : str
         ``"unsafe"``, ``"safe"``, ``"input_bounds"`` (a property violated), ``"undefined"``
         (the set leaves the law's domain), ``"max_depth"`` (the refinement budget ran out)
-        or ``"limit"`` (the exploration grew past :data:`REACH_LIMITS`; ``detail`` says
+        or ``"limit"`` (the exploration grew past ``codev_engine.limits``; ``detail`` says
         which limit and what to change).
     index : int
         The unsafe or safe set, or the input, violated; -1 for the other kinds.
@@ -232,24 +224,26 @@ class ClosedLoopSetup:
         self.tubes: list[Tube] = []
         self.findings: list[Finding] = []
         self.boxes = 0  # the reachtube's boxes so far (for progress and the limits)
+        lim = limits()
+        self._max_branches = lim["branches"]
+        self._max_boxes = max(1, lim["tube_bytes"] // ((2 * self.n + 3) * 8))
+        self._tube_gib = lim["tube_bytes"] / 2**30
 
     def _tick(self, boxes: int, sample: int, t: float) -> None:
         """Count one branch period's ``boxes``; report progress (``samples``: the sample
-        reached); raise :class:`ExplorationLimitError` past :data:`REACH_LIMITS`."""
+        reached); raise :class:`ExplorationLimitError` past ``codev_engine.limits``."""
         self.boxes += boxes
-        branches = self.stats["branches"]
-        most = REACH_LIMITS["tube_bytes"] // ((2 * self.n + 3) * 8)
-        if branches > REACH_LIMITS["branches"]:
+        if self.stats["branches"] > self._max_branches:
             raise ExplorationLimitError(
-                f"more than {REACH_LIMITS['branches']:,} branches explored by t = {t:.4g}: "
+                f"more than {self._max_branches:,} branches explored by t = {t:.4g}: "
                 "shrink verify.initial_set, shorten verify.time_horizon or lower "
                 "verify.max_depth",
                 t,
             )
-        if self.boxes > most:
+        if self.boxes > self._max_boxes:
             raise ExplorationLimitError(
-                f"the reachtube passed {most:,} boxes ({REACH_LIMITS['tube_bytes'] / 2**30:g}"
-                f" GiB) by t = {t:.4g}: raise verify.step or shorten verify.time_horizon",
+                f"the reachtube passed {self._max_boxes:,} boxes ({self._tube_gib:.3g} GiB) "
+                f"by t = {t:.4g}: raise verify.step or shorten verify.time_horizon",
                 t,
             )
         progress = getattr(self, "progress", None)
@@ -295,6 +289,9 @@ class LinearReach(ClosedLoopSetup):
     unbounded : bool
         Safety for all time: the run ends at an invariance certificate (the tube is not
         repeated) or at the horizon ``max_samples`` sample times (no certificate).
+    progress : callable, optional
+        Called with a copy of ``stats`` plus ``samples`` (the sample reached) and ``boxes``
+        (the reachtube's boxes so far) after each branch period.
     """
 
     problem: Problem

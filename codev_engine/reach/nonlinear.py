@@ -990,7 +990,7 @@ class NonlinearReach(ClosedLoopSetup):
 
     def run(self) -> None:
         """Refine the initial set until every piece is proved or the depth runs out (or
-        the exploration grows past ``REACH_LIMITS``: a ``"limit"`` finding)."""
+        the exploration grows past ``codev_engine.limits``: a ``"limit"`` finding)."""
         self._limited(self._run)
 
     def _run(self) -> None:

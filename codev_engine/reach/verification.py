@@ -16,7 +16,7 @@ Verdicts
     exhausted on an interval enclosure that meets a singularity: ``detail`` names the
     operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
     "inf"``: no invariance certificate within ``max_samples``), or ``"limit"`` (the
-    exploration grew past ``linear.REACH_LIMITS``, branches or reachtube memory: ``detail``
+    exploration grew past ``codev_engine.limits``, branches or reachtube memory: ``detail``
     says which and what to change). A limitation of the verifier is a verdict, never an error
     blamed on the input.
 

@@ -8,10 +8,13 @@ import sys
 from pathlib import Path
 
 
-def run_codev(*args, cwd: str | Path, timeout: float = 300) -> subprocess.CompletedProcess:
+def run_codev(
+    *args, cwd: str | Path, timeout: float = 300, env: dict | None = None
+) -> subprocess.CompletedProcess:
     """``python -m workbench.cli ARGS`` in ``cwd``, output captured; ``CODEV_DEBUG`` is
-    cleared so that bad input gives its one-line error, not a traceback."""
-    env = {k: v for k, v in os.environ.items() if k != "CODEV_DEBUG"}
+    cleared so that bad input gives its one-line error, not a traceback; ``env`` adds
+    variables."""
+    env = {**{k: v for k, v in os.environ.items() if k != "CODEV_DEBUG"}, **(env or {})}
     return subprocess.run(
         [sys.executable, "-m", "workbench.cli", *map(str, args)],
         capture_output=True,
