@@ -2,8 +2,10 @@
 
 Exit status: 0 success (for ``verify``/``run``: robustly safe), 1 an outcome that is not
 a success but not the input's fault either: a verification that is not a proof (unsafe or
-unknown), a solver breakdown (``SolverError``) or a ``--timeout`` reached; 2 bad input (one
-line on stderr: file, field, reason).
+unknown), a solver breakdown (``SolverError``, a synthesis past its region limit) or a
+``--timeout`` reached; 2 bad input (one line on stderr: file, field, reason); 130 Ctrl-C
+(one line; nothing half-written). Progress of long work goes to stderr
+(:mod:`workbench.progress`; ``--quiet`` turns it off).
 """
 
 from __future__ import annotations
@@ -1037,7 +1039,8 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The exit status: 0 success (or robustly safe), 1 unsafe / unknown / solver failure,
-        2 bad input (one line on stderr naming the file, the field and the reason).
+        2 bad input (one line on stderr naming the file, the field and the reason), 130
+        interrupted by Ctrl-C (one line).
     """
     parser = _build_parser()
     args = parser.parse_args(argv)

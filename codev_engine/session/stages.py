@@ -303,11 +303,19 @@ def _verification_inputs(
         # max_samples only matters for time_horizon = "inf": left out, the keys of every
         # bounded verification are the ones sessions recorded before it existed
         del verify_fields["max_samples"]
-    return {
+    inputs = {
         "synthesis": keys["synthesis"],
         "plant": problem.plant,
         "verify": verify_fields,
     }
+    # a verdict "unknown" / "limit" depends on the exploration's limits: limits set by
+    # CODEV_LIMITS key the result (the defaults are left out: keys stay as they were)
+    from codev_engine.limits import DEFAULTS, limits
+
+    reach = {k: v for k, v in limits().items() if k != "region_bytes" and v != DEFAULTS[k]}
+    if reach:
+        inputs["limits"] = reach
+    return inputs
 
 
 def _verification_compute(run: StageRun) -> Any:
