@@ -41,8 +41,8 @@ ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SPEC = "examples/magnetic_pointer_a.toml"
 
 #: the libraries a cached run should not import (top-level module names)
-HEAVY = ("scipy", "sympy", "cvxpy", "control", "numba", "rerun", "matplotlib", "dask",
-         "distributed", "textual", "rich")
+HEAVY = ("scipy", "sympy", "cvxpy", "control", "numba", "rerun", "rerun_bindings", "matplotlib",
+         "dask", "distributed", "textual", "rich")
 
 
 def timed(cmd: list[str], env: dict, cwd: Path) -> tuple[float, float]:
@@ -74,13 +74,16 @@ def loaded_on_cached_run(code_root: Path, spec: Path, session: Path, env: dict) 
         "import sys, io, contextlib\n"
         "from workbench.cli import main\n"
         "with contextlib.redirect_stdout(io.StringIO()):\n"
-        f"    main(['run', {str(spec)!r}, '--session', {str(session)!r}, '--quiet'])\n"
-        f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))\n"
+        f"    code = main(['run', {str(spec)!r}, '--session', {str(session)!r}])\n"
+        "assert code in (0, 1), code\n"
+        f"print('loaded:' + ','.join(m for m in {HEAVY!r} if m in sys.modules))\n"
     )
     out = subprocess.run(
         [sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=code_root
     )
-    return [m for m in out.stdout.strip().split(",") if m]
+    if not out.stdout.startswith("loaded:"):
+        raise SystemExit(f"the import probe failed:\n{out.stderr}")
+    return [m for m in out.stdout.strip().removeprefix("loaded:").split(",") if m]
 
 
 def measure(code_root: Path, spec: Path, repeats: int) -> dict:
@@ -93,7 +96,7 @@ def measure(code_root: Path, spec: Path, repeats: int) -> dict:
         # warm-up, not measured: the compiled kernels' disk cache (numba) of this checkout
         warm = [*codev, "run", str(spec), "--session", str(Path(tmp) / "warm")]
         timed(warm, env, code_root)
-        for i in range(repeats):
+        for _ in range(repeats):
             helps.append(timed([*codev, "--help"], env, code_root))
         for i in range(repeats):
             session = Path(tmp) / f"s{i}"

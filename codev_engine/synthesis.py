@@ -13,6 +13,7 @@ from codev_engine.formulation import parameter_names
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
 from codev_engine.limits import limits
 from codev_engine.mp.merge import merge_regions
+from codev_engine.mp.program import MpProgram
 from codev_engine.mp.solution import TooManyRegionsError
 from codev_engine.mp.solve import MpSolution, SolveOptions, mpsolve
 from codev_engine.mpc import MpcProgram, build_program
@@ -21,7 +22,7 @@ from codev_engine.spec.problem import Problem
 
 __all__ = ["synthesize", "law_from_solution", "problem_fingerprint", "region_limit"]
 
-def region_limit(program) -> tuple[int, int]:
+def region_limit(program: MpProgram) -> tuple[int, int]:
     """How many critical regions of ``program`` fit in the ``region_bytes`` limit.
 
     The limit (``codev_engine.limits``; 4 GiB unless ``CODEV_LIMITS`` sets it) is the memory
