@@ -196,12 +196,28 @@ def _proved(
     )
 
 
+def linprog(*args, **kwargs):
+    """``scipy.optimize.linprog``, imported on the first call (~0.4 s of imports, which a
+    run that only loads cached laws never pays).
+
+    Parameters
+    ----------
+    *args, **kwargs
+        As for ``scipy.optimize.linprog``.
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+    """
+    from scipy.optimize import linprog as scipy_linprog
+
+    return scipy_linprog(*args, **kwargs)
+
+
 def _highs(
     f: np.ndarray, A: np.ndarray, b: np.ndarray, options: dict | None = None
 ) -> np.ndarray | None:
     """``argmin f'x s.t. A x <= b`` by HiGHS; None unless optimal (and finite)."""
-    from scipy.optimize import linprog  # (~0.4 s of imports, spared to a cached run)
-
     try:
         res = linprog(
             f, A_ub=A, b_ub=b, bounds=(None, None), method="highs", options=options or {}
