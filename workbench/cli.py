@@ -663,8 +663,6 @@ def _terminal_width() -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    import subprocess
-
     from workbench.bundled import benchmarks_dir
 
     folder = benchmarks_dir()
@@ -676,7 +674,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     script = folder / f"{args.name}.py"
     if not script.is_file():
         raise CodevError(f"{script}: no such benchmark script in this checkout")
-    return subprocess.call([sys.executable, str(script), *args.args])
+    # in its own process group, stopped with it: Ctrl-C ends the script (SIGTERM, no
+    # traceback of its own) and every process it started
+    status = run_viewer([sys.executable, str(script), *args.args])
+    if status == 130:
+        _err("interrupted (Ctrl-C)")
+    return status
 
 
 def _cmd_examples(args: argparse.Namespace) -> int:
