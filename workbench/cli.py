@@ -1058,20 +1058,26 @@ def main(argv: list[str] | None = None) -> int:
 
 @contextmanager
 def _interrupt_once() -> Iterator[None]:
-    """Ctrl-C (SIGINT) raises KeyboardInterrupt once; later ones are ignored while the
-    command unwinds (pools stopped, temporary files removed, the journal written), so a
-    second Ctrl-C cannot cut that cleanup short. The previous handler is put back after.
-    In the main thread only (elsewhere Python's default stays)."""
+    """Ctrl-C (SIGINT) raises KeyboardInterrupt once; a second is ignored while the command
+    unwinds (pools stopped, temporary files removed, the journal written), so it cannot cut
+    that cleanup short; a third exits at once (status 130; at worst a ``.tmp-*`` file is
+    left, which no reader looks at). The previous handler is put back after. In the main
+    thread only (elsewhere Python's default stays)."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    count = [0]
 
     def _handler(_signum, _frame):
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        count[0] += 1
         _INTERRUPTED[0] = True
-        raise KeyboardInterrupt
+        if count[0] == 1:
+            raise KeyboardInterrupt
+        if count[0] >= 3:
+            _err("interrupted (Ctrl-C three times: stopped at once)")
+            os._exit(130)
 
     _INTERRUPTED[0] = False
     previous = signal.signal(signal.SIGINT, _handler)
