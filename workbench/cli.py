@@ -1112,6 +1112,12 @@ def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         if isinstance(exc, CodevError):
             _err(str(exc))
             return 2
+        if isinstance(exc, MemoryError):  # past what the limits foresaw: still one line
+            _err(
+                "out of memory: the work outgrew this machine (docs/spec.md, \"Limits\"; "
+                "CODEV_LIMITS=region_bytes=...,tube_bytes=... lowers the limits)"
+            )
+            return 1
         if isinstance(exc, OSError):
             name = getattr(exc, "filename", None)
             _err(f"{name}: {exc.strerror}" if name else str(exc))
