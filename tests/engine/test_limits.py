@@ -81,6 +81,7 @@ def test_a_verification_past_its_branch_limit_is_unknown(tmp_path):
     assert "more than 3 branches" in payload["detail"] and "verify." in payload["detail"]
 
 
+@pytest.mark.slow
 def test_a_verification_past_its_tube_memory_is_unknown(monkeypatch):
     monkeypatch.setenv("CODEV_LIMITS", "tube_bytes=40000")
     problem = load_spec(ROOT / "examples" / "double_integrator.toml")
