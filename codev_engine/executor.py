@@ -18,9 +18,12 @@ default); the client sees each result once. See docs/scale.md.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
+import threading
 import warnings
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
 
 __all__ = ["Executor", "SCHEDULER_ENV"]
@@ -92,7 +95,7 @@ class Executor:
             from distributed import Client, LocalCluster
 
             if self.kind == "local":
-                with warnings.catch_warnings():
+                with _interrupt_ignored(), warnings.catch_warnings():
                     # the scheduler's HTTP routes (no dashboard) take another port when
                     # 8787 is taken, with a warning that is no news on a shared machine
                     warnings.filterwarnings("ignore", message="Port .* is already in use")
@@ -186,3 +189,23 @@ class Executor:
         if self.kind == "serial":
             return 1
         return len(self.client.scheduler_info(n_workers=-1)["workers"])
+
+
+@contextlib.contextmanager
+def _interrupt_ignored() -> Iterator[None]:
+    """Ignore SIGINT while a local cluster starts (POSIX, main thread; elsewhere nothing).
+
+    The nanny and worker processes it spawns inherit the ignored signal (an ignored signal
+    stays ignored across ``exec``, and Python keeps it so): a Ctrl-C at the terminal, sent to
+    the whole process group, then stops only this process, whose KeyboardInterrupt closes
+    the cluster in order (workers killed by the signal instead log tracebacks as they die).
+    A Ctrl-C during the start itself (a few seconds) is not seen.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)

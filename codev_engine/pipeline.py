@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from codev_engine import mpc as _mpc
 from codev_engine.errors import SpecError
 from codev_engine.spec.parse import parse_spec, read_spec
 from codev_engine.spec.problem import Problem
@@ -221,8 +220,11 @@ def check_mpc_feasible(problem: Problem) -> None:
     SolverError
         When the LP solver fails.
     """
+    # imported here: python-control and scipy (~1 s) only when the check runs
+    from codev_engine.mpc import check_feasible
+
     try:
-        _mpc.check_feasible(problem)
+        check_feasible(problem)
     except SpecError as exc:
         file = problem.path or "<string>"
         raise (exc.with_file(file) if exc.file is None else exc) from None

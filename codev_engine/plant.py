@@ -17,13 +17,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import sympy
 
 from codev_engine.errors import SpecError
 from codev_engine.io.npz import NpzFormat, load_npz, pair, real, save_npz
-from codev_engine.spec.expr import make_symbol, parse_expression
 
 if TYPE_CHECKING:
+    import sympy
+
     from codev_engine.spec.problem import PlantSpec, Problem
 
 __all__ = [
@@ -228,6 +228,8 @@ def _no_continuous_plant() -> SpecError:
 
 def _uncertain_symbols(plant: PlantSpec) -> tuple[tuple, tuple]:
     """The symbols of the disturbances ``w`` and of the parameters ``p`` (may be empty)."""
+    from codev_engine.spec.expr import make_symbol
+
     w = tuple(make_symbol(s) for s in (plant.disturbances.names if plant.disturbances else ()))
     p = tuple(make_symbol(s) for s in (plant.parameters.names if plant.parameters else ()))
     return w, p
@@ -251,6 +253,10 @@ def full_field(plant: PlantSpec) -> tuple[sympy.ImmutableMatrix, tuple, tuple, t
     SpecError
         If the plant has no continuous-time dynamics.
     """
+    import sympy
+
+    from codev_engine.spec.expr import make_symbol, parse_expression
+
     x = tuple(make_symbol(s) for s in plant.states)
     u = tuple(make_symbol(s) for s in plant.inputs)
     w, p = _uncertain_symbols(plant)
@@ -290,6 +296,8 @@ def _derive(plant: PlantSpec) -> SymbolicPlant:
     Disturbances and uncertain parameters take their nominal values: this is the model the
     design stages use (the verifier reads the uncertain field, :attr:`PlantModel.uncertain`).
     """
+    import sympy
+
     if plant.dynamics is not None or (plant.A is not None and plant.B is not None):
         f, x, u, w, p = full_field(plant)
         if w or p:
@@ -311,6 +319,8 @@ def _derive(plant: PlantSpec) -> SymbolicPlant:
 
 def _lambdify(exprs: list[sympy.Expr], args: tuple[sympy.Symbol, ...]):
     """Compile a flat list of expressions; the result returns one value per expression."""
+    import sympy
+
     # Derivatives of sign() are DiracDelta: zero almost everywhere, and numpy has no such
     # function. Replace by 0 (the a.e. derivative).
     clean = [e.replace(sympy.DiracDelta, lambda *a: sympy.S.Zero) for e in exprs]
@@ -433,6 +443,8 @@ class PlantModel:
         wrapper, which dominates the cost of the many small calls an integrator makes
         (about 5x faster per call).
         """
+        import sympy
+
         if self.plant.dynamics is None:
             f = self.numeric.f
             return f, f
@@ -455,6 +467,8 @@ class PlantModel:
     def uncertain(self) -> Callable[..., np.ndarray]:
         """``f(X (P, n), U (P, m), W (P, d), Q (P, q)) -> (P, n)``: the vector field with
         the disturbances ``W`` and the parameters ``Q`` as arguments (their spec order)."""
+        import sympy
+
         f, x, u, w, p = full_field(self.plant)
         n = self.n
         compiled = sympy.lambdify((*x, *u, *w, *p), list(f), modules="numpy", dummify=True)
@@ -476,6 +490,8 @@ class PlantModel:
         Compiled with ``math`` (fastest for one point); when that cannot evaluate (a
         function ``math`` lacks, or a domain error at the probe point), ``f_point``.
         """
+        import sympy
+
         try:
             fm = sympy.lambdify(self.args, list(self.sym.f), modules="math")
             fm(*([0.1] * (self.n + self.m)))

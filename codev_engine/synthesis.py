@@ -4,18 +4,51 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
+from codev_engine.errors import SolverError
 from codev_engine.formulation import parameter_names
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
+from codev_engine.limits import limits
 from codev_engine.mp.merge import merge_regions
+from codev_engine.mp.program import MpProgram
+from codev_engine.mp.solution import TooManyRegionsError
 from codev_engine.mp.solve import MpSolution, SolveOptions, mpsolve
 from codev_engine.mpc import MpcProgram, build_program
 from codev_engine.plant import LinearModel, discretize
 from codev_engine.spec.problem import Problem
 
-__all__ = ["synthesize", "law_from_solution", "problem_fingerprint"]
+__all__ = ["synthesize", "law_from_solution", "problem_fingerprint", "region_limit"]
+
+def region_limit(program: MpProgram) -> tuple[int, int]:
+    """How many critical regions of ``program`` fit in the ``region_bytes`` limit.
+
+    The limit (``codev_engine.limits``; 4 GiB unless ``CODEV_LIMITS`` sets it) is the memory
+    the critical regions of one synthesis may take: :func:`synthesize` stops the search past
+    this many regions (or the solver's own ``SolveOptions.max_regions``, whichever is
+    fewer) with a one-line message naming the fields to change, never a MemoryError.
+
+    A region holds at most every constraint row and the parameter set's rows (``d + 1``
+    numbers each) and its optimiser's affine law (``nz × (d + 1)``), in float64; the peak of
+    the search holds about twice that (the regions found and their packed copy).
+
+    Parameters
+    ----------
+    program : MpProgram
+        The condensed multi-parametric program.
+
+    Returns
+    -------
+    regions : int
+        The largest number of regions allowed.
+    bytes_per_region : int
+        The estimate it rests on.
+    """
+    rows = program.A.shape[0] + program.A_theta.shape[0]
+    per = 2 * 8 * (rows + program.nz) * (program.d + 1)
+    return max(1, limits()["region_bytes"] // per), per
 
 
 def problem_fingerprint(mp: MpcProgram) -> str:
@@ -141,13 +174,28 @@ def synthesize(
         linearisable at the operating point, weights of the wrong shape, an empty or
         unbounded parameter set).
     SolverError
-        When the multi-parametric solver gives up (more regions than
-        ``options.max_regions``, numerical trouble).
+        When the multi-parametric solver gives up: numerical trouble, or more regions than
+        ``options.max_regions`` or than fit in the ``region_bytes`` limit (see
+        :func:`region_limit`; the message names the fields to change).
     """
     t0 = time.perf_counter()
     model = model if model is not None else discretize(problem)
     mp = build_program(problem.mpc, model)
-    sol = mpsolve(mp.program, options=options, progress=progress)
+    options = options if options is not None else SolveOptions()
+    most, per = region_limit(mp.program)
+    capped = most < options.max_regions
+    if capped:
+        options = replace(options, max_regions=most)
+    try:
+        sol = mpsolve(mp.program, options=options, progress=progress)
+    except TooManyRegionsError:
+        raise SolverError(
+            f"synthesis stopped past {options.max_regions:,} critical regions "
+            + (f"(about {per / 1024:.0f} KB each, {most * per / 2**20:,.0f} MB in all)"
+               if capped else "(the solver's safety stop)")
+            + ": the explicit law is too large; shorten mpc.horizon, bound fewer states or "
+            "inputs in [mpc], or use fewer states"
+        ) from None
     law = law_from_solution(
         mp, sol, simplify=problem.mpc.simplify if simplify is None else simplify
     )

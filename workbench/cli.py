@@ -2,8 +2,10 @@
 
 Exit status: 0 success (for ``verify``/``run``: robustly safe), 1 an outcome that is not
 a success but not the input's fault either: a verification that is not a proof (unsafe or
-unknown), a solver breakdown (``SolverError``) or a ``--timeout`` reached; 2 bad input (one
-line on stderr: file, field, reason).
+unknown), a solver breakdown (``SolverError``, a synthesis past its region limit) or a
+``--timeout`` reached; 2 bad input (one line on stderr: file, field, reason); 130 Ctrl-C
+(one line; nothing half-written). Progress of long work goes to stderr
+(:mod:`workbench.progress`; ``--quiet`` turns it off).
 """
 
 from __future__ import annotations
@@ -35,7 +37,8 @@ def _progress(label: str, enabled: bool, unit: str = "regions") -> Iterator[Call
     :func:`_stage_progress`."""
     with _stage_progress(enabled, {label: unit}) as on_event:
         on_event(label, "start", {})
-        yield lambda count: on_event(label, "progress", {"count": count})
+        yield lambda count, **extra: on_event(label, "progress", {"count": count, **extra})
+        on_event(label, "done", {"status": "done"})
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:
@@ -148,7 +151,9 @@ def _verification(args: argparse.Namespace, problem, law, synth_seconds: float |
             law,
             hold=args.hold,
             max_depth=args.max_depth,
-            progress=lambda st: update(st.get("branches", 0)),
+            progress=lambda st: update(
+                st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
+            ),
         )
     tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
     if getattr(args, "record", None):
@@ -274,36 +279,20 @@ def _warn(msg: str) -> None:
 def _stage_progress(
     enabled: bool, units: dict[str, str] | None = None
 ) -> Iterator[Callable[[str, str, dict], None]]:
-    """One rich progress line per stage on a terminal (a live count of ``units[stage]`` for
-    long stages, ~10 Hz), quiet otherwise or when not ``enabled``."""
-    if not enabled or not sys.stderr.isatty():
-        yield lambda _stage, _event, _data: None
-        return
-    from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+    """Progress of each stage on stderr (:mod:`workbench.progress`): a live line per stage on
+    a terminal, rate-limited plain lines otherwise; nothing when not ``enabled``."""
+    from workbench.progress import stage_progress
 
-    unit = units or {"synthesis": "regions", "verification": "branches"}
-    with Progress(
-        SpinnerColumn(),
-        TextColumn("[bold]{task.description:<13}"),
-        TextColumn("{task.fields[info]}"),
-        TimeElapsedColumn(),
-        transient=True,
-    ) as prog:
-        tasks: dict[str, int] = {}
-        last = [0.0]
-
-        def on_event(stage: str, event: str, data: dict) -> None:
-            if event == "start":
-                tasks[stage] = prog.add_task(stage, info="")
-            elif event == "progress" and stage in tasks:
-                now = time.monotonic()
-                if now - last[0] > 0.1:  # ~10 Hz
-                    last[0] = now
-                    prog.update(tasks[stage], info=f"{data['count']} {unit.get(stage, '')}")
-            elif event == "done" and stage in tasks:
-                prog.update(tasks[stage], info=data["status"], completed=1, total=1)
-
+    with stage_progress(enabled and not _QUIET[0], units) as on_event:
         yield on_event
+
+
+#: ``--quiet``: no progress on stderr (set by :func:`main`)
+_QUIET = [False]
+#: set by the SIGINT handler: an exception that follows Ctrl-C is its consequence (compiled
+#: code turns the KeyboardInterrupt raised inside it into a SystemError, a library may wrap
+#: it in its own error), so it ends the command as an interrupt, exit 130
+_INTERRUPTED = [False]
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
@@ -520,8 +509,14 @@ def _cmd_report(args: argparse.Namespace) -> int:
         if problem.verify is not None:
             from codev_engine.reach.verification import verify
 
-            print(f"verifying {problem.name}", file=sys.stderr)
-            result = verify(problem, law)
+            with _progress(f"verifying {problem.name}", True, "branches") as update:
+                result = verify(
+                    problem,
+                    law,
+                    progress=lambda st: update(
+                        st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
+                    ),
+                )
     out = Path(args.out) if args.out else Path(f"{problem.name}-report.html")
     if out.suffix.lower() not in (".html", ".htm"):
         raise SpecError(f"a report is an .html file (got suffix {out.suffix!r})", field="--out")
@@ -566,7 +561,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations", "sweep",
+    "long_horizon", "formulations", "sweep", "startup",
 )
 
 
@@ -624,11 +619,17 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     def progress(i: int, row: dict) -> None:
         done[0] += 1
+        if args.quiet:
+            return
         values = ", ".join(f"{k} = {_sweep_cell(v)}" for k, v in row["values"].items())
         outcome = row["error"] or f"{row['regions']} regions, {row['verdict']}"
         print(f"design {done[0]}/{count} [{values}]: {outcome}", file=sys.stderr, flush=True)
 
     with executor:  # (every design is read by the loader before the cluster starts)
+        if executor.kind != "serial" and not args.quiet:
+            executor.client  # noqa: B018 (started, or connected to, here: said when up)
+            print(f"codev: sweep: {count} designs on {executor.workers} workers "
+                  f"({executor.kind})", file=sys.stderr, flush=True)
         rows = sweep(problem, grid, executor=executor, progress=progress, session=args.session)
     seconds = time.perf_counter() - t0
     if args.json:
@@ -664,8 +665,6 @@ def _terminal_width() -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    import subprocess
-
     from workbench.bundled import benchmarks_dir
 
     folder = benchmarks_dir()
@@ -677,7 +676,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     script = folder / f"{args.name}.py"
     if not script.is_file():
         raise CodevError(f"{script}: no such benchmark script in this checkout")
-    return subprocess.call([sys.executable, str(script), *args.args])
+    # in its own process group, stopped with it: Ctrl-C ends the script (SIGTERM, no
+    # traceback of its own) and every process it started
+    status = run_viewer([sys.executable, str(script), *args.args])
+    if status == 130:
+        _err("interrupted (Ctrl-C)")
+    return status
 
 
 def _cmd_examples(args: argparse.Namespace) -> int:
@@ -1017,6 +1021,14 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default="auto", choices=("bst", "sequential", "auto"),
                    help="binary search tree, sequential search, or the cheaper (default)")
     p.set_defaults(func=_cmd_export)
+    for name in ("synth", "verify", "run", "sweep", "replay", "mpsolve", "report"):
+        sub.choices[name].add_argument(
+            "-q",
+            "--quiet",
+            action="store_true",
+            help="no progress on stderr (by default: a live line on a terminal, else a plain "
+            "line once work has run 1 s, then every 5 s)",
+        )
     return parser
 
 
@@ -1032,10 +1044,53 @@ def main(argv: list[str] | None = None) -> int:
     -------
     int
         The exit status: 0 success (or robustly safe), 1 unsafe / unknown / solver failure,
-        2 bad input (one line on stderr naming the file, the field and the reason).
+        2 bad input (one line on stderr naming the file, the field and the reason), 130
+        interrupted by Ctrl-C (one line).
     """
     parser = _build_parser()
     args = parser.parse_args(argv)
+    _QUIET[0] = bool(getattr(args, "quiet", False))
+    try:
+        with _interrupt_once():
+            return _dispatch(parser, args)
+    except KeyboardInterrupt:  # (between two handlers)
+        _err("interrupted (Ctrl-C)")
+        return 130
+
+
+@contextmanager
+def _interrupt_once() -> Iterator[None]:
+    """Ctrl-C (SIGINT) raises KeyboardInterrupt once; a second is ignored while the command
+    unwinds (pools stopped, temporary files removed, the journal written), so it cannot cut
+    that cleanup short; a third exits at once (status 130; at worst a ``.tmp-*`` file is
+    left, which no reader looks at). The previous handler is put back after. In the main
+    thread only (elsewhere Python's default stays)."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    count = [0]
+
+    def _handler(_signum, _frame):
+        count[0] += 1
+        _INTERRUPTED[0] = True
+        if count[0] == 1:
+            raise KeyboardInterrupt
+        if count[0] >= 3:
+            _err("interrupted (Ctrl-C three times: stopped at once)")
+            os._exit(130)
+
+    _INTERRUPTED[0] = False
+    previous = signal.signal(signal.SIGINT, _handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """Run the subcommand; every failure is one line on stderr and an exit status."""
     if args.version:
         from codev_engine.version import __version__
 
@@ -1046,20 +1101,30 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args))
-    except SolverError as exc:  # the engine's failure, not the input's
-        _err(str(exc))
-        return 1
-    except CodevError as exc:
-        _err(str(exc))
-        return 2
     except KeyboardInterrupt:
-        _err("interrupted")
+        _err("interrupted (Ctrl-C)")
         return 130
-    except OSError as exc:
-        name = getattr(exc, "filename", None)
-        _err(f"{name}: {exc.strerror}" if name else str(exc))
-        return 2
-    except Exception as exc:  # a bug in codev: one line, the traceback on request
+    except Exception as exc:
+        if _INTERRUPTED[0]:  # a consequence of Ctrl-C (see _INTERRUPTED)
+            _err("interrupted (Ctrl-C)")
+            return 130
+        if isinstance(exc, SolverError):  # the engine's failure, not the input's
+            _err(str(exc))
+            return 1
+        if isinstance(exc, CodevError):
+            _err(str(exc))
+            return 2
+        if isinstance(exc, MemoryError):  # past what the limits foresaw: still one line
+            _err(
+                "out of memory: the work outgrew this machine (docs/spec.md, \"Limits\"; "
+                "CODEV_LIMITS=region_bytes=...,tube_bytes=... lowers the limits)"
+            )
+            return 1
+        if isinstance(exc, OSError):
+            name = getattr(exc, "filename", None)
+            _err(f"{name}: {exc.strerror}" if name else str(exc))
+            return 2
+        # a bug in codev: one line, the traceback on request
         if os.environ.get("CODEV_DEBUG"):
             raise
         _err(f"internal error ({exc.__class__.__name__}: {exc}); set CODEV_DEBUG=1 for details")

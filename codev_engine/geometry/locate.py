@@ -20,7 +20,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import linprog
 
 from codev_engine.geometry.polytope import solve_lp
 
@@ -195,6 +194,24 @@ def _proved(
     return bool(
         np.sum(np.abs(f + A.T @ y)) <= 1e-9 and abs(value + b @ y) <= 1e-9 * (1.0 + abs(value))
     )
+
+
+def linprog(*args, **kwargs):
+    """``scipy.optimize.linprog``, imported on the first call (~0.4 s of imports, which a
+    run that only loads cached laws never pays).
+
+    Parameters
+    ----------
+    *args, **kwargs
+        As for ``scipy.optimize.linprog``.
+
+    Returns
+    -------
+    scipy.optimize.OptimizeResult
+    """
+    from scipy.optimize import linprog as scipy_linprog
+
+    return scipy_linprog(*args, **kwargs)
 
 
 def _highs(

@@ -44,7 +44,7 @@ from codev_engine.geometry.polytope import (
 )
 from codev_engine.geometry.vertices import vertices
 from codev_engine.mp.reduce import ParameterBox, Reduced, lifted, start_point
-from codev_engine.mp.solution import CriticalRegion, too_many_regions
+from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 
 __all__ = ["COUNTERS", "explore_facets"]
 
@@ -528,7 +528,7 @@ class _Explorer:
         if self.progress is not None:
             self.progress(len(self.regions))
         if len(self.regions) > self.max_regions:
-            raise SolverError(too_many_regions(self.max_regions))
+            raise TooManyRegionsError(too_many_regions(self.max_regions))
         return len(self.regions) - 1
 
     def run(self) -> list[CriticalRegion]:

@@ -39,7 +39,13 @@ from codev_engine.geometry.polytope import (
     radius_upper_bound,
     row_hashes,
 )
-from codev_engine.mp.solution import CriticalRegion, RegionArrays, segment_indices, too_many_regions
+from codev_engine.mp.solution import (
+    CriticalRegion,
+    RegionArrays,
+    TooManyRegionsError,
+    segment_indices,
+    too_many_regions,
+)
 
 __all__ = ["explore_active_sets"]
 
@@ -489,7 +495,7 @@ def explore_active_sets(
             if progress is not None:
                 progress(len(regions))
             if len(regions) > max_regions:
-                raise SolverError(too_many_regions(max_regions))
+                raise TooManyRegionsError(too_many_regions(max_regions))
         if status == "licq":
             leave, enter = list(act), []  # its subsets are the way on
         elif status == "singular":
@@ -632,7 +638,7 @@ class _CompiledWalk:
                 if progress is not None:
                     progress(self.found)
                 if self.found > max_regions:
-                    raise SolverError(too_many_regions(max_regions))
+                    raise TooManyRegionsError(too_many_regions(max_regions))
         finally:
             self.stats["explored"] = graph.explored
             if pool is not None:
@@ -754,7 +760,16 @@ def _start_pool(kernel: _Kernel, nworkers: int):
         ctx = mp.get_context("fork")
     except ValueError:  # pragma: no cover - no fork on this platform: stay serial
         return None
-    return ctx.Pool(nworkers)
+    return ctx.Pool(nworkers, initializer=_ignore_interrupt)
+
+
+def _ignore_interrupt() -> None:
+    """A pool worker ignores Ctrl-C (SIGINT, sent to the terminal's whole process group):
+    the process that started the pool stops on it and terminates the pool, so no worker
+    prints a traceback of its own."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _merge_equal_laws(regions: RegionArrays, scale: float, stats: dict) -> RegionArrays:

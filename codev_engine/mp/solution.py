@@ -18,12 +18,15 @@ from typing import overload
 
 import numpy as np
 
-from codev_engine.errors import SpecError
+from codev_engine.errors import SolverError, SpecError
 from codev_engine.geometry.locate import PointLocator
 from codev_engine.io.npz import NpzFormat, array, load_npz, offsets, real, save_npz, text
 from codev_engine.mp.program import MpProgram
 
-__all__ = ["CriticalRegion", "MpSolution", "RegionArrays", "SOLUTION_FORMAT", "too_many_regions"]
+__all__ = [
+    "CriticalRegion", "MpSolution", "RegionArrays", "SOLUTION_FORMAT", "TooManyRegionsError",
+    "too_many_regions",
+]
 
 #: format tag of solution files; bumped on incompatible changes
 SOLUTION_FORMAT = "codev-mp-solution/2"
@@ -291,6 +294,10 @@ def segment_indices(starts: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, 
     off = np.zeros(sizes.size + 1, dtype=np.int64)
     np.cumsum(sizes, out=off[1:])
     return np.arange(off[-1]) - np.repeat(off[:-1] - starts, sizes), off
+
+
+class TooManyRegionsError(SolverError):
+    """The search passed ``SolveOptions.max_regions`` (the message: :func:`too_many_regions`)."""
 
 
 def too_many_regions(limit: int) -> str:

@@ -23,6 +23,7 @@ points, where it is bounded as follows (the soundness argument, see docs/verific
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,6 +35,7 @@ from codev_engine.geometry.polytope import (
 )
 from codev_engine.geometry.vertices import box_corners, checked_piece
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import limits
 from codev_engine.plant import symbolic_model
 from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
@@ -42,6 +44,14 @@ from codev_engine.spec.problem import Problem
 __all__ = ["AffinePlant", "affine_plant", "LinearReach", "Finding"]
 
 _REL = 1e-12  # relative floating-point margin per propagated quantity
+
+class ExplorationLimitError(Exception):
+    """The exploration grew past ``codev_engine.limits`` (``branches``, ``tube_bytes``; the
+    message says which, and what to change); ``t`` is the time reached."""
+
+    def __init__(self, message: str, t: float):
+        super().__init__(message)
+        self.t = t
 
 
 @dataclass(frozen=True)
@@ -224,7 +234,9 @@ class Finding:
     ----------
     kind : str
         ``"unsafe"``, ``"safe"``, ``"input_bounds"`` (a property violated), ``"undefined"``
-        (the set leaves the law's domain) or ``"max_depth"`` (the refinement budget ran out).
+        (the set leaves the law's domain), ``"max_depth"`` (the refinement budget ran out)
+        or ``"limit"`` (the exploration grew past ``codev_engine.limits``; ``detail`` says
+        which limit and what to change).
     index : int
         The unsafe or safe set, or the input, violated; -1 for the other kinds.
     t : float
@@ -236,7 +248,7 @@ class Finding:
         interval containing 0): the operation, the expression and the time, in words.
     """
 
-    kind: str  # "unsafe", "safe", "input_bounds", "undefined", "max_depth", "enclosure"
+    kind: str  # "unsafe", "safe", "input_bounds", "undefined", "max_depth", "enclosure", ...
     index: int
     t: float
     alpha: np.ndarray | None
@@ -277,6 +289,39 @@ class ClosedLoopSetup:
         self.V0 = np.diag(0.5 * (hi - lo))
         self.tubes: list[Tube] = []
         self.findings: list[Finding] = []
+        self.boxes = 0  # the reachtube's boxes so far (for progress and the limits)
+        lim = limits()
+        self._max_branches = lim["branches"]
+        self._max_boxes = max(1, lim["tube_bytes"] // ((2 * self.n + 3) * 8))
+        self._tube_gib = lim["tube_bytes"] / 2**30
+
+    def _tick(self, boxes: int, sample: int, t: float) -> None:
+        """Count one branch period's ``boxes``; report progress (``samples``: the sample
+        reached); raise :class:`ExplorationLimitError` past ``codev_engine.limits``."""
+        self.boxes += boxes
+        if self.stats["branches"] > self._max_branches:
+            raise ExplorationLimitError(
+                f"more than {self._max_branches:,} branches explored by t = {t:.4g}: "
+                "shrink verify.initial_set, shorten verify.time_horizon or lower "
+                "verify.max_depth",
+                t,
+            )
+        if self.boxes > self._max_boxes:
+            raise ExplorationLimitError(
+                f"the reachtube passed {self._max_boxes:,} boxes ({self._tube_gib:.3g} GiB) "
+                f"by t = {t:.4g}: raise verify.step or shorten verify.time_horizon",
+                t,
+            )
+        progress = getattr(self, "progress", None)
+        if progress is not None:
+            progress({**self.stats, "samples": sample, "boxes": self.boxes})
+
+    def _limited(self, run: Callable[[], None]) -> None:
+        """``run()``; past a limit, a ``"limit"`` finding (what was explored is kept)."""
+        try:
+            run()
+        except ExplorationLimitError as exc:
+            self.findings.append(Finding("limit", -1, exc.t, None, str(exc)))
 
 
 @dataclass
@@ -310,6 +355,9 @@ class LinearReach(ClosedLoopSetup):
     unbounded : bool
         Safety for all time: the run ends at an invariance certificate (the tube is not
         repeated) or at the horizon ``max_samples`` sample times (no certificate).
+    progress : callable, optional
+        Called with a copy of ``stats`` plus ``samples`` (the sample reached) and ``boxes``
+        (the reachtube's boxes so far) after each branch period.
     """
 
     problem: Problem
@@ -324,6 +372,9 @@ class LinearReach(ClosedLoopSetup):
     #: safety for all time: stop at the certificate without repeating the tube, and never
     #: fall back to the exact exploration (it would not end)
     unbounded: bool = False
+    #: called with a copy of ``stats`` plus ``samples`` (the sample reached) and ``boxes``
+    #: after each branch period
+    progress: Callable[[dict], None] | None = None
 
     def __post_init__(self) -> None:
         p = self.problem
@@ -681,6 +732,7 @@ class LinearReach(ClosedLoopSetup):
         self.tubes.append(
             Tube(t0[keep], t1[keep], slo[keep], shi[keep], np.full(int(keep.sum()), branch))
         )
+        self._tick(int(keep.sum()), s.k + 1, t_k + tau_end)
         for j in np.flatnonzero(bad):
             if not self._resolve(s, i, taus[j], taus[j + 1], 0, slo[j], shi[j], branch):
                 return None
@@ -900,6 +952,9 @@ class LinearReach(ClosedLoopSetup):
         First with merging and invariance certificates (:meth:`_run_merged`); when that
         meets a possible violation on a merged set, again exactly (every branch kept).
         """
+        self._limited(self._run)
+
+    def _run(self) -> None:
         if (self.merge or self.unbounded) and self.d == self.n:
             try:
                 self._run_merged()
@@ -915,7 +970,7 @@ class LinearReach(ClosedLoopSetup):
                 self.stats["merged_attempt"] = {
                     k: self.stats[k] for k in ("branches", "refinements")
                 }
-                self.tubes, self.findings = [], []
+                self.tubes, self.findings, self.boxes = [], [], 0
                 self.stats.update(branches=0, refinements=0)
                 self.stats.pop("certificate", None)
         self._run_exact()

@@ -131,7 +131,8 @@ class NonlinearReach(ClosedLoopSetup):
         How many times the initial box may be bisected (a piece that is not proved at
         this depth gives a ``max_depth`` or ``undefined`` finding).
     progress : callable, optional
-        Called with a copy of ``stats`` after each sample of each piece.
+        Called with a copy of ``stats`` plus ``samples`` (the sample reached) and ``boxes``
+        (the reachtube's boxes so far) after each branch period.
     stats : dict
         Counters updated by :meth:`run`: ``branches``, ``refinements``, ``partitions``,
         ``merges``.
@@ -900,6 +901,7 @@ class NonlinearReach(ClosedLoopSetup):
                     self.stats["branches"] += 1
                     nxt, tube, findings, rec = self._period(child, i)
                     tubes.append(tube)
+                    self._tick(tube.num_boxes, child.k + 1, (child.k + 1) * self.Ts)
                     if findings:
                         # the enclosure failed: this branch cannot go on, even when complete
                         if findings[0].kind == "enclosure" and self._failed is None:
@@ -913,8 +915,6 @@ class NonlinearReach(ClosedLoopSetup):
                     if nxt is not None and nxt.k * self.Ts < self.T - 1e-12:
                         nexts.append(nxt)
             frontier = self._merge(nexts, root.poly)
-            if self.progress is not None:
-                self.progress(dict(self.stats))
         return status, tubes, first_t
 
     def _split(self, s: _Set) -> list[tuple[int, _Set]]:
@@ -1038,7 +1038,11 @@ class NonlinearReach(ClosedLoopSetup):
         return current
 
     def run(self) -> None:
-        """Refine the initial set until every piece is proved or the depth runs out."""
+        """Refine the initial set until every piece is proved or the depth runs out (or
+        the exploration grows past ``codev_engine.limits``: a ``"limit"`` finding)."""
+        self._limited(self._run)
+
+    def _run(self) -> None:
         from codev_engine.reach.simulate import (
             first_violation,
             simulate,

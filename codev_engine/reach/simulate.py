@@ -44,7 +44,6 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from codev_engine.errors import SolverError
 from codev_engine.law import ExplicitLaw
@@ -459,6 +458,8 @@ def simulate(
     SolverError
         If the integrator fails inside a period (e.g. finite escape time).
     """
+    from scipy.integrate import solve_ivp  # (~1 s of imports: when a trace is computed)
+
     hold, t_end, dt = _settings(problem, hold, t_end, dt, 4.0)
     _check_law(problem, law)
     n, m = problem.plant.n, problem.plant.m
@@ -578,6 +579,8 @@ def simulate(
 
 def _pieces(problem, sig, hold, Fi, Gi, ua, x, t_eval, opts) -> np.ndarray:
     """One period under a disturbance signal, integrated piece by piece: (len(t_eval), n)."""
+    from scipy.integrate import solve_ivp
+
     fu = plant_model(problem).uncertain
     q = np.asarray(sig.parameters, float)[None, :]
     a, b = float(t_eval[0]), float(t_eval[-1])

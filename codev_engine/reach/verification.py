@@ -15,8 +15,10 @@ Verdicts
     over-approximation leaves the law's domain) or ``"enclosure"`` (refinement budget
     exhausted on an interval enclosure that meets a singularity: ``detail`` names the
     operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
-    "inf"``: no invariance certificate within ``max_samples``). A limitation of the verifier
-    is a verdict, never an error blamed on the input.
+    "inf"``: no invariance certificate within ``max_samples``), or ``"limit"`` (the
+    exploration grew past ``codev_engine.limits``, branches or reachtube memory: ``detail``
+    says which and what to change). A limitation of the verifier is a verdict, never an error
+    blamed on the input.
 
 With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
 ``certificate`` (re-checked by LP when loaded).
@@ -37,7 +39,6 @@ from codev_engine.display import Displayable
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
-from codev_engine.reach.linear import LinearReach, affine_plant
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -62,6 +63,7 @@ UNKNOWN_WORDS = {
     "reach engines do not track yet",
     "enclosure": "an interval enclosure meets a singularity",
     "no_invariant": "no invariance certificate within max_samples",
+    "limit": "the exploration grew past the verifier's limits",
     "invariant": "for all time: an invariance certificate",
     "uncertain": "the reach engines do not follow a nonlinear plant's disturbances or "
     "uncertain parameters yet",
@@ -445,12 +447,17 @@ def verify(
     max_depth : int, optional
         Refinement budget; default ``problem.verify.max_depth``.
     progress : callable, optional
-        Called with a dict of counters now and then.
+        Called with a dict of counters after each branch period: ``branches``,
+        ``samples`` (the sample reached), ``boxes`` (the reachtube's boxes so far), ...
 
     Returns
     -------
     VerificationResult
     """
+    # the reach engines (scipy, the plant model): imported when a verification runs, not
+    # when a cached result is loaded
+    from codev_engine.reach.linear import LinearReach, affine_plant
+
     if problem.verify is None:
         raise SpecError("the spec has no [verify] section", file=problem.path, field="verify")
     vs = problem.verify
@@ -504,7 +511,9 @@ def verify(
             "invariance certificates are computed for affine plants only",
         )
     if plant is not None:
-        eng = LinearReach(problem, law, plant, hold, depth, unbounded=unbounded)
+        eng = LinearReach(
+            problem, law, plant, hold, depth, unbounded=unbounded, progress=progress
+        )
         eng.run()
         certificate = eng.certificate
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
@@ -531,7 +540,10 @@ def verify(
     if verdict != "unsafe" and findings:
         kinds = {f.kind for f in findings}
         verdict = "unknown"
-        if "undefined" in kinds:
+        if "limit" in kinds:
+            reason = "limit"
+            detail = next(f.detail for f in findings if f.kind == "limit")
+        elif "undefined" in kinds:
             reason = "infeasible_region"
         elif "enclosure" in kinds:
             reason = "enclosure"

@@ -42,7 +42,9 @@ if TYPE_CHECKING:
 __all__ = ["EventCallback", "Session"]
 
 #: ``on_event(stage, event, data)``: ``event`` is "start", "progress" (``data["count"]``:
-#: regions found / branches explored) or "done" (``data``: the StageReport as a dict).
+#: regions found / branches explored; for verification also ``samples``, the sample
+#: reached, and ``boxes``, the reachtube's boxes so far, when known) or "done" (``data``:
+#: the StageReport as a dict).
 EventCallback = Callable[[str, str, dict], None]
 
 
@@ -477,9 +479,9 @@ class Session:
         return Path(dest)
 
 
-def _progress(emit: EventCallback, stage: str) -> Callable[[int], None]:
-    def count(c: int) -> None:
-        emit(stage, "progress", {"count": int(c)})
+def _progress(emit: EventCallback, stage: str) -> Callable[..., None]:
+    def count(c: int, **extra: Any) -> None:
+        emit(stage, "progress", {"count": int(c), **extra})
 
     return count
 

@@ -77,14 +77,15 @@ class StageRun:
     path : Path
         Where the artifact goes (the stage writes it, atomically).
     progress : callable
-        ``progress(count)``: regions found, branches explored, ...
+        ``progress(count, **extra)``: regions found, branches explored, ...; ``extra``
+        (e.g. ``samples``, ``boxes``) goes into the progress event's data.
     """
 
     problem: Problem
     options: StageOptions
     upstream: Mapping[str, Any]
     path: Path
-    progress: Callable[[int], None]
+    progress: Callable[..., None]
 
 
 @dataclass(frozen=True)
@@ -302,11 +303,19 @@ def _verification_inputs(
         # max_samples only matters for time_horizon = "inf": left out, the keys of every
         # bounded verification are the ones sessions recorded before it existed
         del verify_fields["max_samples"]
-    return {
+    inputs = {
         "synthesis": keys["synthesis"],
         "plant": problem.plant,
         "verify": verify_fields,
     }
+    # a verdict "unknown" / "limit" depends on the exploration's limits: limits set by
+    # CODEV_LIMITS key the result (the defaults are left out: keys stay as they were)
+    from codev_engine.limits import DEFAULTS, limits
+
+    reach = {k: v for k, v in limits().items() if k != "region_bytes" and v != DEFAULTS[k]}
+    if reach:
+        inputs["limits"] = reach
+    return inputs
 
 
 def _verification_compute(run: StageRun) -> Any:
@@ -317,7 +326,9 @@ def _verification_compute(run: StageRun) -> Any:
         run.upstream["synthesis"],
         hold=run.options.hold,
         max_depth=run.options.max_depth,
-        progress=lambda st: run.progress(st.get("branches", 0)),
+        progress=lambda st: run.progress(
+            st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
+        ),
     )
     result.save(run.path)
     return result

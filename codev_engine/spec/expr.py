@@ -23,6 +23,7 @@ from collections.abc import Callable, Mapping
 import sympy
 
 from codev_engine.errors import SpecError
+from codev_engine.spec.choices import RESERVED_NAMES as _RESERVED
 
 __all__ = ["CONSTANTS", "FUNCTIONS", "RESERVED_NAMES", "make_symbol", "parse_expression"]
 
@@ -53,8 +54,11 @@ _FUNCTION_TABLE: dict[str, tuple[Callable[..., sympy.Expr], int, int | None]] = 
 #: Names of the functions usable in expressions.
 FUNCTIONS: frozenset[str] = frozenset(_FUNCTION_TABLE)
 
-#: Names that cannot be used as state or input names.
+#: Names that cannot be used as state or input names (``spec.choices.RESERVED_NAMES``, which
+#: the parser reads without importing sympy, is the same set)
 RESERVED_NAMES: frozenset[str] = frozenset(CONSTANTS) | FUNCTIONS
+if RESERVED_NAMES != _RESERVED:  # pragma: no cover - the two lists are edited together
+    raise ImportError("spec.choices.RESERVED_NAMES differs from spec.expr's names")
 
 _MAX_LENGTH = 10_000  # characters of one expression
 _MAX_EXPONENT = 1_000  # |constant exponent|; stops 9**9**9-style blow-ups

@@ -20,8 +20,7 @@ from typing import Any
 import numpy as np
 
 from codev_engine.errors import SpecError
-from codev_engine.spec.choices import HOLDS, METHODS, NORMS
-from codev_engine.spec.expr import RESERVED_NAMES, make_symbol, parse_expression
+from codev_engine.spec.choices import HOLDS, METHODS, NORMS, RESERVED_NAMES
 from codev_engine.spec.problem import (
     SOFT_GROUPS,
     MixedConstraint,
@@ -246,6 +245,9 @@ def _plant(
                 f"got {len(dyn)}",
                 field="plant.dynamics",
             )
+        # sympy (~1 s of imports) only for a spec with dynamics
+        from codev_engine.spec.expr import make_symbol, parse_expression
+
         symbols = {s: make_symbol(s) for s in (*states, *inputs)}
         for box in (disturbances, parameters):
             symbols.update({s: make_symbol(s) for s in (box.names if box else ())})

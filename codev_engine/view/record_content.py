@@ -22,7 +22,6 @@ from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import normalize_rows
 from codev_engine.geometry.vertices import vertices_in_boxes, vertices_many
 from codev_engine.law import ExplicitLaw
-from codev_engine.reach.simulate import simulate_many, theta_initial_box
 from codev_engine.spec.problem import Problem, SetSpec
 from codev_engine.view.shapes import meshes, outline, raster_boxes, raster_polygons
 
@@ -187,6 +186,9 @@ def simulate_traces(
     """
     vs = problem.verify
     assert vs is not None
+    # (scipy and the plant model: imported when traces are simulated, not for a check)
+    from codev_engine.reach.simulate import simulate_many, theta_initial_box
+
     lo = np.asarray(vs.initial_lower, dtype=float)
     hi = np.asarray(vs.initial_upper, dtype=float)
     n = lo.shape[0]

@@ -3,17 +3,25 @@
 The specs are the bundled double integrator with one field typed wrong; before the limits,
 ``step = 1e-12`` ended in ``internal error (MemoryError ...)`` and the others ran for
 minutes without end. Checked as a real ``codev run`` process.
+
+Work that grows while it runs (``codev_engine.limits``: the regions of a synthesis, the
+branches and tube boxes of a verification) stops at its limit: a synthesis with one line and
+exit 1, a verification with the verdict ``unknown`` (reason ``"limit"``), exit 1. The limits
+are lowered through ``CODEV_LIMITS`` so that they are reached in a second.
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 from cli_process import run_codev
 
-from codev_engine import SpecError, loads_spec
+from codev_engine import SpecError, load_spec, loads_spec, synthesize
 from codev_engine.pipeline import LIMITS
+from codev_engine.reach.verification import verify
+from workbench.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 DI = (ROOT / "examples" / "double_integrator.toml").read_text(encoding="utf-8")
@@ -61,3 +69,39 @@ def test_codev_run_refuses_in_one_line(tmp_path, old, new, field):
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and field in lines[0] and "exceeds the limit" in lines[0], lines
     assert "internal error" not in out.stderr and "Traceback" not in out.stderr
+
+
+def test_a_verification_past_its_branch_limit_is_unknown(tmp_path):
+    out = run_codev("verify", ROOT / "examples" / "double_integrator.toml", "--json",
+                    cwd=tmp_path, timeout=120, env={"CODEV_LIMITS": "branches=3"})
+    assert out.returncode == 1, out.stderr
+    assert out.stderr == ""
+    payload = json.loads(out.stdout)
+    assert (payload["verdict"], payload["reason"]) == ("unknown", "limit"), payload
+    assert "more than 3 branches" in payload["detail"] and "verify." in payload["detail"]
+
+
+@pytest.mark.slow
+def test_a_verification_past_its_tube_memory_is_unknown(monkeypatch):
+    monkeypatch.setenv("CODEV_LIMITS", "tube_bytes=40000")
+    problem = load_spec(ROOT / "examples" / "double_integrator.toml")
+    result = verify(problem, synthesize(problem))
+    assert (result.verdict, result.reason) == ("unknown", "limit")
+    assert "the reachtube passed" in result.detail and "verify.step" in result.detail
+
+
+def test_a_synthesis_past_its_region_memory_is_one_line(tmp_path):
+    out = run_codev("run", ROOT / "examples" / "double_integrator.toml", "--session",
+                    tmp_path / "s", cwd=tmp_path, timeout=120,
+                    env={"CODEV_LIMITS": "region_bytes=1"})
+    assert out.returncode == 1, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("codev: error: synthesis stopped past 1 "), lines
+    assert "mpc.horizon" in lines[0] and "internal error" not in lines[0]
+
+
+def test_a_bad_limit_override_is_bad_input(monkeypatch, capsys):
+    monkeypatch.setenv("CODEV_LIMITS", "branches=-1")
+    assert main(["synth", str(ROOT / "examples" / "double_integrator.toml")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "CODEV_LIMITS" in lines[0] and "branches" in lines[0], lines
