@@ -48,11 +48,10 @@ from collections.abc import Callable
 import numpy as np
 from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 
-from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import certified_minimal_rows, chebyshev_ball
 from codev_engine.mp.mplp import _TIE, _Explorer
 from codev_engine.mp.reduce import ParameterBox, Reduced, start_point
-from codev_engine.mp.solution import CriticalRegion, too_many_regions
+from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 
 __all__ = ["explore_bases"]
 
@@ -397,7 +396,7 @@ class _Search:
             if self.progress is not None:
                 self.progress(len(regions))
             if len(regions) > self.max_regions:
-                raise SolverError(too_many_regions(self.max_regions))
+                raise TooManyRegionsError(too_many_regions(self.max_regions))
             return len(regions) - 1
 
         queue = deque([add(*first)])
