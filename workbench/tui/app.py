@@ -55,6 +55,7 @@ from .messages import (
     CancelRequested,
     ExportRequested,
     LawExportRequested,
+    NewRequested,
     OpenRequested,
     RunRequested,
     SaveRequested,
@@ -65,8 +66,9 @@ from .panes.plant import PlantPane
 from .panes.session import SessionPane
 from .panes.synthesis import SynthesisPane
 from .panes.verification import VerificationPane
-from .state import Opened, clear_draft, open_target, write_draft
-from .widgets import FieldEntry
+from .state import Opened, clear_draft, new_design, open_target, templates, write_draft
+from .templates import TemplateScreen
+from .widgets import FieldEntry, open_groups
 
 if TYPE_CHECKING:
     # the numerical stack loads in the first check's worker, after the first screen
@@ -142,6 +144,8 @@ class CodevApp(App):
         The session and form entries to start with (:func:`~workbench.tui.state.open_target`).
     traces : int
         Simulated traces in the session's Rerun recording (:class:`RunOptions` ``traces``).
+    sessions_root : str or Path
+        Where *New* puts a new design's session folder.
 
     Attributes
     ----------
@@ -185,6 +189,7 @@ class CodevApp(App):
         Binding("ctrl+g", "go", "Run stage", priority=True),
         Binding("escape", "cancel", "Cancel", show=False),
         Binding("ctrl+s", "save", "Save", priority=True),
+        Binding("ctrl+n", "new", "New", priority=True),
         Binding("ctrl+q", "quit", "Quit", priority=True),
         # Tab and shift+Tab move the focus at once, in the order the keys came: as a
         # widget's own (non-priority) binding the move waited in the entry's queue while
@@ -194,8 +199,11 @@ class CodevApp(App):
         Binding("shift+tab", "focus_previous", "Previous field", show=False, priority=True),
     ]
 
-    def __init__(self, opened: Opened, *, traces: int = 16) -> None:
+    def __init__(
+        self, opened: Opened, *, traces: int = 16, sessions_root: str | Path = "sessions"
+    ) -> None:
         super().__init__()
+        self.sessions_root = Path(sessions_root)
         self.session: Session = opened.session
         self.values: dict[str, str] = dict(opened.values)
         self.has_verify: bool = opened.has_verify
@@ -367,6 +375,7 @@ class CodevApp(App):
         self.keys = keys
         for entry in self.query(FieldEntry):
             entry.set_error(chk.errors.get(entry.field_name))
+        open_groups(self)  # an entry in error is never hidden in a collapsed group
         previous = self.check.general if self.check is not None else None
         if chk.general and chk.general != previous:  # once, not at every key
             self.notify(chk.general, severity="error", timeout=8)
@@ -583,6 +592,7 @@ class CodevApp(App):
                 for e in self.query(FieldEntry):
                     if e.field_name == entry:
                         e.set_error(msg)
+                open_groups(self)
             self.notify(f"{stage}: {error}", severity="error", timeout=10)
         if report is not None:
             self._take_report(report)
@@ -695,6 +705,41 @@ class CodevApp(App):
             return
         self.load(opened)
 
+    def on_new_requested(self, event: NewRequested) -> None:
+        self.action_new()
+
+    def action_new(self) -> None:
+        """Offer the templates of a new design (:class:`TemplateScreen`); the one picked is
+        opened in a new session folder, every pane reset as by Open."""
+        if self.busy is not None:
+            self.notify("a stage is running: cancel it first", severity="warning")
+            return
+        if isinstance(self.screen, TemplateScreen):
+            return
+        self.push_screen(TemplateScreen(templates()), self._new_from)
+
+    def _new_from(self, template: str | None) -> None:
+        if template is None:
+            return
+        try:
+            opened = new_design(template, sessions_root=self.sessions_root)
+        except CodevError as exc:
+            self.notify(str(exc), severity="error", timeout=8)
+            return
+        self.load(opened)
+        # a new design starts where the plant is typed, on its first field
+        self.action_show("plant")
+        self.screen.set_focus(self._pane("plant").first_field())
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """The app's keys wait while a dialog (the *New* templates) is on screen: the
+        workbench's widgets are not on that screen."""
+        if isinstance(self.screen, TemplateScreen) and action in (
+            "go", "save", "new", "show", "cancel"
+        ):
+            return None
+        return True
+
     def on_export_requested(self, event: ExportRequested) -> None:
         pane = self.query_one(SessionPane)
         try:
@@ -781,6 +826,7 @@ class CodevApp(App):
         for entry in self.query(FieldEntry):
             entry.set_text(self.values.get(entry.field_name, ""))
             entry.set_error(None)
+        open_groups(self, errors=False, filled=True)  # the groups the design uses
         self.query_one(VerificationPane).set_enabled(self.has_verify)
         self._show_results()
         if opened.note:

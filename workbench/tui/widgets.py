@@ -5,7 +5,8 @@ Their styles are in ``workbench.tcss`` with the rest of the app's.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import re
+from collections.abc import Callable, Iterable, Mapping
 
 from rich.text import Text
 from textual import events, work
@@ -13,11 +14,11 @@ from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.message import Message
 from textual.widget import Widget
-from textual.widgets import Input, Label, Select, Static, Switch, TextArea
+from textual.widgets import Collapsible, Input, Label, Select, Static, Switch, TextArea
 
 from .form import FIELD_BY_NAME, FieldDef
 
-__all__ = ["FieldEntry", "Plot"]
+__all__ = ["FieldEntry", "Plot", "field_entries", "open_groups"]
 
 
 def _dom_id(name: str) -> str:
@@ -207,6 +208,71 @@ class FieldEntry(Vertical):
     def on_switch_changed(self, event: Switch.Changed) -> None:
         event.stop()
         self._changed("true" if event.value else "false")
+
+
+def field_entries(names: Iterable[str], values: Mapping[str, str]) -> list[Widget]:
+    """A tab's entries in screen order; those of a :attr:`FieldDef.group` inside one
+    :class:`~textual.widgets.Collapsible` per group, collapsed unless one of its entries
+    has a value.
+
+    Parameters
+    ----------
+    names : iterable of str
+        The tab's fields, in screen order (a group's fields are consecutive).
+    values : Mapping of str to str
+        The form's entries at start: field name → text.
+
+    Returns
+    -------
+    list of Widget
+        :class:`FieldEntry` and :class:`~textual.widgets.Collapsible` widgets, to yield
+        from a ``compose``.
+    """
+    # (group or "", its entries) in screen order; an ungrouped entry is a group of its own
+    runs: list[tuple[str, list[FieldEntry]]] = []
+    for name in names:
+        group = FIELD_BY_NAME[name].group
+        entry = FieldEntry(name, values.get(name, ""))
+        if group and runs and runs[-1][0] == group:
+            runs[-1][1].append(entry)
+        else:
+            runs.append((group, [entry]))
+    out: list[Widget] = []
+    for group, members in runs:
+        if not group:
+            out.extend(members)
+            continue
+        out.append(
+            Collapsible(
+                *members,
+                title=group,
+                collapsed=not any(values.get(e.field_name, "").strip() for e in members),
+                id="g-" + re.sub(r"[^a-z0-9]+", "-", group.lower()).strip("-"),
+                classes="group",
+            )
+        )
+    return out
+
+
+def open_groups(root: Widget, *, errors: bool = True, filled: bool = False) -> None:
+    """Expand the collapsed groups under ``root`` that hold an entry in error (or filled).
+
+    Parameters
+    ----------
+    root : Widget
+        The app or a pane.
+    errors : bool
+        Expand a group with an entry marked in error.
+    filled : bool
+        Expand a group with an entry that has text, and collapse one without (a design
+        just opened).
+    """
+    for group in root.query(Collapsible):
+        entries = list(group.query(FieldEntry))
+        if filled:
+            group.collapsed = not any(e.text.strip() for e in entries)
+        if errors and any(e.has_class("-error") for e in entries):
+            group.collapsed = False
 
 
 class Plot(Static):

@@ -18,7 +18,7 @@ from ..design import MpcPreview, mpc_preview
 from ..form import FIELDS
 from ..parsers import parse_state
 from ..views import series_text
-from ..widgets import FieldEntry, Plot
+from ..widgets import FieldEntry, Plot, field_entries
 
 if TYPE_CHECKING:
     from codev_engine import Problem
@@ -53,8 +53,7 @@ class MpcPane(Horizontal):
 
     def compose(self) -> ComposeResult:
         with VerticalScroll(classes="form", can_focus=False):
-            for name in MPC_FIELDS:
-                yield FieldEntry(name, self._values.get(name, ""))
+            yield from field_entries(MPC_FIELDS, self._values)
         with Vertical(classes="output"):
             yield Static(
                 "Preview: the online MPC (cvxpy + Clarabel) in closed loop with its own "
