@@ -11,6 +11,7 @@ import shutil
 
 import pytest
 from pilot_tools import EXAMPLES, SIZE, entry, run, settle, text_of, type_into
+from textual import events
 from textual.widgets import Input, OptionList, Select, Static
 
 from workbench.tui.app import CodevApp
@@ -346,7 +347,8 @@ def test_new_from_a_template_leaves_nothing_of_the_design_before(tmp_path, monke
             assert app.focused is entry(app, "name").editor
             assert app.query_one("#export-path", Input).value == ""
             assert text_of(app, "#export-out") == ""
-            assert text_of(app, "#locate-out") == "" and app.query_one("#locate-x", Input).value == ""
+            assert text_of(app, "#locate-out") == ""
+            assert app.query_one("#locate-x", Input).value == ""
             assert app.query_one("#preview-x0", Input).value == ""
             assert text_of(app, "#preview-status") == ""
             assert app.law is None and app.result is None
@@ -366,5 +368,48 @@ def test_new_from_a_template_leaves_nothing_of_the_design_before(tmp_path, monke
             await pilot.press(*keys("msd"))
             await settle(pilot, app)
             assert app.session.path == tmp_path / "sessions" / "msd"
+
+    run(scenario())
+
+
+def burst(app: CodevApp, *names: str) -> None:
+    """Deliver keys as a terminal does under load: all at once, none waiting for the one
+    before it to be handled (Pilot's ``press`` waits for the app to be idle after each)."""
+    for name in names:
+        event = events.Key(name, name if len(name) == 1 else None)
+        event.set_sender(app)
+        app._driver.send_message(event)
+
+
+def test_ctrl_g_right_after_f3_and_typing_runs_the_synthesis_of_the_spec_typed(
+    tmp_path, monkeypatch
+):
+    """Issue 23: in a real terminal, ctrl+g pressed right after F3 ran the Plant tab's stage.
+    ctrl+g is a priority key (handled as it arrives), an F-key was not (first sent to the
+    focused entry, then back up to the app), so the ctrl+g overtook the F3. Likewise the
+    keys typed just before ctrl+g reached their entry after it, and the run took the spec
+    without them."""
+    monkeypatch.chdir(tmp_path)
+    app = CodevApp(open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="s"))
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            burst(app, "f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.law is not None and app.law_current(), [
+                n.message for n in app._notifications
+            ]
+            # a new bound typed, then at once F3 and ctrl+g: the law is the new spec's
+            await pilot.press("f2")
+            entry(app, "mpc.u_max").editor.focus()
+            await pilot.pause()
+            assert entry(app, "mpc.u_max").text == "[1.0]"
+            burst(app, "backspace", "backspace", "5", "]", "f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.check.ok, (app.values["mpc.u_max"], app.check.errors)
+            assert app.check.problem.mpc.u_max.tolist() == [1.5]
+            assert app.law_current(), [n.message for n in app._notifications]
+            assert "current" in text_of(app, "#synth-status")
 
     run(scenario())

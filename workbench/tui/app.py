@@ -180,12 +180,17 @@ class CodevApp(App):
 
     TITLE = "codev workbench"
     CSS_PATH = STYLESHEET
+    # The workbench's keys are priority keys, handled in the order they arrive. A key that
+    # is not goes first to the focused widget and comes back up to the app later: an F3 so
+    # delayed was overtaken by the ctrl+g pressed after it, which ran the previous tab's
+    # stage (issue 23, seen in tmux under load). The keys typed into an entry before a
+    # ctrl+g still wait in the entry's queue: ctrl+g runs after them (action_go).
     BINDINGS = [
-        Binding("f1", "show('plant')", "Plant"),
-        Binding("f2", "show('mpc')", "MPC"),
-        Binding("f3", "show('synthesis')", "Synthesis"),
-        Binding("f4", "show('verification')", "Verify"),
-        Binding("f5", "show('session')", "Session"),
+        Binding("f1", "show('plant')", "Plant", priority=True),
+        Binding("f2", "show('mpc')", "MPC", priority=True),
+        Binding("f3", "show('synthesis')", "Synthesis", priority=True),
+        Binding("f4", "show('verification')", "Verify", priority=True),
+        Binding("f5", "show('session')", "Session", priority=True),
         Binding("ctrl+g", "go", "Run stage", priority=True),
         Binding("escape", "cancel", "Cancel", show=False),
         Binding("ctrl+s", "save", "Save", priority=True),
@@ -509,8 +514,9 @@ class CodevApp(App):
             self.notify(f"{self.busy} is running: wait, or cancel it (Esc)", severity="warning")
             return
         chk = self.check
-        if chk is None or self._checking:
-            # the form is being checked (the keys just typed): run once the answer is in
+        if chk is None or self._checking or self._check_timer is not None:
+            # the form is being checked, or its check is scheduled (the keys just typed):
+            # run once the answer is in
             self._pending_run = upto
             if self._check_timer is not None:
                 self._schedule_check_now()
@@ -666,7 +672,39 @@ class CodevApp(App):
         )
 
     def action_go(self) -> None:
+        # the tab on screen when the key came; the run waits for the keys typed before it,
+        # still queued in the focused entry (a priority key overtakes them)
         tab = self.query_one("#tabs", TabbedContent).active
+        self._go_after_keys(tab, time.perf_counter() + 2.0)
+
+    def _go_after_keys(self, tab: str, deadline: float) -> None:
+        if time.perf_counter() < deadline and any(e.keys_pending for e in self.query(FieldEntry)):
+            self.set_timer(0.01, lambda: self._go_after_keys(tab, deadline))
+            return
+        self._go(tab)
+
+    def _take_unseen_edits(self) -> bool:
+        """Take into the form the editors' text that has not reached the app yet (the
+        :class:`FieldEntry.Edited` messages on their way), and check the form now if any.
+
+        Returns
+        -------
+        bool
+            Whether an entry had such a change.
+        """
+        changed = False
+        for entry in self.query(FieldEntry):
+            text = entry.editor_text()
+            if text is not None and text != self.values.get(entry.field_name, ""):
+                self.values[entry.field_name] = text
+                changed = True
+        if changed:
+            self._dirty = True
+            self._schedule_check_now()
+        return changed
+
+    def _go(self, tab: str) -> None:
+        self._take_unseen_edits()
         if tab == "mpc":
             self.query_one(MpcPane).run_preview()
             return

@@ -18,7 +18,57 @@ from textual.widgets import Collapsible, Input, Label, Select, Static, Switch, T
 
 from .form import FIELD_BY_NAME, FieldDef
 
-__all__ = ["FieldEntry", "Plot", "field_entries", "open_groups"]
+__all__ = ["EntryInput", "EntryTextArea", "FieldEntry", "Plot", "field_entries", "open_groups"]
+
+
+class _KeysInOrder:
+    """An editor that runs its own key bindings (backspace, delete, arrows, Enter, …) as it
+    takes each key, in the order typed.
+
+    Textual runs a widget's bindings only when the key has gone back up to the app, while
+    a printable key is inserted at once: under load a backspace typed before a ``5`` was
+    applied after it, and one typed before a Tab or an F-key (priority keys, handled as they
+    arrive) was applied to the field the focus had moved to (issue 23).
+    """
+
+    _keys_queued = 0  # keys posted to the editor and not handled yet
+
+    @property
+    def keys_pending(self) -> bool:
+        """Whether keys sent to the editor wait in its queue (not taken yet)."""
+        return self._keys_queued > 0
+
+    def post_message(self, message: Message) -> bool:
+        queued = super().post_message(message)  # type: ignore[misc]
+        if queued and isinstance(message, events.Key):
+            self._keys_queued += 1
+        return queued
+
+    async def on_event(self, event: events.Event) -> None:
+        try:
+            await super().on_event(event)  # type: ignore[misc]
+        finally:
+            if isinstance(event, events.Key):
+                self._keys_queued = max(0, self._keys_queued - 1)
+
+    async def _on_key(self, event: events.Key) -> None:
+        if not event.is_printable:
+            for binding in self._bindings.key_to_bindings.get(event.key, ()):  # type: ignore[attr-defined]
+                if binding.priority:
+                    continue
+                if await self.app.run_action(binding.action, self):  # type: ignore[attr-defined]
+                    event.stop()
+                    event.prevent_default()
+                    return
+        await super()._on_key(event)  # type: ignore[misc]
+
+
+class EntryInput(_KeysInOrder, Input):
+    """A one-line :class:`~textual.widgets.Input` that takes its keys in the order typed."""
+
+
+class EntryTextArea(_KeysInOrder, TextArea):
+    """A :class:`~textual.widgets.TextArea` that takes its keys in the order typed."""
 
 
 def _dom_id(name: str) -> str:
@@ -81,7 +131,7 @@ class FieldEntry(Vertical):
         # an empty optional entry shows the value the engine takes for it
         shown = f"default: {fd.default}" if fd.default else ""
         if fd.kind in ("expressions", "sets"):
-            yield TextArea(
+            yield EntryTextArea(
                 self._text,
                 id="editor",
                 soft_wrap=False,
@@ -106,7 +156,7 @@ class FieldEntry(Vertical):
         else:
             # the focus puts the cursor at the end: a key typed after F1 adds to the name,
             # it does not replace the selected name
-            yield Input(
+            yield EntryInput(
                 self._text, id="editor", compact=True, placeholder=shown, select_on_focus=False
             )
         yield Static(fd.help, classes="help", id="help")
@@ -148,6 +198,34 @@ class FieldEntry(Vertical):
                 editor.value = text.strip().lower() == "true"
         finally:
             self.call_after_refresh(self._done_loading)
+
+    @property
+    def keys_pending(self) -> bool:
+        """Whether keys typed into the entry's editor are still waiting in its queue."""
+        editor = self.query_one("#editor")
+        return isinstance(editor, _KeysInOrder) and editor.keys_pending
+
+    def editor_text(self) -> str | None:
+        """The editor's text as it is now, ahead of the :class:`Edited` messages on their
+        way to the app (keys typed just before a priority key such as ctrl+g).
+
+        Returns
+        -------
+        str or None
+            The text (a choice's value, ``""`` when blank); None for a switch (which
+            posts its change at once) or while a loaded value is being shown.
+        """
+        if self._loading:
+            return None
+        editor = self.query_one("#editor")
+        if isinstance(editor, Input):
+            return editor.value
+        if isinstance(editor, TextArea):
+            return editor.text
+        if isinstance(editor, Select):
+            value = editor.value
+            return "" if value is Select.NULL or value is None else str(value)
+        return None
 
     def _done_loading(self) -> None:
         self._loading = False
