@@ -72,10 +72,10 @@ def test_session_tab_order_puts_each_path_before_its_button(tmp_path):
             await settle(pilot, app)
             await pilot.press("f5")
             order = [app.focused.id]
-            for _ in range(6):
+            for _ in range(7):
                 await pilot.press("tab")
                 order.append(app.focused.id)
-            assert order[:3] == ["open-path", "open", "save"], order
+            assert order[:4] == ["open-path", "open", "save", "new"], order
             i = order.index("export-path")
             assert order[i + 1] == "export", order
 

@@ -119,6 +119,7 @@ FIELDS: tuple[FieldDef, ...] = (
         "expressions",
         "Dynamics dx/dt = f(x, u)",
         "one expression per state, in state order (or give A and B below)",
+        default="none: A and B",
     ),
     _f(
         "plant.A",
