@@ -371,6 +371,8 @@ class CodevApp(App):
         before_verify: Problem | None = None,
         seq: int = 0,
     ) -> None:
+        if not self.query("#pipeline"):
+            return  # the app is closing: its screen is gone
         if seq != self._check_seq:
             # an older check (its worker was replaced, but a thread runs to its end): the
             # form has changed since; the latest check's answer is on its way
@@ -637,8 +639,8 @@ class CodevApp(App):
 
     def _tick(self) -> None:
         """10 Hz: show the running stage's progress (the worker only stores counters)."""
-        if self.busy is None or self.progress is None:
-            return
+        if self.busy is None or self.progress is None or not self.query("#pipeline"):
+            return  # nothing runs, or the app is closing
         stage, count, started = self.progress
         elapsed = time.perf_counter() - started
         unit = {"synthesis": "regions", "verification": "branches"}.get(stage, "")

@@ -217,7 +217,7 @@ def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
         ``(index, number of facets, the law u = F x + G, the bounding box)`` per region.
     """
     rows = []
-    names = law.states or tuple(f"x{k}" for k in range(law.n))
+    names = law.parameter_names or tuple(f"x{k}" for k in range(law.n))
     lo, hi = law.boxes
     # bounds that are rounding next to the partition's size show as 0 (an LP's vertex at
     # 5.55e-17 for a corner at 0)
