@@ -76,6 +76,17 @@ def test_the_servo_opens_synthesises_and_verifies_in_the_workbench(tmp_path, mon
             # the slice takes the extra parameters alone
             app.query_one("#synth-at", Input).value = "0.2, -0.5"
             assert app.query_one("SynthesisPane")._at(law).tolist()[2:] == [0.2, -0.5]
+            # the preview follows a reference: the middle of [verify] reference, or typed
+            assert app.query_one("#preview-r", Input).placeholder == "default: 0.5"
+            await pilot.press("f2", "ctrl+g")
+            await settle(pilot, app)
+            status = text_of(app, "#preview-status")
+            assert "following r = 0.5" in status and "infeasible" not in status, status
+            app.query_one("#preview-r", Input).value = "-0.8"
+            app.query_one("#preview-steps", Input).value = "60"
+            await pilot.press("ctrl+g")
+            await settle(pilot, app)
+            assert app.query_one("MpcPane").last.X[-1, 0] == pytest.approx(-0.8, abs=1e-3)
 
     run(scenario())
 
