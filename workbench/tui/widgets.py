@@ -224,7 +224,10 @@ class FieldEntry(Vertical):
             return editor.text
         if isinstance(editor, Select):
             value = editor.value
-            return "" if value is Select.NULL or value is None else str(value)
+            if value is Select.NULL or value is None:
+                # blank, or a loaded value the list cannot show ("Inf"): kept as it is
+                return "" if self._text in self.field.choices else None
+            return str(value)
         return None
 
     def _done_loading(self) -> None:
