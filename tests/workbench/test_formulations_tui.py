@@ -32,7 +32,7 @@ def keys(text: str) -> list[str]:
 
 
 async def _synthesise_and_verify(pilot, app: CodevApp, timeout: float) -> None:
-    await settle(pilot, app)
+    await settle(pilot, app, timeout=timeout)  # the first check imports the engine
     assert app.check.ok, (app.check.errors, app.check.general)
     await pilot.press("f3", "ctrl+g")
     await settle(pilot, app, timeout=timeout)
