@@ -14,6 +14,7 @@ from workbench.tui.design import (
     locate_state,
     mpc_preview,
     plant_report,
+    preview_extras,
     region_rows,
     shared_laws,
 )
@@ -144,6 +145,25 @@ def test_mpc_preview_agrees_with_the_explicit_law(di):
     # from (9, -5) and bring the state into the law's domain
     assert prev.U[0, 0] == pytest.approx(float(law.evaluate(prev.X[:1])[0, 0]), abs=1e-6)
     assert (law.locate(prev.X) >= 0).all()
+
+
+def test_mpc_preview_follows_the_reference_of_a_servo():
+    """A law over θ = (x, u_prev, r): the preview holds the input it applied (the slew limit
+    binds: |Δu| ≤ 0.5 per sample), follows the middle of [verify] reference by default or
+    the r given, and starts from the middle of [verify] initial_input."""
+    problem = ce.load_spec(ROOT / "examples" / "dc_motor_servo.toml")
+    model = ce.discretize(problem)
+    u_prev, r = preview_extras(problem)
+    assert u_prev.tolist() == [0.0] and r.tolist() == [0.5]
+    prev = mpc_preview(problem, model, np.zeros(2), 40)
+    assert prev.infeasible_at is None and prev.reference.tolist() == [0.5]
+    du = np.diff(np.r_[prev.u_prev0, prev.U[:, 0]])
+    assert np.all(np.abs(du) <= 0.5 + 1e-6) and np.max(np.abs(du)) > 0.49
+    assert prev.X[-1, 0] == pytest.approx(0.5, abs=1e-3)
+    back = mpc_preview(problem, model, np.zeros(2), 60, reference=[-0.8])
+    assert back.reference.tolist() == [-0.8] and back.X[-1, 0] == pytest.approx(-0.8, abs=1e-3)
+    # regulation: nothing extra
+    assert preview_extras(ce.load_spec(DI)) == (None, None)
 
 
 def test_mpc_preview_infeasible_start():

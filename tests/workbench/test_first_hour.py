@@ -11,11 +11,13 @@ import shutil
 
 import pytest
 from pilot_tools import EXAMPLES, SIZE, entry, run, settle, text_of, type_into
-from textual.widgets import Input, Select, Static
+from textual import events
+from textual.widgets import Input, OptionList, Select, Static
 
 from workbench.tui.app import CodevApp
 from workbench.tui.panes.plant import PlantPane
 from workbench.tui.state import open_target
+from workbench.tui.templates import TemplateScreen
 from workbench.tui.widgets import FieldEntry
 
 KEY = {" ": "space", ",": "comma", "-": "minus", ".": "full_stop", ";": "semicolon"}
@@ -70,10 +72,10 @@ def test_session_tab_order_puts_each_path_before_its_button(tmp_path):
             await settle(pilot, app)
             await pilot.press("f5")
             order = [app.focused.id]
-            for _ in range(6):
+            for _ in range(7):
                 await pilot.press("tab")
                 order.append(app.focused.id)
-            assert order[:3] == ["open-path", "open", "save"], order
+            assert order[:4] == ["open-path", "open", "save", "new"], order
             i = order.index("export-path")
             assert order[i + 1] == "export", order
 
@@ -298,5 +300,116 @@ def test_adversarial_entries_never_crash_or_hang(tmp_path, monkeypatch, field, t
             await settle(pilot, app, timeout=20)
             assert app.check is not None
             assert app.is_running
+
+    run(scenario())
+
+
+def test_new_from_a_template_leaves_nothing_of_the_design_before(tmp_path, monkeypatch):
+    """ctrl+n offers the templates; a copy of an example replaces the design on screen
+    as Open does (preview, lookup, law, copy path, messages), lives in a fresh session
+    folder named after it, and synthesises at once. The blank template empties the form,
+    and its folder follows the name typed."""
+    monkeypatch.chdir(tmp_path)
+    app = CodevApp(
+        open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="s/di"),
+        sessions_root=tmp_path / "sessions",
+    )
+
+    async def pick(pilot, key: str) -> None:
+        await pilot.press("ctrl+n")
+        await pilot.pause()
+        assert isinstance(app.screen, TemplateScreen)
+        options = app.screen.query_one(OptionList)
+        ids = [options.get_option_at_index(i).id for i in range(options.option_count)]
+        await pilot.press(*["down"] * ids.index(key), "enter")
+        await settle(pilot, app)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f2", "ctrl+g")
+            await settle(pilot, app)
+            await pilot.press("f3", "ctrl+g")
+            await settle(pilot, app)
+            await pilot.press(*keys("1, 0"), "enter")
+            await pilot.pause(0.1)
+            assert "region" in text_of(app, "#locate-out")
+            await pilot.press("f5")
+            app.query_one("#export-path", Input).value = str(tmp_path / "di.rrd")
+            # Esc keeps the design on screen
+            await pilot.press("ctrl+n", "escape")
+            await pilot.pause()
+            assert not isinstance(app.screen, TemplateScreen) and app.law is not None
+            await pick(pilot, "double_integrator_lqr")
+            assert app.session.path == tmp_path / "sessions" / "double-integrator-lqr"
+            assert entry(app, "name").text == "double-integrator-lqr"
+            assert entry(app, "mpc.terminal_set").text == "lqr"
+            assert app.focused is entry(app, "name").editor
+            assert app.query_one("#export-path", Input).value == ""
+            assert text_of(app, "#export-out") == ""
+            assert text_of(app, "#locate-out") == ""
+            assert app.query_one("#locate-x", Input).value == ""
+            assert app.query_one("#preview-x0", Input).value == ""
+            assert text_of(app, "#preview-status") == ""
+            assert app.law is None and app.result is None
+            assert app.query_one("#regions").row_count == 0
+            assert not [n for n in app._notifications if "double_integrator.toml" in n.message]
+            # the template runs at once
+            await pilot.press("f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.law is not None and app.law_current(), [
+                n.message for n in app._notifications
+            ]
+            assert (app.session.path / "spec.toml").is_file()
+            # the blank form: nothing of the example, a new folder that follows the name
+            await pick(pilot, "empty")
+            assert set(app.values.values()) == {""} and app.law is None
+            assert app.session.path == tmp_path / "sessions" / "untitled"
+            await pilot.press(*keys("msd"))
+            await settle(pilot, app)
+            assert app.session.path == tmp_path / "sessions" / "msd"
+
+    run(scenario())
+
+
+def burst(app: CodevApp, *names: str) -> None:
+    """Deliver keys as a terminal does under load: all at once, none waiting for the one
+    before it to be handled (Pilot's ``press`` waits for the app to be idle after each)."""
+    for name in names:
+        event = events.Key(name, name if len(name) == 1 else None)
+        event.set_sender(app)
+        app._driver.send_message(event)
+
+
+def test_ctrl_g_right_after_f3_and_typing_runs_the_synthesis_of_the_spec_typed(
+    tmp_path, monkeypatch
+):
+    """Issue 23: in a real terminal, ctrl+g pressed right after F3 ran the Plant tab's stage.
+    ctrl+g is a priority key (handled as it arrives), an F-key was not (first sent to the
+    focused entry, then back up to the app), so the ctrl+g overtook the F3. Likewise the
+    keys typed just before ctrl+g reached their entry after it, and the run took the spec
+    without them."""
+    monkeypatch.chdir(tmp_path)
+    app = CodevApp(open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="s"))
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            burst(app, "f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.law is not None and app.law_current(), [
+                n.message for n in app._notifications
+            ]
+            # a new bound typed, then at once F3 and ctrl+g: the law is the new spec's
+            await pilot.press("f2")
+            entry(app, "mpc.u_max").editor.focus()
+            await pilot.pause()
+            assert entry(app, "mpc.u_max").text == "[1.0]"
+            burst(app, "backspace", "backspace", "5", "]", "f3", "ctrl+g")
+            await settle(pilot, app)
+            assert app.check.ok, (app.values["mpc.u_max"], app.check.errors)
+            assert app.check.problem.mpc.u_max.tolist() == [1.5]
+            assert app.law_current(), [n.message for n in app._notifications]
+            assert "current" in text_of(app, "#synth-status")
 
     run(scenario())

@@ -60,30 +60,7 @@ def test_every_example_is_found():
     assert len(EXAMPLES) >= 5, EXAMPLES
 
 
-#: examples with [mpc] fields the form has no entries for yet (the formulations issue's
-#: TUI part): the form refuses them with a one-line error; strict, so that entries for them
-#: make this list shrink
-NO_ENTRIES_YET = {"double_integrator_lqr", "mass_spring_soft", "two_carts_mixed", "dc_motor_servo",
-                  "cruise_grade"}
-
-
-def _example_param(p):
-    marks = ()
-    if p.stem in NO_ENTRIES_YET:
-        marks = pytest.mark.xfail(strict=True, raises=ce.SpecError,
-                                  reason="the form has no entries for these fields yet")
-    return pytest.param(p, id=p.stem, marks=marks)
-
-
-def test_the_form_refuses_fields_it_has_no_entry_for_in_one_line():
-    text = (ROOT / "examples" / "two_carts_mixed.toml").read_text(encoding="utf-8")
-    with pytest.raises(ce.SpecError) as err:
-        form_from_text(text)
-    assert err.value.field == "mpc.control_horizon"
-    assert "edit the spec file as text" in str(err.value)
-
-
-@pytest.mark.parametrize("path", [_example_param(p) for p in EXAMPLES])
+@pytest.mark.parametrize("path", EXAMPLES, ids=[p.stem for p in EXAMPLES])
 def test_example_round_trip_keeps_the_stage_keys(path):
     text = path.read_text(encoding="utf-8")
     values, has_verify = form_from_text(text)
@@ -555,3 +532,152 @@ def test_spec_without_verify():
     values, has_verify = form_from_text(text)
     assert has_verify is False
     assert all(values[fd.name] == "" for fd in FIELDS if fd.section == "verify")
+
+
+# --------------------------------------------------------------------------------------------
+# The fields of issues 25 and 26: entries, defaults, errors, exact round trip
+# --------------------------------------------------------------------------------------------
+
+SERVO = ROOT / "examples" / "dc_motor_servo.toml"
+
+#: every field of the formulations (25) and of the uncertain plant (26), in one document
+#: (the loader is not asked: the form alone must keep each value exactly)
+EVERY_NEW_FIELD = """
+name = "every-field"
+[plant]
+states = ["p", "v"]
+inputs = ["u"]
+A = [[0.0, 1.0], [0.0, -0.5]]
+B = [[0.0], [1.0]]
+E = [[0.0], [1.0]]
+disturbances = { w = [-0.1, 0.1] }
+parameters = { k = [1.0, 2.0] }
+nominal = { w = 0.05, k = 1.5 }
+[model]
+sample_time = 0.1
+[mpc]
+horizon = 6
+control_horizon = 3
+norm = "2"
+P = "lqr"
+terminal_set = { lower = [-1.0, -1.0], upper = [1.0, 1.0] }
+du_min = [-0.5]
+du_max = [0.25]
+Rd = [[0.1]]
+C = [[1.0, 0.0]]
+y_min = [-2.0]
+y_max = [2.0]
+soft = ["y_max", "x_max"]
+soft_weight = 1000.0
+x_max = [5.0, 5.0]
+[[mpc.constraints]]
+Hx = [[1.0, 1.0]]
+Hu = [[0.5]]
+h = [2.0]
+[[mpc.constraints]]
+Hu = [[1.0]]
+h = [0.9]
+[mpc.reference]
+signal = "y"
+lower = [-1.0]
+upper = [1.0]
+[verify]
+time_horizon = "inf"
+max_samples = 200
+initial_set = { lower = [0.0, 0.0], upper = [0.1, 0.1] }
+initial_input = { lower = [-0.1], upper = [0.1] }
+reference = [0.5]
+"""
+
+
+def test_every_new_field_has_an_entry_and_round_trips_exactly():
+    values, has_verify = form_from_text(EVERY_NEW_FIELD)
+    text, errors = compose(values, with_verify=has_verify)
+    assert errors == {}
+    assert tomllib.loads(text) == tomllib.loads(EVERY_NEW_FIELD)
+    # and the entries read as typed: words bare, tables inline
+    assert values["mpc.P"] == "lqr" and values["verify.time_horizon"] == "inf"
+    assert values["mpc.soft"] == "y_max, x_max"
+    assert values["plant.disturbances"] == "{ w = [-0.1, 0.1] }"
+    assert values["verify.initial_input"] == "{ lower = [-0.1], upper = [0.1] }"
+    assert form_from_text(text) == (values, has_verify)
+
+
+def test_every_optional_entry_shows_its_default():
+    for fd in FIELDS:
+        if not fd.required and fd.kind != "bool":
+            assert fd.default, fd.name
+    # the words and the short forms typed are what the spec means
+    values, has_verify = form_from_text(EVERY_NEW_FIELD)
+    values["plant.disturbances"] = "w = [-0.1, 0.1]"  # braces left out
+    values["mpc.P"] = "'lqr'"
+    values["verify.reference"] = "0.5"
+    values["mpc.du_min"] = "-0.5"
+    text, errors = compose(values, with_verify=has_verify)
+    assert errors == {} and tomllib.loads(text) == tomllib.loads(EVERY_NEW_FIELD)
+
+
+def test_the_servo_through_the_form_has_theta_of_length_4():
+    values, has_verify = form_from_text(SERVO.read_text(encoding="utf-8"))
+    chk = check_form(values, with_verify=has_verify)
+    assert chk.ok, (chk.errors, chk.general)
+    assert chk.problem.mpc.du_min.tolist() == [-0.5]
+    assert chk.problem.mpc.reference.signal == "y"
+    assert chk.problem.verify.reference_lower.tolist() == [0.45]
+
+
+def _servo_check(**changes: str):
+    values, has_verify = form_from_text(SERVO.read_text(encoding="utf-8"))
+    for k, v in changes.items():
+        assert k in values, k
+        values[k] = v
+    return check_form(values, with_verify=has_verify)
+
+
+@pytest.mark.parametrize(
+    ("field", "text", "words"),
+    [
+        ("mpc.du_min", "a b", "expected numbers"),
+        ("mpc.du_max", "0.5 0.5", "expected 1 numbers"),
+        ("mpc.du_min", "0.1", "du_min"),
+        ("mpc.Rd", "1 0; 0 1", "expected 1×1"),
+        ("mpc.C", "1 0 0", "expected 2 columns"),
+        ("mpc.y_max", "1 2", "expected 1 numbers (one per output)"),
+        ("mpc.control_horizon", "9", "control_horizon"),
+        ("mpc.soft", "z_max", "soft"),
+        ("mpc.soft_weight", "-1", "soft_weight"),
+        ("mpc.terminal_set", "{ A = [[1, 0]] }", "terminal_set"),
+        ("mpc.terminal_set", "lqq", "terminal_set"),
+        ("mpc.P", "lqrr", "expected numbers"),
+        ("mpc.constraints", "[{ Hx = [[1, 0, 0]], h = [1] }]", "constraints"),
+        ("mpc.reference.lower", "3", "greater than upper"),
+        ("mpc.reference.signal", "", "signal"),
+        ("verify.initial_input", "0 0", "initial_input"),
+        ("verify.reference", "{ lower = [0.9], upper = [1.5] }", "reference"),
+        ("verify.max_samples", "0", "max_samples"),
+        ("verify.time_horizon", "forever", "time_horizon"),
+    ],
+)
+def test_bad_values_of_the_new_fields_are_pinned_on_their_entry(field, text, words):
+    key, msg = _one_error(_servo_check(**{field: text}))
+    assert key == field, (key, msg)
+    assert words in msg or words in key, msg
+
+
+@pytest.mark.parametrize(
+    ("field", "text"),
+    [
+        ("plant.disturbances", "w = [1]"),
+        ("plant.disturbances", "{ w = [1, 0] }"),
+        ("plant.nominal", "w = 500"),
+        ("plant.E", "1; 1; 1"),
+    ],
+)
+def test_bad_uncertain_plant_entries_are_pinned_on_their_entry(field, text):
+    values, has_verify = form_from_text(
+        (ROOT / "examples" / "cruise_grade.toml").read_text(encoding="utf-8")
+    )
+    assert check_form(values, with_verify=has_verify).ok
+    values[field] = text
+    key, _ = _one_error(check_form(values, with_verify=has_verify))
+    assert key == field

@@ -11,7 +11,16 @@ import pytest
 import codev_engine as ce
 from codev_engine.session import RunOptions, Session, SessionError, stage_keys
 from workbench.tui.form import FIELDS, check_form, form_from_text
-from workbench.tui.state import DRAFT, clear_draft, open_target, read_draft, write_draft
+from workbench.tui.state import (
+    DRAFT,
+    EMPTY,
+    clear_draft,
+    new_design,
+    open_target,
+    read_draft,
+    templates,
+    write_draft,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 DI = ROOT / "examples" / "double_integrator.toml"
@@ -269,3 +278,31 @@ def test_only_an_opened_spec_file_is_saved_at_once(cwd):
     assert opened.save_now is True
     assert open_target(str(opened.session.path)).save_now is False
     assert open_target(None, sessions_root="sessions").save_now is False
+
+
+# --------------------------------------------------------------------------------------------
+# new_design: the templates of New (issue 23)
+# --------------------------------------------------------------------------------------------
+
+
+def test_templates_are_empty_and_every_bundled_example():
+    keys = [k for k, _ in templates()]
+    assert keys[0] == EMPTY
+    assert set(keys[1:]) == {p.stem for p in (ROOT / "examples").glob("*.toml")}
+    assert all(about for _, about in templates())  # each says what it is
+
+
+def test_new_design_copies_an_example_into_a_fresh_folder_named_after_it(cwd):
+    first = new_design("double_integrator", sessions_root="sessions")
+    assert first.session.path == Path("sessions") / "double-integrator"
+    assert first.values == form_from_text(DI.read_text(encoding="utf-8"))[0]
+    assert first.save_now and first.follow_name and first.has_verify
+    # the folder exists now: the next copy gets a fresh one, nothing of it is reused
+    second = new_design("double_integrator", sessions_root="sessions")
+    assert second.session.path == Path("sessions") / "double-integrator-2"
+    empty = new_design(EMPTY, sessions_root="sessions")
+    assert empty.session.path == Path("sessions") / "untitled"
+    assert set(empty.values.values()) == {""} and not empty.save_now and empty.follow_name
+    assert new_design(EMPTY, sessions_root="sessions").session.path.name == "untitled-2"
+    with pytest.raises(ce.SpecError, match="no template 'nope'"):
+        new_design("nope", sessions_root="sessions")

@@ -55,6 +55,7 @@ from .messages import (
     CancelRequested,
     ExportRequested,
     LawExportRequested,
+    NewRequested,
     OpenRequested,
     RunRequested,
     SaveRequested,
@@ -65,8 +66,9 @@ from .panes.plant import PlantPane
 from .panes.session import SessionPane
 from .panes.synthesis import SynthesisPane
 from .panes.verification import VerificationPane
-from .state import Opened, clear_draft, open_target, write_draft
-from .widgets import FieldEntry
+from .state import Opened, clear_draft, new_design, open_target, templates, write_draft
+from .templates import TemplateScreen
+from .widgets import FieldEntry, open_groups
 
 if TYPE_CHECKING:
     # the numerical stack loads in the first check's worker, after the first screen
@@ -142,6 +144,8 @@ class CodevApp(App):
         The session and form entries to start with (:func:`~workbench.tui.state.open_target`).
     traces : int
         Simulated traces in the session's Rerun recording (:class:`RunOptions` ``traces``).
+    sessions_root : str or Path
+        Where *New* puts a new design's session folder.
 
     Attributes
     ----------
@@ -176,15 +180,21 @@ class CodevApp(App):
 
     TITLE = "codev workbench"
     CSS_PATH = STYLESHEET
+    # The workbench's keys are priority keys, handled in the order they arrive. A key that
+    # is not goes first to the focused widget and comes back up to the app later: an F3 so
+    # delayed was overtaken by the ctrl+g pressed after it, which ran the previous tab's
+    # stage (issue 23, seen in tmux under load). The keys typed into an entry before a
+    # ctrl+g still wait in the entry's queue: ctrl+g runs after them (action_go).
     BINDINGS = [
-        Binding("f1", "show('plant')", "Plant"),
-        Binding("f2", "show('mpc')", "MPC"),
-        Binding("f3", "show('synthesis')", "Synthesis"),
-        Binding("f4", "show('verification')", "Verify"),
-        Binding("f5", "show('session')", "Session"),
+        Binding("f1", "show('plant')", "Plant", priority=True),
+        Binding("f2", "show('mpc')", "MPC", priority=True),
+        Binding("f3", "show('synthesis')", "Synthesis", priority=True),
+        Binding("f4", "show('verification')", "Verify", priority=True),
+        Binding("f5", "show('session')", "Session", priority=True),
         Binding("ctrl+g", "go", "Run stage", priority=True),
         Binding("escape", "cancel", "Cancel", show=False),
         Binding("ctrl+s", "save", "Save", priority=True),
+        Binding("ctrl+n", "new", "New", priority=True),
         Binding("ctrl+q", "quit", "Quit", priority=True),
         # Tab and shift+Tab move the focus at once, in the order the keys came: as a
         # widget's own (non-priority) binding the move waited in the entry's queue while
@@ -194,8 +204,11 @@ class CodevApp(App):
         Binding("shift+tab", "focus_previous", "Previous field", show=False, priority=True),
     ]
 
-    def __init__(self, opened: Opened, *, traces: int = 16) -> None:
+    def __init__(
+        self, opened: Opened, *, traces: int = 16, sessions_root: str | Path = "sessions"
+    ) -> None:
         super().__init__()
+        self.sessions_root = Path(sessions_root)
         self.session: Session = opened.session
         self.values: dict[str, str] = dict(opened.values)
         self.has_verify: bool = opened.has_verify
@@ -358,6 +371,8 @@ class CodevApp(App):
         before_verify: Problem | None = None,
         seq: int = 0,
     ) -> None:
+        if not self.query("#pipeline"):
+            return  # the app is closing: its screen is gone
         if seq != self._check_seq:
             # an older check (its worker was replaced, but a thread runs to its end): the
             # form has changed since; the latest check's answer is on its way
@@ -367,6 +382,7 @@ class CodevApp(App):
         self.keys = keys
         for entry in self.query(FieldEntry):
             entry.set_error(chk.errors.get(entry.field_name))
+        open_groups(self)  # an entry in error is never hidden in a collapsed group
         previous = self.check.general if self.check is not None else None
         if chk.general and chk.general != previous:  # once, not at every key
             self.notify(chk.general, severity="error", timeout=8)
@@ -500,8 +516,9 @@ class CodevApp(App):
             self.notify(f"{self.busy} is running: wait, or cancel it (Esc)", severity="warning")
             return
         chk = self.check
-        if chk is None or self._checking:
-            # the form is being checked (the keys just typed): run once the answer is in
+        if chk is None or self._checking or self._check_timer is not None:
+            # the form is being checked, or its check is scheduled (the keys just typed):
+            # run once the answer is in
             self._pending_run = upto
             if self._check_timer is not None:
                 self._schedule_check_now()
@@ -583,6 +600,7 @@ class CodevApp(App):
                 for e in self.query(FieldEntry):
                     if e.field_name == entry:
                         e.set_error(msg)
+                open_groups(self)
             self.notify(f"{stage}: {error}", severity="error", timeout=10)
         if report is not None:
             self._take_report(report)
@@ -621,8 +639,8 @@ class CodevApp(App):
 
     def _tick(self) -> None:
         """10 Hz: show the running stage's progress (the worker only stores counters)."""
-        if self.busy is None or self.progress is None:
-            return
+        if self.busy is None or self.progress is None or not self.query("#pipeline"):
+            return  # nothing runs, or the app is closing
         stage, count, started = self.progress
         elapsed = time.perf_counter() - started
         unit = {"synthesis": "regions", "verification": "branches"}.get(stage, "")
@@ -656,7 +674,39 @@ class CodevApp(App):
         )
 
     def action_go(self) -> None:
+        # the tab on screen when the key came; the run waits for the keys typed before it,
+        # still queued in the focused entry (a priority key overtakes them)
         tab = self.query_one("#tabs", TabbedContent).active
+        self._go_after_keys(tab, time.perf_counter() + 2.0)
+
+    def _go_after_keys(self, tab: str, deadline: float) -> None:
+        if time.perf_counter() < deadline and any(e.keys_pending for e in self.query(FieldEntry)):
+            self.set_timer(0.01, lambda: self._go_after_keys(tab, deadline))
+            return
+        self._go(tab)
+
+    def _take_unseen_edits(self) -> bool:
+        """Take into the form the editors' text that has not reached the app yet (the
+        :class:`FieldEntry.Edited` messages on their way), and check the form now if any.
+
+        Returns
+        -------
+        bool
+            Whether an entry had such a change.
+        """
+        changed = False
+        for entry in self.query(FieldEntry):
+            text = entry.editor_text()
+            if text is not None and text != self.values.get(entry.field_name, ""):
+                self.values[entry.field_name] = text
+                changed = True
+        if changed:
+            self._dirty = True
+            self._schedule_check_now()
+        return changed
+
+    def _go(self, tab: str) -> None:
+        self._take_unseen_edits()
         if tab == "mpc":
             self.query_one(MpcPane).run_preview()
             return
@@ -694,6 +744,41 @@ class CodevApp(App):
             self.notify(str(exc), severity="error", timeout=8)
             return
         self.load(opened)
+
+    def on_new_requested(self, event: NewRequested) -> None:
+        self.action_new()
+
+    def action_new(self) -> None:
+        """Offer the templates of a new design (:class:`TemplateScreen`); the one picked is
+        opened in a new session folder, every pane reset as by Open."""
+        if self.busy is not None:
+            self.notify("a stage is running: cancel it first", severity="warning")
+            return
+        if isinstance(self.screen, TemplateScreen):
+            return
+        self.push_screen(TemplateScreen(templates()), self._new_from)
+
+    def _new_from(self, template: str | None) -> None:
+        if template is None:
+            return
+        try:
+            opened = new_design(template, sessions_root=self.sessions_root)
+        except CodevError as exc:
+            self.notify(str(exc), severity="error", timeout=8)
+            return
+        self.load(opened)
+        # a new design starts where the plant is typed, on its first field
+        self.action_show("plant")
+        self.screen.set_focus(self._pane("plant").first_field())
+
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """The app's keys wait while a dialog (the *New* templates) is on screen: the
+        workbench's widgets are not on that screen."""
+        if isinstance(self.screen, TemplateScreen) and action in (
+            "go", "save", "new", "show", "cancel"
+        ):
+            return None
+        return True
 
     def on_export_requested(self, event: ExportRequested) -> None:
         pane = self.query_one(SessionPane)
@@ -781,6 +866,7 @@ class CodevApp(App):
         for entry in self.query(FieldEntry):
             entry.set_text(self.values.get(entry.field_name, ""))
             entry.set_error(None)
+        open_groups(self, errors=False, filled=True)  # the groups the design uses
         self.query_one(VerificationPane).set_enabled(self.has_verify)
         self._show_results()
         if opened.note:

@@ -139,6 +139,11 @@ class MpcPreview:
     infeasible_at : int or None
         The step at which the MPC became infeasible (the loop stops there).
     seconds : float
+    reference : (p,) ndarray or None
+        The reference the loop followed, when the law takes one as a parameter (a
+        ``[mpc.reference]`` box); a fixed reference is the spec's own.
+    u_prev0 : (m,) ndarray or None
+        The input held before the first sample, when the law takes ``u_prev`` (rates).
     """
 
     t: np.ndarray
@@ -146,10 +151,55 @@ class MpcPreview:
     U: np.ndarray
     infeasible_at: int | None
     seconds: float
+    reference: np.ndarray | None = None
+    u_prev0: np.ndarray | None = None
+
+
+def preview_extras(problem: Problem) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The default ``u_prev`` and reference of a preview, for a law that takes them.
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    u_prev : (m,) ndarray or None
+        With input rates: the middle of ``[verify] initial_input``, else the operating
+        input; None without rates.
+    reference : (p,) ndarray or None
+        With a reference box: the middle of ``[verify] reference``, else of the
+        ``[mpc.reference]`` box; None otherwise.
+    """
+    spec, v = problem.mpc, problem.verify
+    rates = any(
+        a is not None for a in (getattr(spec, "du_min", None), getattr(spec, "du_max", None),
+                                getattr(spec, "Rd", None))
+    )
+    u_prev = None
+    if rates:
+        if v is not None and v.initial_input_lower is not None:
+            u_prev = 0.5 * (v.initial_input_lower + v.initial_input_upper)
+        else:
+            u_prev = np.asarray(problem.model.u_op, dtype=float)
+    ref = spec.reference
+    r = None
+    if ref is not None and ref.lower is not None:
+        if v is not None and v.reference_lower is not None:
+            r = 0.5 * (v.reference_lower + v.reference_upper)
+        else:
+            r = 0.5 * (np.asarray(ref.lower, float) + np.asarray(ref.upper, float))
+    return u_prev, r
 
 
 def mpc_preview(
-    problem: Problem, model: LinearModel, x0: np.ndarray, steps: int, should_stop=lambda: False
+    problem: Problem,
+    model: LinearModel,
+    x0: np.ndarray,
+    steps: int,
+    should_stop=lambda: False,
+    *,
+    reference: np.ndarray | None = None,
 ) -> MpcPreview:
     """Simulate ``steps`` samples of the online MPC (cvxpy + Clarabel) from ``x0``.
 
@@ -169,6 +219,10 @@ def mpc_preview(
     should_stop : callable
         Called before each step with no argument; True stops the loop there (the
         workbench's cancel).
+    reference : (p,) array_like, optional
+        The reference to follow, for a law over a reference box (default: see
+        :func:`preview_extras`); a law with input rates starts from the ``u_prev`` of
+        :func:`preview_extras` and then holds the input it applied.
 
     Returns
     -------
@@ -181,17 +235,28 @@ def mpc_preview(
 
     t0 = time.perf_counter()
     mpc = OnlineMpc(problem.mpc, model)
+    fm = mpc.formulation
+    u_prev, r = preview_extras(problem)
+    if reference is not None and fm.nr:
+        r = np.asarray(reference, dtype=float).reshape(fm.nr)
+    u_prev = u_prev if fm.rates else None
+    r = r if fm.nr else None
+    u_prev0 = None if u_prev is None else np.array(u_prev, dtype=float)
     x = np.asarray(x0, dtype=float).reshape(model.n)
     X, U = [x.copy()], []
     stop = None
     for k in range(int(steps)):
         if should_stop():
             break
-        sol = mpc.solve(x)
+        # θ = (x, u_prev, r): the law's own loop holds the input it applied
+        theta = np.concatenate([x] + [v for v in (u_prev, r) if v is not None])
+        sol = mpc.solve(theta)
         if not sol.feasible:
             stop = k
             break
         u = sol.u0
+        if u_prev is not None:
+            u_prev = np.array(u, dtype=float)
         dx = model.A @ (x - model.x_op) + model.B @ (u - model.u_op) + model.c
         x = model.x_op + dx
         X.append(x.copy())
@@ -199,7 +264,7 @@ def mpc_preview(
     Xa = np.array(X)
     Ua = np.array(U).reshape(len(U), model.m)
     t = np.arange(Xa.shape[0]) * model.dt
-    return MpcPreview(t, Xa, Ua, stop, time.perf_counter() - t0)
+    return MpcPreview(t, Xa, Ua, stop, time.perf_counter() - t0, r, u_prev0)
 
 
 def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
@@ -217,7 +282,7 @@ def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
         ``(index, number of facets, the law u = F x + G, the bounding box)`` per region.
     """
     rows = []
-    names = law.states or tuple(f"x{k}" for k in range(law.n))
+    names = law.parameter_names or tuple(f"x{k}" for k in range(law.n))
     lo, hi = law.boxes
     # bounds that are rounding next to the partition's size show as 0 (an LP's vertex at
     # 5.55e-17 for a corner at 0)

@@ -33,6 +33,7 @@ __all__ = [
     "check_plant",
     "compose",
     "field_for_error",
+    "field_toml",
     "form_from_text",
     "size_errors",
     "toml_value",
@@ -54,7 +55,9 @@ class FieldDef:
     kind : str
         How the text is turned into TOML: ``string``, ``names`` (comma-separated names),
         ``expressions`` (one per line), ``number``, ``integer``, ``choice``, ``bool``,
-        ``vector``, ``matrix`` or ``sets`` (a TOML array of inline tables).
+        ``vector``, ``matrix``, ``sets`` (a TOML array of inline tables), ``table`` (one
+        TOML inline table; the braces may be left out) or ``vector_or_box`` (numbers, or
+        an inline table ``{ lower = [..], upper = [..] }``).
     label : str
     help : str
         One line shown under the entry.
@@ -65,6 +68,11 @@ class FieldDef:
     default : str
         What the engine takes for an empty optional entry, as shown in the empty entry
         (``"zoh"``, ``"identity"``; docs/spec.md is the reference).
+    words : tuple of str
+        Words the field takes instead of a value of its kind, written as TOML strings
+        (``P = "lqr"``, ``time_horizon = "inf"``).
+    group : str
+        The collapsible group of its tab the entry sits in (``""``: none, always shown).
     """
 
     path: tuple[str, ...]
@@ -74,6 +82,8 @@ class FieldDef:
     choices: tuple[str, ...] = ()
     required: bool = False
     default: str = ""
+    words: tuple[str, ...] = ()
+    group: str = ""
 
     @property
     def name(self) -> str:
@@ -90,6 +100,15 @@ def _f(path: str, kind: str, label: str, help: str = "", **kw: Any) -> FieldDef:
     return FieldDef(tuple(path.split(".")), kind, label, help, **kw)
 
 
+# the collapsible groups of the tabs (issues 25 and 26), in screen order
+G_UNCERTAIN = "Disturbances and uncertain parameters"
+G_TRACKING = "Tracking: a reference"
+G_RATES = "Input rates and move blocking"
+G_OUTPUTS = "Outputs and mixed constraints"
+G_SOFT = "Soft constraints"
+G_TERMINAL = "Terminal cost and set"
+G_LAW = "The law's u_prev and r (rates, reference box)"
+
 #: Every spec field the workbench edits, in screen order (docs/spec.md is the reference).
 FIELDS: tuple[FieldDef, ...] = (
     _f("name", "string", "Name", "letters, digits, - _ . (used in file names)", required=True),
@@ -100,6 +119,7 @@ FIELDS: tuple[FieldDef, ...] = (
         "expressions",
         "Dynamics dx/dt = f(x, u)",
         "one expression per state, in state order (or give A and B below)",
+        default="none: A and B",
     ),
     _f(
         "plant.A",
@@ -132,6 +152,38 @@ FIELDS: tuple[FieldDef, ...] = (
         "input at the operating point",
         default="zeros",
     ),
+    _f(
+        "plant.disturbances",
+        "table",
+        "Disturbances w",
+        "w = [lower, upper], …: any signal in the intervals",
+        default="none",
+        group=G_UNCERTAIN,
+    ),
+    _f(
+        "plant.parameters",
+        "table",
+        "Uncertain parameters",
+        "k = [lower, upper], …: constants of the dynamics",
+        default="none",
+        group=G_UNCERTAIN,
+    ),
+    _f(
+        "plant.nominal",
+        "table",
+        "Nominal values",
+        "w = 0, k = 1.5, …: what the MPC design uses",
+        default="midpoints; disturbances 0",
+        group=G_UNCERTAIN,
+    ),
+    _f(
+        "plant.E",
+        "matrix",
+        "Disturbance input E",
+        "n×d, with A and B: dx/dt = A x + B u + E w",
+        default="none",
+        group=G_UNCERTAIN,
+    ),
     _f("mpc.horizon", "integer", "Horizon N", "prediction steps ≥ 1", default="5"),
     _f(
         "mpc.norm",
@@ -155,7 +207,6 @@ FIELDS: tuple[FieldDef, ...] = (
         "input weight (norm 2: m×m PD; else r×m)",
         default="identity",
     ),
-    _f("mpc.P", "matrix", "P", "terminal weight", default="none"),
     _f("mpc.x_min", "vector", "x min", "n numbers, -inf allowed", default="-inf (unbounded)"),
     _f("mpc.x_max", "vector", "x max", "n numbers, inf allowed", default="inf (unbounded)"),
     _f("mpc.u_min", "vector", "u min", "m numbers", default="-inf (unbounded)"),
@@ -174,11 +225,131 @@ FIELDS: tuple[FieldDef, ...] = (
         "merge regions with the same affine law (default off)",
     ),
     _f(
+        "mpc.reference.signal",
+        "choice",
+        "Reference follows",
+        "y (needs C) or x; none: regulate to the operating point",
+        choices=("y", "x"),
+        default="none (regulate)",
+        group=G_TRACKING,
+    ),
+    _f(
+        "mpc.reference.value",
+        "vector",
+        "Fixed reference r",
+        "one number per output (or state); or the box below",
+        default="none",
+        group=G_TRACKING,
+    ),
+    _f(
+        "mpc.reference.lower",
+        "vector",
+        "Reference box lower",
+        "r is a parameter of the law, in this box",
+        default="none",
+        group=G_TRACKING,
+    ),
+    _f(
+        "mpc.reference.upper",
+        "vector",
+        "Reference box upper",
+        "with the lower side",
+        default="none",
+        group=G_TRACKING,
+    ),
+    _f(
+        "mpc.control_horizon",
+        "integer",
+        "Control horizon Nc",
+        "moves after Nc repeat the last (move blocking)",
+        default="N (no blocking)",
+        group=G_RATES,
+    ),
+    _f(
+        "mpc.du_min",
+        "vector",
+        "Δu min",
+        "m numbers: u_k - u_(k-1) ≥ du_min; u_prev joins θ",
+        default="-inf (no rate bound)",
+        group=G_RATES,
+    ),
+    _f(
+        "mpc.du_max",
+        "vector",
+        "Δu max",
+        "m numbers: u_k - u_(k-1) ≤ du_max",
+        default="inf (no rate bound)",
+        group=G_RATES,
+    ),
+    _f(
+        "mpc.Rd",
+        "matrix",
+        "Rd",
+        "weight on u_k - u_(k-1) (norm 2: m×m PSD; else r×m)",
+        default="none",
+        group=G_RATES,
+    ),
+    _f("mpc.C", "matrix", "Outputs C", "p×n: y = C x", default="none", group=G_OUTPUTS),
+    _f("mpc.y_min", "vector", "y min", "p numbers (needs C)", default="-inf (unbounded)",
+       group=G_OUTPUTS),
+    _f("mpc.y_max", "vector", "y max", "p numbers (needs C)", default="inf (unbounded)",
+       group=G_OUTPUTS),
+    _f(
+        "mpc.constraints",
+        "sets",
+        "Mixed constraints",
+        "TOML list: [{Hx = [[..]], Hu = [[..]], h = [..]}]: Hx x + Hu u ≤ h",
+        default="none",
+        group=G_OUTPUTS,
+    ),
+    _f(
+        "mpc.soft",
+        "names",
+        "Soft groups",
+        "any of x_min, x_max, y_min, y_max",
+        default="none (all hard)",
+        group=G_SOFT,
+    ),
+    _f(
+        "mpc.soft_weight",
+        "number",
+        "Slack weight",
+        "price of the slacks (l1; norm 2 adds ε²)",
+        default="10000",
+        group=G_SOFT,
+    ),
+    _f(
+        "mpc.P",
+        "matrix",
+        "P",
+        "terminal weight, or lqr: the Riccati solution (norm 2)",
+        default="none",
+        words=("lqr",),
+        group=G_TERMINAL,
+    ),
+    _f(
+        "mpc.terminal_set",
+        "table",
+        "Terminal set",
+        "lqr, { A = [[..]], b = [..] } or { lower = [..], upper = [..] }",
+        default="none",
+        words=("lqr",),
+        group=G_TERMINAL,
+    ),
+    _f(
         "verify.time_horizon",
         "number",
         "Time horizon (s)",
-        "length of the verified interval",
+        "length of the verified interval; inf: for all time",
         required=True,
+        words=("inf",),
+    ),
+    _f(
+        "verify.max_samples",
+        "integer",
+        "Max samples",
+        "time horizon inf: the samples within which the proof must close",
+        default="1000",
     ),
     _f("verify.initial_set.lower", "vector", "Initial set lower", "n numbers", required=True),
     _f("verify.initial_set.upper", "vector", "Initial set upper", "n numbers", required=True),
@@ -217,6 +388,22 @@ FIELDS: tuple[FieldDef, ...] = (
         "Safe sets",
         "the state must stay inside every one",
         default="none",
+    ),
+    _f(
+        "verify.initial_input",
+        "vector_or_box",
+        "Initial input u_prev",
+        "with input rates: m numbers or { lower = [..], upper = [..] }",
+        default="the operating input",
+        group=G_LAW,
+    ),
+    _f(
+        "verify.reference",
+        "vector_or_box",
+        "Reference r",
+        "with a reference box: numbers or { lower = [..], upper = [..] }",
+        default="the mpc.reference box",
+        group=G_LAW,
     ),
 )
 
@@ -336,6 +523,11 @@ def entry_to_toml(kind: str, text: str) -> str:
             return s  # the TOML error is reported
     if kind in ("number", "integer", "sets"):
         return s
+    if kind == "table":
+        # `w = [-1, 1], k = [0, 2]` is the inline table without its braces
+        return s if s.startswith("{") or "=" not in s else "{ " + s + " }"
+    if kind == "vector_or_box":
+        return s if s.startswith("{") else entry_to_toml("vector", s)
     if kind in ("vector", "matrix"):
         if s.startswith("["):
             if _parses(s) or s.count("[") != 1 or not s.endswith("]"):
@@ -356,8 +548,37 @@ def entry_to_toml(kind: str, text: str) -> str:
     raise ValueError(f"unknown field kind {kind!r}")
 
 
-def _display(kind: str, value: Any) -> str:
-    """How a loaded value is shown in its entry (the inverse of :func:`entry_to_toml`)."""
+def field_toml(fd: FieldDef, text: str) -> str:
+    """The TOML literal of a field's entry: one of its :attr:`FieldDef.words` as a string
+    (``lqr`` → ``"lqr"``), else :func:`entry_to_toml` of its kind.
+
+    Parameters
+    ----------
+    fd : FieldDef
+        The field.
+    text : str
+        The entry's text.
+
+    Returns
+    -------
+    str
+        The literal, or ``""`` for an empty entry.
+
+    Raises
+    ------
+    ValueError
+        The text cannot be a value of this field (message for the user).
+    """
+    word = text.strip().strip("\"'")
+    if fd.words and word in fd.words:
+        return _toml_string(word)
+    return entry_to_toml(fd.kind, text)
+
+
+def _display(kind: str, value: Any, words: tuple[str, ...] = ()) -> str:
+    """How a loaded value is shown in its entry (the inverse of :func:`field_toml`)."""
+    if isinstance(value, str) and value in words:
+        return value
     if kind == "string" and isinstance(value, str):
         return value
     if kind == "choice" and isinstance(value, str):
@@ -408,7 +629,7 @@ def form_from_text(text: str) -> tuple[dict[str, str], bool]:
         node: Any = data
         for part in fd.path:
             node = node.get(part) if isinstance(node, dict) else None
-        values[fd.name] = "" if node is None else _display(fd.kind, node)
+        values[fd.name] = "" if node is None else _display(fd.kind, node, fd.words)
     known = {fd.path for fd in FIELDS}
     for path in _leaf_paths(data):
         if path not in known and not any(path[: len(k)] == k for k in known):
@@ -455,7 +676,7 @@ def compose(values: dict[str, str], *, with_verify: bool = True) -> tuple[str, d
             continue
         raw = values.get(fd.name, "")
         try:
-            lit = entry_to_toml(fd.kind, raw)
+            lit = field_toml(fd, raw)
             if lit:
                 _single_value(lit)
         except ValueError as exc:  # TOMLDecodeError is a ValueError
@@ -563,7 +784,7 @@ def field_for_error(field: str | None) -> str | None:
 def _parsed(fd: FieldDef, text: str) -> Any:
     """The entry's value as TOML reads it, or None (empty or not a value: reported elsewhere)."""
     try:
-        lit = entry_to_toml(fd.kind, text)
+        lit = field_toml(fd, text)
         return tomllib.loads(f"v = {lit}")["v"] if lit else None
     except (ValueError, RecursionError):
         return None
@@ -613,8 +834,11 @@ def size_errors(values: dict[str, str], *, with_verify: bool = True) -> dict[str
         "mpc.x_max": x,
         "mpc.u_min": u,
         "mpc.u_max": u,
+        "mpc.du_min": u,
+        "mpc.du_max": u,
         "verify.initial_set.lower": x,
         "verify.initial_set.upper": x,
+        "verify.initial_input": u,
     }
     # (rows or None for any, columns)
     matrices = {
@@ -623,7 +847,12 @@ def size_errors(values: dict[str, str], *, with_verify: bool = True) -> dict[str
         "mpc.Q": (n if square else None, n),
         "mpc.R": (m if square else None, m),
         "mpc.P": (n if square else None, n),
+        "mpc.Rd": (m if square else None, m),
+        "mpc.C": (None, n),
     }
+    outputs = _rows_cols(_parsed(FIELD_BY_NAME["mpc.C"], values.get("mpc.C", "")))
+    if outputs is not None:
+        vectors["mpc.y_min"] = vectors["mpc.y_max"] = (outputs[0], "output")
     errors: dict[str, str] = {}
     for fd in FIELDS:
         if fd.section == "verify" and not with_verify:
@@ -643,6 +872,10 @@ def size_errors(values: dict[str, str], *, with_verify: bool = True) -> dict[str
             if shape is not None and (shape[1] != cols or (rows is not None and shape[0] != rows)):
                 want = f"{rows}×{cols}" if rows is not None else f"{cols} columns"
                 errors[fd.name] = f"expected {want}, got {shape[0]}×{shape[1]}"
+        elif fd.name == "plant.E":
+            shape = _rows_cols(value)
+            if shape is not None and shape[0] != n:
+                errors[fd.name] = f"expected {n} rows (one per state), got {shape[0]}"
         elif fd.kind == "sets" and isinstance(value, list):
             for i, item in enumerate(value):
                 bad = _set_size(item, n)

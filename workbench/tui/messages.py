@@ -17,6 +17,7 @@ __all__ = [
     "CancelRequested",
     "ExportRequested",
     "LawExportRequested",
+    "NewRequested",
     "OpenRequested",
     "RunRequested",
     "SaveRequested",
@@ -73,6 +74,12 @@ class OpenRequested(Message):
     """
 
     target: str
+
+
+@dataclass
+class NewRequested(Message):
+    """Start a new design: the app offers the templates (a blank form or a bundled example)
+    and resets every pane as :class:`OpenRequested` does."""
 
 
 @dataclass

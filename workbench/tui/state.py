@@ -16,9 +16,23 @@ from codev_engine import SpecError
 from codev_engine.io.atomic import write_text
 from codev_engine.session import Session, SessionError
 
+from ..bundled import example_files
 from .form import FIELDS, form_from_text
 
-__all__ = ["DRAFT", "Opened", "open_target", "read_draft", "write_draft", "clear_draft"]
+__all__ = [
+    "DRAFT",
+    "EMPTY",
+    "Opened",
+    "clear_draft",
+    "new_design",
+    "open_target",
+    "read_draft",
+    "templates",
+    "write_draft",
+]
+
+#: the template of a blank form (the others are the bundled examples, by file stem)
+EMPTY = "empty"
 
 #: Raw form entries of an edit that is not a valid spec yet (restored on the next start).
 DRAFT = "tui-draft.json"
@@ -44,7 +58,7 @@ class Opened:
         the session); otherwise ``spec.toml`` is written on the first edit, so merely
         opening a session never rewrites its spec.
     follow_name : bool
-        A new session in the default folder (``sessions/untitled``): the workbench renames
+        A new session (``sessions/untitled``, or a *New* design's): the workbench renames
         it after the design's name as soon as one is typed, until a stage has run in it.
     """
 
@@ -125,6 +139,84 @@ def open_target(
         f"new session {folder}: fill in the plant, or open a spec (Session tab)",
         follow_name=session_dir is None,
     )
+
+
+def templates() -> list[tuple[str, str]]:
+    """What a new design can start from: a blank form, or a copy of a bundled example.
+
+    Returns
+    -------
+    list of tuple of (str, str)
+        ``(key, description)``: :data:`EMPTY` first, then each bundled spec
+        (``workbench.examples``, i.e. ``examples/*.toml``) by file stem, described by the
+        first comment line of the file.
+    """
+    out = [(EMPTY, "a blank form: type the plant from scratch")]
+    for f in example_files():
+        if not f.name.endswith(".toml"):
+            continue
+        about = ""
+        for line in f.read_text(encoding="utf-8").splitlines():
+            if line.startswith("#"):
+                about = line.lstrip("#").strip()
+                break
+        out.append((f.name[: -len(".toml")], about))
+    return out
+
+
+def new_design(template: str, *, sessions_root: str | Path = "sessions") -> Opened:
+    """A new design in a new session folder, from a template of :func:`templates`.
+
+    The folder is ``sessions_root/<the design's name>`` (``untitled`` for the blank form),
+    with ``-2``, ``-3``, … appended when that folder exists: nothing of another session is
+    reused. The session follows the design's name as it is edited (``follow_name``),
+    until a stage runs in it.
+
+    Parameters
+    ----------
+    template : str
+        :data:`EMPTY`, or the stem of a bundled example (``"double_integrator"``).
+    sessions_root : str or Path
+        Where the new session folder goes.
+
+    Returns
+    -------
+    Opened
+        The session, and the form's entries (the example's fields, or all empty). A copy
+        of an example is saved as the session's ``spec.toml`` at the first check
+        (``save_now``).
+
+    Raises
+    ------
+    SpecError
+        An unknown template, or an example the form cannot show (naming the file).
+    """
+    root = Path(sessions_root)
+    if template == EMPTY:
+        values, has_verify = _blank()
+        base, source = "untitled", None
+    else:
+        files = {f.name: f for f in example_files()}
+        source = files.get(f"{template}.toml")
+        if source is None:
+            known = ", ".join(k for k, _ in templates())
+            raise SpecError(f"no template {template!r} (known: {known})")
+        try:
+            values, has_verify = form_from_text(source.read_text(encoding="utf-8"))
+        except SpecError as exc:
+            raise exc.with_file(source.name) if exc.file is None else exc from None
+        base = _safe(values.get("name") or template)
+    folder = root / base
+    k = 2
+    while folder.exists():
+        folder, k = root / f"{base}-{k}", k + 1
+    session = Session.open_or_create(folder)
+    note = (
+        f"new design in {folder}: fill in the plant"
+        if source is None
+        else f"new design in {folder}, a copy of the example {source.name}"
+    )
+    return Opened(session, values, has_verify, note, save_now=source is not None, follow_name=True)
 
 
 def _safe(name: str) -> str:

@@ -93,7 +93,7 @@ def partition_text(
     if marker is not None:
         mk = np.asarray(marker, dtype=float).reshape(n)
         r.points([mk[i]], [mk[j]], COLOURS["marker"])
-    names = law.states or tuple(f"x{k}" for k in range(n))
+    names = law.parameter_names or tuple(f"x{k}" for k in range(n))
     found = len(np.unique(idx[idx >= 0]))
     legend = [(f"{law.num_regions} regions ({found} in view)", COLOURS["axis"])]
     if n > 2:

@@ -5,7 +5,8 @@ Their styles are in ``workbench.tcss`` with the rest of the app's.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import re
+from collections.abc import Callable, Iterable, Mapping
 
 from rich.text import Text
 from textual import events, work
@@ -13,11 +14,61 @@ from textual.app import ComposeResult
 from textual.containers import Vertical
 from textual.message import Message
 from textual.widget import Widget
-from textual.widgets import Input, Label, Select, Static, Switch, TextArea
+from textual.widgets import Collapsible, Input, Label, Select, Static, Switch, TextArea
 
 from .form import FIELD_BY_NAME, FieldDef
 
-__all__ = ["FieldEntry", "Plot"]
+__all__ = ["EntryInput", "EntryTextArea", "FieldEntry", "Plot", "field_entries", "open_groups"]
+
+
+class _KeysInOrder:
+    """An editor that runs its own key bindings (backspace, delete, arrows, Enter, …) as it
+    takes each key, in the order typed.
+
+    Textual runs a widget's bindings only when the key has gone back up to the app, while
+    a printable key is inserted at once: under load a backspace typed before a ``5`` was
+    applied after it, and one typed before a Tab or an F-key (priority keys, handled as they
+    arrive) was applied to the field the focus had moved to (issue 23).
+    """
+
+    _keys_queued = 0  # keys posted to the editor and not handled yet
+
+    @property
+    def keys_pending(self) -> bool:
+        """Whether keys sent to the editor wait in its queue (not taken yet)."""
+        return self._keys_queued > 0
+
+    def post_message(self, message: Message) -> bool:
+        queued = super().post_message(message)  # type: ignore[misc]
+        if queued and isinstance(message, events.Key):
+            self._keys_queued += 1
+        return queued
+
+    async def on_event(self, event: events.Event) -> None:
+        try:
+            await super().on_event(event)  # type: ignore[misc]
+        finally:
+            if isinstance(event, events.Key):
+                self._keys_queued = max(0, self._keys_queued - 1)
+
+    async def _on_key(self, event: events.Key) -> None:
+        if not event.is_printable:
+            for binding in self._bindings.key_to_bindings.get(event.key, ()):  # type: ignore[attr-defined]
+                if binding.priority:
+                    continue
+                if await self.app.run_action(binding.action, self):  # type: ignore[attr-defined]
+                    event.stop()
+                    event.prevent_default()
+                    return
+        await super()._on_key(event)  # type: ignore[misc]
+
+
+class EntryInput(_KeysInOrder, Input):
+    """A one-line :class:`~textual.widgets.Input` that takes its keys in the order typed."""
+
+
+class EntryTextArea(_KeysInOrder, TextArea):
+    """A :class:`~textual.widgets.TextArea` that takes its keys in the order typed."""
 
 
 def _dom_id(name: str) -> str:
@@ -80,7 +131,7 @@ class FieldEntry(Vertical):
         # an empty optional entry shows the value the engine takes for it
         shown = f"default: {fd.default}" if fd.default else ""
         if fd.kind in ("expressions", "sets"):
-            yield TextArea(
+            yield EntryTextArea(
                 self._text,
                 id="editor",
                 soft_wrap=False,
@@ -105,7 +156,7 @@ class FieldEntry(Vertical):
         else:
             # the focus puts the cursor at the end: a key typed after F1 adds to the name,
             # it does not replace the selected name
-            yield Input(
+            yield EntryInput(
                 self._text, id="editor", compact=True, placeholder=shown, select_on_focus=False
             )
         yield Static(fd.help, classes="help", id="help")
@@ -147,6 +198,37 @@ class FieldEntry(Vertical):
                 editor.value = text.strip().lower() == "true"
         finally:
             self.call_after_refresh(self._done_loading)
+
+    @property
+    def keys_pending(self) -> bool:
+        """Whether keys typed into the entry's editor are still waiting in its queue."""
+        editor = self.query_one("#editor")
+        return isinstance(editor, _KeysInOrder) and editor.keys_pending
+
+    def editor_text(self) -> str | None:
+        """The editor's text as it is now, ahead of the :class:`Edited` messages on their
+        way to the app (keys typed just before a priority key such as ctrl+g).
+
+        Returns
+        -------
+        str or None
+            The text (a choice's value, ``""`` when blank); None for a switch (which
+            posts its change at once) or while a loaded value is being shown.
+        """
+        if self._loading:
+            return None
+        editor = self.query_one("#editor")
+        if isinstance(editor, Input):
+            return editor.value
+        if isinstance(editor, TextArea):
+            return editor.text
+        if isinstance(editor, Select):
+            value = editor.value
+            if value is Select.NULL or value is None:
+                # blank, or a loaded value the list cannot show ("Inf"): kept as it is
+                return "" if self._text in self.field.choices else None
+            return str(value)
+        return None
 
     def _done_loading(self) -> None:
         self._loading = False
@@ -207,6 +289,71 @@ class FieldEntry(Vertical):
     def on_switch_changed(self, event: Switch.Changed) -> None:
         event.stop()
         self._changed("true" if event.value else "false")
+
+
+def field_entries(names: Iterable[str], values: Mapping[str, str]) -> list[Widget]:
+    """A tab's entries in screen order; those of a :attr:`FieldDef.group` inside one
+    :class:`~textual.widgets.Collapsible` per group, collapsed unless one of its entries
+    has a value.
+
+    Parameters
+    ----------
+    names : iterable of str
+        The tab's fields, in screen order (a group's fields are consecutive).
+    values : Mapping of str to str
+        The form's entries at start: field name → text.
+
+    Returns
+    -------
+    list of Widget
+        :class:`FieldEntry` and :class:`~textual.widgets.Collapsible` widgets, to yield
+        from a ``compose``.
+    """
+    # (group or "", its entries) in screen order; an ungrouped entry is a group of its own
+    runs: list[tuple[str, list[FieldEntry]]] = []
+    for name in names:
+        group = FIELD_BY_NAME[name].group
+        entry = FieldEntry(name, values.get(name, ""))
+        if group and runs and runs[-1][0] == group:
+            runs[-1][1].append(entry)
+        else:
+            runs.append((group, [entry]))
+    out: list[Widget] = []
+    for group, members in runs:
+        if not group:
+            out.extend(members)
+            continue
+        out.append(
+            Collapsible(
+                *members,
+                title=group,
+                collapsed=not any(values.get(e.field_name, "").strip() for e in members),
+                id="g-" + re.sub(r"[^a-z0-9]+", "-", group.lower()).strip("-"),
+                classes="group",
+            )
+        )
+    return out
+
+
+def open_groups(root: Widget, *, errors: bool = True, filled: bool = False) -> None:
+    """Expand the collapsed groups under ``root`` that hold an entry in error (or filled).
+
+    Parameters
+    ----------
+    root : Widget
+        The app or a pane.
+    errors : bool
+        Expand a group with an entry marked in error.
+    filled : bool
+        Expand a group with an entry that has text, and collapse one without (a design
+        just opened).
+    """
+    for group in root.query(Collapsible):
+        entries = list(group.query(FieldEntry))
+        if filled:
+            group.collapsed = not any(e.text.strip() for e in entries)
+        if errors and any(e.has_class("-error") for e in entries):
+            group.collapsed = False
 
 
 class Plot(Static):

@@ -14,11 +14,11 @@ from textual.widgets import Button, Input, Label, Static
 
 from codev_engine.errors import CodevError
 
-from ..design import MpcPreview, mpc_preview
+from ..design import MpcPreview, mpc_preview, preview_extras
 from ..form import FIELDS
 from ..parsers import parse_state
 from ..views import series_text
-from ..widgets import FieldEntry, Plot
+from ..widgets import FieldEntry, Plot, field_entries
 
 if TYPE_CHECKING:
     from codev_engine import Problem
@@ -53,8 +53,7 @@ class MpcPane(Horizontal):
 
     def compose(self) -> ComposeResult:
         with VerticalScroll(classes="form", can_focus=False):
-            for name in MPC_FIELDS:
-                yield FieldEntry(name, self._values.get(name, ""))
+            yield from field_entries(MPC_FIELDS, self._values)
         with Vertical(classes="output"):
             yield Static(
                 "Preview: the online MPC (cvxpy + Clarabel) in closed loop with its own "
@@ -66,6 +65,9 @@ class MpcPane(Horizontal):
                 yield Input(placeholder="initial state, e.g. 9, -5", id="preview-x0")
                 yield Label(" steps ")
                 yield Input("20", id="preview-steps", restrict=r"[0-9]*", max_length=4)
+                # a law over a reference box: the reference the loop follows
+                yield Label(" r ", id="preview-r-label")
+                yield Input(id="preview-r", placeholder="reference")
                 yield Button("Preview \\[ctrl+g]", id="preview-run", variant="primary")
             yield Static("", id="preview-status", classes="status")
             yield Plot("states appear here", id="preview-states")
@@ -76,8 +78,20 @@ class MpcPane(Horizontal):
             event.stop()
             self.run_preview()
 
+    def on_mount(self) -> None:
+        self._show_reference_entry(None)
+
+    def _show_reference_entry(self, problem: Problem | None) -> None:
+        """The reference entry is shown for a design whose law takes a reference (a box),
+        with the default it follows as its placeholder."""
+        _, r = preview_extras(problem) if problem is not None else (None, None)
+        entry = self.query_one("#preview-r", Input)
+        entry.display = self.query_one("#preview-r-label").display = r is not None
+        if r is not None:
+            entry.placeholder = "default: " + ", ".join(f"{v:g}" for v in r)
+
     def on_input_submitted(self, event: Input.Submitted) -> None:
-        if event.input.id in ("preview-x0", "preview-steps"):
+        if event.input.id in ("preview-x0", "preview-steps", "preview-r"):
             event.stop()
             self.run_preview()
 
@@ -98,6 +112,7 @@ class MpcPane(Horizontal):
         self.last = None
         self.query_one("#preview-x0", Input).value = self._x0_filled = ""
         self.query_one("#preview-steps", Input).value = "20"
+        self.query_one("#preview-r", Input).value = ""
         self.query_one("#preview-status", Static).update("")
         self.query_one("#preview-states", Plot).set_draw(None, "states appear here")
         self.query_one("#preview-inputs", Plot).set_draw(None, "inputs appear here")
@@ -111,6 +126,7 @@ class MpcPane(Horizontal):
             The form's valid spec; None while the form is not valid (or not checked yet).
         """
         self._problem = problem
+        self._show_reference_entry(problem)
         status = self.query_one("#preview-status", Static)
         if problem is not None and "not valid yet" in str(status.render()):
             status.update("")  # the spec is valid now: the refusal is no longer true
@@ -143,19 +159,32 @@ class MpcPane(Horizontal):
             except ValueError as exc:
                 status.update(f"[red]✗ x0: {exc}[/red]")
                 return
+        reference = None
+        _, r_default = preview_extras(problem)
+        r_text = self.query_one("#preview-r", Input).value
+        if r_default is not None and r_text.strip():
+            try:
+                reference = parse_state(r_text, r_default.size)
+            except ValueError as exc:
+                status.update(f"[red]✗ r: {exc}[/red]")
+                return
         steps_text = self.query_one("#preview-steps", Input).value or "20"
         steps = max(1, min(int(steps_text), 2000))
         status.update(f"solving the MPC online for {steps} steps…")
         self._stop.clear()
-        self._preview(problem, x0, steps)
+        self._preview(problem, x0, steps, reference)
 
     @work(thread=True, exclusive=True, group="preview")
-    def _preview(self, problem: Problem, x0: np.ndarray, steps: int) -> None:
+    def _preview(
+        self, problem: Problem, x0: np.ndarray, steps: int, reference: np.ndarray | None = None
+    ) -> None:
         from codev_engine import discretize
 
         try:
             model = discretize(problem)
-            prev = mpc_preview(problem, model, x0, steps, should_stop=self._stop.is_set)
+            prev = mpc_preview(
+                problem, model, x0, steps, should_stop=self._stop.is_set, reference=reference
+            )
         except CodevError as exc:
             self.app.call_from_thread(
                 self.query_one("#preview-status", Static).update, f"[red]✗ {exc}[/red]"
@@ -171,6 +200,8 @@ class MpcPane(Horizontal):
             msg += f" · [red]MPC infeasible at step {prev.infeasible_at}[/red]"
         else:
             msg += f" · final state ({', '.join(f'{v:.3g}' for v in prev.X[-1])})"
+        if prev.reference is not None:
+            msg += f" · following r = {', '.join(f'{v:g}' for v in prev.reference)}"
         self.query_one("#preview-status", Static).update(msg)
         states, inputs = problem.plant.states, problem.plant.inputs
         self.query_one("#preview-states", Plot).set_draw(

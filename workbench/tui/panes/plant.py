@@ -15,7 +15,7 @@ from codev_engine.errors import CodevError
 
 from ..design import plant_report
 from ..form import FIELDS, FormCheck
-from ..widgets import FieldEntry
+from ..widgets import FieldEntry, field_entries
 
 if TYPE_CHECKING:
     from codev_engine import Problem
@@ -48,8 +48,7 @@ class PlantPane(Horizontal):
     def compose(self) -> ComposeResult:
         # the form column scrolls with the focus: it is no Tab stop of its own
         with VerticalScroll(classes="form", can_focus=False):
-            for name in PLANT_FIELDS:
-                yield FieldEntry(name, self._values.get(name, ""))
+            yield from field_entries(PLANT_FIELDS, self._values)
         with VerticalScroll(classes="output"):
             yield Static("checking the spec…", id="plant-report")
 

@@ -15,13 +15,20 @@ from codev_engine import CodevError
 from codev_engine.session import RunReport, Session, StageStatus
 
 from ...commands import runnable
-from ..messages import ExportRequested, OpenRequested, RunRequested, SaveRequested
+from ..messages import (
+    ExportRequested,
+    NewRequested,
+    OpenRequested,
+    RunRequested,
+    SaveRequested,
+)
 
 
 class SessionPane(VerticalScroll):
     """The session folder is the workbench's state: open, save, status, journal, export.
 
-    Posts :class:`OpenRequested`, :class:`SaveRequested`, :class:`RunRequested`
+    Posts :class:`OpenRequested`, :class:`NewRequested`, :class:`SaveRequested`,
+    :class:`RunRequested`
     ``("recording")`` and, once a recording exists and a copy is asked for,
     :class:`ExportRequested`. The app hands it the session and the stages' status with
     :meth:`show_session`, the end of a run with :meth:`run_finished` and the copy's
@@ -36,6 +43,7 @@ class SessionPane(VerticalScroll):
             yield Input(id="open-path", placeholder="a session folder or a spec .toml")
             yield Button("Open", id="open")
             yield Button("Save \\[ctrl+s]", id="save")
+            yield Button("New… \\[ctrl+n]", id="new")
         yield Label("Stages for the current spec")
         yield DataTable(id="stages", cursor_type="row")
         yield Label("Journal (every stage run, replayable with codev replay)")
@@ -76,6 +84,8 @@ class SessionPane(VerticalScroll):
             self.open_path()
         elif event.button.id == "save":
             self.post_message(SaveRequested())
+        elif event.button.id == "new":
+            self.post_message(NewRequested())
         elif event.button.id == "export":
             self.post_message(RunRequested("recording"))
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from textual import work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widget import Widget
@@ -242,13 +243,9 @@ class SynthesisPane(Vertical):
             norm = law.meta.get("norm", "")
             seconds = law.meta.get("seconds")
             took = f" · synthesised in {seconds:.2f} s" if isinstance(seconds, float) else ""
-            if law is not self._shared_for:
-                self._shared_for, self._shared = law, shared_laws(law)
-            merge = (
-                f" · {self._shared} share a law: Merge regions (F2)"
-                if self._shared
-                else ""
-            )
+            # counted with the table, in a worker
+            shared = self._shared if law is self._shared_for else 0
+            merge = f" · {shared} share a law: Merge regions (F2)" if shared else ""
             status.update(
                 f"{law.num_regions} critical regions · n={law.n}, m={law.m}"
                 f"{f', norm {norm}' if norm else ''}{took} · {state}{merge}"
@@ -257,14 +254,43 @@ class SynthesisPane(Vertical):
             # the picture and the table depend on the law only: a form check (every few
             # keys) must not rebuild them
             self._law_shown = law
+            self._name_inputs(law)
             self._draw(law)
             table.clear()
-            for row in region_rows(law):
-                table.add_row(*row)
+            # the rows need every region's bounding box (LPs, and a kernel compiled on a
+            # law's first use: seconds under load): off the UI thread
+            self._regions(law)
+
+    def _name_inputs(self, law: ExplicitLaw) -> None:
+        """Say what the lookup and the slice take: the law's parameters, by name (a law over
+        θ = (x, u_prev, r) takes more numbers than the states)."""
+        names = law.parameter_names or tuple(f"x{k}" for k in range(law.n))
+        self.query_one("#locate-x", Input).placeholder = f"{', '.join(names)}  (Enter)"
+        extra = names[len(law.states):] if law.parameters else ()
+        self.query_one("#synth-at", Input).placeholder = (
+            f"{', '.join(extra)} (or all {law.n}); default: the domain's centre"
+            if extra
+            else "default: the domain's centre"
+        )
+
+    @work(thread=True, exclusive=True, group="regions")
+    def _regions(self, law: ExplicitLaw) -> None:
+        rows, shared = region_rows(law), shared_laws(law)
+        self.app.call_from_thread(self._show_regions, law, rows, shared)
+
+    def _show_regions(self, law: ExplicitLaw, rows: list[tuple[str, ...]], shared: int) -> None:
+        if law is not self._law_shown:
+            return  # another law is on screen by now
+        self._shared_for, self._shared = law, shared
+        table = self.query_one("#regions", DataTable)
+        table.clear()
+        for row in rows:
+            table.add_row(*row)
+        self.refresh_law(keep_status=bool(self._note))  # the count of shared laws
 
     def _draw(self, law: ExplicitLaw) -> None:
         plot = self.query_one("#partition", Plot)
-        names = law.states or tuple(f"x{k}" for k in range(law.n))
+        names = law.parameter_names or tuple(f"x{k}" for k in range(law.n))
         if law.n == 1:
             plot.set_draw(None, "one state: see the region table")
             return
@@ -284,9 +310,18 @@ class SynthesisPane(Vertical):
         return parse_axes(text, names)
 
     def _at(self, law: ExplicitLaw) -> np.ndarray | None:
+        """The slice typed: every parameter, or (a law over θ = (x, u_prev, r)) only those
+        after the states, the states then at the domain's centre."""
         text = self.query_one("#synth-at", Input).value
         if not text.strip():
             return None
+        extra = law.n - len(law.states) if law.parameters else 0
+        if extra and len(text.replace(",", " ").replace(";", " ").split()) == extra:
+            from codev_engine.view.figures import default_slice_point
+
+            at = np.array(default_slice_point(law), dtype=float)
+            at[law.n - extra :] = parse_state(text, extra)
+            return at
         return parse_state(text, law.n)
 
     def locate(self) -> None:

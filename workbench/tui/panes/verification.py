@@ -15,7 +15,7 @@ from ..form import FIELDS
 from ..messages import CancelRequested, RunRequested, VerifyToggled
 from ..parsers import parse_axes, parse_state_name
 from ..views import plane_text, tube_time_text
-from ..widgets import FieldEntry, Plot
+from ..widgets import FieldEntry, Plot, field_entries
 
 if TYPE_CHECKING:
     from codev_engine import Problem, VerificationResult
@@ -73,8 +73,7 @@ class VerificationPane(Horizontal):
             with Horizontal(classes="bar"):
                 yield Switch(value=self._enabled, id="verify-enabled")
                 yield Label(" verify the closed loop (\\[verify])")
-            for name in VERIFY_FIELDS:
-                yield FieldEntry(name, self._values.get(name, ""))
+            yield from field_entries(VERIFY_FIELDS, self._values)
         with Vertical(classes="output"):
             with Horizontal(classes="bar"):
                 yield Button("Verify \\[ctrl+g]", id="verify-run", variant="primary")
