@@ -587,6 +587,7 @@ max_samples = 200
 initial_set = { lower = [0.0, 0.0], upper = [0.1, 0.1] }
 initial_input = { lower = [-0.1], upper = [0.1] }
 reference = [0.5]
+measurement_noise = { lower = [-0.01, -0.02], upper = [0.01, 0.02] }
 """
 
 
@@ -600,6 +601,9 @@ def test_every_new_field_has_an_entry_and_round_trips_exactly():
     assert values["mpc.soft"] == "y_max, x_max"
     assert values["plant.disturbances"] == "{ w = [-0.1, 0.1] }"
     assert values["verify.initial_input"] == "{ lower = [-0.1], upper = [0.1] }"
+    assert values["verify.measurement_noise"] == (
+        "{ lower = [-0.01, -0.02], upper = [0.01, 0.02] }"
+    )
     assert form_from_text(text) == (values, has_verify)
 
 

@@ -108,6 +108,7 @@ G_OUTPUTS = "Outputs and mixed constraints"
 G_SOFT = "Soft constraints"
 G_TERMINAL = "Terminal cost and set"
 G_LAW = "The law's u_prev and r (rates, reference box)"
+G_NOISE = "Measurement noise"
 
 #: Every spec field the workbench edits, in screen order (docs/spec.md is the reference).
 FIELDS: tuple[FieldDef, ...] = (
@@ -404,6 +405,14 @@ FIELDS: tuple[FieldDef, ...] = (
         "with a reference box: numbers or { lower = [..], upper = [..] }",
         default="the mpc.reference box",
         group=G_LAW,
+    ),
+    _f(
+        "verify.measurement_noise",
+        "vector_or_box",
+        "Measurement noise v",
+        "the law sees x + v: { lower = [..], upper = [..] }, n numbers each",
+        default="none",
+        group=G_NOISE,
     ),
 )
 
@@ -839,6 +848,7 @@ def size_errors(values: dict[str, str], *, with_verify: bool = True) -> dict[str
         "verify.initial_set.lower": x,
         "verify.initial_set.upper": x,
         "verify.initial_input": u,
+        "verify.measurement_noise": x,
     }
     # (rows or None for any, columns)
     matrices = {

@@ -262,7 +262,14 @@ class VerificationPane(Horizontal):
             self._result_shown = None
             return
         title, cls, meaning = VERDICT_TEXT.get(result.verdict, (result.verdict, "", ""))
-        reason = REASONS.get(result.reason or "", result.reason or "")
+        # the engine's words for every other reason (limit, enclosure, noise, ...); imported
+        # here, not at the top, to keep the engine's reach modules off the first screen
+        from codev_engine.reach.verification import UNKNOWN_WORDS
+
+        code = result.reason or ""
+        reason = REASONS.get(code, UNKNOWN_WORDS.get(code, code))
+        if getattr(result, "detail", None):
+            reason = f"{reason} ({result.detail})" if reason else str(result.detail)
         lines = [f"{title} — {meaning}" + (f": {reason}" if reason and cls != "-unsafe" else "")]
         lines.append(
             f"hold {result.hold} · {result.tube.num_boxes} boxes · "
