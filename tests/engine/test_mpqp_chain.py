@@ -6,9 +6,9 @@ horizon 4, norm 2, Q = I, R = 1, ``|u| <= 1``, ``|x_i| <= 2``) ended in a divisi
 inside the compiled LP of the search: a blocking row 1e-15 from the span of the working rows
 entered the working set, and a later re-orthonormalisation made ``R`` singular
 (``geometry/lp_kernel._lp``). The law is checked against the online MPC at random points and
-facet probes (the oracle of ``test_synthesis_oracle.py``); the 10-state chain is the slow
-copy. The candidates that crashed are evaluated by the compiled kernel here directly, and
-the search's failures are shown to reach the CLI as one line, exit 1.
+facet probes (the oracle of ``test_synthesis_oracle.py``); both chains take minutes, so they
+are slow tests, and the default run evaluates the candidate that crashed with the compiled
+kernel directly. The search's failures are shown to reach the CLI as one line, exit 1.
 """
 
 from __future__ import annotations
@@ -60,7 +60,10 @@ def _oracle(n: int) -> None:
     _check(rep)
 
 
+@pytest.mark.slow
 def test_chain_of_8_integrators_matches_online_mpc():
+    # (11,810 regions: about a minute of search alone; the default run keeps the
+    # candidate that crashed, below)
     _oracle(8)
 
 
