@@ -50,11 +50,6 @@ PARALLEL_AFTER = 400
 #: regions found before candidates go to the compiled kernel (mpqp_kernel; importing numba
 #: and loading the kernel costs ~1 s, more than small problems take altogether)
 JIT_AFTER = 200
-#: ... or candidates evaluated (~0.4 ms each in numpy, ~40 us compiled; the compiled walk
-#: also swaps constraints across facets where the numpy walk visits the dependent set: the
-#: servo of benchmarks/formulations.py, N = 10, takes 843 candidates from the start against
-#: 1,941 in numpy alone)
-JIT_AFTER_CANDIDATES = 400
 #: results of the compiled walk up to this many regions are sorted by active set, as the
 #: numpy walk's are (the partition's order then depends on neither walk; larger ones stay
 #: in the walk's order, which spares a second copy of every row)
@@ -583,9 +578,7 @@ def explore_active_sets(
     try:
         inflight: deque = deque()  # (chunk, AsyncResult), oldest first
         while stack or inflight:
-            if not jit_tried and (
-                len(regions) >= JIT_AFTER or stats.get("candidates", 0) >= JIT_AFTER_CANDIDATES
-            ):
+            if not jit_tried and len(regions) >= JIT_AFTER:
                 jit_tried = True
                 stats["jit"] = kernel.start_jit()
                 if stats["jit"] and not inflight:

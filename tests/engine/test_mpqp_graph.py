@@ -125,7 +125,6 @@ def _program(seed: int = 2) -> ce.MpProgram:
 
 def _solve(monkeypatch, jit_after: int, workers: int = 1, parallel_after: int = 400):
     monkeypatch.setattr(mpqp, "JIT_AFTER", jit_after)
-    monkeypatch.setattr(mpqp, "JIT_AFTER_CANDIDATES", jit_after)
     monkeypatch.setattr(mpqp, "PARALLEL_AFTER", parallel_after)
     return ce.mpsolve(_program(), options=ce.SolveOptions(workers=workers))
 
@@ -382,7 +381,6 @@ def test_pruned_licq_subsets_find_every_region(monkeypatch):
     program = build_program(problem.mpc, discretize(problem)).program
     for jit_after in (0, 10**9):
         monkeypatch.setattr(mpqp, "JIT_AFTER", jit_after)
-        monkeypatch.setattr(mpqp, "JIT_AFTER_CANDIDATES", jit_after)
         pruned = ce.mpsolve(program, options=ce.SolveOptions(workers=1))
         monkeypatch.setattr(mpqp, "DEPENDENT_SIGMA", -1.0)
         monkeypatch.setattr(mpqp, "SUPPORT_TOL", -1.0)

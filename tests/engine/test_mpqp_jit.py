@@ -166,7 +166,6 @@ def test_numpy_path_and_compiled_path_give_the_same_partition():
         mp.setattr(mpqp, "JIT_AFTER", 0)
         a = ce.mpsolve(prog, options=ce.SolveOptions(workers=1))
         mp.setattr(mpqp, "JIT_AFTER", 10**9)
-        mp.setattr(mpqp, "JIT_AFTER_CANDIDATES", 10**9)
         b = ce.mpsolve(prog, options=ce.SolveOptions(workers=1))
     finally:
         mp.undo()
