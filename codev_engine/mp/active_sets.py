@@ -230,20 +230,20 @@ class ActiveSetGraph:
         the candidate that pushed it).
     G : (m, nz) ndarray, optional
         The constraint rows: the subsets of an LICQ candidate visited are those of
-        ``mpqp.dependent_rows`` (without it, every subset).
+        ``mpqp.dependent_rows`` with ``sigma`` and ``support`` (without it, every subset).
+    sigma, support : float, optional
+        ``mpqp.DEPENDENT_SIGMA`` and ``mpqp.SUPPORT_TOL`` (the defaults, -1, keep every
+        subset).
     """
 
     def __init__(
         self, m: int, nz: int, opposite: np.ndarray, start: np.ndarray | None = None,
-        G: np.ndarray | None = None,
+        G: np.ndarray | None = None, sigma: float = -1.0, support: float = -1.0,
     ):
-        from codev_engine.mp.mpqp import DEPENDENT_SIGMA, SUPPORT_TOL
-
         self.m, self.nz = m, nz
-        # (no G: no pruning, a sigma and a support of -1 keep every subset)
         self.G = np.eye(m, max(nz, 1)) if G is None else np.ascontiguousarray(G, dtype=float)
-        self.sigma = DEPENDENT_SIGMA if G is not None else -1.0
-        self.support = SUPPORT_TOL if G is not None else -1.0
+        self.sigma = float(sigma) if G is not None else -1.0
+        self.support = float(support) if G is not None else -1.0
         self.W = (m + 63) // 64
         self.start = np.zeros(1) if start is None else np.asarray(start, dtype=float)
         self.table = np.zeros((1 << 12, self.W), dtype=np.uint64)

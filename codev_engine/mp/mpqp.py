@@ -663,7 +663,9 @@ class _CompiledWalk:
         opp = np.zeros((m, m), dtype=bool)
         for i, js in opposite.items():
             opp[i, list(js)] = True
-        self.graph = active_sets.ActiveSetGraph(m, kernel.nz, opp, kernel.box[0], kernel.G)
+        self.graph = active_sets.ActiveSetGraph(
+            m, kernel.nz, opp, kernel.box[0], kernel.G, DEPENDENT_SIGMA, SUPPORT_TOL
+        )
         self.graph.seed(explored, stack)
 
     def run(self, nworkers: int, max_regions: int, progress) -> None:

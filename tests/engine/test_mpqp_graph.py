@@ -354,7 +354,8 @@ def test_dependent_rows_compiled_and_numpy_agree(seed):
     G = np.vstack([G, rng.normal(size=(4, 3))])
     G /= np.linalg.norm(G, axis=1)[:, None]
     graph = active_sets.ActiveSetGraph(G.shape[0], 3, np.zeros((G.shape[0],) * 2, bool),
-                                       G=G)
+                                       G=G, sigma=mpqp.DEPENDENT_SIGMA,
+                                       support=mpqp.SUPPORT_TOL)
     for _ in range(30):
         act = tuple(sorted(rng.choice(G.shape[0], size=int(rng.integers(2, 5)),
                                       replace=False).tolist()))
