@@ -40,6 +40,10 @@ _RADIUS_CAP = 1e6
 _WARM_STARTS = 16
 #: pivots without gain after which an LP gives up (cycling by rounding)
 _STALL = 200
+#: a row whose distance to the span of the working rows is below this (relative to its
+#: norm) counts as dependent on them: it never enters the working set (its slope along a
+#: direction in their null space is rounding, and R would be (nearly) singular)
+_DEPENDENT = 1e-10
 
 
 @njit(cache=True)
@@ -122,6 +126,24 @@ def orthonormal_rows(A, W, nw, Q, R):
 
 
 @njit(cache=True)
+def _row_norm(A, j):
+    s = 0.0
+    for t in range(A.shape[1]):
+        s += A[j, t] * A[j, t]
+    return np.sqrt(s)
+
+
+@njit(cache=True)
+def _independent(A, W, nw, Q, R):
+    """:func:`orthonormal_rows` of ``A[W[:nw]]``; whether no row is within ``_DEPENDENT``
+    (relative) of the span of the rows before it."""
+    for j in range(nw):
+        if not _append_row(A, W[j], Q, R, j) > _DEPENDENT * _row_norm(A, W[j]):
+            return False
+    return True
+
+
+@njit(cache=True)
 def lp_workspace(k, n):
     """Scratch arrays for :func:`_lp` on ``k`` rows and ``n`` variables (a critical region
     needs ~15 LPs of one size: allocating once saves ~10 allocations each).
@@ -193,8 +215,8 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
         W[nw] = W0[j]
         inW[W0[j]] = True
         nw += 1
-    if nw and not orthonormal_rows(A, W, nw, Q, R) > 0.0:
-        # dependent start rows: start from x0 alone
+    if nw and not _independent(A, W, nw, Q, R):
+        # (nearly) dependent start rows: start from x0 alone
         for j in range(nw):
             inW[W[j]] = False
         nw = 0
@@ -216,6 +238,10 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
     # is rounding (see below)
     dropped = np.zeros(k, dtype=np.bool_)
     ndropped = 0
+    # rows that blocked while (nearly) in the span of the working rows: their slope along
+    # p is rounding (0 in exact arithmetic), they are left out of the ratio tests until
+    # the working set changes
+    skip = np.zeros(k, dtype=np.bool_)
     stationary = False
     for _ in range(maxit):
         if value > stop_value:
@@ -261,9 +287,20 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                 W[i] = W[i + 1]
             nw -= 1
             # the rows before the one dropped keep their orthonormal rows (Gram-Schmidt
-            # takes the rows in order): only the later ones are redone
-            for i in range(drop, nw):
-                _append_row(A, W[i], Q, R, i)
+            # takes the rows in order): only the later ones are redone; one that comes out
+            # (nearly) dependent on the rows before it by rounding leaves the working set
+            # too (it stays tight; a zero pivot of R is a division by zero in solve_rt)
+            i = drop
+            while i < nw:
+                if _append_row(A, W[i], Q, R, i) > _DEPENDENT * _row_norm(A, W[i]):
+                    i += 1
+                    continue
+                inW[W[i]] = False
+                for j in range(i, nw - 1):
+                    W[j] = W[j + 1]
+                nw -= 1
+            for i in range(k):
+                skip[i] = False
             continue
         # ratio test: the first row the step along p hits; among rows hit (nearly) at once
         # (a degenerate vertex) the one most across p, which keeps the working set well
@@ -271,7 +308,7 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
         alpha = np.inf
         for i in range(k):
             steps[i] = np.inf
-            if inW[i] or not use[i]:
+            if inW[i] or not use[i] or skip[i]:
                 continue
             ap = 0.0
             for t in range(n):
@@ -291,6 +328,16 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
                 block < 0 or (slopes[i] > slopes[block] and not bland)
             ):
                 block = i  # (Bland: the lowest index among the rows hit at once)
+        if not _append_row(A, block, Q, R, nw) > _DEPENDENT * _row_norm(A, block):
+            # the blocking row is (to rounding) in the span of the working rows (seen
+            # with exact duplicates through one vertex, and with rows 1e-15 from the span
+            # on the 8-integrator chain, which later made R singular: a division by zero).
+            # Its slope along p is rounding: it does not block
+            skip[block] = True
+            degenerate += 1
+            if degenerate > _STALL:
+                return FAILED, x, y, W, nw
+            continue
         if dropped[block] and alpha <= 1e-12 * (1.0 + abs(value)):
             # a row dropped at this point blocks at once: in exact arithmetic it cannot
             # (its multiplier was negative), so p is rounding (|p| ~ 4e-10 at pop_mpqp_036's
@@ -321,13 +368,11 @@ def _lp(c, A, b, use, x0, W0, nw0, stop_value, maxit, ws):
             if use[i] and not inW[i]:
                 slack[i] -= alpha * slopes[i]
         slack[block] = 0.0
-        W[nw] = block
-        if not _append_row(A, block, Q, R, nw) > 0.0:
-            # the blocking row is (to rounding) a copy of working rows: seen with exact
-            # duplicates through one vertex; R would be singular (a division by zero)
-            return FAILED, x, y, W, nw
+        W[nw] = block  # (Q[nw], R[nw] hold it already: appended above)
         nw += 1
         inW[block] = True
+        for i in range(k):
+            skip[i] = False
     return FAILED, x, y, W, nw
 
 

@@ -84,7 +84,7 @@ def _push_if_new(table, used, stack, points, meta, key, point):
 @njit(cache=True)
 def _visit(
     table, used, stack, points, meta, keys, status, moves, moves_off, swaps, swaps_off, nz,
-    opposite, found,
+    opposite, found, G, sigma, support,
 ):
     """Push the unexplored neighbours of a batch of evaluated candidates, each with the
     point its candidate found (where the neighbour's LPs start).
@@ -112,6 +112,10 @@ def _visit(
         Bitmasks of the rows that cannot be active together with each row.
     found : (B, d)
         The candidates' points (``mpqp_kernel.evaluate``'s last result).
+    G : (m, nz) ndarray
+        The constraint rows (for the subsets of LICQ candidates, see ``_dependent_rows``).
+    sigma, support : float
+        ``mpqp.DEPENDENT_SIGMA`` and ``mpqp.SUPPORT_TOL``.
     """
     W = keys.shape[1]
     new = np.empty(W, dtype=np.uint64)
@@ -128,15 +132,13 @@ def _visit(
                 w &= w - _ONE
                 size += 1
         if st == LICQ:
-            # its subsets are the way on
-            for t in range(W):
-                w = key[t]
-                while w:
-                    low = w & (~w + _ONE)
-                    w ^= low
-                    new[:] = key
-                    new[t] ^= low
-                    _push_if_new(table, used, stack, points, meta, new, found[c])
+            # its subsets are the way on: those without a constraint of the support of a
+            # null vector of its rows (mpqp.dependent_rows)
+            rows = _dependent_rows(G, key, size, sigma, support)
+            for r in rows:
+                new[:] = key
+                new[r >> 6] &= ~(_ONE << np.uint64(r & 63))
+                _push_if_new(table, used, stack, points, meta, new, found[c])
             continue
         for q in range(moves_off[c], moves_off[c + 1]):
             v = moves[q]
@@ -173,6 +175,45 @@ def _visit(
             _push_if_new(table, used, stack, points, meta, new, found[c])
 
 
+@njit(cache=True)
+def _dependent_rows(G, key, size, sigma, support):
+    """``mpqp.dependent_rows`` of the active set ``key`` (of ``size`` constraints): the
+    constraints whose removal the walk tries, ascending."""
+    T = np.empty(size, dtype=np.int64)
+    n = 0
+    for t in range(key.size):
+        w = key[t]
+        while w:
+            low = w & (~w + _ONE)
+            w ^= low
+            i = t * 64
+            while low > _ONE:
+                low >>= _ONE
+                i += 1
+            T[n] = i
+            n += 1
+    nz = G.shape[1]
+    if n < 2:
+        return T
+    GT = np.empty((nz, n))
+    for j in range(n):
+        for t in range(nz):
+            GT[t, j] = G[T[j], t]
+    _, sv, Vt = np.linalg.svd(GT)
+    if n <= nz and not sv[sv.size - 1] < sigma:
+        return T
+    vmax = 0.0
+    for j in range(n):
+        vmax = max(vmax, abs(Vt[n - 1, j]))
+    out = np.empty(n, dtype=np.int64)
+    q = 0
+    for j in range(n):
+        if abs(Vt[n - 1, j]) > support * vmax:
+            out[q] = T[j]
+            q += 1
+    return out[:q]
+
+
 class ActiveSetGraph:
     """Explored active sets and the stack of those still to evaluate, as bitmasks.
 
@@ -187,10 +228,22 @@ class ActiveSetGraph:
     start : (d,) ndarray, optional
         The start point of the sets seeded (each set pushed later carries the point of
         the candidate that pushed it).
+    G : (m, nz) ndarray, optional
+        The constraint rows: the subsets of an LICQ candidate visited are those of
+        ``mpqp.dependent_rows`` with ``sigma`` and ``support`` (without it, every subset).
+    sigma, support : float, optional
+        ``mpqp.DEPENDENT_SIGMA`` and ``mpqp.SUPPORT_TOL`` (the defaults, -1, keep every
+        subset).
     """
 
-    def __init__(self, m: int, nz: int, opposite: np.ndarray, start: np.ndarray | None = None):
+    def __init__(
+        self, m: int, nz: int, opposite: np.ndarray, start: np.ndarray | None = None,
+        G: np.ndarray | None = None, sigma: float = -1.0, support: float = -1.0,
+    ):
         self.m, self.nz = m, nz
+        self.G = np.eye(m, max(nz, 1)) if G is None else np.ascontiguousarray(G, dtype=float)
+        self.sigma = float(sigma) if G is not None else -1.0
+        self.support = float(support) if G is not None else -1.0
         self.W = (m + 63) // 64
         self.start = np.zeros(1) if start is None else np.asarray(start, dtype=float)
         self.table = np.zeros((1 << 12, self.W), dtype=np.uint64)
@@ -333,6 +386,9 @@ class ActiveSetGraph:
             self.nz,
             self.opposite,
             np.ascontiguousarray(found, dtype=float),
+            self.G,
+            self.sigma,
+            self.support,
         )
 
 

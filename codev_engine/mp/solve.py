@@ -20,12 +20,13 @@ back to the original variables. See ``docs/algorithm.md`` for the algorithms.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
-from codev_engine.errors import SolverError
+from codev_engine.errors import CodevError, SolverError
 from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
 from codev_engine.mp.mplp import COUNTERS, explore_facets
 from codev_engine.mp.mplp_graph import explore_bases
@@ -105,10 +106,67 @@ def mpsolve(
         _check_no_recession(red)
     size = parameter_box(red)
     region_tol = opts.region_tol * size.scale
-    nz, d = red.G.shape[1], red.At.shape[1]
     # the mp-LP's counters are in an mp-QP's stats too, at zero (as when one object
     # measured both programs: the reports keep their keys)
     stats = dict.fromkeys(COUNTERS, 0)
+    with _search_failures(red):
+        regions = _explore(red, size, region_tol, opts, progress, stats, semidefinite)
+        domain = (
+            _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
+            else _empty_domain(red)
+        )
+    # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
+    if not (np.array_equal(red.Nz, np.eye(program.nz)) and not red.Z0.any() and not red.Z1.any()):
+        regions.K = red.Z1 + np.einsum("ij,rjk->rik", red.Nz, regions.K)
+        regions.k = red.Z0 + regions.k @ red.Nz.T
+    return MpSolution(
+        program=program,
+        regions=regions,
+        domain_A=domain[0],
+        domain_b=domain[1],
+        seconds=time.perf_counter() - t0,
+        stats=stats,
+    )
+
+
+#: the failures of a search that are breakdowns of its arithmetic or of a library it calls
+#: (a time limit or a cancellation raised through a progress callback is none of these)
+_BREAKDOWNS = (
+    ArithmeticError, np.linalg.LinAlgError, ValueError, IndexError, AssertionError, RuntimeError,
+)
+
+
+@contextmanager
+def _search_failures(red: Reduced) -> Iterator[None]:
+    """A breakdown inside the search (``_BREAKDOWNS``, not the engine's own errors) becomes a
+    ``SolverError`` whose one line says what to change (the CLI prints it, exit 1): it is a
+    limit of the solver on this program, not bad input, and never an "internal error"
+    (issue 23: a division by zero in the search on a chain of 8 integrators). The original
+    exception is chained (``CODEV_DEBUG=1`` shows it)."""
+    kind = "mp-QP" if np.any(red.H) else "mp-LP"
+    size = f"{red.G.shape[1]} variables, {red.At.shape[1]} parameters, {red.G.shape[0]} rows"
+    try:
+        yield
+    except CodevError:
+        raise
+    except MemoryError as exc:
+        raise SolverError(
+            f"the {kind} search ran out of memory ({size}): lower the region limit "
+            "(--max-regions, SolveOptions.max_regions) or make the problem smaller (a shorter "
+            "horizon, fewer states or constraints)"
+        ) from exc
+    except _BREAKDOWNS as exc:
+        raise SolverError(
+            f"the {kind} search broke down ({exc.__class__.__name__}: {exc}) on a program of "
+            f"{size}: make it smaller or better conditioned (a shorter horizon, fewer states "
+            "or constraints, weights and bounds of similar magnitude), and please report it "
+            "with the CODEV_DEBUG=1 output"
+        ) from exc
+
+
+def _explore(red, size, region_tol, opts, progress, stats, semidefinite) -> RegionArrays:
+    """The critical regions of the reduced program (mp-LP or mp-QP search)."""
+    nz, d = red.G.shape[1], red.At.shape[1]
     if not np.any(red.H):
         found = _solve_mplp(red, size, region_tol, opts, progress, stats)
         regions = RegionArrays.from_regions(found, nz, d)
@@ -136,22 +194,7 @@ def mpsolve(
                 progress=progress,
                 stats=stats,
             )
-    domain = (
-        _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
-        else _empty_domain(red)
-    )
-    # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
-    if not (np.array_equal(red.Nz, np.eye(program.nz)) and not red.Z0.any() and not red.Z1.any()):
-        regions.K = red.Z1 + np.einsum("ij,rjk->rik", red.Nz, regions.K)
-        regions.k = red.Z0 + regions.k @ red.Nz.T
-    return MpSolution(
-        program=program,
-        regions=regions,
-        domain_A=domain[0],
-        domain_b=domain[1],
-        seconds=time.perf_counter() - t0,
-        stats=stats,
-    )
+    return regions
 
 
 def _solve_mplp(
