@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from codev_engine.executor import Executor
 from codev_engine.formulation import parameter_names
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
 from codev_engine.mp.merge import merge_regions
@@ -113,6 +114,7 @@ def synthesize(
     simplify: bool | None = None,
     options: SolveOptions | None = None,
     progress: Callable[[int], None] | None = None,
+    executor: Executor | None = None,
 ) -> ExplicitLaw:
     """Compute the explicit MPC law of a problem.
 
@@ -128,6 +130,8 @@ def synthesize(
         Settings of the multi-parametric solver; its defaults when omitted.
     progress : callable, optional
         Called with the number of regions found so far.
+    executor : Executor, optional
+        Where the mp-QP search evaluates its candidates (``mpsolve``); the law is the same.
 
     Returns
     -------
@@ -147,7 +151,7 @@ def synthesize(
     t0 = time.perf_counter()
     model = model if model is not None else discretize(problem)
     mp = build_program(problem.mpc, model)
-    sol = mpsolve(mp.program, options=options, progress=progress)
+    sol = mpsolve(mp.program, options=options, progress=progress, executor=executor)
     law = law_from_solution(
         mp, sol, simplify=problem.mpc.simplify if simplify is None else simplify
     )

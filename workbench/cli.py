@@ -135,7 +135,9 @@ def _print_result(problem, law, result, tube_path) -> None:
         print(f"tube written to {tube_path}")
 
 
-def _verification(args: argparse.Namespace, problem, law, synth_seconds: float | None) -> int:
+def _verification(
+    args: argparse.Namespace, problem, law, synth_seconds: float | None, executor=None
+) -> int:
     from codev_engine.reach.verification import verify
 
     if problem.verify is None:
@@ -147,6 +149,7 @@ def _verification(args: argparse.Namespace, problem, law, synth_seconds: float |
             hold=args.hold,
             max_depth=args.max_depth,
             progress=lambda st: update(st.get("branches", 0)),
+            executor=executor,
         )
     tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
     if getattr(args, "record", None):
@@ -174,7 +177,31 @@ def _say_recording(path) -> None:
     print(f"recording written to {path}\n  view it: codev view {path}")
 
 
+def _executor(args: argparse.Namespace):
+    """The executor of ``--workers N`` / ``--scheduler ADDR`` (serial without either, or
+    ``$CODEV_SCHEDULER``)."""
+    from codev_engine.executor import Executor
+
+    if args.workers is not None and args.workers < 1:
+        raise SpecError("must be a positive number of workers", field="--workers")
+    return Executor(workers=args.workers, scheduler=args.scheduler)
+
+
+def _add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N",
+                       help=f"run {what} on a local Dask cluster of N worker processes")
+    where.add_argument("--scheduler", metavar="ADDR",
+                       help=f"run {what} on a running Dask cluster (tcp://HOST:PORT; default "
+                       "$CODEV_SCHEDULER, else in this process)")
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
+    with _executor(args) as executor:
+        return _verify_on(args, executor)
+
+
+def _verify_on(args: argparse.Namespace, executor) -> int:
     from codev_engine.law import ExplicitLaw
     from codev_engine.pipeline import load_spec
     from codev_engine.reach.verification import check_law_matches
@@ -189,9 +216,9 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         synth_seconds = law.meta.get("seconds")
     else:
         with _progress(f"synthesising {problem.name}", not args.json) as update:
-            law = synthesize(problem, progress=update)
+            law = synthesize(problem, progress=update, executor=executor)
         synth_seconds = law.meta["seconds"]
-    return _verification(args, problem, law, synth_seconds)
+    return _verification(args, problem, law, synth_seconds, executor)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -211,8 +238,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
     )
-    with _stage_progress(not args.json) as on_event:
-        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn)
+    with _executor(args) as executor, _stage_progress(not args.json) as on_event:
+        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn,
+                             executor=executor)
     tube_path = None
     if args.export_tube and report.result is not None:
         tube_path = str(report.result.tube.save(args.export_tube))
@@ -738,10 +766,11 @@ def _cmd_mpsolve(args: argparse.Namespace) -> int:
     program = MpProgram.load(args.file)
     try:
         with (
+            _executor(args) as executor,
             _time_limit(args.timeout),
             _progress(f"solving {program.name}", not args.json) as update,
         ):
-            sol = mpsolve(program, options=options, progress=update)
+            sol = mpsolve(program, options=options, progress=update, executor=executor)
     except _TimeLimitError:
         _err(f"{args.file}: no solution within the time limit ({args.timeout:g} s)")
         return 1
@@ -852,6 +881,7 @@ def _build_parser() -> argparse.ArgumentParser:
         p.add_argument("--max-depth", type=int, help="override verify.max_depth")
         p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
         p.add_argument("--json", action="store_true", help="print a JSON summary only")
+        _add_executor_options(p, "the mp-QP search and the nonlinear verification's cells")
         p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording")
         p.add_argument(
             "--axes",
@@ -1001,6 +1031,7 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="give up past N critical regions (exit 1; default 1,000,000, ~2.5 GB)",
     )
+    _add_executor_options(p, "the mp-QP search's candidates")
     p.set_defaults(func=_cmd_mpsolve)
 
     p = sub.add_parser(

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codev_engine.errors import SolverError
+from codev_engine.executor import Executor
 from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
 from codev_engine.mp.mplp import COUNTERS, explore_facets
 from codev_engine.mp.mpqp import explore_active_sets
@@ -53,8 +54,9 @@ class SolveOptions:
         Safety stop (a million regions of the CDC-24 set take about 2.5 GB at the peak of
         the solve; pop_mpqp_002 has 320,636, pop_mpqp_095 5,008,776).
     workers : int or None
-        Processes that evaluate mp-QP candidates once the search is large (None: the CPUs
-        this process may use; 1: serial). The result does not depend on it.
+        Threads of this process that evaluate mp-QP candidates once the search is large
+        (None: the CPUs this process may use; 1: serial), when ``mpsolve`` is given no
+        executor. The result does not depend on it.
     """
 
     region_tol: float = 1e-9
@@ -70,6 +72,7 @@ def mpsolve(
     *,
     options: SolveOptions | None = None,
     progress: Callable[[int], None] | None = None,
+    executor: Executor | None = None,
 ) -> MpSolution:
     """Solve an mp-LP / mp-QP exactly.
 
@@ -79,6 +82,10 @@ def mpsolve(
     options : SolveOptions, optional
     progress : callable, optional
         Called with the number of regions found so far each time one is added.
+    executor : Executor, optional
+        Evaluate the mp-QP search's candidates as tasks on this executor's workers (a Dask
+        cluster) instead of threads of this process; the regions are the same, in the same
+        order (see ``mpqp.explore_active_sets``). The mp-LP search does not use it.
 
     Returns
     -------
@@ -132,6 +139,7 @@ def mpsolve(
                 theta_box=size.box,
                 max_regions=opts.max_regions,
                 workers=opts.workers,
+                executor=executor,
                 semidefinite=semidefinite,
                 progress=progress,
                 stats=stats,

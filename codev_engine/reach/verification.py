@@ -35,6 +35,7 @@ import numpy as np
 
 from codev_engine.display import Displayable
 from codev_engine.errors import SolverError, SpecError
+from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
 from codev_engine.reach.linear import LinearReach, affine_plant
@@ -423,6 +424,7 @@ def verify(
     hold: str | None = None,
     max_depth: int | None = None,
     progress: Callable[[dict], None] | None = None,
+    executor: Executor | None = None,
 ) -> VerificationResult:
     """Verify the sampled closed loop of ``problem``'s plant with ``law``.
 
@@ -437,6 +439,11 @@ def verify(
         Refinement budget; default ``problem.verify.max_depth``.
     progress : callable, optional
         Called with a dict of counters now and then.
+    executor : Executor, optional
+        Where the nonlinear engine's cells of the initial set (and their refinements) run:
+        as tasks on a Dask cluster, a bounded window in flight, taken in the serial order,
+        so the verdict, tube and counterexample are the serial ones. Default: in this
+        process. The linear engine (one star set per branch) runs in this process.
 
     Returns
     -------
@@ -521,7 +528,7 @@ def verify(
         from codev_engine.reach.nonlinear import NonlinearReach
 
         eng = NonlinearReach(problem, law, hold, depth, progress=progress)
-        eng.run()
+        eng.run(executor)
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
     tube = Tube.concatenate(tubes, problem.plant.n)

@@ -35,6 +35,7 @@ import numpy as np
 from codev_engine.session.store import SessionError
 
 if TYPE_CHECKING:
+    from codev_engine.executor import Executor
     from codev_engine.spec.problem import Problem, VerifySpec
 
 __all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable"]
@@ -78,6 +79,10 @@ class StageRun:
         Where the artifact goes (the stage writes it, atomically).
     progress : callable
         ``progress(count)``: regions found, branches explored, ...
+    executor : Executor or None
+        Where the stage's parallel work runs (the mp-QP search's candidates, the nonlinear
+        verification's cells); None: in this process. Never part of a key: the artifacts
+        are the same whatever runs them.
     """
 
     problem: Problem
@@ -85,6 +90,7 @@ class StageRun:
     upstream: Mapping[str, Any]
     path: Path
     progress: Callable[[int], None]
+    executor: Executor | None = None
 
 
 @dataclass(frozen=True)
@@ -248,7 +254,8 @@ def _synthesis_check(problem: Problem) -> None:
 def _synthesis_compute(run: StageRun) -> Any:
     from codev_engine.synthesis import synthesize
 
-    law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress)
+    law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress,
+                     executor=run.executor)
     law.save(run.path)
     return law
 
@@ -318,6 +325,7 @@ def _verification_compute(run: StageRun) -> Any:
         hold=run.options.hold,
         max_depth=run.options.max_depth,
         progress=lambda st: run.progress(st.get("branches", 0)),
+        executor=run.executor,
     )
     result.save(run.path)
     return result
