@@ -1062,7 +1062,7 @@ class NonlinearReach(ClosedLoopSetup):
         queue.append([lo, hi1, depth + 1, None])
         return False
 
-    def run(self, executor: Executor | None = None) -> None:
+    def run(self, executor: Executor | None = None, cells: int = 1) -> None:
         """Refine the initial set until every cell is proved or the depth runs out.
 
         The cells are taken depth first (a stack: a cell's first half, then its second).
@@ -1077,9 +1077,19 @@ class NonlinearReach(ClosedLoopSetup):
         ----------
         executor : Executor, optional
             Where the cells run (default: in this process, one after the other).
+        cells : int
+            Cut the initial set into ``cells`` equal parts along each axis first (a grid of
+            ``cells ** n`` cells, taken in lexicographic order), each then refined up to
+            ``max_depth`` times; 1 (default): the initial set is the one first cell.
         """
         vs = self.problem.verify
-        queue: list = [[vs.initial_lower.astype(float), vs.initial_upper.astype(float), 0, None]]
+        lo0, hi0 = vs.initial_lower.astype(float), vs.initial_upper.astype(float)
+        queue: list = []
+        for idx in reversed(list(np.ndindex(*([int(cells)] * self.n)))):
+            i = np.array(idx, dtype=float)
+            lo = lo0 + (hi0 - lo0) * i / cells
+            hi = np.where(i + 1 == cells, hi0, lo0 + (hi0 - lo0) * (i + 1) / cells)
+            queue.append([lo, hi, 0, None])
         client = None if executor is None or executor.kind == "serial" else executor.client
         if client is None:
             while queue:

@@ -425,6 +425,7 @@ def verify(
     max_depth: int | None = None,
     progress: Callable[[dict], None] | None = None,
     executor: Executor | None = None,
+    cells: int = 1,
 ) -> VerificationResult:
     """Verify the sampled closed loop of ``problem``'s plant with ``law``.
 
@@ -444,6 +445,10 @@ def verify(
         as tasks on a Dask cluster, a bounded window in flight, taken in the serial order,
         so the verdict, tube and counterexample are the serial ones. Default: in this
         process. The linear engine (one star set per branch) runs in this process.
+    cells : int
+        The nonlinear engine cuts the initial set into ``cells`` parts along each axis
+        before refining (``cells ** n`` cells: more, smaller tasks for an executor; the
+        tube differs, the argument is the same). Default 1; the linear engine ignores it.
 
     Returns
     -------
@@ -456,6 +461,9 @@ def verify(
     if hold not in ("zoh", "continuous"):
         raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
     depth = vs.max_depth if max_depth is None else max_depth
+    if int(cells) < 1:
+        raise SpecError(f"must be a positive number of cells per axis, got {cells}",
+                        field="cells")
     t0 = time.perf_counter()
     if problem.plant.uncertain and affine_plant(problem) is None:
         # uncertain parameters, or disturbances of a nonlinear plant: not followed by the
@@ -528,7 +536,7 @@ def verify(
         from codev_engine.reach.nonlinear import NonlinearReach
 
         eng = NonlinearReach(problem, law, hold, depth, progress=progress)
-        eng.run(executor)
+        eng.run(executor, cells=cells)
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
     tube = Tube.concatenate(tubes, problem.plant.n)

@@ -28,13 +28,6 @@ ROOT = Path(__file__).resolve().parents[2]
 CSTR = ROOT / "examples" / "cstr.toml"
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    with ce.Executor(workers=2) as executor:
-        assert executor.workers == 2
-        yield executor
-
-
 def _same_regions(a: ce.MpSolution, b: ce.MpSolution) -> None:
     assert a.num_regions == b.num_regions > 1
     for r, s in zip(a.regions, b.regions, strict=True):

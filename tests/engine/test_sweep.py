@@ -110,13 +110,6 @@ def test_a_session_sweep_reruns_from_the_cache_and_each_design_replays(tmp_path)
 
 
 @pytest.fixture(scope="module")
-def cluster():
-    with ce.Executor(workers=2) as executor:
-        assert executor.workers == 2
-        yield executor
-
-
-@pytest.fixture(scope="module")
 def serial_rows():
     return ce.sweep(ce.load_spec(DI), GRID)
 
