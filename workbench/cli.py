@@ -763,10 +763,11 @@ def _cmd_mpsolve(args: argparse.Namespace) -> int:
     options = SolveOptions()
     if args.max_regions is not None:
         options = replace(options, max_regions=args.max_regions)
+    executor = _executor(args)
     program = MpProgram.load(args.file)
     try:
         with (
-            _executor(args) as executor,
+            executor,
             _time_limit(args.timeout),
             _progress(f"solving {program.name}", not args.json) as update,
         ):

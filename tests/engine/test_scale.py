@@ -8,9 +8,9 @@ reruns its tasks). The sweeps' own cluster tests are in test_sweep.py.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
-import sys
 import time
 from pathlib import Path
 
@@ -19,10 +19,9 @@ import pytest
 
 import codev_engine as ce
 from codev_engine.mp import mpqp
-
-sys.path.insert(0, str(Path(__file__).parent))
-from test_mpqp_graph import _program  # noqa: E402
-from test_mpsolve import PROGRAMS  # noqa: E402
+from tests.engine.cli_process import run_codev
+from tests.engine.test_mpqp_graph import _program
+from tests.engine.test_mpsolve import PROGRAMS
 
 ROOT = Path(__file__).resolve().parents[2]
 CSTR = ROOT / "examples" / "cstr.toml"
@@ -167,3 +166,27 @@ def test_a_worker_killed_mid_verification_changes_nothing(cluster, tmp_path):
     assert killed
     _same_result(serial, remote)
     _wait_for_workers(client, killed[0])
+
+
+# -- the command line ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", ["verify", "mpsolve"])
+def test_cli_bad_worker_count_is_one_line_exit_2(command):
+    target = CSTR if command != "mpsolve" else ROOT / "missing.npz"
+    out = run_codev(command, target, "--workers", "0", cwd=ROOT)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--workers" in lines[0], out.stderr
+
+
+@pytest.mark.slow
+def test_cli_run_on_two_workers_gives_the_serial_result(tmp_path):
+    serial = run_codev("verify", CSTR, "--json", cwd=ROOT)
+    remote = run_codev("run", CSTR, "--json", "--workers", "2", "--session", tmp_path / "s",
+                       cwd=ROOT)
+    assert serial.returncode == remote.returncode == 0, remote.stderr
+    a, b = json.loads(serial.stdout), json.loads(remote.stdout)
+    for key in ("verdict", "reason", "regions", "branches", "partitions", "boxes",
+                "tube_width_at_horizon"):
+        assert a[key] == b[key], key
