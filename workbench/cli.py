@@ -333,6 +333,52 @@ def _stage_progress(
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    folder = Path(args.dir)
+    if (folder / "sweep.json").is_file() and not (folder / "session.json").exists():
+        return _replay_sweep(args, folder)
+    return _replay_session(args)
+
+
+def _replay_sweep(args: argparse.Namespace, folder) -> int:
+    """``codev replay DIR`` of a sweep (``codev sweep --session DIR``): every design's
+    session replayed, one after the other."""
+    import re
+
+    from codev_engine.session import Session
+
+    where = folder / "sweep.json"
+    try:
+        listed = json.loads(where.read_text(encoding="utf-8"))["designs"]
+        designs = [(str(d["folder"]), d["values"]) for d in listed]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise CodevError(f"{where}: not a sweep's list of designs ({exc})") from None
+    seen, out, ok = set(), [], True
+    for name, values in designs:
+        if not re.fullmatch(r"[0-9a-f]{16}", name):
+            raise CodevError(f"{where}: designs: {name!r} is not a design's folder name")
+        if name in seen:  # (a value listed twice is one design)
+            continue
+        seen.add(name)
+        with _stage_progress(not args.json) as on_event:
+            rep = Session.open(folder / name).replay(on_event=on_event, warn=_warn)
+        ok = ok and rep.ok
+        out.append({"folder": name, "values": values, "runs": rep.runs, "match": rep.ok,
+                    "mismatches": len(rep.mismatches), "seconds": round(rep.seconds, 6)})
+        if not args.json:
+            shown = ", ".join(f"{k} = {_sweep_cell(v)}" for k, v in values.items())
+            state = "matches" if rep.ok else f"{len(rep.mismatches)} MISMATCH(ES)"
+            print(f"design {name} [{shown}]: {rep.runs} run(s) -- {state}")
+    if args.json:
+        print(json.dumps({"dir": str(folder), "designs": out, "match": ok}))
+    else:
+        print(f"replay of the sweep {folder}: {len(out)} design(s), "
+              + ("every outcome matches" if ok else "mismatches"))
+    return 0 if ok else 1
+
+
+def _replay_session(args: argparse.Namespace) -> int:
     from codev_engine.session import Session
 
     session = Session.open(args.dir)
@@ -939,7 +985,8 @@ def _build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("replay", help="re-execute a session's journal and compare outcomes")
-    p.add_argument("dir", metavar="DIR", help="the session folder")
+    p.add_argument("dir", metavar="DIR",
+                   help="the session folder, or a sweep's (codev sweep --session DIR)")
     p.add_argument("--json", action="store_true", help="print a JSON summary only")
     p.set_defaults(func=_cmd_replay)
 

@@ -87,7 +87,7 @@ def test_cli_bad_value_is_one_line_exit_2(value, words):
     assert words in lines[0]
 
 
-def test_a_session_sweep_reruns_from_the_cache_and_each_design_replays(tmp_path):
+def test_a_session_sweep_reruns_from_the_cache_and_replays_whole(tmp_path):
     from codev_engine.session import Session
 
     problem = ce.load_spec(DI)
@@ -102,8 +102,14 @@ def test_a_session_sweep_reruns_from_the_cache_and_each_design_replays(tmp_path)
     for folder in set(folders):
         journal = Session.open(out / folder).journal()
         assert [r["status"] for r in journal if r["run"] == 2] == ["cached"] * 3
-        done = run_codev("replay", out / folder, "--json", cwd=ROOT)
-        assert done.returncode == 0 and json.loads(done.stdout)["match"], done.stderr
+    # codev replay DIR replays the whole sweep: each design's session once
+    done = run_codev("replay", out, "--json", cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    replayed = json.loads(done.stdout)
+    assert replayed["match"] and sorted(d["folder"] for d in replayed["designs"]) == sorted(
+        set(folders)
+    )
+    assert all(d["runs"] == 2 and d["match"] for d in replayed["designs"])
 
 
 # -- a real cluster ------------------------------------------------------------------------
