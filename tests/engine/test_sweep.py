@@ -185,3 +185,18 @@ def test_numpy_values_are_toml_values_and_a_bad_one_names_its_field():
     assert rows[0]["regions"] == 10
     with pytest.raises(ce.SpecError, match="mpc.R: not a TOML value: object"):
         ce.sweep(problem, {"mpc.R": [object()]})
+
+
+def test_the_sweep_figure_has_a_bar_per_design_coloured_by_verdict(serial_rows):
+    from matplotlib.colors import to_hex
+
+    from codev_engine.view.figures import VERDICT_COLOURS, plot_sweep
+
+    ax = plot_sweep(serial_rows)
+    bars = ax.patches
+    assert len(bars) == len(serial_rows) == 8
+    for bar, row in zip(bars, serial_rows, strict=True):
+        assert bar.get_height() == row["regions"]
+        assert to_hex(bar.get_facecolor()) == VERDICT_COLOURS[row["verdict"]]
+    labels = [t.get_text() for t in ax.get_xticklabels()]
+    assert all("mpc.horizon = " in t and "mpc.R = " in t for t in labels)
