@@ -495,7 +495,9 @@ def explore_active_sets(
         When more than ``max_regions`` regions are found.
     """
     stats = {} if stats is None else stats
-    client = None if executor is None or executor.kind == "serial" else executor.client
+    # (the cluster is started, or connected to, only when the search goes parallel)
+    remote_ok = executor is not None and executor.kind != "serial"
+    client = None
     box = theta_box if theta_box is not None else bounding_box(At, bt)
     if semidefinite:
         r = np.random.default_rng(0).normal(size=G.shape[1])
@@ -570,10 +572,11 @@ def explore_active_sets(
                 if stats["jit"]:
                     compiled = True  # the compiled walk takes over (below)
                     break
-            if (remote is None and client is not None and len(regions) >= PARALLEL_AFTER
+            if (remote is None and remote_ok and len(regions) >= PARALLEL_AFTER
                     and (jit_tried or not jit_applies)):
                 # the numpy kernel on the executor's workers: only once the compiled one is
                 # known not to apply, so the switch to it never depends on timing
+                client = executor.client
                 shared = client.scatter(kernel, broadcast=True, hash=False)
                 remote = (shared, max(1, executor.workers))
                 stats["workers"] = remote[1]
@@ -600,7 +603,7 @@ def explore_active_sets(
                 visit(act, kernel.evaluate(act))
         if compiled:
             walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
-            walk.run(nworkers, max_regions, progress, client)
+            walk.run(nworkers, max_regions, progress, executor if remote_ok else None)
     finally:
         if inflight:
             client.cancel([f for _, f in inflight])
@@ -651,7 +654,7 @@ class _CompiledWalk:
         self.graph = active_sets.ActiveSetGraph(m, kernel.nz, opp, kernel.box[0])
         self.graph.seed(explored, stack)
 
-    def run(self, nworkers: int, max_regions: int, progress, client=None) -> None:
+    def run(self, nworkers: int, max_regions: int, progress, executor=None) -> None:
         """Walk until the stack is empty.
 
         The walk pops batches of ``_CHUNK`` candidates and takes their results (records
@@ -659,11 +662,12 @@ class _CompiledWalk:
         same sequence of pops and takes whatever evaluates the batches, so the same walk.
         They are evaluated in this thread when it takes them (serial), by a pool of
         ``nworkers`` threads (the compiled kernel releases the GIL), or, with a Dask
-        ``client``, as tasks of ``_GROUP`` consecutive batches on its workers (a group is
-        sent when full, or earlier when this thread is about to take its oldest batch).
+        ``executor`` (its client started once ``PARALLEL_AFTER`` regions are found), as
+        tasks of ``_GROUP`` consecutive batches on its workers (a group is sent when full,
+        or earlier when this thread is about to take its oldest batch).
         """
         graph, args = self.graph, self.kernel._jit_args
-        pool = None
+        pool = client = None
         shared = None  # the kernel's arrays, scattered to the workers
         window: deque = deque()  # [keys, starts, job], oldest first
         group: list = []  # batches popped, not yet sent (with a client)
@@ -696,8 +700,9 @@ class _CompiledWalk:
         try:
             while len(graph) or window:
                 if self.found >= PARALLEL_AFTER and pool is None and shared is None:
-                    if client is not None:
+                    if executor is not None:
                         t0 = time.perf_counter()
+                        client = executor.client
                         shared = client.scatter(args, broadcast=True, hash=False)
                         # numba's cached kernel loaded on every worker before the first task
                         warm = client.run(_warm_worker, args)
