@@ -32,7 +32,7 @@ from scipy.linalg import cho_solve
 from scipy.linalg.lapack import dgeqrf
 
 from codev_engine.errors import SolverError
-from codev_engine.executor import Executor
+from codev_engine.executor import Executor, result_resubmitting, scattered
 from codev_engine.geometry.polytope import (
     bounding_box,
     certified_minimal_rows,
@@ -674,12 +674,16 @@ class _CompiledWalk:
         tasks: set = set()  # futures not yet taken in full
         stats = self.stats
 
-        def send() -> None:
-            future = client.submit(
-                _evaluate_batches, shared, [(e[0], e[1]) for e in group], pure=False
-            )
+        def submit(batches: list):
+            nonlocal shared
+            shared = scattered(client, args, shared)  # (again, if a lost worker took it)
+            future = client.submit(_evaluate_batches, shared, batches, pure=False)
             tasks.add(future)
-            box: dict = {"future": future, "left": len(group)}
+            return future
+
+        def send() -> None:
+            batches = [(e[0], e[1]) for e in group]
+            box: dict = {"future": submit(batches), "left": len(group), "batches": batches}
             for i, entry in enumerate(group):
                 entry[2] = (box, i)
             group.clear()
@@ -687,7 +691,11 @@ class _CompiledWalk:
         def fetch(job) -> tuple:
             box, i = job
             if "out" not in box:
-                box["out"], seconds = box["future"].result()
+                tasks.discard(box["future"])
+                (box["out"], seconds), box["future"] = result_resubmitting(
+                    box["future"], lambda: submit(box["batches"]), stats
+                )
+                tasks.add(box["future"])
                 stats["task_seconds"] = stats.get("task_seconds", 0.0) + seconds
                 stats["tasks"] = stats.get("tasks", 0) + 1
             out = box["out"][i]
@@ -703,7 +711,7 @@ class _CompiledWalk:
                     if executor is not None:
                         t0 = time.perf_counter()
                         client = executor.client
-                        shared = client.scatter(args, broadcast=True, hash=False)
+                        shared = scattered(client, args)
                         # numba's cached kernel loaded on every worker before the first task
                         warm = client.run(_warm_worker, args)
                         stats["workers"] = len(warm)

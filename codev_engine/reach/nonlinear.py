@@ -42,7 +42,7 @@ import numpy as np
 from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 
 from codev_engine.errors import SolverError
-from codev_engine.executor import Executor
+from codev_engine.executor import Executor, result_resubmitting, scattered
 from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
@@ -1101,23 +1101,30 @@ class NonlinearReach(ClosedLoopSetup):
         import uuid
 
         token = uuid.uuid4().hex
-        shared = client.scatter(
-            (self.problem, self.law, self.hold, self.max_depth, self.merge_cost, self.max_sets),
-            broadcast=True, hash=False,
-        )
+        data = (self.problem, self.law, self.hold, self.max_depth, self.merge_cost,
+                self.max_sets)
+        shared = scattered(client, data)
+
+        def submit(lo, hi, depth):
+            nonlocal shared
+            shared = scattered(client, data, shared)  # (again, if a lost worker took it)
+            return client.submit(_cell_task, shared, token, lo, hi, depth, pure=False)
+
         window = _WINDOW * max(1, executor.workers)
         try:
             while queue:
                 busy = 0
                 for entry in reversed(queue):  # the next cells to take first
                     if entry[3] is None:
-                        entry[3] = client.submit(_cell_task, shared, token, *entry[:3],
-                                                 pure=False)
+                        entry[3] = submit(*entry[:3])
                     busy += 1
                     if busy >= window:
                         break
-                lo, hi, depth, future = queue.pop()
-                out, counts = future.result()
+                lo, hi, depth, future = queue[-1]
+                (out, counts), queue[-1][3] = result_resubmitting(
+                    future, lambda lo=lo, hi=hi, depth=depth: submit(lo, hi, depth)
+                )  # (not counted in stats: the result is the serial one, counters too)
+                queue.pop()
                 self.stats["partitions"] += 1
                 offset = self.stats["branches"]
                 tubes = [replace(t, branch=t.branch + offset) for t in out[1]]
