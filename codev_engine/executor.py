@@ -84,7 +84,8 @@ def scattered(client, data, future=None):
     """
     if future is not None and future.status == "finished":
         return future
-    return client.scatter(data, broadcast=True, hash=False)
+    # (in a list: one future for the whole of ``data``, a tuple included)
+    return client.scatter([data], broadcast=True, hash=False)[0]
 
 
 class Executor:
