@@ -135,6 +135,7 @@ def cstr():
     return problem, law, ce.verify(problem, law)
 
 
+@pytest.mark.slow  # (~16 s on a quiet machine: the workers compile the plant's enclosures)
 def test_verification_cells_on_a_cluster_give_the_serial_result(cluster, cstr):
     problem, law, serial = cstr
     assert serial.stats["partitions"] > 1  # refined: several cells
