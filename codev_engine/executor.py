@@ -30,6 +30,65 @@ __all__ = ["Executor", "SCHEDULER_ENV"]
 
 #: the environment variable naming a running Dask scheduler (``tcp://HOST:PORT``)
 SCHEDULER_ENV = "CODEV_SCHEDULER"
+#: times a task the scheduler cancelled (it lost the task, or data the task needs, with a
+#: worker) is submitted again by the client before the error is raised
+RESUBMITS = 3
+
+
+def result_resubmitting(future, resubmit: Callable[[], Any], stats: dict | None = None):
+    """The result of a Dask ``future``; where the scheduler cancelled it (a worker that held
+    it, or data it needs, died), ``resubmit()`` gives a new future for the same task (the
+    tasks are pure functions of their inputs, which the client holds), up to
+    ``RESUBMITS`` times.
+
+    Parameters
+    ----------
+    future : distributed.Future
+        The task.
+    resubmit : callable
+        ``resubmit() -> Future``: the same task again (scattering its data again if lost).
+    stats : dict, optional
+        ``stats["resubmitted"]`` counts the tasks submitted again.
+
+    Returns
+    -------
+    tuple
+        ``(result, future)``: the task's result and the future that gave it.
+    """
+    from distributed.client import FutureCancelledError
+
+    for attempt in range(RESUBMITS + 1):
+        try:
+            return future.result(), future
+        except FutureCancelledError:
+            if attempt == RESUBMITS:
+                raise
+            if stats is not None:
+                stats["resubmitted"] = stats.get("resubmitted", 0) + 1
+            future = resubmit()
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def scattered(client, data, future=None):
+    """``data`` scattered to every worker (``broadcast``), or ``future`` when the cluster
+    still holds it.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    data : object
+        What the tasks share (arrays, codev's own objects).
+    future : distributed.Future, optional
+        An earlier scatter of ``data``.
+
+    Returns
+    -------
+    distributed.Future
+    """
+    if future is not None and future.status == "finished":
+        return future
+    # (in a list: one future for the whole of ``data``, a tuple included)
+    return client.scatter([data], broadcast=True, hash=False)[0]
 
 
 class Executor:

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 
 from codev_engine.errors import SolverError
+from codev_engine.executor import Executor
 from codev_engine.formulation import parameter_names
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
 from codev_engine.limits import limits
@@ -146,6 +147,7 @@ def synthesize(
     simplify: bool | None = None,
     options: SolveOptions | None = None,
     progress: Callable[[int], None] | None = None,
+    executor: Executor | None = None,
 ) -> ExplicitLaw:
     """Compute the explicit MPC law of a problem.
 
@@ -161,6 +163,8 @@ def synthesize(
         Settings of the multi-parametric solver; its defaults when omitted.
     progress : callable, optional
         Called with the number of regions found so far.
+    executor : Executor, optional
+        Where the mp-QP search evaluates its candidates (``mpsolve``); the law is the same.
 
     Returns
     -------
@@ -187,7 +191,7 @@ def synthesize(
     if capped:
         options = replace(options, max_regions=most)
     try:
-        sol = mpsolve(mp.program, options=options, progress=progress)
+        sol = mpsolve(mp.program, options=options, progress=progress, executor=executor)
     except TooManyRegionsError:
         raise SolverError(
             f"synthesis stopped past {options.max_regions:,} critical regions "

@@ -35,6 +35,16 @@ def example_law():
     return get
 
 
+@pytest.fixture(scope="session")
+def cluster():
+    """A real Dask ``LocalCluster`` of 2 worker processes (``ce.Executor(workers=2)``),
+    started once per test session for every test that needs one (~5 s to start and stop);
+    tests may kill its workers: the nanny starts new ones."""
+    with ce.Executor(workers=2) as executor:
+        assert executor.workers == 2
+        yield executor
+
+
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
     """Print the per-problem lines tests recorded with ``record_property("mp_testset", ...)``.
 

@@ -140,7 +140,9 @@ def _print_result(problem, law, result, tube_path) -> None:
         print(f"tube written to {tube_path}")
 
 
-def _verification(args: argparse.Namespace, problem, law, synth_seconds: float | None) -> int:
+def _verification(
+    args: argparse.Namespace, problem, law, synth_seconds: float | None, executor=None
+) -> int:
     from codev_engine.reach.verification import verify
 
     if problem.verify is None:
@@ -154,6 +156,7 @@ def _verification(args: argparse.Namespace, problem, law, synth_seconds: float |
             progress=lambda st: update(
                 st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
             ),
+            executor=executor,
         )
     tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
     if getattr(args, "record", None):
@@ -181,7 +184,31 @@ def _say_recording(path) -> None:
     print(f"recording written to {path}\n  view it: codev view {path}")
 
 
+def _executor(args: argparse.Namespace):
+    """The executor of ``--workers N`` / ``--scheduler ADDR`` (serial without either, or
+    ``$CODEV_SCHEDULER``)."""
+    from codev_engine.executor import Executor
+
+    if args.workers is not None and args.workers < 1:
+        raise SpecError("must be a positive number of workers", field="--workers")
+    return Executor(workers=args.workers, scheduler=args.scheduler)
+
+
+def _add_executor_options(p: argparse.ArgumentParser, what: str) -> None:
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N",
+                       help=f"run {what} on a local Dask cluster of N worker processes")
+    where.add_argument("--scheduler", metavar="ADDR",
+                       help=f"run {what} on a running Dask cluster (tcp://HOST:PORT; default "
+                       "$CODEV_SCHEDULER, else in this process)")
+
+
 def _cmd_verify(args: argparse.Namespace) -> int:
+    with _executor(args) as executor:
+        return _verify_on(args, executor)
+
+
+def _verify_on(args: argparse.Namespace, executor) -> int:
     from codev_engine.law import ExplicitLaw
     from codev_engine.pipeline import load_spec
     from codev_engine.reach.verification import check_law_matches
@@ -196,9 +223,9 @@ def _cmd_verify(args: argparse.Namespace) -> int:
         synth_seconds = law.meta.get("seconds")
     else:
         with _progress(f"synthesising {problem.name}", not args.json) as update:
-            law = synthesize(problem, progress=update)
+            law = synthesize(problem, progress=update, executor=executor)
         synth_seconds = law.meta["seconds"]
-    return _verification(args, problem, law, synth_seconds)
+    return _verification(args, problem, law, synth_seconds, executor)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -218,8 +245,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
     )
-    with _stage_progress(not args.json) as on_event:
-        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn)
+    with _executor(args) as executor, _stage_progress(not args.json) as on_event:
+        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn,
+                             executor=executor)
     tube_path = None
     if args.export_tube and report.result is not None:
         tube_path = str(report.result.tube.save(args.export_tube))
@@ -296,6 +324,52 @@ _INTERRUPTED = [False]
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    folder = Path(args.dir)
+    if (folder / "sweep.json").is_file() and not (folder / "session.json").exists():
+        return _replay_sweep(args, folder)
+    return _replay_session(args)
+
+
+def _replay_sweep(args: argparse.Namespace, folder) -> int:
+    """``codev replay DIR`` of a sweep (``codev sweep --session DIR``): every design's
+    session replayed, one after the other."""
+    import re
+
+    from codev_engine.session import Session
+
+    where = folder / "sweep.json"
+    try:
+        listed = json.loads(where.read_text(encoding="utf-8"))["designs"]
+        designs = [(str(d["folder"]), d["values"]) for d in listed]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise CodevError(f"{where}: not a sweep's list of designs ({exc})") from None
+    seen, out, ok = set(), [], True
+    for name, values in designs:
+        if not re.fullmatch(r"[0-9a-f]{16}", name):
+            raise CodevError(f"{where}: designs: {name!r} is not a design's folder name")
+        if name in seen:  # (a value listed twice is one design)
+            continue
+        seen.add(name)
+        with _stage_progress(not args.json) as on_event:
+            rep = Session.open(folder / name).replay(on_event=on_event, warn=_warn)
+        ok = ok and rep.ok
+        out.append({"folder": name, "values": values, "runs": rep.runs, "match": rep.ok,
+                    "mismatches": len(rep.mismatches), "seconds": round(rep.seconds, 6)})
+        if not args.json:
+            shown = ", ".join(f"{k} = {_sweep_cell(v)}" for k, v in values.items())
+            state = "matches" if rep.ok else f"{len(rep.mismatches)} MISMATCH(ES)"
+            print(f"design {name} [{shown}]: {rep.runs} run(s) -- {state}")
+    if args.json:
+        print(json.dumps({"dir": str(folder), "designs": out, "match": ok}))
+    else:
+        print(f"replay of the sweep {folder}: {len(out)} design(s), "
+              + ("every outcome matches" if ok else "mismatches"))
+    return 0 if ok else 1
+
+
+def _replay_session(args: argparse.Namespace) -> int:
     from codev_engine.session import Session
 
     session = Session.open(args.dir)
@@ -561,7 +635,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations", "sweep", "startup",
+    "long_horizon", "formulations", "sweep", "startup", "scale",
 )
 
 
@@ -741,13 +815,15 @@ def _cmd_mpsolve(args: argparse.Namespace) -> int:
     options = SolveOptions()
     if args.max_regions is not None:
         options = replace(options, max_regions=args.max_regions)
+    executor = _executor(args)
     program = MpProgram.load(args.file)
     try:
         with (
+            executor,
             _time_limit(args.timeout),
             _progress(f"solving {program.name}", not args.json) as update,
         ):
-            sol = mpsolve(program, options=options, progress=update)
+            sol = mpsolve(program, options=options, progress=update, executor=executor)
     except _TimeLimitError:
         _err(f"{args.file}: no solution within the time limit ({args.timeout:g} s)")
         return 1
@@ -858,6 +934,7 @@ def _build_parser() -> argparse.ArgumentParser:
         p.add_argument("--max-depth", type=int, help="override verify.max_depth")
         p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
         p.add_argument("--json", action="store_true", help="print a JSON summary only")
+        _add_executor_options(p, "the mp-QP search and the nonlinear verification's cells")
         p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording")
         p.add_argument(
             "--axes",
@@ -914,7 +991,8 @@ def _build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("replay", help="re-execute a session's journal and compare outcomes")
-    p.add_argument("dir", metavar="DIR", help="the session folder")
+    p.add_argument("dir", metavar="DIR",
+                   help="the session folder, or a sweep's (codev sweep --session DIR)")
     p.add_argument("--json", action="store_true", help="print a JSON summary only")
     p.set_defaults(func=_cmd_replay)
 
@@ -1007,6 +1085,7 @@ def _build_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="give up past N critical regions (exit 1; default 1,000,000, ~2.5 GB)",
     )
+    _add_executor_options(p, "the mp-QP search's candidates")
     p.set_defaults(func=_cmd_mpsolve)
 
     p = sub.add_parser(

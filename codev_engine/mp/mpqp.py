@@ -21,6 +21,7 @@ one Chebyshev-ball LP per candidate active set.
 from __future__ import annotations
 
 import os
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import replace
@@ -31,6 +32,7 @@ from scipy.linalg import cho_solve
 from scipy.linalg.lapack import dgeqrf
 
 from codev_engine.errors import SolverError
+from codev_engine.executor import Executor, result_resubmitting, scattered
 from codev_engine.geometry.polytope import (
     bounding_box,
     certified_minimal_rows,
@@ -50,8 +52,8 @@ from codev_engine.mp.solution import (
 __all__ = ["explore_active_sets"]
 
 
-#: regions found before the search goes parallel (small problems stay serial:
-#: forking costs ~20 ms)
+#: regions found before the search goes parallel (small problems stay serial: a thread
+#: pool costs little, but an executor's tasks cost milliseconds each)
 PARALLEL_AFTER = 400
 #: regions found before candidates go to the compiled kernel (mpqp_kernel; importing numba
 #: and loading the kernel costs ~1 s, more than small problems take altogether)
@@ -62,13 +64,16 @@ JIT_AFTER = 200
 SORTED_UP_TO = 200_000
 #: batches' regions put together into one chunk of arrays during the compiled walk
 _PARTS_PER_CHUNK = 256
-#: candidates handed to a worker per round trip
+#: candidates in one batch of the compiled walk (and per numpy-kernel task)
 _CHUNK = 64
-#: batches in flight in the compiled walk, whatever the number of workers: batches are
-#: popped and their results taken at fixed points of the walk, never "when ready", so its
-#: order, and with it the point each candidate's LP starts from, depends on neither timing
+#: batches in flight in the compiled walk, whatever runs them: batches are popped and their
+#: results taken at fixed points of the walk, never "when ready", so its order, and with it
+#: the point each candidate's LP starts from, depends on neither timing, nor the executor,
 #: nor the worker count (the partition is the same, bit for bit)
-_DEPTH = 8
+_DEPTH = 64
+#: consecutive batches sent to an executor as one task (1024 candidates, ~0.1 s of work:
+#: a Dask task costs milliseconds); _DEPTH / _GROUP tasks are in flight
+_GROUP = 16
 
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
@@ -77,7 +82,8 @@ ILL_CONDITIONED = 1e6
 
 class _Kernel:
     """Everything needed to evaluate one candidate active set (the problem's data,
-    precomputed). A module-level instance is inherited by forked workers."""
+    precomputed). Before the compiled kernel starts it is plain data: an executor's
+    workers get a copy in memory (scattered once)."""
 
     def __init__(self, H, c, C, G, w, S, At, bt, scale: float, region_tol: float, box):
         self._setup(G, At, bt, scale, region_tol, box)
@@ -420,13 +426,41 @@ class _KernelSemidefinite(_Kernel):
         return Lf[:, : d + 1], Sf[:, : d + 1], inact, tie, Zf[:, : d + 1]
 
 
-_KERNEL: _Kernel | None = None
+def _evaluate_chunk(kernel: _Kernel, acts: list[tuple[int, ...]]) -> list:
+    """Worker side (an executor's task): evaluate candidates with the numpy kernel, which
+    the client sent in memory (scattered once to every worker)."""
+    return [kernel.evaluate_numpy(a) for a in acts]
 
 
-def _evaluate_chunk(acts: list[tuple[int, ...]]) -> list:
-    """Worker side: evaluate candidates with the kernel inherited from the parent."""
-    assert _KERNEL is not None
-    return [_KERNEL.evaluate(a) for a in acts]
+def _evaluate_batches(args: tuple, batches: list) -> tuple[list, float]:
+    """Worker side (an executor's task): the compiled kernel on consecutive batches of the
+    walk; the results in the batches' order, and the seconds this took on the worker.
+
+    Parameters
+    ----------
+    args : tuple
+        The compiled kernel's problem data (``_Kernel._jit_args``: arrays and numbers,
+        scattered once to every worker).
+    batches : list of ((b, W) uint64 ndarray, (b, d) ndarray)
+        The candidates' bitmasks and start points, as ``ActiveSetGraph.pop`` gave them.
+    """
+    from codev_engine.mp import mpqp_kernel  # (numba: loaded from its cache on first use)
+
+    t0 = time.perf_counter()
+    out = [mpqp_kernel.evaluate_batch(keys, starts, args) for keys, starts in batches]
+    return out, time.perf_counter() - t0
+
+
+def _warm_worker(args: tuple) -> float:
+    """Worker side: import and load the compiled kernel (numba's cache) with a batch of no
+    candidates, so the first real task does not pay for it; the seconds it took."""
+    t0 = time.perf_counter()
+    from codev_engine.mp import mpqp_kernel
+
+    d = args[10].shape[0]
+    W = (args[0].shape[0] + 63) // 64
+    mpqp_kernel.evaluate_batch(np.zeros((0, W), np.uint64), np.zeros((0, d)), args)
+    return time.perf_counter() - t0
 
 
 def _workers(requested: int | None) -> int:
@@ -455,6 +489,7 @@ def explore_active_sets(
     max_regions: int,
     theta_box: tuple[np.ndarray, np.ndarray] | None = None,
     workers: int | None = None,
+    executor: Executor | None = None,
     semidefinite: bool = False,
     progress: Callable[[int], None] | None = None,
     stats: dict | None = None,
@@ -489,10 +524,16 @@ def explore_active_sets(
     theta_box : ((d,), (d,)) ndarrays, optional
         The parameter set's bounding box (lo, hi), if the caller has it already.
     workers : int, optional
-        Threads (compiled kernel) or forked processes (numpy kernels) evaluating
-        candidates once more than ``PARALLEL_AFTER`` regions are found (default: the CPUs
-        this process may use; 1 = serial). The graph is the same whatever the order of
-        evaluation, so the result is too.
+        Threads of this process evaluating candidates with the compiled kernel once more
+        than ``PARALLEL_AFTER`` regions are found (default: the CPUs this process may use;
+        1 = serial), when no ``executor`` is given.
+    executor : Executor, optional
+        Evaluate candidates as tasks on this executor's workers instead (a Dask cluster;
+        a serial one changes nothing): batches of the compiled walk, ``_GROUP`` batches a
+        task, or chunks of the numpy kernel where the compiled one does not apply. The
+        workers get the problem's arrays in memory, scattered once. The result is the same,
+        bit for bit and in the same order, whatever runs the tasks and however many
+        workers there are.
     semidefinite : bool
         H is only positive semi-definite (singular): the optimizer is selected
         lexicographically (see ``_KernelSemidefinite``); the caller has checked that the
@@ -515,8 +556,10 @@ def explore_active_sets(
     SolverError
         When more than ``max_regions`` regions are found.
     """
-    global _KERNEL
     stats = {} if stats is None else stats
+    # (the cluster is started, or connected to, only when the search goes parallel)
+    remote_ok = executor is not None and executor.kind != "serial"
+    client = None
     box = theta_box if theta_box is not None else bounding_box(At, bt)
     if semidefinite:
         r = np.random.default_rng(0).normal(size=G.shape[1])
@@ -536,7 +579,8 @@ def explore_active_sets(
     explored = {act0}
     stack = [act0]
     nworkers = _workers(workers)
-    pool = None
+    remote = None  # (the scattered kernel, the number of workers) once the tasks start
+    jit_applies = kernel.box is not None and type(kernel) is _Kernel  # (see start_jit)
     jit_tried = False
 
     def visit(act, result) -> None:
@@ -581,50 +625,52 @@ def explore_active_sets(
 
     compiled = False
     walk = None
+    inflight: deque = deque()  # (chunk, Future), oldest first
     try:
-        inflight: deque = deque()  # (chunk, AsyncResult), oldest first
         while stack or inflight:
             if not jit_tried and len(regions) >= JIT_AFTER:
                 jit_tried = True
                 stats["jit"] = kernel.start_jit()
-                if stats["jit"] and not inflight:
+                if stats["jit"]:
                     compiled = True  # the compiled walk takes over (below)
                     break
-            if pool is None and nworkers > 1 and len(regions) >= PARALLEL_AFTER:
-                pool = _start_pool(kernel, nworkers - 1)  # this process works too
-                if pool is None:
-                    nworkers = 1
-            if pool is None:
+            if (remote is None and remote_ok and len(regions) >= PARALLEL_AFTER
+                    and (jit_tried or not jit_applies)):
+                # the numpy kernel on the executor's workers: only once the compiled one is
+                # known not to apply, so the switch to it never depends on timing
+                client = executor.client
+                shared = client.scatter(kernel, broadcast=True, hash=False)
+                remote = (shared, max(1, executor.workers))
+                stats["workers"] = remote[1]
+            if remote is None:
                 act = stack.pop()
                 visit(act, kernel.evaluate(act))
                 continue
             # the workers get chunks of the newest candidates (depth first, as in the
             # serial search); this process evaluates candidates too while they work, and
-            # visits their results as they come
-            while len(stack) > _CHUNK and len(inflight) < 2 * nworkers:
+            # visits their results oldest first (the numpy kernel does not depend on the
+            # order, and the regions are sorted below)
+            while len(stack) > _CHUNK and len(inflight) < 2 * remote[1]:
                 chunk = stack[-_CHUNK:]
                 del stack[-_CHUNK:]
-                inflight.append((chunk, pool.apply_async(_evaluate_chunk, (chunk,))))
-            if inflight and (inflight[0][1].ready() or not stack):
-                chunk, pending = inflight.popleft()
-                for act, result in zip(chunk, pending.get(), strict=True):
+                future = client.submit(_evaluate_chunk, remote[0], chunk, pure=False)
+                inflight.append((chunk, future))
+            if inflight and (inflight[0][1].done() or not stack):
+                chunk, future = inflight.popleft()
+                stats["tasks"] = stats.get("tasks", 0) + 1
+                for act, result in zip(chunk, future.result(), strict=True):
                     visit(act, result)
             elif stack:
                 act = stack.pop()
                 visit(act, kernel.evaluate(act))
         if compiled:
-            if pool is not None:  # (started first when PARALLEL_AFTER < JIT_AFTER)
-                pool.terminate()
-                pool.join()
-                pool = None
             walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
-            walk.run(nworkers, max_regions, progress)
+            walk.run(nworkers, max_regions, progress, executor if remote_ok else None)
     finally:
-        if pool is not None:
-            pool.terminate()
-            pool.join()
-            stats["workers"] = nworkers
-        _KERNEL = None
+        if inflight:
+            client.cancel([f for _, f in inflight])
+        if remote is not None:
+            client.cancel([remote[0]])
     if not compiled:
         stats["explored"] = len(explored)
     if compiled:
@@ -674,37 +720,106 @@ class _CompiledWalk:
         )
         self.graph.seed(explored, stack)
 
-    def run(self, nworkers: int, max_regions: int, progress) -> None:
-        """Walk until the stack is empty (with a pool of ``nworkers`` threads; this one
-        takes the results)."""
-        graph, args = self.graph, self.kernel._jit_args
-        pool = None
-        inflight: deque = deque()  # (keys, starts, AsyncResult or None), oldest first
-        try:
-            while len(graph) or inflight:
-                if pool is None and nworkers > 1 and self.found >= PARALLEL_AFTER:
-                    from multiprocessing.pool import ThreadPool
+    def run(self, nworkers: int, max_regions: int, progress, executor=None) -> None:
+        """Walk until the stack is empty.
 
-                    pool = ThreadPool(nworkers)
-                while len(graph) and len(inflight) < _DEPTH:
+        The walk pops batches of ``_CHUNK`` candidates and takes their results (records
+        the regions, pushes the neighbours) oldest first, ``_DEPTH`` batches in flight: the
+        same sequence of pops and takes whatever evaluates the batches, so the same walk.
+        They are evaluated in this thread when it takes them (serial), by a pool of
+        ``nworkers`` threads (the compiled kernel releases the GIL), or, with a Dask
+        ``executor`` (its client started once ``PARALLEL_AFTER`` regions are found), as
+        tasks of ``_GROUP`` consecutive batches on its workers (a group is sent when full,
+        or earlier when this thread is about to take its oldest batch).
+        """
+        graph, args = self.graph, self.kernel._jit_args
+        pool = client = None
+        shared = None  # the kernel's arrays, scattered to the workers
+        window: deque = deque()  # [keys, starts, job], oldest first
+        group: list = []  # batches popped, not yet sent (with a client)
+        tasks: set = set()  # futures not yet taken in full
+        stats = self.stats
+
+        def submit(batches: list):
+            nonlocal shared
+            shared = scattered(client, args, shared)  # (again, if a lost worker took it)
+            future = client.submit(_evaluate_batches, shared, batches, pure=False)
+            tasks.add(future)
+            return future
+
+        def send() -> None:
+            batches = [(e[0], e[1]) for e in group]
+            box: dict = {"future": submit(batches), "left": len(group), "batches": batches}
+            for i, entry in enumerate(group):
+                entry[2] = (box, i)
+            group.clear()
+
+        def fetch(job) -> tuple:
+            box, i = job
+            if "out" not in box:
+                tasks.discard(box["future"])
+                (box["out"], seconds), box["future"] = result_resubmitting(
+                    box["future"], lambda: submit(box["batches"]), stats
+                )
+                tasks.add(box["future"])
+                stats["task_seconds"] = stats.get("task_seconds", 0.0) + seconds
+                stats["tasks"] = stats.get("tasks", 0) + 1
+            out = box["out"][i]
+            box["left"] -= 1
+            if not box["left"]:  # taken in full: the worker may drop it
+                tasks.discard(box["future"])
+                box.clear()
+            return out
+
+        try:
+            while len(graph) or window:
+                if self.found >= PARALLEL_AFTER and pool is None and shared is None:
+                    if executor is not None:
+                        t0 = time.perf_counter()
+                        client = executor.client
+                        shared = scattered(client, args)
+                        # numba's cached kernel loaded on every worker before the first task
+                        warm = client.run(_warm_worker, args)
+                        stats["workers"] = len(warm)
+                        stats["worker_warmup_seconds"] = max(warm.values(), default=0.0)
+                        stats["start_seconds"] = time.perf_counter() - t0
+                    elif nworkers > 1:
+                        from multiprocessing.pool import ThreadPool
+
+                        pool = ThreadPool(nworkers)
+                        stats["workers"] = nworkers
+                while len(graph) and len(window) < _DEPTH:
                     keys, starts = graph.pop(_CHUNK)
-                    job = None
-                    if pool is not None:
-                        job = pool.apply_async(self.evaluate_batch, (keys, starts, args))
-                    inflight.append((keys, starts, job))
-                keys, starts, job = inflight.popleft()
-                result = self.evaluate_batch(keys, starts, args) if job is None else job.get()
+                    entry = [keys, starts, None]
+                    window.append(entry)
+                    if shared is not None:
+                        group.append(entry)
+                        if len(group) == _GROUP:
+                            send()
+                    elif pool is not None:
+                        entry[2] = pool.apply_async(self.evaluate_batch, (keys, starts, args))
+                entry = window.popleft()
+                if any(e is entry for e in group):
+                    send()  # (this batch is in the group not yet sent)
+                keys, starts, job = entry
+                if job is None:  # (popped before the workers started, or serial)
+                    result = self.evaluate_batch(keys, starts, args)
+                elif isinstance(job, tuple):
+                    result = fetch(job)
+                else:
+                    result = job.get()
                 self._take(keys, result)
                 if progress is not None:
                     progress(self.found)
                 if self.found > max_regions:
                     raise TooManyRegionsError(too_many_regions(max_regions))
         finally:
-            self.stats["explored"] = graph.explored
+            stats["explored"] = graph.explored
             if pool is not None:
                 pool.terminate()
                 pool.join()
-                self.stats["workers"] = nworkers
+            if client is not None and (tasks or shared is not None):
+                client.cancel([*tasks, *([shared] if shared is not None else [])])
 
     def _take(self, keys: np.ndarray, result: tuple) -> None:
         """Record a batch's regions and push its neighbours; the candidates the compiled
@@ -801,35 +916,6 @@ def _count_class(stats: dict, status: str, n: int = 1) -> None:
     if n:
         key = f"candidates_{status}"
         stats[key] = stats.get(key, 0) + n
-
-
-def _start_pool(kernel: _Kernel, nworkers: int):
-    """A pool of workers sharing ``kernel``: threads once the compiled kernel runs, forked
-    processes otherwise (None where fork is unavailable)."""
-    global _KERNEL
-    import multiprocessing as mp
-
-    _KERNEL = kernel
-    if kernel._jit is not None:
-        # the compiled kernel releases the GIL: threads share everything, and nothing
-        # is pickled
-        from multiprocessing.pool import ThreadPool
-
-        return ThreadPool(nworkers)
-    try:
-        ctx = mp.get_context("fork")
-    except ValueError:  # pragma: no cover - no fork on this platform: stay serial
-        return None
-    return ctx.Pool(nworkers, initializer=_ignore_interrupt)
-
-
-def _ignore_interrupt() -> None:
-    """A pool worker ignores Ctrl-C (SIGINT, sent to the terminal's whole process group):
-    the process that started the pool stops on it and terminates the pool, so no worker
-    prints a traceback of its own."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _merge_equal_laws(regions: RegionArrays, scale: float, stats: dict) -> RegionArrays:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codev_engine.errors import CodevError, SolverError
+from codev_engine.executor import Executor
 from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
 from codev_engine.mp.mplp import COUNTERS, explore_facets
 from codev_engine.mp.mplp_graph import explore_bases
@@ -57,8 +58,9 @@ class SolveOptions:
         Safety stop (a million regions of the CDC-24 set take about 2.5 GB at the peak of
         the solve; pop_mpqp_002 has 320,636, pop_mpqp_095 5,008,776).
     workers : int or None
-        Processes that evaluate mp-QP candidates once the search is large (None: the CPUs
-        this process may use; 1: serial). The result does not depend on it.
+        Threads of this process that evaluate mp-QP candidates once the search is large
+        (None: the CPUs this process may use; 1: serial), when ``mpsolve`` is given no
+        executor. The result does not depend on it.
     mplp : str
         The mp-LP algorithm: ``"auto"`` (the basis graph of ``mplp_graph.py`` when the
         cost does not depend on the parameter, else, or when it cannot be made exact, the
@@ -81,6 +83,7 @@ def mpsolve(
     *,
     options: SolveOptions | None = None,
     progress: Callable[[int], None] | None = None,
+    executor: Executor | None = None,
 ) -> MpSolution:
     """Solve an mp-LP / mp-QP exactly.
 
@@ -90,6 +93,10 @@ def mpsolve(
     options : SolveOptions, optional
     progress : callable, optional
         Called with the number of regions found so far each time one is added.
+    executor : Executor, optional
+        Evaluate the mp-QP search's candidates as tasks on this executor's workers (a Dask
+        cluster) instead of threads of this process; the regions are the same, in the same
+        order (see ``mpqp.explore_active_sets``). The mp-LP search does not use it.
 
     Returns
     -------
@@ -110,7 +117,7 @@ def mpsolve(
     # measured both programs: the reports keep their keys)
     stats = dict.fromkeys(COUNTERS, 0)
     with _search_failures(red):
-        regions = _explore(red, size, region_tol, opts, progress, stats, semidefinite)
+        regions = _explore(red, size, region_tol, opts, progress, stats, semidefinite, executor)
         domain = (
             _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
             else _empty_domain(red)
@@ -164,7 +171,9 @@ def _search_failures(red: Reduced) -> Iterator[None]:
         ) from exc
 
 
-def _explore(red, size, region_tol, opts, progress, stats, semidefinite) -> RegionArrays:
+def _explore(
+    red, size, region_tol, opts, progress, stats, semidefinite, executor=None
+) -> RegionArrays:
     """The critical regions of the reduced program (mp-LP or mp-QP search)."""
     nz, d = red.G.shape[1], red.At.shape[1]
     if not np.any(red.H):
@@ -190,6 +199,7 @@ def _explore(red, size, region_tol, opts, progress, stats, semidefinite) -> Regi
                 theta_box=size.box,
                 max_regions=opts.max_regions,
                 workers=opts.workers,
+                executor=executor,
                 semidefinite=semidefinite,
                 progress=progress,
                 stats=stats,

@@ -36,12 +36,13 @@ branches from multiplying at every crossing of a region boundary.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 
 from codev_engine.errors import SolverError
+from codev_engine.executor import Executor, result_resubmitting, scattered
 from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
@@ -1037,12 +1038,18 @@ class NonlinearReach(ClosedLoopSetup):
             groups.append(members)
         return current
 
-    def run(self) -> None:
-        """Refine the initial set until every piece is proved or the depth runs out (or
-        the exploration grows past ``codev_engine.limits``: a ``"limit"`` finding)."""
-        self._limited(self._run)
+    def _cell(self, lo: np.ndarray, hi: np.ndarray, depth: int) -> tuple:
+        """Reach one cell ``[lo, hi]`` of the initial set (at refinement ``depth``); where it
+        is not proved, simulate from its centre. A function of the cell alone (and of
+        ``stats`` only through the tubes' branch numbers), so any worker may compute it.
 
-    def _run(self) -> None:
+        Returns
+        -------
+        tuple
+            ``(status, tubes, t_bad, failed, violation)``: as ``_piece`` gives them, the
+            enclosure failure it met (a Finding or None) and the centre's first violation
+            (None when the cell is proved or the centre's trajectory is safe).
+        """
         from codev_engine.reach.simulate import (
             first_violation,
             simulate,
@@ -1050,20 +1057,13 @@ class NonlinearReach(ClosedLoopSetup):
             violations_many,
         )
 
-        vs = self.problem.verify
-        queue = [(vs.initial_lower.astype(float), vs.initial_upper.astype(float), 0)]
-        while queue:
-            lo, hi, depth = queue.pop()
-            self.stats["partitions"] += 1
-            self._failed = None
-            status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
-            if status == "ok":
-                self.tubes.extend(tubes)
-                continue
+        self._failed = None
+        status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
+        v = None
+        if status != "ok":
             # a concrete trajectory from the piece's centre may settle it (screened with the
             # fast fixed-step simulation, confirmed with the reference integrator)
             x0 = 0.5 * (lo + hi)
-            v = None
             try:
                 with np.errstate(all="ignore"):
                     sims = simulate_many(
@@ -1074,31 +1074,156 @@ class NonlinearReach(ClosedLoopSetup):
                     v = first_violation(self.problem, self.law, trace)
             except SolverError:
                 v = None  # the trajectory is not finite (a singularity): no counterexample
-            if v is not None:
-                rad = np.diag(self.V0)
-                alpha = np.where(rad > 0, (x0 - self.c0) / np.where(rad > 0, rad, 1.0), 0.0)
-                self.findings.append(Finding(v.kind, int(v.index), float(v.t), alpha))
-                self.tubes.extend(tubes)
-                return
-            if depth >= self.max_depth:
-                if self._failed is not None:
-                    self.findings.append(self._failed)  # names the singular expression
-                else:
-                    kind = "undefined" if status == "undefined" else "max_depth"
-                    self.findings.append(Finding(kind, -1, float(t_bad or 0.0), None))
-                self.tubes.extend(tubes)
-                continue
-            self.stats["refinements"] += 1
-            # bisect the axis that is widest in the metric
-            r = 0.5 * (hi - lo)
-            ax = int(np.argmax(np.linalg.norm(self.W * r[None, :], axis=0)))
-            mid = 0.5 * (lo[ax] + hi[ax])
-            hi1 = hi.copy()
-            hi1[ax] = mid
-            lo2 = lo.copy()
-            lo2[ax] = mid
-            queue.append((lo2, hi, depth + 1))
-            queue.append((lo, hi1, depth + 1))
+        return status, tubes, t_bad, self._failed, v
+
+    def _commit(self, queue: list, lo, hi, depth: int, out: tuple) -> bool:
+        """Take a cell's outcome, in the serial order: its tubes and findings, or its two
+        halves pushed on ``queue``. True when the run stops (a concrete violation)."""
+        status, tubes, t_bad, failed, v = out
+        if status == "ok":
+            self.tubes.extend(tubes)
+            return False
+        if v is not None:
+            x0 = 0.5 * (lo + hi)
+            rad = np.diag(self.V0)
+            alpha = np.where(rad > 0, (x0 - self.c0) / np.where(rad > 0, rad, 1.0), 0.0)
+            self.findings.append(Finding(v.kind, int(v.index), float(v.t), alpha))
+            self.tubes.extend(tubes)
+            return True
+        if depth >= self.max_depth:
+            if failed is not None:
+                self.findings.append(failed)  # names the singular expression
+            else:
+                kind = "undefined" if status == "undefined" else "max_depth"
+                self.findings.append(Finding(kind, -1, float(t_bad or 0.0), None))
+            self.tubes.extend(tubes)
+            return False
+        self.stats["refinements"] += 1
+        # bisect the axis that is widest in the metric
+        r = 0.5 * (hi - lo)
+        ax = int(np.argmax(np.linalg.norm(self.W * r[None, :], axis=0)))
+        mid = 0.5 * (lo[ax] + hi[ax])
+        hi1 = hi.copy()
+        hi1[ax] = mid
+        lo2 = lo.copy()
+        lo2[ax] = mid
+        queue.append([lo2, hi, depth + 1, None])
+        queue.append([lo, hi1, depth + 1, None])
+        return False
+
+    def run(self, executor: Executor | None = None, cells: int = 1) -> None:
+        """Refine the initial set until every cell is proved or the depth runs out (or
+        the exploration grows past ``codev_engine.limits``: a ``"limit"`` finding).
+
+        The cells are taken depth first (a stack: a cell's first half, then its second).
+        With an ``executor`` (a Dask cluster) the cells on the stack are computed ahead as
+        its tasks, a bounded window of them in flight (``_WINDOW`` per worker), and taken
+        in that same order as they come back: the tubes, findings, counters and
+        counterexample are those of the serial run (the tubes' branch numbers are offset
+        by the branches taken before the cell); cells computed past a counterexample are
+        dropped.
+
+        Parameters
+        ----------
+        executor : Executor, optional
+            Where the cells run (default: in this process, one after the other).
+        cells : int
+            Cut the initial set into ``cells`` equal parts along each axis first (a grid of
+            ``cells ** n`` cells, taken in lexicographic order), each then refined up to
+            ``max_depth`` times; 1 (default): the initial set is the one first cell.
+        """
+        self._limited(lambda: self._run(executor, cells))
+
+    def _run(self, executor: Executor | None, cells: int) -> None:
+        """:meth:`run`'s work (the limits' check is around it)."""
+        vs = self.problem.verify
+        lo0, hi0 = vs.initial_lower.astype(float), vs.initial_upper.astype(float)
+        queue: list = []
+        for idx in reversed(list(np.ndindex(*([int(cells)] * self.n)))):
+            i = np.array(idx, dtype=float)
+            lo = lo0 + (hi0 - lo0) * i / cells
+            hi = np.where(i + 1 == cells, hi0, lo0 + (hi0 - lo0) * (i + 1) / cells)
+            queue.append([lo, hi, 0, None])
+        client = None if executor is None or executor.kind == "serial" else executor.client
+        if client is None:
+            while queue:
+                lo, hi, depth, _ = queue.pop()
+                self.stats["partitions"] += 1
+                if self._commit(queue, lo, hi, depth, self._cell(lo, hi, depth)):
+                    return
+            return
+        import uuid
+
+        token = uuid.uuid4().hex
+        data = (self.problem, self.law, self.hold, self.max_depth, self.merge_cost,
+                self.max_sets)
+        shared = scattered(client, data)
+
+        def submit(lo, hi, depth):
+            nonlocal shared
+            shared = scattered(client, data, shared)  # (again, if a lost worker took it)
+            return client.submit(_cell_task, shared, token, lo, hi, depth, pure=False)
+
+        window = _WINDOW * max(1, executor.workers)
+        try:
+            while queue:
+                busy = 0
+                for entry in reversed(queue):  # the next cells to take first
+                    if entry[3] is None:
+                        entry[3] = submit(*entry[:3])
+                    busy += 1
+                    if busy >= window:
+                        break
+                lo, hi, depth, future = queue[-1]
+                (out, counts), queue[-1][3] = result_resubmitting(
+                    future, lambda lo=lo, hi=hi, depth=depth: submit(lo, hi, depth)
+                )  # (not counted in stats: the result is the serial one, counters too)
+                queue.pop()
+                self.stats["partitions"] += 1
+                offset = self.stats["branches"]
+                tubes = [replace(t, branch=t.branch + offset) for t in out[1]]
+                for key in ("branches", "merges"):
+                    self.stats[key] += counts[key]
+                if self._commit(queue, lo, hi, depth, (out[0], tubes, *out[2:])):
+                    return
+                if self.progress is not None:
+                    self.progress(dict(self.stats))
+        finally:
+            client.cancel([e[3] for e in queue if e[3] is not None] + [shared])
+
+
+#: cells in flight per worker when the cells run on an executor
+_WINDOW = 2
+#: the engines a worker keeps (the latest runs'), by the run's token
+_ENGINES: dict = {}
+
+
+def _cell_task(shared: tuple, token: str, lo: np.ndarray, hi: np.ndarray, depth: int):
+    """Worker side (an executor's task): one cell of a run, by an engine built once per run
+    on this worker from the run's problem and law (sent in memory, scattered once).
+
+    Parameters
+    ----------
+    shared : tuple
+        ``(problem, law, hold, max_depth, merge_cost, max_sets)`` of the run.
+    token : str
+        The run's id (the worker's engine for it is reused).
+    lo, hi : (n,) ndarray
+        The cell.
+    depth : int
+        Its refinement depth.
+    """
+    engine = _ENGINES.get(token)
+    if engine is None:
+        problem, law, hold, max_depth, merge_cost, max_sets = shared
+        engine = NonlinearReach(problem, law, hold, max_depth, merge_cost=merge_cost,
+                                max_sets=max_sets)
+        while len(_ENGINES) >= 2:
+            _ENGINES.pop(next(iter(_ENGINES)))
+        _ENGINES[token] = engine
+    engine.stats = {"branches": 0, "refinements": 0, "partitions": 0, "merges": 0}
+    out = engine._cell(lo, hi, depth)
+    return out, engine.stats
 
 
 def _tube(t0, t1, lo, hi, branch) -> Tube:

@@ -37,6 +37,7 @@ import numpy as np
 
 from codev_engine.display import Displayable
 from codev_engine.errors import SolverError, SpecError
+from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
 from codev_engine.reach.tube import Tube
@@ -434,6 +435,8 @@ def verify(
     hold: str | None = None,
     max_depth: int | None = None,
     progress: Callable[[dict], None] | None = None,
+    executor: Executor | None = None,
+    cells: int = 1,
 ) -> VerificationResult:
     """Verify the sampled closed loop of ``problem``'s plant with ``law``.
 
@@ -449,6 +452,15 @@ def verify(
     progress : callable, optional
         Called with a dict of counters after each branch period: ``branches``,
         ``samples`` (the sample reached), ``boxes`` (the reachtube's boxes so far), ...
+    executor : Executor, optional
+        Where the nonlinear engine's cells of the initial set (and their refinements) run:
+        as tasks on a Dask cluster, a bounded window in flight, taken in the serial order,
+        so the verdict, tube and counterexample are the serial ones. Default: in this
+        process. The linear engine (one star set per branch) runs in this process.
+    cells : int
+        The nonlinear engine cuts the initial set into ``cells`` parts along each axis
+        before refining (``cells ** n`` cells: more, smaller tasks for an executor; the
+        tube differs, the argument is the same). Default 1; the linear engine ignores it.
 
     Returns
     -------
@@ -465,6 +477,9 @@ def verify(
     if hold not in ("zoh", "continuous"):
         raise SpecError(f"unknown hold {hold!r}", field="verify.hold")
     depth = vs.max_depth if max_depth is None else max_depth
+    if int(cells) < 1:
+        raise SpecError(f"must be a positive number of cells per axis, got {cells}",
+                        field="cells")
     t0 = time.perf_counter()
     if vs.noisy and affine_plant(problem) is None:
         # measurement noise on a nonlinear plant: not followed by the nonlinear engine yet
@@ -524,7 +539,7 @@ def verify(
         from codev_engine.reach.nonlinear import NonlinearReach
 
         eng = NonlinearReach(problem, law, hold, depth, progress=progress)
-        eng.run()
+        eng.run(executor, cells=cells)
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
     tube = Tube.concatenate(tubes, problem.plant.n)

@@ -37,6 +37,7 @@ from codev_engine.session.store import SessionError
 from codev_engine.version import __version__
 
 if TYPE_CHECKING:
+    from codev_engine.executor import Executor
     from codev_engine.spec.problem import Problem
 
 __all__ = ["EventCallback", "Session"]
@@ -269,6 +270,7 @@ class Session:
         warn: Callable[[str], None] | None = None,
         journal: bool = True,
         raise_errors: bool = True,
+        executor: Executor | None = None,
     ) -> RunReport:
         """Run the stages up to ``options.upto``, loading valid cached artifacts.
 
@@ -289,6 +291,9 @@ class Session:
             A stage failing with a ``CodevError`` (bad input, solver breakdown) is journaled
             as "failed" and re-raised; with False the run stops there and the report ends
             with that stage's "failed" StageReport (its outcome holds the error).
+        executor : Executor, optional
+            Where the stages' parallel work runs (see ``StageRun``); the artifacts, keys
+            and journal are the same whatever runs them.
 
         Returns
         -------
@@ -336,7 +341,8 @@ class Session:
                         say(f"{self.path}: artifact {note}")
                     try:
                         value = stage.compute(
-                            StageRun(problem, options, values, path, _progress(emit, name))
+                            StageRun(problem, options, values, path, _progress(emit, name),
+                                     executor)
                         )
                     except CodevError as exc:
                         error = {"error": type(exc).__name__, "message": str(exc)}

@@ -35,6 +35,7 @@ import numpy as np
 from codev_engine.session.store import SessionError
 
 if TYPE_CHECKING:
+    from codev_engine.executor import Executor
     from codev_engine.spec.problem import Problem, VerifySpec
 
 __all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable"]
@@ -79,6 +80,10 @@ class StageRun:
     progress : callable
         ``progress(count, **extra)``: regions found, branches explored, ...; ``extra``
         (e.g. ``samples``, ``boxes``) goes into the progress event's data.
+    executor : Executor or None
+        Where the stage's parallel work runs (the mp-QP search's candidates, the nonlinear
+        verification's cells); None: in this process. Never part of a key: the artifacts
+        are the same whatever runs them.
     """
 
     problem: Problem
@@ -86,6 +91,7 @@ class StageRun:
     upstream: Mapping[str, Any]
     path: Path
     progress: Callable[..., None]
+    executor: Executor | None = None
 
 
 @dataclass(frozen=True)
@@ -249,7 +255,8 @@ def _synthesis_check(problem: Problem) -> None:
 def _synthesis_compute(run: StageRun) -> Any:
     from codev_engine.synthesis import synthesize
 
-    law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress)
+    law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress,
+                     executor=run.executor)
     law.save(run.path)
     return law
 
@@ -329,6 +336,7 @@ def _verification_compute(run: StageRun) -> Any:
         progress=lambda st: run.progress(
             st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
         ),
+        executor=run.executor,
     )
     result.save(run.path)
     return result

@@ -43,6 +43,7 @@ __all__ = [
     "merge_bands",
     "plot_partition",
     "plot_plane",
+    "plot_sweep",
     "plot_tube",
     "png_bytes",
     "result_html",
@@ -937,3 +938,62 @@ def result_html(result: VerificationResult, png: bytes | None = None) -> str:
             ("violation", f"{ce.kind} (index {ce.index}) at t = {ce.t:.4f}"),
         ]
     return f"<div>{banner}{_table(rows)}{_img(png)}</div>"
+
+
+# --------------------------------------------------------------------------------------------
+# sweeps
+# --------------------------------------------------------------------------------------------
+
+#: the bar colour of a design whose synthesis or verification broke down
+_SWEEP_ERROR = "#9e9e9e"
+
+
+def _sweep_value(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_sweep_value(x) for x in v) + "]"
+    return str(v)
+
+
+def plot_sweep(rows: list[dict], *, ax: Axes | None = None) -> Axes:
+    """A sweep's designs against their swept values: bars of the law's regions, coloured
+    by the verdict (``VERDICT_COLOURS``; grey where the design broke down).
+
+    Parameters
+    ----------
+    rows : list of dict
+        ``ce.sweep``'s rows (``values``, ``regions``, ``verdict``, ``error``), in order.
+    ax : matplotlib Axes, optional
+        Draw into it (default: a new figure's).
+
+    Returns
+    -------
+    Axes
+        One bar per design, labelled with its swept values; the bar's text is the
+        verdict's reason where there is one.
+    """
+    ax = _new_axes(ax, (max(4.0, 0.8 * len(rows) + 2.0), 4.0))
+    x = np.arange(len(rows))
+    heights = [float(r.get("regions") or 0) for r in rows]
+    colours = [
+        _SWEEP_ERROR if r.get("error") else VERDICT_COLOURS.get(r.get("verdict"), _SWEEP_ERROR)
+        for r in rows
+    ]
+    bars = ax.bar(x, heights, color=colours, edgecolor="black", linewidth=0.5)
+    for bar, r in zip(bars, rows, strict=True):
+        note = "error" if r.get("error") else (r.get("reason") or "")
+        if note:
+            ax.annotate(note, (bar.get_x() + bar.get_width() / 2, bar.get_height()),
+                        ha="center", va="bottom", fontsize=7, rotation=90)
+    labels = ["\n".join(f"{k} = {_sweep_value(v)}" for k, v in r["values"].items())
+              for r in rows]
+    ax.set_xticks(x, labels, fontsize=7)
+    ax.set_ylabel("critical regions")
+    ax.set_title("sweep: regions and verdict per design")
+    from matplotlib.patches import Patch
+
+    seen = dict.fromkeys(("error" if r.get("error") else r.get("verdict")) for r in rows)
+    ax.legend(handles=[Patch(color=VERDICT_COLOURS.get(v, _SWEEP_ERROR), label=str(v))
+                       for v in seen], fontsize=7, loc="best")
+    return ax

@@ -585,23 +585,6 @@ def test_regions_are_reported_in_original_variables():
     np.testing.assert_allclose(Z @ p.Aeq.T, p.beq + T @ p.Feq.T, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["random_qp0", "random_qp4", "qp_equality"])
-def test_parallel_search_gives_the_serial_result(name, monkeypatch):
-    """The mp-QP search forks workers on large problems; forced on from the start here,
-    it must give exactly the serial regions (same active sets, rows and laws, same order)."""
-    from codev_engine.mp import mpqp
-
-    serial = ce.mpsolve(PROGRAMS[name](), options=ce.SolveOptions(workers=1))
-    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
-    parallel = ce.mpsolve(PROGRAMS[name](), options=ce.SolveOptions(workers=2))
-    assert parallel.stats.get("workers") == 2
-    assert parallel.num_regions == serial.num_regions > 1
-    for a, b in zip(serial.regions, parallel.regions, strict=True):
-        assert a.active == b.active
-        np.testing.assert_array_equal(a.A, b.A)
-        np.testing.assert_array_equal(a.K, b.K)
-
-
 def test_semidefinite_ties_are_broken_one_way():
     """In qp_semidefinite_tie z2 is free in the cost: the active sets {z2 <= 1} and
     {z2 >= -1} both satisfy the KKT conditions everywhere with a zero multiplier. The

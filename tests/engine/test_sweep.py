@@ -87,7 +87,7 @@ def test_cli_bad_value_is_one_line_exit_2(value, words):
     assert words in lines[0]
 
 
-def test_a_session_sweep_reruns_from_the_cache_and_each_design_replays(tmp_path):
+def test_a_session_sweep_reruns_from_the_cache_and_replays_whole(tmp_path):
     from codev_engine.session import Session
 
     problem = ce.load_spec(DI)
@@ -102,18 +102,17 @@ def test_a_session_sweep_reruns_from_the_cache_and_each_design_replays(tmp_path)
     for folder in set(folders):
         journal = Session.open(out / folder).journal()
         assert [r["status"] for r in journal if r["run"] == 2] == ["cached"] * 3
-        done = run_codev("replay", out / folder, "--json", cwd=ROOT)
-        assert done.returncode == 0 and json.loads(done.stdout)["match"], done.stderr
+    # codev replay DIR replays the whole sweep: each design's session once
+    done = run_codev("replay", out, "--json", cwd=ROOT)
+    assert done.returncode == 0, done.stderr
+    replayed = json.loads(done.stdout)
+    assert replayed["match"] and sorted(d["folder"] for d in replayed["designs"]) == sorted(
+        set(folders)
+    )
+    assert all(d["runs"] == 2 and d["match"] for d in replayed["designs"])
 
 
 # -- a real cluster ------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def cluster():
-    with ce.Executor(workers=2) as executor:
-        assert executor.workers == 2
-        yield executor
 
 
 @pytest.fixture(scope="module")
@@ -186,3 +185,18 @@ def test_numpy_values_are_toml_values_and_a_bad_one_names_its_field():
     assert rows[0]["regions"] == 10
     with pytest.raises(ce.SpecError, match="mpc.R: not a TOML value: object"):
         ce.sweep(problem, {"mpc.R": [object()]})
+
+
+def test_the_sweep_figure_has_a_bar_per_design_coloured_by_verdict(serial_rows):
+    from matplotlib.colors import to_hex
+
+    from codev_engine.view.figures import VERDICT_COLOURS, plot_sweep
+
+    ax = plot_sweep(serial_rows)
+    bars = ax.patches
+    assert len(bars) == len(serial_rows) == 8
+    for bar, row in zip(bars, serial_rows, strict=True):
+        assert bar.get_height() == row["regions"]
+        assert to_hex(bar.get_facecolor()) == VERDICT_COLOURS[row["verdict"]]
+    labels = [t.get_text() for t in ax.get_xticklabels()]
+    assert all("mpc.horizon = " in t and "mpc.R = " in t for t in labels)

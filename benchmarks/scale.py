@@ -1,0 +1,225 @@
+"""Benchmark: the mp-QP search and a nonlinear verification on 1 and 2 Dask workers.
+
+Usage::
+
+    python benchmarks/scale.py [--mp pop_mpqp_051] [--folder MP_TESTSET] [--verify SPEC]
+                               [--workers 1,2] [--skip-mp] [--skip-verify] [--json OUT]
+
+For each worker count W, a ``LocalCluster`` of W processes (``ce.Executor(workers=W)``),
+started and warmed first (``start``: the cluster up and, for the verification, one run of
+the spec on it: the workers' plant enclosures compiled), then timed:
+
+- **mp**: ``ce.mpsolve`` of the mp test set's problem (default ``pop_mpqp_051``, 970k
+  regions; ``--folder`` defaults to ``$CODEV_MP_TESTSET``, else
+  ``../shared/benchmarks/mp_testset`` beside the checkout) with the executor:
+  wall time, the workers' numba warm-up (``worker_warmup_seconds``), the tasks and the
+  seconds they took on the workers, the client's CPU seconds (this process: the walk's
+  merge of every batch), and a digest of the regions (every run must give the same);
+- **verify**: ``ce.verify`` of ``--verify`` (default ``examples/vanderpol.toml``) with its
+  initial set cut into ``--cells`` parts per axis (default 8: 64 cells, each a task) with
+  the executor; the result must equal the serial one (verdict, tube, counters), which is
+  timed too (``serial``, in this process);
+- speed-up and efficiency from 1 to W workers (``T_1 / (W T_W)``), and the workers' CPU
+  share (their CPU time over W times the wall time: below 1 when the machine's other work
+  held the cores);
+- the scheduler's per-task overhead on the largest cluster: 2000 no-op tasks submitted at
+  once (wall time per task), and one task's round trip (median of 50).
+
+The load average is printed before and after. It is a benchmark, not a test: it prints a
+table and exits 0 (the equality checks print ``DIFFER`` if they fail).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+DEFAULT_FOLDER = Path(
+    os.environ.get("CODEV_MP_TESTSET") or ROOT.parent / "shared" / "benchmarks" / "mp_testset"
+)
+
+
+
+def _digest(sol) -> str:
+    """A hash of every region's rows, law and active set, in order."""
+    h = hashlib.sha256()
+    ra = sol.regions
+    for name in ("A", "b", "offsets", "K", "k", "active", "active_offsets"):
+        h.update(np.ascontiguousarray(getattr(ra, name)).tobytes())
+    return h.hexdigest()[:16]
+
+
+def _verify_key(result) -> tuple:
+    t = result.tube
+    arrays = b"".join(np.ascontiguousarray(getattr(t, f)).tobytes()
+                      for f in ("t_start", "t_end", "lower", "upper", "branch"))
+    counts = tuple(result.stats.get(k) for k in ("branches", "refinements", "partitions"))
+    return result.verdict, result.reason, counts, hashlib.sha256(arrays).hexdigest()[:16]
+
+
+#: the mp-QP search's counters of the latest solve (kept even when it stops at the limit)
+_LAST_STATS: dict = {}
+
+
+def _capture_stats() -> None:
+    """Keep a reference to the search's ``stats`` dict (``mpsolve`` drops it on an error)."""
+    from codev_engine.mp import solve
+
+    inner = solve.explore_active_sets
+
+    def explore(*args, **kwargs):
+        _LAST_STATS.clear()
+        kwargs["stats"] = kwargs.get("stats") if kwargs.get("stats") is not None else {}
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            _LAST_STATS.update(kwargs["stats"])
+
+    solve.explore_active_sets = explore
+
+
+def _cpu(client) -> float:
+    return sum(client.run(time.process_time).values())
+
+
+def main(argv: list[str] | None = None) -> int:
+    import codev_engine as ce
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--mp", default="pop_mpqp_051", help="the mp test set's problem")
+    ap.add_argument("--folder", default=str(DEFAULT_FOLDER), help="the mp test set")
+    ap.add_argument("--verify", metavar="SPEC", default=str(ROOT / "examples" / "vanderpol.toml"),
+                    help="the verification (default examples/vanderpol.toml)")
+    ap.add_argument("--cells", type=int, default=8, help="cells per axis (default 8)")
+    ap.add_argument("--workers", default="1,2", help="worker counts (default 1,2)")
+    ap.add_argument("--max-regions", type=int, metavar="N",
+                    help="time the search up to N regions only (it stops there: the walk is "
+                    "the same for every worker count, so is that prefix)")
+    ap.add_argument("--skip-mp", action="store_true")
+    ap.add_argument("--skip-verify", action="store_true")
+    ap.add_argument("--json", metavar="OUT", help="write the numbers as JSON")
+    args = ap.parse_args(argv)
+    counts = [int(w) for w in args.workers.split(",")]
+    _capture_stats()
+    out: dict = {"cpus": os.cpu_count(), "load_before": os.getloadavg(), "mp": {},
+                 "verify": {}}
+    print(f"load average before: {out['load_before']}")
+
+    problem = law = None
+    if not args.skip_verify:
+        problem = ce.load_spec(args.verify)
+        law = ce.synthesize(problem)
+        t0 = time.perf_counter()
+        serial = ce.verify(problem, law, cells=args.cells)
+        out["verify"]["serial"] = {"seconds": time.perf_counter() - t0,
+                                   "result": _verify_key(serial)}
+        print(f"verify {problem.name}: serial {out['verify']['serial']['seconds']:.2f} s, "
+              f"{serial.verdict}, {serial.stats['partitions']} cells")
+    program = None
+    if not args.skip_mp:
+        with np.load(Path(args.folder) / f"{args.mp}.npz", allow_pickle=False) as z:
+            data = {k: z[k] for k in z.files}
+        keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta", "Aeq", "beq", "Feq")
+        program = ce.MpProgram(**{k: data[k] for k in keys if k in data}, name=args.mp)
+    overhead = None
+    for w in counts:
+        t0 = time.perf_counter()
+        executor = ce.Executor(workers=w)
+        try:
+            client = executor.client
+            if problem is not None:
+                from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
+
+                # every worker's plant enclosures compiled (cached per plant, per process)
+                client.run(plant_enclosures, problem)
+                client.run(plant_hessian, problem)
+            start = time.perf_counter() - t0
+            if problem is not None:
+                cpu0, t1 = _cpu(client), time.perf_counter()
+                res = ce.verify(problem, law, executor=executor, cells=args.cells)
+                wall = time.perf_counter() - t1
+                out["verify"][w] = {
+                    "start_seconds": start, "seconds": wall,
+                    "cpu_share": (_cpu(client) - cpu0) / (w * wall),
+                    "equal_serial": _verify_key(res) == out["verify"]["serial"]["result"],
+                }
+                print(f"verify, {w} workers: {wall:.2f} s "
+                      f"(cpu share {out['verify'][w]['cpu_share']:.2f}), "
+                      f"{'equal' if out['verify'][w]['equal_serial'] else 'DIFFER'}")
+            if program is not None:
+                cpu0, me0, t1 = _cpu(client), time.process_time(), time.perf_counter()
+                st: dict = {}
+                found = [0]
+                opts = ce.SolveOptions(max_regions=args.max_regions or 10**8)
+                try:
+                    sol = ce.mpsolve(program, executor=executor, options=opts,
+                                     progress=lambda r, f=found: f.__setitem__(0, r))
+                    st, regions, digest = sol.stats, sol.num_regions, _digest(sol)
+                except ce.SolverError:  # (--max-regions: the prefix)
+                    regions, digest = found[0], f"prefix of {found[0]}"
+                    st = _LAST_STATS
+                wall = time.perf_counter() - t1
+                out["mp"][w] = {
+                    "seconds": wall, "regions": regions, "digest": digest,
+                    "cpu_share": (_cpu(client) - cpu0) / (w * wall),
+                    "client_cpu_seconds": time.process_time() - me0,
+                    "tasks": st.get("tasks"), "task_seconds": st.get("task_seconds") or 0.0,
+                    "worker_warmup_seconds": st.get("worker_warmup_seconds") or 0.0,
+                    "candidates": st.get("candidates"),
+                    "load": os.getloadavg()[0],
+                }
+                d = out["mp"][w]
+                print(f"mp {args.mp}, {w} workers: {wall:.1f} s, {d['regions']} regions "
+                      f"[{d['digest']}], {d['tasks']} tasks ({d['task_seconds']:.1f} s on "
+                      f"workers), client CPU {d['client_cpu_seconds']:.1f} s, warm-up "
+                      f"{d['worker_warmup_seconds']:.2f} s, cpu share {d['cpu_share']:.2f}",
+                      flush=True)
+            if w == max(counts):
+                n = 2000
+                t1 = time.perf_counter()
+                client.gather(client.map(abs, range(-n, 0), pure=False))
+                per_task = (time.perf_counter() - t1) / n
+                trips = []
+                for i in range(50):
+                    t1 = time.perf_counter()
+                    client.submit(abs, -i, pure=False).result()
+                    trips.append(time.perf_counter() - t1)
+                overhead = {"per_task_seconds": per_task,
+                            "round_trip_seconds": statistics.median(trips)}
+        finally:
+            executor.close()
+    for kind in ("verify", "mp"):
+        base = out[kind].get(1, {}).get("seconds")
+        for w in counts:
+            d = out[kind].get(w)
+            if d and base:
+                d["speedup"] = base / d["seconds"]
+                d["efficiency"] = d["speedup"] / w
+                print(f"{kind}: {w} workers {d['seconds']:.2f} s, speed-up {d['speedup']:.2f}, "
+                      f"efficiency {d['efficiency']:.2f}, cpu share {d['cpu_share']:.2f}")
+    if program is not None:
+        digests = {d["digest"] for w, d in out["mp"].items()}
+        print(f"mp regions {'equal' if len(digests) == 1 else 'DIFFER'} across worker counts")
+    if overhead:
+        out["overhead"] = overhead
+        print(f"scheduler: {1e3 * overhead['per_task_seconds']:.2f} ms per task (2000 no-ops "
+              f"at once), {1e3 * overhead['round_trip_seconds']:.2f} ms one task's round trip")
+    out["load_after"] = os.getloadavg()
+    print(f"load average after: {out['load_after']} on {out['cpus']} CPUs")
+    if args.json:
+        Path(args.json).write_text(json.dumps(out, indent=1, default=str), encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,195 @@
+"""The mp-QP search and the nonlinear verification on a real Dask cluster (2 processes).
+
+Both must give the serial result exactly: the same regions (active sets, rows, laws, in the
+same order), the same verdict, tube and counterexample, however many workers and whatever
+finishes first; and a worker killed with SIGKILL mid-run changes nothing (the scheduler
+reruns its tasks). The sweeps' own cluster tests are in test_sweep.py.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import codev_engine as ce
+from codev_engine.mp import mpqp
+from tests.engine.cli_process import run_codev
+from tests.engine.test_mpqp_graph import _program
+from tests.engine.test_mpsolve import PROGRAMS
+
+ROOT = Path(__file__).resolve().parents[2]
+CSTR = ROOT / "examples" / "cstr.toml"
+
+
+def _same_regions(a: ce.MpSolution, b: ce.MpSolution) -> None:
+    assert a.num_regions == b.num_regions > 1
+    for r, s in zip(a.regions, b.regions, strict=True):
+        assert r.active == s.active
+        np.testing.assert_array_equal(r.A, s.A)
+        np.testing.assert_array_equal(r.b, s.b)
+        np.testing.assert_array_equal(r.K, s.K)
+        np.testing.assert_array_equal(r.k, s.k)
+
+
+def _kill_a_busy_worker(client, pids: dict, killed: list) -> None:
+    """SIGKILL one worker process that holds unfinished tasks (once)."""
+    if killed:
+        return
+    for address, keys in client.processing().items():
+        if keys and address in pids:
+            os.kill(pids[address], signal.SIGKILL)
+            killed.append(pids[address])
+            return
+
+
+def _wait_for_workers(client, gone: int) -> None:
+    """Until the nanny has started a new worker in place of the process ``gone`` (a loaded
+    machine takes a while to start one)."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        now = client.run(os.getpid)
+        if len(now) == 2 and gone not in now.values():
+            return
+        time.sleep(0.2)
+    raise AssertionError("the killed worker was not replaced")
+
+
+# -- the mp-QP search ------------------------------------------------------------------------
+
+
+def test_compiled_walk_on_a_cluster_gives_the_serial_regions(cluster, monkeypatch):
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
+    serial = ce.mpsolve(_program(), options=ce.SolveOptions(workers=1))
+    remote = ce.mpsolve(_program(), executor=cluster)
+    assert serial.stats["jit"] is True and remote.stats["workers"] == 2
+    assert remote.stats["tasks"] >= 1 and remote.stats["task_seconds"] > 0
+    _same_regions(serial, remote)
+    assert remote.stats["explored"] == serial.stats["explored"]
+    assert remote.stats["candidates"] == serial.stats["candidates"]
+
+
+@pytest.mark.parametrize("name", ["random_qp0", "random_qp4"])
+def test_numpy_kernel_on_a_cluster_gives_the_serial_regions(name, cluster, monkeypatch):
+    """Where the compiled kernel does not apply (forced here), chunks of candidates go to
+    the workers with the numpy kernel (sent in memory); the regions are the serial ones."""
+    serial = ce.mpsolve(PROGRAMS[name](), options=ce.SolveOptions(workers=1))
+    assert serial.num_regions > 20
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(mpqp, "_CHUNK", 4)  # (small problems: tasks of 4 candidates)
+    monkeypatch.setattr(mpqp._Kernel, "start_jit", lambda self: False)
+    remote = ce.mpsolve(PROGRAMS[name](), executor=cluster)
+    assert remote.stats.get("workers") == 2 and remote.stats["tasks"] > 1
+    _same_regions(serial, remote)
+
+
+def test_a_worker_killed_mid_search_changes_nothing(cluster, monkeypatch):
+    # small tasks (one batch each, 8 in flight), so the search is many tasks long
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
+    monkeypatch.setattr(mpqp, "_GROUP", 1)
+    monkeypatch.setattr(mpqp, "_DEPTH", 8)
+    serial = ce.mpsolve(_program(), options=ce.SolveOptions(workers=1))
+    client = cluster.client
+    pids = client.run(os.getpid)
+    killed: list[int] = []
+
+    def progress(found: int) -> None:
+        if found >= 100:
+            _kill_a_busy_worker(client, pids, killed)
+
+    remote = ce.mpsolve(_program(), executor=cluster, progress=progress)
+    assert killed, "no worker held a task once 100 regions were found"
+    assert remote.stats["tasks"] > 10
+    _same_regions(serial, remote)
+    _wait_for_workers(client, killed[0])
+
+
+# -- the nonlinear verification's cells ---------------------------------------------------------
+
+
+def _same_result(a, b) -> None:
+    assert (a.verdict, a.reason, a.detail) == (b.verdict, b.reason, b.detail)
+    for f in ("t_start", "t_end", "lower", "upper", "branch"):
+        np.testing.assert_array_equal(getattr(a.tube, f), getattr(b.tube, f))
+    for k in ("branches", "refinements", "partitions", "merges", "boxes"):
+        assert a.stats[k] == b.stats[k], k
+    assert (a.counterexample is None) == (b.counterexample is None)
+    if a.counterexample is not None:
+        ca, cb = a.counterexample, b.counterexample
+        assert (ca.kind, ca.index, ca.t) == (cb.kind, cb.index, cb.t)
+        np.testing.assert_array_equal(ca.x0, cb.x0)
+
+
+@pytest.fixture(scope="module")
+def cstr():
+    problem = ce.load_spec(CSTR)
+    law = ce.synthesize(problem)
+    return problem, law, ce.verify(problem, law)
+
+
+@pytest.mark.slow  # (~16 s on a quiet machine: the workers compile the plant's enclosures)
+def test_verification_cells_on_a_cluster_give_the_serial_result(cluster, cstr):
+    problem, law, serial = cstr
+    assert serial.stats["partitions"] > 1  # refined: several cells
+    _same_result(serial, ce.verify(problem, law, executor=cluster))
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_verification_changes_nothing(cluster, tmp_path):
+    """An unsafe variant of the CSTR (a wider initial set): ~30 cells before the
+    counterexample, cells computed ahead of it dropped; a worker killed once 4 cells are
+    taken."""
+    text = CSTR.read_text().replace(
+        "initial_set = { lower = [0.52, 351.0], upper = [0.56, 354.0] }",
+        "initial_set = { lower = [0.48, 347.0], upper = [0.60, 358.0] }",
+    )
+    spec = tmp_path / "cstr_wide.toml"
+    spec.write_text(text)
+    problem = ce.load_spec(spec)
+    law = ce.synthesize(problem)
+    serial = ce.verify(problem, law)
+    assert serial.verdict == "unsafe" and serial.stats["partitions"] > 8
+    client = cluster.client
+    pids = client.run(os.getpid)
+    killed: list[int] = []
+
+    def progress(stats: dict) -> None:
+        if stats["partitions"] >= 4:
+            _kill_a_busy_worker(client, pids, killed)
+
+    remote = ce.verify(problem, law, executor=cluster, progress=progress)
+    assert killed
+    _same_result(serial, remote)
+    _wait_for_workers(client, killed[0])
+
+
+# -- the command line ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", ["verify", "mpsolve"])
+def test_cli_bad_worker_count_is_one_line_exit_2(command):
+    target = CSTR if command != "mpsolve" else ROOT / "missing.npz"
+    out = run_codev(command, target, "--workers", "0", cwd=ROOT)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--workers" in lines[0], out.stderr
+
+
+@pytest.mark.slow
+def test_cli_run_on_two_workers_gives_the_serial_result(tmp_path):
+    serial = run_codev("verify", CSTR, "--json", cwd=ROOT, timeout=1200)
+    remote = run_codev("run", CSTR, "--json", "--workers", "2", "--session", tmp_path / "s",
+                       cwd=ROOT, timeout=1200)
+    assert serial.returncode == remote.returncode == 0, remote.stderr
+    a, b = json.loads(serial.stdout), json.loads(remote.stdout)
+    for key in ("verdict", "reason", "regions", "branches", "partitions", "boxes",
+                "tube_width_at_horizon"):
+        assert a[key] == b[key], key
