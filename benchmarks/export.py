@@ -104,7 +104,7 @@ def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path) -> dict:
     ex = plan(obj, method)
     build = time.perf_counter() - t0
     name = f"b_{method}"
-    h, c = export_c(obj, tmp, name=name, method=method)
+    h, c = export_c(ex, tmp, name=name)
     (tmp / f"drv_{method}.c").write_text(DRIVER.format(name=name, up=name.upper()))
     so = tmp / f"{name}.so"
     subprocess.run(
@@ -134,6 +134,8 @@ def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path) -> dict:
         "p99_ns": float(np.percentile(ns, 99)),
         "mismatches": int(np.count_nonzero(idx != ref)),
         "leaves": int(ex.tree.num_leaves),
+        "nodes": int(ex.tree.num_nodes),
+        "leaf_size": max([1] + [int(g.size) for g in ex.tree.leaf_group]),
     }
 
 
@@ -233,7 +235,8 @@ def main(argv: list[str] | None = None) -> int:
                   f"{s['worst_ns']:.0f} ns, mismatches {s['mismatches']}", flush=True)
             continue
         print(
-            f"{name}: {R} regions, n={d} | bst: build {b['build_s']:.2f} s, depth "
+            f"{name}: {R} regions, n={d} | bst: build {b['build_s']:.2f} s, "
+            f"{b['nodes']} nodes, leaves of <= {b['leaf_size']} regions, depth "
             f"{b['depth']} (target {2 * ceil_log2(R) + d}), worst {b['worst_tests']} rows / "
             f"{b['worst_macs']} MACs, ROM {b['rom_bytes']} B, median {b['median_ns']:.0f} ns, "
             f"worst {b['worst_ns']:.0f} ns, mismatches {b['mismatches']} | sequential: worst "

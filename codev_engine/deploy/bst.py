@@ -67,7 +67,7 @@ TABLE_ENTRIES = 4_000_000
 #: the most internal nodes per region (a tree past it is given up: TreeTooLargeError)
 NODES_PER_REGION = 100
 #: seconds of construction after which the tree is given up (TreeTooLargeError)
-TIME_LIMIT = 600.0
+TIME_LIMIT = 300.0
 #: vertex evaluations spent scoring a cell-sorted node's candidate hyperplanes (at least
 #: one chunk)
 BUDGET = 2e7
@@ -117,8 +117,9 @@ class Tree:
         Counters of the construction (``hyperplanes``: distinct ones, ``vertices``).
     leaf_group : list of (g_l,) ndarray of int
         A leaf whose proper regions all have one affine law (``build_tree(labels=...)``)
-        lists them, ascending: its fast path runs the rule over them alone (no further
-        split); empty for other leaves (or an empty list: none).
+        or are at most ``leaf_size`` lists them, ascending: its fast path runs the rule
+        over them alone (no further split); empty for other leaves (or an empty list:
+        none).
     """
 
     d: int
@@ -285,6 +286,7 @@ def build_tree(
     prune: bool = True,
     sort: str = "cell",
     labels: np.ndarray | None = None,
+    leaf_size: int = 1,
 ) -> Tree:
     """The binary search tree of regions ``{theta : A[off[i]:off[i+1]] theta <= b[...]}``.
 
@@ -309,6 +311,11 @@ def build_tree(
         A label per region (equal labels: equal affine laws). A node whose proper regions
         all carry one label is not split further: its leaf's fast path runs the rule
         over those regions (``Tree.leaf_group``), so it still returns ``locate``'s region.
+    leaf_size : int
+        A node with at most this many proper regions is not split further either: its
+        leaf checks them (a *bucket*, as a group leaf). 1: split down to one region. A
+        few regions a leaf bound the worst case by their rows while the tree of a large
+        partition has far fewer nodes (the last splits copy the most regions).
 
     Returns
     -------
@@ -471,7 +478,7 @@ def build_tree(
     def grow(P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]]) -> int:
         if P.size <= 1:
             return leaf(P, M, path, False)
-        if labels is not None and np.all(labels[P] == labels[P[0]]):
+        if P.size <= leaf_size or (labels is not None and np.all(labels[P] == labels[P[0]])):
             return leaf(P, M, path, False, group=True)
         if len(path) >= MAX_DEPTH:
             return leaf(P, M, path, True)
@@ -603,7 +610,7 @@ def build_tree(
         box_hi=box_hi,
         row_off=off,
         seconds=time.perf_counter() - t0,
-        leaf_group=[lf[6] for lf in leaves] if labels is not None else [],
+        leaf_group=[lf[6] for lf in leaves] if any(lf[6].size for lf in leaves) else [],
         stats={"hyperplanes": int(H), "vertices": int(V.shape[0]), "sort": sort, **stats},
     )
 

@@ -19,6 +19,9 @@ __all__ = [
 ]
 
 METHODS = ("bst", "sequential", "auto")
+#: above this many regions a tree leaf checks up to ``BUCKET`` regions (``plan``)
+BUCKET_FROM = 2000
+BUCKET = 8
 
 
 @dataclass(frozen=True)
@@ -177,7 +180,9 @@ def law_labels(dep: Deployable, decimals: int = 9) -> np.ndarray:
     return first[inverse.ravel()].astype(np.int64)
 
 
-def plan(obj, method: str = "auto", merge_equal_laws: bool = False) -> Export:
+def plan(
+    obj, method: str = "auto", merge_equal_laws: bool = False, leaf_size: int | None = None
+) -> Export:
     """Build the search of an export.
 
     Parameters
@@ -190,6 +195,9 @@ def plan(obj, method: str = "auto", merge_equal_laws: bool = False) -> Export:
         stops splitting where the regions left all have one law, and that leaf runs the
         locator's rule over them (so the code still returns ``locate``'s region and
         its own law). Fewer nodes and leaves; the leaf checks more rows.
+    leaf_size : int, optional
+        Regions a tree leaf may check (``bst.build_tree``); default 1 up to
+        ``BUCKET_FROM`` regions, ``BUCKET`` beyond (a large partition's tree stays small).
 
     Returns
     -------
@@ -211,9 +219,12 @@ def plan(obj, method: str = "auto", merge_equal_laws: bool = False) -> Export:
     if method in ("bst", "auto"):
         try:
             labels = law_labels(dep) if merge_equal_laws else None
-            choices.append(
-                ("bst", build_tree(dep.A, dep.b, dep.off, dep.boxes, labels=labels))
+            if leaf_size is None:
+                leaf_size = 1 if dep.num_regions <= BUCKET_FROM else BUCKET
+            tree = build_tree(
+                dep.A, dep.b, dep.off, dep.boxes, labels=labels, leaf_size=leaf_size
             )
+            choices.append(("bst", tree))
         except TreeTooLargeError:
             if method == "bst":
                 raise

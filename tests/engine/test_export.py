@@ -431,6 +431,63 @@ def test_magnetic_pointer_1008_regions_1e5_states(tmp_path, request):
     assert_agrees(lw, C, facet_points(lw, 3, seed=13, cap=100_000))
 
 
+@needs_cc
+@pytest.mark.parametrize("key", ["voronoi", "simplices"])
+def test_buckets_of_a_few_regions_agree_and_certify(key, tmp_path):
+    """Leaves of up to 4 proper regions (``leaf_size``, what a large partition gets): a
+    smaller tree, the same regions as locate, the worst case still the traversal's."""
+    lw = law(key)
+    ex = plan(lw, "bst", leaf_size=4)
+    t = ex.tree
+    assert max(g.size for g in t.leaf_group) > 1
+    assert t.num_leaves < plan(lw, "bst").tree.num_leaves
+    assert ex.tests == t.cost()["tests"]
+    C = Compiled(ex, tmp_path, count=True)
+    assert C.define("WORST_TESTS") == ex.tests
+    X = np.vstack([random_points(lw, 5000, seed=31), facet_points(lw, 2, seed=32, cap=5000)])
+    assert_agrees(lw, C, X)
+    most = 0
+    for p in range(0, X.shape[0], 5):
+        C.count.value = 0
+        C(X[p : p + 1])
+        most = max(most, C.count.value)
+    assert 0 < most <= ex.tests
+
+
+@needs_cc
+@pytest.mark.slow
+def test_a_test_set_mp_qp_tree_on_1e5_states(tmp_path, request):
+    """pop_mpqp_043 of the mp test set (899 regions, d = 4; its vertex-sorted tree passed
+    90,000 nodes): the cell-sorted tree with buckets, 10^5 states and every facet."""
+    if "slow" not in (request.config.getoption("markexpr") or "") and not os.environ.get(
+        "CODEV_SLOW"
+    ):
+        pytest.skip("a test-set mp-QP through the tree: run with -m slow")
+    from tests.engine.test_mp_testset import TESTSET
+
+    f = TESTSET / "pop_mpqp_043.npz"
+    if not f.is_file():
+        pytest.skip(f"mp_testset not found: {f}")
+    keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta")
+    with np.load(f, allow_pickle=False) as z:
+        sol = ce.mpsolve(ce.MpProgram(**{k: z[k] for k in keys}, name=f.stem))
+    ex = plan(sol, "bst", leaf_size=8)
+    assert ex.method == "bst" and ex.tests == ex.tree.cost()["tests"]
+    C = Compiled(ex, tmp_path)
+    X = np.random.default_rng(41).uniform(-10.5, 10.5, size=(100_000, ex.dep.F.shape[2]))
+    idx, Z = C(X)
+    ref = sol.locate(X)
+    assert np.array_equal(idx, ref)
+    inside = ref >= 0
+    assert inside.sum() > 10_000
+    assert np.allclose(Z[inside], sol.primal(X[inside]), rtol=1e-12, atol=1e-12)
+    lw_like = type("L", (), {})()
+    lw_like.A = [ex.dep.A[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    lw_like.b = [ex.dep.b[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    Xf = facet_points(lw_like, 1, seed=42, cap=100_000)
+    assert np.array_equal(C(Xf)[0], sol.locate(Xf))
+
+
 def test_a_tree_past_its_budget_leaves_the_sequential_search(monkeypatch, tmp_path, capsys):
     """The voronoi law needs over 7,000 nodes: with a budget of 1,000, ``auto`` takes the
     sequential search and ``bst`` says why in one line (exit 1: not the input's fault)."""
