@@ -456,13 +456,9 @@ def test_buckets_of_a_few_regions_agree_and_certify(key, tmp_path):
 
 @needs_cc
 @pytest.mark.slow
-def test_a_test_set_mp_qp_tree_on_1e5_states(tmp_path, request):
+def test_a_test_set_mp_qp_tree_on_1e5_states(tmp_path):
     """pop_mpqp_043 of the mp test set (899 regions, d = 4; its vertex-sorted tree passed
     90,000 nodes): the cell-sorted tree with buckets, 10^5 states and every facet."""
-    if "slow" not in (request.config.getoption("markexpr") or "") and not os.environ.get(
-        "CODEV_SLOW"
-    ):
-        pytest.skip("a test-set mp-QP through the tree: run with -m slow")
     from tests.engine.test_mp_testset import TESTSET
 
     f = TESTSET / "pop_mpqp_043.npz"
