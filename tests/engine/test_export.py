@@ -432,7 +432,7 @@ def test_magnetic_pointer_1008_regions_1e5_states(tmp_path, request):
 
 
 @needs_cc
-@pytest.mark.parametrize("key", ["voronoi", "simplices"])
+@pytest.mark.parametrize("key", ["magnetic_pointer_c:inf:unmerged", "simplices"])
 def test_buckets_of_a_few_regions_agree_and_certify(key, tmp_path):
     """Leaves of up to 4 proper regions (``leaf_size``, what a large partition gets): a
     smaller tree, the same regions as locate, the worst case still the traversal's."""
