@@ -10,20 +10,27 @@ How the tree keeps that rule
 ----------------------------
 Each internal node tests a hyperplane ``s = a theta - b`` (unit ``a``; one of the regions'
 facets, duplicates merged) and goes left when ``s <= 0``. The regions are sorted into the
-children by the vertices of each region *enlarged by* ``tol`` (every point that can hold or
-be near the region is in their convex hull): a region is a *member* of the left child when
-some vertex has ``s <= eps`` and *proper* there when some vertex has ``s < -eps`` (right:
-mirrored), with ``eps = 1e-9 (1 + |b|)``. A member that is not proper only touches the
-hyperplane (a neighbour across a shared facet). Splitting stops when at most one proper
-region is left (the leaf's *owner*), and no hyperplane takes a proper region off.
+children by their part inside the node's *cell* (the half-spaces its path took; the
+default, ``sort="cell"``): a region (*enlarged by* ``tol``) is a *member* of the left child
+unless its part of the cell, widened, is proved to lie beyond ``s > eps``, and *proper*
+there unless its part of the cell shrunk by ``PROPER (1 + |b|)`` per test (where the fast
+path runs) is proved to lie within ``s > -PROPER (1 + |b|)`` (right: mirrored). Proofs
+come from the enlarged vertices (their hull holds every point that can hold or be near
+the region) or from a certified LP (``prune_kernel.split_node``). With ``sort="vertices"``
+(the first version) all of a region's vertices decide: member when some vertex has
+``s <= eps``, proper when some has ``s < -eps``. A member that is not proper only touches
+the hyperplane (a neighbour across a shared facet) or lies beyond it within the cell.
+Splitting stops when at most one proper region is left (the leaf's *owner*), at a bucket
+(at most ``leaf_size`` proper regions, or all of one law: the fast path runs the rule
+over them), or where no hyperplane takes a proper region off.
 
 At run time every test also notes whether ``|s| <= delta`` (``delta = 1e-7 (1 + |b|)``,
 float32: ``1e-4 (1 + |b|)``): the point is *near* a tested hyperplane.
 
 * Not near (the fast path): the point is more than ``delta`` inside every tested
-  half-space, so it is outside every region that was dropped or only touches (each lies,
-  enlarged, within ``eps`` beyond some tested hyperplane): only the owner can hold it or
-  be near it. The owner's rows are evaluated (those equal to a tested hyperplane, on the
+  half-space, so it is outside every region that was dropped or is not proper (each was
+  proved apart from that part of a cell): only the owner (a bucket's regions) can hold it
+  or be near it. The owner's rows are evaluated (those equal to a tested hyperplane, on the
   side taken, are negative there and skipped) and the rule decides between the owner and
   -1.
 * Near: the rule is evaluated over the leaf's members (owner and touching regions, in
