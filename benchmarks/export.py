@@ -96,15 +96,18 @@ def states_inside(law, dep, count: int, seed: int) -> np.ndarray:
     return np.vstack(out)[:count]
 
 
-def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path) -> dict:
+def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path,
+          leaf_size: int | None = None) -> dict:
     from codev_engine.deploy.export import export_c
     from codev_engine.deploy.plan import plan
 
     t0 = time.perf_counter()
-    ex = plan(obj, method)
+    c0 = time.process_time()
+    ex = plan(obj, method, leaf_size=leaf_size)
+    build_cpu = time.process_time() - c0
     build = time.perf_counter() - t0
     name = f"b_{method}"
-    h, c = export_c(obj, tmp, name=name, method=method)
+    h, c = export_c(ex, tmp, name=name)
     (tmp / f"drv_{method}.c").write_text(DRIVER.format(name=name, up=name.upper()))
     so = tmp / f"{name}.so"
     subprocess.run(
@@ -125,6 +128,7 @@ def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path) -> dict:
     return {
         "method": ex.method,
         "build_s": build,
+        "build_cpu_s": build_cpu,
         "depth": ex.depth,
         "worst_tests": ex.tests,
         "worst_macs": ex.macs,
@@ -134,6 +138,8 @@ def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path) -> dict:
         "p99_ns": float(np.percentile(ns, 99)),
         "mismatches": int(np.count_nonzero(idx != ref)),
         "leaves": int(ex.tree.num_leaves),
+        "nodes": int(ex.tree.num_nodes),
+        "leaf_size": max([1] + [int(g.size) for g in ex.tree.leaf_group]),
     }
 
 
@@ -183,13 +189,21 @@ def main(argv: list[str] | None = None) -> int:
                     help="an mp_testset problem (.npz) to solve and export, or a solution "
                     "saved by codev mpsolve --out")
     ap.add_argument("--no-peer", action="store_true")
+    ap.add_argument("--leaf-size", type=int, default=None,
+                    help="regions a tree leaf may check (default: plan's, 8 above 2,000)")
+    ap.add_argument("--time-limit", type=float, default=None,
+                    help="seconds before the tree is given up (default: bst.TIME_LIMIT)")
     ap.add_argument("--json")
     args = ap.parse_args(argv)
     if shutil.which("gcc") is None:
         print("no gcc on PATH: nothing to measure")
         return 0
     import codev_engine as ce
+    from codev_engine.deploy import bst
     from codev_engine.deploy.plan import ceil_log2, deployable, plan
+
+    if args.time_limit is not None:
+        bst.TIME_LIMIT = args.time_limit
 
     # warm up the compiled code (numba caches) on a small law
     plan(ce.synthesize(ce.load_spec(ROOT / "examples" / "double_integrator.toml")), "bst")
@@ -220,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             s = run_c(obj, "sequential", X, ref, Path(tmp))
             try:
-                b = run_c(obj, "bst", X, ref, Path(tmp))
+                b = run_c(obj, "bst", X, ref, Path(tmp), args.leaf_size)
             except TreeTooLargeError as exc:
                 b = None
                 print(f"{name}: no tree: {exc}", flush=True)
@@ -233,7 +247,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"{s['worst_ns']:.0f} ns, mismatches {s['mismatches']}", flush=True)
             continue
         print(
-            f"{name}: {R} regions, n={d} | bst: build {b['build_s']:.2f} s, depth "
+            f"{name}: {R} regions, n={d} | bst: build {b['build_s']:.2f} s "
+            f"({b['build_cpu_s']:.2f} s CPU), "
+            f"{b['nodes']} nodes, leaves of <= {b['leaf_size']} regions, depth "
             f"{b['depth']} (target {2 * ceil_log2(R) + d}), worst {b['worst_tests']} rows / "
             f"{b['worst_macs']} MACs, ROM {b['rom_bytes']} B, median {b['median_ns']:.0f} ns, "
             f"worst {b['worst_ns']:.0f} ns, mismatches {b['mismatches']} | sequential: worst "

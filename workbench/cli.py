@@ -881,7 +881,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
         obj = ExplicitLaw.load(args.file)
     try:
-        ex = plan(obj, args.method)
+        ex = plan(obj, args.method, merge_equal_laws=args.merge_equal_laws)
     except SpecError as exc:
         raise (exc if exc.file else exc.with_file(str(args.file))) from None
     R, d = ex.dep.num_regions, ex.dep.F.shape[2]
@@ -891,10 +891,10 @@ def _cmd_export(args: argparse.Namespace) -> int:
         f"{ex.tests} row evaluations, {ex.macs} multiply-adds per call"
     )
     if args.c:
-        h, c = export_c(obj, args.c, name=args.name, float32=args.float32, method=ex.method)
+        h, c = export_c(ex, args.c, name=args.name, float32=args.float32)
         print(f"C written to {h} and {c}")
     if args.python:
-        path = export_python(obj, args.python, method=ex.method)
+        path = export_python(ex, args.python)
         print(f"Python written to {path}")
     return 0
 
@@ -1099,6 +1099,8 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--float32", action="store_true", help="float instead of double in C")
     p.add_argument("--method", default="auto", choices=("bst", "sequential", "auto"),
                    help="binary search tree, sequential search, or the cheaper (default)")
+    p.add_argument("--merge-equal-laws", action="store_true",
+                   help="regions with equal laws share tree leaves (same region returned)")
     p.set_defaults(func=_cmd_export)
     for name in ("synth", "verify", "run", "sweep", "replay", "mpsolve", "report"):
         sub.choices[name].add_argument(

@@ -10,20 +10,27 @@ How the tree keeps that rule
 ----------------------------
 Each internal node tests a hyperplane ``s = a theta - b`` (unit ``a``; one of the regions'
 facets, duplicates merged) and goes left when ``s <= 0``. The regions are sorted into the
-children by the vertices of each region *enlarged by* ``tol`` (every point that can hold or
-be near the region is in their convex hull): a region is a *member* of the left child when
-some vertex has ``s <= eps`` and *proper* there when some vertex has ``s < -eps`` (right:
-mirrored), with ``eps = 1e-9 (1 + |b|)``. A member that is not proper only touches the
-hyperplane (a neighbour across a shared facet). Splitting stops when at most one proper
-region is left (the leaf's *owner*), and no hyperplane takes a proper region off.
+children by their part inside the node's *cell* (the half-spaces its path took; the
+default, ``sort="cell"``): a region (*enlarged by* ``tol``) is a *member* of the left child
+unless its part of the cell, widened, is proved to lie beyond ``s > eps``, and *proper*
+there unless its part of the cell shrunk by ``PROPER (1 + |b|)`` per test (where the fast
+path runs) is proved to lie within ``s > -PROPER (1 + |b|)`` (right: mirrored). Proofs
+come from the enlarged vertices (their hull holds every point that can hold or be near
+the region) or from a certified LP (``prune_kernel.split_node``). With ``sort="vertices"``
+(the first version) all of a region's vertices decide: member when some vertex has
+``s <= eps``, proper when some has ``s < -eps``. A member that is not proper only touches
+the hyperplane (a neighbour across a shared facet) or lies beyond it within the cell.
+Splitting stops when at most one proper region is left (the leaf's *owner*), at a bucket
+(at most ``leaf_size`` proper regions, or all of one law: the fast path runs the rule
+over them), or where no hyperplane takes a proper region off.
 
 At run time every test also notes whether ``|s| <= delta`` (``delta = 1e-7 (1 + |b|)``,
 float32: ``1e-4 (1 + |b|)``): the point is *near* a tested hyperplane.
 
 * Not near (the fast path): the point is more than ``delta`` inside every tested
-  half-space, so it is outside every region that was dropped or only touches (each lies,
-  enlarged, within ``eps`` beyond some tested hyperplane): only the owner can hold it or
-  be near it. The owner's rows are evaluated (those equal to a tested hyperplane, on the
+  half-space, so it is outside every region that was dropped or is not proper (each was
+  proved apart from that part of a cell): only the owner (a bucket's regions) can hold it
+  or be near it. The owner's rows are evaluated (those equal to a tested hyperplane, on the
   side taken, are negative there and skipped) and the rule decides between the owner and
   -1.
 * Near: the rule is evaluated over the leaf's members (owner and touching regions, in
@@ -57,14 +64,27 @@ class TreeTooLargeError(SolverError):
 LOCATE_TOL = 1e-9
 #: classification slack (relative to ``1 + |b|``) of the vertices against a hyperplane
 EPS = 1e-8
+#: the cell sort's margin of a proper region: half the smallest run-time delta (a point
+#: on the fast path is more than delta inside every tested half-space, rounding included)
+PROPER = 5e-7
 #: the run-time "near a tested hyperplane" margin (relative to ``1 + |b|``), per precision
 DELTA = {"double": 1e-6, "float": 1e-4}
 #: below this many hyperplanes x regions, their extents are tabulated once
 TABLE_ENTRIES = 4_000_000
 #: the most internal nodes per region (a tree past it is given up: TreeTooLargeError)
 NODES_PER_REGION = 100
-#: seconds of construction after which the tree is given up (TreeTooLargeError)
-TIME_LIMIT = 60.0
+#: CPU seconds of construction after which the tree is given up (TreeTooLargeError; CPU,
+#: not wall time: the verdict does not depend on the load of the machine)
+TIME_LIMIT = 300.0
+#: vertex evaluations spent scoring a cell-sorted node's candidate hyperplanes (at least
+#: one chunk)
+BUDGET = 2e7
+#: candidates of a cell-sorted node confirmed by LPs, at most, before the best by all
+#: vertices
+TRIES = 6
+#: the cell sort's charge per region copied into both children of a split (0: balance
+#: first, as in Tøndel et al.)
+DUPLICATE_WEIGHT = 0.25
 #: the deepest tree built; a node deeper becomes a leaf that checks all its members
 MAX_DEPTH = 64
 
@@ -103,6 +123,11 @@ class Tree:
         Construction time.
     stats : dict
         Counters of the construction (``hyperplanes``: distinct ones, ``vertices``).
+    leaf_group : list of (g_l,) ndarray of int
+        A leaf whose proper regions all have one affine law (``build_tree(labels=...)``)
+        or are at most ``leaf_size`` lists them, ascending: its fast path runs the rule
+        over them alone (no further split); empty for other leaves (or an empty list:
+        none).
     """
 
     d: int
@@ -119,6 +144,22 @@ class Tree:
     row_off: np.ndarray
     seconds: float = 0.0
     stats: dict = field(default_factory=dict)
+    leaf_group: list[np.ndarray] = field(default_factory=list)
+
+    def group(self, leaf: int) -> np.ndarray:
+        """The proper regions a group leaf checks on its fast path (empty otherwise).
+
+        Parameters
+        ----------
+        leaf : int
+
+        Returns
+        -------
+        (g,) ndarray of int
+        """
+        if not self.leaf_group:
+            return np.zeros(0, dtype=np.int64)
+        return self.leaf_group[leaf]
 
     @property
     def num_nodes(self) -> int:
@@ -147,6 +188,8 @@ class Tree:
             dep = int(self.leaf_depth[leaf])
             members = int(nrows[self.leaf_members[leaf]].sum())
             own = members if self.leaf_general[leaf] else int(self.leaf_fast[leaf].size)
+            if self.group(leaf).size:
+                own = int(nrows[self.group(leaf)].sum())
             depth = max(depth, dep)
             fast = max(fast, dep + own)
             tests = max(tests, dep + max(own, members))
@@ -173,6 +216,17 @@ class Tree:
                 else:
                     out[-1 - int(child)] = dep + 1
         return out
+
+
+def _score(nl, nr, p: int, cellwise: bool):
+    """The score of a split into ``nl`` and ``nr`` proper regions of ``p`` (lower is
+    better): the larger side, then the sum (Tøndel et al.); the cell sort also charges
+    each region copied into both children ``DUPLICATE_WEIGHT`` (a thin region crossed by
+    many hyperplanes multiplies the leaves)."""
+    worst = np.maximum(nl, nr)
+    if cellwise:
+        worst = worst + DUPLICATE_WEIGHT * np.maximum(nl + nr - p, 0)
+    return worst * (2 * p + 1) + (nl + nr)
 
 
 def _normalised(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -238,6 +292,9 @@ def build_tree(
     boxes: tuple[np.ndarray, np.ndarray],
     *,
     prune: bool = True,
+    sort: str = "cell",
+    labels: np.ndarray | None = None,
+    leaf_size: int = 1,
 ) -> Tree:
     """The binary search tree of regions ``{theta : A[off[i]:off[i+1]] theta <= b[...]}``.
 
@@ -251,8 +308,22 @@ def build_tree(
         Bounding boxes of the regions (``ExplicitLaw.boxes``): the fallback for a region
         whose vertices cannot be trusted.
     prune : bool
-        Take off a leaf's member list every region that an LP proves apart from the leaf's
-        cell (see :func:`_prune_members`).
+        With ``sort="vertices"``: take off a leaf's member list every region that an LP
+        proves apart from the leaf's cell (see :func:`_prune_members`).
+    sort : {"cell", "vertices"}
+        How a node sorts its regions into its children: by their part inside the node's
+        cell (vertices first, an LP where they cannot decide; the default), or by all
+        their vertices (the first version: a region crossing many hyperplanes is copied
+        into many leaves).
+    labels : (R,) ndarray of int, optional
+        A label per region (equal labels: equal affine laws). A node whose proper regions
+        all carry one label is not split further: its leaf's fast path runs the rule
+        over those regions (``Tree.leaf_group``), so it still returns ``locate``'s region.
+    leaf_size : int
+        A node with at most this many proper regions is not split further either: its
+        leaf checks them (a *bucket*, as a group leaf). 1: split down to one region. A
+        few regions a leaf bound the worst case by their rows while the tree of a large
+        partition has far fewer nodes (the last splits copy the most regions).
 
     Returns
     -------
@@ -261,19 +332,25 @@ def build_tree(
     Raises
     ------
     TreeTooLargeError
-        Past ``NODES_PER_REGION`` internal nodes per region or ``TIME_LIMIT`` seconds, or
+        Past ``NODES_PER_REGION`` internal nodes per region or ``TIME_LIMIT`` CPU seconds
+        of this process, or
         when the vertices of over a quarter of the regions cannot be enumerated.
     """
     import time
 
     t0 = time.perf_counter()
+    c0 = time.process_time()
     A = np.asarray(A, dtype=float)
     b = np.asarray(b, dtype=float)
     off = np.asarray(off, dtype=np.int64)
+    labels = None if labels is None else np.asarray(labels, dtype=np.int64)
     R = off.size - 1
     d = A.shape[1]
+    if sort not in ("cell", "vertices"):
+        raise ValueError(f"unknown sort {sort!r}")
+    cellwise = sort == "cell"
     V, owner, boxed = _enlarged_vertices(A, b, off, boxes)
-    if boxed > max(8, R // 4):
+    if boxed > max(8, R // 4) and not cellwise:
         # boxes overlap wherever the regions are thin and oblique: the sort by hyperplanes
         # would copy most regions into most leaves (pop_mpqp_007, d = 8, 12,232 regions
         # of 22-45 rows: every region boxed, no tree after 10 minutes)
@@ -343,8 +420,15 @@ def build_tree(
     nodes_next: list[list[int]] = []
     leaves: list[tuple] = []
 
-    def leaf(P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]], general: bool) -> int:
+    def leaf(
+        P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]], general: bool,
+        group: bool = False,
+    ) -> int:
         members = np.union1d(P, M).astype(np.int64)
+        if group:
+            leaves.append([-1, False, np.zeros(0, dtype=np.int64), members, len(path),
+                           list(path), np.sort(P).astype(np.int64)])
+            return -1 - (len(leaves) - 1)
         own = int(P[0]) if P.size == 1 and not general else -1
         fast = np.zeros(0, dtype=np.int64)
         if own >= 0:
@@ -359,13 +443,53 @@ def build_tree(
                     gap = np.abs(Ac[j] - H_A[h]).sum() * xmax + abs(bc[j] - H_b[h])
                     skip[q] = gap <= 0.25 * DELTA["double"] * (1.0 + abs(H_b[h]))
             fast = rows[~skip]
-        leaves.append([own, general or P.size > 1, fast, members, len(path), list(path)])
+        leaves.append([own, general or P.size > 1, fast, members, len(path), list(path),
+                       np.zeros(0, dtype=np.int64)])
         return -1 - (len(leaves) - 1)
 
-    # depth-first, an explicit stack: (proper, members, path, parent node, side)
+    # the cell sort: the LPs' data (regions enlarged by tol, plus a rounding margin of
+    # the violation's sum; the box of all regions)
+    be_lp = bn + LOCATE_TOL / nrm + 1e-13 * (1.0 + np.abs(bn) + xmax)
+    box_A = np.vstack([np.eye(d), -np.eye(d)])
+    box_b = np.concatenate([box_hi, -box_lo])
+    stats = {"retries": 0}
+
+    def cell_rows(path: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+        """The cell of a path, widened (every point that takes the path lies in it,
+        rounding of ``s`` included)."""
+        if not path:
+            return np.zeros((0, d)), np.zeros(0), np.zeros(0)
+        hs = np.array([h for h, _ in path], dtype=np.int64)
+        sg = np.array([1.0 if side == 0 else -1.0 for _, side in path])
+        wid = EPS * (1.0 + np.abs(H_b[hs])) + 1e-14 * xmax
+        shrink = PROPER * (1.0 + np.abs(H_b[hs]))
+        return (np.ascontiguousarray(H_A[hs] * sg[:, None]),
+                np.ascontiguousarray(H_b[hs] * sg + wid),
+                np.ascontiguousarray(H_b[hs] * sg - shrink))
+
+    from codev_engine.deploy.prune_kernel import local_counts, split_node
+
+    vstart = (vend - vcount).astype(np.int64)
+    Vc = np.ascontiguousarray(V)
+    An_c = np.ascontiguousarray(An)
+    in_tol = 1e-9 * (1.0 + xmax)
+    no_rows = (np.zeros((0, d)), np.zeros(0))
+
+    def split(h: int, allm: np.ndarray, inP: np.ndarray, CA, Cb, Cbp):
+        """Members and proper regions of both children (``prune_kernel.split_node``)."""
+        got = split_node(
+            Vc, vstart, vcount, allm, inP, CA, Cb, Cbp, in_tol, H_A[h], float(H_b[h]),
+            EPS * (1.0 + abs(H_b[h])), PROPER * (1.0 + abs(H_b[h])), An_c, be_lp, off,
+            box_A, box_b, xmax + 1.0, 500,
+        )
+        return got[:, 0], got[:, 1], got[:, 2], got[:, 3]
+
+    # depth-first: (proper, members, path)
     def grow(P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]]) -> int:
         if P.size <= 1:
             return leaf(P, M, path, False)
+        if P.size <= leaf_size or (labels is not None and np.all(labels[P] == labels[P[0]])):
+            return leaf(P, M, path, False, group=True)
         if len(path) >= MAX_DEPTH:
             return leaf(P, M, path, True)
         used = {h for h, _ in path}
@@ -374,40 +498,97 @@ def build_tree(
             cand = cand[~np.isin(cand, np.fromiter(used, dtype=np.int64))]
         if cand.size == 0:
             return leaf(P, M, path, True)
-        # the candidates in chunks of at most ~2e7 vertex evaluations; the best of the
-        # first chunk that takes a proper region off each side
-        per = int(np.clip(2e7 / max(1, int(vcount[P].sum())), 16, 4096))
+        CA, Cb, Cbp = cell_rows(path) if cellwise else (None, None, None)
+        nvert = int(vcount[P].sum())
+        # the candidates in chunks of at most ~2e7 vertex evaluations (the first chunks
+        # up to BUDGET evaluations in all, at least one)
+        per = int(np.clip(2e7 / max(1, nvert), 16, 4096))
         if cand.size > per:
             cand = np.random.default_rng(len(nodes_b)).permutation(cand)
-        best_h, best = -1, None
-        for c0 in range(0, cand.size, per):
-            chunk = cand[c0 : c0 + per]
-            lo, hi = extents(chunk, P)
-            nl = (lo < -1.0).sum(axis=1)
-            nr = (hi > 1.0).sum(axis=1)
-            worst = np.maximum(nl, nr)
-            score = worst * (2 * P.size + 1) + (nl + nr)
-            k = int(np.argmin(score))
-            if best is None or score[k] < best[0]:
-                best_h, best = int(chunk[k]), (int(score[k]), int(worst[k]))
-            if best[1] < P.size:
-                break
-        if best[1] >= P.size:
-            return leaf(P, M, path, True)
-        h = best_h
+        allm = np.union1d(P, M)
+        inP = np.isin(allm, P)
+
+        def choose(local_scores: bool, keep: int = 1) -> list[tuple[int, int, int]]:
+            """The ``keep`` candidates of the best scores, ``(score, worst, h)``, best
+            first; score ``worst * (2 |P| + 1) + (nl + nr)`` over the counts of proper
+            regions each side, by all vertices (an upper bound of the split, which the
+            cell sort can only improve on) or by those in the cell (an estimate, to be
+            confirmed)."""
+            best: list[tuple[int, int, int]] = []
+            spent = 0
+            for c0 in range(0, cand.size, per):
+                chunk = cand[c0 : c0 + per]
+                if local_scores or (cellwise and table is None):
+                    # (with no cell rows: every vertex counts)
+                    nl, nr = local_counts(
+                        Vc, vstart, vcount, P, CA if local_scores else no_rows[0],
+                        Cb if local_scores else no_rows[1], in_tol, H_A, H_b, chunk,
+                        (PROPER if cellwise else EPS) * (1.0 + np.abs(H_b[chunk])),
+                    )
+                else:
+                    lo, hi = extents(chunk, P)
+                    nl = (lo < -1.0).sum(axis=1)
+                    nr = (hi > 1.0).sum(axis=1)
+                worst = np.maximum(nl, nr)
+                score = _score(nl, nr, P.size, cellwise)
+                top = np.argsort(score, kind="stable")[:keep]
+                best = sorted(
+                    best + [(int(score[k]), int(worst[k]), int(chunk[k])) for k in top]
+                )[:keep]
+                spent += chunk.size * nvert
+                if best[0][1] < P.size and (not cellwise or spent >= BUDGET):
+                    break
+            return best
+
+        def tried(h: int):
+            got = split(h, allm, inP, CA, Cb, Cbp)
+            nl, nr = int(np.count_nonzero(got[1])), int(np.count_nonzero(got[3]))
+            return int(_score(nl, nr, P.size, True)), max(nl, nr), h, got
+
+        glob = choose(False)
+        if not cellwise:
+            if not glob or glob[0][1] >= P.size:
+                return leaf(P, M, path, True)
+            h = glob[0][2]
+            lo, hi = extents(np.array([h]), allm)
+            sides = ((lo[0] <= 1.0, lo[0] < -1.0), (hi[0] >= -1.0, hi[0] > 1.0))
+        else:
+            # the cell's estimates, best first, confirmed by the LPs of the split; then
+            # the best by all vertices (whose split is at least as good as its score)
+            bound_g = glob[0][0] if glob and glob[0][1] < P.size else None
+            best_o = None
+            loc = choose(True, 4 * TRIES)
+            for q, (est, _, h) in enumerate(loc):
+                if bound_g is not None and est >= bound_g:
+                    break
+                if q >= TRIES and best_o is not None:
+                    break
+                o = tried(h)
+                if o[1] < P.size and (best_o is None or o[0] < best_o[0]):
+                    best_o = o
+                else:
+                    stats["retries"] += 1
+                nxt = loc[q + 1][0] if q + 1 < len(loc) else None
+                if best_o is not None and (nxt is None or best_o[0] <= nxt):
+                    break
+            if bound_g is not None and (best_o is None or best_o[0] > bound_g):
+                o = tried(glob[0][2])
+                if best_o is None or o[0] < best_o[0]:
+                    best_o = o
+            if best_o is None or best_o[1] >= P.size:
+                return leaf(P, M, path, True)
+            _, _, h, got = best_o
+            sides = ((got[0], got[1]), (got[2], got[3]))
         node = len(nodes_b)
-        if node >= max_nodes or (node % 256 == 0 and time.perf_counter() - t0 > TIME_LIMIT):
+        if node >= max_nodes or (node % 256 == 0 and time.process_time() - c0 > TIME_LIMIT):
             raise TreeTooLargeError(
                 f"the search tree for {R} regions in {d} dimensions would exceed "
-                f"{max_nodes} nodes or {TIME_LIMIT:g} s (use the sequential search)"
+                f"{max_nodes} nodes or {TIME_LIMIT:g} s of CPU ({node} nodes after "
+                f"{time.process_time() - c0:.0f} s; use the sequential search)"
             )
         nodes_a.append(H_A[h])
         nodes_b.append(float(H_b[h]))
         nodes_next.append([0, 0])
-        allm = np.union1d(P, M)
-        lo, hi = extents(np.array([h]), allm)
-        inP = np.isin(allm, P)
-        sides = ((lo[0] <= 1.0, lo[0] < -1.0), (hi[0] >= -1.0, hi[0] > 1.0))
         for side, (mem, prop) in enumerate(sides):
             Pc = allm[prop & inP]
             Mc = allm[mem & ~(prop & inP)]
@@ -422,7 +603,7 @@ def build_tree(
         grow(np.arange(R, dtype=np.int64), np.zeros(0, dtype=np.int64), [])
     finally:
         sys.setrecursionlimit(limit)
-    if prune:
+    if prune and not cellwise:
         _prune_members(leaves, An, bn + LOCATE_TOL / nrm, off, H_A, H_b, box_lo, box_hi, xmax)
     node_next = np.array(nodes_next, dtype=np.int64).reshape(-1, 2)
     return Tree(
@@ -439,7 +620,8 @@ def build_tree(
         box_hi=box_hi,
         row_off=off,
         seconds=time.perf_counter() - t0,
-        stats={"hyperplanes": int(H), "vertices": int(V.shape[0])},
+        leaf_group=[lf[6] for lf in leaves] if any(lf[6].size for lf in leaves) else [],
+        stats={"hyperplanes": int(H), "vertices": int(V.shape[0]), "sort": sort, **stats},
     )
 
 

@@ -39,11 +39,7 @@ def tables(ex: Export, float32: bool) -> dict[str, tuple[str, np.ndarray]]:
     """
     t, dep = ex.tree, ex.dep
     real = "float" if float32 else "double"
-    owner = np.where(t.leaf_general, -2, t.leaf_owner)
-    fast_start = np.concatenate([[0], np.cumsum([f.size for f in t.leaf_fast])])
-    mem_start = np.concatenate([[0], np.cumsum([m.size for m in t.leaf_members])])
-    fast = np.concatenate(t.leaf_fast + [np.zeros(0, dtype=np.int64)])
-    mem = np.concatenate(t.leaf_members + [np.zeros(0, dtype=np.int64)])
+    owner, fast_start, fast, mem_start, mem, group_start = leaf_tables(t)
     out: dict[str, tuple[str, np.ndarray]] = {}
 
     def put(name, arr, kind):
@@ -70,6 +66,8 @@ def tables(ex: Export, float32: bool) -> dict[str, tuple[str, np.ndarray]]:
     put("leaf_fast", fast_start, "int")
     put("fast_rows", fast, "int")
     put("leaf_members", mem_start, "int")
+    if group_start is not None:
+        put("leaf_group", group_start, "int")
     put("members", mem, "int")
     put("row_start", dep.off, "int")
     put("row_a", dep.A, "real")
@@ -77,6 +75,39 @@ def tables(ex: Export, float32: bool) -> dict[str, tuple[str, np.ndarray]]:
     put("law_F", dep.F, "real")
     put("law_G", dep.G, "real")
     return out
+
+
+def leaf_tables(t) -> tuple:
+    """The leaves as flat tables (shared by the C and the Python writers).
+
+    Parameters
+    ----------
+    t : Tree
+
+    Returns
+    -------
+    owner : (L,) ndarray of int
+        The owner, -1 none, -2 a general leaf, -3 a group leaf.
+    fast_start, fast : ndarrays of int
+        Leaf ``l``'s fast-path rows are ``fast[fast_start[l]:fast_start[l + 1]]``.
+    mem_start, mem : ndarrays of int
+        Leaf ``l``'s members are ``mem[mem_start[l]:mem_start[l + 1]]``; a group leaf's
+        regions follow all the members in ``mem``:
+    group_start : ndarray of int or None
+        ``mem[group_start[l]:group_start[l + 1]]`` (None: no group leaf).
+    """
+    owner = np.where(t.leaf_general, -2, t.leaf_owner)
+    fast_start = np.concatenate([[0], np.cumsum([f.size for f in t.leaf_fast])])
+    mem_start = np.concatenate([[0], np.cumsum([m.size for m in t.leaf_members])])
+    fast = np.concatenate(t.leaf_fast + [np.zeros(0, dtype=np.int64)])
+    mem = np.concatenate(t.leaf_members + [np.zeros(0, dtype=np.int64)])
+    groups = [t.group(k) for k in range(t.num_leaves)]
+    if not any(g.size for g in groups):
+        return owner, fast_start, fast, mem_start, mem, None
+    owner = np.where([g.size > 0 for g in groups], -3, owner)
+    group_start = mem.size + np.concatenate([[0], np.cumsum([g.size for g in groups])])
+    mem = np.concatenate([mem, *groups])
+    return owner, fast_start, fast, mem_start, mem, group_start
 
 
 def _number(x: float, float32: bool) -> str:
@@ -214,6 +245,14 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU]);
     }}
 """
     walk = ""
+    group = ""
+    if "leaf_group" in tabs:
+        group = """    if (!near && leaf_owner[leaf] == -3) {
+        /* a group leaf, not near: only its regions (one law) can hold theta */
+        q0 = leaf_group[leaf];
+        q1 = leaf_group[leaf + 1];
+    }
+"""
     if t.num_nodes:
         walk = f"""    k = 0;
     while (k >= 0) {{
@@ -271,13 +310,15 @@ static {real} violation(int32_t i, const {real} theta[{up}_NTHETA])
 
 int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU])
 {{
-    int32_t k, leaf, r = -1, q, j, h;
+    int32_t k, leaf, r = -1, q, j, h, q0, q1;
     int t, near = 0, i;
     {real} s, v, best = {zero};
     (void)s;
     (void)k;
     (void)h;
-{entry}{walk}    if (!near && leaf_owner[leaf] != -2) {{
+{entry}{walk}    q0 = leaf_members[leaf];
+    q1 = leaf_members[leaf + 1];
+{group}    if (!near && leaf_owner[leaf] >= -1) {{
         /* more than delta inside every tested half-space: only the owner can hold theta */
         r = leaf_owner[leaf];
         if (r < 0) {{
@@ -299,8 +340,9 @@ int {name}_evaluate(const {real} theta[{up}_NTHETA], {real} {what}[{up}_NU])
             return -1;
         }}
     }} else {{
-        /* near a tested hyperplane: the rule over every region the leaf may hold */
-        for (q = leaf_members[leaf]; q < leaf_members[leaf + 1]; ++q) {{
+        /* near a tested hyperplane: the rule over every region the leaf may hold (on a
+           group leaf's fast path: over its regions of one law) */
+        for (q = q0; q < q1; ++q) {{
             j = members[q];
             v = violation(j, theta);
             if (v <= {zero}) {{

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 
 from codev_engine.deploy.c_code import c_source
-from codev_engine.deploy.plan import plan
+from codev_engine.deploy.plan import Export, plan
 from codev_engine.deploy.python_code import python_source
 from codev_engine.errors import SpecError
 from codev_engine.io.atomic import write_text
@@ -35,6 +35,7 @@ def export_c(
     name: str = "codev_law",
     float32: bool = False,
     method: str = "auto",
+    merge_equal_laws: bool = False,
 ) -> tuple[Path, Path]:
     """Write the law as C99: ``directory/name.h`` and ``directory/name.c``.
 
@@ -44,7 +45,9 @@ def export_c(
 
     Parameters
     ----------
-    obj : ExplicitLaw or MpSolution
+    obj : ExplicitLaw, MpSolution or Export
+        The law (or an export already planned by ``plan.plan``: ``method`` and
+        ``merge_equal_laws`` are then its own).
     directory : path-like
         Created if missing.
     name : str
@@ -53,6 +56,9 @@ def export_c(
         ``float`` tables and arithmetic instead of ``double``.
     method : {"auto", "bst", "sequential"}
         The search (``auto``: fewer worst-case multiply-adds).
+    merge_equal_laws : bool
+        Regions with equal laws share tree leaves (``plan.plan``); the code still returns
+        ``locate``'s region.
 
     Returns
     -------
@@ -64,7 +70,7 @@ def export_c(
         A bad name or method, or nothing to export.
     """
     _check_name(name)
-    ex = plan(obj, method)
+    ex = obj if isinstance(obj, Export) else plan(obj, method, merge_equal_laws)
     header, source = c_source(ex, name, float32)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -74,21 +80,24 @@ def export_c(
     return h, c
 
 
-def export_python(obj, path: str | os.PathLike, *, method: str = "auto") -> Path:
+def export_python(
+    obj, path: str | os.PathLike, *, method: str = "auto", merge_equal_laws: bool = False
+) -> Path:
     """Write the law as a Python module (numpy only) with ``evaluate(theta)``.
 
     Parameters
     ----------
-    obj : ExplicitLaw or MpSolution
+    obj : ExplicitLaw, MpSolution or Export
     path : path-like
         The ``.py`` file to write.
     method : {"auto", "bst", "sequential"}
+    merge_equal_laws : bool
 
     Returns
     -------
     Path
     """
-    ex = plan(obj, method)
+    ex = obj if isinstance(obj, Export) else plan(obj, method, merge_equal_laws)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_text(path, python_source(ex))

@@ -14,9 +14,14 @@ import numpy as np
 from codev_engine.deploy.bst import Tree, TreeTooLargeError, build_tree, sequential_tree
 from codev_engine.errors import SpecError
 
-__all__ = ["Deployable", "Export", "ceil_log2", "deployable", "plan", "rom_bytes"]
+__all__ = [
+    "Deployable", "Export", "ceil_log2", "deployable", "law_labels", "plan", "rom_bytes"
+]
 
 METHODS = ("bst", "sequential", "auto")
+#: above this many regions a tree leaf checks up to ``BUCKET`` regions (``plan``)
+BUCKET_FROM = 2000
+BUCKET = 8
 
 
 @dataclass(frozen=True)
@@ -151,7 +156,33 @@ class Export:
     macs: int
 
 
-def plan(obj, method: str = "auto") -> Export:
+def law_labels(dep: Deployable, decimals: int = 9) -> np.ndarray:
+    """A label per region, equal where the affine maps are equal: ``F`` and ``G`` equal
+    to ``decimals`` decimals relative to the law's largest entry.
+
+    Parameters
+    ----------
+    dep : Deployable
+    decimals : int
+
+    Returns
+    -------
+    (R,) ndarray of int
+        The lowest region index of each region's group.
+    """
+    from codev_engine.geometry.polytope import row_keys
+
+    R = dep.num_regions
+    M = np.column_stack([dep.F.reshape(R, -1), dep.G.reshape(R, -1)])
+    M = M / max(1.0, float(np.abs(M).max(initial=0.0)))
+    keys = row_keys(M, decimals)
+    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    return first[inverse.ravel()].astype(np.int64)
+
+
+def plan(
+    obj, method: str = "auto", merge_equal_laws: bool = False, leaf_size: int | None = None
+) -> Export:
     """Build the search of an export.
 
     Parameters
@@ -159,6 +190,14 @@ def plan(obj, method: str = "auto") -> Export:
     obj : ExplicitLaw, MpSolution or Deployable
     method : {"auto", "bst", "sequential"}
         ``auto``: the one of fewer worst-case multiply-adds.
+    merge_equal_laws : bool
+        Regions with equal affine laws (:func:`law_labels`) share a tree leaf: the tree
+        stops splitting where the regions left all have one law, and that leaf runs the
+        locator's rule over them (so the code still returns ``locate``'s region and
+        its own law). Fewer nodes and leaves; the leaf checks more rows.
+    leaf_size : int, optional
+        Regions a tree leaf may check (``bst.build_tree``); default 1 up to
+        ``BUCKET_FROM`` regions, ``BUCKET`` beyond (a large partition's tree stays small).
 
     Returns
     -------
@@ -179,7 +218,13 @@ def plan(obj, method: str = "auto") -> Export:
     choices = []
     if method in ("bst", "auto"):
         try:
-            choices.append(("bst", build_tree(dep.A, dep.b, dep.off, dep.boxes)))
+            labels = law_labels(dep) if merge_equal_laws else None
+            if leaf_size is None:
+                leaf_size = 1 if dep.num_regions <= BUCKET_FROM else BUCKET
+            tree = build_tree(
+                dep.A, dep.b, dep.off, dep.boxes, labels=labels, leaf_size=leaf_size
+            )
+            choices.append(("bst", tree))
         except TreeTooLargeError:
             if method == "bst":
                 raise

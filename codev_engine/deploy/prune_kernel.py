@@ -1,9 +1,12 @@
-"""The leaves' member check of the tree, compiled (numba): one certified LP per member.
+"""The tree's LPs, compiled (numba): certified emptiness of a region's part of a cell.
 
-A member of a leaf is kept unless the largest ball in (its region, enlarged) and (the
-leaf's cell, widened) has a negative radius bound by weak duality (``lp_kernel.chebyshev``).
-~10^5 such LPs for a 1008-region law: from Python, the call and the stacking of rows cost
-more than the LP.
+A region is apart from a set of half-spaces when the largest ball in (the region,
+enlarged) and (the half-spaces) has a negative radius bound by weak duality
+(``lp_kernel.chebyshev``). :func:`apart` asks it for the members of every leaf;
+:func:`split_node` for the regions of a node against the two sides of its hyperplane
+(the sort by cell of ``bst.py``), :func:`local_counts` scores candidate hyperplanes by the
+vertices inside a cell. ~10^5 such LPs for a 1008-region law: from Python, the
+call and the stacking of rows cost more than the LP.
 """
 
 from __future__ import annotations
@@ -72,6 +75,206 @@ def apart(An, be, off, PA, Pb, poff, members, moff, owner, box_A, box_b, x0, bou
             status, _, _, upper = chebyshev(Ar, br, x0, bound, maxit)
             if status == OPTIMAL and upper < 0.0:
                 out[q] = True
+    return out
+
+
+@njit(cache=True)
+def _in_cell(V, i, CA, Cb, tol):
+    for k in range(CA.shape[0]):
+        s = -Cb[k]
+        for t in range(V.shape[1]):
+            s += CA[k, t] * V[i, t]
+        if s > tol:
+            return False
+    return True
+
+
+@njit(cache=True)
+def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
+    """Proper regions each side of each candidate hyperplane, by the regions' vertices
+    inside the cell (all of a region's vertices where none is): an estimate of the split.
+
+    Parameters
+    ----------
+    V : (K, d) float64 ndarray
+        The regions' (enlarged) vertices, region after region.
+    vstart, vcount : (R,) int64 ndarrays
+        Region ``i``'s vertices are ``V[vstart[i]:vstart[i] + vcount[i]]``.
+    P : (p,) int64 ndarray
+        The regions counted.
+    CA, Cb : (c, d), (c,) float64 ndarrays
+        The cell.
+    tol : float
+        A vertex is in the cell when ``CA v - Cb <= tol``.
+    HA, Hb : (H, d), (H,) float64 ndarrays
+        Every hyperplane.
+    cand : (k,) int64 ndarray
+        The candidates.
+    eps : (k,) float64 ndarray
+        Each candidate's slack: proper beyond it.
+
+    Returns
+    -------
+    nl, nr : (k,) int64 ndarrays
+    """
+    n = 0
+    for q in range(P.size):
+        n += vcount[P[q]]
+    idx = np.empty(n, dtype=np.int64)
+    seg = np.zeros(P.size + 1, dtype=np.int64)
+    m = 0
+    for q in range(P.size):
+        r = P[q]
+        m0 = m
+        for i in range(vstart[r], vstart[r] + vcount[r]):
+            if _in_cell(V, i, CA, Cb, tol):
+                idx[m] = i
+                m += 1
+        if m == m0:
+            for i in range(vstart[r], vstart[r] + vcount[r]):
+                idx[m] = i
+                m += 1
+        seg[q + 1] = m
+    d = V.shape[1]
+    nl = np.zeros(cand.size, dtype=np.int64)
+    nr = np.zeros(cand.size, dtype=np.int64)
+    for c in range(cand.size):
+        h = cand[c]
+        for q in range(P.size):
+            lo = np.inf
+            hi = -np.inf
+            for k in range(seg[q], seg[q + 1]):
+                i = idx[k]
+                s = -Hb[h]
+                for t in range(d):
+                    s += HA[h, t] * V[i, t]
+                lo = min(lo, s)
+                hi = max(hi, s)
+            if lo < -eps[c]:
+                nl[c] += 1
+            if hi > eps[c]:
+                nr[c] += 1
+    return nl, nr
+
+
+@njit(cache=True)
+def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An, be, off,
+               box_A, box_b, bound, maxit):
+    """The regions of a node sorted into its children by their part inside the node's
+    cell: the vertices decide where they can, a certified LP where they cannot.
+
+    For the left child (``ha x <= hb``) a region is a *member* unless its part of the cell
+    (widened) is proved to lie beyond ``ha x > hb + e``, and *proper* (``isP`` only)
+    unless its part of the cell shrunk by ``p`` (where the fast path runs) is proved to
+    lie within ``ha x > hb - p``; mirrored on the right. Proofs: every
+    (enlarged) vertex beyond (their hull holds the region), or a negative radius bound
+    of the largest ball in (region, cell, box, the side's half-space) (weak duality).
+    A vertex inside the cell on the side decides the other way; an LP whose ball has
+    radius >= 0 too. On any doubt the region stays (member, proper).
+
+    Parameters
+    ----------
+    V : (K, d) float64 ndarray
+        The regions' (enlarged) vertices, region after region.
+    vstart, vcount : (R,) int64 ndarrays
+    regs : (Q,) int64 ndarray
+        The node's regions (proper and members).
+    isP : (Q,) bool ndarray
+        Which of them are proper at the node.
+    CA, Cb : (c, d), (c,) float64 ndarrays
+        The node's cell (unit rows, widened).
+    Cbp : (c,) float64 ndarray
+        The node's cell shrunk (``CA x <= Cbp``).
+    tol : float
+        A vertex is in the cell when ``CA v - Cb <= tol``.
+    ha : (d,) float64 ndarray
+        The hyperplane (unit).
+    hb : float
+    e : float
+        The slack of member.
+    p : float
+        The margin of proper (``p >= e``).
+    An : (N, d) float64 ndarray
+        Every region's rows, unit.
+    be : (N,) float64 ndarray
+        Their offsets, enlarged.
+    off : (R + 1,) int64 ndarray
+    box_A, box_b : (2d, d), (2d,) float64 ndarrays
+        The box of all regions, as rows.
+    bound : float
+        A bound of ``|x|_inf`` over the box.
+    maxit : int
+
+    Returns
+    -------
+    (Q, 4) bool ndarray
+        Left member, left proper, right member, right proper.
+    """
+    d = An.shape[1]
+    c = CA.shape[0]
+    out = np.zeros((regs.size, 4), dtype=np.bool_)
+    x0 = np.empty(d)
+    for q in range(regs.size):
+        r = regs[q]
+        lo_all = np.inf
+        hi_all = -np.inf
+        lo_in = np.inf
+        hi_in = -np.inf
+        for t in range(d):
+            x0[t] = 0.0
+        for i in range(vstart[r], vstart[r] + vcount[r]):
+            s = -hb
+            for t in range(d):
+                s += ha[t] * V[i, t]
+                x0[t] += V[i, t]
+            lo_all = min(lo_all, s)
+            hi_all = max(hi_all, s)
+            if _in_cell(V, i, CA, Cb, tol):
+                lo_in = min(lo_in, s)
+                hi_in = max(hi_in, s)
+        if vcount[r] > 0:
+            for t in range(d):
+                x0[t] /= vcount[r]
+        # 1 there, 0 not there, -1 undecided: left proper, left member, right ...
+        dec = np.empty(4, dtype=np.int64)
+        dec[0] = 0 if (lo_all >= -p or not isP[q]) else (1 if lo_in < -p else -1)
+        dec[1] = 0 if lo_all > e else (1 if lo_in <= e else -1)
+        dec[2] = 0 if (hi_all <= p or not isP[q]) else (1 if hi_in > p else -1)
+        dec[3] = 0 if hi_all < -e else (1 if hi_in >= -e else -1)
+        if dec[0] < 0 or dec[1] < 0 or dec[2] < 0 or dec[3] < 0:
+            k = off[r + 1] - off[r]
+            n = k + c + 1 + 2 * d
+            Ar = np.empty((n, d))
+            br = np.empty(n)
+            Ar[:k] = An[off[r] : off[r + 1]]
+            br[:k] = be[off[r] : off[r + 1]]
+            Ar[k : k + c] = CA
+            br[k : k + c] = Cb
+            Ar[k + c + 1 :] = box_A
+            br[k + c + 1 :] = box_b
+            for side in range(2):
+                sg = 1.0 if side == 0 else -1.0
+                for t in range(d):
+                    Ar[k + c, t] = sg * ha[t]
+                for j in range(2):
+                    col = 2 * side + j
+                    if dec[col] >= 0:
+                        continue
+                    # proper: sg (ha x - hb) <= -p in the shrunk cell; member: <= e in
+                    # the widened one
+                    br[k + c] = sg * hb + (-p if j == 0 else e)
+                    br[k : k + c] = Cbp if j == 0 else Cb
+                    status, _, radius, upper = chebyshev(Ar, br, x0, bound, maxit)
+                    if status == OPTIMAL and upper < 0.0:
+                        dec[col] = 0
+                    else:
+                        dec[col] = 1
+                        if j == 0:
+                            dec[col + 1] = 1  # proper there: a member there too
+        out[q, 0] = dec[1] > 0 or dec[0] > 0
+        out[q, 1] = dec[0] > 0
+        out[q, 2] = dec[3] > 0 or dec[2] > 0
+        out[q, 3] = dec[2] > 0
     return out
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from codev_engine.deploy.bst import DELTA, LOCATE_TOL
+from codev_engine.deploy.c_code import leaf_tables
 from codev_engine.deploy.plan import Export
 
 __all__ = ["python_source"]
@@ -35,11 +36,7 @@ def python_source(ex: Export) -> str:
     dep, t = ex.dep, ex.tree
     d, m = dep.F.shape[2], dep.F.shape[1]
     delta = DELTA["double"] * (1.0 + np.abs(t.node_b))
-    owner = np.where(t.leaf_general, -2, t.leaf_owner)
-    fast_start = np.concatenate([[0], np.cumsum([f.size for f in t.leaf_fast])])
-    mem_start = np.concatenate([[0], np.cumsum([q.size for q in t.leaf_members])])
-    fast = np.concatenate(t.leaf_fast + [np.zeros(0, dtype=np.int64)])
-    mem = np.concatenate(t.leaf_members + [np.zeros(0, dtype=np.int64)])
+    owner, fast_start, fast, mem_start, mem, group_start = leaf_tables(t)
     names = tuple(dep.parameter_names)
     return f'''"""The explicit {'law' if dep.kind == 'law' else 'mp solution'} of codev\
  as Python (generated; do not edit).
@@ -77,6 +74,7 @@ LEAF_FAST = {_lit(fast_start)}
 FAST_ROWS = {_lit(fast)}
 LEAF_MEMBERS = {_lit(mem_start)}
 MEMBERS = {_lit(mem)}
+LEAF_GROUP = {None if group_start is None else _lit(group_start)}
 ROW_START = {_lit(dep.off)}
 ROW_A = {_lit(dep.A)}
 ROW_B = {_lit(dep.b)}
@@ -121,7 +119,10 @@ def locate(theta):
             near = True
         k = NODE_NEXT[k][1 if s > 0.0 else 0]
     leaf = -1 - k
-    if not near and LEAF_OWNER[leaf] != -2:
+    q0, q1 = LEAF_MEMBERS[leaf], LEAF_MEMBERS[leaf + 1]
+    if not near and LEAF_OWNER[leaf] == -3:  # a group leaf: only its regions (one law)
+        q0, q1 = LEAF_GROUP[leaf], LEAF_GROUP[leaf + 1]
+    elif not near and LEAF_OWNER[leaf] != -2:
         r = LEAF_OWNER[leaf]
         if r < 0:
             return -1
@@ -132,7 +133,7 @@ def locate(theta):
                 v = a
         return r if v <= TOL else -1
     r, best = -1, 0.0
-    for q in range(LEAF_MEMBERS[leaf], LEAF_MEMBERS[leaf + 1]):
+    for q in range(q0, q1):
         j = MEMBERS[q]
         v = _violation(j, x)
         if v <= 0.0:

@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 import codev_engine as ce
-from codev_engine.deploy.plan import ceil_log2, plan
+from codev_engine.deploy.plan import ceil_log2, law_labels, plan
 from codev_engine.geometry.vertices import vertices_many
 from tests.engine.test_law import simplex_law, voronoi_law
 from workbench.cli import main
@@ -103,9 +103,11 @@ void {name}_batch(int P, const {real} *X, {real} *U, int *idx)
 class Compiled:
     """The exported C of a law, compiled into a shared library (with a batch driver)."""
 
-    def __init__(self, obj, tmp: Path, *, float32=False, method="auto", count=False):
+    def __init__(self, obj, tmp: Path, *, float32=False, method="auto", count=False,
+                 merge=False):
         name = "lawc"
-        self.h, c = ce.export_c(obj, tmp, name=name, float32=float32, method=method)
+        self.h, c = ce.export_c(obj, tmp, name=name, float32=float32, method=method,
+                                merge_equal_laws=merge)
         real = "float" if float32 else "double"
         (tmp / "driver.c").write_text(DRIVER.format(name=name, real=real, up=name.upper()))
         so = tmp / "lawc.so"
@@ -180,6 +182,15 @@ def outside_points(lw, n: int) -> np.ndarray:
 def scale(lw, idx: np.ndarray, X: np.ndarray) -> np.ndarray:
     """``|F_i| |theta| + |G_i|`` per point (the size of the sums that make u)."""
     return np.einsum("pij,pj->pi", np.abs(lw.F[idx]), np.abs(X)) + np.abs(lw.G[idx])
+
+
+def _load_module(path: Path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 def assert_agrees(lw, C: Compiled, X: np.ndarray, rtol: float = 1e-12) -> None:
@@ -271,6 +282,8 @@ def test_worst_case_is_the_deepest_path(key, tmp_path):
             seen += 1
             members = int(nrows[t.leaf_members[leaf]].sum())
             fast = members if t.leaf_general[leaf] else t.leaf_fast[leaf].size
+            if t.group(leaf).size:
+                fast = int(nrows[t.group(leaf)].sum())
             worst = max(worst, dep + max(fast, members))
             depth = max(depth, dep)
             continue
@@ -290,6 +303,45 @@ def test_worst_case_is_the_deepest_path(key, tmp_path):
             C(X[p : p + 1])
             most = max(most, C.count.value)
     assert 0 < most <= worst
+
+
+@needs_cc
+@pytest.mark.parametrize(
+    "key", ["double_integrator:inf:unmerged", "magnetic_pointer_c:inf:unmerged"]
+)
+def test_equal_laws_share_leaves_and_locate_still_decides(key, tmp_path):
+    """``merge_equal_laws``: the tree stops where the regions left have one law (fewer
+    leaves); such a leaf runs the rule over them, so C and Python still return locate's
+    region and its own u, and the header's worst case is still the traversal's."""
+    lw = law(key)
+    plain, merged = plan(lw, "bst"), plan(lw, "bst", merge_equal_laws=True)
+    labels = law_labels(merged.dep)
+    assert np.unique(labels).size < lw.num_regions  # the law repeats affine maps
+    t = merged.tree
+    groups = [t.group(k) for k in range(t.num_leaves)]
+    assert any(g.size > 1 for g in groups)
+    for g in groups:
+        assert np.unique(labels[g]).size <= 1
+        assert np.all(np.diff(g) > 0)
+    assert t.num_leaves < plain.tree.num_leaves
+    assert (merged.depth, merged.tests) == (t.cost()["depth"], t.cost()["tests"])
+    C = Compiled(lw, tmp_path, method="bst", merge=True, count=True)
+    assert C.define("WORST_TESTS") == merged.tests
+    X = np.vstack([random_points(lw, 5000, seed=21), facet_points(lw, 2, seed=22, cap=5000)])
+    assert_agrees(lw, C, X)
+    most = 0
+    for p in range(0, X.shape[0], 7):
+        C.count.value = 0
+        C(X[p : p + 1])
+        most = max(most, C.count.value)
+    assert 0 < most <= merged.tests
+    idx, U = C(outside_points(lw, lw.n))
+    assert np.all(idx == -1) and np.all(U == SENTINEL)
+    path = ce.export_python(lw, tmp_path / "merged_law.py", method="bst",
+                            merge_equal_laws=True)
+    mod = _load_module(path)
+    pts = X[:: max(1, X.shape[0] // 400)]
+    assert [mod.locate(x) for x in pts] == list(lw.locate(pts))
 
 
 @needs_cc
@@ -377,6 +429,59 @@ def test_magnetic_pointer_1008_regions_1e5_states(tmp_path, request):
     C = Compiled(lw, tmp_path, method="bst")
     assert_agrees(lw, C, random_points(lw, 100_000, seed=12))
     assert_agrees(lw, C, facet_points(lw, 3, seed=13, cap=100_000))
+
+
+@needs_cc
+@pytest.mark.parametrize("key", ["magnetic_pointer_c:inf:unmerged", "simplices"])
+def test_buckets_of_a_few_regions_agree_and_certify(key, tmp_path):
+    """Leaves of up to 4 proper regions (``leaf_size``, what a large partition gets): a
+    smaller tree, the same regions as locate, the worst case still the traversal's."""
+    lw = law(key)
+    ex = plan(lw, "bst", leaf_size=4)
+    t = ex.tree
+    assert max(g.size for g in t.leaf_group) > 1
+    assert t.num_leaves < plan(lw, "bst").tree.num_leaves
+    assert ex.tests == t.cost()["tests"]
+    C = Compiled(ex, tmp_path, count=True)
+    assert C.define("WORST_TESTS") == ex.tests
+    X = np.vstack([random_points(lw, 5000, seed=31), facet_points(lw, 2, seed=32, cap=5000)])
+    assert_agrees(lw, C, X)
+    most = 0
+    for p in range(0, X.shape[0], 5):
+        C.count.value = 0
+        C(X[p : p + 1])
+        most = max(most, C.count.value)
+    assert 0 < most <= ex.tests
+
+
+@needs_cc
+@pytest.mark.slow
+def test_a_test_set_mp_qp_tree_on_1e5_states(tmp_path):
+    """pop_mpqp_043 of the mp test set (899 regions, d = 4; its vertex-sorted tree passed
+    90,000 nodes): the cell-sorted tree with buckets, 10^5 states and every facet."""
+    from tests.engine.test_mp_testset import TESTSET
+
+    f = TESTSET / "pop_mpqp_043.npz"
+    if not f.is_file():
+        pytest.skip(f"mp_testset not found: {f}")
+    keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta")
+    with np.load(f, allow_pickle=False) as z:
+        sol = ce.mpsolve(ce.MpProgram(**{k: z[k] for k in keys}, name=f.stem))
+    ex = plan(sol, "bst", leaf_size=8)
+    assert ex.method == "bst" and ex.tests == ex.tree.cost()["tests"]
+    C = Compiled(ex, tmp_path)
+    X = np.random.default_rng(41).uniform(-10.5, 10.5, size=(100_000, ex.dep.F.shape[2]))
+    idx, Z = C(X)
+    ref = sol.locate(X)
+    assert np.array_equal(idx, ref)
+    inside = ref >= 0
+    assert inside.sum() > 10_000
+    assert np.allclose(Z[inside], sol.primal(X[inside]), rtol=1e-12, atol=1e-12)
+    lw_like = type("L", (), {})()
+    lw_like.A = [ex.dep.A[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    lw_like.b = [ex.dep.b[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    Xf = facet_points(lw_like, 1, seed=42, cap=100_000)
+    assert np.array_equal(C(Xf)[0], sol.locate(Xf))
 
 
 def test_a_tree_past_its_budget_leaves_the_sequential_search(monkeypatch, tmp_path, capsys):
