@@ -64,7 +64,7 @@ def _oracle(n: int) -> None:
 
 @pytest.mark.slow
 def test_chain_of_8_integrators_matches_online_mpc():
-    # (11,797 regions: 22 min on the shared machine at load ~10-20; the default run keeps
+    # (11,797 regions: 8 min at load 3, 22 min at load 10-20; the default run keeps
     # the candidate that crashed, below)
     _oracle(8)
 
