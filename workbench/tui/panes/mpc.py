@@ -18,7 +18,7 @@ from ..design import MpcPreview, mpc_preview, preview_extras
 from ..form import FIELDS
 from ..parsers import parse_state
 from ..views import series_text
-from ..widgets import FieldEntry, Plot, field_entries
+from ..widgets import EntryInput, FieldEntry, Plot, field_entries
 
 if TYPE_CHECKING:
     from codev_engine import Problem
@@ -62,12 +62,12 @@ class MpcPane(Horizontal):
             )
             with Horizontal(classes="bar"):
                 yield Label("x0 ")
-                yield Input(placeholder="initial state, e.g. 9, -5", id="preview-x0")
+                yield EntryInput(placeholder="initial state, e.g. 9, -5", id="preview-x0")
                 yield Label(" steps ")
-                yield Input("20", id="preview-steps", restrict=r"[0-9]*", max_length=4)
+                yield EntryInput("20", id="preview-steps", restrict=r"[0-9]*", max_length=4)
                 # a law over a reference box: the reference the loop follows
                 yield Label(" r ", id="preview-r-label")
-                yield Input(id="preview-r", placeholder="reference")
+                yield EntryInput(id="preview-r", placeholder="reference")
                 yield Button("Preview \\[ctrl+g]", id="preview-run", variant="primary")
             yield Static("", id="preview-status", classes="status")
             yield Plot("states appear here", id="preview-states")

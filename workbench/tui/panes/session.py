@@ -22,6 +22,7 @@ from ..messages import (
     RunRequested,
     SaveRequested,
 )
+from ..widgets import EntryInput
 
 
 class SessionPane(VerticalScroll):
@@ -40,7 +41,7 @@ class SessionPane(VerticalScroll):
     def compose(self) -> ComposeResult:
         yield Static("", id="session-path", classes="small")
         with Horizontal(classes="bar"):
-            yield Input(id="open-path", placeholder="a session folder or a spec .toml")
+            yield EntryInput(id="open-path", placeholder="a session folder or a spec .toml")
             yield Button("Open", id="open")
             yield Button("Save \\[ctrl+s]", id="save")
             yield Button("New… \\[ctrl+n]", id="new")
@@ -50,7 +51,7 @@ class SessionPane(VerticalScroll):
         yield DataTable(id="journal", cursor_type="row", zebra_stripes=True)
         # the copy's path before the button that uses it (Tab goes top to bottom, left to right)
         with Horizontal(classes="bar"):
-            yield Input(id="export-path", placeholder="also copy it to FILE.rrd (optional)")
+            yield EntryInput(id="export-path", placeholder="also copy it to FILE.rrd (optional)")
             yield Button("Export Rerun recording \\[ctrl+g]", id="export", variant="primary")
         yield Static("", id="export-out", classes="small")
 

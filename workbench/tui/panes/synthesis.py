@@ -17,7 +17,7 @@ from ..design import locate_state, region_rows, shared_laws
 from ..messages import CancelRequested, LawExportRequested, RunRequested
 from ..parsers import parse_axes, parse_state
 from ..views import partition_text
-from ..widgets import Plot
+from ..widgets import EntryInput, Plot
 
 if TYPE_CHECKING:
     from codev_engine import ExplicitLaw
@@ -52,14 +52,14 @@ class SynthesisPane(Vertical):
             with Vertical(id="synth-side"):
                 # top to bottom is the Tab order: the lookup first (the tab's first field)
                 yield Label("locate a state")
-                yield Input(id="locate-x", placeholder="e.g. 1.5, -2  (Enter)")
+                yield EntryInput(id="locate-x", placeholder="e.g. 1.5, -2  (Enter)")
                 yield Static("", id="locate-out", classes="small")
                 yield Label("axes (2 states)")
-                yield Input(id="synth-axes", placeholder="default: the first two states")
+                yield EntryInput(id="synth-axes", placeholder="default: the first two states")
                 yield Label("slice: other states at (n > 2)")
-                yield Input(id="synth-at", placeholder="default: the domain's centre")
+                yield EntryInput(id="synth-at", placeholder="default: the domain's centre")
                 yield Label("export the law as C99 into a folder")
-                yield Input(id="law-export-dir", placeholder="e.g. law_c  (Enter: .h and .c)")
+                yield EntryInput(id="law-export-dir", placeholder="e.g. law_c  (Enter: .h and .c)")
                 yield Static("", id="law-export-out", classes="small")
         yield DataTable(id="regions", zebra_stripes=True, cursor_type="row")
 

@@ -15,7 +15,7 @@ from ..form import FIELDS
 from ..messages import CancelRequested, RunRequested, VerifyToggled
 from ..parsers import parse_axes, parse_state_name
 from ..views import plane_text, tube_time_text
-from ..widgets import FieldEntry, Plot, field_entries
+from ..widgets import EntryInput, FieldEntry, Plot, field_entries
 
 if TYPE_CHECKING:
     from codev_engine import Problem, VerificationResult
@@ -82,9 +82,9 @@ class VerificationPane(Horizontal):
             yield Static("no verdict yet: press Verify", id="verdict", classes="banner")
             with Horizontal(classes="bar"):
                 yield Label("state ")
-                yield Input(id="tube-state", placeholder="e.g. x1")
+                yield EntryInput(id="tube-state", placeholder="e.g. x1")
                 yield Label("  plane ")
-                yield Input(id="plane-axes", placeholder="e.g. x1, x2")
+                yield EntryInput(id="plane-axes", placeholder="e.g. x1, x2")
             with Vertical(classes="plots"):
                 yield Plot("the reachtube against time appears here", id="tube-time")
                 yield Plot("the reachtube in the state plane appears here", id="tube-plane")
