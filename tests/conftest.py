@@ -35,11 +35,12 @@ def example_law():
     return get
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="module")
 def cluster():
     """A real Dask ``LocalCluster`` of 2 worker processes (``ce.Executor(workers=2)``),
-    started once per test session for every test that needs one (~5 s to start and stop);
-    tests may kill its workers: the nanny starts new ones."""
+    started once per test module that needs one (~5 s to start and stop); tests may kill
+    its workers: the nanny starts new ones. Not once per session: its scheduler runs in
+    this process, and kept alive it slowed the Textual app tests that follow ~3x."""
     with ce.Executor(workers=2) as executor:
         assert executor.workers == 2
         yield executor
