@@ -181,7 +181,7 @@ def _verification(
 
 
 def _say_recording(path) -> None:
-    print(f"recording written to {path}\n  view it: codev view {path}")
+    print(f"recording written to {path}\n  view it: {_codev()} view {path}")
 
 
 def _executor(args: argparse.Namespace):
@@ -323,6 +323,14 @@ _QUIET = [False]
 _INTERRUPTED = [False]
 
 
+def _codev() -> str:
+    """``codev`` as the user can type it from here (``.venv/bin/codev`` when the checkout's
+    venv is not activated; issue 23)."""
+    from .commands import runnable
+
+    return runnable("codev")
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -385,7 +393,7 @@ def _replay_session(args: argparse.Namespace) -> int:
         for _r, stage, want, got in mismatches:
             print(f"  {stage}: recorded {_outcome_text(want)}; replayed {_outcome_text(got)}")
         if rep.recording is not None:
-            print(f"  recording: {rep.recording}\n  view it: codev view {rep.recording}")
+            print(f"  recording: {rep.recording}\n  view it: {_codev()} view {rep.recording}")
 
     with _stage_progress(not quiet) as on_event:
         rep = session.replay(on_event=on_event, warn=_warn, on_run=on_run)
