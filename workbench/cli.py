@@ -1134,7 +1134,7 @@ def main(argv: list[str] | None = None) -> int:
     int
         The exit status: 0 success (or robustly safe), 1 unsafe / unknown / solver failure,
         2 bad input (one line on stderr naming the file, the field and the reason), 130
-        interrupted by Ctrl-C (one line).
+        interrupted by Ctrl-C (one line), 141 stdout's reader went away (``| head``; silent).
     """
     parser = _build_parser()
     args = parser.parse_args(argv)
@@ -1189,7 +1189,9 @@ def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args.func(args))
+        status = int(args.func(args))
+        sys.stdout.flush()  # here, where a reader gone away (BrokenPipeError) is handled
+        return status
     except KeyboardInterrupt:
         _err("interrupted (Ctrl-C)")
         return 130
@@ -1197,6 +1199,12 @@ def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         if _INTERRUPTED[0]:  # a consequence of Ctrl-C (see _INTERRUPTED)
             _err("interrupted (Ctrl-C)")
             return 130
+        if isinstance(exc, BrokenPipeError):  # `codev run ... | head`: the reader left
+            # as a program killed by SIGPIPE would: no message, status 128 + 13; stdout
+            # pointed at /dev/null so that the interpreter's final flush cannot fail again
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            return 141
         if isinstance(exc, SolverError):  # the engine's failure, not the input's
             _err(str(exc))
             return 1

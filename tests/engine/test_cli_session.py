@@ -653,3 +653,25 @@ def test_bench_runs_a_benchmark_script(capsys):
     from workbench.cli import main
 
     assert main(["bench", "session", "--help"]) == 0
+
+
+def test_reader_gone_away_is_silent_141(sdir):
+    """``codev run ... | head``: stdout's reader has left; the command ends as a program
+    killed by SIGPIPE would (status 141) with nothing on stderr, not ``error: Broken pipe``."""
+    import sys
+
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before the first write
+    try:
+        p = subprocess.run(
+            [sys.executable, "-m", "workbench.cli", "session", str(sdir)],
+            stdout=w,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+            timeout=120,
+        )
+    finally:
+        os.close(w)
+    assert p.returncode == 141, p.stderr
+    assert p.stderr == ""
