@@ -8,12 +8,14 @@ so the region table, the lookup and the slice take four numbers.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from pilot_tools import EXAMPLES, SIZE, entry, run, settle, text_of
 from textcells import decode_pixels, plot_body
 from textual.widgets import Collapsible, Input
 
 from workbench.tui.app import CodevApp
+from workbench.tui.design import shared_laws
 from workbench.tui.state import open_target
 from workbench.tui.views import REFERENCE
 
@@ -79,6 +81,11 @@ def test_the_servo_opens_and_synthesises_in_the_workbench(tmp_path, monkeypatch)
             law = app.law
             assert law is not None and app.law_current(), [n.message for n in app._notifications]
             assert law.n == 4 and law.parameter_names == ("angle", "speed", "prev_V", "ref_y0")
+            # "96 share a law" is right: the first move is at a limit almost everywhere
+            # (u = ±1 in 13 regions each, u = u_prev ± 0.5 in 37 each), 5 distinct laws
+            FG = np.hstack([law.F.reshape(law.num_regions, -1), law.G])
+            distinct = {tuple(np.round(row, 9)) for row in FG}
+            assert shared_laws(law) == law.num_regions - len(distinct) == 96
             # the region table names θ; the lookup takes its four numbers
             row = app.query_one("#regions").get_row_at(0)
             assert "prev_V" in row[2] or "ref_y0" in row[2] or row[2].startswith("+"), row
