@@ -507,3 +507,17 @@ def test_default_slice_is_the_verified_middle_of_u_prev_and_r(example_law):
     no_verify = ce.loads_spec(problem.source.split("[verify]")[0])
     assert figures.default_slice_point(law, no_verify) == pytest.approx(bare)
     assert _section_point(no_verify, law) == pytest.approx(bare[2:])
+
+
+def test_output_panel_draws_the_counterexample_through_c(example_law):
+    problem, law = example_law("mass_spring_soft.toml")
+    unsafe = ce.loads_spec(_short(problem, 2.0).source.replace("lower = [1.3, -inf]",
+                                                               "lower = [0.75, -inf]"))
+    result = ce.verify(unsafe, law)
+    cex = result.counterexample
+    assert result.verdict == "unsafe" and cex is not None
+    ax = figures.plot_output(result, unsafe, _axes(), output=0)
+    (mark,) = [line for line in ax.lines if line.get_marker() == "X"]
+    p_at = np.interp(cex.t, np.asarray(cex.trace.t), np.asarray(cex.trace.x)[:, 0])
+    assert mark.get_xdata()[0] == pytest.approx(cex.t)
+    assert mark.get_ydata()[0] == pytest.approx(p_at)

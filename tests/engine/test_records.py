@@ -774,3 +774,16 @@ def test_output_boxes_contain_every_output():
     for P in (X, corners):
         Y = np.einsum("kpn,qn->kpq", P, C)
         assert np.all(Y >= ylo[:, None, :]) and np.all(Y <= yhi[:, None, :])
+
+
+def test_counterexample_output_is_c_of_its_states(tmp_path):
+    """An unsafe soft design: the counterexample's output y0 = p is logged on the output
+    view, equal to its state series."""
+    text = SOFT_TEXT.replace("lower = [1.3, -inf]", "lower = [0.75, -inf]")
+    problem, result, summary, entities = _written(text, tmp_path, traces=0)
+    assert result.verdict == "unsafe" and result.counterexample is not None
+    t, y = _series(entities["/output/y0/counterexample"])
+    t2, x = _series(entities["/time/p/counterexample"])
+    assert len(y) > 2 and np.array_equal(t, t2) and np.allclose(y, x, atol=1e-6)
+    assert any(n.startswith("y0(t) = C x") and "counterexample red" in n
+               for n in view_kinds(summary.path))
