@@ -248,8 +248,10 @@ def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
              ) -> tuple[ExplicitLaw, RecordingOptions]:
     """The law and options a picture of ``problem`` draws.
 
-    For a law over ``theta = (x, u_prev, r)``: its section at the middle of the initial
-    ``u_prev`` and ``r`` boxes (:meth:`ExplicitLaw.section`); the traces are simulated with
+    For a law over ``theta = (x, u_prev, r)``: its section (:meth:`ExplicitLaw.section`) at
+    the middle of the initial ``u_prev`` and ``r`` boxes of ``[verify]``, the centre of the
+    law's domain without one (``figures.default_slice_point``, the slice every picture
+    uses); the traces are simulated with
     the whole law (``RecordingContent.build``'s ``trace_law``), over its own ``u_prev``.
 
     Parameters
