@@ -17,6 +17,7 @@ slew-rate limit (theta of dimension 4) at N = 10 -- the issue's target, under 1 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 from pathlib import Path
@@ -133,12 +134,46 @@ def main(argv: list[str] | None = None) -> int:
         sys.path.insert(0, str(ROOT / "benchmarks"))
         import mp  # benchmarks/mp.py: the peer run
 
-        rest = [str(folder), "--timeout", str(args.timeout)]
+        json_out = args.json or str(Path(tmp) / "formulations.json")
+        rest = [str(folder), "--timeout", str(args.timeout), "--json", json_out]
         if args.no_peer:
             rest.append("--no-peer")
-        if args.json:
-            rest += ["--json", args.json]
-        return mp.main(rest)
+        code = mp.main(rest)
+        print()
+        print(target_lines(json.loads(Path(json_out).read_text()), args.timeout))
+        return code
+
+
+def target_lines(report: dict, timeout: float) -> str:
+    """The issue's target on the servo at N = 10, from this run: our wall and CPU time
+    (build + solve, imports excluded, numba's cached kernel loading included) with the
+    load when the solve started, PPOPT's time, and the ratio (a lower bound when PPOPT
+    timed out)."""
+    import mp
+
+    row = next((r for r in report["rows"] if r["name"] == "servo_N10"), None)
+    if row is None or row.get("ours", {}).get("status") != "ok":
+        return "servo_N10: not solved by ours in this run"
+    o = row["ours"]
+    text = (f"servo_N10 target (under 1 s, >= 10x PPOPT): ours {o['seconds']:.3f} s wall, "
+            f"{o.get('cpu_seconds', float('nan')):.3f} s CPU, {o['regions']} regions, "
+            f"load {o['load_before']:.1f} at start")
+    p = row.get("ppopt")
+    if p is not None:
+        ratio = mp.ratio_text(row, timeout)
+        peer = (f"{p['seconds']:.3f} s" if p["status"] == "ok"
+                else f"{p['status']} (> {timeout:g} s)")
+        text += f"; PPOPT {peer}; ratio {ratio or '-'}"
+        ratio_cpu = None
+        if o.get("cpu_seconds"):
+            if p["status"] == "ok":
+                ratio_cpu = p["seconds"] / o["cpu_seconds"]
+            elif p["status"] == "timeout":
+                ratio_cpu = timeout / o["cpu_seconds"]
+        if ratio_cpu is not None:
+            text += (f" ({'>=' if p['status'] != 'ok' else ''}{ratio_cpu:.1f}x against our "
+                     "CPU time)")
+    return text
 
 
 if __name__ == "__main__":

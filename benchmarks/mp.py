@@ -243,6 +243,24 @@ def row_ratio(row: dict) -> float | None:
     return None
 
 
+def ratio_at_least(row: dict, timeout: float) -> float | None:
+    """PPOPT timed out where ours solved: its time is above ``timeout``, so the ratio is at
+    least ``timeout / ours`` (None otherwise)."""
+    o, p = row.get("ours"), row.get("ppopt")
+    if o and p and o["status"] == "ok" and p["status"] == "timeout" and o["seconds"] > 0:
+        return timeout / o["seconds"]
+    return None
+
+
+def ratio_text(row: dict, timeout: float) -> str:
+    """The ratio cell: ``12.3x``, ``>=45.6x`` (PPOPT timed out) or empty."""
+    ratio = row_ratio(row)
+    if ratio is not None:
+        return f"{ratio:.1f}x"
+    bound = ratio_at_least(row, timeout)
+    return f">={bound:.1f}x" if bound is not None else ""
+
+
 def table(rows: list[dict], with_peer: bool, timeout: float) -> str:
     head = ["name", "kind", "nz", "d", "ref", "our regions", "our s"]
     if with_peer:
@@ -259,8 +277,7 @@ def table(rows: list[dict], with_peer: bool, timeout: float) -> str:
         cells += list(cell(r.get("ours"), timeout))
         if with_peer:
             cells += list(cell(r.get("ppopt"), timeout))
-            ratio = row_ratio(r)
-            cells.append(f"{ratio:.1f}x" if ratio is not None else "")
+            cells.append(ratio_text(r, timeout))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

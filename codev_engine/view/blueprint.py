@@ -3,9 +3,10 @@
 Left: the plane (``/plane``: partition, sets, tube, traces, counterexample; shown from the
 view origin ``/`` so the plane's normalising transform applies), the state space
 (``/space``, n == 3) and the verdict; right: one time-series view per state
-(``/time/<state>``), then ``u(t)`` per input and the margin to the unsafe sets. The
-selection and blueprint panels start closed, the time panel collapsed on the ``time``
-timeline, following (the cursor at the end). See ``docs/recordings.md``.
+(``/time/<state>``) and per output ``y = C x`` (``/output/<y>``), then ``u(t)`` per input
+and the margin to the unsafe sets. The selection and blueprint panels start closed, the
+time panel collapsed on the ``time`` timeline, following (the cursor at the end).
+See ``docs/recordings.md``.
 """
 
 from __future__ import annotations
@@ -62,15 +63,31 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             rrb.Spatial3DView(origin="/space", name="state space", time_ranges=up_to_cursor)
         )
     left.append(rrb.TextDocumentView(origin="/verdict", name="verdict"))
+    cex = ", counterexample red" if content.counterexample is not None else ""
+
+    def reference(root: str) -> str:
+        return ", reference purple" if any(k.startswith(f"{root}/reference/") for k in e) else ""
+
     time_views = [
         rrb.TimeSeriesView(
             origin=f"/time/{s}",
-            name=f"{s}(t): tube orange, traces grey"
-            + (", counterexample red" if content.counterexample is not None else ""),
+            name=f"{s}(t): tube orange, traces grey" + cex + reference(f"/time/{s}"),
             plot_legend=no_legend,
         )
         for s in states
         if any(k.startswith(f"/time/{s}/") for k in e)
+    ]
+    # the outputs y = C x, after the states: their bounds black, the reference if followed
+    time_views += [
+        rrb.TimeSeriesView(
+            origin=f"/output/{y}",
+            name=f"{y}(t) = C x: tube orange, traces grey"
+            + (", bounds black" if any(k.startswith(f"/output/{y}/bounds/") for k in e) else "")
+            + cex + reference(f"/output/{y}"),
+            plot_legend=no_legend,
+        )
+        for y in content.outputs
+        if any(k.startswith(f"/output/{y}/") for k in e)
     ]
     series = [
         rrb.TimeSeriesView(

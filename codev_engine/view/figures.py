@@ -40,14 +40,17 @@ __all__ = [
     "figure_law",
     "figure_result",
     "law_html",
+    "law_section",
     "merge_bands",
     "plot_partition",
+    "plot_output",
     "plot_plane",
     "plot_sweep",
     "plot_tube",
     "png_bytes",
     "result_html",
     "section_polygons",
+    "verified_parameters",
 ]
 
 #: banner / title colour of each verdict (green, red, amber)
@@ -61,6 +64,7 @@ _TRACE = "#c62828"
 _UNSAFE = "#e53935"
 _SAFE = "#2e7d32"
 _INITIAL = "#111111"
+_REFERENCE = "#8e24aa"
 #: resolution of the notebook pictures (dots per inch)
 _DPI = 80
 
@@ -159,17 +163,26 @@ def section_polygons(
     return [polys[k] for k in np.flatnonzero(good)], regs[good]
 
 
-def default_slice_point(law: ExplicitLaw) -> np.ndarray:
-    """The point whose other coordinates fix a 2-D section of an ``n > 2`` law.
+def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.ndarray:
+    """The point whose other coordinates fix a 2-D section of a law of ``n > 2`` parameters.
 
-    The centre of the bounding box of the law's domain (the MPC's feasible set; two LPs per
-    state) -- for the usual designs around an operating point with symmetric bounds, that
-    operating point. Without a stored domain: the centre of the regions' bounding boxes.
+    The states (and, without a verified spec, every parameter): the centre of the bounding
+    box of the law's domain (the MPC's feasible set; two LPs per coordinate) -- for the usual
+    designs around an operating point with symmetric bounds, that operating point. Without
+    a stored domain: the centre of the regions' bounding boxes.
+
+    For a law over ``theta = (x, u_prev, r)`` and a ``problem`` with a ``[verify]`` section,
+    ``u_prev`` and ``r`` are the middle of the boxes the closed loop starts from
+    (``[verify] initial_input``, else the operating input; ``[verify] reference``, else the
+    ``[mpc.reference]`` box; :func:`codev_engine.reach.simulate.theta_initial_box`): the
+    values recordings, reports, notebook figures and the workbench's slice all use.
 
     Parameters
     ----------
     law : ExplicitLaw
-        The law, with ``n > 2`` states.
+        The law, with ``n > 2`` parameters.
+    problem : Problem, optional
+        The spec the law was synthesised from; ignored when it does not fit the law.
 
     Returns
     -------
@@ -177,14 +190,69 @@ def default_slice_point(law: ExplicitLaw) -> np.ndarray:
     """
     from codev_engine.geometry.polytope import bounding_box
 
+    point = None
     if law.domain_A is not None and law.domain_A.shape[0]:
         lo, hi = bounding_box(law.domain_A, law.domain_b)
         if np.all(np.isfinite(lo) & np.isfinite(hi)):
-            return 0.5 * (lo + hi)
-    if law.num_regions == 0:
-        return np.zeros(law.n)
-    lo, hi = law.boxes
-    return 0.5 * (lo.min(axis=0) + hi.max(axis=0))
+            point = 0.5 * (lo + hi)
+    if point is None:
+        if law.num_regions == 0:
+            point = np.zeros(law.n)
+        else:
+            lo, hi = law.boxes
+            point = 0.5 * (lo.min(axis=0) + hi.max(axis=0))
+    extra = verified_parameters(law, problem)
+    if extra is not None:
+        point = np.array(point, dtype=float)
+        point[law.n - extra.size :] = extra
+    return point
+
+
+def verified_parameters(law: ExplicitLaw, problem: Problem | None) -> np.ndarray | None:
+    """The middle of the initial ``(u_prev, r)`` box of ``problem``'s verification, for a
+    law over ``theta = (x, u_prev, r)`` that fits it.
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    problem : Problem or None
+
+    Returns
+    -------
+    (n - len(states),) ndarray or None
+        None without ``problem``, without ``[verify]``, or for a law over the states.
+    """
+    if problem is None or problem.verify is None or not law.parameters:
+        return None
+    nx = problem.plant.n
+    if len(law.states) != nx or law.n <= nx:
+        return None
+    from codev_engine.reach.simulate import theta_initial_box
+
+    lo, hi = theta_initial_box(problem)
+    if lo.shape[0] != law.n:
+        return None
+    return 0.5 * (lo[nx:] + hi[nx:])
+
+
+def law_section(law: ExplicitLaw, problem: Problem | None = None) -> ExplicitLaw:
+    """The law in the states alone: for a law over ``theta = (x, u_prev, r)``, its section
+    (:meth:`ExplicitLaw.section`) at :func:`default_slice_point`'s ``u_prev`` and ``r``; any
+    other law as it is.
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    problem : Problem, optional
+
+    Returns
+    -------
+    ExplicitLaw
+    """
+    nx = len(law.states)
+    if not law.parameters or law.n == nx:
+        return law
+    return law.section(default_slice_point(law, problem)[nx:])
 
 
 def _check_axes(axes: tuple[int, int], n: int) -> tuple[int, int]:
@@ -459,22 +527,90 @@ def plot_tube(
         Adds the states' names, the time horizon and the verify sets on that state: unsafe
         sets that constrain this state alone as red bands (a set that also constrains other
         states is not a band in this picture; see :func:`plot_plane`), and the bounds that
-        safe sets put on this state alone as green dashed lines.
+        safe sets put on this state alone as green dashed lines; and, for a design that
+        tracks the states (``[mpc.reference] signal = "x"``), the reference (purple: a
+        line, or the box of an unknown constant reference).
 
     Returns
     -------
     matplotlib Axes
     """
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
-    ax = _new_axes(ax, (6.0, 3.0))
     tube = result.tube
     n = tube.lower.shape[1]
     if not 0 <= state < n:
         raise ValueError(f"state must be in [0, {n}), got {state}")
     names = _state_names(n, problem.plant.states if problem is not None else None)
-    bands = merge_bands(tube.t_start, tube.t_end, tube.lower[:, state], tube.upper[:, state])
+    row = np.eye(n)[state]
+    return _plot_signal(result, ax, row, tube.lower[:, state], tube.upper[:, state],
+                        names[state], problem, state=state)
+
+
+def plot_output(
+    result: VerificationResult,
+    problem: Problem,
+    ax: Axes | None = None,
+    *,
+    output: int = 0,
+) -> Axes:
+    """Draw one output ``y = C x`` of the reachtube against time, with its MPC bounds.
+
+    The tube's boxes are mapped through ``C`` interval-wise, rounded outward
+    (:func:`codev_engine.view.signals.output_boxes`): every trajectory the tube contains
+    has its output inside the bands drawn. ``y_min`` / ``y_max`` are black dashed lines
+    (dotted when soft), the reference of a design tracking the outputs is purple, and the
+    counterexample's output is drawn as in :func:`plot_tube`.
+
+    Parameters
+    ----------
+    result : VerificationResult
+    problem : Problem
+        With ``mpc.C``.
+    ax : matplotlib Axes, optional
+    output : int
+        Index of the output (row of ``C``).
+
+    Returns
+    -------
+    matplotlib Axes
+    """
+    from codev_engine.view.signals import output_boxes, output_names
+
+    C = problem.mpc.C
+    if C is None:
+        raise ValueError("the design has no outputs (mpc.C)")
+    C = np.asarray(C, dtype=float)
+    if not 0 <= output < C.shape[0]:
+        raise ValueError(f"output must be in [0, {C.shape[0]}), got {output}")
+    tube = result.tube
+    ylo, yhi = output_boxes(C[output : output + 1], tube.lower, tube.upper)
+    name = output_names(problem)[output]
+    return _plot_signal(result, ax, C[output], ylo[:, 0], yhi[:, 0], f"{name} = C x",
+                        problem, output=output)
+
+
+def _plot_signal(
+    result: VerificationResult,
+    ax: Axes | None,
+    row: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    ylabel: str,
+    problem: Problem | None,
+    *,
+    state: int | None = None,
+    output: int | None = None,
+) -> Axes:
+    """One signal ``row @ x`` against time: the tube's bands (``lower``, ``upper``, (K,)),
+    the counterexample, and (with ``problem``) the sets on a state, the bounds on an output
+    and the reference of the signal followed."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    from codev_engine.view.signals import output_bounds, reference_band
+
+    ax = _new_axes(ax, (6.0, 3.0))
+    tube = result.tube
+    bands = merge_bands(tube.t_start, tube.t_end, lower, upper)
     handles: list[Any] = []
     ylo, yhi, tmax = np.inf, -np.inf, 0.0
     if bands.shape[0]:
@@ -483,19 +619,36 @@ def plot_tube(
         handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
     ce = result.counterexample
     if ce is not None:
-        (th, xh), (tt, xt), v = _split_trace(ce, [state])
-        ax.plot(th, xh[:, 0], color=_TRACE, lw=1.2)
-        ax.plot(tt, xt[:, 0], color=_TRACE, lw=1.0, alpha=0.35)
-        ax.plot([ce.t], v, marker="X", color=_TRACE, ms=8, ls="none")
+        n = tube.lower.shape[1]
+        (th, xh), (tt, xt), v = _split_trace(ce, list(range(n)))
+        yh, yt, yv = xh @ row, xt @ row, float(v @ row)
+        ax.plot(th, yh, color=_TRACE, lw=1.2)
+        ax.plot(tt, yt, color=_TRACE, lw=1.0, alpha=0.35)
+        ax.plot([ce.t], [yv], marker="X", color=_TRACE, ms=8, ls="none")
         handles.append(
             Line2D([], [], color=_TRACE, marker="X", label=f"counterexample ({ce.kind})")
         )
-        ylo, yhi = min(ylo, float(xh.min())), max(yhi, float(xh.max()))
+        ylo, yhi = min(ylo, float(yh.min())), max(yhi, float(yh.max()))
         tmax = max(tmax, float(tt[-1]))
-    if problem is not None and problem.verify is not None:
-        from codev_engine.reach.simulate import shown_horizon
+    # what the design asks of this signal: drawn, and in view when near the tube
+    lines: list[tuple[str, float]] = []
+    band = None
+    if problem is not None:
+        if output is not None:
+            lines = output_bounds(problem, output)
+        ref = reference_band(problem)
+        k = state if ref is not None and ref.signal == "x" else output
+        if ref is not None and k is not None and (ref.signal == "x") == (state is not None):
+            band = (float(ref.lower[k]), float(ref.upper[k]), ref.fixed)
+        if problem.verify is not None:
+            from codev_engine.reach.simulate import shown_horizon
 
-        tmax = max(tmax, shown_horizon(problem))
+            tmax = max(tmax, shown_horizon(problem))
+    near = [v for _, v in lines] + ([band[0], band[1]] if band is not None else [])
+    span = yhi - ylo if np.isfinite(yhi - ylo) else 0.0
+    for v in near:
+        if not np.isfinite(ylo) or abs(v - np.clip(v, ylo, yhi)) <= max(span, 1e-9):
+            ylo, yhi = min(ylo, v), max(yhi, v)
     ylim = _padded(ylo, yhi)
     if bands.shape[0]:
         # at least 1 % of the axis high, so a thin tube does not read as a line (the
@@ -506,10 +659,29 @@ def plot_tube(
         _add_boxes(ax, lo_b, hi_b, fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.8)
     ax.set_ylim(*ylim)
     ax.set_xlim(0.0, tmax if tmax > 0 else 1.0)
-    if problem is not None and problem.verify is not None:
+    if problem is not None and problem.verify is not None and state is not None:
         handles += _state_bounds(ax, problem, state, ylim)
+    drawn = [(label, v) for label, v in lines if ylim[0] <= v <= ylim[1]]
+    for label, v in drawn:
+        ax.axhline(v, color="k", lw=1.0, ls=":" if "soft" in label else "--")
+    for dotted in (False, True):  # one legend entry for the hard bounds, one for the soft
+        which = [label for label, _ in drawn if ("soft" in label) == dotted]
+        if which:
+            handles.append(Line2D([], [], color="k", ls=":" if dotted else "--",
+                                  label=", ".join(which)))
+    if band is not None:
+        lo_r, hi_r, fixed = band
+        if fixed or hi_r <= lo_r:
+            ax.axhline(lo_r, color=_REFERENCE, lw=1.5)
+            handles.append(Line2D([], [], color=_REFERENCE, label=f"reference {lo_r:.4g}"))
+        else:
+            ax.axhspan(lo_r, hi_r, color=_REFERENCE, alpha=0.15, lw=0)
+            for v in (lo_r, hi_r):
+                ax.axhline(v, color=_REFERENCE, lw=1.0)
+            handles.append(Patch(facecolor=_REFERENCE, alpha=0.3,
+                                 label=f"reference in [{lo_r:.4g}, {hi_r:.4g}]"))
     ax.set_xlabel("t")
-    ax.set_ylabel(names[state])
+    ax.set_ylabel(ylabel)
     if handles:
         ax.legend(handles=handles, fontsize="small", loc="upper right")
     return ax
@@ -813,28 +985,38 @@ def figure_result(
     law : ExplicitLaw, optional
         Adds the law's domain to the plane view.
     max_states : int
-        Tubes against time are drawn for the first ``max_states`` states.
+        Tubes against time are drawn for the first ``max_states`` states (and outputs).
 
     Returns
     -------
     matplotlib Figure
-        Left: one tube-vs-time panel per state; right (``n >= 2``): the plane of the first
+        Left: one tube-vs-time panel per state, then one per output ``y = C x`` of the
+        problem (:func:`plot_output`); right (``n >= 2``): the plane of the first
         two states (:func:`plot_plane`).
     """
     from matplotlib.figure import Figure
 
     n = result.tube.lower.shape[1]
-    rows = max(1, min(n, max_states))
+    p = 0
+    if problem is not None and problem.mpc.C is not None and problem.plant.n == n:
+        p = min(np.asarray(problem.mpc.C).shape[0], max_states)
+    shown = max(1, min(n, max_states))
+    rows = shown + p
     plane = n >= 2
     fig = Figure(figsize=(11.0 if plane else 6.5, 1.2 + 2.0 * rows), layout="constrained")
     grid = fig.add_gridspec(rows, 2 if plane else 1, width_ratios=[1.2, 1] if plane else None)
     for k in range(rows):
         ax = fig.add_subplot(grid[k, 0])
-        plot_tube(result, ax, state=k, problem=problem)
+        if k < shown:
+            plot_tube(result, ax, state=k, problem=problem)
+        else:
+            assert problem is not None
+            plot_output(result, problem, ax, output=k - shown)
         if k < rows - 1:
             ax.set_xlabel("")
     if plane:
-        plot_plane(result, fig.add_subplot(grid[:, 1]), problem=problem, law=law)
+        drawn = None if law is None else law_section(law, problem)  # a theta law: its section
+        plot_plane(result, fig.add_subplot(grid[:, 1]), problem=problem, law=drawn)
     name = f"{problem.name}: " if problem is not None else ""
     stats = f"{result.tube.num_boxes} boxes, {result.seconds:.3g} s, hold {result.hold}"
     fig.suptitle(

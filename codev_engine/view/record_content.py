@@ -24,6 +24,7 @@ from codev_engine.geometry.vertices import vertices_in_boxes, vertices_many
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem, SetSpec
 from codev_engine.view.shapes import meshes, outline, raster_boxes, raster_polygons
+from codev_engine.view.signals import output_bounds, output_boxes, output_names, reference_band
 
 if TYPE_CHECKING:
     from codev_engine.reach.tube import Tube
@@ -50,6 +51,7 @@ _BLUE = (40, 110, 230)
 _TUBE = (235, 120, 0, 255)
 _TUBE_FILL = (255, 165, 40, 170)
 _TRACE = (120, 120, 120)
+_REFERENCE = (150, 40, 200)
 _AXIS = (30, 30, 30)
 _EDGE = (60, 60, 60, 90)
 #: pixels of a side of the plane's rasters (the partition, the filled sets and tube)
@@ -469,6 +471,8 @@ class RecordingContent:
         self._log_traces(w)
         self._log_counterexample(w)
         self._log_bounds(w)
+        self._log_outputs(w)
+        self._log_reference(w)
         self._log_verdict(w)
 
     def _log_frame(self, w: EntityWriter) -> None:
@@ -857,6 +861,88 @@ class RecordingContent:
             entity = "/scalars/unsafe_distance/zero"
             w.static(entity, rr.SeriesLines(colors=[_RED], widths=[1.0], names=["0"]), 0)
             w.columns(entity, T, [*rr.Scalars.columns(scalars=np.zeros(2))], 2)
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """The outputs' names (``y<i>``, one per row of ``mpc.C``; none without ``C``)."""
+        return output_names(self.problem)
+
+    def _log_outputs(self, w: EntityWriter) -> None:
+        """Per output ``y = C x``: the traces, the counterexample, the tube's hull (``C``
+        applied to each box interval-wise, rounded outward) and the MPC's bounds."""
+        import rerun as rr
+
+        names = self.outputs
+        if not names:
+            return
+        C = np.asarray(self.problem.mpc.C, dtype=float)
+        tr = self.traces
+        if tr is not None:
+            ok = np.all(np.isfinite(tr.X), axis=2)
+            Y = tr.X @ C.T  # (P, K, p)
+            for p in range(tr.X.shape[0]):
+                for k, y in enumerate(names):
+                    entity = f"/output/{y}/traces/{p}"
+                    w.static(entity, rr.SeriesLines(colors=[_TRACE], widths=[0.75],
+                                                    names=[f"trace_{p}"]), 0)
+                    keep = ok[p]
+                    w.columns(entity, tr.t[keep], [*rr.Scalars.columns(scalars=Y[p, keep, k])],
+                              int(keep.sum()))
+        cex = self.counterexample
+        if cex is not None:
+            t = np.asarray(cex.trace.t, dtype=float)
+            X = np.asarray(cex.trace.x, dtype=float)
+            keep = np.all(np.isfinite(X), axis=1)
+            Y = X[keep] @ C.T
+            for k, y in enumerate(names):
+                entity = f"/output/{y}/counterexample"
+                w.static(entity, rr.SeriesLines(colors=[_RED], widths=[2.5],
+                                                names=["counterexample"]), 0)
+                w.columns(entity, t[keep], [*rr.Scalars.columns(scalars=Y[:, k])],
+                          int(keep.sum()))
+        tube = self.tube
+        if tube is not None and tube.num_boxes:
+            ylo, yhi = output_boxes(C, tube.lower, tube.upper)
+            t_env, lo_env, hi_env = tube_envelope(
+                np.asarray(tube.t_start, dtype=float), np.asarray(tube.t_end, dtype=float),
+                ylo, yhi)
+            tt = np.repeat(t_env, 2)[1:-1]
+            for k, y in enumerate(names):
+                for side, val in (("lower", lo_env[:, k]), ("upper", hi_env[:, k])):
+                    entity = f"/output/{y}/tube/{side}"
+                    w.static(entity, rr.SeriesLines(colors=[_TUBE[:3]], widths=[2.0],
+                                                    names=[f"tube {side}"]), 0)
+                    v = np.repeat(val, 2)
+                    keep = np.isfinite(v)
+                    w.columns(entity, tt[keep], [*rr.Scalars.columns(scalars=v[keep])],
+                              int(keep.sum()))
+        T = np.array([0.0, self.horizon])
+        for k, y in enumerate(names):
+            for label, v in output_bounds(self.problem, k):
+                entity = f"/output/{y}/bounds/{label.split()[0][2:]}"
+                w.static(entity, rr.SeriesLines(colors=[_AXIS], widths=[1.5], names=[label]), 0)
+                w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, v))], 2)
+
+    def _log_reference(self, w: EntityWriter) -> None:
+        """The reference on the series of the signal it is for: ``/time/<state>`` (signal
+        ``x``) or ``/output/<y>`` (signal ``y``); a fixed value, or the box of an unknown
+        constant reference (its lower and upper side)."""
+        import rerun as rr
+
+        band = reference_band(self.problem)
+        if band is None:
+            return
+        root = "/time" if band.signal == "x" else "/output"
+        T = np.array([0.0, self.horizon])
+        for k, name in enumerate(band.names):
+            sides = ((("value", band.lower[k]),) if band.fixed
+                     else (("lower", band.lower[k]), ("upper", band.upper[k])))
+            for side, v in sides:
+                entity = f"{root}/{name}/reference/{side}"
+                label = "reference" if band.fixed else f"reference {side}"
+                w.static(entity, rr.SeriesLines(colors=[_REFERENCE], widths=[1.5],
+                                                names=[label]), 0)
+                w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, float(v)))], 2)
 
     def _log_counterexample(self, w: EntityWriter) -> None:
         import rerun as rr

@@ -248,8 +248,10 @@ def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
              ) -> tuple[ExplicitLaw, RecordingOptions]:
     """The law and options a picture of ``problem`` draws.
 
-    For a law over ``theta = (x, u_prev, r)``: its section at the middle of the initial
-    ``u_prev`` and ``r`` boxes (:meth:`ExplicitLaw.section`); the traces are simulated with
+    For a law over ``theta = (x, u_prev, r)``: its section (:meth:`ExplicitLaw.section`) at
+    the middle of the initial ``u_prev`` and ``r`` boxes of ``[verify]``, the centre of the
+    law's domain without one (``figures.default_slice_point``, the slice every picture
+    uses); the traces are simulated with
     the whole law (``RecordingContent.build``'s ``trace_law``), over its own ``u_prev``.
 
     Parameters
@@ -270,22 +272,9 @@ def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
 
 
 def _section_point(problem: Problem, law: ExplicitLaw) -> np.ndarray:
-    """The default values of the parameters after the states: the middle of the initial
-    ``u_prev`` and ``r`` boxes of ``[verify]`` (``u_op`` and the middle of the reference box
-    without one)."""
-    if problem.verify is not None:
-        from codev_engine.reach.simulate import theta_initial_box
+    """The default values of the parameters after the states
+    (:func:`codev_engine.view.figures.default_slice_point`): the middle of the initial
+    ``u_prev`` and ``r`` boxes of ``[verify]``, the centre of the law's domain without one."""
+    from codev_engine.view.figures import default_slice_point
 
-        lo, hi = theta_initial_box(problem)
-        n = problem.plant.n
-        return 0.5 * (lo[n:] + hi[n:])
-    mpc = problem.mpc
-    out: list[float] = []
-    if mpc.has_rates:
-        u_op = np.asarray(problem.model.u_op, dtype=float)
-        out += list(u_op if u_op.size else np.zeros(problem.plant.m))
-    if mpc.free_reference:
-        ref = mpc.reference
-        assert ref is not None and ref.lower is not None and ref.upper is not None
-        out += list(0.5 * (np.asarray(ref.lower) + np.asarray(ref.upper)))
-    return np.asarray(out, dtype=float)
+    return default_slice_point(law, problem)[problem.plant.n :]

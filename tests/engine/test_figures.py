@@ -445,3 +445,79 @@ def test_bare_result_display_has_state_names_and_obstacles(results, tmp_path, mo
     drawn.clear()
     loaded._repr_png_()
     assert drawn[0].axes[0].get_ylabel() == "x[0]"
+
+
+# --------------------------------------------------------------------------------------------
+# outputs and references (issue 25)
+# --------------------------------------------------------------------------------------------
+
+
+def _short(problem: ce.Problem, horizon: float) -> ce.Problem:
+    import re
+
+    return ce.loads_spec(re.sub(r"time_horizon = [0-9.]+", f"time_horizon = {horizon}",
+                                problem.source))
+
+
+def test_servo_figure_shows_the_output_tube_and_the_reference_box(example_law):
+    """The servo's law is over theta = (x, u_prev, r): the figure draws its section in the
+    plane (it raised before) and a y0 = C x panel with the reference box of [verify]."""
+    problem, law = example_law("dc_motor_servo.toml")
+    problem = _short(problem, 0.2)
+    result = ce.verify(problem, law)
+    fig = figures.figure_result(result, problem, law=law)
+    axes = [a for a in fig.axes if a.get_ylabel() == "y0 = C x"]
+    assert len(axes) == 1 and len(fig.axes) == 4  # angle, speed, y0 and the plane
+    ax = axes[0]
+    ys = sorted(float(np.mean(line.get_ydata())) for line in ax.lines)
+    assert ys == pytest.approx([0.45, 0.55])  # the reference box's sides
+    assert any("reference in [0.45, 0.55]" in t.get_text() for t in ax.get_legend().get_texts())
+    # the bands are C applied to the boxes: here y = angle, so the angle panel's bands
+    angle = next(a for a in fig.axes if a.get_ylabel() == "angle")
+    v_y = _boxes_patch(ax).get_path().vertices
+    v_x = _boxes_patch(angle).get_path().vertices
+    assert v_y.shape == v_x.shape and np.allclose(v_y[:, 0], v_x[:, 0])
+    # no reference on the states (the design follows y)
+    assert not any("reference" in t.get_text() for t in angle.get_legend().get_texts())
+
+
+def test_soft_output_bound_is_drawn_dotted(example_law):
+    problem, law = example_law("mass_spring_soft.toml")
+    result = ce.verify(_short(problem, 2.0), law)
+    ax = figures.plot_output(result, problem, _axes(), output=0)
+    dotted = [line for line in ax.lines if line.get_linestyle() == ":"]
+    assert len(dotted) == 1 and np.allclose(dotted[0].get_ydata(), 1.0)
+    assert ax.get_ylim()[1] > 1.0  # the bound is in view, above the tube
+    assert [t.get_text() for t in ax.get_legend().get_texts()][-1] == "y_max (soft)"
+    with pytest.raises(ValueError, match="output"):
+        figures.plot_output(result, problem, _axes(), output=1)
+
+
+def test_default_slice_is_the_verified_middle_of_u_prev_and_r(example_law):
+    """The slice for u_prev and r: the middle of [verify] initial_input and reference; the
+    domain's centre without [verify]; recordings take the same section."""
+    from codev_engine.view.records import _section_point
+
+    problem, law = example_law("dc_motor_servo.toml")
+    at = figures.default_slice_point(law, problem)
+    assert at[2:] == pytest.approx([0.0, 0.5])  # initial_input 0, reference [0.45, 0.55]
+    bare = figures.default_slice_point(law)
+    assert bare[:2] == pytest.approx(at[:2]) and bare[3] == pytest.approx(0.0, abs=1e-9)
+    assert _section_point(problem, law) == pytest.approx(at[2:])
+    no_verify = ce.loads_spec(problem.source.split("[verify]")[0])
+    assert figures.default_slice_point(law, no_verify) == pytest.approx(bare)
+    assert _section_point(no_verify, law) == pytest.approx(bare[2:])
+
+
+def test_output_panel_draws_the_counterexample_through_c(example_law):
+    problem, law = example_law("mass_spring_soft.toml")
+    unsafe = ce.loads_spec(_short(problem, 2.0).source.replace("lower = [1.3, -inf]",
+                                                               "lower = [0.75, -inf]"))
+    result = ce.verify(unsafe, law)
+    cex = result.counterexample
+    assert result.verdict == "unsafe" and cex is not None
+    ax = figures.plot_output(result, unsafe, _axes(), output=0)
+    (mark,) = [line for line in ax.lines if line.get_marker() == "X"]
+    p_at = np.interp(cex.t, np.asarray(cex.trace.t), np.asarray(cex.trace.x)[:, 0])
+    assert mark.get_xdata()[0] == pytest.approx(cex.t)
+    assert mark.get_ydata()[0] == pytest.approx(p_at)

@@ -654,3 +654,136 @@ def test_tube_envelope_contains_every_box():
         seg = (t[:-1] >= ts[k]) & (t[1:] <= te[k])
         assert seg.any()
         assert np.all(elo[seg] <= lo[k]) and np.all(ehi[seg] >= hi[k])
+
+
+# ---------------------------------------------------------------------------------------
+# references and outputs (issue 25): the servo tracking a reference box, soft output bounds
+# ---------------------------------------------------------------------------------------
+
+SERVO_TEXT = (EXAMPLES / "dc_motor_servo.toml").read_text().replace(
+    "time_horizon = 2.0", "time_horizon = 0.2"  # a short verification: 0.1 s CPU
+)
+SOFT_TEXT = (EXAMPLES / "mass_spring_soft.toml").read_text().replace(
+    "time_horizon = 8.0", "time_horizon = 2.0"
+)
+
+
+def _written(text: str, folder: Path, traces: int = 4):
+    problem = ce.loads_spec(text)
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    path = folder / "design.rrd"
+    summary = write_recording(path, problem, law, result, options=RecordingOptions(traces=traces))
+    return problem, result, summary, read(path)
+
+
+@pytest.fixture(scope="module")
+def servo_recording(tmp_path_factory):
+    return _written(SERVO_TEXT, tmp_path_factory.mktemp("servo"))
+
+
+@pytest.fixture(scope="module")
+def soft_recording(tmp_path_factory):
+    return _written(SOFT_TEXT, tmp_path_factory.mktemp("soft"))
+
+
+def _series(e: Entity) -> tuple[np.ndarray, np.ndarray]:
+    return e.time / 1e9, e.values("Scalars:scalars")
+
+
+def _hull_contains_output_boxes(entities, name: str, C: np.ndarray, tube) -> None:
+    """The logged hull of y = C x contains C applied to every tube box (checked at each
+    box's mid-time, float32 file)."""
+    t, lo = _series(entities[f"/output/{name}/tube/lower"])
+    _, hi = _series(entities[f"/output/{name}/tube/upper"])
+    assert len(t) > 0 and np.all(np.diff(t) >= 0)
+    k = int(name[1:])
+    c = 0.5 * (tube.lower + tube.upper) @ C[k]
+    r = 0.5 * (tube.upper - tube.lower) @ np.abs(C[k])
+    mid = 0.5 * (tube.t_start + tube.t_end)
+    j = np.searchsorted(t, mid)
+    assert np.all(lo[j] <= c - r + 1e-5) and np.all(hi[j] >= c + r - 1e-5)
+    # and it is tight: some box touches each side
+    assert np.min(c - r - lo[j]) < 1e-5 and np.min(hi[j] - c - r) < 1e-5
+
+
+def test_servo_recording_draws_the_reference_box_on_the_output(servo_recording):
+    problem, result, summary, entities = servo_recording
+    horizon = problem.verify.time_horizon
+    for side, value in (("lower", 0.45), ("upper", 0.55)):  # [verify] reference
+        t, v = _series(entities[f"/output/y0/reference/{side}"])
+        assert t == pytest.approx([0.0, horizon]) and v == pytest.approx([value] * 2)
+        assert entities[f"/output/y0/reference/{side}"].per_row("SeriesLines:names") == [
+            [f"reference {side}"]
+        ]
+    # no reference on the states (it follows y), no bounds on y (none in the spec)
+    assert not any("/reference/" in k for k in entities if k.startswith("/time/"))
+    assert not any(k.startswith("/output/y0/bounds/") for k in entities)
+    C = np.asarray(problem.mpc.C)
+    _hull_contains_output_boxes(entities, "y0", C, result.tube)
+    # each trace's output is C x of its states
+    for p in range(4):
+        t, y = _series(entities[f"/output/y0/traces/{p}"])
+        t2, x = _series(entities[f"/time/angle/traces/{p}"])
+        assert np.array_equal(t, t2) and np.allclose(y, x, atol=1e-6) and len(y) > 10
+    assert summary.entities["/output/y0/reference/lower"] == 2
+    kinds = view_kinds(summary.path)
+    outs = [n for n in kinds if n.startswith("y0(t) = C x")]
+    assert len(outs) == 1 and kinds[outs[0]] == "TimeSeries" and "reference purple" in outs[0]
+
+
+def test_soft_output_bound_and_the_outputs_tube(soft_recording):
+    problem, result, summary, entities = soft_recording
+    t, v = _series(entities["/output/y0/bounds/max"])
+    assert t == pytest.approx([0.0, problem.verify.time_horizon]) and v == pytest.approx([1.0, 1.0])
+    assert entities["/output/y0/bounds/max"].per_row("SeriesLines:names") == [["y_max (soft)"]]
+    assert "/output/y0/bounds/min" not in entities  # no y_min in the spec
+    assert not any("/reference/" in k for k in entities)  # it regulates
+    _hull_contains_output_boxes(entities, "y0", np.asarray(problem.mpc.C), result.tube)
+    kinds = view_kinds(summary.path)
+    assert any(n.startswith("y0(t) = C x") and "bounds black" in n for n in kinds)
+
+
+def test_a_fixed_state_reference_is_drawn_on_the_states(tmp_path):
+    """signal = "x": the value on each state's series; no output view without C."""
+    text = SERVO_TEXT.split("[mpc.reference]")[0].replace('C = [[1.0, 0.0]]', "")
+    text += '[mpc.reference]\nsignal = "x"\nvalue = [0.5, 0.0]\n' + (
+        "[verify]" + SERVO_TEXT.split("[verify]")[1]
+    ).replace("reference = { lower = [0.45], upper = [0.55] }", "")
+    problem = ce.loads_spec(text)
+    law = ce.synthesize(problem)
+    summary = write_recording(tmp_path / "x.rrd", problem, law,
+                              options=RecordingOptions(traces=2))
+    entities = read(summary.path)
+    for s, value in (("angle", 0.5), ("speed", 0.0)):
+        t, v = _series(entities[f"/time/{s}/reference/value"])
+        assert v == pytest.approx([value] * 2) and t == pytest.approx([0.0, 0.2])
+    assert not any(k.startswith("/output/") for k in entities)
+
+
+def test_output_boxes_contain_every_output():
+    from codev_engine.view.signals import output_boxes
+
+    rng = np.random.default_rng(3)
+    C = rng.normal(size=(3, 4)) * 10.0 ** rng.integers(-3, 3, size=(3, 4))
+    lo = rng.normal(size=(50, 4)) * 1e3
+    hi = lo + rng.uniform(0, 1e-3, size=(50, 4)) * np.abs(lo)
+    ylo, yhi = output_boxes(C, lo, hi)
+    X = rng.uniform(lo[:, None, :], hi[:, None, :], size=(50, 200, 4))
+    corners = np.where((np.arange(16)[:, None] >> np.arange(4)) & 1, hi[:, None, :], lo[:, None, :])
+    for P in (X, corners):
+        Y = np.einsum("kpn,qn->kpq", P, C)
+        assert np.all(Y >= ylo[:, None, :]) and np.all(Y <= yhi[:, None, :])
+
+
+def test_counterexample_output_is_c_of_its_states(tmp_path):
+    """An unsafe soft design: the counterexample's output y0 = p is logged on the output
+    view, equal to its state series."""
+    text = SOFT_TEXT.replace("lower = [1.3, -inf]", "lower = [0.75, -inf]")
+    problem, result, summary, entities = _written(text, tmp_path, traces=0)
+    assert result.verdict == "unsafe" and result.counterexample is not None
+    t, y = _series(entities["/output/y0/counterexample"])
+    t2, x = _series(entities["/time/p/counterexample"])
+    assert len(y) > 2 and np.array_equal(t, t2) and np.allclose(y, x, atol=1e-6)
+    assert any(n.startswith("y0(t) = C x") and "counterexample red" in n
+               for n in view_kinds(summary.path))

@@ -120,3 +120,13 @@ def test_report_renders_in_headless_chromium(unsafe_report, tmp_path):
     assert banner[0] > 0.6 and banner[1] < 0.35  # the unsafe banner is red
     inked = np.mean(image.min(axis=2) < 0.9)
     assert inked > 0.05  # text and figures, not a blank page
+
+
+def test_report_of_a_soft_output_design_shows_the_output_and_its_bound():
+    """The report's figure has a y0 = C x panel with the soft bound (issue 25)."""
+    text = (EXAMPLES / "mass_spring_soft.toml").read_text().replace(
+        "time_horizon = 8.0", "time_horizon = 1.0")
+    problem = ce.loads_spec(text)
+    law = ce.synthesize(problem)
+    page = report_html(problem, law, ce.verify(problem, law), traces=2)
+    assert "y0 = C x" in page and "y_max (soft)" in page

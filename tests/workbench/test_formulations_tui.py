@@ -8,12 +8,16 @@ so the region table, the lookup and the slice take four numbers.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from pilot_tools import EXAMPLES, SIZE, entry, run, settle, text_of
+from textcells import decode_pixels, plot_body
 from textual.widgets import Collapsible, Input
 
 from workbench.tui.app import CodevApp
+from workbench.tui.design import shared_laws
 from workbench.tui.state import open_target
+from workbench.tui.views import REFERENCE
 
 
 @pytest.fixture(autouse=True)
@@ -29,6 +33,17 @@ KEY = {" ": "space", ",": "comma", "-": "minus", ".": "full_stop"}
 
 def keys(text: str) -> list[str]:
     return [KEY.get(c, c) for c in text]
+
+
+def rows_of(rows: list[list[str | None]], colour: str) -> list[int]:
+    """For each pixel column (left to right), the first row of ``colour`` (columns
+    without it left out)."""
+    out = []
+    for c in range(len(rows[0])):
+        hit = [k for k in range(len(rows)) if rows[k][c] == colour]
+        if hit:
+            out.append(hit[0])
+    return out
 
 
 async def _synthesise_and_verify(pilot, app: CodevApp, timeout: float) -> None:
@@ -66,6 +81,11 @@ def test_the_servo_opens_and_synthesises_in_the_workbench(tmp_path, monkeypatch)
             law = app.law
             assert law is not None and app.law_current(), [n.message for n in app._notifications]
             assert law.n == 4 and law.parameter_names == ("angle", "speed", "prev_V", "ref_y0")
+            # "96 share a law" is right: the first move is at a limit almost everywhere
+            # (u = ±1 in 13 regions each, u = u_prev ± 0.5 in 37 each), 5 distinct laws
+            FG = np.hstack([law.F.reshape(law.num_regions, -1), law.G])
+            distinct = {tuple(np.round(row, 9)) for row in FG}
+            assert shared_laws(law) == law.num_regions - len(distinct) == 96
             # the region table names θ; the lookup takes its four numbers
             row = app.query_one("#regions").get_row_at(0)
             assert "prev_V" in row[2] or "ref_y0" in row[2] or row[2].startswith("+"), row
@@ -76,9 +96,28 @@ def test_the_servo_opens_and_synthesises_in_the_workbench(tmp_path, monkeypatch)
             k, u = law.locate([[0.1, 0.0, 0.0, 0.5]])[0], law.evaluate([[0.1, 0.0, 0.0, 0.5]])
             assert f"region {k}" in text_of(app, "#locate-out").replace("[b]", "")
             assert f"V = {float(u[0, 0]):.6g}" in text_of(app, "#locate-out")
-            # the slice takes the extra parameters alone
+            # by default the slice is at the middle of [verify] initial_input and reference,
+            # as in recordings and reports; typed, it takes the extra parameters alone
+            pane = app.query_one("SynthesisPane")
+            assert pane._at(law).tolist()[2:] == pytest.approx([0.0, 0.5])
+            assert "middle of [verify]" in app.query_one("#synth-at", Input).placeholder
             app.query_one("#synth-at", Input).value = "0.2, -0.5"
-            assert app.query_one("SynthesisPane")._at(law).tolist()[2:] == [0.2, -0.5]
+            assert pane._at(law).tolist()[2:] == [0.2, -0.5]
+            # the preview draws the reference it follows (y = angle: on the angle's plot)
+            await pilot.press("f2", "ctrl+g")
+            await settle(pilot, app, timeout=240)
+            mpc = app.query_one("MpcPane")
+            assert mpc.last is not None and "following r = 0.5" in text_of(app, "#preview-status")
+            assert mpc.reference_lines == [("r angle", 0.5)]
+            picture = app.query_one("#preview-states")._draw(60, 12)
+            assert "r angle = 0.5" in picture.plain
+            rows = decode_pixels(plot_body(picture, 12))
+            on = [k for k, row in enumerate(rows) if row.count(REFERENCE) >= 20]
+            assert len(on) == 1, on  # one dashed horizontal line across the plot
+            # at the reference's height: the angle's last samples (it settles at 0.5) are
+            # drawn on that pixel row or next to it
+            angle = rows_of(rows, "#4e79a7")
+            assert min(abs(k - on[0]) for k in angle[-3:]) <= 1, (on, angle[-3:])
 
     run(scenario())
 

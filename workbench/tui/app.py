@@ -395,6 +395,7 @@ class CodevApp(App):
         self._show_pipeline()
         self._before_verify = before_verify
         self.query_one(MpcPane).set_problem(chk.problem if chk.ok else before_verify)
+        self.query_one(SynthesisPane).set_problem(chk.problem if chk.ok else before_verify)
         self._show_results()
         self.query_one(SessionPane).show_session(self.session, self.statuses)
         plant = self.query_one(PlantPane)
@@ -862,6 +863,7 @@ class CodevApp(App):
         ):
             pane.reset()
         self.query_one(MpcPane).set_problem(None)
+        self.query_one(SynthesisPane).set_problem(None)
         self._show_pipeline()
         for entry in self.query(FieldEntry):
             entry.set_text(self.values.get(entry.field_name, ""))

@@ -267,6 +267,59 @@ def mpc_preview(
     return MpcPreview(t, Xa, Ua, stop, time.perf_counter() - t0, r, u_prev0)
 
 
+def preview_signals(
+    problem: Problem, prev: MpcPreview
+) -> tuple[np.ndarray, tuple[str, ...], list[tuple[str, float]]]:
+    """What the preview's state plot draws: the states, the outputs that are not a state
+    themselves, and the reference the loop followed.
+
+    Parameters
+    ----------
+    problem : Problem
+        The spec previewed.
+    prev : MpcPreview
+
+    Returns
+    -------
+    Y : (K+1, q) ndarray
+        The states, then each output ``y<i> = C x`` whose row of ``C`` is not a unit vector.
+    labels : tuple of str
+        Their names (q).
+    lines : list of (str, float)
+        The reference, one horizontal line per followed signal: ``("r <name>", value)``,
+        named by the state an output row picks (``r angle`` for ``C = [[1, 0]]``). The value
+        is the reference followed (typed or :func:`preview_extras`'s) or the fixed one.
+    """
+    mpc = problem.mpc
+    states = tuple(problem.plant.states)
+    Y, labels = np.asarray(prev.X, dtype=float), states
+    C = None if mpc.C is None else np.asarray(mpc.C, dtype=float)
+    output_as: list[str] = []  # the name each output is drawn under
+    if C is not None:
+        extra = []
+        for k, row in enumerate(C):
+            picks = np.flatnonzero(row)
+            if picks.size == 1 and row[picks[0]] == 1.0:
+                output_as.append(states[picks[0]])
+            else:
+                output_as.append(f"y{k}")
+                extra.append(k)
+        if extra:
+            Y = np.hstack([Y, Y[:, : C.shape[1]] @ C[extra].T])
+            labels = labels + tuple(f"y{k}" for k in extra)
+    ref = mpc.reference
+    if ref is None:
+        return Y, labels, []
+    if prev.reference is not None:
+        r = np.asarray(prev.reference, dtype=float)
+    elif ref.value is not None:
+        r = np.asarray(ref.value, dtype=float)
+    else:
+        r = preview_extras(problem)[1]
+    names = states if ref.signal == "x" else tuple(output_as)
+    return Y, labels, [(f"r {nm}", float(v)) for nm, v in zip(names, r, strict=True)]
+
+
 def region_rows(law: ExplicitLaw, limit: int = 500) -> list[tuple[str, ...]]:
     """Rows of the synthesis screen's region table, one per critical region.
 

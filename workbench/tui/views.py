@@ -13,11 +13,16 @@ import numpy as np
 from rich.text import Text
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from codev_engine import ExplicitLaw, Problem, VerificationResult
 
 from codev_engine.view.figures import default_slice_point
 
 from .raster import COLOURS, Raster, nice_limits, plot_text
+
+#: the colour of a reference line (the preview's)
+REFERENCE = "#d37bff"
 
 __all__ = ["law_limits", "partition_text", "plane_text", "series_text", "tube_time_text"]
 
@@ -268,8 +273,9 @@ def series_text(
     height: int,
     *,
     steps: bool = False,
+    lines: Sequence[tuple[str, float]] = (),
 ) -> Text:
-    """Time series as coloured lines, one per column of ``Y``.
+    """Time series as coloured lines, one per column of ``Y``, and horizontal lines.
 
     Parameters
     ----------
@@ -283,6 +289,9 @@ def series_text(
         Plot size in cells.
     steps : bool
         Draw each signal held from one sample to the next (an input under zero-order hold).
+    lines : sequence of (str, float)
+        Horizontal lines over the whole time axis, dashed in :data:`REFERENCE` (the
+        reference a preview follows), named in the legend; always in view.
 
     Returns
     -------
@@ -296,9 +305,11 @@ def series_text(
     finite = Y[np.isfinite(Y)]
     if finite.size == 0:
         return Text("(no data)")
-    r = Raster(
-        width, height, nice_limits(t.min(), t.max(), 0.0), nice_limits(finite.min(), finite.max())
-    )
+    levels = np.array([v for _, v in lines if np.isfinite(v)], dtype=float)
+    lo, hi = finite.min(), finite.max()
+    if levels.size:
+        lo, hi = min(lo, levels.min()), max(hi, levels.max())
+    r = Raster(width, height, nice_limits(t.min(), t.max(), 0.0), nice_limits(lo, hi))
     r.polyline(t, np.zeros_like(t), COLOURS["axis"])
     palette = ("#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#b07aa1", "#edc948")
     legend = []
@@ -311,4 +322,16 @@ def series_text(
             tt, yy = t, Y[:, k]
         r.polyline(tt, yy, colour)
         legend.append((labels[k] if k < len(labels) else f"y{k}", colour))
+    if lines:
+        # dashed: 3 pixels on, 2 off, across the time axis
+        cols = r.shape[1]
+        x0, x1 = r.xlim
+        edges = x0 + np.arange(cols + 1) * (x1 - x0) / cols
+        for label, v in lines:
+            if not np.isfinite(v):
+                continue
+            for c in range(0, cols, 5):
+                a, b = edges[c] + 1e-9 * (x1 - x0), edges[min(c + 3, cols)] - 1e-9 * (x1 - x0)
+                r.polyline(np.array([a, b]), np.array([v, v]), REFERENCE)
+            legend.append((f"{label} = {v:.4g}", REFERENCE))
     return plot_text(r, xlabel="t (s)", legend=legend)

@@ -14,7 +14,7 @@ from textual.widgets import Button, Input, Label, Static
 
 from codev_engine.errors import CodevError
 
-from ..design import MpcPreview, mpc_preview, preview_extras
+from ..design import MpcPreview, mpc_preview, preview_extras, preview_signals
 from ..form import FIELDS
 from ..parsers import parse_state
 from ..views import series_text
@@ -41,6 +41,8 @@ class MpcPane(Horizontal):
     ----------
     last : MpcPreview or None
         The last preview shown.
+    reference_lines : list of (str, float)
+        The reference lines drawn on its state plot (``design.preview_signals``).
     """
 
     def __init__(self, values: dict[str, str]) -> None:
@@ -50,6 +52,7 @@ class MpcPane(Horizontal):
         self._problem: Problem | None = None  # the valid spec of the last form check
         self._x0_filled = ""  # the default state last filled in (not typed by the user)
         self.last: MpcPreview | None = None
+        self.reference_lines: list[tuple[str, float]] = []
 
     def compose(self) -> ComposeResult:
         with VerticalScroll(classes="form", can_focus=False):
@@ -110,6 +113,7 @@ class MpcPane(Horizontal):
         and steps typed, the status line and both pictures."""
         self._stop.set()
         self.last = None
+        self.reference_lines = []
         self.query_one("#preview-x0", Input).value = self._x0_filled = ""
         self.query_one("#preview-steps", Input).value = "20"
         self.query_one("#preview-r", Input).value = ""
@@ -203,9 +207,12 @@ class MpcPane(Horizontal):
         if prev.reference is not None:
             msg += f" · following r = {', '.join(f'{v:g}' for v in prev.reference)}"
         self.query_one("#preview-status", Static).update(msg)
-        states, inputs = problem.plant.states, problem.plant.inputs
+        inputs = problem.plant.inputs
+        # the states (and outputs that are not a state), and the reference followed
+        Y, labels, lines = preview_signals(problem, prev)
+        self.reference_lines = lines
         self.query_one("#preview-states", Plot).set_draw(
-            lambda w, h: series_text(prev.t, prev.X, states, w, h)
+            lambda w, h: series_text(prev.t, Y, labels, w, h, lines=lines)
         )
         if k:
             self.query_one("#preview-inputs", Plot).set_draw(

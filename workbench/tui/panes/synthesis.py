@@ -20,7 +20,7 @@ from ..views import partition_text
 from ..widgets import EntryInput, Plot
 
 if TYPE_CHECKING:
-    from codev_engine import ExplicitLaw
+    from codev_engine import ExplicitLaw, Problem
 
 
 class SynthesisPane(Vertical):
@@ -41,6 +41,9 @@ class SynthesisPane(Vertical):
     _busy: str | None = None
     _shared_for: object = None  # the law _shared was counted for
     _shared = 0
+    _problem: Problem | None = None  # the form's valid spec: its [verify] boxes fix the slice
+    _centre_for: object = None  # the law _centre (its domain's centre) was computed for
+    _centre: np.ndarray | None = None
 
     def compose(self) -> ComposeResult:
         with Horizontal(classes="bar"):
@@ -165,6 +168,39 @@ class SynthesisPane(Vertical):
         if self._busy in ("model", "synthesis") or stage in ("model", "synthesis"):
             self.query_one("#synth-status", Static).update(f"[cyan]{text}[/cyan]")
 
+    def set_problem(self, problem: Problem | None) -> None:
+        """Set the spec whose ``[verify] initial_input`` and ``reference`` fix the default
+        slice of a law over θ = (x, u_prev, r) (:func:`figures.default_slice_point`, as in
+        recordings and reports); the picture is redrawn when that slice moved.
+
+        Parameters
+        ----------
+        problem : Problem or None
+            The form's valid spec (None while it is not valid: the domain's centre).
+        """
+        law = self._law
+        if law is None or not law.parameters or law is not self._law_shown:
+            self._problem = problem
+            return
+        before = self._default_at(law)
+        self._problem = problem
+        if not np.array_equal(before, self._default_at(law)):
+            self._draw(law)
+
+    def _default_at(self, law: ExplicitLaw) -> np.ndarray:
+        """``figures.default_slice_point(law, problem)``; the domain's centre (LPs) is
+        computed once per law, the form's check only moves ``u_prev`` and ``r``."""
+        from codev_engine.view.figures import default_slice_point, verified_parameters
+
+        if self._centre_for is not law:
+            self._centre = np.array(default_slice_point(law), dtype=float)
+            self._centre_for = law
+        at = self._centre.copy()
+        extra = verified_parameters(law, self._problem)
+        if extra is not None:
+            at[law.n - extra.size :] = extra
+        return at
+
     def show_law(self, law: ExplicitLaw | None, *, current: bool) -> None:
         """Show a law, and whether it is the current spec's.
 
@@ -268,7 +304,8 @@ class SynthesisPane(Vertical):
         self.query_one("#locate-x", Input).placeholder = f"{', '.join(names)}  (Enter)"
         extra = names[len(law.states):] if law.parameters else ()
         self.query_one("#synth-at", Input).placeholder = (
-            f"{', '.join(extra)} (or all {law.n}); default: the domain's centre"
+            f"{', '.join(extra)} (or all {law.n}); default: the middle of [verify] "
+            "initial_input and reference"
             if extra
             else "default: the domain's centre"
         )
@@ -311,15 +348,16 @@ class SynthesisPane(Vertical):
 
     def _at(self, law: ExplicitLaw) -> np.ndarray | None:
         """The slice typed: every parameter, or (a law over θ = (x, u_prev, r)) only those
-        after the states, the states then at the domain's centre."""
+        after the states, the states then at the domain's centre. Nothing typed: the
+        default of recordings and reports (``figures.default_slice_point``: ``u_prev`` and
+        ``r`` at the middle of ``[verify] initial_input`` and ``reference``); None for a
+        law over the states (``partition_text``'s own default, the same point)."""
         text = self.query_one("#synth-at", Input).value
-        if not text.strip():
-            return None
         extra = law.n - len(law.states) if law.parameters else 0
+        if not text.strip():
+            return self._default_at(law) if extra else None
         if extra and len(text.replace(",", " ").replace(";", " ").split()) == extra:
-            from codev_engine.view.figures import default_slice_point
-
-            at = np.array(default_slice_point(law), dtype=float)
+            at = self._default_at(law)
             at[law.n - extra :] = parse_state(text, extra)
             return at
         return parse_state(text, law.n)
