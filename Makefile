@@ -16,9 +16,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/codev replay sessions/double_integrator
 
-## test: the whole test suite (what CI runs)
+## test: the whole test suite (what CI runs), on TEST_WORKERS processes (pytest-xdist)
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS)
 
 ## lint: ruff, and the import contracts of pyproject.toml (also run by make test)
 lint: $(STAMP)
