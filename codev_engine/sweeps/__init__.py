@@ -48,6 +48,7 @@ def sweep(
     executor: Executor | None = None,
     progress: Callable[[int, dict], None] | None = None,
     session: str | os.PathLike | None = None,
+    recording: bool = True,
 ) -> list[dict]:
     """Synthesise and verify every design of a grid of spec values.
 
@@ -67,8 +68,13 @@ def sweep(
         A folder for the sweep: each design runs as a session (``codev_engine.session``) in
         ``session/<id>``, ``id`` the first 16 hex digits of the SHA-256 of its TOML text, so
         a rerun loads the stages of unchanged designs from their caches and ``codev replay
-        session/<id>`` reproduces one; ``session/sweep.json`` lists the designs and their
-        rows (written atomically). The folders must be on a disk every worker sees.
+        session/<id>`` reproduces one. The folder is the sweep's own session
+        (:mod:`codev_engine.sweeps.folder`): ``sweep.json`` lists the grid, the designs and
+        their rows, ``journal.jsonl`` each sweep run, ``sweep.rrd`` is its Rerun recording;
+        ``codev replay session`` replays the whole sweep. The folders must be on a disk
+        every worker sees.
+    recording : bool
+        With ``session``: also write the sweep's Rerun recording ``session/sweep.rrd``.
 
     Returns
     -------
@@ -88,7 +94,8 @@ def sweep(
     """
     if executor is None:  # serial, or $CODEV_SCHEDULER's cluster: closed when done
         with Executor() as own:
-            return sweep(problem, grid, executor=own, progress=progress, session=session)
+            return sweep(problem, grid, executor=own, progress=progress, session=session,
+                         recording=recording)
     texts = design_texts(problem, grid)  # every design read by the loader before any runs
     values = _value_rows(grid)
     # equal designs (a value listed twice) run once: one task, one session folder
@@ -108,21 +115,18 @@ def sweep(
 
     path = problem.path or "<string>"
     calls = [(text, path, None if folders is None else folders[text]) for text in unique]
+    started, t0 = _now(), time.perf_counter()
     done = dict(zip(unique, executor.map(design_row, calls, on_result=on_result), strict=True))
     rows = [{"values": v, **done[text]} for v, text in zip(values, texts, strict=True)]
     if session is not None:
-        from codev_engine.io.atomic import write_text
+        from codev_engine.sweeps.folder import record_sweep
 
-        summary = {
-            "spec": path,
-            "grid": {k: list(v) for k, v in grid.items()},
-            "designs": [
-                {"values": v, "folder": design_id(text)}
-                for v, text in zip(values, texts, strict=True)
-            ],
-            "rows": rows,
-        }
-        write_text(Path(session) / "sweep.json", json.dumps(summary, indent=1, default=_plain))
+        record_sweep(
+            session, spec=path, base_text=problem.source, grid=grid, values=values,
+            texts=texts, rows=rows, started=started, seconds=time.perf_counter() - t0,
+            executor=executor.kind, workers=executor.workers, recording=recording,
+            title=problem.name,
+        )
     return rows
 
 
@@ -141,8 +145,10 @@ def design_id(text: str) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
-def _plain(v: Any) -> Any:
-    return v.tolist() if hasattr(v, "tolist") else str(v)
+def _now() -> str:
+    from codev_engine.session.store import now
+
+    return now()
 
 
 def _value_rows(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
@@ -348,6 +354,32 @@ def _session_row(problem, folder: str, row: dict) -> dict:
     report = Session.open_or_create(folder).run(
         problem, RunOptions(upto=upto), raise_errors=False
     )
+    return report_row(problem, report, row)
+
+
+def report_row(problem, report, row: dict | None = None) -> dict:
+    """A design's row from a session run's report (a run, or a replayed run).
+
+    Parameters
+    ----------
+    problem : Problem
+        The design.
+    report : RunReport
+        The session's run of it (up to verification when it has ``[verify]``).
+    row : dict, optional
+        The row to fill (default: every field None).
+
+    Returns
+    -------
+    dict
+        As :func:`design_row`; the wall times are those recorded when each stage was
+        computed.
+    """
+    if row is None:
+        row = dict.fromkeys(
+            ("regions", "synthesis_seconds", "verdict", "reason", "verification_seconds",
+             "tube_width_at_horizon", "closed_loop_cost", "error")
+        )  # fmt: skip
     failed = next((s for s in report.stages if s.status == "failed"), None)
     law, result = report.law, report.result
     if law is not None:
