@@ -667,27 +667,9 @@ BENCHMARKS = (
 
 def _sweep_grid(sets: list[str]) -> dict:
     """``--set FIELD=V1,V2,...`` options -> {field: [values]} (each value a TOML value)."""
-    import tomllib
+    from codev_engine.sweeps import parse_sets
 
-    grid: dict[str, list] = {}
-    for item in sets:
-        name, eq, text = item.partition("=")
-        name = name.strip()
-        if not eq or not name:
-            raise SpecError(f"expected FIELD=V1,V2,... got {item!r}", field="--set")
-        if name in grid:
-            raise SpecError("set twice", field=f"--set {name}")
-        try:
-            values = tomllib.loads(f"v = [{text}]")["v"]
-        except tomllib.TOMLDecodeError:
-            raise SpecError(
-                f"not a list of TOML values: {text!r} (strings need quotes: '\"a\",\"b\"')",
-                field=f"--set {name}",
-            ) from None
-        if not values:
-            raise SpecError("no values", field=f"--set {name}")
-        grid[name] = values
-    return grid
+    return parse_sets(sets, origin="--set")
 
 
 def _sweep_cell(v) -> str:

@@ -34,8 +34,9 @@ from typing import Any
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 
-__all__ = ["sweep", "design_texts", "design_id", "design_row", "set_field", "dumps_toml",
-           "TIMING_FIELDS"]
+__all__ = ["sweep", "parse_sets", "grid_values", "design_texts", "design_id", "design_row",
+           "report_row",
+           "set_field", "dumps_toml", "TIMING_FIELDS"]
 
 #: the row fields that are wall times (they differ run to run; everything else is exact)
 TIMING_FIELDS = ("synthesis_seconds", "verification_seconds")
@@ -130,6 +131,49 @@ def sweep(
     return rows
 
 
+def parse_sets(items: Sequence[str], *, origin: str = "--set") -> dict[str, list]:
+    """``FIELD=V1,V2,...`` texts -> the grid ``{field: [values]}``, each value a TOML value.
+
+    Parameters
+    ----------
+    items : sequence of str
+        One swept field each: ``mpc.horizon=2,4,6``, ``mpc.R=[[0.1]],[[1.0]]``,
+        ``mpc.norm="inf","1"``.
+    origin : str
+        Where the texts came from, named in errors (``--set``, a form field).
+
+    Returns
+    -------
+    dict of str to list
+        In the order given (the first field varies slowest in the sweep).
+
+    Raises
+    ------
+    SpecError
+        A text without ``=`` or a name, a field given twice, values that are not a list of
+        TOML values, or no values; one line naming the field.
+    """
+    grid: dict[str, list] = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise SpecError(f"expected FIELD=V1,V2,... got {item!r}", field=origin)
+        if name in grid:
+            raise SpecError("set twice", field=f"{origin} {name}")
+        try:
+            values = tomllib.loads(f"v = [{text}]")["v"]
+        except tomllib.TOMLDecodeError:
+            raise SpecError(
+                f"not a list of TOML values: {text!r} (strings need quotes: '\"a\",\"b\"')",
+                field=f"{origin} {name}",
+            ) from None
+        if not values:
+            raise SpecError("no values", field=f"{origin} {name}")
+        grid[name] = values
+    return grid
+
+
 def design_id(text: str) -> str:
     """The name of a design's session folder: 16 hex digits of the SHA-256 of its text.
 
@@ -149,6 +193,20 @@ def _now() -> str:
     from codev_engine.session.store import now
 
     return now()
+
+
+def grid_values(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
+    """Each design's swept values, in the sweep's order (the first field varies slowest).
+
+    Parameters
+    ----------
+    grid : mapping of str to sequence
+
+    Returns
+    -------
+    list of dict
+    """
+    return _value_rows(grid)
 
 
 def _value_rows(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
