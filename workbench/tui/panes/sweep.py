@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from rich.text import Text
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
 from textual.widget import Widget
@@ -13,6 +14,10 @@ from ..messages import CancelRequested, SweepRequested
 from ..widgets import EntryInput
 
 __all__ = ["SweepPane", "sweep_cell"]
+
+#: the verdict cell's colour
+VERDICT_STYLE = {"robustly_safe": "bold green", "unsafe": "bold red", "unknown": "bold yellow",
+                 "error": "bold magenta"}
 
 #: the table's outcome columns: (row field, heading)
 COLUMNS = (
@@ -209,4 +214,7 @@ class SweepPane(VerticalScroll):
                 cells += [sweep_cell(row.get(k)) for k, _h in COLUMNS[3:]]
             else:
                 cells += [sweep_cell(row.get(k)) for k, _h in COLUMNS]
-            table.add_row(*cells)
+            shown: list[str | Text] = list(cells)
+            at = len(self._fields) + 1  # the verdict's column
+            shown[at] = Text(cells[at], style=VERDICT_STYLE.get(cells[at], ""))
+            table.add_row(*shown)
