@@ -203,6 +203,11 @@ def test_cluster_rows_equal_serial_rows(cluster, serial_rows, tmp_path):
     rows = ce.sweep(ce.load_spec(DI), GRID, executor=cluster, session=tmp_path / "s")
     assert exact(rows) == exact(serial_rows)
     assert len(json.loads((tmp_path / "s" / "sweep.json").read_text())["designs"]) == 8
+    from codev_engine.sweeps.folder import read_sweep, replay_sweep
+
+    run = read_sweep(tmp_path / "s").journal[-1]  # the sweep's journal names its executor
+    assert (run["executor"], run["workers"]) == ("local", 2)
+    assert replay_sweep(tmp_path / "s").ok  # (the workers wrote the designs' sessions)
     # both workers took part (the merge order is not the order of arrival)
     ran_on = cluster.client.run(os.getpid)
     assert len(set(ran_on.values())) == 2

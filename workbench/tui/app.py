@@ -263,7 +263,7 @@ class CodevApp(App):
         yield Footer()
 
     def on_mount(self) -> None:
-        # the tab bar is no Tab stop (F1-F5 and the mouse switch tabs): keys typed at start
+        # the tab bar is no Tab stop (F1-F6 and the mouse switch tabs): keys typed at start
         # go to the first field, and Tab moves between fields only
         for tabs in self.query(Tabs):
             tabs.can_focus = False
