@@ -91,13 +91,18 @@ def sweep(
     ------
     SpecError
         A value the loader rejects (naming the design's values and the field), an empty
-        grid field, or a name that is not a spec field.
+        grid field, or a name that is not a spec field; ``session`` a folder that is not a
+        sweep's (a design's session, or a folder holding something else).
     """
     if executor is None:  # serial, or $CODEV_SCHEDULER's cluster: closed when done
         with Executor() as own:
             return sweep(problem, grid, executor=own, progress=progress, session=session,
                          recording=recording)
     texts = design_texts(problem, grid)  # every design read by the loader before any runs
+    if session is not None:
+        from codev_engine.sweeps.folder import check_target
+
+        check_target(session)
     values = _value_rows(grid)
     # equal designs (a value listed twice) run once: one task, one session folder
     unique = list(dict.fromkeys(texts))

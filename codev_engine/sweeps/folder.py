@@ -40,6 +40,7 @@ from codev_engine.version import __version__
 
 __all__ = [
     "SWEEP_FORMAT",
+    "check_target",
     "SweepRecord",
     "SweepReplay",
     "is_sweep",
@@ -139,6 +140,32 @@ def is_sweep(path: str | Path) -> bool:
     """
     p = Path(path)
     return (p / "sweep.json").is_file() and not (p / "session.json").exists()
+
+
+def check_target(folder: str | Path) -> None:
+    """Refuse to run a sweep into a folder that is not a sweep's: a design's session, a
+    file, or a folder holding something else.
+
+    Parameters
+    ----------
+    folder : str or Path
+
+    Raises
+    ------
+    SessionError
+        Naming the folder and why.
+    """
+    root = Path(folder)
+    if root.exists() and not root.is_dir():
+        raise SessionError("exists and is not a folder", file=str(root))
+    if (root / "session.json").exists():
+        raise SessionError("is a design's session, not a sweep's folder: give the sweep a "
+                           "folder of its own", file=str(root))
+    if root.is_dir() and not (root / "sweep.json").exists() and any(
+        not p.name.startswith(".") for p in root.iterdir()
+    ):
+        raise SessionError("not a sweep (no sweep.json) and not empty: refusing to write "
+                           "into it", file=str(root))
 
 
 def record_sweep(

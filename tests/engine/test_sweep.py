@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import time
 import tomllib
@@ -129,6 +130,19 @@ def sweep_dir(tmp_path):
     out = tmp_path / "sweep"
     ce.sweep(ce.load_spec(DI), {"mpc.horizon": [2, 3]}, session=out)
     return out
+
+
+def test_a_sweep_is_not_written_into_a_folder_of_something_else(tmp_path):
+    problem = ce.load_spec(DI)
+    run_codev("run", DI, "--session", tmp_path / "design", "--quiet", cwd=ROOT)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    for folder, words in ((tmp_path / "design", "is a design's session"),
+                          (other, "not a sweep (no sweep.json) and not empty")):
+        with pytest.raises(ce.SpecError, match=re.escape(words)):
+            ce.sweep(problem, {"mpc.horizon": [2]}, session=folder)
+    assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
 
 
 def test_replay_finds_a_row_that_is_not_the_designs(sweep_dir):
