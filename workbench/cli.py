@@ -332,49 +332,63 @@ def _codev() -> str:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from codev_engine.sweeps.folder import is_sweep
 
-    folder = Path(args.dir)
-    if (folder / "sweep.json").is_file() and not (folder / "session.json").exists():
-        return _replay_sweep(args, folder)
+    if is_sweep(args.dir):
+        return _replay_sweep(args)
     return _replay_session(args)
 
 
-def _replay_sweep(args: argparse.Namespace, folder) -> int:
-    """``codev replay DIR`` of a sweep (``codev sweep --session DIR``): every design's
-    session replayed, one after the other."""
-    import re
+def _replay_sweep(args: argparse.Namespace) -> int:
+    """``codev replay DIR`` of a sweep (``codev sweep --session DIR``): its manifest and
+    files checked, every design's session replayed, and each design's row rebuilt from the
+    replayed run and compared with the sweep's table."""
+    from codev_engine.sweeps.folder import replay_sweep
 
-    from codev_engine.session import Session
+    def on_design(d: dict) -> None:
+        if args.json:
+            return
+        shown = ", ".join(f"{k} = {_sweep_cell(v)}" for k, v in d["values"].items())
+        state = "matches" if d["match"] else (
+            f"{d['mismatches']} MISMATCH(ES)" if d["mismatches"] else "ROW MISMATCH")
+        print(f"design {d['folder']} [{shown}]: {d['runs']} run(s) -- {state}")
 
-    where = folder / "sweep.json"
-    try:
-        listed = json.loads(where.read_text(encoding="utf-8"))["designs"]
-        designs = [(str(d["folder"]), d["values"]) for d in listed]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise CodevError(f"{where}: not a sweep's list of designs ({exc})") from None
-    seen, out, ok = set(), [], True
-    for name, values in designs:
-        if not re.fullmatch(r"[0-9a-f]{16}", name):
-            raise CodevError(f"{where}: designs: {name!r} is not a design's folder name")
-        if name in seen:  # (a value listed twice is one design)
-            continue
-        seen.add(name)
-        with _stage_progress(not args.json) as on_event:
-            rep = Session.open(folder / name).replay(on_event=on_event, warn=_warn)
-        ok = ok and rep.ok
-        out.append({"folder": name, "values": values, "runs": rep.runs, "match": rep.ok,
-                    "mismatches": len(rep.mismatches), "seconds": round(rep.seconds, 6)})
-        if not args.json:
-            shown = ", ".join(f"{k} = {_sweep_cell(v)}" for k, v in values.items())
-            state = "matches" if rep.ok else f"{len(rep.mismatches)} MISMATCH(ES)"
-            print(f"design {name} [{shown}]: {rep.runs} run(s) -- {state}")
+    with _stage_progress(not args.json) as on_event:
+        rep = replay_sweep(args.dir, on_design=on_design, on_event=on_event, warn=_warn)
     if args.json:
-        print(json.dumps({"dir": str(folder), "designs": out, "match": ok}))
+        print(json.dumps({"dir": str(args.dir), "designs": rep.designs, "match": rep.ok}))
     else:
-        print(f"replay of the sweep {folder}: {len(out)} design(s), "
-              + ("every outcome matches" if ok else "mismatches"))
-    return 0 if ok else 1
+        print(f"replay of the sweep {args.dir}: {len(rep.designs)} design(s), "
+              + ("every outcome matches" if rep.ok else "mismatches"))
+    return 0 if rep.ok else 1
+
+
+def _show_sweep(args: argparse.Namespace) -> int:
+    """``codev session DIR`` of a sweep: its runs and its table, every file checked."""
+    from codev_engine.sweeps.folder import read_sweep
+
+    sw = read_sweep(args.dir)
+    if args.json:
+        print(json.dumps({"dir": str(sw.path), "kind": "sweep", "spec": sw.spec,
+                          "grid": sw.grid, "runs": sw.journal, "rows": sw.rows,
+                          "recording": None if sw.recording is None else str(sw.recording)}))
+        return 0
+    print(f"sweep {sw.path}: {len(sw.designs)} designs of {sw.spec}, "
+          f"{len(sw.journal)} run(s)")
+    for run in sw.journal:
+        counts: dict[str, int] = {}
+        for d in run["designs"]:
+            counts[d.get("status", "?")] = counts.get(d.get("status", "?"), 0) + 1
+        print(f"  run {run['run']} at {run.get('started')}: {run['seconds']:.2f} s on "
+              f"{run.get('executor')} ({run.get('workers')} worker(s)); "
+              + ", ".join(f"{v} {k}" for k, v in counts.items()))
+    for i, (d, row) in enumerate(zip(sw.designs, sw.rows, strict=True)):
+        shown = ", ".join(f"{k} = {_sweep_cell(v)}" for k, v in d["values"].items())
+        outcome = row["error"] or f"{row['regions']} regions, {row['verdict']}"
+        print(f"  {i}: {d['folder']} [{shown}]: {outcome}")
+    if sw.recording is not None:
+        print(f"  recording: {sw.recording}\n  view it: {_codev()} view {sw.recording}")
+    return 0
 
 
 def _replay_session(args: argparse.Namespace) -> int:
@@ -425,7 +439,10 @@ def _replay_session(args: argparse.Namespace) -> int:
 
 def _cmd_session(args: argparse.Namespace) -> int:
     from codev_engine.session import Session
+    from codev_engine.sweeps.folder import is_sweep
 
+    if is_sweep(args.dir):
+        return _show_sweep(args)
     session = Session.open(args.dir)
     journal = session.journal()
     status = session.status()
@@ -650,27 +667,9 @@ BENCHMARKS = (
 
 def _sweep_grid(sets: list[str]) -> dict:
     """``--set FIELD=V1,V2,...`` options -> {field: [values]} (each value a TOML value)."""
-    import tomllib
+    from codev_engine.sweeps import parse_sets
 
-    grid: dict[str, list] = {}
-    for item in sets:
-        name, eq, text = item.partition("=")
-        name = name.strip()
-        if not eq or not name:
-            raise SpecError(f"expected FIELD=V1,V2,... got {item!r}", field="--set")
-        if name in grid:
-            raise SpecError("set twice", field=f"--set {name}")
-        try:
-            values = tomllib.loads(f"v = [{text}]")["v"]
-        except tomllib.TOMLDecodeError:
-            raise SpecError(
-                f"not a list of TOML values: {text!r} (strings need quotes: '\"a\",\"b\"')",
-                field=f"--set {name}",
-            ) from None
-        if not values:
-            raise SpecError("no values", field=f"--set {name}")
-        grid[name] = values
-    return grid
+    return parse_sets(sets, origin="--set")
 
 
 def _sweep_cell(v) -> str:
@@ -737,6 +736,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
             cells += [_sweep_cell(shown[c]) for c in cols]
             table.add_row(*cells)
         Console(width=max(100, _terminal_width())).print(table)
+        if args.session:
+            from pathlib import Path
+
+            rrd = Path(args.session) / "sweep.rrd"
+            print(f"sweep session: {args.session} (replay it: {_codev()} replay "
+                  f"{args.session})\n  view it: {_codev()} view {rrd}")
     return 1 if any(row["error"] for row in rows) else 0
 
 
@@ -992,8 +997,10 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--session",
         metavar="DIR",
-        help="run each design as a session in DIR/<id> (a rerun loads unchanged designs from "
-        "their caches; codev replay DIR/<id> reproduces one); DIR/sweep.json lists them",
+        help="make DIR the sweep's session: each design runs as a session in DIR/<id> (a "
+        "rerun loads unchanged designs from their caches), DIR/sweep.json lists the designs "
+        "and the table, DIR/journal.jsonl each sweep run, DIR/sweep.rrd is its Rerun "
+        "recording; codev replay DIR reproduces the whole sweep",
     )
     p.add_argument("--json", action="store_true", help="print the rows as JSON only")
     p.set_defaults(func=_cmd_sweep)

@@ -432,23 +432,70 @@ def _evaluate_chunk(kernel: _Kernel, acts: list[tuple[int, ...]]) -> list:
     return [kernel.evaluate_numpy(a) for a in acts]
 
 
-def _evaluate_batches(args: tuple, batches: list) -> tuple[list, float]:
+def _evaluate_batches(shared: tuple, batches: list) -> tuple[list, float]:
     """Worker side (an executor's task): the compiled kernel on consecutive batches of the
-    walk; the results in the batches' order, and the seconds this took on the worker.
+    walk; the results in the batches' order (compacted: :func:`_compact`), and the seconds
+    this took on the worker.
 
     Parameters
     ----------
-    args : tuple
-        The compiled kernel's problem data (``_Kernel._jit_args``: arrays and numbers,
-        scattered once to every worker).
+    shared : tuple
+        ``(args, tail)``: the compiled kernel's problem data (``_Kernel._jit_args``:
+        arrays and numbers) and the parameter set's rows as the client's regions hold them
+        (``_CompiledWalk.shared``, or None), scattered once to every worker.
     batches : list of ((b, W) uint64 ndarray, (b, d) ndarray)
         The candidates' bitmasks and start points, as ``ActiveSetGraph.pop`` gave them.
     """
     from codev_engine.mp import mpqp_kernel  # (numba: loaded from its cache on first use)
 
+    args, tail = shared
     t0 = time.perf_counter()
-    out = [mpqp_kernel.evaluate_batch(keys, starts, args) for keys, starts in batches]
+    out = [_compact(mpqp_kernel.evaluate_batch(keys, starts, args), tail, mpqp_kernel.FULL)
+           for keys, starts in batches]
     return out, time.perf_counter() - t0
+
+
+def _compact(result: tuple, tail: tuple | None, full_code: int) -> tuple:
+    """A batch's result without what the client would throw away, so that less travels:
+    the law of the regions only (``K``, ``k`` of the FULL candidates: (f, nz, d), (f, nz)),
+    and, given the parameter set's rows ``tail``, each region's rows without that tail
+    where the region ends with it (``implied``, the same test as
+    :meth:`_CompiledWalk._pack`'s). The result's other fields are unchanged.
+
+    Parameters
+    ----------
+    result : tuple
+        ``mpqp_kernel.evaluate_batch``'s.
+    tail : tuple of ((p, d) ndarray, (p,) ndarray) or None
+        The parameter set's rows; None: the rows are kept whole.
+    full_code : int
+        ``mpqp_kernel.FULL``.
+
+    Returns
+    -------
+    tuple
+        ``result`` with ``rows_off``, ``A``, ``b``, ``K``, ``k`` compacted, and one more
+        field: the (f,) ``implied`` flags (None when ``tail`` is None).
+    """
+    (status, lp, acts, sizes, rows_off, A, b, K, k, *rest) = result
+    full = np.flatnonzero(status == full_code)
+    K, k = K[full], k[full]
+    if tail is None:
+        return (status, lp, acts, sizes, rows_off, A, b, K, k, *rest, None)
+    r0, r1 = rows_off[full], rows_off[full + 1]
+    p = tail[0].shape[0]
+    implied = np.zeros(full.size, dtype=bool)
+    if p and full.size:
+        at = r1[:, None] - p + np.arange(p)
+        implied = (r1 - r0 >= p) & np.all(
+            np.all(A[at] == tail[0], axis=2) & (b[at] == tail[1]), axis=1
+        )
+    kept = r1 - r0 - p * implied
+    rows, _ = segment_indices(r0, kept)
+    off = np.zeros(status.size + 1, dtype=np.int64)
+    off[full + 1] = kept
+    np.cumsum(off, out=off)
+    return (status, lp, acts, sizes, off, A[rows], b[rows], K, k, *rest, implied)
 
 
 def _warm_worker(args: tuple) -> float:
@@ -733,7 +780,7 @@ class _CompiledWalk:
         or earlier when this thread is about to take its oldest batch).
         """
         graph, args = self.graph, self.kernel._jit_args
-        pool = client = None
+        pool = client = remote = None
         shared = None  # the kernel's arrays, scattered to the workers
         window: deque = deque()  # [keys, starts, job], oldest first
         group: list = []  # batches popped, not yet sent (with a client)
@@ -742,7 +789,7 @@ class _CompiledWalk:
 
         def submit(batches: list):
             nonlocal shared
-            shared = scattered(client, args, shared)  # (again, if a lost worker took it)
+            shared = scattered(client, remote, shared)  # (again, if a lost worker took it)
             future = client.submit(_evaluate_batches, shared, batches, pure=False)
             tasks.add(future)
             return future
@@ -777,7 +824,10 @@ class _CompiledWalk:
                     if executor is not None:
                         t0 = time.perf_counter()
                         client = executor.client
-                        shared = scattered(client, args)
+                        # the parameter set's rows as the regions found so far hold them:
+                        # the workers leave them out of the regions that end with them
+                        remote = (args, self.shared)
+                        shared = scattered(client, remote)
                         # numba's cached kernel loaded on every worker before the first task
                         warm = client.run(_warm_worker, args)
                         stats["workers"] = len(warm)
@@ -825,7 +875,7 @@ class _CompiledWalk:
         """Record a batch's regions and push its neighbours; the candidates the compiled
         kernel could not conclude on go to the numpy kernel, one by one."""
         (status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off, swaps, swaps_off,
-         points) = result
+         points, *implied) = result  # (implied: a worker's compacted result, _compact)
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
@@ -843,7 +893,10 @@ class _CompiledWalk:
             stats["lps"] += int(results[-1][4])
             _count_class(stats, results[-1][0])
         full = np.flatnonzero(status == jit.FULL)
-        mine = self._pack(full, acts, sizes, rows_off, A, b, K, k) if full.size else None
+        if not implied:  # (evaluated here: the law of every candidate, the rows whole)
+            K, k, implied = K[full], k[full], [None]
+        mine = (self._pack(full, acts, sizes, rows_off, A, b, K, k, implied[0])
+                if full.size else None)
         handed = [
             (int(c), CriticalRegion(A=rows[0], b=rows[1], K=law[0], k=law[1],
                                     active=tuple(acts[c, : sizes[c]].tolist())))
@@ -867,12 +920,23 @@ class _CompiledWalk:
                 no_swaps, np.zeros(2, dtype=np.int64), points[c : c + 1],
             )
 
-    def _pack(self, full, acts, sizes, rows_off, A, b, K, k) -> RegionArrays:
+    def _pack(self, full, acts, sizes, rows_off, A, b, K, k, implied=None) -> RegionArrays:
         """The regions ``full`` of a batch as packed arrays (copies: a view would keep
         the whole batch alive), without the parameter set's rows, which the compiled kernel
-        puts last in every region: they are held once (``RegionArrays.shared_A``)."""
+        puts last in every region: they are held once (``RegionArrays.shared_A``).
+        ``K``, ``k`` are the regions' (f, nz, d), (f, nz); ``implied`` given, a worker
+        has left those rows out already (:func:`_compact`)."""
         r0, r1 = rows_off[full], rows_off[full + 1]
         p = self.kernel.At.shape[0]
+        if implied is not None:
+            rows, off = segment_indices(r0, r1 - r0)
+            n = sizes[full]
+            part = acts[full]
+            active = part[np.arange(part.shape[1])[None, :] < n[:, None]]
+            aoff = np.zeros(full.size + 1, dtype=np.int64)
+            np.cumsum(n, out=aoff[1:])
+            return RegionArrays(A[rows], b[rows], off, K, k, active, aoff, implied,
+                                *self.shared)
         implied = np.zeros(full.size, dtype=bool)
         if p and self.shared is None:
             self.shared = (A[r1[0] - p : r1[0]].copy(), b[r1[0] - p : r1[0]].copy())
@@ -888,9 +952,7 @@ class _CompiledWalk:
         aoff = np.zeros(full.size + 1, dtype=np.int64)
         np.cumsum(n, out=aoff[1:])
         shared = self.shared or (None, None)
-        return RegionArrays(
-            A[rows], b[rows], off, K[full], k[full], active, aoff, implied, *shared
-        )
+        return RegionArrays(A[rows], b[rows], off, K, k, active, aoff, implied, *shared)
 
     def _keep(self, part: RegionArrays) -> None:
         self.parts.append(part)

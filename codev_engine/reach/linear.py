@@ -53,6 +53,9 @@ class ExplorationLimitError(Exception):
         super().__init__(message)
         self.t = t
 
+    def __reduce__(self):  # (whole through pickle: a worker's exception reaches the client)
+        return type(self), (str(self), self.t)
+
 
 @dataclass(frozen=True)
 class AffinePlant:

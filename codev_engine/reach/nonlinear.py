@@ -48,7 +48,7 @@ from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.interval import IntervalDomainError
-from codev_engine.reach.linear import ClosedLoopSetup, Finding
+from codev_engine.reach.linear import ClosedLoopSetup, ExplorationLimitError, Finding
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -1121,7 +1121,10 @@ class NonlinearReach(ClosedLoopSetup):
         in that same order as they come back: the tubes, findings, counters and
         counterexample are those of the serial run (the tubes' branch numbers are offset
         by the branches taken before the cell); cells computed past a counterexample are
-        dropped.
+        dropped. The limits count the whole run, as in serial: each task reports its
+        cell's branches and boxes, and the cell that takes the run past a limit is
+        computed again in this process from the run's counters, so the run stops where the
+        serial run stops.
 
         Parameters
         ----------
@@ -1181,10 +1184,20 @@ class NonlinearReach(ClosedLoopSetup):
                 queue.pop()
                 self.stats["partitions"] += 1
                 offset = self.stats["branches"]
-                tubes = [replace(t, branch=t.branch + offset) for t in out[1]]
-                for key in ("branches", "merges"):
-                    self.stats[key] += counts[key]
-                if self._commit(queue, lo, hi, depth, (out[0], tubes, *out[2:])):
+                if (out is None or offset + counts["branches"] > self._max_branches
+                        or self.boxes + counts["boxes"] > self._max_boxes):
+                    # the limits count the whole run: the serial run stops inside this
+                    # cell. It is computed again here, from the run's counters, so that it
+                    # stops where the serial run stops (the ExplorationLimitError ends the
+                    # run as a "limit" finding, what was explored kept)
+                    cell = self._cell(lo, hi, depth)
+                else:
+                    tubes = [replace(t, branch=t.branch + offset) for t in out[1]]
+                    for key in ("branches", "merges"):
+                        self.stats[key] += counts[key]
+                    self.boxes += counts["boxes"]
+                    cell = (out[0], tubes, *out[2:])
+                if self._commit(queue, lo, hi, depth, cell):
                     return
                 if self.progress is not None:
                     self.progress(dict(self.stats))
@@ -1222,8 +1235,14 @@ def _cell_task(shared: tuple, token: str, lo: np.ndarray, hi: np.ndarray, depth:
             _ENGINES.pop(next(iter(_ENGINES)))
         _ENGINES[token] = engine
     engine.stats = {"branches": 0, "refinements": 0, "partitions": 0, "merges": 0}
-    out = engine._cell(lo, hi, depth)
-    return out, engine.stats
+    engine.boxes = 0  # (the cell's own: the client adds them up in the serial order)
+    try:
+        out = engine._cell(lo, hi, depth)
+    except ExplorationLimitError:
+        # past this worker's limits within the one cell: the client computes it again
+        # from the run's counters (where the serial run stops)
+        return None, {**engine.stats, "boxes": engine.boxes}
+    return out, {**engine.stats, "boxes": engine.boxes}
 
 
 def _tube(t0, t1, lo, hi, branch) -> Tube:

@@ -193,3 +193,29 @@ def test_cli_run_on_two_workers_gives_the_serial_result(tmp_path):
     for key in ("verdict", "reason", "regions", "branches", "partitions", "boxes",
                 "tube_width_at_horizon"):
         assert a[key] == b[key], key
+
+
+def _set_limits(text: str | None) -> None:
+    """Worker side: set (or unset) this process's CODEV_LIMITS."""
+    if text is None:
+        os.environ.pop("CODEV_LIMITS", None)
+    else:
+        os.environ["CODEV_LIMITS"] = text
+
+
+@pytest.mark.slow  # (~20 s on a quiet machine)
+def test_the_limits_count_the_whole_run_on_a_cluster(cluster, cstr, monkeypatch):
+    """The run-time limits count the whole verification, as in serial, not each cell on
+    each worker: the CSTR (219 branches) with a limit of 120 stops at the same branch with
+    the same tube; and a worker whose own limits are lower stops nothing early."""
+    problem, law, _ = cstr
+    monkeypatch.setenv("CODEV_LIMITS", "branches=120")
+    serial = ce.verify(problem, law)
+    assert (serial.verdict, serial.reason) == ("unknown", "limit")
+    _same_result(serial, ce.verify(problem, law, executor=cluster))
+    client = cluster.client
+    client.run(_set_limits, "branches=3")  # every cell passes the workers' own limit
+    try:
+        _same_result(serial, ce.verify(problem, law, executor=cluster))
+    finally:
+        client.run(_set_limits, None)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import time
 import tomllib
@@ -89,6 +90,7 @@ def test_cli_bad_value_is_one_line_exit_2(value, words):
 
 def test_a_session_sweep_reruns_from_the_cache_and_replays_whole(tmp_path):
     from codev_engine.session import Session
+    from codev_engine.sweeps.folder import read_sweep
 
     problem = ce.load_spec(DI)
     grid = {"mpc.horizon": [2, 3, 2]}  # a value twice: one design, one folder
@@ -97,19 +99,107 @@ def test_a_session_sweep_reruns_from_the_cache_and_replays_whole(tmp_path):
     summary = json.loads((out / "sweep.json").read_text(encoding="utf-8"))
     folders = [d["folder"] for d in summary["designs"]]
     assert folders[0] == folders[2] != folders[1] and summary["rows"] == first
+    assert summary["format"] == "codev-sweep/1" and (out / "base.toml").read_text() == (
+        problem.source
+    )
     again = ce.sweep(problem, grid, session=out)
     assert again == first  # the recorded wall times included: nothing was recomputed
     for folder in set(folders):
         journal = Session.open(out / folder).journal()
         assert [r["status"] for r in journal if r["run"] == 2] == ["cached"] * 3
-    # codev replay DIR replays the whole sweep: each design's session once
+    # the sweep's own journal: one record per sweep run, each design's status in it
+    runs = read_sweep(out).journal
+    assert [r["run"] for r in runs] == [1, 2]
+    assert [d["status"] for d in runs[0]["designs"]] == ["computed"] * 3
+    assert [d["status"] for d in runs[1]["designs"]] == ["cached"] * 3
+    # codev replay DIR replays the whole sweep: each design's session once, its row rebuilt
     done = run_codev("replay", out, "--json", cwd=ROOT)
     assert done.returncode == 0, done.stderr
     replayed = json.loads(done.stdout)
     assert replayed["match"] and sorted(d["folder"] for d in replayed["designs"]) == sorted(
         set(folders)
     )
-    assert all(d["runs"] == 2 and d["match"] for d in replayed["designs"])
+    assert all(d["runs"] == 2 and d["match"] and d["row_match"] for d in replayed["designs"])
+    shown = run_codev("session", out, cwd=ROOT)
+    assert shown.returncode == 0 and "2 run(s)" in shown.stdout, shown.stderr
+    assert "run 2 at" in shown.stdout and "3 cached" in shown.stdout
+
+
+@pytest.fixture()
+def sweep_dir(tmp_path):
+    out = tmp_path / "sweep"
+    ce.sweep(ce.load_spec(DI), {"mpc.horizon": [2, 3]}, session=out)
+    return out
+
+
+def test_a_sweep_is_not_written_into_a_folder_of_something_else(tmp_path):
+    problem = ce.load_spec(DI)
+    run_codev("run", DI, "--session", tmp_path / "design", "--quiet", cwd=ROOT)
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    for folder, words in ((tmp_path / "design", "is a design's session"),
+                          (other, "not a sweep (no sweep.json) and not empty")):
+        with pytest.raises(ce.SpecError, match=re.escape(words)):
+            ce.sweep(problem, {"mpc.horizon": [2]}, session=folder)
+    assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+
+
+def test_replay_finds_a_row_that_is_not_the_designs(sweep_dir):
+    manifest = sweep_dir / "sweep.json"
+    data = json.loads(manifest.read_text())
+    data["rows"][1]["regions"] += 1  # the table says what the design's session does not
+    manifest.write_text(json.dumps(data))
+    done = run_codev("replay", sweep_dir, "--json", cwd=ROOT)
+    assert done.returncode == 1, done.stderr
+    designs = json.loads(done.stdout)["designs"]
+    assert [d["row_match"] for d in designs] == [True, False]
+    assert [d["mismatches"] for d in designs] == [0, 0]  # the stages themselves agree
+
+
+@pytest.mark.parametrize(
+    "damage, words",
+    [
+        (lambda d: (d / "base.toml").write_text("x = 1\n"), "base.toml: the base spec was edited"),
+        (lambda d: (d / "sweep.rrd").write_bytes(b"RRF2"),
+         "sweep.rrd: the recording does not match its SHA-256"),
+        (lambda d: (d / "sweep.json").write_text("{"), "sweep.json: unreadable sweep.json"),
+        (lambda d: next(d.glob("*/specs/*.toml")).write_text("[mpc]\nhorizon = 9\n"),
+         "the stored spec was edited (hash mismatch)"),
+    ],
+    ids=["base", "recording", "manifest", "design-spec"],
+)
+def test_a_damaged_sweep_is_refused_in_one_line(sweep_dir, damage, words):
+    damage(sweep_dir)
+    for command in ("replay", "session"):
+        done = run_codev(command, sweep_dir, cwd=ROOT)
+        assert done.returncode == 2, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert len(lines) == 1 and words in lines[0], done.stderr
+
+
+def test_the_sweep_recording_holds_the_table_and_a_point_per_design(sweep_dir):
+    from rerun.chunk import RrdReader
+
+    rows = json.loads((sweep_dir / "sweep.json").read_text())["rows"]
+    texts: dict[str, list[str]] = {}
+    points: dict[str, list[float]] = {}
+    for chunk in RrdReader(sweep_dir / "sweep.rrd").stream().to_chunks():
+        rb = chunk.to_record_batch()
+        for name in rb.schema.names:
+            if name.endswith("TextDocument:text"):
+                texts.setdefault(chunk.entity_path, []).extend(
+                    t for v in rb.column(name).to_pylist() for t in (v or []))
+            if name.endswith("Scalars:scalars"):
+                points.setdefault(chunk.entity_path, []).extend(
+                    x for v in rb.column(name).to_pylist() for x in (v or []))
+    table = texts["/sweep/table"][0]
+    assert table.startswith("# double-integrator: 2 designs\n")
+    for i, row in enumerate(rows):
+        assert f"| {i} | {row['values']['mpc.horizon']} | {row['regions']} | " \
+            f"{row['verdict']} |" in table
+    assert len(texts["/sweep/design"]) == 2  # one per design, on the design timeline
+    assert points["/sweep/regions/robustly_safe"] == [r["regions"] for r in rows]
 
 
 # -- a real cluster ------------------------------------------------------------------------
@@ -127,6 +217,11 @@ def test_cluster_rows_equal_serial_rows(cluster, serial_rows, tmp_path):
     rows = ce.sweep(ce.load_spec(DI), GRID, executor=cluster, session=tmp_path / "s")
     assert exact(rows) == exact(serial_rows)
     assert len(json.loads((tmp_path / "s" / "sweep.json").read_text())["designs"]) == 8
+    from codev_engine.sweeps.folder import read_sweep, replay_sweep
+
+    run = read_sweep(tmp_path / "s").journal[-1]  # the sweep's journal names its executor
+    assert (run["executor"], run["workers"]) == ("local", 2)
+    assert replay_sweep(tmp_path / "s").ok  # (the workers wrote the designs' sessions)
     # both workers took part (the merge order is not the order of arrival)
     ran_on = cluster.client.run(os.getpid)
     assert len(set(ran_on.values())) == 2

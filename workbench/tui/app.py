@@ -59,11 +59,13 @@ from .messages import (
     OpenRequested,
     RunRequested,
     SaveRequested,
+    SweepRequested,
     VerifyToggled,
 )
 from .panes.mpc import MpcPane
 from .panes.plant import PlantPane
 from .panes.session import SessionPane
+from .panes.sweep import SweepPane
 from .panes.synthesis import SynthesisPane
 from .panes.verification import VerificationPane
 from .state import Opened, clear_draft, new_design, open_target, templates, write_draft
@@ -191,6 +193,7 @@ class CodevApp(App):
         Binding("f3", "show('synthesis')", "Synthesis", priority=True),
         Binding("f4", "show('verification')", "Verify", priority=True),
         Binding("f5", "show('session')", "Session", priority=True),
+        Binding("f6", "show('sweep')", "Sweep", priority=True),
         Binding("ctrl+g", "go", "Run stage", priority=True),
         Binding("escape", "cancel", "Cancel", show=False),
         Binding("ctrl+s", "save", "Save", priority=True),
@@ -255,10 +258,12 @@ class CodevApp(App):
                 yield VerificationPane(self.values, self.has_verify)
             with TabPane("Session \\[F5]", id="session"):
                 yield SessionPane()
+            with TabPane("Sweep \\[F6]", id="sweep"):
+                yield SweepPane()
         yield Footer()
 
     def on_mount(self) -> None:
-        # the tab bar is no Tab stop (F1-F5 and the mouse switch tabs): keys typed at start
+        # the tab bar is no Tab stop (F1-F6 and the mouse switch tabs): keys typed at start
         # go to the first field, and Tab moves between fields only
         for tabs in self.query(Tabs):
             tabs.can_focus = False
@@ -267,6 +272,7 @@ class CodevApp(App):
         self.set_interval(0.1, self._tick)
         if self.start_note:
             self.notify(self.start_note, timeout=6)
+        self._show_recorded_sweep()
         self._run_check()
 
     # ---- the form --------------------------------------------------------------------
@@ -638,6 +644,137 @@ class CodevApp(App):
             if done is not None:
                 self.notify(f"{done.stage}: {done.status} in {done.seconds:.2f} s", timeout=4)
 
+    # ---- the Sweep tab -----------------------------------------------------------------
+
+    def sweep_folder(self) -> Path:
+        """Where the current design's sweep is kept: ``<session>/sweep`` (one sweep session,
+        :mod:`codev_engine.sweeps.folder`; a new grid replaces its table, the designs'
+        sessions stay as caches).
+
+        Returns
+        -------
+        Path
+        """
+        return self.session.path / "sweep"
+
+    def _show_recorded_sweep(self) -> None:
+        from codev_engine.sweeps.folder import read_sweep
+
+        folder = self.sweep_folder()
+        if not (folder / "sweep.json").is_file():
+            return
+        pane = self.query_one(SweepPane)
+        try:
+            recorded = read_sweep(folder)
+        except CodevError as exc:
+            pane.finished(f"the recorded sweep cannot be read: {exc}")
+            return
+        pane.set_grid_text("; ".join(
+            f"{k}=" + ", ".join(_toml_value(v) for v in vals)
+            for k, vals in recorded.grid.items()))
+        pane.show_rows(list(recorded.grid), recorded.rows,
+                       f"recorded sweep: {len(recorded.rows)} designs "
+                       f"({len(recorded.journal)} run(s))")
+        pane.finished(f"recorded sweep: {len(recorded.rows)} designs "
+                      f"({len(recorded.journal)} run(s))", self._sweep_out(folder))
+
+    def _sweep_out(self, folder: Path) -> str:
+        from workbench.commands import runnable
+
+        codev = runnable("codev")
+        return (f"saved in {folder} · replay it: {codev} replay {folder} · "
+                f"view it: {codev} view {folder / 'sweep.rrd'}")
+
+    def on_sweep_requested(self, event: SweepRequested) -> None:
+        self.run_sweep(event.grid)
+
+    def run_sweep(self, text: str) -> None:
+        """Sweep the current design over the grid typed, in a worker; rows fill in as the
+        designs finish.
+
+        Refused with a notification while a run is in flight, while the spec is not valid,
+        or for a grid the loader rejects (one line naming the field).
+
+        Parameters
+        ----------
+        text : str
+            ``FIELD=V1,V2,...`` items separated by ``;`` or new lines.
+        """
+        from codev_engine.sweeps import design_texts, grid_values, parse_sets
+
+        if self.busy is not None:
+            self.notify(f"{self.busy} is running: wait, or cancel it (Esc)", severity="warning")
+            return
+        chk = self.check
+        if chk is None or not chk.ok or chk.problem is None:
+            self.notify("the spec is not valid yet: the sweep varies a valid design",
+                        severity="error", timeout=8)
+            return
+        items = [t.strip() for t in text.replace("\n", ";").split(";") if t.strip()]
+        if not items:
+            self.notify("type the fields to sweep: e.g. mpc.horizon=2,3; mpc.R=[[0.5]],[[1.0]]",
+                        severity="warning", timeout=8)
+            return
+        problem = chk.problem
+        try:
+            grid = parse_sets(items, origin="sweep")
+            design_texts(problem, grid)  # every design through the loader, before any runs
+        except CodevError as exc:
+            self.notify(f"sweep: {exc}", severity="error", timeout=10)
+            return
+        folder = self.sweep_folder()
+        self.busy = "sweep"
+        self._cancel.clear()
+        self._show_pipeline()
+        self.query_one(SweepPane).start(list(grid), grid_values(grid), str(folder))
+        self._sweep_worker(problem, grid, folder)
+
+    @work(thread=True, exclusive=True, group="stage")
+    def _sweep_worker(self, problem: Problem, grid: dict, folder: Path) -> None:
+        _lower_priority()
+        from codev_engine.sweeps import sweep
+
+        pane = self.query_one(SweepPane)
+        t0 = time.perf_counter()
+
+        def progress(i: int, row: dict) -> None:
+            self.call_from_thread(pane.show_row, i, row)
+            if self._cancel.is_set():
+                raise RunCancelledError
+
+        try:
+            rows = sweep(problem, grid, progress=progress, session=folder)
+        except RunCancelledError:
+            self.call_from_thread(self._sweep_finished, None, "cancelled", 0.0, folder)
+        except Exception as exc:  # an engine bug must not take the app down
+            self.call_from_thread(self._sweep_finished, None, exc, 0.0, folder)
+        else:
+            self.call_from_thread(self._sweep_finished, rows, None,
+                                  time.perf_counter() - t0, folder)
+
+    def _sweep_finished(self, rows: list[dict] | None, error: object, seconds: float,
+                        folder: Path) -> None:
+        self.busy = None
+        self._show_pipeline()
+        pane = self.query_one(SweepPane)
+        if error == "cancelled":
+            pane.finished("sweep cancelled: the designs done are cached, the table was not "
+                          "saved")
+            self.notify("sweep cancelled", severity="warning")
+            return
+        if error is not None or rows is None:
+            pane.finished(f"sweep failed: {error}")
+            self.notify(f"sweep: {error}", severity="error", timeout=10)
+            return
+        verdicts: dict[str, int] = {}
+        for r in rows:
+            v = "error" if r["error"] else str(r["verdict"])
+            verdicts[v] = verdicts.get(v, 0) + 1
+        note = (f"{len(rows)} designs in {seconds:.2f} s: "
+                + ", ".join(f"{n} {v}" for v, n in verdicts.items()))
+        pane.finished(note, self._sweep_out(folder))
+        self.notify(f"sweep: {note}", timeout=6)
+
     def _tick(self) -> None:
         """10 Hz: show the running stage's progress (the worker only stores counters)."""
         if self.busy is None or self.progress is None or not self.query("#pipeline"):
@@ -671,6 +808,7 @@ class CodevApp(App):
                 "synthesis": SynthesisPane,
                 "verification": VerificationPane,
                 "session": SessionPane,
+                "sweep": SweepPane,
             }[tab]
         )
 
@@ -710,6 +848,9 @@ class CodevApp(App):
         self._take_unseen_edits()
         if tab == "mpc":
             self.query_one(MpcPane).run_preview()
+            return
+        if tab == "sweep":
+            self.run_sweep(self.query_one(SweepPane).grid_text())
             return
         # the same message as the tab's run button: one way in for every run
         self.post_message(RunRequested(TAB_STAGE.get(tab, "model")))
@@ -860,8 +1001,10 @@ class CodevApp(App):
             self.query_one(SynthesisPane),
             self.query_one(VerificationPane),
             self.query_one(SessionPane),
+            self.query_one(SweepPane),
         ):
             pane.reset()
+        self._show_recorded_sweep()
         self.query_one(MpcPane).set_problem(None)
         self.query_one(SynthesisPane).set_problem(None)
         self._show_pipeline()
@@ -874,6 +1017,12 @@ class CodevApp(App):
         if opened.note:
             self.notify(opened.note)
         self._schedule_check_now()
+
+
+def _toml_value(v: object) -> str:
+    from codev_engine.sweeps import dumps_toml
+
+    return dumps_toml({"v": v}).split(" = ", 1)[1].strip()
 
 
 def _lower_priority(niceness: int = 10) -> None:

@@ -40,6 +40,19 @@ class RunRequested(Message):
 
 
 @dataclass
+class SweepRequested(Message):
+    """Sweep the current design over a grid of spec values (the Sweep tab's run).
+
+    Attributes
+    ----------
+    grid : str
+        The grid as typed: ``FIELD=V1,V2,...`` items separated by ``;`` or new lines.
+    """
+
+    grid: str
+
+
+@dataclass
 class CancelRequested(Message):
     """Stop the stage run in flight (and the MPC preview); nothing is saved for it."""
 

@@ -34,8 +34,9 @@ from typing import Any
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 
-__all__ = ["sweep", "design_texts", "design_id", "design_row", "set_field", "dumps_toml",
-           "TIMING_FIELDS"]
+__all__ = ["sweep", "parse_sets", "grid_values", "design_texts", "design_id", "design_row",
+           "report_row",
+           "set_field", "dumps_toml", "TIMING_FIELDS"]
 
 #: the row fields that are wall times (they differ run to run; everything else is exact)
 TIMING_FIELDS = ("synthesis_seconds", "verification_seconds")
@@ -48,6 +49,7 @@ def sweep(
     executor: Executor | None = None,
     progress: Callable[[int, dict], None] | None = None,
     session: str | os.PathLike | None = None,
+    recording: bool = True,
 ) -> list[dict]:
     """Synthesise and verify every design of a grid of spec values.
 
@@ -67,8 +69,13 @@ def sweep(
         A folder for the sweep: each design runs as a session (``codev_engine.session``) in
         ``session/<id>``, ``id`` the first 16 hex digits of the SHA-256 of its TOML text, so
         a rerun loads the stages of unchanged designs from their caches and ``codev replay
-        session/<id>`` reproduces one; ``session/sweep.json`` lists the designs and their
-        rows (written atomically). The folders must be on a disk every worker sees.
+        session/<id>`` reproduces one. The folder is the sweep's own session
+        (:mod:`codev_engine.sweeps.folder`): ``sweep.json`` lists the grid, the designs and
+        their rows, ``journal.jsonl`` each sweep run, ``sweep.rrd`` is its Rerun recording;
+        ``codev replay session`` replays the whole sweep. The folders must be on a disk
+        every worker sees.
+    recording : bool
+        With ``session``: also write the sweep's Rerun recording ``session/sweep.rrd``.
 
     Returns
     -------
@@ -84,12 +91,18 @@ def sweep(
     ------
     SpecError
         A value the loader rejects (naming the design's values and the field), an empty
-        grid field, or a name that is not a spec field.
+        grid field, or a name that is not a spec field; ``session`` a folder that is not a
+        sweep's (a design's session, or a folder holding something else).
     """
     if executor is None:  # serial, or $CODEV_SCHEDULER's cluster: closed when done
         with Executor() as own:
-            return sweep(problem, grid, executor=own, progress=progress, session=session)
+            return sweep(problem, grid, executor=own, progress=progress, session=session,
+                         recording=recording)
     texts = design_texts(problem, grid)  # every design read by the loader before any runs
+    if session is not None:
+        from codev_engine.sweeps.folder import check_target
+
+        check_target(session)
     values = _value_rows(grid)
     # equal designs (a value listed twice) run once: one task, one session folder
     unique = list(dict.fromkeys(texts))
@@ -108,22 +121,62 @@ def sweep(
 
     path = problem.path or "<string>"
     calls = [(text, path, None if folders is None else folders[text]) for text in unique]
+    started, t0 = _now(), time.perf_counter()
     done = dict(zip(unique, executor.map(design_row, calls, on_result=on_result), strict=True))
     rows = [{"values": v, **done[text]} for v, text in zip(values, texts, strict=True)]
     if session is not None:
-        from codev_engine.io.atomic import write_text
+        from codev_engine.sweeps.folder import record_sweep
 
-        summary = {
-            "spec": path,
-            "grid": {k: list(v) for k, v in grid.items()},
-            "designs": [
-                {"values": v, "folder": design_id(text)}
-                for v, text in zip(values, texts, strict=True)
-            ],
-            "rows": rows,
-        }
-        write_text(Path(session) / "sweep.json", json.dumps(summary, indent=1, default=_plain))
+        record_sweep(
+            session, spec=path, base_text=problem.source, grid=grid, values=values,
+            texts=texts, rows=rows, started=started, seconds=time.perf_counter() - t0,
+            executor=executor.kind, workers=executor.workers, recording=recording,
+            title=problem.name,
+        )
     return rows
+
+
+def parse_sets(items: Sequence[str], *, origin: str = "--set") -> dict[str, list]:
+    """``FIELD=V1,V2,...`` texts -> the grid ``{field: [values]}``, each value a TOML value.
+
+    Parameters
+    ----------
+    items : sequence of str
+        One swept field each: ``mpc.horizon=2,4,6``, ``mpc.R=[[0.1]],[[1.0]]``,
+        ``mpc.norm="inf","1"``.
+    origin : str
+        Where the texts came from, named in errors (``--set``, a form field).
+
+    Returns
+    -------
+    dict of str to list
+        In the order given (the first field varies slowest in the sweep).
+
+    Raises
+    ------
+    SpecError
+        A text without ``=`` or a name, a field given twice, values that are not a list of
+        TOML values, or no values; one line naming the field.
+    """
+    grid: dict[str, list] = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise SpecError(f"expected FIELD=V1,V2,... got {item!r}", field=origin)
+        if name in grid:
+            raise SpecError("set twice", field=f"{origin} {name}")
+        try:
+            values = tomllib.loads(f"v = [{text}]")["v"]
+        except tomllib.TOMLDecodeError:
+            raise SpecError(
+                f"not a list of TOML values: {text!r} (strings need quotes: '\"a\",\"b\"')",
+                field=f"{origin} {name}",
+            ) from None
+        if not values:
+            raise SpecError("no values", field=f"{origin} {name}")
+        grid[name] = values
+    return grid
 
 
 def design_id(text: str) -> str:
@@ -141,8 +194,24 @@ def design_id(text: str) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
-def _plain(v: Any) -> Any:
-    return v.tolist() if hasattr(v, "tolist") else str(v)
+def _now() -> str:
+    from codev_engine.session.store import now
+
+    return now()
+
+
+def grid_values(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
+    """Each design's swept values, in the sweep's order (the first field varies slowest).
+
+    Parameters
+    ----------
+    grid : mapping of str to sequence
+
+    Returns
+    -------
+    list of dict
+    """
+    return _value_rows(grid)
 
 
 def _value_rows(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
@@ -348,6 +417,32 @@ def _session_row(problem, folder: str, row: dict) -> dict:
     report = Session.open_or_create(folder).run(
         problem, RunOptions(upto=upto), raise_errors=False
     )
+    return report_row(problem, report, row)
+
+
+def report_row(problem, report, row: dict | None = None) -> dict:
+    """A design's row from a session run's report (a run, or a replayed run).
+
+    Parameters
+    ----------
+    problem : Problem
+        The design.
+    report : RunReport
+        The session's run of it (up to verification when it has ``[verify]``).
+    row : dict, optional
+        The row to fill (default: every field None).
+
+    Returns
+    -------
+    dict
+        As :func:`design_row`; the wall times are those recorded when each stage was
+        computed.
+    """
+    if row is None:
+        row = dict.fromkeys(
+            ("regions", "synthesis_seconds", "verdict", "reason", "verification_seconds",
+             "tube_width_at_horizon", "closed_loop_cost", "error")
+        )  # fmt: skip
     failed = next((s for s in report.stages if s.status == "failed"), None)
     law, result = report.law, report.result
     if law is not None:
