@@ -58,7 +58,7 @@ __all__ = ["JIT_AFTER", "explore_bases"]
 #: regions found before each basis's work goes to the compiled kernel (``mplp_kernel``:
 #: importing numba and loading the kernel costs ~0.7 s of CPU, more than a small mp-LP
 #: takes altogether); a fixed count, so the partition depends on the problem alone
-JIT_AFTER = 64
+JIT_AFTER = 32
 #: pivots of the compiled dual simplex between fresh factorisations (rank-1 updates of the
 #: basis inverse in between; the basis it ends on is checked from a fresh factorisation)
 REFRESH = 8
@@ -232,17 +232,15 @@ class _Search:
         (it is not repeated when no pivot is made), nor for a basis found before.
         """
         B = np.array(B, dtype=np.intp)
-        start = np.sort(B)
+        start = np.sort(B).tobytes()
         for _ in range(4):
             B, done = self._settle_once(B, theta, a)
             if B is None:
                 return None
-            if done and (
-                np.array_equal(np.sort(B), start) and verified
-                or np.sort(B).tobytes() in self.known
-                or self._lex_ok(B)
-            ):
-                return B
+            if done:
+                key = np.sort(B).tobytes()
+                if key == start and verified or key in self.known or self._lex_ok(B):
+                    return B
         raise _NotExactError("the lexicographic dual simplex did not settle")
 
     def _lex_ok(self, B: np.ndarray) -> bool:
@@ -490,34 +488,53 @@ class _Search:
                 self._start_jit()
             return len(regions) - 1
 
+        At, bt = self.r.At, self.r.bt
+        stats = self.stats
+        stats.setdefault("touching_rows", 0)
         queue = deque([add(*first)])
         while queue:
             i = queue.popleft()
             reg = regions[i]
             B = np.array(reg.active, dtype=np.intp)
-            for j in np.flatnonzero(~marks[i]):
-                self.stats["facets"] += 1
+            todo = np.flatnonzero(~marks[i])
+            stats["facets"] += todo.size
+            fac = facets[i]
+            if fac is not None:
+                # the compiled kernel's facet centres: the rows that only touch the region
+                # and the slacks' rows on the parameter set's boundary go at once
+                fc, frho = fac
+                rho = frho[todo]
+                touching = rho <= self.region_tol
+                stats["touching_rows"] += int(np.count_nonzero(touching))
+                todo = todo[~touching]
+                if todo.size and At.shape[0]:
+                    onb = np.any(
+                        (At @ reg.A[todo].T >= 1.0 - 1e-9)
+                        & (np.abs(At @ fc[todo].T - bt[:, None]) <= 1e-9 * self.scale),
+                        axis=0,
+                    )
+                    todo = todo[~onb | np.isnan(frho[todo])]
+            for j in todo:
                 a, beta = reg.A[j], reg.b[j]
-                fac = facets[i]
                 if fac is not None and not np.isnan(fac[1][j]):
-                    centre, rho = fac[0][j], fac[1][j]
+                    centre = fac[0][j]
                 else:
                     if fac is not None:
-                        self.stats["ball_retries"] = self.stats.get("ball_retries", 0) + 1
+                        stats["ball_retries"] = stats.get("ball_retries", 0) + 1
                     others = np.delete(np.arange(reg.A.shape[0]), j)
                     centre, rho = chebyshev_ball(
                         reg.A[others], reg.b[others], a[None, :], np.array([beta])
                     )
-                if not rho > self.region_tol:
-                    # a row kept without a proof of redundancy that only touches the
-                    # region (at a vertex, say): not a facet, nothing to cross
-                    self.stats["touching_rows"] = self.stats.get("touching_rows", 0) + 1
-                    continue
-                if np.any(
-                    (self.r.At @ a >= 1.0 - 1e-9)
-                    & (np.abs(self.r.At @ centre - self.r.bt) <= 1e-9 * self.scale)
-                ):
-                    continue  # a slack's row on the parameter set's boundary
+                    if not rho > self.region_tol:
+                        # a row kept without a proof of redundancy that only touches the
+                        # region (at a vertex, say): not a facet, nothing to cross
+                        stats["touching_rows"] += 1
+                        continue
+                    if np.any(
+                        (At @ a >= 1.0 - 1e-9)
+                        & (np.abs(At @ centre - bt) <= 1e-9 * self.scale)
+                    ):
+                        continue  # a slack's row on the parameter set's boundary
                 nbr = self._settle(B, centre, a, verified=True)
                 if nbr is None:
                     continue  # the LP is infeasible past the facet: the feasible set's boundary
