@@ -183,7 +183,7 @@ class _Search:
         # unit rows of G: a length in w)
         self.zero = 1e-9 * max(self.scale, 1.0)
         #: pivots between fresh factorisations in the dual simplex
-        self.refresh = 1
+        self.refresh = REFRESH
         self.known: dict[bytes, int] = {}
         self.jit = None  # the module mplp_kernel once _start_jit succeeded
         self.jit_tried = False
