@@ -34,6 +34,11 @@ explorer's classification of tied duals, and a row with no positive ratio means 
 infeasible past ``F`` (it is on the feasible set's boundary). No step, no LP solve at a
 point and no coverage of facets by pieces: one region per basis, found once.
 
+**Compiled.** From ``JIT_AFTER`` regions on, a basis's region (with its facets' centres),
+the dual simplex and the lexicographic test are compiled calls (``mplp_kernel``), the same
+decisions as the numpy code here; where the kernel cannot conclude, the numpy code does
+that step.
+
 When a step of the search cannot be made exact (a basis matrix numerically singular, a
 region that comes out thinner than ``region_tol``, a neighbour that does not touch the
 facet) :func:`explore_bases` returns None and the caller uses the geometric explorer.
