@@ -34,6 +34,11 @@ explorer's classification of tied duals, and a row with no positive ratio means 
 infeasible past ``F`` (it is on the feasible set's boundary). No step, no LP solve at a
 point and no coverage of facets by pieces: one region per basis, found once.
 
+**Compiled.** From ``JIT_AFTER`` regions on, a basis's region (with its facets' centres),
+the dual simplex and the lexicographic test are compiled calls (``mplp_kernel``), the same
+decisions as the numpy code here; where the kernel cannot conclude, the numpy code does
+that step.
+
 When a step of the search cannot be made exact (a basis matrix numerically singular, a
 region that comes out thinner than ``region_tol``, a neighbour that does not touch the
 facet) :func:`explore_bases` returns None and the caller uses the geometric explorer.
@@ -53,11 +58,30 @@ from codev_engine.mp.mplp import _TIE, _Explorer
 from codev_engine.mp.reduce import ParameterBox, Reduced, start_point
 from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 
-__all__ = ["explore_bases"]
+__all__ = ["JIT_AFTER", "explore_bases"]
+
+#: regions found before each basis's work goes to the compiled kernel (``mplp_kernel``:
+#: importing numba and loading the kernel costs ~0.7 s of CPU, more than a small mp-LP
+#: takes altogether); a fixed count, so the partition depends on the problem alone
+JIT_AFTER = 32
+#: pivots of the compiled dual simplex between fresh factorisations (rank-1 updates of the
+#: basis inverse in between; the basis it ends on is checked from a fresh factorisation)
+REFRESH = 8
 
 
 class _NotExactError(Exception):
     """A step of the basis search could not be made exact here (the caller falls back)."""
+
+
+#: why the compiled dual simplex stopped (``mplp_kernel.settle_once``'s other statuses), in
+#: the numpy code's words
+_SETTLE_FAILURES = {
+    3: "a basis matrix is numerically singular",
+    4: "a basis is not primal feasible where it should be",
+    5: "the lexicographic dual simplex cycled",
+    6: "an infinitesimal infeasibility (rounding)",
+    7: "the lexicographic dual simplex did not settle",
+}
 
 
 def explore_bases(
@@ -164,8 +188,28 @@ class _Search:
         # unit rows of G: a length in w)
         self.zero = 1e-9 * max(self.scale, 1.0)
         #: pivots between fresh factorisations in the dual simplex
-        self.refresh = 1
+        self.refresh = REFRESH
         self.known: dict[bytes, int] = {}
+        self.jit = None  # the module mplp_kernel once _start_jit succeeded
+        self.jit_tried = False
+        self.maxit = int(50 * (self.m + red.At.shape[0] + self.d))
+
+    def _start_jit(self) -> None:
+        """Do each basis's work with the compiled kernel (``mplp_kernel``) from now on;
+        without numba the numpy code goes on."""
+        self.jit_tried = True
+        try:
+            from codev_engine.mp import mplp_kernel
+        except ImportError:  # pragma: no cover - numba is a dependency
+            self.stats["jit"] = False
+            return
+        f = np.ascontiguousarray
+        r = self.r
+        self.G, self.c, self.w, self.S = f(r.G), f(r.c, dtype=float), f(r.w), f(r.S)
+        self.At, self.bt = f(r.At), f(r.bt)
+        self.pertc = f(self.pert, dtype=float)
+        self.jit = mplp_kernel
+        self.stats["jit"] = True
 
     # ---- one basis --------------------------------------------------------------------
 
@@ -193,20 +237,23 @@ class _Search:
         (it is not repeated when no pivot is made), nor for a basis found before.
         """
         B = np.array(B, dtype=np.intp)
-        start = np.sort(B)
+        start = np.sort(B).tobytes()
         for _ in range(4):
             B, done = self._settle_once(B, theta, a)
             if B is None:
                 return None
-            if done and (
-                np.array_equal(np.sort(B), start) and verified
-                or np.sort(B).tobytes() in self.known
-                or self._lex_ok(B)
-            ):
-                return B
+            if done:
+                key = np.sort(B).tobytes()
+                if key == start and verified or key in self.known or self._lex_ok(B):
+                    return B
         raise _NotExactError("the lexicographic dual simplex did not settle")
 
     def _lex_ok(self, B: np.ndarray) -> bool:
+        if self.jit is not None:
+            return bool(
+                self.jit.lex_ok(self.G, self.c, self.pertc, np.asarray(B, dtype=np.int64),
+                                float(self.cmag))
+            )
         st = self.ex._lex_state(B, np.zeros(self.d))
         if st is None:
             return False
@@ -214,6 +261,29 @@ class _Search:
         return not np.any(self.ex._lex_negative(d0, d1, tie))
 
     def _settle_once(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
+        if self.jit is not None:
+            return self._settle_once_jit(B, theta, a)
+        return self._settle_once_numpy(B, theta, a)
+
+    def _settle_once_jit(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
+        """:meth:`_settle_once_numpy` by the compiled kernel, with rank-1 updates of the
+        basis inverse between fresh factorisations every ``REFRESH`` pivots."""
+        jit = self.jit
+        status, Bn, piv = jit.settle_once(
+            self.G, self.c, self.pertc, self.w, self.S, np.asarray(B, dtype=np.int64),
+            np.asarray(theta, dtype=float), np.zeros(self.d) if a is None else a,
+            self.zero, float(self.cmag), REFRESH, 20 * self.nw + 200,
+        )
+        self.stats["pivots"] += int(piv)
+        if status == jit.SETTLED:
+            return Bn, True
+        if status == jit.DRIFTED:
+            return Bn, False
+        if status == jit.INFEASIBLE:
+            return None, True
+        raise _NotExactError(_SETTLE_FAILURES[int(status)])
+
+    def _settle_once_numpy(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
         r = self.r
         h = r.w + r.S @ theta
         ha = r.S @ a if a is not None else np.zeros(self.m)
@@ -318,10 +388,28 @@ class _Search:
             Bloc[i] = k
         raise _NotExactError("the lexicographic dual simplex did not settle")
 
-    def _region(self, B: np.ndarray):
-        """The critical region of basis B -> (CriticalRegion, from_theta) where
-        ``from_theta`` marks the rows of the parameter set; None when thinner than
-        ``region_tol``."""
+    def _region(self, B: np.ndarray, x0: np.ndarray | None = None):
+        """The critical region of basis B -> (CriticalRegion, from_theta, facets) where
+        ``from_theta`` marks the rows of the parameter set and ``facets`` is None or the
+        centres (r, d) and radii (r,) of its facets in their hyperplanes (NaN radius: not
+        known); None when thinner than ``region_tol``. ``x0``: a point near the region."""
+        if self.jit is not None:
+            jit = self.jit
+            status, K, k0, A, b, mark, fc, frho = jit.region(
+                self.G, self.w, self.S, self.At, self.bt, np.sort(B).astype(np.int64),
+                self.zero, float(self.region_tol), float(self.size.bound),
+                np.zeros(self.d) if x0 is None else np.asarray(x0, dtype=float), self.maxit,
+            )
+            if status == jit.THIN:
+                return None
+            if status == jit.FALLBACK:
+                self.stats["region_retries"] = self.stats.get("region_retries", 0) + 1
+            else:
+                active = tuple(int(i) for i in np.sort(B))
+                return CriticalRegion(A=A, b=b, K=K, k=k0, active=active), mark, (fc, frho)
+        return self._region_numpy(B)
+
+    def _region_numpy(self, B: np.ndarray):
         r = self.r
         lu = self._lu(B)
         Z = lu_solve(lu, np.hstack([r.w[B, None], r.S[B]]), check_finite=False)
@@ -352,7 +440,7 @@ class _Search:
         keep = certified_minimal_rows(Ar, br, self.size.bound)
         active = tuple(int(i) for i in np.sort(B))
         reg = CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=active)
-        return reg, mark[keep]
+        return reg, mark[keep], None
 
     # ---- the search -------------------------------------------------------------------
 
@@ -379,48 +467,79 @@ class _Search:
         raise _NotExactError("no full-dimensional region at the start point")
 
     def run(self) -> list[CriticalRegion]:
+        if JIT_AFTER <= 0:
+            self._start_jit()
         first = self._start()
         if first is None:
             return []
         regions: list[CriticalRegion] = []
         marks: list[np.ndarray] = []
+        facets: list = []
         known: dict[bytes, int] = {}
         self.known = known
 
         def add(B, out) -> int:
-            reg, mark = out
+            reg, mark, fac = out
             known[np.sort(B).tobytes()] = len(regions)
             regions.append(reg)
             marks.append(mark)
+            facets.append(fac)
             self.stats["bases"] += 1
             if self.progress is not None:
                 self.progress(len(regions))
             if len(regions) > self.max_regions:
                 raise TooManyRegionsError(too_many_regions(self.max_regions))
+            if not self.jit_tried and len(regions) >= JIT_AFTER:
+                self._start_jit()
             return len(regions) - 1
 
+        At, bt = self.r.At, self.r.bt
+        stats = self.stats
+        stats.setdefault("touching_rows", 0)
         queue = deque([add(*first)])
         while queue:
             i = queue.popleft()
             reg = regions[i]
             B = np.array(reg.active, dtype=np.intp)
-            for j in np.flatnonzero(~marks[i]):
-                self.stats["facets"] += 1
+            todo = np.flatnonzero(~marks[i])
+            stats["facets"] += todo.size
+            fac = facets[i]
+            if fac is not None:
+                # the compiled kernel's facet centres: the rows that only touch the region
+                # and the slacks' rows on the parameter set's boundary go at once
+                fc, frho = fac
+                rho = frho[todo]
+                touching = rho <= self.region_tol
+                stats["touching_rows"] += int(np.count_nonzero(touching))
+                todo = todo[~touching]
+                if todo.size and At.shape[0]:
+                    onb = np.any(
+                        (At @ reg.A[todo].T >= 1.0 - 1e-9)
+                        & (np.abs(At @ fc[todo].T - bt[:, None]) <= 1e-9 * self.scale),
+                        axis=0,
+                    )
+                    todo = todo[~onb | np.isnan(frho[todo])]
+            for j in todo:
                 a, beta = reg.A[j], reg.b[j]
-                others = np.delete(np.arange(reg.A.shape[0]), j)
-                centre, rho = chebyshev_ball(
-                    reg.A[others], reg.b[others], a[None, :], np.array([beta])
-                )
-                if not rho > self.region_tol:
-                    # a row kept without a proof of redundancy that only touches the
-                    # region (at a vertex, say): not a facet, nothing to cross
-                    self.stats["touching_rows"] = self.stats.get("touching_rows", 0) + 1
-                    continue
-                if np.any(
-                    (self.r.At @ a >= 1.0 - 1e-9)
-                    & (np.abs(self.r.At @ centre - self.r.bt) <= 1e-9 * self.scale)
-                ):
-                    continue  # a slack's row on the parameter set's boundary
+                if fac is not None and not np.isnan(fac[1][j]):
+                    centre = fac[0][j]
+                else:
+                    if fac is not None:
+                        stats["ball_retries"] = stats.get("ball_retries", 0) + 1
+                    others = np.delete(np.arange(reg.A.shape[0]), j)
+                    centre, rho = chebyshev_ball(
+                        reg.A[others], reg.b[others], a[None, :], np.array([beta])
+                    )
+                    if not rho > self.region_tol:
+                        # a row kept without a proof of redundancy that only touches the
+                        # region (at a vertex, say): not a facet, nothing to cross
+                        stats["touching_rows"] += 1
+                        continue
+                    if np.any(
+                        (At @ a >= 1.0 - 1e-9)
+                        & (np.abs(At @ centre - bt) <= 1e-9 * self.scale)
+                    ):
+                        continue  # a slack's row on the parameter set's boundary
                 nbr = self._settle(B, centre, a, verified=True)
                 if nbr is None:
                     continue  # the LP is infeasible past the facet: the feasible set's boundary
@@ -432,7 +551,7 @@ class _Search:
                         np.abs(o.b + beta) <= 1e-9 * self.scale
                     )
                     continue
-                out = self._region(nbr)
+                out = self._region(nbr, centre)
                 if out is None:
                     raise _NotExactError("a neighbour's region is lower-dimensional")
                 nreg = out[0]

@@ -19,12 +19,24 @@ import pytest
 
 import codev_engine as ce
 from codev_engine.geometry.polytope import chebyshev_ball
+from codev_engine.mp import mplp_graph
 from codev_engine.mpc import build_program
 from codev_engine.pipeline import load_spec
 from codev_engine.plant import discretize
 from tests.engine.test_mpsolve import PROGRAMS, program
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+@pytest.fixture(params=["numpy", "compiled"])
+def kernel(request, monkeypatch):
+    """The basis graph's numpy code throughout (small programs never reach ``JIT_AFTER``
+    regions), or its compiled kernel (``mplp_kernel``) from the first basis on."""
+    if request.param == "compiled":
+        monkeypatch.setattr(mplp_graph, "JIT_AFTER", 0)
+    else:
+        monkeypatch.setattr(mplp_graph, "JIT_AFTER", 10**9)
+    return request.param
 
 
 def _solve(prog: ce.MpProgram, mode: str) -> ce.MpSolution:
@@ -54,10 +66,11 @@ def _same_laws(new: ce.MpSolution, old: ce.MpSolution) -> None:
     ["lp_dual_degenerate", "lp_primal_degenerate", "lp_inf_norm", "lp_soft_penalty",
      "lp_equality", "random_lp0", "random_lp1", "random_lp3", "random_lp4"],
 )
-def test_basis_graph_gives_the_explorers_laws(name):
+def test_basis_graph_gives_the_explorers_laws(name, kernel):
     prog = PROGRAMS[name]()
     new = _solve(prog, "auto")
     assert new.stats["mplp"] == "bases", new.stats.get("graph_fallback")
+    assert new.stats.get("jit", False) == (kernel == "compiled")
     _same_laws(new, _solve(prog, "facets"))
 
 
@@ -87,16 +100,16 @@ def random_degenerate(seed: int) -> ce.MpProgram:
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_random_degenerate_mp_lps(seed):
+def test_random_degenerate_mp_lps(seed, kernel):
     prog = random_degenerate(seed)
-    _same_laws(_solve(prog, "auto"), _solve(prog, "facets"))
+    _same_laws(_solve(prog, "bases"), _solve(prog, "facets"))
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(8, 58))
-def test_random_degenerate_mp_lps_dense(seed):
+def test_random_degenerate_mp_lps_dense(seed, kernel):
     prog = random_degenerate(seed)
-    _same_laws(_solve(prog, "auto"), _solve(prog, "facets"))
+    _same_laws(_solve(prog, "bases"), _solve(prog, "facets"))
 
 
 def _mpc(example: str, **mpc) -> ce.MpProgram:
@@ -110,7 +123,7 @@ def _mpc(example: str, **mpc) -> ce.MpProgram:
     [("double_integrator", {}), ("double_integrator", {"norm": "1", "horizon": 3}),
      ("cruise_control", {})],
 )
-def test_paper_mpcs_same_laws(example, mpc):
+def test_paper_mpcs_same_laws(example, mpc, kernel):
     prog = _mpc(example, **mpc)
     new = _solve(prog, "bases")
     _same_laws(new, _solve(prog, "facets"))
@@ -122,7 +135,7 @@ def test_paper_mpcs_same_laws(example, mpc):
     [("magnetic_pointer_c", {}), ("navigation", {}), ("magnetic_pointer_a", {}),
      ("double_integrator", {"horizon": 8}), ("double_integrator", {"norm": "1", "horizon": 8})],
 )
-def test_paper_mpcs_same_laws_dense(example, mpc):
+def test_paper_mpcs_same_laws_dense(example, mpc, kernel):
     prog = _mpc(example, **mpc)
     _same_laws(_solve(prog, "bases"), _solve(prog, "facets"))
 
