@@ -344,7 +344,7 @@ def _extreme_runs(problem, law, hold, targets, signals: bool = True):
         piece, W, Q, X0r = adjoint_signals(problem, law, X0, L, hold=hold, t_target=tq,
                                            iterations=2, dt=dt)
         r = simulate_many(problem, law, X0r, hold=hold, disturbance=(piece, W, Q), dt=dt,
-                          dt_out=dt)
+                          dt_out=2 * dt)
         runs.append((r.t, r.X, r.U, r.alive))
     if not signals:
         return runs
