@@ -33,7 +33,7 @@ from codev_engine.geometry.polytope import (
     normalize_rows,
     solve_lp,
 )
-from codev_engine.geometry.vertices import box_corners, checked_piece
+from codev_engine.geometry.vertices import FACET_TOL, box_corners, checked_piece, vertices
 from codev_engine.law import ExplicitLaw
 from codev_engine.limits import limits
 from codev_engine.plant import symbolic_model
@@ -832,6 +832,11 @@ class LinearReach(ClosedLoopSetup):
         t_k = s.k * self.Ts
         for tau in (ta, tb):
             f = self._exact_violation(s, i, tau, t_k + tau)
+            if f is not None and not s.exact and self.uncertain:
+                # a point of a hull (a merge, a region's cut of a disturbed star: state
+                # coordinates, no initial state): a possible violation only, which the
+                # concrete searches decide
+                f = Finding(f.kind, f.index, f.t, None)
             if f is not None:
                 self.findings.append(f)
                 self.tubes.append(
@@ -927,8 +932,22 @@ class LinearReach(ClosedLoopSetup):
             np.all(self.boxes_lo <= hi + 1e-9, axis=1) & np.all(self.boxes_hi >= lo - 1e-9, axis=1)
         )
         children = []
+        # a disturbed star's generators are not tied to alpha: cutting alpha alone would keep
+        # the whole disturbance box in every child (and the law's value over it). Where a
+        # region cuts such a star, the child is the star's state polytope (its template hull,
+        # exact support of the generators) cut by the region's rows (docs/verification.md)
+        cut_state = s.Gw is not None and self.d == self.n
         for r in cand:
             A, b = law.A[r], law.b[r]
+            if cut_state:
+                # (only which way to cut: both are sound)
+                top = (Y @ A.T).max(axis=0) + np.abs(A @ s.Gw).sum(axis=1) + np.abs(A) @ s.eround
+                if np.any(top > self._reach_rows(A, b)):  # the region cuts the star
+                    self.stats["state_cuts"] = self.stats.get("state_cuts", 0) + 1
+                    child = self._cut_hull(s, int(r))
+                    if child is not None:
+                        children.append((int(r), child))
+                    continue
             Hn = A @ s.V
             hn = self._reach_rows(A, b) - A @ s.c + np.abs(A) @ s.err + 1e-9
             exact = s.exact
@@ -1022,6 +1041,10 @@ class LinearReach(ClosedLoopSetup):
                 rows.append(s.H)
             elif np.linalg.cond(s.V) < 1e8:
                 rows.append(s.H @ np.linalg.inv(s.V))  # any direction is sound
+            if s.Gw is not None:  # a disturbed star: its facets and its zonotope's
+                if not s.exact and np.linalg.cond(s.V) < 1e8:
+                    rows.append(s.H @ np.linalg.inv(s.V))
+                rows.append(_zonotope_normals(s.Gw))
         D = np.vstack(rows)
         D = D / np.maximum(np.linalg.norm(D, axis=1, keepdims=True), 1e-300)
         _, keep = np.unique(np.round(D, 6), axis=0, return_index=True)
@@ -1046,8 +1069,14 @@ class LinearReach(ClosedLoopSetup):
         mag = np.zeros(D.shape[0])
         for s in members:
             X = s.c[None, :] + s.verts @ s.V.T  # (nv, n)
-            pad = _REL * (np.abs(s.c)[None, :] + np.abs(s.verts) @ np.abs(s.V).T) + s.err
-            e = np.maximum(e, (X @ D.T + pad @ absD.T).max(axis=0))
+            pad = _REL * (np.abs(s.c)[None, :] + np.abs(s.verts) @ np.abs(s.V).T)
+            if s.Gw is None:
+                pad = pad + s.err
+                e = np.maximum(e, (X @ D.T + pad @ absD.T).max(axis=0))
+            else:  # the disturbance's part: its exact support, |d' Gw| 1 + |d|' eround
+                zs = np.abs(D @ s.Gw).sum(axis=1) * (1.0 + 1e-12) + absD @ s.eround
+                e = np.maximum(e, (X @ D.T + pad @ absD.T).max(axis=0) + zs)
+                pad = pad + s.err
             mag = np.maximum(mag, ((np.abs(X) + pad) @ absD.T).max(axis=0))
         if extra is not None:
             e = np.maximum(e, (extra @ D.T).max(axis=0))
@@ -1064,6 +1093,28 @@ class LinearReach(ClosedLoopSetup):
         k = members[0].k
         path = () if i is None else (i,)
         return _Star(np.zeros(n), np.eye(n), H, h, verts, np.zeros(n), k, path, exact=False)
+
+    def _cut_hull(self, s: _Star, i: int) -> _Star | None:
+        """The part of disturbed star s in region i as a star in state coordinates: its
+        template hull (:meth:`_hull`, the generators' exact support) cut by region i's rows
+        (+1e-9); None when that is empty (the star misses the region)."""
+        D = self._directions([s], i)
+        absD = np.abs(D)
+        X = s.c[None, :] + s.verts @ s.V.T
+        pad = _REL * (np.abs(s.c)[None, :] + np.abs(s.verts) @ np.abs(s.V).T)
+        zs = np.abs(D @ s.Gw).sum(axis=1) * (1.0 + 1e-12) + absD @ s.eround
+        e = (X @ D.T + pad @ absD.T).max(axis=0) + zs
+        mag = ((np.abs(X) + pad + s.err) @ absD.T).max(axis=0)
+        e = e + _REL * (1.0 + mag) + 1e-300
+        A, b = self.law.A[i], self.law.b[i]
+        piece = _tight_piece(np.vstack([D, A]),
+                             np.concatenate([e, self._reach_rows(A, b) + 1e-9]))
+        if piece is None:
+            return None
+        H, h, verts = piece
+        n = self.n
+        return _Star(np.zeros(n), np.eye(n), H, h, verts, np.zeros(n), s.k, s.path + (i,),
+                     exact=False)
 
     def _inside(self, s: _Star, S: _Star) -> bool:
         """Is every point of star s (its error box included) in the merged set S?
@@ -1231,6 +1282,51 @@ _MERGE_ABOVE = 8
 _MERGED_DEPTH = 2
 #: anchors tried per run (each undone one costs the samples it ran)
 _ANCHOR_ATTEMPTS = 5
+
+
+def _tight_piece(A: np.ndarray, b: np.ndarray) -> tuple | None:
+    """``checked_piece`` of ``{x : A x <= b}`` without the rows that touch it in fewer than
+    ``d`` vertices.
+
+    A template has rows that only touch the polytope at a vertex (weakly redundant); they
+    make ``checked_vertices`` doubt its enumeration and fall back to the bounding box.
+    Dropping a row can only enlarge the set, so the result still holds it (sound), and a
+    row on fewer than ``d`` vertices is no facet, so the set is the same.
+    """
+    piece = checked_piece(A, b)
+    if piece is None:
+        return None
+    H, h, _ = piece
+    d = H.shape[1]
+    V = vertices(H, h, 1e-10)
+    if V is None or V.shape[0] <= d:
+        return piece
+    keep = (np.abs(V @ H.T - h[None, :]) <= FACET_TOL).sum(axis=0) >= d
+    if keep.all() or keep.sum() <= d:
+        return piece
+    return checked_piece(H[keep], h[keep]) or piece
+
+
+def _zonotope_normals(G: np.ndarray, most: int = 8) -> np.ndarray:
+    """Unit normals (k, n) of the facets spanned by the largest generators of ``G`` (n, g):
+    for each ``n - 1`` of the ``most`` longest columns (``n + 1`` of them from n = 4 on: the
+    template's vertex enumeration grows with its rows), the direction orthogonal to them
+    (both signs). In the plane these are every facet of the zonotope (its edges are its
+    generators), so a template over them and a polygon's facets holds their Minkowski sum
+    exactly; any direction is sound."""
+    n = G.shape[0]
+    if n < 2 or G.shape[1] == 0:
+        return np.zeros((0, n))
+    if n >= 4:
+        most = min(most, n + 1)
+    order = np.argsort(-np.linalg.norm(G, axis=0))[:most]
+    out = []
+    for sub in itertools.combinations(order, n - 1):
+        _, sv, vt = np.linalg.svd(G[:, list(sub)].T, full_matrices=True)
+        if sv.size and sv[-1] <= 1e-12 * max(sv[0], 1e-300):
+            continue  # dependent generators: no facet
+        out += [vt[-1], -vt[-1]]
+    return np.array(out).reshape(-1, n)
 
 
 def _grid(tau_end: float, step: float) -> np.ndarray:

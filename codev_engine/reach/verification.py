@@ -565,8 +565,11 @@ def verify(
             detail = next(f.detail for f in findings if f.kind == "enclosure")
         else:
             reason = "max_depth"
-        # a possible violation is worth a few concrete simulations
+        # a possible violation is worth a few concrete simulations (under disturbances,
+        # also the adjoint's extreme signals towards the properties at the findings' times)
         cex = _search(problem, law, hold)
+        if cex is None and plant is not None:
+            cex = _adjoint_search(problem, law, hold, [f.t for f in findings])
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
     if unbounded and verdict == "robustly_safe":
@@ -897,6 +900,66 @@ def _search_runs(problem: Problem, law: ExplicitLaw, hold: str, X0: np.ndarray,
         cex = _confirm(problem, law, hold, X0[p], signals)
         if cex is not None:
             return cex
+    return None
+
+
+def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[float]
+                    ) -> Counterexample | None:
+    """Counterexamples under the adjoint's bang-bang signals (``reach.adversary``): from the
+    initial set's centre and corners, each signal pushing a safe set's row, the way into an
+    unsafe set's row or a state axis to its extreme at the first of ``times`` (where the
+    tube met a property) and at the next one a sample period or more later. Affine plants
+    with disturbances, a law over the state alone, no measurement noise; every violation
+    replayed (:func:`_confirm`) before it is reported. None when none is found (or the
+    case is not covered)."""
+    from codev_engine.reach.adversary import adjoint_signals
+    from codev_engine.reach.simulate import (
+        DisturbanceSignal,
+        simulate_many,
+        violations_many,
+    )
+
+    pl, vs = problem.plant, problem.verify
+    if pl.disturbances is None or law.n != pl.n or vs.noisy:
+        return None
+    n = pl.n
+    T = float(vs.time_horizon)
+    ts: list[float] = []
+    for t in sorted(float(t) for t in times if 0.0 < t <= T):
+        if not ts or t >= ts[-1] + float(problem.model.sample_time):
+            ts.append(t)  # (at most one target per sample period, two in all)
+    ts = ts[:2]
+    if not ts:
+        return None
+    lo, hi = np.asarray(vs.initial_lower, float), np.asarray(vs.initial_upper, float)
+    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
+                                   indexing="ij")).reshape(n, -1).T
+    if corners.shape[0] > 16:
+        corners = corners[np.random.default_rng(0).choice(corners.shape[0], 16, replace=False)]
+    X0 = np.vstack([0.5 * (lo + hi), corners])
+    dirs = [np.eye(n), -np.eye(n)]
+    for st in vs.safe:
+        dirs.append(st.halfspaces()[0])
+    for st in vs.unsafe:
+        dirs.append(-np.asarray(st.halfspaces()[0], float))
+    D = np.vstack(dirs)
+    D = D[np.linalg.norm(D, axis=1) > 0]
+    X0r, L = np.repeat(X0, D.shape[0], axis=0), np.tile(D, (X0.shape[0], 1))
+    dt = float(vs.step)
+    for tq in ts:
+        try:
+            piece, W, Q, Xs = adjoint_signals(problem, law, X0r, L, hold=hold, t_target=tq,
+                                              iterations=3, dt=dt)
+            with np.errstate(all="ignore"):
+                t, X, U, alive = simulate_many(problem, law, Xs, hold=hold,
+                                               disturbance=(piece, W, Q))
+        except (SolverError, ValueError):
+            continue
+        bad, _ = violations_many(problem, t, X, U, alive)
+        for p in np.flatnonzero(bad)[:20]:
+            cex = _confirm(problem, law, hold, Xs[p], [DisturbanceSignal(piece, W[p], Q[p])])
+            if cex is not None:
+                return cex
     return None
 
 

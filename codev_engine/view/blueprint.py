@@ -53,7 +53,8 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                 origin="/",
                 contents=["/plane/**"],
                 name=f"plane: {xname} → , {yname} ↑  (orange tube, red unsafe, blue initial, "
-                "grey traces)",
+                "grey traces" + (", purple certificate" if "/plane/certificate" in e else "")
+                + ")",
                 time_ranges=up_to_cursor,
                 background=(255, 255, 255),
             )

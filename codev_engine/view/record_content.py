@@ -48,6 +48,7 @@ TIMELINE = "time"
 _RED = (220, 40, 40)
 _GREEN = (40, 170, 60)
 _BLUE = (40, 110, 230)
+_PURPLE = (150, 60, 200)
 _TUBE = (235, 120, 0, 255)
 _TUBE_FILL = (255, 165, 40, 170)
 _TRACE = (120, 120, 120)
@@ -588,6 +589,11 @@ class RecordingContent:
         out = [("initial", SetSpec("box", lower=vs.initial_lower, upper=vs.initial_upper), _BLUE)]
         out += [(f"unsafe/{k}", s, _RED) for k, s in enumerate(vs.unsafe)]
         out += [(f"safe/{k}", s, _GREEN) for k, s in enumerate(vs.safe)]
+        cert = None if self.result is None else self.result.certificate
+        if cert is not None and np.shape(cert["H"])[1] == self.n:
+            # the invariant set that closes the induction (time_horizon = "inf")
+            out.append(("certificate", SetSpec("polytope", A=np.asarray(cert["H"], float),
+                                               b=np.asarray(cert["h"], float)), _PURPLE))
         return out
 
     def set_polygons(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
@@ -642,13 +648,15 @@ class RecordingContent:
                 continue
             if poly is not None:
                 initial = name == "initial"
+                top = initial or name == "certificate"  # (on the tube and the regions)
                 w.static(
                     f"/plane/{name}",
                     rr.LineStrips2D(
                         [np.vstack([poly, poly[:1]])],
                         colors=[color],
-                        radii=rr.components.Radius.ui_points(2.0 if initial else 1.5),
-                        draw_order=30.0 if initial else 0.0,
+                        radii=rr.components.Radius.ui_points(2.5 if name == "certificate"
+                                                             else 2.0 if initial else 1.5),
+                        draw_order=30.0 if top else 0.0,
                     ),
                     1,
                 )
@@ -1099,7 +1107,10 @@ class RecordingContent:
             "",
             f"- **plane** ({where}), scaled to a square: regions filled (hover for the id "
             "`R<i>`), unsafe sets red, the tube orange (at least two pixels wide), the "
-            "initial set blue, traces grey, the counterexample red",
+            "initial set blue, traces grey, the counterexample red"
+            + (", the invariance certificate's set purple (every reach set at the closing "
+               "sample lies in it)" if self.result is not None
+               and self.result.certificate is not None else ""),
             "- **state views**: each state against time, the tube's lower and upper bound "
             "orange, traces grey, the counterexample red",
             "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "

@@ -188,3 +188,27 @@ def test_no_certificate_within_max_samples_is_unknown():
     assert (result.verdict, result.reason) == ("unknown", "no_invariant"), result.summary()
     assert "max_samples = 15" in result.detail
     assert result.certificate is None
+
+
+def test_the_recording_draws_the_certificate_set(di_inf, tmp_path):
+    # the invariant set that closes the induction, read back from a real .rrd: its outline
+    # on the plane is the certificate's polytope (every vertex on its rows), and it holds the
+    # points the certificate rests on
+    from matplotlib.path import Path as MPath
+
+    from codev_engine.view.records import write_recording
+    from tests.engine.test_records import read
+
+    problem, law, result = di_inf
+    summary = write_recording(tmp_path / "forever.rrd", problem, law, result)
+    entities = read(summary.path)
+    strip = np.array(entities["/plane/certificate"].per_row("LineStrips2D:strips")[0][0],
+                     dtype=float)
+    H, h = result.certificate["H"], result.certificate["h"]
+    assert np.all(strip @ H.T <= h + 1e-6)
+    on = np.abs(strip @ H.T - h) <= 1e-6 * (1 + np.abs(h))
+    assert np.all(on.any(axis=1))  # each vertex on a row: the set itself, not a box
+    inside = MPath(strip).contains_points(result.certificate["points"], radius=1e-6)
+    assert inside.all()
+    text = entities["/verdict"].per_row("TextDocument:text")[0][0]
+    assert "certificate's set purple" in str(text)

@@ -332,3 +332,21 @@ def test_plane_text_frames_an_unsafe_box_near_the_tube(safe_result):
     pix = _pixels(plane_text(result, width, height, problem=shown), height)
     assert _count(pix, COLOURS["unsafe"]) == 0
     assert _count(pix, COLOURS["tube"]) > 0.02 * width * 2 * height
+
+
+def test_plane_text_draws_the_invariance_certificate(di):
+    # time_horizon = "inf": the set that closes the induction is outlined on the plane
+    from dataclasses import replace
+
+    problem, law = di
+    text = DI.read_text(encoding="utf-8").replace("time_horizon = 9.0",
+                                                  'time_horizon = "inf"')
+    p = ce.loads_spec(text)
+    result = ce.verify(p, law)
+    assert result.reason == "invariant", result.summary()
+    drawn = plane_text(result, 80, 24, problem=p)
+    assert _count(_pixels(drawn, 24), COLOURS["certificate"]) > 0
+    assert "invariant set" in drawn.plain.split("\n")[-1]
+    bare = plane_text(replace(result, certificate=None), 80, 24, problem=p)
+    assert _count(_pixels(bare, 24), COLOURS["certificate"]) == 0
+    assert "invariant set" not in bare.plain

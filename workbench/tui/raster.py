@@ -40,6 +40,7 @@ COLOURS = {
     "initial": "#edc948",
     "trace": "#ffffff",
     "cex": "#ff2d2d",
+    "certificate": "#b07aa1",
     "marker": "#ffffff",
     "axis": "#777777",
 }

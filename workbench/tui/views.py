@@ -183,6 +183,30 @@ def _with_edges_near(values: np.ndarray, edges: list[float]) -> np.ndarray:
     return np.concatenate([values, np.asarray(extra, dtype=float)]) if extra else values
 
 
+def _certificate_outline(result: VerificationResult, axes: tuple[int, int]
+                         ) -> np.ndarray | None:
+    """The invariance certificate's set (``H x <= h``, time_horizon = "inf") projected on
+    ``axes``, as a closed outline (k + 1, 2); None without a certificate (or a flat one)."""
+    cert = result.certificate
+    if cert is None:
+        return None
+    from scipy.spatial import ConvexHull, QhullError
+
+    from codev_engine.geometry.polytope import normalize_rows
+    from codev_engine.geometry.vertices import vertices
+
+    H, h, ok = normalize_rows(np.asarray(cert["H"], float), np.asarray(cert["h"], float))
+    V = vertices(H, h, 1e-9) if ok else None
+    if V is None or V.shape[0] < 3:
+        return None
+    P = V[:, list(axes)]
+    try:
+        order = ConvexHull(P).vertices
+    except QhullError:
+        return None
+    return np.vstack([P[order], P[order[:1]]])
+
+
 def plane_text(
     result: VerificationResult,
     width: int,
@@ -254,6 +278,10 @@ def plane_text(
             COLOURS["initial"],
         )
         legend.append(("initial set", COLOURS["initial"]))
+    outline = _certificate_outline(result, axes)
+    if outline is not None:
+        r.polyline(outline[:, 0], outline[:, 1], COLOURS["certificate"])
+        legend.append(("invariant set", COLOURS["certificate"]))
     if trace is not None:
         r.polyline(trace.x[:, i], trace.x[:, j], COLOURS["cex"])
         legend.append(("counterexample", COLOURS["cex"]))
