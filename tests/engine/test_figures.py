@@ -14,7 +14,6 @@ import base64
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -224,14 +223,14 @@ def test_3d_law_sections_match_point_location(mp3):
         np.testing.assert_array_equal(law.locate(X), index)
 
 
-def test_plot_partition_3d_is_quick_and_titled(mp3):
+def test_plot_partition_3d_is_one_collection_and_titled(mp3):
+    """A section of 1008 regions is one PolyCollection (quick to draw: no patch per
+    region); the count is checked, not a wall time (timed targets live in benchmarks/)."""
     _, law = mp3
-    t0 = time.perf_counter()
     ax = figures.plot_partition(law, _axes(), axes=(0, 1), at=[0.0, 0.0, 1.0])
     png = figures.png_bytes(ax.figure)
-    seconds = time.perf_counter() - t0
     assert png.startswith(PNG_MAGIC)
-    assert seconds < 3.0, f"{law.num_regions} regions drawn in {seconds:.2f} s"
+    assert len(ax.patches) <= 10
     (coll,) = [c for c in ax.collections if isinstance(c, PolyCollection)]
     polys, _ = figures.section_polygons(law.A, law.b, at=np.array([0.0, 0.0, 1.0]))
     assert len(coll.get_paths()) == len(polys)
@@ -402,18 +401,29 @@ def test_ipython_displays_html_and_png_rendered_once(di, results, monkeypatch):
         assert len(calls) == 1, "the picture must be rendered once per display"
 
 
-def test_result_repr_is_quick_for_a_large_tube():
+def test_result_repr_of_a_large_tube_draws_collections_not_patches(monkeypatch):
+    """A tube of 10^5 boxes displays (HTML and PNG) with a bounded number of artists: the
+    boxes go into one collection per axes, not one patch each (which took minutes). The
+    count, not a wall time, is checked: timed targets live in benchmarks/."""
     rng = np.random.default_rng(0)
     K = 100_000
     ts = np.repeat(np.arange(K // 20) * 0.01, 20)
     centre = np.stack([np.sin(ts), np.cos(ts), ts], axis=1) + rng.normal(0, 0.05, (K, 3))
     tube = Tube(ts, ts + 0.01, centre - 0.01, centre + 0.01, np.zeros(K, dtype=int))
     result = VerificationResult("unknown", "max_depth", tube, "zoh", None, {"seconds": 1.0})
-    t0 = time.perf_counter()
+    drawn = []
+    real = figures.figure_result
+    monkeypatch.setattr(
+        figures, "figure_result", lambda r, *a, **k: drawn.append(real(r, *a, **k)) or drawn[-1]
+    )
     bundle = result._repr_mimebundle_()
-    seconds = time.perf_counter() - t0
-    assert "unknown (max_depth)" in bundle["text/html"]
-    assert seconds < 6.0, f"{K} boxes displayed in {seconds:.2f} s"
+    assert "unknown (max_depth)" in bundle["text/html"] and bundle.get("image/png")
+    (fig,) = drawn
+    artists = sum(len(ax.patches) + len(ax.collections) + len(ax.lines) for ax in fig.axes)
+    assert artists <= 60, f"{K} boxes drawn as {artists} artists"
+    # the tube is drawn, not left out: the first state's axes hold all of its boxes
+    lo, hi = fig.axes[0].get_ylim()
+    assert lo <= tube.lower[:, 0].min() and tube.upper[:, 0].max() <= hi
 
 
 def test_bare_result_display_has_state_names_and_obstacles(results, tmp_path, monkeypatch):

