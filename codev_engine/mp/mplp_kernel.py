@@ -40,6 +40,11 @@ def lu_factor(M):
     """LU factorisation with partial pivoting ``M[perm] = L U`` (L unit lower, in the
     strict lower part of the result, U in its upper part).
 
+    Parameters
+    ----------
+    M : (n, n) ndarray
+        The matrix (not changed).
+
     Returns
     -------
     LU : (n, n) ndarray
@@ -86,7 +91,20 @@ def lu_factor(M):
 
 @njit(cache=True)
 def lu_solve(LU, perm, B):
-    """``M X = B`` from :func:`lu_factor` (B (n, r))."""
+    """``M X = B`` from :func:`lu_factor`.
+
+    Parameters
+    ----------
+    LU : (n, n) ndarray
+    perm : (n,) int ndarray
+        :func:`lu_factor`'s factors of ``M``.
+    B : (n, r) ndarray
+        The right-hand sides.
+
+    Returns
+    -------
+    X : (n, r) ndarray
+    """
     n, r = B.shape
     X = np.empty((n, r))
     for c in range(r):
@@ -105,7 +123,20 @@ def lu_solve(LU, perm, B):
 
 @njit(cache=True)
 def lu_solve_t(LU, perm, b):
-    """``M' y = b`` from :func:`lu_factor` (b (n,))."""
+    """``M' y = b`` from :func:`lu_factor`.
+
+    Parameters
+    ----------
+    LU : (n, n) ndarray
+    perm : (n,) int ndarray
+        :func:`lu_factor`'s factors of ``M``.
+    b : (n,) ndarray
+        The right-hand side.
+
+    Returns
+    -------
+    y : (n,) ndarray
+    """
     n = b.size
     z = np.empty(n)
     for i in range(n):  # U' z = b
@@ -141,7 +172,26 @@ def _factor(G, B):
 @njit(cache=True)
 def lex_ok(G, c, pert, B, cmag):
     """Whether the basis ``B`` is lexicographically optimal for ``(c, pert)``: the
-    explorer's ``_lex_state`` and ``_lex_negative`` at a parameter-free cost."""
+    explorer's ``_lex_state`` and ``_lex_negative`` at a parameter-free cost, from a fresh
+    factorisation.
+
+    Parameters
+    ----------
+    G : (m, nw) ndarray
+        The LP's constraint rows.
+    c : (nw,) ndarray
+        The cost.
+    pert : (nw,) ndarray
+        The lexicographic perturbation of the cost.
+    B : (nw,) int ndarray
+        The basis: rows of ``G``.
+    cmag : float
+        The cost's magnitude (the scale of the tie tolerance).
+
+    Returns
+    -------
+    bool
+    """
     nw = B.size
     GB = np.empty((nw, G.shape[1]))
     for q in range(nw):
@@ -166,6 +216,31 @@ def lex_ok(G, c, pert, B, cmag):
 def settle_once(G, c, pert, w, S, B, theta, a, zero, cmag, refresh, maxit):
     """One run of the lexicographic dual simplex of ``mplp_graph._Search._settle_once``
     from the basis ``B`` at ``theta`` along ``a`` (zeros: none).
+
+    Parameters
+    ----------
+    G : (m, nw) ndarray
+        The LP's constraint rows ``G z <= w + S theta``.
+    c, pert : (nw,) ndarray
+        The cost and its lexicographic perturbation.
+    w : (m,) ndarray
+    S : (m, d) ndarray
+        The right-hand side's offset and parameter matrix.
+    B : (nw,) int ndarray
+        The starting basis.
+    theta : (d,) ndarray
+        The parameter.
+    a : (d,) ndarray
+        A direction in parameter space: ties are broken as at ``theta + eps a`` (the
+        right-hand side perturbed by ``S a``; zeros: no direction).
+    zero : float
+        A slack below this is zero.
+    cmag : float
+        The cost's magnitude (the scale of the tie tolerance).
+    refresh : int
+        Rank-1 updates of the basis inverse between fresh factorisations.
+    maxit : int
+        Pivots before giving up (cycling).
 
     Returns
     -------

@@ -222,7 +222,7 @@ def record_sweep(
     Path
         The manifest, ``folder/sweep.json``.
     """
-    from codev_engine.sweeps import design_id
+    from codev_engine.sweeps.grid import design_id
 
     root = Path(folder)
     root.mkdir(parents=True, exist_ok=True)
@@ -435,7 +435,7 @@ def replay_sweep(
     """
     from codev_engine.pipeline import loads_spec
     from codev_engine.session.session import Session
-    from codev_engine.sweeps import TIMING_FIELDS, report_row
+    from codev_engine.sweeps.rows import TIMING_FIELDS, report_row
 
     t0 = time.perf_counter()
     sweep = read_sweep(folder)

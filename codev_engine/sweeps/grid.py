@@ -1,0 +1,224 @@
+"""A sweep's grid: ``FIELD=V1,V2,...`` texts parsed into ``{field: [values]}``, the
+Cartesian product of the values, and each design as the base spec's TOML text with the swept
+fields set (written back to TOML, never evaluated), named by a short hash of that text."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import math
+import re
+import tomllib
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from codev_engine.errors import SpecError
+
+
+def parse_sets(items: Sequence[str], *, origin: str = "--set") -> dict[str, list]:
+    """``FIELD=V1,V2,...`` texts -> the grid ``{field: [values]}``, each value a TOML value.
+
+    Parameters
+    ----------
+    items : sequence of str
+        One swept field each: ``mpc.horizon=2,4,6``, ``mpc.R=[[0.1]],[[1.0]]``,
+        ``mpc.norm="inf","1"``.
+    origin : str
+        Where the texts came from, named in errors (``--set``, a form field).
+
+    Returns
+    -------
+    dict of str to list
+        In the order given (the first field varies slowest in the sweep).
+
+    Raises
+    ------
+    SpecError
+        A text without ``=`` or a name, a field given twice, values that are not a list of
+        TOML values, or no values; one line naming the field.
+    """
+    grid: dict[str, list] = {}
+    for item in items:
+        name, eq, text = item.partition("=")
+        name = name.strip()
+        if not eq or not name:
+            raise SpecError(f"expected FIELD=V1,V2,... got {item!r}", field=origin)
+        if name in grid:
+            raise SpecError("set twice", field=f"{origin} {name}")
+        try:
+            values = tomllib.loads(f"v = [{text}]")["v"]
+        except tomllib.TOMLDecodeError:
+            raise SpecError(
+                f"not a list of TOML values: {text!r} (strings need quotes: '\"a\",\"b\"')",
+                field=f"{origin} {name}",
+            ) from None
+        if not values:
+            raise SpecError("no values", field=f"{origin} {name}")
+        grid[name] = values
+    return grid
+
+
+def design_id(text: str) -> str:
+    """The name of a design's session folder: 16 hex digits of the SHA-256 of its text.
+
+    Parameters
+    ----------
+    text : str
+        The design's TOML document.
+
+    Returns
+    -------
+    str
+    """
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def grid_values(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
+    """Each design's swept values, in the sweep's order (the first field varies slowest).
+
+    Parameters
+    ----------
+    grid : mapping of str to sequence
+
+    Returns
+    -------
+    list of dict
+    """
+    return _value_rows(grid)
+
+
+def _value_rows(grid: Mapping[str, Sequence[Any]]) -> list[dict]:
+    names = list(grid)
+    return [dict(zip(names, combo, strict=True)) for combo in itertools.product(*grid.values())]
+
+
+def design_texts(problem, grid: Mapping[str, Sequence[Any]]) -> list[str]:
+    """The TOML text of every design of ``grid``, each checked by the loader.
+
+    Parameters
+    ----------
+    problem : Problem
+        The base design; its ``source`` is the TOML text edited.
+    grid : mapping of str to sequence
+        As :func:`sweep`.
+
+    Returns
+    -------
+    list of str
+        One TOML document per design, in the product's order.
+
+    Raises
+    ------
+    SpecError
+        As :func:`sweep`.
+    """
+    from codev_engine.pipeline import loads_spec
+
+    base = tomllib.loads(problem.source)
+    file = problem.path or "<string>"
+    for name, vals in grid.items():
+        if isinstance(vals, (str, bytes)) or not isinstance(vals, Sequence) or not len(vals):
+            raise SpecError("a swept field needs a non-empty list of values", file=file,
+                            field=name)
+        for v in vals:
+            try:
+                _inline(v)
+            except SpecError as exc:
+                raise SpecError(exc.reason, file=file, field=name) from None
+    texts = []
+    for values in _value_rows(grid):
+        data = json.loads(json.dumps(base))  # a deep copy of plain TOML data
+        for name, value in values.items():
+            set_field(data, name, value)
+        text = dumps_toml(data)
+        label = ", ".join(f"{k} = {_inline(v)}" for k, v in values.items())
+        loads_spec(text, path=f"{file} [{label}]")  # the loader's checks, one line each
+        texts.append(text)
+    return texts
+
+
+def set_field(data: dict, name: str, value: Any) -> None:
+    """Set the dotted field ``name`` of a parsed TOML document to ``value`` (in place).
+
+    Parameters
+    ----------
+    data : dict
+        From ``tomllib.loads``.
+    name : str
+        ``table.key`` or deeper (``verify.initial_set.lower``); missing tables are made.
+    value : object
+        A TOML value.
+
+    Raises
+    ------
+    SpecError
+        An empty part of the name, or a part that is a value, not a table.
+    """
+    parts = name.split(".")
+    if not all(p.strip() for p in parts):
+        raise SpecError("not a dotted field name", field=name)
+    node = data
+    for i, part in enumerate(parts[:-1]):
+        nxt = node.setdefault(part, {})
+        if not isinstance(nxt, dict):
+            raise SpecError("is a value, not a table", field=".".join(parts[: i + 1]))
+        node = nxt
+    node[parts[-1]] = value
+
+
+_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
+
+
+def dumps_toml(data: Mapping[str, Any]) -> str:
+    """Write parsed TOML data back as a TOML document (``tomllib.loads`` reads it equal).
+
+    Parameters
+    ----------
+    data : mapping
+        Strings, booleans, integers, floats (inf and nan included), lists and tables, as
+        ``tomllib.loads`` gives them (dates are not used by specs and are refused).
+
+    Returns
+    -------
+    str
+        Top-level values first, then one ``[table]`` per top-level table, the values in
+        it inline.
+
+    Raises
+    ------
+    SpecError
+        A value TOML cannot hold.
+    """
+    lines = [f"{_key(k)} = {_inline(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines.append(f"\n[{_key(k)}]")
+            lines.extend(f"{_key(k2)} = {_inline(v2)}" for k2, v2 in v.items())
+    return "\n".join(lines) + "\n"
+
+
+def _key(k: str) -> str:
+    return k if _BARE_KEY.match(k) else json.dumps(k)
+
+
+def _inline(v: Any) -> str:
+    if hasattr(v, "tolist") and not isinstance(v, (list, dict)):
+        v = v.tolist()  # numpy scalars and arrays as Python values
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v)  # JSON's escapes are TOML's basic-string escapes
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_inline(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_inline(x)}" for k, x in v.items()) + "}"
+    raise SpecError(f"not a TOML value: {type(v).__name__}")
