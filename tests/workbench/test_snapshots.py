@@ -62,6 +62,14 @@ def _steps(*keys: str):
         if "computed in" in str(status.render()):
             status.update("computed in 0.50 s")
         await pilot.pause(0.1)
+        # the region table is filled by a worker: wait for its rows (under load, and on
+        # two test processes, the picture was taken between the rows and their widths)
+        if app.law is not None:
+            regions = app.query_one("#regions", DataTable)
+            for _ in range(200):
+                if regions.row_count >= app.law.num_regions:
+                    break
+                await pilot.pause(0.05)
         # a DataTable sizes its columns on a later refresh: under load the picture was
         # taken before (the region table's columns came out narrower, one run in three)
         for _ in range(100):
