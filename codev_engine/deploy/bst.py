@@ -16,7 +16,11 @@ unless its part of the cell, widened, is proved to lie beyond ``s > eps``, and *
 there unless its part of the cell shrunk by ``PROPER (1 + |b|)`` per test (where the fast
 path runs) is proved to lie within ``s > -PROPER (1 + |b|)`` (right: mirrored). Proofs
 come from the enlarged vertices (their hull holds every point that can hold or be near
-the region) or from a certified LP (``prune_kernel.split_node``). With ``sort="vertices"``
+the region) or from a certified LP (``prune_kernel.split_node``). No LP is solved where
+an ancestor node proved the region apart from that side of the same hyperplane (apart
+from a larger cell), or where a *witness* (a point of the region's part of the cell, the
+centre of an earlier LP's ball) already meets the test: the LP would keep the region too.
+With ``sort="vertices"``
 (the first version) all of a region's vertices decide: member when some vertex has
 ``s <= eps``, proper when some has ``s < -eps``. A member that is not proper only touches
 the hyperplane (a neighbour across a shared facet) or lies beyond it within the cell.
@@ -85,6 +89,9 @@ TRIES = 6
 #: the cell sort's charge per region copied into both children of a split (0: balance
 #: first, as in Tøndel et al.)
 DUPLICATE_WEIGHT = 0.25
+#: witnesses kept per region and node (points of its part of the cell, from the LPs:
+#: an undecided test they meet needs no LP; ``prune_kernel.split_node``)
+WITNESSES = 6
 #: the deepest tree built; a node deeper becomes a leaf that checks all its members
 MAX_DEPTH = 64
 
@@ -467,25 +474,39 @@ def build_tree(
                 np.ascontiguousarray(H_b[hs] * sg + wid),
                 np.ascontiguousarray(H_b[hs] * sg - shrink))
 
-    from codev_engine.deploy.prune_kernel import local_counts, split_node
+    from codev_engine.deploy.prune_kernel import both_counts, local_counts, split_node
 
     vstart = (vend - vcount).astype(np.int64)
     Vc = np.ascontiguousarray(V)
     An_c = np.ascontiguousarray(An)
     in_tol = 1e-9 * (1.0 + xmax)
-    no_rows = (np.zeros((0, d)), np.zeros(0))
 
-    def split(h: int, allm: np.ndarray, inP: np.ndarray, CA, Cb, Cbp):
-        """Members and proper regions of both children (``prune_kernel.split_node``)."""
+    def split(h: int, allm: np.ndarray, inP: np.ndarray, CA, Cb, Cbp, W, Wn, memo):
+        """Members and proper regions of both children (``prune_kernel.split_node``;
+        ``W``, ``Wn``: the witnesses of ``allm``, updated; ``memo``: the splits tried at
+        this node and its ancestors, nearest last, ``{h: (regions, split)}``: a region
+        apart from a side there is apart here, where the cell is smaller)."""
+        possible = None
+        for tried_at in reversed(memo):
+            if h in tried_at:
+                regs, was = tried_at[h]
+                possible = was[np.searchsorted(regs, allm)]
+                break
+        if possible is None:
+            possible = np.ones((allm.size, 4), dtype=bool)
         got = split_node(
             Vc, vstart, vcount, allm, inP, CA, Cb, Cbp, in_tol, H_A[h], float(H_b[h]),
             EPS * (1.0 + abs(H_b[h])), PROPER * (1.0 + abs(H_b[h])), An_c, be_lp, off,
-            box_A, box_b, xmax + 1.0, 500,
+            box_A, box_b, xmax + 1.0, 500, W, Wn, possible,
         )
+        memo[-1][h] = (allm, got)
         return got[:, 0], got[:, 1], got[:, 2], got[:, 3]
 
     # depth-first: (proper, members, path)
-    def grow(P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]]) -> int:
+    def grow(P: np.ndarray, M: np.ndarray, path: list[tuple[int, int]], wit, memo) -> int:
+        """The subtree of proper regions ``P`` and members ``M`` at the end of ``path``;
+        ``wit``: the parent's regions and their witnesses (``prune_kernel.split_node``),
+        or None at the root; ``memo``: the splits tried at the ancestors (``split``)."""
         if P.size <= 1:
             return leaf(P, M, path, False)
         if P.size <= leaf_size or (labels is not None and np.all(labels[P] == labels[P[0]])):
@@ -506,46 +527,66 @@ def build_tree(
         if cand.size > per:
             cand = np.random.default_rng(len(nodes_b)).permutation(cand)
         allm = np.union1d(P, M)
+        memo = memo + [{}]
+        if wit is None:
+            W = np.zeros((allm.size, WITNESSES, d))
+            Wn = np.zeros(allm.size, dtype=np.int64)
+        else:
+            at = np.searchsorted(wit[0], allm)
+            W, Wn = wit[1][at], wit[2][at]
         inP = np.isin(allm, P)
 
-        def choose(local_scores: bool, keep: int = 1) -> list[tuple[int, int, int]]:
-            """The ``keep`` candidates of the best scores, ``(score, worst, h)``, best
-            first; score ``worst * (2 |P| + 1) + (nl + nr)`` over the counts of proper
-            regions each side, by all vertices (an upper bound of the split, which the
-            cell sort can only improve on) or by those in the cell (an estimate, to be
-            confirmed)."""
-            best: list[tuple[int, int, int]] = []
+        def choose_both(keep: int, local: bool = True):
+            """The best candidates, ``(score, worst, h)``, best first: by all vertices
+            (the best one: an upper bound of its split, which the cell sort can only
+            improve on) and, with ``local``, by those in the cell (the ``keep`` best: an
+            estimate, to be confirmed). Score ``worst * (2 |P| + 1) + (nl + nr)`` over
+            the counts of proper regions each side (``_score``). Without a table both
+            come from one pass over the vertices (``prune_kernel.both_counts``)."""
+            best_g: list[tuple[int, int, int]] = []
+            best_l: list[tuple[int, int, int]] = []
             spent = 0
-            for c0 in range(0, cand.size, per):
-                chunk = cand[c0 : c0 + per]
-                if local_scores or (cellwise and table is None):
-                    # (with no cell rows: every vertex counts)
-                    nl, nr = local_counts(
-                        Vc, vstart, vcount, P, CA if local_scores else no_rows[0],
-                        Cb if local_scores else no_rows[1], in_tol, H_A, H_b, chunk,
-                        (PROPER if cellwise else EPS) * (1.0 + np.abs(H_b[chunk])),
-                    )
-                else:
-                    lo, hi = extents(chunk, P)
-                    nl = (lo < -1.0).sum(axis=1)
-                    nr = (hi > 1.0).sum(axis=1)
+
+            def merge(best, nl, nr, chunk, k):
                 worst = np.maximum(nl, nr)
                 score = _score(nl, nr, P.size, cellwise)
-                top = np.argsort(score, kind="stable")[:keep]
-                best = sorted(
-                    best + [(int(score[k]), int(worst[k]), int(chunk[k])) for k in top]
-                )[:keep]
+                top = np.argsort(score, kind="stable")[:k]
+                return sorted(
+                    best + [(int(score[j]), int(worst[j]), int(chunk[j])) for j in top]
+                )[:k]
+
+            for c0 in range(0, cand.size, per):
+                chunk = cand[c0 : c0 + per]
+                eps_c = (PROPER if cellwise else EPS) * (1.0 + np.abs(H_b[chunk]))
+                if cellwise and table is None:
+                    # (with no cell rows: every vertex counts)
+                    nl, nr, nlc, nrc = both_counts(
+                        Vc, vstart, vcount, P, CA, Cb, in_tol, H_A, H_b, chunk, eps_c
+                    )
+                    best_g = merge(best_g, nl, nr, chunk, 1)
+                    if local:
+                        best_l = merge(best_l, nlc, nrc, chunk, keep)
+                else:
+                    lo, hi = extents(chunk, P)
+                    best_g = merge(best_g, (lo < -1.0).sum(axis=1), (hi > 1.0).sum(axis=1),
+                                   chunk, 1)
+                    if local:
+                        nl, nr = local_counts(
+                            Vc, vstart, vcount, P, CA, Cb, in_tol, H_A, H_b, chunk, eps_c
+                        )
+                        best_l = merge(best_l, nl, nr, chunk, keep)
                 spent += chunk.size * nvert
-                if best[0][1] < P.size and (not cellwise or spent >= BUDGET):
+                found = best_g[0][1] < P.size and (not local or best_l[0][1] < P.size)
+                if found and (not cellwise or spent >= BUDGET):
                     break
-            return best
+            return best_g, best_l
 
         def tried(h: int):
-            got = split(h, allm, inP, CA, Cb, Cbp)
+            got = split(h, allm, inP, CA, Cb, Cbp, W, Wn, memo)
             nl, nr = int(np.count_nonzero(got[1])), int(np.count_nonzero(got[3]))
             return int(_score(nl, nr, P.size, True)), max(nl, nr), h, got
 
-        glob = choose(False)
+        glob, loc = choose_both(4 * TRIES, cellwise)
         if not cellwise:
             if not glob or glob[0][1] >= P.size:
                 return leaf(P, M, path, True)
@@ -557,7 +598,6 @@ def build_tree(
             # the best by all vertices (whose split is at least as good as its score)
             bound_g = glob[0][0] if glob and glob[0][1] < P.size else None
             best_o = None
-            loc = choose(True, 4 * TRIES)
             for q, (est, _, h) in enumerate(loc):
                 if bound_g is not None and est >= bound_g:
                     break
@@ -592,7 +632,7 @@ def build_tree(
         for side, (mem, prop) in enumerate(sides):
             Pc = allm[prop & inP]
             Mc = allm[mem & ~(prop & inP)]
-            nodes_next[node][side] = grow(Pc, Mc, path + [(h, side)])
+            nodes_next[node][side] = grow(Pc, Mc, path + [(h, side)], (allm, W, Wn), memo)
         return node
 
     import sys
@@ -600,7 +640,7 @@ def build_tree(
     limit = sys.getrecursionlimit()
     sys.setrecursionlimit(max(limit, 10 * MAX_DEPTH + 1000))
     try:
-        grow(np.arange(R, dtype=np.int64), np.zeros(0, dtype=np.int64), [])
+        grow(np.arange(R, dtype=np.int64), np.zeros(0, dtype=np.int64), [], None, [])
     finally:
         sys.setrecursionlimit(limit)
     if prune and not cellwise:

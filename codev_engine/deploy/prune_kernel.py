@@ -158,8 +158,89 @@ def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
 
 
 @njit(cache=True)
+def both_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
+    """:func:`local_counts` in the cell and over all vertices (no cell) in one pass.
+
+    Parameters
+    ----------
+    V : (K, d) float64 ndarray
+        The regions' (enlarged) vertices, region after region.
+    vstart, vcount : (R,) int64 ndarrays
+        Region ``i``'s vertices are ``V[vstart[i]:vstart[i] + vcount[i]]``.
+    P : (p,) int64 ndarray
+        The regions counted.
+    CA, Cb : (c, d), (c,) float64 ndarrays
+        The cell.
+    tol : float
+        A vertex is in the cell when ``CA v - Cb <= tol``.
+    HA, Hb : (H, d), (H,) float64 ndarrays
+        Every hyperplane.
+    cand : (k,) int64 ndarray
+        The candidates.
+    eps : (k,) float64 ndarray
+        Each candidate's slack: proper beyond it.
+
+    Returns
+    -------
+    nl, nr : (k,) int64 ndarrays
+        By all vertices of each region.
+    nl_cell, nr_cell : (k,) int64 ndarrays
+        By the vertices in the cell (all where none is), as :func:`local_counts`.
+    """
+    n = 0
+    for q in range(P.size):
+        n += vcount[P[q]]
+    incell = np.zeros(n, dtype=np.bool_)
+    anyin = np.zeros(P.size, dtype=np.bool_)
+    m = 0
+    for q in range(P.size):
+        r = P[q]
+        for i in range(vstart[r], vstart[r] + vcount[r]):
+            if _in_cell(V, i, CA, Cb, tol):
+                incell[m] = True
+                anyin[q] = True
+            m += 1
+    d = V.shape[1]
+    nl = np.zeros(cand.size, dtype=np.int64)
+    nr = np.zeros(cand.size, dtype=np.int64)
+    nlc = np.zeros(cand.size, dtype=np.int64)
+    nrc = np.zeros(cand.size, dtype=np.int64)
+    for c in range(cand.size):
+        h = cand[c]
+        m = 0
+        for q in range(P.size):
+            r = P[q]
+            lo = np.inf
+            hi = -np.inf
+            loc = np.inf
+            hic = -np.inf
+            for i in range(vstart[r], vstart[r] + vcount[r]):
+                s = -Hb[h]
+                for t in range(d):
+                    s += HA[h, t] * V[i, t]
+                lo = min(lo, s)
+                hi = max(hi, s)
+                if incell[m]:
+                    loc = min(loc, s)
+                    hic = max(hic, s)
+                m += 1
+            if not anyin[q]:
+                loc = lo
+                hic = hi
+            if lo < -eps[c]:
+                nl[c] += 1
+            if hi > eps[c]:
+                nr[c] += 1
+            if loc < -eps[c]:
+                nlc[c] += 1
+            if hic > eps[c]:
+                nrc[c] += 1
+    return nl, nr, nlc, nrc
+
+
+@njit(cache=True)
 def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An, be, off,
-               box_A, box_b, bound, maxit):
+               box_A, box_b, bound, maxit, W, Wn, possible):
     """The regions of a node sorted into its children by their part inside the node's
     cell: the vertices decide where they can, a certified LP where they cannot.
 
@@ -204,6 +285,19 @@ def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An,
     bound : float
         A bound of ``|x|_inf`` over the box.
     maxit : int
+    W : (Q, K, d) float64 ndarray
+        Witnesses: points found in each region's part of the cell (centres of earlier
+        LPs' balls, here or at an ancestor node), a ring of ``K`` per region; the centres
+        of this call's LPs are added. A witness that meets an undecided test (in the
+        cell, on the side) decides it as the LP would (a feasible point: radius >= 0),
+        without the LP. It can only keep a region (never drop one), whatever its
+        accuracy.
+    Wn : (Q,) int64 ndarray
+        Witnesses stored per region so far (the ring holds the last ``K``).
+    possible : (Q, 4) bool ndarray
+        False where an ancestor node proved the region apart from that side of this
+        hyperplane (columns as returned): apart from a larger cell, it is apart from
+        this one too. All True: nothing known.
 
     Returns
     -------
@@ -241,6 +335,17 @@ def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An,
         dec[1] = 0 if lo_all > e else (1 if lo_in <= e else -1)
         dec[2] = 0 if (hi_all <= p or not isP[q]) else (1 if hi_in > p else -1)
         dec[3] = 0 if hi_all < -e else (1 if hi_in >= -e else -1)
+        # proved apart at an ancestor (the output's columns: left member, left proper, ...)
+        if dec[0] < 0 and not possible[q, 1]:
+            dec[0] = 0
+        if dec[1] < 0 and not possible[q, 0]:
+            dec[1] = 0
+        if dec[2] < 0 and not possible[q, 3]:
+            dec[2] = 0
+        if dec[3] < 0 and not possible[q, 2]:
+            dec[3] = 0
+        if dec[0] < 0 or dec[1] < 0 or dec[2] < 0 or dec[3] < 0:
+            _witnessed(W, Wn, q, CA, Cb, Cbp, ha, hb, e, p, dec)
         if dec[0] < 0 or dec[1] < 0 or dec[2] < 0 or dec[3] < 0:
             k = off[r + 1] - off[r]
             n = k + c + 1 + 2 * d
@@ -264,10 +369,13 @@ def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An,
                     # the widened one
                     br[k + c] = sg * hb + (-p if j == 0 else e)
                     br[k : k + c] = Cbp if j == 0 else Cb
-                    status, _, radius, upper = chebyshev(Ar, br, x0, bound, maxit)
+                    status, centre, radius, upper = chebyshev(Ar, br, x0, bound, maxit)
                     if status == OPTIMAL and upper < 0.0:
                         dec[col] = 0
                     else:
+                        if status == OPTIMAL and radius >= 0.0:
+                            W[q, Wn[q] % W.shape[1]] = centre
+                            Wn[q] += 1
                         dec[col] = 1
                         if j == 0:
                             dec[col + 1] = 1  # proper there: a member there too
@@ -276,6 +384,44 @@ def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An,
         out[q, 2] = dec[3] > 0 or dec[2] > 0
         out[q, 3] = dec[2] > 0
     return out
+
+
+@njit(cache=True)
+def _witnessed(W, Wn, q, CA, Cb, Cbp, ha, hb, e, p, dec):
+    """Decide (1) the undecided tests of ``dec`` (as in :func:`split_node`) that one of
+    region ``q``'s witnesses meets: a point in the cell (shrunk for proper, widened for
+    member) on the side (``s <= -p`` / ``s <= e`` left, mirrored right)."""
+    d = ha.size
+    for w in range(min(Wn[q], W.shape[1])):
+        s = -hb
+        for t in range(d):
+            s += ha[t] * W[q, w, t]
+        # worth a look only if it meets an undecided test
+        if not ((dec[0] < 0 and s <= -p) or (dec[1] < 0 and s <= e)
+                or (dec[2] < 0 and s >= p) or (dec[3] < 0 and s >= -e)):
+            continue
+        in_wide = True
+        in_shrunk = True
+        for k in range(CA.shape[0]):
+            a = 0.0
+            for t in range(d):
+                a += CA[k, t] * W[q, w, t]
+            if a > Cb[k]:
+                in_wide = False
+                in_shrunk = False
+                break
+            if a > Cbp[k]:
+                in_shrunk = False
+        if in_shrunk and s <= -p and dec[0] < 0:
+            dec[0] = 1
+        if in_wide and s <= e and dec[1] < 0:
+            dec[1] = 1
+        if in_shrunk and s >= p and dec[2] < 0:
+            dec[2] = 1
+        if in_wide and s >= -e and dec[3] < 0:
+            dec[3] = 1
+        if dec[0] >= 0 and dec[1] >= 0 and dec[2] >= 0 and dec[3] >= 0:
+            return
 
 
 cache_follows(globals())
