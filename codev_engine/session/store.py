@@ -41,6 +41,7 @@ __all__ = [
     "locked",
     "now",
     "read_journal",
+    "read_jsonl",
     "read_meta",
     "read_spec_snapshot",
     "register_artifact",
@@ -269,23 +270,47 @@ def read_journal(folder: Path, stages: Collection[str]) -> list[dict[str, Any]]:
         An unreadable journal, or a line that is not a valid record.
     """
     file = folder / "journal.jsonl"
+    records = []
+    for i, rec in read_jsonl(file, "journal"):
+        _check_record(rec, f"{file}:{i}", stages)
+        records.append(rec)
+    return records
+
+
+def read_jsonl(file: Path, what: str) -> list[tuple[int, object]]:
+    """The JSON values of a JSON-lines file (a journal), blank lines skipped.
+
+    Parameters
+    ----------
+    file : Path
+    what : str
+        What the file is, for messages ("journal", "sweep journal").
+
+    Returns
+    -------
+    list of (int, object)
+        Each value with its line number (from 1); empty when the file does not exist.
+
+    Raises
+    ------
+    SessionError
+        An unreadable file, or a line that is not valid JSON (naming the file and line).
+    """
     if not file.exists():
         return []
     try:
         lines = file.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
-        raise SessionError(f"unreadable journal ({exc})", file=str(file)) from None
-    records = []
+        raise SessionError(f"unreadable {what} ({exc})", file=str(file)) from None
+    out = []
     for i, line in enumerate(lines, 1):
         if not line.strip():
             continue
         try:
-            rec = json.loads(line)
+            out.append((i, json.loads(line)))
         except (ValueError, RecursionError):
             raise SessionError(f"line {i} is not valid JSON", file=str(file)) from None
-        _check_record(rec, f"{file}:{i}", stages)
-        records.append(rec)
-    return records
+    return out
 
 
 def append_journal(folder: Path, records: list[dict[str, Any]], stages: Collection[str]) -> int:

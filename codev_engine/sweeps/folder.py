@@ -292,20 +292,8 @@ def _last_status(folder: Path) -> str:
 
 def _read_journal(root: Path) -> list[dict]:
     file = root / "journal.jsonl"
-    if not file.exists():
-        return []
     out = []
-    try:
-        lines = file.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SessionError(f"unreadable sweep journal ({exc})", file=str(file)) from None
-    for i, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-        except (ValueError, RecursionError):
-            raise SessionError(f"line {i} is not valid JSON", file=str(file)) from None
+    for i, rec in store.read_jsonl(file, "sweep journal"):
         ok = (isinstance(rec, dict) and isinstance(rec.get("run"), int)
               and isinstance(rec.get("designs"), list)
               and isinstance(rec.get("seconds"), (int, float)))
