@@ -67,7 +67,9 @@ def test_notebook_is_committed_without_outputs():
     assert NOTEBOOK.stat().st_size < 20_000
 
 
-@pytest.mark.parametrize("cwd", ["examples", "root"])
+# from the examples folder too, as a user of the wheel runs it (slow: one run of the notebook,
+# ~6 s quiet, is enough for the default suite)
+@pytest.mark.parametrize("cwd", [pytest.param("examples", marks=pytest.mark.slow), "root"])
 def test_notebook_runs_end_to_end(kernel_name, cwd):
     nb = _execute(NOTEBOOK.parent if cwd == "examples" else ROOT, kernel_name)
     cells = _outputs(nb)

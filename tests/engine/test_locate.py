@@ -451,6 +451,7 @@ def test_an_unproved_daqp_bound_goes_to_highs(monkeypatch):
     assert not locate_mod._proved(np.array([1.0, 0.0]), A, b, 0.5 * x, lam)
 
 
+@pytest.mark.slow  # a test-set law (~18 s): the suite stays under 10 min
 def test_compiled_boxes_stay_in_the_parameter_set_of_pop_mpqp_016():
     """On a region of pop_mpqp_016 the compiled LP took a step of 9e12 along a projected
     cost of norm 1e-12 (mostly rounding) and ended 3e-4 outside its working rows: the box

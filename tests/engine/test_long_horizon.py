@@ -152,6 +152,7 @@ def test_safety_for_all_time_by_an_invariance_certificate(di_inf, tmp_path):
         VerificationResult.load(bad)
 
 
+@pytest.mark.slow  # 50x the certificate's time simulated (~10 s); checked by default too
 def test_the_certificate_holds_for_fifty_times_its_time(di_inf):
     """Simulate 50x the certificate's closing time from random initial states: no property
     is violated, and at every closing time t_k + m L every state is in the invariant set."""

@@ -645,6 +645,7 @@ initial_set = { lower = [2.9], upper = [3.1] }
 """
 
 
+@pytest.mark.slow  # refines the initial set until it gives up (~10 s)
 def test_a_singular_enclosure_is_a_verdict_not_bad_input(tmp_path):
     """Issue 26: an enclosure meeting a singularity refines, then ends in ``unknown`` with a
     reason naming the expression and the time (exit 1); exit 2 is for malformed input."""
