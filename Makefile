@@ -19,7 +19,7 @@ demo: $(STAMP)
 ## test: the whole test suite (what CI runs), on TEST_WORKERS processes (pytest-xdist)
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist worksteal --durations=15
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --durations=15
 
 ## lint: ruff, and the import contracts of pyproject.toml (also run by make test)
 lint: $(STAMP)
