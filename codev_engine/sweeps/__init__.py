@@ -26,11 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from codev_engine.executor import Executor
+from codev_engine.io.toml import dumps_toml
 from codev_engine.sweeps.grid import (
     _value_rows,
     design_id,
     design_texts,
-    dumps_toml,
     grid_values,
     parse_sets,
     set_field,

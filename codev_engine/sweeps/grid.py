@@ -7,13 +7,12 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-import math
-import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 from codev_engine.errors import SpecError
+from codev_engine.io.toml import dumps_toml, toml_literal
 
 
 def parse_sets(items: Sequence[str], *, origin: str = "--set") -> dict[str, list]:
@@ -123,16 +122,17 @@ def design_texts(problem, grid: Mapping[str, Sequence[Any]]) -> list[str]:
                             field=name)
         for v in vals:
             try:
-                _inline(v)
-            except SpecError as exc:
-                raise SpecError(exc.reason, file=file, field=name) from None
+                toml_literal(v)
+            except TypeError:
+                raise SpecError(f"not a TOML value: {type(v).__name__}", file=file,
+                                field=name) from None
     texts = []
     for values in _value_rows(grid):
         data = json.loads(json.dumps(base))  # a deep copy of plain TOML data
         for name, value in values.items():
             set_field(data, name, value)
         text = dumps_toml(data)
-        label = ", ".join(f"{k} = {_inline(v)}" for k, v in values.items())
+        label = ", ".join(f"{k} = {toml_literal(v)}" for k, v in values.items())
         loads_spec(text, path=f"{file} [{label}]")  # the loader's checks, one line each
         texts.append(text)
     return texts
@@ -165,60 +165,3 @@ def set_field(data: dict, name: str, value: Any) -> None:
             raise SpecError("is a value, not a table", field=".".join(parts[: i + 1]))
         node = nxt
     node[parts[-1]] = value
-
-
-_BARE_KEY = re.compile(r"^[A-Za-z0-9_-]+$")
-
-
-def dumps_toml(data: Mapping[str, Any]) -> str:
-    """Write parsed TOML data back as a TOML document (``tomllib.loads`` reads it equal).
-
-    Parameters
-    ----------
-    data : mapping
-        Strings, booleans, integers, floats (inf and nan included), lists and tables, as
-        ``tomllib.loads`` gives them (dates are not used by specs and are refused).
-
-    Returns
-    -------
-    str
-        Top-level values first, then one ``[table]`` per top-level table, the values in
-        it inline.
-
-    Raises
-    ------
-    SpecError
-        A value TOML cannot hold.
-    """
-    lines = [f"{_key(k)} = {_inline(v)}" for k, v in data.items() if not isinstance(v, dict)]
-    for k, v in data.items():
-        if isinstance(v, dict):
-            lines.append(f"\n[{_key(k)}]")
-            lines.extend(f"{_key(k2)} = {_inline(v2)}" for k2, v2 in v.items())
-    return "\n".join(lines) + "\n"
-
-
-def _key(k: str) -> str:
-    return k if _BARE_KEY.match(k) else json.dumps(k)
-
-
-def _inline(v: Any) -> str:
-    if hasattr(v, "tolist") and not isinstance(v, (list, dict)):
-        v = v.tolist()  # numpy scalars and arrays as Python values
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v)  # JSON's escapes are TOML's basic-string escapes
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_inline(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{_key(k)} = {_inline(x)}" for k, x in v.items()) + "}"
-    raise SpecError(f"not a TOML value: {type(v).__name__}")

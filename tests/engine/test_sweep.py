@@ -295,3 +295,17 @@ def test_the_sweep_figure_has_a_bar_per_design_coloured_by_verdict(serial_rows):
         assert to_hex(bar.get_facecolor()) == VERDICT_COLOURS[row["verdict"]]
     labels = [t.get_text() for t in ax.get_xticklabels()]
     assert all("mpc.horizon = " in t and "mpc.R = " in t for t in labels)
+
+
+def test_design_texts_are_compact_and_ascii_only():
+    """The sweep's design text stays compact and ASCII-only (its hash names the design's
+    folder, so its layout must not change), reads back equal, and a raw DEL is escaped
+    (TOML forbids it in a string; JSON, whose escapes the writer uses, does not)."""
+    data = {"name": "Pendel \u00fc\x7f",
+            "verify": {"initial_set": {"lower": [0.5], "upper": [1.0]}},
+            "mpc": {"constraints": [{"h": [1.0]}, {"h": [2.0]}]}}
+    text = dumps_toml(data)
+    assert 'name = "Pendel \\u00fc\\u007f"' in text
+    assert "initial_set = {lower = [0.5], upper = [1.0]}" in text
+    assert "constraints = [{h = [1.0]}, {h = [2.0]}]" in text
+    assert tomllib.loads(text) == data

@@ -685,3 +685,15 @@ def test_bad_uncertain_plant_entries_are_pinned_on_their_entry(field, text):
     values[field] = text
     key, _ = _one_error(check_form(values, with_verify=has_verify))
     assert key == field
+
+
+def test_toml_value_is_the_engines_writer_in_a_readable_layout():
+    """The form writes through the engine's one TOML writer, in a person's layout:
+    characters outside ASCII as they are, a list of tables one per line, DEL escaped."""
+    from codev_engine.io.toml import toml_literal
+
+    tables = [{"h": [1.0]}, {"h": [2.0]}]
+    assert toml_value(tables) == "[\n  { h = [1.0] },\n  { h = [2.0] },\n]"
+    assert toml_value("\u00fc") == '"\u00fc"' and toml_literal("\u00fc") == '"\\u00fc"'
+    for value in (tables, "a\x7fb", {"k y": "\u00fc"}):
+        assert tomllib.loads("v = " + toml_value(value))["v"] == value

@@ -1020,9 +1020,9 @@ class CodevApp(App):
 
 
 def _toml_value(v: object) -> str:
-    from codev_engine.sweeps import dumps_toml
+    from codev_engine.io.toml import toml_literal
 
-    return dumps_toml({"v": v}).split(" = ", 1)[1].strip()
+    return toml_literal(v)
 
 
 def _lower_priority(niceness: int = 10) -> None:

@@ -12,7 +12,6 @@ No Textual import here: the form is plain data, tested on its own.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import tomllib
@@ -20,6 +19,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from codev_engine.errors import SpecError
+from codev_engine.io.toml import toml_key, toml_literal, toml_string
 from codev_engine.spec.choices import HOLDS, METHODS, NORMS
 
 if TYPE_CHECKING:
@@ -425,9 +425,8 @@ FIELD_BY_NAME: dict[str, FieldDef] = {f.name: f for f in FIELDS}
 
 
 def toml_value(value: Any) -> str:
-    """A TOML literal for a value read by ``tomllib`` (round-trips exactly).
-
-    Lists of inline tables are written one table per line (``sets`` entries).
+    """A TOML literal for a value read by ``tomllib`` (round-trips exactly), as a person
+    types it: lists of inline tables one table per line (``sets`` entries).
 
     Parameters
     ----------
@@ -443,34 +442,8 @@ def toml_value(value: Any) -> str:
     TypeError
         A value of another type (TOML has no literal for it).
     """
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return _toml_string(value)
-    if isinstance(value, dict):
-        return "{ " + ", ".join(f"{_key(k)} = {toml_value(v)}" for k, v in value.items()) + " }"
-    if isinstance(value, list):
-        if value and all(isinstance(v, dict) for v in value):
-            return "[\n" + "".join(f"  {toml_value(v)},\n" for v in value) + "]"
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    raise TypeError(f"no TOML literal for {type(value).__name__}")
+    return toml_literal(value, readable=True)
 
-
-def _toml_string(s: str) -> str:
-    """A TOML basic string: JSON escapes are TOML escapes, but TOML also forbids a raw DEL."""
-    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
-
-
-def _key(k: str) -> str:
-    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else _toml_string(k)
 
 
 def _single_value(lit: str) -> None:
@@ -507,7 +480,7 @@ def entry_to_toml(kind: str, text: str) -> str:
     if not s:
         return ""
     if kind == "string":
-        return s if s[0] in "\"'" else _toml_string(s)
+        return s if s[0] in "\"'" else toml_string(s)
     if kind == "names":
         if s.startswith("["):
             return s
@@ -517,7 +490,7 @@ def entry_to_toml(kind: str, text: str) -> str:
             return s
         return toml_value([ln.strip() for ln in s.splitlines() if ln.strip()])
     if kind == "choice":
-        return s if s[0] in "\"'" else _toml_string(s)
+        return s if s[0] in "\"'" else toml_string(s)
     if kind == "bool":
         low = s.lower()
         if low in ("true", "yes", "on", "1"):
@@ -580,7 +553,7 @@ def field_toml(fd: FieldDef, text: str) -> str:
     """
     word = text.strip().strip("\"'")
     if fd.words and word in fd.words:
-        return _toml_string(word)
+        return toml_string(word)
     return entry_to_toml(fd.kind, text)
 
 
@@ -714,13 +687,13 @@ def compose(values: dict[str, str], *, with_verify: bool = True) -> tuple[str, d
             continue
         lines += ["", f"[{section}]"]
         for k, v in tree[section].items():
-            lines.append(f"{_key(k)} = {_inline(v)}")
+            lines.append(f"{toml_key(k)} = {_inline(v)}")
     return "\n".join(lines) + "\n", errors
 
 
 def _inline(v: Any) -> str:
     if isinstance(v, dict):
-        return "{ " + ", ".join(f"{_key(k)} = {_inline(x)}" for k, x in v.items()) + " }"
+        return "{ " + ", ".join(f"{toml_key(k)} = {_inline(x)}" for k, x in v.items()) + " }"
     return v
 
 
