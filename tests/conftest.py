@@ -11,6 +11,32 @@ import codev_engine as ce
 EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
 
 
+def pytest_configure(config):
+    """With test processes (``-n 2``, as ``make test``): compile the engine's numba kernels
+    once, before the processes start (``codev_engine.kernels``, its two groups at once).
+
+    Without it each process compiled the kernels its first tests needed, at the same time
+    as the other, on a fresh clone: about a minute of CPU each (a kernel in the cache is
+    only loaded, a few seconds in all). A failure here is left to the tests to show.
+    """
+    workers = getattr(config.option, "numprocesses", None)
+    if hasattr(config, "workerinput") or not workers or workers in (0, 1):
+        return
+    from codev_engine.kernels import compile_all
+
+    config._codev_kernels = compile_all()
+
+
+def pytest_report_header(config):
+    """Say how long compiling the kernels ahead took (see ``pytest_configure``)."""
+    done = getattr(config, "_codev_kernels", None)
+    if done is None:
+        return None
+    return "kernels compiled ahead (python -m codev_engine.kernels): " + ", ".join(
+        f"{name} {seconds:.1f} s" for name, seconds in done.items()) + (
+        "" if len(done) == 2 else " (a group failed: its kernels compile on first use)")
+
+
 @pytest.fixture(scope="session")
 def example_law():
     """``example_law(fname) -> (Problem, ExplicitLaw)`` for ``examples/<fname>``.

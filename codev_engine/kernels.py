@@ -1,0 +1,165 @@
+"""The engine's compiled kernels, compiled ahead of their first use.
+
+The hot loops of the mp-QP search (``mp/mpqp_kernel.py``, ``mp/active_sets.py``), the
+mp-LP basis graph (``mp/mplp_kernel.py``), the LPs and boxes of regions
+(``geometry/lp_kernel.py``), the point locator (``geometry/locate_kernel.py``) and the
+search tree of the C export (``deploy/prune_kernel.py``) are numba functions cached in their
+package's ``__pycache__``. A fresh install compiles each on first use: about a minute of CPU
+in all on a 2-core machine, paid by the first synthesis or verification that needs it. ::
+
+    python -m codev_engine.kernels            # every kernel, in two processes
+    python -m codev_engine.kernels mp         # one group
+
+compiles them ahead, by running each group's real code path once on a small design (the
+bundled double integrator's MPC) with the compiled path forced, so that exactly the
+signatures the engine uses are compiled. A kernel already in the cache is only loaded.
+The test suite does this before its worker processes start (``tests/conftest.py``), so
+they do not each compile the same kernels.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+__all__ = ["GROUPS", "compile_group", "compile_all"]
+
+#: the bundled double integrator (``examples/double_integrator.toml``) without its
+#: verification (and a symmetric Q for norm 2): solved in a second
+_DESIGN = """
+name = "kernels"
+[plant]
+states = ["x1", "x2"]
+inputs = ["u"]
+dynamics = ["x2", "u"]
+[model]
+sample_time = 1.0
+[mpc]
+horizon = {horizon}
+norm = "{norm}"
+Q = {Q}
+R = [[0.8]]
+x_min = [-10.0, -10.0]
+x_max = [10.0, 10.0]
+u_min = [-1.0]
+u_max = [1.0]
+"""
+
+
+def _design(norm: str, horizon: int):
+    from codev_engine.pipeline import loads_spec
+
+    Q = "[[1.0, 0.0], [0.0, 1.0]]" if norm == "2" else "[[1.0, 1.0], [0.0, 1.0]]"
+    return loads_spec(_DESIGN.format(norm=norm, horizon=horizon, Q=Q))
+
+
+def _mp() -> None:
+    """The mp-QP search's kernel from the first region on (and the LP kernel it calls)."""
+    from codev_engine.mp import mpqp
+    from codev_engine.synthesis import synthesize
+
+    saved = mpqp.JIT_AFTER
+    mpqp.JIT_AFTER = 0
+    try:
+        synthesize(_design("2", 2))
+    finally:
+        mpqp.JIT_AFTER = saved
+
+
+def _rest() -> None:
+    """The mp-LP basis graph's kernel, the region boxes, the point locator and the export
+    tree's kernel."""
+    from codev_engine.deploy.export import export_c
+    from codev_engine.mp import mplp_graph
+    from codev_engine.synthesis import synthesize
+
+    saved = mplp_graph.JIT_AFTER
+    mplp_graph.JIT_AFTER = 0
+    try:
+        law = synthesize(_design("inf", 8))  # 122 regions
+    finally:
+        mplp_graph.JIT_AFTER = saved
+    lo, hi = law.boxes  # one compiled call (from geometry.locate.COMPILED_BOXES regions)
+    rng = np.random.default_rng(0)
+    law.evaluate(rng.uniform(lo.min(axis=0), hi.max(axis=0), size=(4096, law.n)))
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as out:
+        export_c(law, out, method="bst")
+
+
+#: group name -> what compiles it (each runs in its own process in ``compile_all``)
+GROUPS: dict[str, Callable[[], None]] = {"mp": _mp, "rest": _rest}
+
+
+def compile_group(name: str) -> float:
+    """Compile (or load from the cache) one group's kernels in this process.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`GROUPS`.
+
+    Returns
+    -------
+    float
+        The CPU seconds it took (about 0.5 s when every kernel was in the cache).
+    """
+    t0 = time.process_time()
+    GROUPS[name]()
+    return time.process_time() - t0
+
+
+def compile_all(*, python: str = sys.executable) -> dict[str, float]:
+    """Compile every group's kernels, each group in its own process at the same time.
+
+    Parameters
+    ----------
+    python : str
+        The interpreter to run (this one by default).
+
+    Returns
+    -------
+    dict of str to float
+        The wall seconds of each group's process; a group that failed is left out (its
+        kernels then compile on first use, as without this call).
+    """
+    t0 = time.perf_counter()
+    procs = {
+        name: subprocess.Popen([python, "-m", "codev_engine.kernels", name],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for name in GROUPS
+    }
+    done: dict[str, float] = {}
+    while procs:
+        for name, p in list(procs.items()):
+            if p.poll() is not None:
+                del procs[name]
+                if p.returncode == 0:
+                    done[name] = time.perf_counter() - t0
+        time.sleep(0.05)
+    return done
+
+
+def _main(argv: list[str]) -> int:
+    names = argv or list(GROUPS)
+    unknown = [n for n in names if n not in GROUPS]
+    if unknown:
+        print(f"codev_engine.kernels: no group {unknown[0]!r} (groups: {', '.join(GROUPS)})",
+              file=sys.stderr)
+        return 2
+    if len(names) == 1:
+        print(f"{names[0]}: {compile_group(names[0]):.1f} s CPU")
+        return 0
+    done = compile_all()
+    for name in names:
+        print(f"{name}: " + (f"{done[name]:.1f} s" if name in done else "failed"))
+    return 0 if len(done) == len(names) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(_main(sys.argv[1:]))
