@@ -570,6 +570,8 @@ def verify(
         cex = _search(problem, law, hold)
         if cex is None and plant is not None:
             cex = _adjoint_search(problem, law, hold, [f.t for f in findings])
+        if cex is None and plant is not None:
+            cex = _input_search(problem, law, hold)
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
     if unbounded and verdict == "robustly_safe":
@@ -960,6 +962,86 @@ def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[f
             cex = _confirm(problem, law, hold, Xs[p], [DisturbanceSignal(piece, W[p], Q[p])])
             if cex is not None:
                 return cex
+    return None
+
+
+def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int = 5,
+                  max_periods: int = 40) -> Counterexample | None:
+    """Counterexamples of ``input_bounds`` under the adjoint's bang-bang signals.
+
+    The input of region ``i`` is ``F_i x + G_i``: a signal that pushes ``±F_i[j]' x`` to
+    its extreme at a time ``t`` drives input ``j`` of a trajectory that is in region ``i``
+    at ``t`` towards its bound (under the continuous hold a state can cross into the
+    saturated region during a period while the law of the last sample is in force). Targets
+    at ``per_period`` times in each of the first ``max_periods`` sample periods, from the
+    initial set's centre and corners (16 at most), one batch (``t_target`` per trajectory);
+    every violation replayed (:func:`_confirm`) before it is reported. The search claims
+    nothing: it only turns an ``unknown`` into a replayed ``unsafe``.
+
+    Parameters
+    ----------
+    problem : Problem
+        An affine plant with disturbances, ``verify.input_bounds``, a law over the state
+        alone and no measurement noise (otherwise None is returned).
+    law : ExplicitLaw
+    hold : {"zoh", "continuous"}
+    per_period : int
+        Target times per sample period (at ``(j + 1) / (per_period + 1)`` of it).
+    max_periods : int
+        At most this many periods from ``t = 0`` get targets.
+
+    Returns
+    -------
+    Counterexample or None
+    """
+    from codev_engine.reach.adversary import adjoint_signals
+    from codev_engine.reach.simulate import (
+        DisturbanceSignal,
+        simulate_many,
+        violations_many,
+    )
+
+    pl, vs = problem.plant, problem.verify
+    if pl.disturbances is None or law.n != pl.n or vs.noisy or not vs.input_bounds:
+        return None
+    n = pl.n
+    Ts = float(problem.model.sample_time)
+    T = float(vs.time_horizon)
+    rows = np.asarray(law.F, float).reshape(-1, n)
+    rows = rows[np.linalg.norm(rows, axis=1) > 1e-12]
+    if rows.shape[0] == 0 or not np.isfinite(T):
+        return None
+    rows = np.unique(np.round(rows, 12), axis=0)
+    D = np.vstack([rows, -rows])
+    periods = min(int(np.ceil(T / Ts - 1e-9)), max_periods)
+    times = np.array([(k + (j + 1) / (per_period + 1)) * Ts for k in range(periods)
+                      for j in range(per_period)])
+    times = times[times <= T]
+    if times.size == 0:
+        return None
+    lo, hi = np.asarray(vs.initial_lower, float), np.asarray(vs.initial_upper, float)
+    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
+                                   indexing="ij")).reshape(n, -1).T
+    if corners.shape[0] > 16:
+        corners = corners[np.random.default_rng(0).choice(corners.shape[0], 16, replace=False)]
+    X0 = np.vstack([0.5 * (lo + hi), corners])
+    a, b, c = np.meshgrid(np.arange(X0.shape[0]), np.arange(D.shape[0]),
+                          np.arange(times.size), indexing="ij")
+    a, b, c = a.ravel(), b.ravel(), c.ravel()
+    dt = float(vs.step)
+    try:
+        piece, W, Q, Xs = adjoint_signals(problem, law, X0[a], D[b], hold=hold,
+                                          t_target=times[c], iterations=2, dt=dt)
+        with np.errstate(all="ignore"):
+            t, X, U, alive = simulate_many(problem, law, Xs, hold=hold,
+                                           disturbance=(piece, W, Q))
+    except (SolverError, ValueError):
+        return None
+    bad, _ = violations_many(problem, t, X, U, alive)
+    for p in np.flatnonzero(bad)[:20]:
+        cex = _confirm(problem, law, hold, Xs[p], [DisturbanceSignal(piece, W[p], Q[p])])
+        if cex is not None:
+            return cex
     return None
 
 

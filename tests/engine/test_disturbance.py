@@ -419,3 +419,28 @@ def test_adjoint_signals_find_the_counterexample_held_corners_miss(tmp_path):
     result.save(tmp_path / "r.npz")
     back = VerificationResult.load(tmp_path / "r.npz")
     assert np.array_equal(back.counterexample.disturbance.values, sig.values)
+
+
+@pytest.mark.slow
+def test_double_integrator_input_leaves_its_bounds_under_a_replayed_1_percent_signal():
+    # the paper's double integrator (continuous hold) with a 1 % box: a state at a sample in
+    # the unsaturated region near the boundary u = -1 is pushed by the signal across it
+    # during the period, while u = F_i x(t) + G_i of the sample's region stays in force, and
+    # u goes below u_min = -1 (-1.008 at ~8.4 s). A real violation: the verdict is unsafe
+    # (unknown before the adjoint search towards +-F_i x), replayed by DOP853, and every
+    # state of the counterexample's replay up to the tube's end lies in the tube
+    base, problem = _paper_disturbed("double_integrator", 0.01)
+    law = synthesize(base)
+    assert verify(base, law).verdict == "robustly_safe"  # nominally safe
+    result = verify(problem, law)
+    assert (result.verdict, result.reason) == ("unsafe", "input_bounds"), result.summary()
+    cex = result.counterexample
+    sig = cex.disturbance
+    assert sig is not None and np.all(np.abs(sig.values) <= 0.2 + 1e-12)
+    again = simulate(problem, law, cex.x0, hold=result.hold, disturbance=sig)
+    v = first_violation(problem, law, again)
+    assert v is not None and v.kind == "input_bounds"
+    u = np.asarray(again.u).reshape(len(again.t), -1)
+    assert u.min() < -1.0 - 1e-3  # a violation by far more than round-off
+    count, worst = _outside(result.tube, np.asarray(again.t), np.asarray(again.x)[None])
+    assert count == 0, f"{count} replayed states outside the tube (worst {worst:g})"
