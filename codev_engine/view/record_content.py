@@ -590,7 +590,7 @@ class RecordingContent:
         out += [(f"unsafe/{k}", s, _RED) for k, s in enumerate(vs.unsafe)]
         out += [(f"safe/{k}", s, _GREEN) for k, s in enumerate(vs.safe)]
         cert = None if self.result is None else self.result.certificate
-        if cert is not None and np.shape(cert["H"])[1] == self.n:
+        if cert is not None and "H" in cert and np.shape(cert["H"])[1] == self.n:
             # the invariant set that closes the induction (time_horizon = "inf")
             out.append(("certificate", SetSpec("polytope", A=np.asarray(cert["H"], float),
                                                b=np.asarray(cert["h"], float)), _PURPLE))
@@ -1154,12 +1154,20 @@ def _uncertainty_lines(p, r) -> list[str]:
                 f"{float(c.get('closed_time', 0.0)):.4g} s) lies in the set anchored at sample "
                 f"{c.get('anchor_sample')} (t = {float(c.get('anchor_time', 0.0)):.4g} s): the "
                 f"tube repeats with period {float(c.get('period', 0.0)):.4g} s, for all time")
-        lines += [
-            f"- the set: {r.certificate['H'].shape[0]} half-planes; "
-            f"{r.certificate['points'].shape[0]} points with their error boxes inside it, "
-            "re-checked by LP when the result is loaded",
-            "",
-        ]
+        if "H" in r.certificate:
+            lines += [
+                f"- the set: {r.certificate['H'].shape[0]} half-planes; "
+                f"{r.certificate['points'].shape[0]} points with their error boxes inside it, "
+                "re-checked by LP when the result is loaded",
+                "",
+            ]
+        else:
+            lines += [
+                "- the set: an invariant ellipsoid around the operating point; "
+                f"{r.certificate['lower'].shape[0]} boxes of the reach set inside it, "
+                "re-checked when the result is loaded",
+                "",
+            ]
     return lines
 
 
