@@ -444,3 +444,37 @@ def test_double_integrator_input_leaves_its_bounds_under_a_replayed_1_percent_si
     assert u.min() < -1.0 - 1e-3  # a violation by far more than round-off
     count, worst = _outside(result.tube, np.asarray(again.t), np.asarray(again.x)[None])
     assert count == 0, f"{count} replayed states outside the tube (worst {worst:g})"
+
+
+def test_the_recording_plots_the_disturbance_box_and_the_counterexample_signal(tmp_path):
+    # the cruise control against a steep uphill (unsafe, above): the recording has the
+    # disturbance's interval (two lines at its bounds) and the counterexample's signal
+    # (red steps inside them), read back from a real .rrd, and a view for them
+    from codev_engine.view.records import write_recording
+    from tests.engine.test_records import read
+
+    text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
+        "disturbances = { w = [-98.1, 98.1] }", "disturbances = { w = [0.0, 2000.0] }"
+    ).replace("time_horizon = 40.0", "time_horizon = 20.0")
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "unsafe" and result.counterexample.disturbance is not None
+    summary = write_recording(tmp_path / "w.rrd", problem, law, result)
+    entities = read(summary.path)
+    for side, v in (("min", 0.0), ("max", 2000.0)):
+        e = entities[f"/scalars/disturbance/w/bounds/{side}"]
+        vals = np.concatenate([np.asarray(c.to_pylist(), dtype=object).ravel()
+                               for c in e.columns["Scalars:scalars"]])
+        assert np.allclose(np.array([np.ravel(x)[0] for x in vals], float), v)
+    e = entities["/scalars/disturbance/w/counterexample"]
+    vals = np.concatenate([np.asarray(c.to_pylist(), dtype=object).ravel()
+                           for c in e.columns["Scalars:scalars"]])
+    got = np.array([np.ravel(x)[0] for x in vals], float)
+    sig = result.counterexample.disturbance.values[:, 0]
+    np.testing.assert_allclose(got, np.repeat(sig, 2))
+    # a nominal recording has none of these entities
+    nominal = loads_spec(text.replace("disturbances = { w = [0.0, 2000.0] }", "")
+                         .replace("E = [[-0.001]]", ""))
+    plain = write_recording(tmp_path / "n.rrd", nominal, law, verify(nominal, law))
+    assert not any(k.startswith("/scalars/disturbance") for k in read(plain.path))
