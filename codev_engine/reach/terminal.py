@@ -139,12 +139,19 @@ def terminal_ellipsoids(problem: Problem, law: ExplicitLaw
         return [], "the operating point is outside the law's domain"
     F0, G0 = np.asarray(law.F[reg], float), np.asarray(law.G[reg], float)
     Ar, br = np.asarray(law.A[reg], float), np.asarray(law.b[reg], float)
-    # the linear model at the operating point: J0 the midpoint of the degenerate box's
-    # interval Jacobian (any fixed matrix works: the remainder is taken about the same J0)
-    jx = enc.jac_x(x_op, x_op, u_op, u_op)
-    ju = enc.jac_u(x_op, x_op, u_op, u_op)
+    # the expansion point: the operating state and the law's input there (the input of
+    # every state of S lies around it; any point of the box B x U works for the mean value)
+    u_op = F0 @ x_op + G0
+    # the linear model at that point: J0 the midpoint of the degenerate box's interval
+    # Jacobian (any fixed matrix works: the remainder is taken about the same J0)
+    try:
+        with np.errstate(all="ignore"):
+            jx = enc.jac_x(x_op, x_op, u_op, u_op)
+            ju = enc.jac_u(x_op, x_op, u_op, u_op)
+            flo, fhi = enc.f(x_op, x_op, u_op, u_op)
+    except (ArithmeticError, ValueError) as exc:
+        return [], f"the plant's enclosures fail at the operating point ({exc})"
     Ax, Bu = 0.5 * (jx[0] + jx[1]), 0.5 * (ju[0] + ju[1])
-    flo, fhi = enc.f(x_op, x_op, u_op, u_op)
     if not all(np.all(np.isfinite(a)) for a in (Ax, Bu, flo, fhi)):
         return [], "the plant's enclosures are not finite at the operating point"
     c0 = 0.5 * (flo + fhi)
@@ -177,15 +184,17 @@ def terminal_ellipsoids(problem: Problem, law: ExplicitLaw
     if Pt is not None and np.shape(Pt) == (n, n):
         cands.append(np.asarray(Pt, float))  # the MPC's terminal weight, if it contracts
     found: list[TerminalEllipsoid] = []
-    why = "the sampled linear loop at the operating point is not stable"
+    whys: list[str] = [] if cands else ["the sampled linear loop at the operating point is "
+                                        "not stable"]
     for P0 in cands:
         e = _size(problem, enc, x_op, u_op, reg, F0, G0, Ar, br, Ax, Bu, c0, c0_err, Ts, M,
                   d, Gabs, P0)
         if isinstance(e, str):
-            why = e
+            if e not in whys:
+                whys.append(e)
         else:
             found.append(e)
-    return found, ("" if found else why)
+    return found, ("" if found else "; ".join(whys))
 
 
 def _size(problem, enc, x_op, u_op, reg, F0, G0, Ar, br, Ax, Bu, c0, c0_err, Ts, M, d, Gabs,
@@ -217,8 +226,12 @@ def _size(problem, enc, x_op, u_op, reg, F0, G0, Ar, br, Ax, Bu, c0, c0_err, Ts,
     why = "no ellipsoid of 40 sizes is invariant with its linearisation error"
     for k in range(40):
         sc = sc_max * 0.7 ** k  # sqrt(c)
-        e = _check(problem, enc, x_op, u_op, F0, G0, Ax, Bu, c0, c0_err, Ts, dP * sc,
-                   rho, nR, nRi, eps_M, eps_d, d, Gabs, sc)
+        try:
+            with np.errstate(all="ignore"):
+                e = _check(problem, enc, x_op, u_op, F0, G0, Ax, Bu, c0, c0_err, Ts, dP * sc,
+                           rho, nR, nRi, eps_M, eps_d, d, Gabs, sc)
+        except (ArithmeticError, ValueError) as exc:  # an enclosure meets a singularity
+            e = f"an enclosure over the ellipsoid's period fails ({exc})"
         if isinstance(e, str):
             why = e
             continue

@@ -116,3 +116,21 @@ def test_a_tube_that_has_not_entered_the_ellipsoid_is_unknown_no_invariant():
     assert (result.verdict, result.reason) == ("unknown", "no_invariant"), result.summary()
     assert "did not enter an invariant ellipsoid" in result.detail
     assert result.certificate is None
+
+
+def test_the_cstr_gets_no_ellipsoid_and_the_verdict_says_why():
+    # an Arrhenius plant far from the origin: the a priori enclosures of the larger
+    # ellipsoids meet T = 0 (-8750/T: an enclosure failure, not an error) and the smaller
+    # ones have a linearisation error beyond the contraction: unknown / no_invariant, the
+    # reason in the detail (before the expansion point and the catch: an exception)
+    text = (EXAMPLES / "cstr.toml").read_text()
+    text = re.sub(r"time_horizon = [0-9.]+", 'time_horizon = "inf"\nmax_samples = 20', text)
+    problem = loads_spec(text, path="<cstr inf>")
+    law = synthesize(problem)
+    ells, why = terminal_ellipsoids(problem, law)
+    assert ells == [] and why
+    result = verify(problem, law)
+    assert result.verdict in ("unknown", "unsafe")
+    if result.verdict == "unknown":
+        assert result.reason == "no_invariant"
+        assert "no invariance certificate" in result.detail and why in result.detail
