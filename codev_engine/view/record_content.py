@@ -1164,7 +1164,8 @@ class RecordingContent:
             "initial set blue, traces grey, the counterexample red"
             + (", the invariance certificate's set purple (every reach set at the closing "
                "sample lies in it)" if self.result is not None
-               and self.result.certificate is not None else ""),
+               and self.result.certificate is not None
+               and "H" in self.result.certificate else ""),
             "- **state views**: each state against time, the tube's lower and upper bound "
             "orange, traces grey, the counterexample red",
             "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "
@@ -1202,7 +1203,15 @@ def _uncertainty_lines(p, r) -> list[str]:
     if r is not None and r.certificate is not None:
         c = r.stats.get("certificate", {})
         lines += ["### invariance certificate", ""]
-        if c:
+        if c and c.get("kind") == "ellipsoid":
+            lines.append(
+                f"- every reach set at sample {c.get('closed_sample')} (t = "
+                f"{float(c.get('closed_time', 0.0)):.4g} s) lies in an ellipsoid around the "
+                f"operating point, inside region {c.get('region')}, invariant for the sampled "
+                f"nonlinear loop (contraction {float(c.get('rho', 0.0)):.4g}, margin "
+                f"{float(c.get('margin', 0.0)):.3g}, linearisation error included): for all "
+                "time")
+        elif c:
             lines.append(
                 f"- every reach set at sample {c.get('closed_sample')} (t = "
                 f"{float(c.get('closed_time', 0.0)):.4g} s) lies in the set anchored at sample "

@@ -134,3 +134,18 @@ def test_the_cstr_gets_no_ellipsoid_and_the_verdict_says_why():
     if result.verdict == "unknown":
         assert result.reason == "no_invariant"
         assert "no invariance certificate" in result.detail and why in result.detail
+
+
+@pytest.mark.slow
+def test_the_recording_of_the_pendulum_for_all_time_describes_its_ellipsoid(tmp_path):
+    from codev_engine.view.records import write_recording
+    from tests.engine.test_records import read
+
+    problem = _pendulum()
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.reason == "invariant"
+    entities = read(write_recording(tmp_path / "p.rrd", problem, law, result).path)
+    text = str(entities["/verdict"].per_row("TextDocument:text")[0][0])
+    assert "ellipsoid around the operating point" in text and "for all time" in text
+    assert "/plane/certificate" not in entities  # (a polytope's outline only)
