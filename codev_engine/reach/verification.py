@@ -690,7 +690,10 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
         tube = Tube.concatenate(eng.tubes, problem.plant.n)
         for j in range(1, k + 1):
             tj = j * Ts
-            sel = (tube.t_start <= tj) & (tube.t_end >= tj)
+            # every box whose interval meets t_j, with a tolerance for the rounding of the
+            # boxes' times (more boxes only make the containment harder)
+            tol = 1e-9 * Ts
+            sel = (tube.t_start <= tj + tol) & (tube.t_end >= tj - tol)
             if not sel.any():
                 continue
             lo, hi = tube.lower[sel], tube.upper[sel]
