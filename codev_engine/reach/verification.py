@@ -21,7 +21,8 @@ Verdicts
     blamed on the input.
 
 With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
-``certificate`` (re-checked by LP when loaded).
+``certificate`` (re-checked when loaded): a polytope (affine plants, by LP) or an invariant
+ellipsoid around the operating point (nonlinear plants, ``reach.terminal``).
 """
 
 from __future__ import annotations
@@ -321,7 +322,21 @@ class VerificationResult(Displayable):
         reason = text(data, "reason") or None
         detail = (text(data, "detail") or None) if "detail" in data else None
         certificate = None
-        if "cert_H" in data:
+        if "cert_P" in data:
+            P = real(data, "cert_P", ndim=2)
+            n = P.shape[0]
+            certificate = {
+                "P": P,
+                "centre": real(data, "cert_centre", shape=(n,)),
+                "lower": real(data, "cert_lower", ndim=2),
+                "upper": real(data, "cert_upper", ndim=2),
+            }
+            if not check_certificate(certificate):
+                raise SpecError(
+                    "the invariance certificate does not hold (a box outside the ellipsoid)",
+                    field="cert_lower",
+                )
+        elif "cert_H" in data:
             H = real(data, "cert_H", ndim=2)
             r = H.shape[0]
             certificate = {
@@ -377,6 +392,19 @@ def check_certificate(certificate: dict) -> bool:
     """
     from codev_engine.geometry.polytope import solve_lp
 
+    if "P" in certificate:  # an ellipsoid (reach.terminal): every box's corners inside it
+        from codev_engine.reach.terminal import ellipsoid_holds
+
+        P = np.asarray(certificate.get("P"), float)
+        c = np.asarray(certificate.get("centre"), float)
+        lo = np.asarray(certificate.get("lower"), float)
+        hi = np.asarray(certificate.get("upper"), float)
+        n = P.shape[0] if P.ndim == 2 else -1
+        if (P.ndim != 2 or P.shape != (n, n) or c.shape != (n,) or lo.ndim != 2
+                or lo.shape[1:] != (n,) or hi.shape != lo.shape
+                or not np.all(np.linalg.eigvalsh(0.5 * (P + P.T)) > 0)):
+            return False
+        return ellipsoid_holds(P, c, lo, hi)
     H = np.asarray(certificate.get("H"), float)
     h = np.asarray(certificate.get("h"), float)
     P = np.asarray(certificate.get("points"), float)
@@ -508,9 +536,16 @@ def verify(
         vs = problem.verify
     plant = affine_plant(problem)
     certificate = None
+    why = "invariance certificates are computed for affine plants only"
     if unbounded and plant is None:
-        # invariance certificates are built by the linear engine only: no claim, but a
-        # counterexample is still looked for
+        # a nonlinear plant: an invariant ellipsoid around the operating point
+        # (reach.terminal) entered by the nonlinear engine's bounded tube
+        found, why = _ellipsoid_certificate(problem, law, hold, depth, progress, executor,
+                                            cells, t0)
+        if isinstance(found, VerificationResult):
+            return found
+    if unbounded and plant is None:
+        # no claim, but a counterexample is still looked for
         tube = Tube.empty(problem.plant.n)
         cex = _search(problem, law, hold)
         stats = {"branches": 0, "boxes": 0, "seconds": time.perf_counter() - t0}
@@ -523,7 +558,7 @@ def verify(
             hold,
             None,
             stats,
-            "invariance certificates are computed for affine plants only",
+            f"no invariance certificate: {why}",
         )
     if plant is not None:
         eng = LinearReach(
@@ -570,6 +605,8 @@ def verify(
         cex = _search(problem, law, hold)
         if cex is None and plant is not None:
             cex = _adjoint_search(problem, law, hold, [f.t for f in findings])
+        if cex is None and plant is not None:
+            cex = _input_search(problem, law, hold)
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
     if unbounded and verdict == "robustly_safe":
@@ -605,6 +642,86 @@ def verify(
     result = VerificationResult(verdict, reason, tube, hold, cex, stats, detail, certificate)
     result.attach_display(problem=problem, law=law)  # state names and sets in the picture
     return result
+
+
+def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth: int,
+                           progress, executor, cells: int, t0: float
+                           ) -> tuple[VerificationResult | None, str]:
+    """Safety for all time of a nonlinear plant: an invariant ellipsoid around the operating
+    point (:func:`codev_engine.reach.terminal.terminal_ellipsoids`) that every reach set of
+    the nonlinear engine's bounded tube lies in at some sample (docs/verification.md).
+
+    Parameters
+    ----------
+    problem : Problem
+        Its ``time_horizon`` already the bound ``max_samples * sample_time``.
+    law : ExplicitLaw
+    hold : {"zoh", "continuous"}
+    depth : int
+    progress, executor, cells
+        As for :func:`verify`.
+    t0 : float
+        ``time.perf_counter()`` at the start of the verification.
+
+    Returns
+    -------
+    result : VerificationResult or None
+        ``robustly_safe`` / ``invariant`` with the certificate, or None.
+    why : str
+        When None: why no certificate.
+    """
+    from codev_engine.reach.nonlinear import NonlinearReach
+    from codev_engine.reach.terminal import terminal_ellipsoids
+
+    vs = problem.verify
+    ells, why = terminal_ellipsoids(with_hold(problem, hold), law)
+    if not ells:
+        return None, why
+    Ts = float(problem.model.sample_time)
+    k = 30
+    while True:
+        k = min(2 * k, vs.max_samples)
+        bounded = replace(problem, verify=replace(vs, time_horizon=k * Ts))
+        eng = NonlinearReach(bounded, law, hold, depth, progress=progress)
+        eng.run(executor, cells=cells)
+        if eng.findings:
+            return None, ("the bounded tube meets a property before it enters an invariant "
+                          f"ellipsoid (within {k} samples)")
+        tube = Tube.concatenate(eng.tubes, problem.plant.n)
+        for j in range(1, k + 1):
+            tj = j * Ts
+            # every box whose interval meets t_j, with a tolerance for the rounding of the
+            # boxes' times (more boxes only make the containment harder)
+            tol = 1e-9 * Ts
+            sel = (tube.t_start <= tj + tol) & (tube.t_end >= tj - tol)
+            if not sel.any():
+                continue
+            lo, hi = tube.lower[sel], tube.upper[sel]
+            for e in ells:
+                if not e.contains_boxes(lo, hi):
+                    continue
+                stats = dict(eng.stats)
+                stats["partitions"] = 1
+                stats["boxes"] = tube.num_boxes
+                stats["certificate"] = {
+                    "kind": "ellipsoid", "closed_sample": j, "closed_time": tj,
+                    "region": int(e.region), "rho": float(e.rho), "margin": float(e.margin),
+                }
+                stats["seconds"] = time.perf_counter() - t0
+                certificate = {"P": e.P, "centre": e.centre, "lower": lo, "upper": hi}
+                detail = (
+                    f"every reach set at sample {j} (t = {tj:g}) lies in an invariant ellipsoid "
+                    f"around the operating point (region {e.region}, contraction "
+                    f"{e.rho:.4g}, margin {e.margin:.3g}): every later state stays in it at the "
+                    "samples and in its period's enclosure between them"
+                )
+                result = VerificationResult("robustly_safe", "invariant", tube, hold, None,
+                                            stats, detail, certificate)
+                result.attach_display(problem=problem, law=law)
+                return result, ""
+        if k >= vs.max_samples:
+            return None, (f"the bounded tube did not enter an invariant ellipsoid within "
+                          f"max_samples = {vs.max_samples} samples")
 
 
 def _limited(problem: Problem, law: ExplicitLaw, hold: str, t0: float, reason: str,
@@ -960,6 +1077,86 @@ def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[f
             cex = _confirm(problem, law, hold, Xs[p], [DisturbanceSignal(piece, W[p], Q[p])])
             if cex is not None:
                 return cex
+    return None
+
+
+def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int = 5,
+                  max_periods: int = 40) -> Counterexample | None:
+    """Counterexamples of ``input_bounds`` under the adjoint's bang-bang signals.
+
+    The input of region ``i`` is ``F_i x + G_i``: a signal that pushes ``±F_i[j]' x`` to
+    its extreme at a time ``t`` drives input ``j`` of a trajectory that is in region ``i``
+    at ``t`` towards its bound (under the continuous hold a state can cross into the
+    saturated region during a period while the law of the last sample is in force). Targets
+    at ``per_period`` times in each of the first ``max_periods`` sample periods, from the
+    initial set's centre and corners (16 at most), one batch (``t_target`` per trajectory);
+    every violation replayed (:func:`_confirm`) before it is reported. The search claims
+    nothing: it only turns an ``unknown`` into a replayed ``unsafe``.
+
+    Parameters
+    ----------
+    problem : Problem
+        An affine plant with disturbances, ``verify.input_bounds``, a law over the state
+        alone and no measurement noise (otherwise None is returned).
+    law : ExplicitLaw
+    hold : {"zoh", "continuous"}
+    per_period : int
+        Target times per sample period (at ``(j + 1) / (per_period + 1)`` of it).
+    max_periods : int
+        At most this many periods from ``t = 0`` get targets.
+
+    Returns
+    -------
+    Counterexample or None
+    """
+    from codev_engine.reach.adversary import adjoint_signals
+    from codev_engine.reach.simulate import (
+        DisturbanceSignal,
+        simulate_many,
+        violations_many,
+    )
+
+    pl, vs = problem.plant, problem.verify
+    if pl.disturbances is None or law.n != pl.n or vs.noisy or not vs.input_bounds:
+        return None
+    n = pl.n
+    Ts = float(problem.model.sample_time)
+    T = float(vs.time_horizon)
+    rows = np.asarray(law.F, float).reshape(-1, n)
+    rows = rows[np.linalg.norm(rows, axis=1) > 1e-12]
+    if rows.shape[0] == 0 or not np.isfinite(T):
+        return None
+    rows = np.unique(np.round(rows, 12), axis=0)
+    D = np.vstack([rows, -rows])
+    periods = min(int(np.ceil(T / Ts - 1e-9)), max_periods)
+    times = np.array([(k + (j + 1) / (per_period + 1)) * Ts for k in range(periods)
+                      for j in range(per_period)])
+    times = times[times <= T]
+    if times.size == 0:
+        return None
+    lo, hi = np.asarray(vs.initial_lower, float), np.asarray(vs.initial_upper, float)
+    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
+                                   indexing="ij")).reshape(n, -1).T
+    if corners.shape[0] > 16:
+        corners = corners[np.random.default_rng(0).choice(corners.shape[0], 16, replace=False)]
+    X0 = np.vstack([0.5 * (lo + hi), corners])
+    a, b, c = np.meshgrid(np.arange(X0.shape[0]), np.arange(D.shape[0]),
+                          np.arange(times.size), indexing="ij")
+    a, b, c = a.ravel(), b.ravel(), c.ravel()
+    dt = float(vs.step)
+    try:
+        piece, W, Q, Xs = adjoint_signals(problem, law, X0[a], D[b], hold=hold,
+                                          t_target=times[c], iterations=2, dt=dt)
+        with np.errstate(all="ignore"):
+            t, X, U, alive = simulate_many(problem, law, Xs, hold=hold,
+                                           disturbance=(piece, W, Q))
+    except (SolverError, ValueError):
+        return None
+    bad, _ = violations_many(problem, t, X, U, alive)
+    for p in np.flatnonzero(bad)[:20]:
+        cex = _confirm(problem, law, hold, Xs[p], [DisturbanceSignal(piece, W[p], Q[p])])
+        if cex is not None:
+            return cex
     return None
 
 

@@ -90,6 +90,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         for y in content.outputs
         if any(k.startswith(f"/output/{y}/") for k in e)
     ]
+    p_dist = content.problem.plant.disturbances
     series = [
         rrb.TimeSeriesView(
             origin=f"/scalars/u/{u}", name=f"{u}(t), bounds black", plot_legend=no_legend
@@ -97,6 +98,17 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         for u in content.inputs
         if any(k.startswith(f"/scalars/u/{u}/") for k in e)
     ]
+    for kind, names, what in (
+        ("disturbance", () if p_dist is None else p_dist.names, "disturbance"),
+        ("noise", content.states, "measurement noise"),
+    ):
+        for nm in names:
+            if any(k.startswith(f"/scalars/{kind}/{nm}/") for k in e):
+                series.append(rrb.TimeSeriesView(
+                    origin=f"/scalars/{kind}/{nm}",
+                    name=f"{what} {nm}: its interval black, the counterexample's red",
+                    plot_legend=no_legend,
+                ))
     if any(k.startswith("/scalars/unsafe_distance/") for k in e):
         series.append(
             rrb.TimeSeriesView(

@@ -472,6 +472,7 @@ class RecordingContent:
         self._log_traces(w)
         self._log_counterexample(w)
         self._log_bounds(w)
+        self._log_uncertainty(w)
         self._log_outputs(w)
         self._log_reference(w)
         self._log_verdict(w)
@@ -590,7 +591,7 @@ class RecordingContent:
         out += [(f"unsafe/{k}", s, _RED) for k, s in enumerate(vs.unsafe)]
         out += [(f"safe/{k}", s, _GREEN) for k, s in enumerate(vs.safe)]
         cert = None if self.result is None else self.result.certificate
-        if cert is not None and np.shape(cert["H"])[1] == self.n:
+        if cert is not None and "H" in cert and np.shape(cert["H"])[1] == self.n:
             # the invariant set that closes the induction (time_horizon = "inf")
             out.append(("certificate", SetSpec("polytope", A=np.asarray(cert["H"], float),
                                                b=np.asarray(cert["h"], float)), _PURPLE))
@@ -870,6 +871,59 @@ class RecordingContent:
             w.static(entity, rr.SeriesLines(colors=[_RED], widths=[1.0], names=["0"]), 0)
             w.columns(entity, T, [*rr.Scalars.columns(scalars=np.zeros(2))], 2)
 
+    def _log_uncertainty(self, w: EntityWriter) -> None:
+        """The boxes the verdict covers, over time: each disturbance's and each state's
+        measurement noise's interval (two black lines in ``/scalars/disturbance/<w>`` and
+        ``/scalars/noise/<x>``), with the counterexample's signal (red steps) and noise
+        (red points, one per sample) when it has them. Nothing without uncertainty, so
+        nominal recordings are unchanged."""
+        import rerun as rr
+
+        p = self.problem
+        vs = p.verify
+        T = np.array([0.0, self.horizon])
+        cex = self.counterexample
+        sig = None if cex is None else cex.disturbance
+        lines: list[tuple[str, str, float, float]] = []
+        box = p.plant.disturbances
+        if box is not None:
+            lines += [("disturbance", nm, float(a), float(b))
+                      for nm, a, b in zip(box.names, box.lower, box.upper, strict=True)]
+        if vs is not None and vs.noise_lower is not None:
+            lines += [("noise", nm, float(a), float(b))
+                      for nm, a, b in zip(p.plant.states, vs.noise_lower, vs.noise_upper,
+                                          strict=True)]
+        for kind, nm, a, b in lines:
+            for side, v in (("min", a), ("max", b)):
+                entity = f"/scalars/{kind}/{nm}/bounds/{side}"
+                w.static(entity, rr.SeriesLines(colors=[_AXIS], widths=[1.5],
+                                                names=[f"{nm}_{side}"]), 0)
+                w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, v))], 2)
+        if sig is None:
+            return
+        vals = np.asarray(sig.values, float)
+        if box is not None and vals.ndim == 2 and vals.shape[0] and vals.shape[1] == box.d:
+            # piecewise constant: each piece's value at its start and just before its end
+            K = vals.shape[0]
+            t0 = np.arange(K) * float(sig.piece)
+            ts = np.column_stack([t0, t0 + float(sig.piece) * (1 - 1e-9)]).ravel()
+            for j, nm in enumerate(box.names):
+                entity = f"/scalars/disturbance/{nm}/counterexample"
+                w.static(entity, rr.SeriesLines(colors=[_RED], widths=[2.0],
+                                                names=["counterexample"]), 0)
+                w.columns(entity, ts, [*rr.Scalars.columns(scalars=np.repeat(vals[:, j], 2))],
+                          2 * K)
+        noise = None if sig.noise is None else np.asarray(sig.noise, float)
+        if (vs is not None and vs.noise_lower is not None and noise is not None
+                and noise.ndim == 2 and noise.shape[0] and noise.shape[1] == self.n):
+            tk = np.arange(noise.shape[0]) * float(p.model.sample_time)
+            for j, nm in enumerate(p.plant.states):
+                entity = f"/scalars/noise/{nm}/counterexample"
+                w.static(entity, rr.SeriesPoints(colors=[_RED], markers=["circle"],
+                                                 marker_sizes=[3.0], names=["counterexample"]),
+                         0)
+                w.columns(entity, tk, [*rr.Scalars.columns(scalars=noise[:, j])], tk.size)
+
     @property
     def outputs(self) -> tuple[str, ...]:
         """The outputs' names (``y<i>``, one per row of ``mpc.C``; none without ``C``)."""
@@ -1110,7 +1164,8 @@ class RecordingContent:
             "initial set blue, traces grey, the counterexample red"
             + (", the invariance certificate's set purple (every reach set at the closing "
                "sample lies in it)" if self.result is not None
-               and self.result.certificate is not None else ""),
+               and self.result.certificate is not None
+               and "H" in self.result.certificate else ""),
             "- **state views**: each state against time, the tube's lower and upper bound "
             "orange, traces grey, the counterexample red",
             "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "
@@ -1148,18 +1203,34 @@ def _uncertainty_lines(p, r) -> list[str]:
     if r is not None and r.certificate is not None:
         c = r.stats.get("certificate", {})
         lines += ["### invariance certificate", ""]
-        if c:
+        if c and c.get("kind") == "ellipsoid":
+            lines.append(
+                f"- every reach set at sample {c.get('closed_sample')} (t = "
+                f"{float(c.get('closed_time', 0.0)):.4g} s) lies in an ellipsoid around the "
+                f"operating point, inside region {c.get('region')}, invariant for the sampled "
+                f"nonlinear loop (contraction {float(c.get('rho', 0.0)):.4g}, margin "
+                f"{float(c.get('margin', 0.0)):.3g}, linearisation error included): for all "
+                "time")
+        elif c:
             lines.append(
                 f"- every reach set at sample {c.get('closed_sample')} (t = "
                 f"{float(c.get('closed_time', 0.0)):.4g} s) lies in the set anchored at sample "
                 f"{c.get('anchor_sample')} (t = {float(c.get('anchor_time', 0.0)):.4g} s): the "
                 f"tube repeats with period {float(c.get('period', 0.0)):.4g} s, for all time")
-        lines += [
-            f"- the set: {r.certificate['H'].shape[0]} half-planes; "
-            f"{r.certificate['points'].shape[0]} points with their error boxes inside it, "
-            "re-checked by LP when the result is loaded",
-            "",
-        ]
+        if "H" in r.certificate:
+            lines += [
+                f"- the set: {r.certificate['H'].shape[0]} half-planes; "
+                f"{r.certificate['points'].shape[0]} points with their error boxes inside it, "
+                "re-checked by LP when the result is loaded",
+                "",
+            ]
+        else:
+            lines += [
+                "- the set: an invariant ellipsoid around the operating point; "
+                f"{r.certificate['lower'].shape[0]} boxes of the reach set inside it, "
+                "re-checked when the result is loaded",
+                "",
+            ]
     return lines
 
 

@@ -419,3 +419,62 @@ def test_adjoint_signals_find_the_counterexample_held_corners_miss(tmp_path):
     result.save(tmp_path / "r.npz")
     back = VerificationResult.load(tmp_path / "r.npz")
     assert np.array_equal(back.counterexample.disturbance.values, sig.values)
+
+
+@pytest.mark.slow
+def test_double_integrator_input_leaves_its_bounds_under_a_replayed_1_percent_signal():
+    # the paper's double integrator (continuous hold) with a 1 % box: a state at a sample in
+    # the unsaturated region near the boundary u = -1 is pushed by the signal across it
+    # during the period, while u = F_i x(t) + G_i of the sample's region stays in force, and
+    # u goes below u_min = -1 (-1.008 at ~8.4 s). A real violation: the verdict is unsafe
+    # (unknown before the adjoint search towards +-F_i x), replayed by DOP853, and every
+    # state of the counterexample's replay up to the tube's end lies in the tube
+    base, problem = _paper_disturbed("double_integrator", 0.01)
+    law = synthesize(base)
+    assert verify(base, law).verdict == "robustly_safe"  # nominally safe
+    result = verify(problem, law)
+    assert (result.verdict, result.reason) == ("unsafe", "input_bounds"), result.summary()
+    cex = result.counterexample
+    sig = cex.disturbance
+    assert sig is not None and np.all(np.abs(sig.values) <= 0.2 + 1e-12)
+    again = simulate(problem, law, cex.x0, hold=result.hold, disturbance=sig)
+    v = first_violation(problem, law, again)
+    assert v is not None and v.kind == "input_bounds"
+    u = np.asarray(again.u).reshape(len(again.t), -1)
+    assert u.min() < -1.0 - 1e-3  # a violation by far more than round-off
+    count, worst = _outside(result.tube, np.asarray(again.t), np.asarray(again.x)[None])
+    assert count == 0, f"{count} replayed states outside the tube (worst {worst:g})"
+
+
+def test_the_recording_plots_the_disturbance_box_and_the_counterexample_signal(tmp_path):
+    # the cruise control against a steep uphill (unsafe, above): the recording has the
+    # disturbance's interval (two lines at its bounds) and the counterexample's signal
+    # (red steps inside them), read back from a real .rrd, and a view for them
+    from codev_engine.view.records import write_recording
+    from tests.engine.test_records import read
+
+    text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
+        "disturbances = { w = [-98.1, 98.1] }", "disturbances = { w = [0.0, 2000.0] }"
+    ).replace("time_horizon = 40.0", "time_horizon = 20.0")
+    problem = loads_spec(text)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "unsafe" and result.counterexample.disturbance is not None
+    summary = write_recording(tmp_path / "w.rrd", problem, law, result)
+    entities = read(summary.path)
+    for side, v in (("min", 0.0), ("max", 2000.0)):
+        e = entities[f"/scalars/disturbance/w/bounds/{side}"]
+        vals = np.concatenate([np.asarray(c.to_pylist(), dtype=object).ravel()
+                               for c in e.columns["Scalars:scalars"]])
+        assert np.allclose(np.array([np.ravel(x)[0] for x in vals], float), v)
+    e = entities["/scalars/disturbance/w/counterexample"]
+    vals = np.concatenate([np.asarray(c.to_pylist(), dtype=object).ravel()
+                           for c in e.columns["Scalars:scalars"]])
+    got = np.array([np.ravel(x)[0] for x in vals], float)
+    sig = result.counterexample.disturbance.values[:, 0]
+    np.testing.assert_allclose(got, np.repeat(sig, 2))
+    # a nominal recording has none of these entities
+    nominal = loads_spec(text.replace("disturbances = { w = [0.0, 2000.0] }", "")
+                         .replace("E = [[-0.001]]", ""))
+    plain = write_recording(tmp_path / "n.rrd", nominal, law, verify(nominal, law))
+    assert not any(k.startswith("/scalars/disturbance") for k in read(plain.path))

@@ -333,3 +333,30 @@ def test_trace_keeps_the_noise_for_the_left_limits_of_a_continuous_input():
     j = np.flatnonzero((tr.t > 0.01) & (tr.t < 0.09))[0]
     i = tr.region[j]
     np.testing.assert_allclose(tr.u[j], law.F[i] @ (tr.x[j] + seq[0]) + law.G[i], atol=1e-12)
+
+
+def test_the_recording_plots_the_noise_box_and_the_counterexample_noise(tmp_path):
+    # every state's noise interval (two lines) and the counterexample's noise values (one
+    # point per sample, inside them), read back from a real .rrd
+    from codev_engine.view.records import write_recording
+    from tests.engine.test_records import read
+
+    problem = _di(edge=0.35)  # the initial set meets the unsafe set: unsafe at once
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "unsafe", result.summary()
+    sig = result.counterexample.disturbance
+    assert sig is not None and sig.noise is not None
+    entities = read(write_recording(tmp_path / "v.rrd", problem, law, result).path)
+
+    def values(entity):
+        cols = entities[entity].columns["Scalars:scalars"]
+        return np.array([np.ravel(x)[0] for c in cols for x in c.to_pylist()], float)
+
+    for j, (name, lo, hi) in enumerate(zip(("p", "v"), (-0.05, -0.05), (0.05, 0.05),
+                                           strict=True)):
+        assert np.allclose(values(f"/scalars/noise/{name}/bounds/min"), lo)
+        assert np.allclose(values(f"/scalars/noise/{name}/bounds/max"), hi)
+        got = values(f"/scalars/noise/{name}/counterexample")
+        np.testing.assert_allclose(got, sig.noise[:, j])
+        assert np.all(got >= lo - 1e-12) and np.all(got <= hi + 1e-12)

@@ -188,7 +188,7 @@ def _certificate_outline(result: VerificationResult, axes: tuple[int, int]
     """The invariance certificate's set (``H x <= h``, time_horizon = "inf") projected on
     ``axes``, as a closed outline (k + 1, 2); None without a certificate (or a flat one)."""
     cert = result.certificate
-    if cert is None:
+    if cert is None or "H" not in cert:  # (an ellipsoid certificate: not drawn)
         return None
     from scipy.spatial import ConvexHull, QhullError
 
