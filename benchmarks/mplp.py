@@ -16,10 +16,11 @@ the same MPC with ``norm = "2"`` (the mp-QP active-set search), its time per reg
 
 Then the double integrator with norms inf and 1 at each of ``--horizons``
 (``mplp="auto"``: the graph, or the explorer where the graph falls back), with its
-outcome. With ``--testset``: the mp-LPs of that folder (the shared mp test set), facets
-against auto. With ``--ppopt``: PPOPT 1.6.12 on the same five programs, each algorithm in
-its own subprocess killed at ``--ppopt-timeout`` (``synth.run_peer``; CPU of the
-subprocess tree). Prints a table; asserts nothing.
+outcome (and the explorer's facet pieces skipped as flat, and the holes found past them and
+explored: ``mplp._Explorer._fill_holes``). With ``--testset``: the mp-LPs of that folder
+(the shared mp test set), facets against auto. With ``--ppopt``: PPOPT 1.6.12 on the
+same five programs, each algorithm in its own subprocess killed at ``--ppopt-timeout``
+(``synth.run_peer``; CPU of the subprocess tree). Prints a table; asserts nothing.
 """
 
 from __future__ import annotations
@@ -126,6 +127,9 @@ def main() -> None:
                 out = f"{len(sol.regions)} regions, {sol.stats.get('mplp')}"
                 if "graph_fallback" in sol.stats:
                     out += f" ({sol.stats['graph_fallback']})"
+                for key in ("skipped_pieces", "holes_filled"):
+                    if sol.stats.get(key):
+                        out += f", {key} {sol.stats[key]}"
             except ce.CodevError as e:
                 out = f"error: {e}"
             dt = time.process_time() - t

@@ -23,6 +23,11 @@
    than the step there, the step goes towards a feasible point past it instead). So the
    union of the regions is the whole feasible set: no holes even when neighbouring regions
    do not meet facet to facet.
+4. **Skipped pieces probed.** A piece past which no full-dimensional region can be
+   identified is skipped as numerically flat; when the queue empties, points a little
+   further past every skipped piece are probed, and a feasible one in no region is a hole:
+   its region is explored like any other, or the solve stops with the clear "too
+   degenerate" error (:meth:`_Explorer._fill_holes`).
 """
 
 from __future__ import annotations
@@ -160,6 +165,8 @@ class _Explorer:
         self._starts = np.zeros(0, dtype=np.intp)
         self._far: dict[bytes, np.ndarray | None] = {}  # see _past
         self._lifted = lifted(red)
+        # facet pieces skipped as numerically flat: (a point of the piece, its normal)
+        self._skipped: list[tuple[np.ndarray, np.ndarray]] = []
 
     # ---- small geometry helpers -------------------------------------------------------
 
@@ -540,14 +547,64 @@ class _Explorer:
             return []
         queue = deque([self._add(first)])
         while queue:
-            i = queue.popleft()
-            reg = self.regions[i]
-            for j in range(reg.A.shape[0]):
-                if self._done[i][j]:
-                    continue
-                for new in self._cover_facet(i, j):
-                    queue.append(new)
+            while queue:
+                i = queue.popleft()
+                reg = self.regions[i]
+                for j in range(reg.A.shape[0]):
+                    if self._done[i][j]:
+                        continue
+                    for new in self._cover_facet(i, j):
+                        queue.append(new)
+            queue.extend(self._fill_holes())
         return self.regions
+
+    #: distances (times the parameter set's scale) past a skipped facet piece at which
+    #: :meth:`_fill_holes` looks for a feasible parameter that no region holds
+    PROBES = (1e-5, 1e-4, 1e-3, 1e-2)
+
+    def _fill_holes(self) -> list[int]:
+        """Regions found past the facet pieces skipped as numerically flat, where a
+        feasible parameter a little further out has no region; their indices.
+
+        A piece is skipped when no full-dimensional region could be identified just past
+        it, on the premise that only regions thinner than ``region_tol`` live there. Under
+        massive primal degeneracy (the 1-norm double integrator with N = 20: slacks of the
+        tail decaying to 1e-8 and below) the premise fails: the pieces bounded holes of
+        the partition (39 of the synthesis oracle's points, 1 to 10 units wide). So past
+        every skipped piece, at the distances ``PROBES``, a feasible parameter outside
+        every region is a hole: its region is identified and explored like any other, or
+        the search ends with the clear error of :meth:`_region_at` -- never a law with a
+        hole. (Probes find the holes next to skipped pieces, not every possible hole.)
+        """
+        skipped, self._skipped = self._skipped, []
+        new: list[int] = []
+        for p, a in skipped:
+            for t in self.PROBES:
+                q = p + t * self.scale * a
+                if not self._in_theta(q) or self._find(q, 1e-12 * self.scale) >= 0:
+                    continue
+                sol = self._solve_at(q)
+                if sol is None:
+                    continue  # infeasible there: no hole
+                try:
+                    nreg = self._region_at(q, 0.1 * t * self.scale)
+                except _NoRegionError:
+                    # a thin region close to the piece, or a hole whose region cannot be
+                    # identified: further out, or (at the last probe) the clear error
+                    if t == self.PROBES[-1]:
+                        raise
+                    continue
+                if nreg is None:
+                    continue
+                V = vertices(nreg.A, nreg.b, tol=self.touch_tol)
+                k = self._known(V)
+                if k >= 0:
+                    self.stats["copies"] = self.stats.get("copies", 0) + 1
+                    continue
+                self.stats["holes_filled"] = self.stats.get("holes_filled", 0) + 1
+                new.append(self._add(nreg, V))
+                break
+        return new
 
     def _past(self, a: np.ndarray, beta: float) -> np.ndarray | None:
         """A feasible parameter farthest along ``a``, when it is past ``a theta = beta`` by
@@ -633,6 +690,7 @@ class _Explorer:
                 continue
             if scale < 1e-6:
                 self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
+                self._skipped.append((p, a))
                 continue
             eps = min(self.step, 0.5 * rho) * scale
             target = -1
@@ -656,6 +714,7 @@ class _Explorer:
                             # only regions thinner than region_tol live here: a numerically
                             # flat piece; counted and reported, never silently
                             self.stats["skipped_pieces"] = self.stats.get("skipped_pieces", 0) + 1
+                            self._skipped.append((p, a))
                             target = -3
                             break
                         beyond = nreg is None
