@@ -92,6 +92,9 @@ DUPLICATE_WEIGHT = 0.25
 #: witnesses kept per region and node (points of its part of the cell, from the LPs:
 #: an undecided test they meet needs no LP; ``prune_kernel.split_node``)
 WITNESSES = 6
+#: a region of at most this many d-subsets of rows has its vertices from the subsets,
+#: a larger one from Qhull (``_enlarged_vertices``)
+SUBSET_MAX = 2_000
 #: the deepest tree built; a node deeper becomes a leaf that checks all its members
 MAX_DEPTH = 64
 
@@ -252,13 +255,25 @@ def _canonical(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
 
 def _enlarged_vertices(
     A: np.ndarray, b: np.ndarray, off: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Points whose convex hull contains each region enlarged by ``LOCATE_TOL``: its
-    vertices when they span its bounding box, else the corners of that box (widened).
+    vertices when they are proved complete, else the corners of its box (widened).
+
+    The vertices come from the row subsets (``packed_vertices``) for a region of at most
+    ``SUBSET_MAX`` d-subsets of rows, else from Qhull's halfspace intersection
+    (``hull_vertices``: its cost follows the vertices, not ``C(k, d)``); a subset
+    enumeration that fails the check below is done again by Qhull. They are accepted
+    when more than d, spanning the region's box, and closed under the polytope's edges
+    (every edge leaving one ends at one: by Balinski's theorem they are all the
+    vertices; ``vertices._closed_under_edges``). The subsets alone lose a vertex where
+    its facets meet at a tiny angle (``|det| < DET_TOL``): in pop_mpqp_023 two vertices
+    1.2 away from the rest while the others still spanned the box.
 
     Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
     regions that fell back on their box.
     """
+    from codev_engine.geometry.vertices import _closed_under_edges, hull_vertices
+
     R = off.size - 1
     d = A.shape[1]
     An, bn = _normalised(A, b)
@@ -266,30 +281,38 @@ def _enlarged_vertices(
     nrm = np.linalg.norm(A, axis=1)
     nrm[nrm == 0] = 1.0
     be = bn + LOCATE_TOL / nrm
-    V, owner, done = packed_vertices(An, be, off, 1e-10, rtol=1e-12)
+    V, owner, done = packed_vertices(An, be, off, 1e-10, rtol=1e-12, max_combos=SUBSET_MAX)
     lo, hi = boxes
     pad = 1e-7 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
     wlo, whi = lo - pad, hi + pad
-    counts = np.bincount(owner, minlength=R)
-    vlo = np.full((R, d), np.inf)
-    vhi = np.full((R, d), -np.inf)
-    if V.shape[0]:
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        has = counts > 0
-        vlo[has] = np.minimum.reduceat(V, starts[has], axis=0)
-        vhi[has] = np.maximum.reduceat(V, starts[has], axis=0)
-    # vertices must reach every side of the region's box (else some were lost)
     gap = 1e-6 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
-    ok = done & (counts > d) & np.all(vlo <= lo + gap, axis=1) & np.all(vhi >= hi - gap, axis=1)
-    keep = ok[owner]
-    pts, own = [V[keep]], [owner[keep]]
-    for i in np.flatnonzero(~ok):
-        C = box_corners(wlo[i], whi[i])
-        pts.append(C)
-        own.append(np.full(C.shape[0], i))
-    P, O = np.concatenate(pts), np.concatenate(own)
-    order = np.argsort(O, kind="stable")
-    return P[order], O[order], int(np.count_nonzero(~ok))
+    counts = np.bincount(owner, minlength=R)
+    parts = np.split(V, np.cumsum(counts)[:-1])
+
+    def complete(i: int, P: np.ndarray | None) -> bool:
+        if P is None or P.shape[0] <= d:
+            return False
+        if np.any(P.min(axis=0) > lo[i] + gap[i]) or np.any(P.max(axis=0) < hi[i] - gap[i]):
+            return False  # some side of the box not reached
+        Ai, bi = An[off[i] : off[i + 1]], be[off[i] : off[i + 1]]
+        return any(_closed_under_edges(P, Ai, bi, t) for t in (1e-10, 1e-9))
+
+    ok = np.zeros(R, dtype=bool)
+    for i in range(R):
+        ok[i] = bool(done[i]) and complete(i, parts[i])
+    redo = np.flatnonzero(~ok)
+    if redo.size:
+        again, _ = hull_vertices(An, be, off, redo, 1e-10)
+        for i, P in zip(redo, again, strict=True):
+            if complete(int(i), P):
+                parts[i] = P
+                ok[i] = True
+    pts, own = [], []
+    for i in range(R):
+        P = parts[i] if ok[i] else box_corners(wlo[i], whi[i])
+        pts.append(P)
+        own.append(np.full(P.shape[0], i))
+    return np.concatenate(pts), np.concatenate(own), int(np.count_nonzero(~ok))
 
 
 def build_tree(
