@@ -265,14 +265,15 @@ def _enlarged_vertices(
     enumeration that fails the check below is done again by Qhull. They are accepted
     when more than d, spanning the region's box, and closed under the polytope's edges
     (every edge leaving one ends at one: by Balinski's theorem they are all the
-    vertices; ``vertices._closed_under_edges``). The subsets alone lose a vertex where
+    vertices; ``vertices_kernel.closed_under_edges``). The subsets alone lose a vertex where
     its facets meet at a tiny angle (``|det| < DET_TOL``): in pop_mpqp_023 two vertices
     1.2 away from the rest while the others still spanned the box.
 
     Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
     regions that fell back on their box.
     """
-    from codev_engine.geometry.vertices import _closed_under_edges, hull_vertices
+    from codev_engine.geometry.vertices import _END_TOL, _LEAVE_TOL, DET_TOL, hull_vertices
+    from codev_engine.geometry.vertices_kernel import closed_under_edges
 
     R = off.size - 1
     d = A.shape[1]
@@ -294,8 +295,12 @@ def _enlarged_vertices(
             return False
         if np.any(P.min(axis=0) > lo[i] + gap[i]) or np.any(P.max(axis=0) < hi[i] - gap[i]):
             return False  # some side of the box not reached
-        Ai, bi = An[off[i] : off[i + 1]], be[off[i] : off[i + 1]]
-        return any(_closed_under_edges(P, Ai, bi, t) for t in (1e-10, 1e-9))
+        Ai = np.ascontiguousarray(An[off[i] : off[i + 1]])
+        bi = np.ascontiguousarray(be[off[i] : off[i + 1]])
+        P = np.ascontiguousarray(P, dtype=float)
+        return any(
+            closed_under_edges(P, Ai, bi, t, DET_TOL, _LEAVE_TOL, _END_TOL) for t in (1e-10, 1e-9)
+        )
 
     ok = np.zeros(R, dtype=bool)
     for i in range(R):

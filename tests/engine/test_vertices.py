@@ -341,3 +341,28 @@ def test_tree_encloses_the_apex_the_subsets_lose():
     P, owner, boxed = _enlarged_vertices(A, b, np.array([0, A.shape[0]]), (lo, hi))
     assert boxed == 0
     assert np.abs(P - apex).max(axis=1).min() < 1e-8
+
+
+def test_compiled_edge_check_agrees_with_the_reference():
+    """``vertices_kernel.closed_under_edges`` (the tree's) against
+    ``vertices._closed_under_edges``: complete lists pass, a list without one vertex fails."""
+    from codev_engine.geometry.vertices_kernel import closed_under_edges
+
+    def nb(V, A, b, tol=1e-10):
+        return closed_under_edges(np.ascontiguousarray(V), np.ascontiguousarray(A),
+                                  np.ascontiguousarray(b), tol, vx.DET_TOL, vx._LEAVE_TOL,
+                                  vx._END_TOL)
+
+    rng = np.random.default_rng(5)
+    for d in (1, 2, 3, 4, 5):
+        for _ in range(4):
+            A = np.vstack([rng.normal(size=(2 * d, d)), np.eye(d), -np.eye(d)])
+            A, b, _ = normalize_rows(A, np.concatenate([np.ones(2 * d), np.full(2 * d, 3.0)]))
+            V = vertices(A, b, max_combos=None)
+            assert nb(V, A, b) and vx._closed_under_edges(V, A, b, 1e-10)
+            for drop in range(min(3, V.shape[0])):
+                W = np.delete(V, drop, axis=0)
+                assert not nb(W, A, b)
+                assert not vx._closed_under_edges(W, A, b, 1e-10)
+    A, b, _ = _roof()
+    assert not nb(vertices(A, b, 1e-10, max_combos=None), A, b)
