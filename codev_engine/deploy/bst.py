@@ -254,7 +254,8 @@ def _canonical(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
 
 
 def _enlarged_vertices(
-    A: np.ndarray, b: np.ndarray, off: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]
+    A: np.ndarray, b: np.ndarray, off: np.ndarray, boxes: tuple[np.ndarray, np.ndarray],
+    tally: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Points whose convex hull contains each region enlarged by ``LOCATE_TOL``: its
     vertices when they are proved complete, else the corners of its box (widened).
@@ -268,6 +269,11 @@ def _enlarged_vertices(
     vertices; ``vertices_kernel.closed_under_edges``). The subsets alone lose a vertex where
     its facets meet at a tiny angle (``|det| < DET_TOL``): in pop_mpqp_023 two vertices
     1.2 away from the rest while the others still spanned the box.
+
+    A region that passes neither (a degenerate one: where many facets meet, the
+    enlargement splits a vertex into a cluster ~1e-9 wide whose edges the check cannot
+    follow; 12 of magnetic pointer A's 1,008 regions) keeps the points of both
+    enumerations that span its box, not proved (``tally["unproved"]``), else its box.
 
     Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
     regions that fell back on their box.
@@ -290,11 +296,13 @@ def _enlarged_vertices(
     counts = np.bincount(owner, minlength=R)
     parts = np.split(V, np.cumsum(counts)[:-1])
 
-    def complete(i: int, P: np.ndarray | None) -> bool:
+    def spans(i: int, P: np.ndarray | None) -> bool:
         if P is None or P.shape[0] <= d:
             return False
-        if np.any(P.min(axis=0) > lo[i] + gap[i]) or np.any(P.max(axis=0) < hi[i] - gap[i]):
-            return False  # some side of the box not reached
+        short = np.any(P.min(axis=0) > lo[i] + gap[i]) or np.any(P.max(axis=0) < hi[i] - gap[i])
+        return not short
+
+    def closed(i: int, P: np.ndarray) -> bool:
         Ai = np.ascontiguousarray(An[off[i] : off[i + 1]])
         bi = np.ascontiguousarray(be[off[i] : off[i + 1]])
         P = np.ascontiguousarray(P, dtype=float)
@@ -304,14 +312,27 @@ def _enlarged_vertices(
 
     ok = np.zeros(R, dtype=bool)
     for i in range(R):
-        ok[i] = bool(done[i]) and complete(i, parts[i])
+        ok[i] = bool(done[i]) and spans(i, parts[i]) and closed(i, parts[i])
     redo = np.flatnonzero(~ok)
+    unproved = 0
     if redo.size:
         again, _ = hull_vertices(An, be, off, redo, 1e-10)
-        for i, P in zip(redo, again, strict=True):
-            if complete(int(i), P):
-                parts[i] = P
+        for i, Q in zip(redo, again, strict=True):
+            S = parts[i] if done[i] else None
+            if spans(int(i), Q) and closed(int(i), Q):
+                parts[i] = Q
                 ok[i] = True
+                continue
+            # not proved (a degenerate region: vertices where many facets meet split into
+            # clusters ~1e-9 apart by the enlargement, whose edges the check cannot
+            # follow): both enumerations' points where they span the box
+            both = [P for P in (S, Q) if spans(int(i), P)]
+            if both:
+                parts[i] = np.concatenate(both)
+                ok[i] = True
+                unproved += 1
+    if tally is not None:
+        tally["unproved"] = unproved
     pts, own = [], []
     for i in range(R):
         P = parts[i] if ok[i] else box_corners(wlo[i], whi[i])
@@ -384,7 +405,8 @@ def build_tree(
     if sort not in ("cell", "vertices"):
         raise ValueError(f"unknown sort {sort!r}")
     cellwise = sort == "cell"
-    V, owner, boxed = _enlarged_vertices(A, b, off, boxes)
+    vcounts: dict = {}
+    V, owner, boxed = _enlarged_vertices(A, b, off, boxes, vcounts)
     if boxed > max(8, R // 4) and not cellwise:
         # boxes overlap wherever the regions are thin and oblique: the sort by hyperplanes
         # would copy most regions into most leaves (pop_mpqp_007, d = 8, 12,232 regions
@@ -689,7 +711,8 @@ def build_tree(
         row_off=off,
         seconds=time.perf_counter() - t0,
         leaf_group=[lf[6] for lf in leaves] if any(lf[6].size for lf in leaves) else [],
-        stats={"hyperplanes": int(H), "vertices": int(V.shape[0]), "sort": sort, **stats},
+        stats={"hyperplanes": int(H), "vertices": int(V.shape[0]), "sort": sort, "boxed": boxed,
+               **vcounts, **stats},
     )
 
 
