@@ -351,12 +351,25 @@ def _polished(
     unbounded polytope: the dual hull does not surround the origin)."""
     if X.shape[0] == 0 or not np.all(np.isfinite(X)):
         return None
-    out = X.copy()
-    for j, rows in enumerate(facets):
-        rows = np.asarray(rows, dtype=np.intp)
-        x = np.linalg.lstsq(A[rows], b[rows], rcond=None)[0]
-        if np.all(np.isfinite(x)) and (A @ x - b).max() <= (A @ X[j] - b).max():
-            out[j] = x
+    d = A.shape[1]
+    sol = X.copy()
+    simple = np.array([len(f) == d for f in facets], dtype=bool)
+    if np.any(simple):  # d rows meet: one batched solve
+        idx = np.array([f for f, s in zip(facets, simple, strict=True) if s], dtype=np.intp)
+        M = A[idx]
+        good = np.abs(np.linalg.det(M)) > DET_TOL
+        if np.any(good):
+            part = sol[simple]
+            part[good] = np.linalg.solve(M[good], b[idx[good]][..., None])[..., 0]
+            sol[simple] = part
+    for j in np.flatnonzero(~simple):  # a degenerate vertex: least squares
+        rows = np.asarray(facets[j], dtype=np.intp)
+        sol[j] = np.linalg.lstsq(A[rows], b[rows], rcond=None)[0]
+    # the better of Qhull's point and the solve (largest violation of a row)
+    finite = np.all(np.isfinite(sol), axis=1)
+    sol[~finite] = X[~finite]
+    better = (sol @ A.T - b).max(axis=1) <= (X @ A.T - b).max(axis=1)
+    out = np.where(better[:, None], sol, X)
     viol = (out @ A.T - b[None, :]).max(axis=1)
     if np.any(viol > 1e-6 * (1.0 + np.abs(out).max(axis=1))):
         return None
