@@ -92,6 +92,9 @@ DUPLICATE_WEIGHT = 0.25
 #: witnesses kept per region and node (points of its part of the cell, from the LPs:
 #: an undecided test they meet needs no LP; ``prune_kernel.split_node``)
 WITNESSES = 6
+#: a region of at most this many d-subsets of rows has its vertices from the subsets,
+#: a larger one from Qhull (``_enlarged_vertices``)
+SUBSET_MAX = 2_000
 #: the deepest tree built; a node deeper becomes a leaf that checks all its members
 MAX_DEPTH = 64
 
@@ -251,14 +254,33 @@ def _canonical(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np
 
 
 def _enlarged_vertices(
-    A: np.ndarray, b: np.ndarray, off: np.ndarray, boxes: tuple[np.ndarray, np.ndarray]
-) -> tuple[np.ndarray, np.ndarray]:
+    A: np.ndarray, b: np.ndarray, off: np.ndarray, boxes: tuple[np.ndarray, np.ndarray],
+    tally: dict | None = None,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Points whose convex hull contains each region enlarged by ``LOCATE_TOL``: its
-    vertices when they span its bounding box, else the corners of that box (widened).
+    vertices when they are proved complete, else the corners of its box (widened).
+
+    The vertices come from the row subsets (``packed_vertices``) for a region of at most
+    ``SUBSET_MAX`` d-subsets of rows, else from Qhull's halfspace intersection
+    (``hull_vertices``: its cost follows the vertices, not ``C(k, d)``); a subset
+    enumeration that fails the check below is done again by Qhull. They are accepted
+    when more than d, spanning the region's box, and closed under the polytope's edges
+    (every edge leaving one ends at one: by Balinski's theorem they are all the
+    vertices; ``vertices_kernel.closed_under_edges``). The subsets alone lose a vertex where
+    its facets meet at a tiny angle (``|det| < DET_TOL``): in pop_mpqp_023 two vertices
+    1.2 away from the rest while the others still spanned the box.
+
+    A region that passes neither (a degenerate one: where many facets meet, the
+    enlargement splits a vertex into a cluster ~1e-9 wide whose edges the check cannot
+    follow; 12 of magnetic pointer A's 1,008 regions) keeps the points of both
+    enumerations that span its box, not proved (``tally["unproved"]``), else its box.
 
     Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
     regions that fell back on their box.
     """
+    from codev_engine.geometry.vertices import _END_TOL, _LEAVE_TOL, DET_TOL, hull_vertices
+    from codev_engine.geometry.vertices_kernel import closed_under_edges
+
     R = off.size - 1
     d = A.shape[1]
     An, bn = _normalised(A, b)
@@ -266,30 +288,57 @@ def _enlarged_vertices(
     nrm = np.linalg.norm(A, axis=1)
     nrm[nrm == 0] = 1.0
     be = bn + LOCATE_TOL / nrm
-    V, owner, done = packed_vertices(An, be, off, 1e-10, rtol=1e-12)
+    V, owner, done = packed_vertices(An, be, off, 1e-10, rtol=1e-12, max_combos=SUBSET_MAX)
     lo, hi = boxes
     pad = 1e-7 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
     wlo, whi = lo - pad, hi + pad
-    counts = np.bincount(owner, minlength=R)
-    vlo = np.full((R, d), np.inf)
-    vhi = np.full((R, d), -np.inf)
-    if V.shape[0]:
-        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        has = counts > 0
-        vlo[has] = np.minimum.reduceat(V, starts[has], axis=0)
-        vhi[has] = np.maximum.reduceat(V, starts[has], axis=0)
-    # vertices must reach every side of the region's box (else some were lost)
     gap = 1e-6 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
-    ok = done & (counts > d) & np.all(vlo <= lo + gap, axis=1) & np.all(vhi >= hi - gap, axis=1)
-    keep = ok[owner]
-    pts, own = [V[keep]], [owner[keep]]
-    for i in np.flatnonzero(~ok):
-        C = box_corners(wlo[i], whi[i])
-        pts.append(C)
-        own.append(np.full(C.shape[0], i))
-    P, O = np.concatenate(pts), np.concatenate(own)
-    order = np.argsort(O, kind="stable")
-    return P[order], O[order], int(np.count_nonzero(~ok))
+    counts = np.bincount(owner, minlength=R)
+    parts = np.split(V, np.cumsum(counts)[:-1])
+
+    def spans(i: int, P: np.ndarray | None) -> bool:
+        if P is None or P.shape[0] <= d:
+            return False
+        short = np.any(P.min(axis=0) > lo[i] + gap[i]) or np.any(P.max(axis=0) < hi[i] - gap[i])
+        return not short
+
+    def closed(i: int, P: np.ndarray) -> bool:
+        Ai = np.ascontiguousarray(An[off[i] : off[i + 1]])
+        bi = np.ascontiguousarray(be[off[i] : off[i + 1]])
+        P = np.ascontiguousarray(P, dtype=float)
+        return any(
+            closed_under_edges(P, Ai, bi, t, DET_TOL, _LEAVE_TOL, _END_TOL) for t in (1e-10, 1e-9)
+        )
+
+    ok = np.zeros(R, dtype=bool)
+    for i in range(R):
+        ok[i] = bool(done[i]) and spans(i, parts[i]) and closed(i, parts[i])
+    redo = np.flatnonzero(~ok)
+    unproved = 0
+    if redo.size:
+        again, _ = hull_vertices(An, be, off, redo, 1e-10)
+        for i, Q in zip(redo, again, strict=True):
+            S = parts[i] if done[i] else None
+            if spans(int(i), Q) and closed(int(i), Q):
+                parts[i] = Q
+                ok[i] = True
+                continue
+            # not proved (a degenerate region: vertices where many facets meet split into
+            # clusters ~1e-9 apart by the enlargement, whose edges the check cannot
+            # follow): both enumerations' points where they span the box
+            both = [P for P in (S, Q) if spans(int(i), P)]
+            if both:
+                parts[i] = np.concatenate(both)
+                ok[i] = True
+                unproved += 1
+    if tally is not None:
+        tally["unproved"] = unproved
+    pts, own = [], []
+    for i in range(R):
+        P = parts[i] if ok[i] else box_corners(wlo[i], whi[i])
+        pts.append(P)
+        own.append(np.full(P.shape[0], i))
+    return np.concatenate(pts), np.concatenate(own), int(np.count_nonzero(~ok))
 
 
 def build_tree(
@@ -356,7 +405,8 @@ def build_tree(
     if sort not in ("cell", "vertices"):
         raise ValueError(f"unknown sort {sort!r}")
     cellwise = sort == "cell"
-    V, owner, boxed = _enlarged_vertices(A, b, off, boxes)
+    vcounts: dict = {}
+    V, owner, boxed = _enlarged_vertices(A, b, off, boxes, vcounts)
     if boxed > max(8, R // 4) and not cellwise:
         # boxes overlap wherever the regions are thin and oblique: the sort by hyperplanes
         # would copy most regions into most leaves (pop_mpqp_007, d = 8, 12,232 regions
@@ -661,7 +711,8 @@ def build_tree(
         row_off=off,
         seconds=time.perf_counter() - t0,
         leaf_group=[lf[6] for lf in leaves] if any(lf[6].size for lf in leaves) else [],
-        stats={"hyperplanes": int(H), "vertices": int(V.shape[0]), "sort": sort, **stats},
+        stats={"hyperplanes": int(H), "vertices": int(V.shape[0]), "sort": sort, "boxed": boxed,
+               **vcounts, **stats},
     )
 
 

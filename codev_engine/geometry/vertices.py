@@ -69,6 +69,7 @@ __all__ = [
     "MAX_COMBOS",
     "box_corners",
     "checked_piece",
+    "hull_vertices",
     "checked_vertices",
     "packed_vertices",
     "vertices",
@@ -268,6 +269,112 @@ def _enumerate(
     _, first = np.unique(np.column_stack([g, np.round(X / tol)]), axis=0, return_index=True)
     first.sort()
     return g[first], X[first]
+
+
+def hull_vertices(
+    A: np.ndarray, b: np.ndarray, offsets: np.ndarray, which: np.ndarray, tol: float = 1e-9
+) -> tuple[list[np.ndarray | None], np.ndarray]:
+    """Vertices of the polytopes ``which`` by Qhull's halfspace intersection (pivoting on
+    the dual hull), for polytopes with too many d-subsets of rows for :func:`vertices`.
+
+    Each polytope gets a strict interior point, the centre of its largest ball (a
+    compiled LP, ``lp_kernel.chebyshev``), and ``scipy.spatial.HalfspaceIntersection``
+    intersects its rows from there: one point per facet of the dual hull, i.e. per
+    vertex (a degenerate vertex, where more than d facets meet, may come several times;
+    such points are merged on the grid ``tol`` as in :func:`vertices`). The cost grows
+    with the vertices, not with ``C(k, d)``: a region of 30 rows in 5 dimensions has
+    ~1.4e5 row subsets but some tens of vertices.
+
+    Qhull's points come from its dual facets (off by up to ~1e-8 on badly scaled
+    polytopes); each is solved again on the rows that meet there (:func:`_polished`).
+    No vertex is dropped for a feasibility test, and nothing here proves the list
+    complete: a caller that needs every vertex keeps its own check (the search tree's:
+    the vertices span the polytope's box and are closed under its edges). A polytope
+    that is unbounded, has no interior ball (radius <= 1e-12) or that Qhull rejects
+    gives None: the caller falls back as for a polytope over the subset budget.
+
+    Parameters
+    ----------
+    A : (q, d) ndarray
+        The polytopes' rows (unit norm), polytope after polytope.
+    b : (q,) ndarray
+    offsets : (R + 1,) ndarray of int
+        Polytope ``i``'s rows are ``A[offsets[i]:offsets[i + 1]]``.
+    which : (w,) ndarray of int
+        The polytopes to enumerate.
+    tol : float
+        The grid on which repeated points are merged.
+
+    Returns
+    -------
+    vertices : list of (v, d) ndarray or None
+        One entry per polytope of ``which``, None where given up.
+    seconds : (w,) ndarray
+        CPU seconds spent per polytope (the LP and Qhull).
+    """
+    import time
+
+    from scipy.spatial import HalfspaceIntersection, QhullError
+
+    from codev_engine.geometry.lp_kernel import OPTIMAL, chebyshev
+
+    A = np.asarray(A, dtype=float)
+    b = np.asarray(b, dtype=float)
+    d = A.shape[1]
+    out: list[np.ndarray | None] = []
+    secs = np.zeros(len(which))
+    for n, i in enumerate(which):
+        t0 = time.process_time()
+        Ai = np.ascontiguousarray(A[offsets[i] : offsets[i + 1]])
+        bi = np.ascontiguousarray(b[offsets[i] : offsets[i + 1]])
+        # (the bound only enters the LP's duality bound, unused here)
+        status, centre, radius, _ = chebyshev(Ai, bi, np.zeros(d), 1.0, 500)
+        V = None
+        if status == OPTIMAL and radius > 1e-12 and Ai.shape[0] > d:
+            try:
+                hs = HalfspaceIntersection(np.column_stack([Ai, -bi]), centre)
+                V = _polished(hs.intersections, hs.dual_facets, Ai, bi, tol)
+            except (QhullError, ValueError):
+                V = None
+        out.append(V)
+        secs[n] = time.process_time() - t0
+    return out, secs
+
+
+def _polished(
+    X: np.ndarray, facets: list, A: np.ndarray, b: np.ndarray, tol: float
+) -> np.ndarray | None:
+    """Qhull's intersections ``X`` solved again on the rows that meet at each (``facets``,
+    least squares: Qhull's own points come from its dual facets, off by ~1e-9 on a
+    badly scaled region), the better of the two kept; merged on the grid ``tol``. None
+    when a point is not finite or violates a row by more than ``1e-6 (1 + |x|)`` (an
+    unbounded polytope: the dual hull does not surround the origin)."""
+    if X.shape[0] == 0 or not np.all(np.isfinite(X)):
+        return None
+    d = A.shape[1]
+    sol = X.copy()
+    simple = np.array([len(f) == d for f in facets], dtype=bool)
+    if np.any(simple):  # d rows meet: one batched solve
+        idx = np.array([f for f, s in zip(facets, simple, strict=True) if s], dtype=np.intp)
+        M = A[idx]
+        good = np.abs(np.linalg.det(M)) > DET_TOL
+        if np.any(good):
+            part = sol[simple]
+            part[good] = np.linalg.solve(M[good], b[idx[good]][..., None])[..., 0]
+            sol[simple] = part
+    for j in np.flatnonzero(~simple):  # a degenerate vertex: least squares
+        rows = np.asarray(facets[j], dtype=np.intp)
+        sol[j] = np.linalg.lstsq(A[rows], b[rows], rcond=None)[0]
+    # the better of Qhull's point and the solve (largest violation of a row)
+    finite = np.all(np.isfinite(sol), axis=1)
+    sol[~finite] = X[~finite]
+    better = (sol @ A.T - b).max(axis=1) <= (X @ A.T - b).max(axis=1)
+    out = np.where(better[:, None], sol, X)
+    viol = (out @ A.T - b[None, :]).max(axis=1)
+    if np.any(viol > 1e-6 * (1.0 + np.abs(out).max(axis=1))):
+        return None
+    _, first = np.unique(np.round(out / tol), axis=0, return_index=True)
+    return out[np.sort(first)]
 
 
 def box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -284,3 +284,85 @@ def test_the_edge_check_finds_a_lost_vertex():
         A, b = cube
         V = vertices(A, b, 1e-10)[1:]
         assert d < 3 or np.all((np.abs(V @ A.T - b) <= vx.FACET_TOL).sum(axis=0) >= d)
+
+
+def _roof(alpha: float = 1e-5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cube ``[-1, 1]^4`` under a low roof of four planes whose normals differ by
+    ``alpha``: their apex is a vertex where every 4-subset of the tight rows has
+    ``|det| < DET_TOL`` (lost by the row subsets), inside the box spanned by the other
+    vertices. Returns the unit rows, offsets and the apex."""
+    d = 4
+    u = np.full(d, 0.5)
+    W = np.linalg.qr(np.column_stack([u, np.eye(d)[:, :3]]))[0][:, 1:]  # u's complement
+    dirs = np.vstack([W.T, -W.T.sum(axis=0)])  # 4 directions summing to 0
+    N = u[None, :] + alpha * dirs
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    apex = np.full(d, 0.2)
+    A = np.vstack([np.eye(d), -np.eye(d), N])
+    b = np.concatenate([np.ones(2 * d), N @ apex])
+    return A, b, apex
+
+
+def test_qhull_finds_a_vertex_the_row_subsets_lose():
+    A, b, apex = _roof()
+    assert abs(np.linalg.det(A[8:])) < vx.DET_TOL  # the apex's only subset: lost
+    by_subsets = vertices(A, b, 1e-10, max_combos=None)
+    assert np.abs(by_subsets - apex).max(axis=1).min() > 1e-3
+    # ... while the others still span the box: a span check alone would accept them
+    assert np.allclose(by_subsets.min(axis=0), -1) and np.allclose(by_subsets.max(axis=0), 1)
+    assert not vx._closed_under_edges(by_subsets, A, b, 1e-10)  # the edge check refuses
+    (by_hull,), _ = vx.hull_vertices(A, b, np.array([0, A.shape[0]]), np.array([0]), 1e-10)
+    assert np.abs(by_hull - apex).max(axis=1).min() < 1e-9
+    assert vx._closed_under_edges(by_hull, A, b, 1e-10)
+    # the same vertices otherwise (the subsets' found ones are Qhull's too)
+    gap = np.abs(by_subsets[:, None, :] - by_hull[None]).max(axis=2).min(axis=1)
+    assert gap.max() < 1e-9
+
+
+def test_hull_vertices_of_random_polytopes_match_the_subsets():
+    rng = np.random.default_rng(3)
+    for d in (2, 3, 4, 5):
+        for _ in range(5):
+            A = np.vstack([rng.normal(size=(3 * d, d)), np.eye(d), -np.eye(d)])
+            A, b, _ = normalize_rows(A, np.concatenate([np.ones(3 * d), np.full(2 * d, 3.0)]))
+            (got,), _ = vx.hull_vertices(A, b, np.array([0, A.shape[0]]), np.array([0]))
+            ref = vertices(A, b, max_combos=None)
+            assert got.shape == ref.shape
+            assert np.abs(got[:, None, :] - ref[None]).max(axis=2).min(axis=1).max() < 1e-12
+
+
+def test_tree_encloses_the_apex_the_subsets_lose():
+    """The search tree's points of a region hold its every point (its decisions rest on
+    them): with the roof's apex lost, a region would be proved apart from where it is."""
+    from codev_engine.deploy.bst import _enlarged_vertices
+
+    A, b, apex = _roof()
+    lo, hi = np.full((1, 4), -1.0), np.full((1, 4), 1.0)
+    P, owner, boxed = _enlarged_vertices(A, b, np.array([0, A.shape[0]]), (lo, hi))
+    assert boxed == 0
+    assert np.abs(P - apex).max(axis=1).min() < 1e-8
+
+
+def test_compiled_edge_check_agrees_with_the_reference():
+    """``vertices_kernel.closed_under_edges`` (the tree's) against
+    ``vertices._closed_under_edges``: complete lists pass, a list without one vertex fails."""
+    from codev_engine.geometry.vertices_kernel import closed_under_edges
+
+    def nb(V, A, b, tol=1e-10):
+        return closed_under_edges(np.ascontiguousarray(V), np.ascontiguousarray(A),
+                                  np.ascontiguousarray(b), tol, vx.DET_TOL, vx._LEAVE_TOL,
+                                  vx._END_TOL)
+
+    rng = np.random.default_rng(5)
+    for d in (1, 2, 3, 4, 5):
+        for _ in range(4):
+            A = np.vstack([rng.normal(size=(2 * d, d)), np.eye(d), -np.eye(d)])
+            A, b, _ = normalize_rows(A, np.concatenate([np.ones(2 * d), np.full(2 * d, 3.0)]))
+            V = vertices(A, b, max_combos=None)
+            assert nb(V, A, b) and vx._closed_under_edges(V, A, b, 1e-10)
+            for drop in range(min(3, V.shape[0])):
+                W = np.delete(V, drop, axis=0)
+                assert not nb(W, A, b)
+                assert not vx._closed_under_edges(W, A, b, 1e-10)
+    A, b, _ = _roof()
+    assert not nb(vertices(A, b, 1e-10, max_combos=None), A, b)
