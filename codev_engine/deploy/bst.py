@@ -272,8 +272,8 @@ def _enlarged_vertices(
 
     A region that passes neither (a degenerate one: where many facets meet, the
     enlargement splits a vertex into a cluster ~1e-9 wide whose edges the check cannot
-    follow; 12 of magnetic pointer A's 1,008 regions) keeps the points of both
-    enumerations that span its box, not proved (``tally["unproved"]``), else its box.
+    follow; 12 of magnetic pointer A's 1,008 regions; ``tally["unproved"]``) takes its
+    box's corners: sound whatever vertex was lost, at the price of more leaves.
 
     Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
     regions that fell back on their box.
@@ -318,19 +318,15 @@ def _enlarged_vertices(
     if redo.size:
         again, _ = hull_vertices(An, be, off, redo, 1e-10)
         for i, Q in zip(redo, again, strict=True):
-            S = parts[i] if done[i] else None
             if spans(int(i), Q) and closed(int(i), Q):
                 parts[i] = Q
                 ok[i] = True
                 continue
             # not proved (a degenerate region: vertices where many facets meet split into
             # clusters ~1e-9 apart by the enlargement, whose edges the check cannot
-            # follow): both enumerations' points where they span the box
-            both = [P for P in (S, Q) if spans(int(i), P)]
-            if both:
-                parts[i] = np.concatenate(both)
-                ok[i] = True
-                unproved += 1
+            # follow): its box, whose corners hold it whatever vertex was lost (a lost
+            # vertex beyond a hyperplane would drop the region from a side it reaches)
+            unproved += 1
     if tally is not None:
         tally["unproved"] = unproved
     pts, own = [], []
