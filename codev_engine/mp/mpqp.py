@@ -20,6 +20,7 @@ one Chebyshev-ball LP per candidate active set.
 
 from __future__ import annotations
 
+import copy
 import os
 import time
 from collections import deque
@@ -440,18 +441,33 @@ def _evaluate_batches(shared: tuple, batches: list) -> tuple[list, float]:
     Parameters
     ----------
     shared : tuple
-        ``(args, tail)``: the compiled kernel's problem data (``_Kernel._jit_args``:
-        arrays and numbers) and the parameter set's rows as the client's regions hold them
-        (``_CompiledWalk.shared``, or None), scattered once to every worker.
+        ``(args, tail, kernel)``: the compiled kernel's problem data (``_Kernel._jit_args``:
+        arrays and numbers), the parameter set's rows as the client's regions hold them
+        (``_CompiledWalk.shared``, or None) and the numpy kernel (a ``_Kernel`` without
+        its compiled one), scattered once to every worker.
     batches : list of ((b, W) uint64 ndarray, (b, d) ndarray)
         The candidates' bitmasks and start points, as ``ActiveSetGraph.pop`` gave them.
+
+    Returns
+    -------
+    tuple
+        ``(out, seconds)``: each batch's compacted result, with the numpy kernel's results
+        of the candidates the compiled one handed back (:func:`_compact`), and the seconds
+        this took on the worker.
     """
     from codev_engine.mp import mpqp_kernel  # (numba: loaded from its cache on first use)
 
-    args, tail = shared
+    args, tail, kernel = shared
     t0 = time.perf_counter()
-    out = [_compact(mpqp_kernel.evaluate_batch(keys, starts, args), tail, mpqp_kernel.FULL)
-           for keys, starts in batches]
+    out = []
+    for keys, starts in batches:
+        result = mpqp_kernel.evaluate_batch(keys, starts, args)
+        # the candidates the compiled kernel handed back, through the numpy kernel here (it
+        # is a function of the candidate alone): the client only takes the results
+        status, acts, sizes = result[0], result[2], result[3]
+        handed = [kernel.evaluate_numpy(tuple(acts[c, : sizes[c]].tolist()))
+                  for c in np.flatnonzero(status == mpqp_kernel.FALLBACK)]
+        out.append((*_compact(result, tail, mpqp_kernel.FULL), handed))
     return out, time.perf_counter() - t0
 
 
@@ -826,7 +842,11 @@ class _CompiledWalk:
                         client = executor.client
                         # the parameter set's rows as the regions found so far hold them:
                         # the workers leave them out of the regions that end with them
-                        remote = (args, self.shared)
+                        # and the numpy kernel, for the candidates the compiled one hands
+                        # back (without the compiled module, which does not pickle)
+                        numpy_kernel = copy.copy(self.kernel)
+                        numpy_kernel._jit = None
+                        remote = (args, self.shared, numpy_kernel)
                         shared = scattered(client, remote)
                         # numba's cached kernel loaded on every worker before the first task
                         warm = client.run(_warm_worker, args)
@@ -875,7 +895,8 @@ class _CompiledWalk:
         """Record a batch's regions and push its neighbours; the candidates the compiled
         kernel could not conclude on go to the numpy kernel, one by one."""
         (status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off, swaps, swaps_off,
-         points, *implied) = result  # (implied: a worker's compacted result, _compact)
+         points, *implied) = result  # (a worker's compacted result: _evaluate_batches)
+        handed_back = implied[1] if len(implied) > 1 else None
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
@@ -886,12 +907,14 @@ class _CompiledWalk:
         # walk's state); their regions are kept in their place among the batch's
         back = np.flatnonzero(status == jit.FALLBACK)
         stats["handed_back"] = stats.get("handed_back", 0) + back.size
-        results = []
-        for c in back:
-            act = tuple(acts[c, : sizes[c]].tolist())
-            results.append(self.kernel.evaluate_numpy(act))
-            stats["lps"] += int(results[-1][4])
-            _count_class(stats, results[-1][0])
+        results = [] if handed_back is None else handed_back
+        if handed_back is not None and back.size:
+            stats["handed_back_on_workers"] = stats.get("handed_back_on_workers", 0) + back.size
+        for i, c in enumerate(back):
+            if handed_back is None:  # (evaluated here)
+                results.append(self.kernel.evaluate_numpy(tuple(acts[c, : sizes[c]].tolist())))
+            stats["lps"] += int(results[i][4])
+            _count_class(stats, results[i][0])
         full = np.flatnonzero(status == jit.FULL)
         if not implied:  # (evaluated here: the law of every candidate, the rows whole)
             K, k, implied = K[full], k[full], [None]

@@ -90,6 +90,47 @@ def test_numpy_kernel_on_a_cluster_gives_the_serial_regions(name, cluster, monke
     _same_regions(serial, remote)
 
 
+def _hand_back_every_third(on: bool) -> None:
+    """Make the compiled kernel hand back every third candidate (FALLBACK) in this process
+    (here, or on a worker through ``client.run``), or undo it."""
+    from codev_engine.mp import mpqp_kernel
+
+    if not hasattr(mpqp_kernel, "_unforced_evaluate_batch"):
+        mpqp_kernel._unforced_evaluate_batch = mpqp_kernel.evaluate_batch
+    batch = mpqp_kernel._unforced_evaluate_batch
+
+    def some_back(keys, *args):
+        out = batch(keys, *args)
+        status = out[0].copy()
+        status[::3] = mpqp_kernel.FALLBACK
+        return (status, *out[1:])
+
+    mpqp_kernel.evaluate_batch = some_back if on else batch
+
+
+def test_candidates_handed_back_go_through_numpy_on_the_workers(cluster, monkeypatch):
+    """The candidates the compiled kernel hands back are evaluated with the numpy kernel by
+    the worker that had them (not by the client, whose CPU the walk's merge needs); the
+    regions are the serial ones."""
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
+    client = cluster.client
+    try:
+        _hand_back_every_third(True)
+        client.run(_hand_back_every_third, True)
+        serial = ce.mpsolve(_program(), options=ce.SolveOptions(workers=1))
+        remote = ce.mpsolve(_program(), executor=cluster)
+    finally:
+        _hand_back_every_third(False)
+        client.run(_hand_back_every_third, False)
+    assert serial.stats["handed_back"] > 100
+    assert remote.stats["handed_back"] == serial.stats["handed_back"]
+    # (the batches before the workers started were evaluated here)
+    assert remote.stats.get("handed_back_on_workers", 0) > serial.stats["handed_back"] // 2
+    _same_regions(serial, remote)
+    assert remote.stats["explored"] == serial.stats["explored"]
+
+
 def test_a_worker_killed_mid_search_changes_nothing(cluster, monkeypatch):
     # small tasks (one batch each, 8 in flight), so the search is many tasks long
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
