@@ -90,6 +90,33 @@ def test_numpy_kernel_on_a_cluster_gives_the_serial_regions(name, cluster, monke
     _same_regions(serial, remote)
 
 
+def _degenerate_program() -> ce.MpProgram:
+    """``_program()`` with two rows that are combinations of others (``A0 + A1``,
+    ``A2 - A3 / 2``): 165 LICQ candidates and 9 handed back in a search of 752 regions."""
+    p = _program()
+    A, b, F = p.A, p.b, p.F
+    return ce.MpProgram(
+        H=p.H, c=p.c, C=p.C, A_theta=p.A_theta, b_theta=p.b_theta,
+        A=np.vstack([A, A[0] + A[1], A[2] - 0.5 * A[3]]),
+        b=np.concatenate([b, [b[0] + b[1], b[2] - 0.5 * b[3]]]),
+        F=np.vstack([F, F[0] + F[1], F[2] - 0.5 * F[3]]),
+    )
+
+
+def test_a_degenerate_search_on_a_cluster_gives_the_serial_regions(cluster, monkeypatch):
+    """LICQ candidates (their subsets to visit computed on the workers) and candidates
+    handed back (evaluated there with the numpy kernel): the serial regions still."""
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
+    serial = ce.mpsolve(_degenerate_program(), options=ce.SolveOptions(workers=1))
+    assert serial.stats["candidates_licq"] > 100 and serial.stats["handed_back"] > 0
+    remote = ce.mpsolve(_degenerate_program(), executor=cluster)
+    assert remote.stats["tasks"] >= 1
+    _same_regions(serial, remote)
+    for key in ("explored", "candidates", "candidates_licq", "handed_back"):
+        assert remote.stats[key] == serial.stats[key], key
+
+
 def _hand_back_every_third(on: bool) -> None:
     """Make the compiled kernel hand back every third candidate (FALLBACK) in this process
     (here, or on a worker through ``client.run``), or undo it."""
