@@ -154,7 +154,14 @@ class Executor:
             from distributed import Client, LocalCluster
 
             if self.kind == "local":
-                with _interrupt_ignored(), warnings.catch_warnings():
+                import dask
+
+                # the event loops' tick monitor (a check for blocked loops) every second,
+                # not every 20 ms: it cost this process ~3 % of a core while the workers
+                # computed (the scheduler of a LocalCluster runs here, beside the client)
+                with _interrupt_ignored(), warnings.catch_warnings(), dask.config.set(
+                    {"distributed.admin.tick.interval": "1s"}
+                ):
                     # the scheduler's HTTP routes (no dashboard) take another port when
                     # 8787 is taken, with a warning that is no news on a shared machine
                     warnings.filterwarnings("ignore", message="Port .* is already in use")
