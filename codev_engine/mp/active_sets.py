@@ -18,7 +18,7 @@ from numba import njit
 
 from codev_engine.mp.mpqp_kernel import EMPTY, FALLBACK, LICQ
 
-__all__ = ["ActiveSetGraph", "unpaired_rows"]
+__all__ = ["ActiveSetGraph", "licq_moves", "unpaired_rows"]
 
 _ONE = np.uint64(1)
 
@@ -84,7 +84,7 @@ def _push_if_new(table, used, stack, points, meta, key, point):
 @njit(cache=True)
 def _visit(
     table, used, stack, points, meta, keys, status, moves, moves_off, swaps, swaps_off, nz,
-    opposite, found, G, sigma, support,
+    opposite, found, G, sigma, support, licq_moves,
 ):
     """Push the unexplored neighbours of a batch of evaluated candidates, each with the
     point its candidate found (where the neighbour's LPs start).
@@ -116,6 +116,9 @@ def _visit(
         The constraint rows (for the subsets of LICQ candidates, see ``_dependent_rows``).
     sigma, support : float
         ``mpqp.DEPENDENT_SIGMA`` and ``mpqp.SUPPORT_TOL``.
+    licq_moves : bool
+        The LICQ candidates' subsets are given as their moves (``+i+1``, ascending, from
+        :func:`licq_moves`, computed where the batch was evaluated), not computed here.
     """
     W = keys.shape[1]
     new = np.empty(W, dtype=np.uint64)
@@ -134,7 +137,10 @@ def _visit(
         if st == LICQ:
             # its subsets are the way on: those without a constraint of the support of a
             # null vector of its rows (mpqp.dependent_rows)
-            rows = _dependent_rows(G, key, size, sigma, support)
+            if licq_moves:
+                rows = moves[moves_off[c] : moves_off[c + 1]] - 1
+            else:
+                rows = _dependent_rows(G, key, size, sigma, support)
             for r in rows:
                 new[:] = key
                 new[r >> 6] &= ~(_ONE << np.uint64(r & 63))
@@ -349,7 +355,9 @@ class ActiveSetGraph:
         self.meta[1] = top - b
         return keys, points
 
-    def visit(self, keys, status, moves, moves_off, swaps, swaps_off, found=None) -> None:
+    def visit(
+        self, keys, status, moves, moves_off, swaps, swaps_off, found=None, licq_moves=False
+    ) -> None:
         """Push the unexplored neighbours of evaluated candidates (see ``_visit``).
 
         Parameters
@@ -366,6 +374,9 @@ class ActiveSetGraph:
         found : (B, d) ndarray, optional
             The candidates' points, where their neighbours' LPs start; without it, the
             graph's ``start`` point.
+        licq_moves : bool
+            The LICQ candidates' moves are their subsets to visit (:func:`licq_moves`), not
+            to be computed here.
         """
         if found is None:
             found = np.broadcast_to(self.start, (keys.shape[0], self.start.size)).copy()
@@ -389,7 +400,48 @@ class ActiveSetGraph:
             self.G,
             self.sigma,
             self.support,
+            bool(licq_moves),
         )
+
+
+def licq_moves(keys, status, moves, moves_off, G, sigma, support):
+    """A batch's moves with each LICQ candidate's subsets to visit as its moves (``+i+1``
+    for each row ``i`` that :func:`_dependent_rows` lets leave, ascending): what
+    ``ActiveSetGraph.visit(..., licq_moves=True)`` takes, so that the SVDs run where the
+    batch was evaluated, not where the graph is.
+
+    Parameters
+    ----------
+    keys : (B, W) ndarray of uint64
+        The candidates' bitmasks.
+    status : (B,) ndarray of int64
+        Their ``mpqp_kernel`` status.
+    moves, moves_off : (q,) and (B + 1,) ndarray of int64
+        The batch's moves (an LICQ candidate has none).
+    G : (m, nz) ndarray
+        The constraint rows.
+    sigma, support : float
+        ``mpqp.DEPENDENT_SIGMA`` and ``mpqp.SUPPORT_TOL``.
+
+    Returns
+    -------
+    moves, moves_off : (q',) and (B + 1,) ndarray of int64
+    """
+    licq = np.flatnonzero(status == LICQ)
+    if not licq.size:
+        return moves, moves_off
+    G = np.ascontiguousarray(G, dtype=float)
+    segments, off = [], np.zeros(status.size + 1, dtype=np.int64)
+    for c in range(status.size):
+        if status[c] == LICQ:  # (its moves, if any, are not the walk's: replaced)
+            key = keys[c]
+            size = sum(bin(int(w)).count("1") for w in key)
+            seg = _dependent_rows(G, key, size, float(sigma), float(support)) + 1
+        else:
+            seg = moves[moves_off[c] : moves_off[c + 1]]
+        segments.append(seg)
+        off[c + 1] = off[c] + seg.size
+    return np.concatenate(segments).astype(np.int64, copy=False), off
 
 
 @njit(cache=True)

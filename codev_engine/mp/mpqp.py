@@ -20,6 +20,7 @@ one Chebyshev-ball LP per candidate active set.
 
 from __future__ import annotations
 
+import copy
 import os
 import time
 from collections import deque
@@ -440,19 +441,89 @@ def _evaluate_batches(shared: tuple, batches: list) -> tuple[list, float]:
     Parameters
     ----------
     shared : tuple
-        ``(args, tail)``: the compiled kernel's problem data (``_Kernel._jit_args``:
-        arrays and numbers) and the parameter set's rows as the client's regions hold them
-        (``_CompiledWalk.shared``, or None), scattered once to every worker.
+        ``(args, tail, kernel)``: the compiled kernel's problem data (``_Kernel._jit_args``:
+        arrays and numbers), the parameter set's rows as the client's regions hold them
+        (``_CompiledWalk.shared``, or None) and the numpy kernel (a ``_Kernel`` without
+        its compiled one), scattered once to every worker.
     batches : list of ((b, W) uint64 ndarray, (b, d) ndarray)
         The candidates' bitmasks and start points, as ``ActiveSetGraph.pop`` gave them.
-    """
-    from codev_engine.mp import mpqp_kernel  # (numba: loaded from its cache on first use)
 
-    args, tail = shared
+    Returns
+    -------
+    tuple
+        ``(out, seconds)``: each batch's compacted result (:func:`_compact`), its LICQ
+        candidates' subsets to visit as their moves (``active_sets.licq_moves``) and the
+        numpy kernel's results of the candidates the compiled one handed back; and the
+        seconds this took on the worker.
+    """
+    from codev_engine.mp import active_sets, mpqp_kernel  # (numba: from its cache)
+
+    args, tail, kernel = shared
     t0 = time.perf_counter()
-    out = [_compact(mpqp_kernel.evaluate_batch(keys, starts, args), tail, mpqp_kernel.FULL)
-           for keys, starts in batches]
-    return out, time.perf_counter() - t0
+    out = []
+    for keys, starts in batches:
+        result = mpqp_kernel.evaluate_batch(keys, starts, args)
+        # the candidates the compiled kernel handed back, through the numpy kernel here (it
+        # is a function of the candidate alone): the client only takes the results
+        status, acts, sizes = result[0], result[2], result[3]
+        handed = [kernel.evaluate_numpy(tuple(acts[c, : sizes[c]].tolist()))
+                  for c in np.flatnonzero(status == mpqp_kernel.FALLBACK)]
+        # and the LICQ candidates' subsets to visit (an SVD each) as their moves
+        moves = active_sets.licq_moves(keys, status, result[9], result[10], args[0],
+                                       DEPENDENT_SIGMA, SUPPORT_TOL)
+        result = (*result[:9], *moves, *result[11:])
+        out.append((*_compact(result, tail, mpqp_kernel.FULL), handed))
+    return _pack_batches(out), time.perf_counter() - t0
+
+
+def _pack_batches(results: list) -> tuple:
+    """The batches' results of a task as one array per field (each field's arrays
+    concatenated): a task's ~270 small arrays cost the client ~9 ms more CPU to receive
+    than 16 arrays of the same bytes. :func:`_batch_of` takes batch ``i`` back out.
+
+    Parameters
+    ----------
+    results : list of tuple
+        Each batch's compacted result and handed-back results (``_evaluate_batches``).
+
+    Returns
+    -------
+    tuple
+        ``(arrays, offsets, handed)``: the fields (None where a field is None), the
+        (len(results) + 1, fields) list of each batch's start in each field, and the
+        handed-back results of each batch.
+    """
+    fields = len(results[0]) - 1
+    counts = [[0 if r[j] is None else len(r[j]) for j in range(fields)] for r in results]
+    arrays = tuple(
+        None if results[0][j] is None else np.concatenate([r[j] for r in results])
+        for j in range(fields)
+    )
+    offsets = np.zeros((len(results) + 1, fields), dtype=np.int64)
+    np.cumsum(np.array(counts, dtype=np.int64).reshape(len(results), fields), axis=0,
+              out=offsets[1:])
+    return arrays, offsets.tolist(), [r[-1] for r in results]
+
+
+def _batch_of(packed: tuple, i: int) -> tuple:
+    """Batch ``i``'s result out of :func:`_pack_batches`' (views of its arrays).
+
+    Parameters
+    ----------
+    packed : tuple
+        ``_pack_batches``' result.
+    i : int
+        The batch.
+
+    Returns
+    -------
+    tuple
+        The batch's compacted result, then its handed-back results.
+    """
+    arrays, offsets, handed = packed
+    lo, hi = offsets[i], offsets[i + 1]
+    return (*(None if a is None else a[s:e] for a, s, e in zip(arrays, lo, hi, strict=True)),
+            handed[i])
 
 
 def _compact(result: tuple, tail: tuple | None, full_code: int) -> tuple:
@@ -507,6 +578,12 @@ def _warm_worker(args: tuple) -> float:
     d = args[10].shape[0]
     W = (args[0].shape[0] + 63) // 64
     mpqp_kernel.evaluate_batch(np.zeros((0, W), np.uint64), np.zeros((0, d)), args)
+    from codev_engine.mp import active_sets
+
+    # (and the LICQ candidates' SVD: active_sets.licq_moves)
+    active_sets.licq_moves(np.zeros((1, W), np.uint64), np.array([mpqp_kernel.LICQ]),
+                           np.zeros(0, np.int64), np.zeros(2, np.int64), args[0],
+                           DEPENDENT_SIGMA, SUPPORT_TOL)
     return time.perf_counter() - t0
 
 
@@ -811,7 +888,7 @@ class _CompiledWalk:
                 tasks.add(box["future"])
                 stats["task_seconds"] = stats.get("task_seconds", 0.0) + seconds
                 stats["tasks"] = stats.get("tasks", 0) + 1
-            out = box["out"][i]
+            out = _batch_of(box["out"], i)
             box["left"] -= 1
             if not box["left"]:  # taken in full: the worker may drop it
                 tasks.discard(box["future"])
@@ -826,7 +903,11 @@ class _CompiledWalk:
                         client = executor.client
                         # the parameter set's rows as the regions found so far hold them:
                         # the workers leave them out of the regions that end with them
-                        remote = (args, self.shared)
+                        # and the numpy kernel, for the candidates the compiled one hands
+                        # back (without the compiled module, which does not pickle)
+                        numpy_kernel = copy.copy(self.kernel)
+                        numpy_kernel._jit = None
+                        remote = (args, self.shared, numpy_kernel)
                         shared = scattered(client, remote)
                         # numba's cached kernel loaded on every worker before the first task
                         warm = client.run(_warm_worker, args)
@@ -875,7 +956,8 @@ class _CompiledWalk:
         """Record a batch's regions and push its neighbours; the candidates the compiled
         kernel could not conclude on go to the numpy kernel, one by one."""
         (status, lp, acts, sizes, rows_off, A, b, K, k, moves, moves_off, swaps, swaps_off,
-         points, *implied) = result  # (implied: a worker's compacted result, _compact)
+         points, *implied) = result  # (a worker's compacted result: _evaluate_batches)
+        handed_back = implied[1] if len(implied) > 1 else None
         jit, stats = self.jit, self.stats
         stats["candidates"] = stats.get("candidates", 0) + status.size
         stats["lps"] = stats.get("lps", 0) + int(np.count_nonzero(lp))
@@ -886,12 +968,14 @@ class _CompiledWalk:
         # walk's state); their regions are kept in their place among the batch's
         back = np.flatnonzero(status == jit.FALLBACK)
         stats["handed_back"] = stats.get("handed_back", 0) + back.size
-        results = []
-        for c in back:
-            act = tuple(acts[c, : sizes[c]].tolist())
-            results.append(self.kernel.evaluate_numpy(act))
-            stats["lps"] += int(results[-1][4])
-            _count_class(stats, results[-1][0])
+        results = [] if handed_back is None else handed_back
+        if handed_back is not None and back.size:
+            stats["handed_back_on_workers"] = stats.get("handed_back_on_workers", 0) + back.size
+        for i, c in enumerate(back):
+            if handed_back is None:  # (evaluated here)
+                results.append(self.kernel.evaluate_numpy(tuple(acts[c, : sizes[c]].tolist())))
+            stats["lps"] += int(results[i][4])
+            _count_class(stats, results[i][0])
         full = np.flatnonzero(status == jit.FULL)
         if not implied:  # (evaluated here: the law of every candidate, the rows whole)
             K, k, implied = K[full], k[full], [None]
@@ -911,7 +995,8 @@ class _CompiledWalk:
             mine = theirs.take(np.argsort(at, kind="stable"))
         if mine is not None:
             self._keep(mine)
-        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off, points)
+        self.graph.visit(keys, status, moves, moves_off, swaps, swaps_off, points,
+                         licq_moves=handed_back is not None)
         for c, (st, _, _, mv, _) in zip(back, results, strict=True):
             mv = np.zeros(0, dtype=np.int64) if mv is None else np.asarray(mv, dtype=np.int64)
             no_swaps = np.zeros((0, 2), dtype=np.int64)

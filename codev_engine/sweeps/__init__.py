@@ -29,8 +29,10 @@ from codev_engine.executor import Executor
 from codev_engine.io.toml import dumps_toml
 from codev_engine.sweeps.grid import (
     _value_rows,
+    design_cost,
     design_id,
     design_texts,
+    designs,
     grid_values,
     parse_sets,
     set_field,
@@ -38,7 +40,7 @@ from codev_engine.sweeps.grid import (
 from codev_engine.sweeps.rows import TIMING_FIELDS, design_row, report_row
 
 __all__ = ["sweep", "parse_sets", "grid_values", "design_texts", "design_id", "design_row",
-           "report_row",
+           "design_cost", "report_row",
            "set_field", "dumps_toml", "TIMING_FIELDS"]
 
 
@@ -98,7 +100,10 @@ def sweep(
         with Executor() as own:
             return sweep(problem, grid, executor=own, progress=progress, session=session,
                          recording=recording)
-    texts = design_texts(problem, grid)  # every design read by the loader before any runs
+    # every design read by the loader before any runs
+    loaded = designs(problem, grid)
+    texts = [text for text, _ in loaded]
+    cost_of = {text: design_cost(design) for text, design in loaded}
     if session is not None:
         from codev_engine.sweeps.folder import check_target
 
@@ -122,7 +127,9 @@ def sweep(
     path = problem.path or "<string>"
     calls = [(text, path, None if folders is None else folders[text]) for text in unique]
     started, t0 = _now(), time.perf_counter()
-    done = dict(zip(unique, executor.map(design_row, calls, on_result=on_result), strict=True))
+    done = dict(zip(unique, executor.map(
+        design_row, calls, on_result=on_result, cost=[cost_of[text] for text in unique]
+    ), strict=True))
     rows = [{"values": v, **done[text]} for v, text in zip(values, texts, strict=True)]
     if session is not None:
         from codev_engine.sweeps.folder import record_sweep

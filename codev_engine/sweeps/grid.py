@@ -112,6 +112,59 @@ def design_texts(problem, grid: Mapping[str, Sequence[Any]]) -> list[str]:
     SpecError
         As :func:`sweep`.
     """
+    return [text for text, _ in designs(problem, grid)]
+
+
+def design_cost(problem) -> float:
+    """A rough estimate of what a design costs to synthesise and verify, to start the
+    costliest designs of a sweep first (only their order on the workers depends on it).
+
+    Parameters
+    ----------
+    problem : Problem
+        The design, as the loader gives it.
+
+    Returns
+    -------
+    float
+        The size of its mp program: the decision variables (the free moves ``Nc m``, and
+        for norms "1" and "inf" the slack of every stage's and the terminal cost's rows)
+        times the constraint rows of the prediction (``N`` times the finite state and
+        input bounds, both sides), plus the prediction's length ``N`` as a tie-break.
+    """
+    import numpy as np
+
+    mpc = problem.mpc
+    N = int(mpc.horizon)
+    variables = int(mpc.Nc) * int(problem.plant.m)
+    if mpc.norm != "2":
+        rows = np.atleast_2d(mpc.Q).shape[0] + np.atleast_2d(mpc.R).shape[0]
+        variables += N * rows + (0 if mpc.P is None else np.atleast_2d(mpc.P).shape[0])
+    bounds = sum(int(np.count_nonzero(np.isfinite(np.asarray(v, dtype=float))))
+                 for v in (mpc.x_min, mpc.x_max, mpc.u_min, mpc.u_max))
+    return float(variables * N * max(bounds, 1) + N)
+
+
+def designs(problem, grid: Mapping[str, Sequence[Any]]) -> list[tuple[str, Any]]:
+    """Each design of ``grid``: its TOML text and the loader's problem of it.
+
+    Parameters
+    ----------
+    problem : Problem
+        The base design; its ``source`` is the TOML text edited.
+    grid : mapping of str to sequence
+        As :func:`sweep`.
+
+    Returns
+    -------
+    list of (str, Problem)
+        In the product's order.
+
+    Raises
+    ------
+    SpecError
+        As :func:`design_texts`.
+    """
     from codev_engine.pipeline import loads_spec
 
     base = tomllib.loads(problem.source)
@@ -126,16 +179,16 @@ def design_texts(problem, grid: Mapping[str, Sequence[Any]]) -> list[str]:
             except TypeError:
                 raise SpecError(f"not a TOML value: {type(v).__name__}", file=file,
                                 field=name) from None
-    texts = []
+    out = []
     for values in _value_rows(grid):
         data = json.loads(json.dumps(base))  # a deep copy of plain TOML data
         for name, value in values.items():
             set_field(data, name, value)
         text = dumps_toml(data)
         label = ", ".join(f"{k} = {toml_literal(v)}" for k, v in values.items())
-        loads_spec(text, path=f"{file} [{label}]")  # the loader's checks, one line each
-        texts.append(text)
-    return texts
+        # the loader's checks, one line each
+        out.append((text, loads_spec(text, path=f"{file} [{label}]")))
+    return out
 
 
 def set_field(data: dict, name: str, value: Any) -> None:

@@ -97,6 +97,40 @@ def test_bitmask_walk_matches_the_python_rules(m):
     assert sorted(tuple(a[:s].tolist()) for a, s in zip(acts, sizes, strict=True)) == sorted(stack)
 
 
+def test_licq_subsets_given_as_moves_walk_the_same():
+    """The LICQ candidates' subsets computed where a batch was evaluated
+    (``active_sets.licq_moves``, on a worker) and given to ``visit`` as moves push what
+    ``visit`` pushes when it computes them (an SVD of the candidate's rows) itself."""
+    rng = np.random.default_rng(5)
+    m, nz = 12, 3
+    G = rng.normal(size=(m, nz))
+    G[6] = 2.0 * G[1]  # rows 1 and 6 dependent: LICQ breaks on smaller sets too
+    G[7] = G[2] - G[3]
+    graphs = [active_sets.ActiveSetGraph(m, nz, np.zeros((m, m), dtype=bool), np.zeros(2), G,
+                                         mpqp.DEPENDENT_SIGMA, mpqp.SUPPORT_TOL)
+              for _ in range(2)]
+    acts = [(0, 1, 2, 3), (1, 6, 9), (2, 3, 7), (0, 4, 5, 8), (1, 4), (2, 3, 7, 10)]
+    keys = np.stack([graphs[0].key(a) for a in acts])
+    status = np.array([mpqp_kernel.LICQ, mpqp_kernel.LICQ, mpqp_kernel.LICQ,
+                       mpqp_kernel.LICQ, mpqp_kernel.FULL, mpqp_kernel.LICQ], dtype=np.int64)
+    moves = np.array([-1, 2, -4], dtype=np.int64)  # (1, 4)'s
+    off = np.array([0, 0, 0, 0, 0, 3, 3], dtype=np.int64)
+    swaps, soff = np.zeros((0, 2), dtype=np.int64), np.zeros(7, dtype=np.int64)
+    found = rng.normal(size=(len(acts), 2))
+    graphs[0].visit(keys, status, moves, off, swaps, soff, found)
+    given, given_off = active_sets.licq_moves(keys, status, moves, off, G,
+                                              mpqp.DEPENDENT_SIGMA, mpqp.SUPPORT_TOL)
+    assert given.size > moves.size
+    graphs[1].visit(keys, status, given, given_off, swaps, soff, found, licq_moves=True)
+    assert graphs[0].explored == graphs[1].explored > 10
+    for got, want in zip(graphs[1].pop(100), graphs[0].pop(100), strict=True):
+        np.testing.assert_array_equal(got, want)
+    # (1, 6, 9): only 1 and 6 may leave (9 is outside the null vector's support)
+    sub = active_sets.licq_moves(keys[1:2], status[1:2], moves[:0], off[:2], G,
+                                 mpqp.DEPENDENT_SIGMA, mpqp.SUPPORT_TOL)[0]
+    assert sub.tolist() == [2, 7]
+
+
 def test_table_keeps_every_key_when_it_grows():
     graph = active_sets.ActiveSetGraph(100, 3, np.zeros((100, 100), dtype=bool))
     acts = {tuple(sorted(c)) for c in np.random.default_rng(0).integers(0, 100, size=(20000, 3))}

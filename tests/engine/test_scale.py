@@ -90,6 +90,74 @@ def test_numpy_kernel_on_a_cluster_gives_the_serial_regions(name, cluster, monke
     _same_regions(serial, remote)
 
 
+def _degenerate_program() -> ce.MpProgram:
+    """``_program()`` with two rows that are combinations of others (``A0 + A1``,
+    ``A2 - A3 / 2``): 165 LICQ candidates and 9 handed back in a search of 752 regions."""
+    p = _program()
+    A, b, F = p.A, p.b, p.F
+    return ce.MpProgram(
+        H=p.H, c=p.c, C=p.C, A_theta=p.A_theta, b_theta=p.b_theta,
+        A=np.vstack([A, A[0] + A[1], A[2] - 0.5 * A[3]]),
+        b=np.concatenate([b, [b[0] + b[1], b[2] - 0.5 * b[3]]]),
+        F=np.vstack([F, F[0] + F[1], F[2] - 0.5 * F[3]]),
+    )
+
+
+def test_a_degenerate_search_on_a_cluster_gives_the_serial_regions(cluster, monkeypatch):
+    """LICQ candidates (their subsets to visit computed on the workers) and candidates
+    handed back (evaluated there with the numpy kernel): the serial regions still."""
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
+    serial = ce.mpsolve(_degenerate_program(), options=ce.SolveOptions(workers=1))
+    assert serial.stats["candidates_licq"] > 100 and serial.stats["handed_back"] > 0
+    remote = ce.mpsolve(_degenerate_program(), executor=cluster)
+    assert remote.stats["tasks"] >= 1
+    _same_regions(serial, remote)
+    for key in ("explored", "candidates", "candidates_licq", "handed_back"):
+        assert remote.stats[key] == serial.stats[key], key
+
+
+def _hand_back_every_third(on: bool) -> None:
+    """Make the compiled kernel hand back every third candidate (FALLBACK) in this process
+    (here, or on a worker through ``client.run``), or undo it."""
+    from codev_engine.mp import mpqp_kernel
+
+    if not hasattr(mpqp_kernel, "_unforced_evaluate_batch"):
+        mpqp_kernel._unforced_evaluate_batch = mpqp_kernel.evaluate_batch
+    batch = mpqp_kernel._unforced_evaluate_batch
+
+    def some_back(keys, *args):
+        out = batch(keys, *args)
+        status = out[0].copy()
+        status[::3] = mpqp_kernel.FALLBACK
+        return (status, *out[1:])
+
+    mpqp_kernel.evaluate_batch = some_back if on else batch
+
+
+def test_candidates_handed_back_go_through_numpy_on_the_workers(cluster, monkeypatch):
+    """The candidates the compiled kernel hands back are evaluated with the numpy kernel by
+    the worker that had them (not by the client, whose CPU the walk's merge needs); the
+    regions are the serial ones."""
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(mpqp, "PARALLEL_AFTER", 1)
+    client = cluster.client
+    try:
+        _hand_back_every_third(True)
+        client.run(_hand_back_every_third, True)
+        serial = ce.mpsolve(_program(), options=ce.SolveOptions(workers=1))
+        remote = ce.mpsolve(_program(), executor=cluster)
+    finally:
+        _hand_back_every_third(False)
+        client.run(_hand_back_every_third, False)
+    assert serial.stats["handed_back"] > 100
+    assert remote.stats["handed_back"] == serial.stats["handed_back"]
+    # (the batches before the workers started were evaluated here)
+    assert remote.stats.get("handed_back_on_workers", 0) > serial.stats["handed_back"] // 2
+    _same_regions(serial, remote)
+    assert remote.stats["explored"] == serial.stats["explored"]
+
+
 def test_a_worker_killed_mid_search_changes_nothing(cluster, monkeypatch):
     # small tasks (one batch each, 8 in flight), so the search is many tasks long
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)

@@ -254,6 +254,32 @@ def test_a_worker_killed_mid_sweep_changes_nothing(cluster, serial_rows):
     assert killed[0][1] not in client.run(os.getpid).values()
 
 
+def _span(seconds: float) -> tuple[float, float]:
+    """A task (on a worker): when it started and ended (the system's monotonic clock)."""
+    t0 = time.monotonic()
+    time.sleep(seconds)
+    return t0, time.monotonic()
+
+
+def test_the_costliest_calls_start_first_on_a_cluster(cluster):
+    # 4 calls on 2 workers, given cheapest first: two waves; the costliest must be in the
+    # first and the cheapest in the second (in the order given, the cheapest went first)
+    spans = cluster.map(_span, [(0.3,)] * 4, cost=[1.0, 2.0, 3.0, 4.0])
+    first_end = min(end for _, end in spans)
+    assert spans[3][0] < first_end  # the costliest started before any call ended
+    assert spans[0][0] >= first_end  # the cheapest waited for a worker
+    with pytest.raises(ValueError, match="2 values for 4 calls"):
+        cluster.map(_span, [(0.0,)] * 4, cost=[1.0, 2.0])
+
+
+def test_the_designs_cost_grows_with_the_horizon():
+    from codev_engine.sweeps import design_cost
+    from codev_engine.sweeps.grid import designs
+
+    costs = [design_cost(p) for _, p in designs(ce.load_spec(DI), {"mpc.horizon": [2, 5, 8]})]
+    assert costs == sorted(costs) and len(set(costs)) == 3
+
+
 def test_a_spec_error_travels_whole():
     # a worker's SpecError comes back through pickle with its file and field
     import pickle
