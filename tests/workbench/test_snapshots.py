@@ -72,10 +72,21 @@ def _steps(*keys: str):
                 await pilot.pause(0.05)
         # a DataTable sizes its columns on a later refresh: under load the picture was
         # taken before (the region table's columns came out narrower, one run in three)
+        # (and once again in a two-process CI run: so also wait until the table's scrollable
+        # width is that of its columns, then for the app to be idle, so the repaint is done)
+        def sized(t: DataTable) -> bool:
+            if t._require_update_dimensions or t._new_rows or t._updated_cells:
+                return False
+            width = sum(c.get_render_width(t) for c in t.ordered_columns)
+            if t._labelled_row_exists or t.show_row_labels and t._label_column.content_width:
+                width += t._label_column.get_render_width(t)
+            return t.virtual_size.width == width
+
         for _ in range(100):
-            if not any(t._require_update_dimensions or t._new_rows for t in app.query(DataTable)):
+            if all(sized(t) for t in app.query(DataTable)):
                 break
             await pilot.pause(0.05)
+        await pilot.pause()
         await pilot.pause(0.1)
 
     return run_before
