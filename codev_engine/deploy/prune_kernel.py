@@ -90,6 +90,91 @@ def _in_cell(V, i, CA, Cb, tol):
 
 
 @njit(cache=True)
+def cutting(V, vstart, vcount, P, CA, Cb, tol, W, Wn, HA, Hb, cand, eps):
+    """Which candidate hyperplanes cut the points known in the regions' parts of a cell:
+    the (enlarged) vertices of regions ``P`` inside the cell and the witnesses inside it
+    (centres of earlier LPs' balls, see :func:`split_node`). Only an estimate of where
+    the cell holds regions (a region crossing the cell with no vertex in it may reach
+    past them): the tree uses it to pick the candidates worth scoring, never to sort a
+    region.
+
+    Parameters
+    ----------
+    V : (K, d) float64 ndarray
+        The regions' (enlarged) vertices, region after region.
+    vstart, vcount : (R,) int64 ndarrays
+        Region ``i``'s vertices are ``V[vstart[i]:vstart[i] + vcount[i]]``.
+    P : (p,) int64 ndarray
+        The regions whose vertices count.
+    CA, Cb : (c, d), (c,) float64 ndarrays
+        The cell.
+    tol : float
+        A point is in the cell when ``CA v - Cb <= tol``.
+    W : (Q, K, d) float64 ndarray
+        Witnesses (rings of ``K`` per region, as in :func:`split_node`).
+    Wn : (Q,) int64 ndarray
+        Witnesses stored per region.
+    HA, Hb : (H, d), (H,) float64 ndarrays
+        Every hyperplane.
+    cand : (k,) int64 ndarray
+        The candidates.
+    eps : (k,) float64 ndarray
+        Each candidate's margin: it cuts when some point has ``s < -eps`` and some
+        ``s > eps``.
+
+    Returns
+    -------
+    (k,) bool ndarray
+        The candidates that cut (all of them where no point is in the cell).
+    n : int
+        The points in the cell.
+    """
+    d = V.shape[1]
+    n = 0
+    for q in range(P.size):
+        r = P[q]
+        for i in range(vstart[r], vstart[r] + vcount[r]):
+            if _in_cell(V, i, CA, Cb, tol):
+                n += 1
+    for q in range(Wn.size):
+        for w in range(min(Wn[q], W.shape[1])):
+            if _in_cell(W[q], w, CA, Cb, tol):
+                n += 1
+    pts = np.empty((n, d))
+    m = 0
+    for q in range(P.size):
+        r = P[q]
+        for i in range(vstart[r], vstart[r] + vcount[r]):
+            if _in_cell(V, i, CA, Cb, tol):
+                pts[m] = V[i]
+                m += 1
+    for q in range(Wn.size):
+        for w in range(min(Wn[q], W.shape[1])):
+            if _in_cell(W[q], w, CA, Cb, tol):
+                pts[m] = W[q, w]
+                m += 1
+    out = np.ones(cand.size, dtype=np.bool_)
+    if n == 0:
+        return out, n
+    for c in range(cand.size):
+        h = cand[c]
+        below = False
+        above = False
+        for k in range(n):
+            s = -Hb[h]
+            for t in range(d):
+                s += HA[h, t] * pts[k, t]
+            if s < -eps[c]:
+                below = True
+            elif s > eps[c]:
+                above = True
+            if below and above:
+                break
+        out[c] = below and above
+    return out, n
+
+
+@njit(cache=True)
 def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
     """Proper regions each side of each candidate hyperplane, by the regions' vertices
     inside the cell (all of a region's vertices where none is): an estimate of the split.

@@ -455,6 +455,52 @@ def test_buckets_of_a_few_regions_agree_and_certify(key, tmp_path):
 
 
 @needs_cc
+def test_candidates_filtered_by_the_cell_keep_the_tree_exact(monkeypatch, tmp_path):
+    """A large law (no table of extents; forced here) scores only the candidate hyperplanes
+    that cut the points known in the node's cell: fewer scored, the same regions as
+    locate on random states and on facets, the worst case still the traversal's."""
+    import codev_engine.deploy.bst as bst
+
+    monkeypatch.setattr(bst, "TABLE_ENTRIES", 0)
+    lw = law("magnetic_pointer_c:inf:unmerged")
+    ex = plan(lw, "bst", leaf_size=4)
+    st = ex.tree.stats
+    assert 0 < st["scored"] < st["candidates"]
+    assert ex.tests == ex.tree.cost()["tests"]
+    C = Compiled(ex, tmp_path)
+    X = np.vstack([random_points(lw, 20_000, seed=51), facet_points(lw, 2, seed=52, cap=20_000)])
+    assert_agrees(lw, C, X)
+
+
+def test_cutting_keeps_the_hyperplanes_through_the_cell_points():
+    """``prune_kernel.cutting``: a hyperplane cuts when the points in the cell (vertices
+    and witnesses) lie on both sides; points outside the cell do not count."""
+    from codev_engine.deploy.prune_kernel import cutting
+
+    # two unit squares' vertices: [0, 1]^2 and [5, 6] x [0, 1]; the cell x <= 2
+    sq = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    V = np.vstack([sq, sq + [5.0, 0.0]])
+    vstart, vcount = np.array([0, 4]), np.array([4, 4])
+    CA, Cb = np.array([[1.0, 0.0]]), np.array([2.0])
+    # x = 0.5 (through the first square), x = 5.5 (through the second, outside the cell),
+    # y = 0.5 (through both), x = 3 (between)
+    HA = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 0.0]])
+    Hb = np.array([0.5, 5.5, 0.5, 3.0])
+    W = np.zeros((2, 1, 2))
+    Wn = np.zeros(2, dtype=np.int64)
+    cand = np.arange(4)
+    cut, n = cutting(V, vstart, vcount, np.array([0, 1]), CA, Cb, 1e-9, W, Wn, HA, Hb, cand,
+                     np.full(4, 1e-7))
+    assert n == 4 and cut.tolist() == [True, False, True, False]
+    # a witness of the second region inside the cell at x = 1.8 (its part there): x = 1.5 cuts
+    W[1, 0] = [1.8, 0.5]
+    Wn[1] = 1
+    cut, n = cutting(V, vstart, vcount, np.array([0, 1]), CA, Cb, 1e-9, W, Wn,
+                     np.array([[1.0, 0.0]]), np.array([1.5]), np.array([0]), np.full(1, 1e-7))
+    assert n == 5 and cut.tolist() == [True]
+
+
+@needs_cc
 @pytest.mark.slow
 def test_a_test_set_mp_qp_tree_on_1e5_states(tmp_path):
     """pop_mpqp_043 of the mp test set (899 regions, d = 4; its vertex-sorted tree passed
