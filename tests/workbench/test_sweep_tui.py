@@ -84,3 +84,47 @@ def test_sweep_tab_runs_a_grid_and_shows_designs_by_outcomes(di_session, tmp_pat
             assert pane.grid_text() == "mpc.horizon=2, 3; mpc.R=[[1.0]]"
 
     run(reopened())
+
+
+def test_a_bad_workers_value_is_one_line_and_nothing_runs(di_session):
+    app = CodevApp(di_session)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f6")
+            await type_grid(pilot, app, "mpc.horizon=2,3")
+            app.query_one("#sweep-workers", Input).value = "0"
+            await pilot.press("ctrl+g")
+            await settle(pilot, app)
+            shown = [n.message for n in app._notifications]
+            assert any("workers: must be a positive whole number" in m and "'0'" in m
+                       for m in shown), shown
+            assert app.busy is None and app.query_one(SweepPane).rows() == []
+
+    run(scenario())
+
+
+@pytest.mark.slow
+def test_sweep_tab_on_two_local_workers_gives_the_serial_rows(di_session, tmp_path):
+    """The workers field runs the designs on a real local Dask cluster: the same rows."""
+    app = CodevApp(di_session)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f6")
+            await type_grid(pilot, app, "mpc.horizon=2,3; mpc.R=[[1.0]]")
+            app.query_one("#sweep-workers", Input).value = "2"
+            await pilot.press("ctrl+g")
+            await settle(pilot, app, timeout=180)
+            rows = app.query_one(SweepPane).rows()
+            assert [r[:4] for r in rows] == [
+                ["2", "[[1]]", "10", "robustly_safe"],
+                ["3", "[[1]]", "22", "robustly_safe"],
+            ]
+            assert "2 designs in" in text_of(app, "#sweep-status")
+
+    run(scenario())
+    recorded = read_sweep(tmp_path / "sessions" / "di" / "sweep")
+    assert recorded.journal[-1].get("workers") == 2, recorded.journal[-1]

@@ -686,9 +686,9 @@ class CodevApp(App):
                 f"view it: {codev} view {folder / 'sweep.rrd'}")
 
     def on_sweep_requested(self, event: SweepRequested) -> None:
-        self.run_sweep(event.grid)
+        self.run_sweep(event.grid, event.workers)
 
-    def run_sweep(self, text: str) -> None:
+    def run_sweep(self, text: str, workers: str = "") -> None:
         """Sweep the current design over the grid typed, in a worker; rows fill in as the
         designs finish.
 
@@ -699,6 +699,9 @@ class CodevApp(App):
         ----------
         text : str
             ``FIELD=V1,V2,...`` items separated by ``;`` or new lines.
+        workers : str, optional
+            The number of local Dask worker processes to run the designs on; empty (default):
+            serial in this process, or the cluster of ``$CODEV_SCHEDULER`` when set.
         """
         from codev_engine.sweeps import design_texts, grid_values, parse_sets
 
@@ -715,6 +718,16 @@ class CodevApp(App):
             self.notify("type the fields to sweep: e.g. mpc.horizon=2,3; mpc.R=[[0.5]],[[1.0]]",
                         severity="warning", timeout=8)
             return
+        n_workers = None
+        if workers.strip():
+            try:
+                n_workers = int(workers)
+                if n_workers < 1:
+                    raise ValueError
+            except ValueError:
+                self.notify(f"sweep: workers: must be a positive whole number (or empty for "
+                            f"serial), got {workers.strip()!r}", severity="error", timeout=10)
+                return
         problem = chk.problem
         try:
             grid = parse_sets(items, origin="sweep")
@@ -727,11 +740,13 @@ class CodevApp(App):
         self._cancel.clear()
         self._show_pipeline()
         self.query_one(SweepPane).start(list(grid), grid_values(grid), str(folder))
-        self._sweep_worker(problem, grid, folder)
+        self._sweep_worker(problem, grid, folder, n_workers)
 
     @work(thread=True, exclusive=True, group="stage")
-    def _sweep_worker(self, problem: Problem, grid: dict, folder: Path) -> None:
+    def _sweep_worker(self, problem: Problem, grid: dict, folder: Path,
+                      workers: int | None = None) -> None:
         _lower_priority()
+        from codev_engine.executor import Executor
         from codev_engine.sweeps import sweep
 
         pane = self.query_one(SweepPane)
@@ -743,7 +758,12 @@ class CodevApp(App):
                 raise RunCancelledError
 
         try:
-            rows = sweep(problem, grid, progress=progress, session=folder)
+            # a local cluster lives for this sweep only (closed on cancel or failure too)
+            with Executor(workers=workers) as executor:
+                if executor.kind == "local":
+                    _start_cluster(executor)
+                rows = sweep(problem, grid, executor=executor, progress=progress,
+                             session=folder)
         except RunCancelledError:
             self.call_from_thread(self._sweep_finished, None, "cancelled", 0.0, folder)
         except Exception as exc:  # an engine bug must not take the app down
@@ -850,7 +870,8 @@ class CodevApp(App):
             self.query_one(MpcPane).run_preview()
             return
         if tab == "sweep":
-            self.run_sweep(self.query_one(SweepPane).grid_text())
+            pane = self.query_one(SweepPane)
+            self.run_sweep(pane.grid_text(), pane.workers_text())
             return
         # the same message as the tab's run button: one way in for every run
         self.post_message(RunRequested(TAB_STAGE.get(tab, "model")))
@@ -1023,6 +1044,27 @@ def _toml_value(v: object) -> str:
     from codev_engine.io.toml import toml_literal
 
     return toml_literal(v)
+
+
+def _start_cluster(executor) -> None:
+    """Start a local Dask cluster from inside the app.
+
+    The app holds ``sys.stderr`` (a capture with no usable file descriptor), which
+    multiprocessing's resource tracker, started with the first worker, hands to the process
+    it spawns: "bad value(s) in fds_to_keep", and no worker starts. So the cluster starts
+    with ``sys.stderr`` on the null device (the tracker and the workers keep it: their
+    messages must not land on the app's screen either).
+
+    Parameters
+    ----------
+    executor : Executor
+        A ``local`` executor; its client is started here.
+    """
+    import contextlib
+    import os
+
+    with open(os.devnull, "w") as null, contextlib.redirect_stderr(null):
+        executor.client  # noqa: B018 - starts the cluster and its client
 
 
 def _lower_priority(niceness: int = 10) -> None:

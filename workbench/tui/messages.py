@@ -47,9 +47,13 @@ class SweepRequested(Message):
     ----------
     grid : str
         The grid as typed: ``FIELD=V1,V2,...`` items separated by ``;`` or new lines.
+    workers : str
+        The workers field as typed: empty for serial (or ``$CODEV_SCHEDULER``'s cluster),
+        else the number of local Dask worker processes.
     """
 
     grid: str
+    workers: str = ""
 
 
 @dataclass

@@ -69,6 +69,10 @@ class SweepPane(VerticalScroll):
         with Horizontal(classes="bar"):
             yield EntryInput(id="sweep-grid",
                              placeholder="e.g. mpc.horizon=2,3; mpc.R=[[0.5]],[[1.0]]")
+            yield Label("workers", classes="inline")
+            yield EntryInput(id="sweep-workers", placeholder="serial",
+                             tooltip="local Dask worker processes for the designs; empty: "
+                                     "one after another here (or $CODEV_SCHEDULER's cluster)")
             yield Button("Run sweep \\[ctrl+g]", id="sweep-run", variant="primary")
             yield Button("Cancel \\[esc]", id="sweep-cancel")
         yield Static("no sweep yet", id="sweep-status", classes="status")
@@ -96,6 +100,15 @@ class SweepPane(VerticalScroll):
         """
         return self.query_one("#sweep-grid", Input).value
 
+    def workers_text(self) -> str:
+        """The workers field as typed (empty: serial).
+
+        Returns
+        -------
+        str
+        """
+        return self.query_one("#sweep-workers", Input).value.strip()
+
     def set_grid_text(self, text: str) -> None:
         """Put a grid in the entry (the recorded sweep's, when a design is opened).
 
@@ -115,14 +128,14 @@ class SweepPane(VerticalScroll):
     def on_button_pressed(self, event: Button.Pressed) -> None:
         event.stop()
         if event.button.id == "sweep-run":
-            self.post_message(SweepRequested(self.grid_text()))
+            self.post_message(SweepRequested(self.grid_text(), self.workers_text()))
         elif event.button.id == "sweep-cancel":
             self.post_message(CancelRequested())
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
-        if event.input.id == "sweep-grid":
+        if event.input.id in ("sweep-grid", "sweep-workers"):
             event.stop()
-            self.post_message(SweepRequested(self.grid_text()))
+            self.post_message(SweepRequested(self.grid_text(), self.workers_text()))
 
     # ---- what the app hands over ------------------------------------------------------
 
