@@ -602,11 +602,19 @@ def verify(
             reason = "max_depth"
         # a possible violation is worth a few concrete simulations (under disturbances,
         # also the adjoint's extreme signals towards the properties at the findings' times)
-        cex = _search(problem, law, hold)
-        if cex is None and plant is not None:
-            cex = _adjoint_search(problem, law, hold, [f.t for f in findings])
-        if cex is None and plant is not None:
-            cex = _input_search(problem, law, hold)
+        # (the searches in turn, the first replayed counterexample ends them; the input
+        # rows' search first when the tube's undecided boxes break the input bounds only)
+        searches = [lambda: _search(problem, law, hold)]
+        if plant is not None:
+            searches += [lambda: _adjoint_search(problem, law, hold, [f.t for f in findings]),
+                         lambda: _input_search(problem, law, hold)]
+            if _inputs_only(problem, tube, findings):
+                searches = [searches[2], searches[0], searches[1]]
+        cex = None
+        for search in searches:
+            cex = search()
+            if cex is not None:
+                break
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
     if unbounded and verdict == "robustly_safe":
@@ -982,11 +990,13 @@ def _search_runs(problem: Problem, law: ExplicitLaw, hold: str, X0: np.ndarray,
         piece, W, Q = _signals(problem, X0.shape[0] * per)
         X0 = np.repeat(X0, per, axis=0)
         dist = (piece, W, Q)
+    ap = _search_plant(problem)
+    dt = _search_step(problem, dist[0] if dist is not None else None) if ap else None
     with np.errstate(all="ignore"):
         try:
             runs = simulate_many(problem, law, X0[:, :nx], hold=hold,
                                  extra0=X0[:, nx:] if n > nx else None,
-                                 disturbance=dist, noise=noise)
+                                 disturbance=dist, noise=noise, affine=ap, dt=dt, dt_out=dt)
             t, X, U, alive = runs
         except SolverError:  # a trajectory is not finite: search the others
             if dist is not None or noise is not None:
@@ -1067,9 +1077,12 @@ def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[f
         try:
             piece, W, Q, Xs = adjoint_signals(problem, law, X0r, L, hold=hold, t_target=tq,
                                               iterations=3, dt=dt)
+            ap = _search_plant(problem)
+            sdt = float(vs.step) if ap else None
             with np.errstate(all="ignore"):
                 t, X, U, alive = simulate_many(problem, law, Xs, hold=hold,
-                                               disturbance=(piece, W, Q))
+                                               disturbance=(piece, W, Q), affine=ap,
+                                               dt=sdt, dt_out=sdt)
         except (SolverError, ValueError):
             continue
         bad, _ = violations_many(problem, t, X, U, alive)
@@ -1147,9 +1160,12 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
     try:
         piece, W, Q, Xs = adjoint_signals(problem, law, X0[a], D[b], hold=hold,
                                           t_target=times[c], iterations=2, dt=dt)
+        ap = _search_plant(problem)
+        sdt = float(vs.step) if ap else None
         with np.errstate(all="ignore"):
             t, X, U, alive = simulate_many(problem, law, Xs, hold=hold,
-                                           disturbance=(piece, W, Q))
+                                           disturbance=(piece, W, Q), affine=ap, dt=sdt,
+                                           dt_out=sdt)
     except (SolverError, ValueError):
         return None
     bad, _ = violations_many(problem, t, X, U, alive)
@@ -1158,6 +1174,100 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
         if cex is not None:
             return cex
     return None
+
+
+def _inputs_only(problem: Problem, tube: Tube, findings: list) -> bool:
+    """Do the tube's boxes at the undecided findings (``max_depth``) all satisfy the state
+    properties, so that only the input bounds can have kept them undecided? (It orders the
+    concrete searches; it claims nothing.)
+
+    Parameters
+    ----------
+    problem : Problem
+    tube : Tube
+        The tube with the undecided boxes (the engine appends them at the findings' times).
+    findings : list of Finding
+
+    Returns
+    -------
+    bool
+        False without ``verify.input_bounds``, with findings of other kinds than
+        ``max_depth`` or without a box at some finding's time.
+    """
+    vs = problem.verify
+    if not vs.input_bounds or not findings or any(f.kind != "max_depth" for f in findings):
+        return False
+    if tube.num_boxes == 0:
+        return False
+    rows = [(np.asarray(A, float), np.asarray(b, float), False)
+            for A, b in (st.halfspaces() for st in vs.safe)]
+    rows += [(np.asarray(A, float), np.asarray(b, float), True)
+             for A, b in (st.halfspaces() for st in vs.unsafe)]
+    for f in findings:
+        sel = np.abs(tube.t_start - f.t) <= 1e-9 * max(1.0, abs(f.t))
+        if not sel.any():
+            return False
+        lo, hi = tube.lower[sel], tube.upper[sel]
+        for A, b, unsafe in rows:
+            Ap, An = np.maximum(A, 0.0), np.minimum(A, 0.0)
+            if unsafe:  # the boxes may meet {A x <= b}: every row's minimum within b
+                low = lo @ Ap.T + hi @ An.T
+                if np.any(np.all(low <= b, axis=1)):
+                    return False
+            else:  # some box may leave {A x <= b}
+                high = hi @ Ap.T + lo @ An.T
+                if np.any(high > b):
+                    return False
+    return True
+
+
+def _search_plant(problem: Problem):
+    """The affine plant whose exact flow the searches simulate (``simulate_many``'s
+    ``affine``), or None (a nonlinear plant, uncertain parameters: RK4).
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    AffinePlant or None
+    """
+    from codev_engine.reach.linear import affine_plant
+
+    if problem.plant.parameters is not None:
+        return None
+    return affine_plant(problem)
+
+
+def _search_step(problem: Problem, piece: float | None = None) -> float:
+    """The step of the searches' exact-flow simulations: at most ``verify.step / 4`` (the
+    states and inputs are checked at every step, as densely as the RK4 searches' output),
+    dividing the sample time and (given) the signals' ``piece``, a multiple of the RK4 step
+    ``sample_time / ceil(10 sample_time / verify.step)`` (:func:`_signals`).
+
+    Parameters
+    ----------
+    problem : Problem
+    piece : float, optional
+
+    Returns
+    -------
+    float
+    """
+    import math
+
+    vs = problem.verify
+    Ts = float(problem.model.sample_time)
+    target = vs.step / 4.0
+    S10 = max(1, int(np.ceil(Ts / (vs.step / 10.0) - 1e-9)))
+    if piece is None:
+        return target
+    k = max(1, int(round(piece / (Ts / S10))))
+    g = math.gcd(k, S10)
+    e = max(q for q in range(1, g + 1) if g % q == 0 and Ts * q / S10 <= target * (1 + 1e-9)
+            or q == 1)
+    return Ts * e / S10
 
 
 def with_hold(problem: Problem, hold: str) -> Problem:
