@@ -690,12 +690,28 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
     while True:
         k = min(2 * k, vs.max_samples)
         bounded = replace(problem, verify=replace(vs, time_horizon=k * Ts))
-        eng = NonlinearReach(bounded, law, hold, depth, progress=progress)
+        serial = executor is None or executor.kind == "serial"
+        # (in this process: each set of the tube stops where it enters an ellipsoid)
+        eng = NonlinearReach(bounded, law, hold, depth, progress=progress,
+                             absorb=[(e.P, e.centre) for e in ells] if serial else None)
         eng.run(executor, cells=cells)
         if eng.findings:
             return None, ("the bounded tube meets a property before it enters an invariant "
                           f"ellipsoid (within {k} samples)")
         tube = Tube.concatenate(eng.tubes, problem.plant.n)
+        if eng.absorb:
+            if eng.absorbed and eng.open_sets == 0 and eng.absorb_mask.any():
+                # every set entered the ellipsoids: one holds all of them
+                e = ells[int(np.flatnonzero(eng.absorb_mask)[0])]
+                j = max(a[0] for a in eng.absorbed)
+                lo = np.vstack([a[1] for a in eng.absorbed])
+                hi = np.vstack([a[2] for a in eng.absorbed])
+                return _ellipsoid_result(problem, law, hold, eng, tube, e, j, lo, hi, t0,
+                                         per_set=True), ""
+            if k >= vs.max_samples:
+                return None, (f"the bounded tube did not enter an invariant ellipsoid within "
+                              f"max_samples = {vs.max_samples} samples")
+            continue  # (some sets reached the horizon outside: a longer tube)
         for j in range(1, k + 1):
             tj = j * Ts
             # every box whose interval meets t_j, with a tolerance for the rounding of the
@@ -706,30 +722,66 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
                 continue
             lo, hi = tube.lower[sel], tube.upper[sel]
             for e in ells:
-                if not e.contains_boxes(lo, hi):
-                    continue
-                stats = dict(eng.stats)
-                stats["partitions"] = 1
-                stats["boxes"] = tube.num_boxes
-                stats["certificate"] = {
-                    "kind": "ellipsoid", "closed_sample": j, "closed_time": tj,
-                    "region": int(e.region), "rho": float(e.rho), "margin": float(e.margin),
-                }
-                stats["seconds"] = time.perf_counter() - t0
-                certificate = {"P": e.P, "centre": e.centre, "lower": lo, "upper": hi}
-                detail = (
-                    f"every reach set at sample {j} (t = {tj:g}) lies in an invariant ellipsoid "
-                    f"around the operating point (region {e.region}, contraction "
-                    f"{e.rho:.4g}, margin {e.margin:.3g}): every later state stays in it at the "
-                    "samples and in its period's enclosure between them"
-                )
-                result = VerificationResult("robustly_safe", "invariant", tube, hold, None,
-                                            stats, detail, certificate)
-                result.attach_display(problem=problem, law=law)
-                return result, ""
+                if e.contains_boxes(lo, hi):
+                    return _ellipsoid_result(problem, law, hold, eng, tube, e, j, lo, hi,
+                                             t0), ""
         if k >= vs.max_samples:
             return None, (f"the bounded tube did not enter an invariant ellipsoid within "
                           f"max_samples = {vs.max_samples} samples")
+
+
+def _ellipsoid_result(problem: Problem, law: ExplicitLaw, hold: str, eng, tube: Tube, e,
+                      j: int, lo: np.ndarray, hi: np.ndarray, t0: float,
+                      per_set: bool = False) -> VerificationResult:
+    """``robustly_safe`` / ``invariant`` with the ellipsoid ``e`` and the boxes ``[lo, hi]``
+    that lie in it (the certificate, re-checked when loaded).
+
+    Parameters
+    ----------
+    problem : Problem
+    law : ExplicitLaw
+    hold : str
+    eng : NonlinearReach
+        The run (its counters).
+    tube : Tube
+    e : TerminalEllipsoid
+    j : int
+        The closing sample (with ``per_set``: the last sample at which a set entered).
+    lo, hi : (p, n) ndarray
+    t0 : float
+        ``time.perf_counter()`` at the start.
+    per_set : bool
+        Each set of the tube stopped at the sample it entered ``e`` (``lo, hi`` those
+        sets' boxes), rather than every reach set at sample ``j``.
+
+    Returns
+    -------
+    VerificationResult
+    """
+    Ts = float(problem.model.sample_time)
+    tj = j * Ts
+    stats = dict(eng.stats)
+    stats["partitions"] = 1
+    stats["boxes"] = tube.num_boxes
+    stats["certificate"] = {
+        "kind": "ellipsoid", "closed_sample": j, "closed_time": tj,
+        "region": int(e.region), "rho": float(e.rho), "margin": float(e.margin),
+        "per_set": bool(per_set),
+    }
+    stats["seconds"] = time.perf_counter() - t0
+    certificate = {"P": e.P, "centre": e.centre, "lower": lo, "upper": hi}
+    where = (f"each reach set lies, at a sample up to {j} (t = {tj:g}), in an invariant "
+             "ellipsoid" if per_set else
+             f"every reach set at sample {j} (t = {tj:g}) lies in an invariant ellipsoid")
+    detail = (
+        f"{where} around the operating point (region {e.region}, contraction "
+        f"{e.rho:.4g}, margin {e.margin:.3g}): every later state stays in it at the "
+        "samples and in its period's enclosure between them"
+    )
+    result = VerificationResult("robustly_safe", "invariant", tube, hold, None, stats, detail,
+                                certificate)
+    result.attach_display(problem=problem, law=law)
+    return result
 
 
 def _limited(problem: Problem, law: ExplicitLaw, hold: str, t0: float, reason: str,
