@@ -142,13 +142,14 @@ class NonlinearReach(ClosedLoopSetup):
         fraction of the set's size (in the W-norm; a heuristic: any merge is sound) ...
     max_sets : int
         ... and at most this many sets are kept per sample (cheapest merges first).
-    absorb : list of (P, centre), optional
-        Invariant ellipsoids ``{x : (x - centre)' P (x - centre) <= 1}`` (``reach.terminal``):
-        a set whose box at a sample lies in one of them that holds every set absorbed
-        before is recorded in ``absorbed`` (``(sample, lo, hi)``) and not followed further;
-        ``absorb_mask`` marks the ellipsoids that hold every absorbed box, ``open_sets``
-        counts the sets that reached the horizon. In this process only: the cells an
-        executor computes ignore it.
+    absorb : callable, optional
+        ``absorb(lo (n,), hi (n,)) -> (e,) bool``: which of ``e`` invariant sets (the
+        ellipsoids of ``reach.terminal``) hold the box. A set whose box at a sample lies in
+        one of them that holds every set absorbed before is recorded in ``absorbed``
+        (``(sample, lo, hi)``) and not followed further; ``absorb_mask`` marks the sets that
+        hold every absorbed box (None before the first), ``open_sets`` counts the sets that
+        reached the horizon. In this process only: the cells an executor computes ignore
+        it.
     """
 
     problem: Problem
@@ -164,11 +165,11 @@ class NonlinearReach(ClosedLoopSetup):
     merge_cost: float = 0.1
     #: ... and always keep at most this many sets per sample (cheapest merges first)
     max_sets: int = 4
-    #: invariant ellipsoids ``(P, centre)`` (``{x : (x - c)' P (x - c) <= 1}``, from
-    #: ``reach.terminal``): a set whose box at a sample lies in one of them (one that holds
-    #: every set absorbed before) is not followed further; ``absorbed`` records it. None:
-    #: every set is followed to the horizon (serial runs only: an executor's cells ignore it)
-    absorb: list | None = None
+    #: ``absorb(lo, hi) -> (e,) bool``, which invariant sets hold a box: a set whose box at a
+    #: sample lies in one of them (one that holds every set absorbed before) is not followed
+    #: further; ``absorbed`` records it. None: every set is followed to the horizon (serial
+    #: runs only: an executor's cells ignore it)
+    absorb: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
@@ -204,7 +205,7 @@ class NonlinearReach(ClosedLoopSetup):
         #: with ``absorb``: ``(sample, lo, hi)`` of each set left in the ellipsoids, the
         #: ellipsoids that hold all of them (a mask), the sets that reached the horizon
         self.absorbed: list[tuple[int, np.ndarray, np.ndarray]] = []
-        self.absorb_mask = np.ones(len(self.absorb or ()), dtype=bool)
+        self.absorb_mask: np.ndarray | None = None
         self.open_sets = 0
 
     # ---- metric ---------------------------------------------------------------------
@@ -943,15 +944,14 @@ class NonlinearReach(ClosedLoopSetup):
         every set absorbed so far? Then it is recorded and not followed: every later state
         of its trajectories stays in the ellipsoid at the samples and in the ellipsoid's
         period box between them (``reach.terminal``; docs/verification.md)."""
-        if not self.absorb:
+        if self.absorb is None:
             return False
-        from codev_engine.reach.terminal import ellipsoid_holds
-
         lo, hi = self._box(s)
-        inside = np.array([ellipsoid_holds(P, c, lo[None], hi[None]) for P, c in self.absorb])
-        if not np.any(inside & self.absorb_mask):
+        inside = np.asarray(self.absorb(lo, hi), dtype=bool)
+        mask = inside if self.absorb_mask is None else inside & self.absorb_mask
+        if not np.any(mask):
             return False
-        self.absorb_mask &= inside
+        self.absorb_mask = mask
         self.absorbed.append((int(s.k), lo, hi))
         return True
 
@@ -1095,7 +1095,8 @@ class NonlinearReach(ClosedLoopSetup):
         )
 
         self._failed = None
-        kept = (len(self.absorbed), self.open_sets, self.absorb_mask.copy())
+        kept = (len(self.absorbed), self.open_sets,
+                None if self.absorb_mask is None else self.absorb_mask.copy())
         status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
         v = None
         if status != "ok":

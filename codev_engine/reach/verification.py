@@ -693,14 +693,15 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
         serial = executor is None or executor.kind == "serial"
         # (in this process: each set of the tube stops where it enters an ellipsoid)
         eng = NonlinearReach(bounded, law, hold, depth, progress=progress,
-                             absorb=[(e.P, e.centre) for e in ells] if serial else None)
+                             absorb=_in_ellipsoids(ells) if serial else None)
         eng.run(executor, cells=cells)
         if eng.findings:
             return None, ("the bounded tube meets a property before it enters an invariant "
                           f"ellipsoid (within {k} samples)")
         tube = Tube.concatenate(eng.tubes, problem.plant.n)
-        if eng.absorb:
-            if eng.absorbed and eng.open_sets == 0 and eng.absorb_mask.any():
+        if eng.absorb is not None:
+            if (eng.absorbed and eng.open_sets == 0 and eng.absorb_mask is not None
+                    and eng.absorb_mask.any()):
                 # every set entered the ellipsoids: one holds all of them
                 e = ells[int(np.flatnonzero(eng.absorb_mask)[0])]
                 j = max(a[0] for a in eng.absorbed)
@@ -728,6 +729,27 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
         if k >= vs.max_samples:
             return None, (f"the bounded tube did not enter an invariant ellipsoid within "
                           f"max_samples = {vs.max_samples} samples")
+
+
+def _in_ellipsoids(ells: list) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``inside(lo, hi) -> (e,) bool``: which of the ellipsoids hold the box
+    (:func:`codev_engine.reach.terminal.ellipsoid_holds`), for ``NonlinearReach``'s
+    ``absorb``.
+
+    Parameters
+    ----------
+    ells : list of TerminalEllipsoid
+
+    Returns
+    -------
+    callable
+    """
+    from codev_engine.reach.terminal import ellipsoid_holds
+
+    def inside(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        return np.array([ellipsoid_holds(e.P, e.centre, lo[None], hi[None]) for e in ells])
+
+    return inside
 
 
 def _ellipsoid_result(problem: Problem, law: ExplicitLaw, hold: str, eng, tube: Tube, e,
