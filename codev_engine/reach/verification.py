@@ -746,8 +746,16 @@ def _in_ellipsoids(ells: list) -> Callable[[np.ndarray, np.ndarray], np.ndarray]
     """
     from codev_engine.reach.terminal import ellipsoid_holds
 
+    # each ellipsoid's bounding box (c +- sqrt(diag(P^-1)), widened): a box not inside it is
+    # not inside the ellipsoid (a quick refusal; refusing is always sound)
+    reach = [np.sqrt(np.abs(np.diag(np.linalg.inv(e.P)))) * (1 + 1e-6) for e in ells]
+
     def inside(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        return np.array([ellipsoid_holds(e.P, e.centre, lo[None], hi[None]) for e in ells])
+        return np.array([
+            bool(np.all(lo >= e.centre - r) and np.all(hi <= e.centre + r))
+            and ellipsoid_holds(e.P, e.centre, lo[None], hi[None])
+            for e, r in zip(ells, reach, strict=True)
+        ])
 
     return inside
 
