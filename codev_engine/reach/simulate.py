@@ -816,6 +816,9 @@ def simulate_many(
     flows = _ExactFlows(affine, law, hold, n, m) if affine is not None else None
     if flows is not None and problem.plant.disturbances is not None:
         flows.set_centre(problem.plant.disturbances.centre)
+        # without signals: the nominal values (the design model), as the RK4 steps take them
+        flows.nominal = (np.asarray(problem.plant.disturbances.nominal, float)
+                         - flows.wc)
 
     def step(hh: float):
         nonlocal x
@@ -833,7 +836,7 @@ def simulate_many(
                 kw = min(max(math.floor(t_now / piece + 1e-9), 0), Wd.shape[1] - 1)
                 delta = Wd[idx, kw] - flows.wc
             else:
-                delta = np.zeros((idx.size, flows.d))
+                delta = np.broadcast_to(flows.nominal, (idx.size, flows.d))
             z = np.hstack([y, g, delta, np.ones((idx.size, 1))])
             x[idx] = flows.step(hh, region[idx], z)
             return
@@ -905,6 +908,7 @@ class _ExactFlows:
         self.E = (np.zeros((n, 0)) if ap.E is None else np.asarray(ap.E, float))
         self.d = self.E.shape[1]
         self.wc = np.zeros(self.d)
+        self.nominal = np.zeros(self.d)  # the nominal disturbance's deviation from wc
         self.cache: dict[float, np.ndarray] = {}
         self.have: dict[float, np.ndarray] = {}
 

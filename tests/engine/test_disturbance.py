@@ -501,6 +501,14 @@ def test_exact_flow_steps_agree_with_rk4_under_signals(plant, hold):
     np.testing.assert_allclose(coarse.X[:, b], fine.X[:, a], atol=1e-9)
     np.testing.assert_allclose(coarse.U[:, b], fine.U[:, a], atol=1e-9)
     assert coarse.t.size < fine.t.size  # (the coarse run: fewer steps)
+    # without signals: the nominal disturbance (0 here, not the box's centre 0.1)
+    shifted = _di(plant.replace("[-0.1, 0.1]", "[0.0, 0.2]"), hold, T=2.0)
+    fine = simulate_many(shifted, law, X0, hold=hold)
+    coarse = simulate_many(shifted, law, X0, hold=hold, affine=affine_plant(shifted),
+                           dt=piece, dt_out=piece)
+    a = np.isin(np.round(fine.t, 9), np.round(coarse.t, 9))
+    b = np.isin(np.round(coarse.t, 9), np.round(fine.t, 9))
+    np.testing.assert_allclose(coarse.X[:, b], fine.X[:, a], atol=1e-9)
 
 
 def test_undecided_boxes_of_the_input_bounds_order_the_input_search_first():
