@@ -108,7 +108,7 @@ def test_a_continuous_hold_gets_no_ellipsoid_and_says_why():
 
 
 def test_a_tube_that_has_not_entered_the_ellipsoid_is_unknown_no_invariant():
-    # the pendulum's tube enters its ellipsoid at sample 41: within 30 samples it has not
+    # the pendulum's tube enters its ellipsoid at samples 35-40: within 30 samples it has not
     text = (EXAMPLES / "pendulum.toml").read_text()
     text = re.sub(r"time_horizon = [0-9.]+", 'time_horizon = "inf"\nmax_samples = 30', text)
     problem = loads_spec(text, path="<pendulum inf 30>")
