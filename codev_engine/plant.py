@@ -484,6 +484,20 @@ class PlantModel:
         return call
 
     @functools.cached_property
+    def uncertain_point(self) -> Callable[..., np.ndarray]:
+        """``f(x (n,), u (m,), w (d,), q (q,)) -> (n,)``: :attr:`uncertain` for one point,
+        without the batch's arrays (the many small calls of an adaptive integrator)."""
+        import sympy
+
+        f, x, u, w, p = full_field(self.plant)
+        compiled = sympy.lambdify((*x, *u, *w, *p), list(f), modules="numpy", dummify=True)
+
+        def call(x, u, w, q):
+            return np.array(compiled(*x, *u, *w, *q), dtype=float)
+
+        return call
+
+    @functools.cached_property
     def scalar_field(self) -> Callable[..., list[float]]:
         """``f`` on Python floats: ``scalar_field(*x, *u) -> n floats`` (not rigorous).
 

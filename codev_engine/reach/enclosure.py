@@ -80,6 +80,15 @@ class PlantEnclosures:
         """
         n, m = self.n, self.m
         parts = [np.asarray(a, dtype=np.float64) for a in (xlo, xhi, ulo, uhi)]
+        if (parts[0].ndim == 2 and parts[0].shape == parts[1].shape and parts[0].shape[1] == n
+                and parts[2].shape == parts[3].shape and parts[2].shape[-1] == m
+                and (parts[2].ndim == 1 or parts[2].shape[0] == parts[0].shape[0])):
+            # (the common case: a batch of states, one input box or one per state)
+            P = parts[0].shape[0]
+            lo, hi = np.empty((P, n + m)), np.empty((P, n + m))
+            lo[:, :n], hi[:, :n] = parts[0], parts[1]
+            lo[:, n:], hi[:, n:] = parts[2], parts[3]
+            return lo, hi
         for a, d, name in zip(parts, (n, n, m, m), ("xlo", "xhi", "ulo", "uhi"), strict=True):
             if a.ndim not in (1, 2) or a.shape[-1] != d:
                 raise ValueError(f"{name} must have shape ({d},) or (P, {d}), got {a.shape}")

@@ -373,7 +373,10 @@ class IntervalFunction:
         single = lo.ndim == 1
         P = 1 if single else lo.shape[0]
         if P <= _SCALAR_MAX_BATCH:
-            done = self._scalar_batch(lo.reshape(P, k).tolist(), hi.reshape(P, k).tolist(), single)
+            # (finite, ordered boxes checked at once: the per-box check is then skipped)
+            checked = bool(np.all((lo >= -_MAXF) & (lo <= hi) & (hi <= _MAXF)))
+            done = self._scalar_batch(lo.reshape(P, k).tolist(), hi.reshape(P, k).tolist(), single,
+                                      checked)
             if done is not None:
                 return done
         elif not np.all(lo <= hi):
@@ -390,13 +393,17 @@ class IntervalFunction:
         return IntervalDomainError(f"{exc.reason} in {self._what[idx]}", mask=exc.mask, boxes=boxes)
 
     def _scalar_batch(
-        self, lol: list[list[float]], hil: list[list[float]], single: bool
+        self, lol: list[list[float]], hil: list[list[float]], single: bool,
+        checked: bool = False,
     ) -> tuple[Array, Array] | None:
         """A few boxes, one by one with the scalar kernels; None when the array kernels must
-        do it (an infinite bound, an overflow, or a domain error in a batch, for ``.boxes``)."""
+        do it (an infinite bound, an overflow, or a domain error in a batch, for ``.boxes``).
+        ``checked``: every box is already known finite and ordered."""
         outs_lo, outs_hi = [], []
         for bl, bh in zip(lol, hil, strict=True):
-            if not all(-_MAXF <= a <= b <= _MAXF for a, b in zip(bl, bh, strict=True)):
+            if not checked and not all(
+                -_MAXF <= a <= b <= _MAXF for a, b in zip(bl, bh, strict=True)
+            ):
                 if not all(a <= b for a, b in zip(bl, bh, strict=True)):
                     raise ValueError("the box needs lo <= hi (and no NaN)")
                 return None

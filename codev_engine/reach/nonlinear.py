@@ -142,6 +142,14 @@ class NonlinearReach(ClosedLoopSetup):
         fraction of the set's size (in the W-norm; a heuristic: any merge is sound) ...
     max_sets : int
         ... and at most this many sets are kept per sample (cheapest merges first).
+    absorb : callable, optional
+        ``absorb(lo (n,), hi (n,)) -> (e,) bool``: which of ``e`` invariant sets (the
+        ellipsoids of ``reach.terminal``) hold the box. A set whose box at a sample lies in
+        one of them that holds every set absorbed before is recorded in ``absorbed``
+        (``(sample, lo, hi)``) and not followed further; ``absorb_mask`` marks the sets that
+        hold every absorbed box (None before the first), ``open_sets`` counts the sets that
+        reached the horizon. In this process only: the cells an executor computes ignore
+        it.
     """
 
     problem: Problem
@@ -157,6 +165,11 @@ class NonlinearReach(ClosedLoopSetup):
     merge_cost: float = 0.1
     #: ... and always keep at most this many sets per sample (cheapest merges first)
     max_sets: int = 4
+    #: ``absorb(lo, hi) -> (e,) bool``, which invariant sets hold a box: a set whose box at a
+    #: sample lies in one of them (one that holds every set absorbed before) is not followed
+    #: further; ``absorbed`` records it. None: every set is followed to the horizon (serial
+    #: runs only: an executor's cells ignore it)
+    absorb: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
@@ -189,6 +202,11 @@ class NonlinearReach(ClosedLoopSetup):
         #: the last interval operation outside its domain (names the expression), if any
         self.domain_note: str | None = None
         self._failed: Finding | None = None
+        #: with ``absorb``: ``(sample, lo, hi)`` of each set left in the ellipsoids, the
+        #: ellipsoids that hold all of them (a mask), the sets that reached the horizon
+        self.absorbed: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self.absorb_mask: np.ndarray | None = None
+        self.open_sets = 0
 
     # ---- metric ---------------------------------------------------------------------
 
@@ -914,9 +932,28 @@ class NonlinearReach(ClosedLoopSetup):
                         if flag("violation", when):
                             return status, tubes, first_t
                     if nxt is not None and nxt.k * self.Ts < self.T - 1e-12:
-                        nexts.append(nxt)
+                        if not self._absorbed(nxt):
+                            nexts.append(nxt)
+                    elif nxt is not None:
+                        self.open_sets += 1
             frontier = self._merge(nexts, root.poly)
         return status, tubes, first_t
+
+    def _absorbed(self, s: _Set) -> bool:
+        """Does the set (at a sample) lie in an invariant ellipsoid of ``absorb`` that holds
+        every set absorbed so far? Then it is recorded and not followed: every later state
+        of its trajectories stays in the ellipsoid at the samples and in the ellipsoid's
+        period box between them (``reach.terminal``; docs/verification.md)."""
+        if self.absorb is None:
+            return False
+        lo, hi = self._box(s)
+        inside = np.asarray(self.absorb(lo, hi), dtype=bool)
+        mask = inside if self.absorb_mask is None else inside & self.absorb_mask
+        if not np.any(mask):
+            return False
+        self.absorb_mask = mask
+        self.absorbed.append((int(s.k), lo, hi))
+        return True
 
     def _split(self, s: _Set) -> list[tuple[int, _Set]]:
         """One child per region the set meets, its deviation polytope cut by the region.
@@ -1058,9 +1095,14 @@ class NonlinearReach(ClosedLoopSetup):
         )
 
         self._failed = None
+        kept = (len(self.absorbed), self.open_sets,
+                None if self.absorb_mask is None else self.absorb_mask.copy())
         status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
         v = None
         if status != "ok":
+            # (a piece not proved: what it absorbed is not part of the run's tube)
+            del self.absorbed[kept[0]:]
+            self.open_sets, self.absorb_mask = kept[1], kept[2]
             # a concrete trajectory from the piece's centre may settle it (screened with the
             # fast fixed-step simulation, confirmed with the reference integrator)
             x0 = 0.5 * (lo + hi)

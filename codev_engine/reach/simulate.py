@@ -374,10 +374,11 @@ def _state_flags(verify: VerifySpec | None, X: np.ndarray) -> tuple[np.ndarray, 
     inside_unsafe = np.zeros((*lead, len(unsafe)), dtype=bool)
     outside_safe = np.zeros((*lead, len(safe)), dtype=bool)
     finite = np.all(np.isfinite(X), axis=-1)
+    X2 = X.reshape(-1, X.shape[-1])  # (one 2-d product: a batched one is much slower)
     for j, (A, b) in enumerate(unsafe):
-        inside_unsafe[..., j] = finite & np.all(X @ A.T <= b, axis=-1)
+        inside_unsafe[..., j] = finite & np.all(X2 @ A.T <= b, axis=-1).reshape(lead)
     for j, (A, b) in enumerate(safe):
-        outside_safe[..., j] = np.any(X @ A.T > b, axis=-1)
+        outside_safe[..., j] = np.any(X2 @ A.T > b, axis=-1).reshape(lead)
     return inside_unsafe, outside_safe
 
 
@@ -581,13 +582,17 @@ def _pieces(problem, sig, hold, Fi, Gi, ua, x, t_eval, opts) -> np.ndarray:
     """One period under a disturbance signal, integrated piece by piece: (len(t_eval), n)."""
     from scipy.integrate import solve_ivp
 
-    fu = plant_model(problem).uncertain
-    q = np.asarray(sig.parameters, float)[None, :]
+    fu = plant_model(problem).uncertain_point
+    q = np.asarray(sig.parameters, float)
     a, b = float(t_eval[0]), float(t_eval[-1])
     cuts = [a]
     k = sig.index(a) + 1
     while k * sig.piece < b - _TIME_EPS * sig.piece and k < sig.values.shape[0]:
-        if k * sig.piece > a + _TIME_EPS * sig.piece:
+        # a cut where the value changes (equal neighbouring pieces are one piece of the
+        # same signal: fewer, longer integrations)
+        if k * sig.piece > a + _TIME_EPS * sig.piece and np.any(
+            sig.values[k] != sig.values[k - 1]
+        ):
             cuts.append(k * sig.piece)
         k += 1
     cuts.append(b)
@@ -595,13 +600,13 @@ def _pieces(problem, sig, hold, Fi, Gi, ua, x, t_eval, opts) -> np.ndarray:
     Y[0] = x
     y = x
     for c0, c1 in zip(cuts[:-1], cuts[1:], strict=True):
-        w = sig.at(0.5 * (c0 + c1))[None, :]
+        w = np.asarray(sig.at(0.5 * (c0 + c1)), float)
         if hold == "zoh":
             def rhs(_t, z, w=w):
-                return fu(z[None, :], ua[None, :], w, q)[0]
+                return fu(z, ua, w, q)
         else:
             def rhs(_t, z, w=w):
-                return fu(z[None, :], (Fi @ z + Gi)[None, :], w, q)[0]
+                return fu(z, Fi @ z + Gi, w, q)
         inside = (t_eval > c0) & (t_eval <= c1)
         te = np.concatenate([[c0], t_eval[inside & (t_eval < c1)], [c1]])
         sol = solve_ivp(rhs, (c0, c1), y, t_eval=te, **opts)
@@ -670,6 +675,7 @@ def simulate_many(
     extra0=None,
     disturbance: tuple[float, np.ndarray, np.ndarray] | None = None,
     noise=None,
+    affine=None,
 ) -> ManyTraces:
     """Simulate many closed-loop trajectories at once with vectorised fixed-step RK4.
 
@@ -705,6 +711,12 @@ def simulate_many(
         ``x + noise[p, min(k, S - 1)]``. A callable ``noise(k, X (q, n), idx (q,)) -> (q, n)``
         chooses it from the states of the trajectories ``idx`` still alive (a feedback
         adversary); the values used are returned in ``ManyTraces.noise``. Default: none.
+    affine : AffinePlant, optional
+        The plant as an affine ODE (``reach.linear.affine_plant(problem)``, without uncertain
+        parameters): each step is then the exact flow of the step's linear ODE (a matrix
+        exponential per region and step length, cached) instead of RK4, so a coarse ``dt``
+        loses no accuracy (the concrete searches use it; every violation they find is
+        replayed by :func:`simulate`). The rest (records, regions, noise) is unchanged.
 
     Returns
     -------
@@ -796,8 +808,17 @@ def simulate_many(
         u[dead] = np.nan
         record(tj, x, u, alive)
 
-    fu = plant_model(problem).uncertain if disturbance is not None else None
+    fu = (plant_model(problem).uncertain
+          if disturbance is not None and affine is None else None)
     t_now = 0.0
+    if affine is not None and problem.plant.parameters is not None:
+        affine = None  # (uncertain parameters: the RK4 steps take their values)
+    flows = _ExactFlows(affine, law, hold, n, m) if affine is not None else None
+    if flows is not None and problem.plant.disturbances is not None:
+        flows.set_centre(problem.plant.disturbances.centre)
+        # without signals: the nominal values (the design model), as the RK4 steps take them
+        flows.nominal = (np.asarray(problem.plant.disturbances.nominal, float)
+                         - flows.wc)
 
     def step(hh: float):
         nonlocal x
@@ -805,6 +826,20 @@ def simulate_many(
         if idx.size == 0:
             return
         y = x[idx]
+
+        if flows is not None:
+            # z = (x, g, delta, 1): g the held input (zoh) or the affine law's offset
+            # (continuous), delta the disturbance's deviation from its box's centre
+            g = u[idx] if hold == "zoh" else Gi[idx]
+            if disturbance is not None and flows.d:
+                piece, Wd, _ = disturbance
+                kw = min(max(math.floor(t_now / piece + 1e-9), 0), Wd.shape[1] - 1)
+                delta = Wd[idx, kw] - flows.wc
+            else:
+                delta = np.broadcast_to(flows.nominal, (idx.size, flows.d))
+            z = np.hstack([y, g, delta, np.ones((idx.size, 1))])
+            x[idx] = flows.step(hh, region[idx], z)
+            return
 
         if disturbance is None:
             def rhs(z):
@@ -860,6 +895,76 @@ def simulate_many(
     A = np.stack(As, axis=1)
     N = np.stack(used, axis=1) if used else None
     return ManyTraces(t=t, X=X, U=U, alive=A, h=h, noise=N)
+
+
+class _ExactFlows:
+    """The exact flow of an affine plant over one step, per region (continuous hold) or
+    one for all (zoh): ``x(t + h) = T_r (x, g, delta, 1)`` with ``T_r`` the top rows of
+    ``expm(M_r h)``, ``M_r = [[Ac + Bc F_r, Bc, E, f0], 0]`` (continuous; ``g = G_r`` and
+    the law's other parts) or ``[[Ac, Bc, E, f0], 0]`` (zoh; ``g`` the held input)."""
+
+    def __init__(self, ap, law: ExplicitLaw, hold: str, n: int, m: int) -> None:
+        self.ap, self.law, self.hold, self.n, self.m = ap, law, hold, n, m
+        self.E = (np.zeros((n, 0)) if ap.E is None else np.asarray(ap.E, float))
+        self.d = self.E.shape[1]
+        self.wc = np.zeros(self.d)
+        self.nominal = np.zeros(self.d)  # the nominal disturbance's deviation from wc
+        self.cache: dict[float, np.ndarray] = {}
+        self.have: dict[float, np.ndarray] = {}
+
+    def set_centre(self, wc: np.ndarray) -> None:
+        """The disturbance box's centre (``delta = w - wc``).
+
+        Parameters
+        ----------
+        wc : (d,) ndarray
+        """
+        self.wc = np.asarray(wc, float)
+
+    def _matrix(self, h: float, r: int) -> np.ndarray:
+        from scipy.linalg import expm
+
+        n, m, d = self.n, self.m, self.d
+        ap = self.ap
+        M = np.zeros((n + m + d + 1, n + m + d + 1))
+        A = np.asarray(ap.Ac, float)
+        if self.hold == "continuous" and self.law.num_regions:
+            A = A + np.asarray(ap.Bc, float) @ self.law.F[r][:, :n]
+        M[:n, :n] = A
+        M[:n, n : n + m] = ap.Bc
+        M[:n, n + m : n + m + d] = self.E
+        M[:n, -1] = ap.f0
+        return expm(M * h)[:n]
+
+    def step(self, h: float, regions: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """The states after a step of length ``h``.
+
+        Parameters
+        ----------
+        h : float
+        regions : (p,) int ndarray
+            Each trajectory's region (continuous hold).
+        z : (p, n + m + d + 1) ndarray
+
+        Returns
+        -------
+        (p, n) ndarray
+        """
+        per_region = self.hold == "continuous" and self.law.num_regions
+        R = max(self.law.num_regions, 1) if per_region else 1
+        key = float(h)
+        if key not in self.cache:
+            self.cache[key] = np.zeros((R, self.n, z.shape[1]))
+            self.have[key] = np.zeros(R, dtype=bool)
+        T, have = self.cache[key], self.have[key]
+        if not per_region:
+            if not have[0]:
+                T[0], have[0] = self._matrix(h, 0), True
+            return z @ T[0].T
+        need = np.unique(regions[~have[regions]])
+        for r in need:
+            T[r], have[r] = self._matrix(h, int(r)), True
+        return np.einsum("pij,pj->pi", T[regions], z)
 
 
 # ---------------------------------------------------------------------------------------

@@ -21,7 +21,7 @@ from scipy.linalg import expm, solve_discrete_lyapunov
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem
 
-__all__ = ["TerminalEllipsoid", "ellipsoid_holds", "terminal_ellipsoids"]
+__all__ = ["TerminalEllipsoid", "ellipsoid_holds", "ellipsoid_outline", "terminal_ellipsoids"]
 
 #: relative widening of every bound computed in floating point (far above its rounding)
 _REL = 1e-9
@@ -94,6 +94,55 @@ def ellipsoid_holds(P: np.ndarray, centre: np.ndarray, lo: np.ndarray, hi: np.nd
     q = np.einsum("pi,ij,pj->p", C, P, C)
     bound = np.einsum("pi,ij,pj->p", np.abs(C), np.abs(P), np.abs(C))
     return bool(np.all(q + 1e-12 * bound <= 1.0 - 1e-9))
+
+
+def ellipsoid_outline(P: np.ndarray, centre: np.ndarray, axes: tuple[int, ...],
+                      points: int = 97) -> np.ndarray | None:
+    """The shadow of ``{x : (x - centre)' P (x - centre) <= 1}`` on the plane of ``axes``, as
+    a closed outline (for the pictures).
+
+    The projection of the ellipsoid is the ellipse ``{y : (y - c_a)' (E_a)^{-1} (y - c_a)
+    <= 1}`` with ``E = P^{-1}`` and ``E_a`` its block on ``axes`` (the support function
+    ``sqrt(l' E l)`` of a direction in the plane is the ellipsoid's); its points are ``c_a +
+    L (cos s, sin s)`` with ``E_a = L L'``. One axis: the interval ``c +- sqrt(E_aa)`` as its
+    two end points.
+
+    Parameters
+    ----------
+    P : (n, n) ndarray
+        Symmetric positive definite.
+    centre : (n,) ndarray
+    axes : tuple of int
+        One or two state indices.
+    points : int
+        Points of the outline (the last equal to the first).
+
+    Returns
+    -------
+    (points, 2) or (2, 1) ndarray, or None
+        None when ``P`` is not positive definite (or not finite).
+    """
+    P = 0.5 * (np.asarray(P, float) + np.asarray(P, float).T)
+    c = np.asarray(centre, float)
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(c))):
+        return None
+    try:
+        np.linalg.cholesky(P)
+        E = np.linalg.inv(P)
+    except np.linalg.LinAlgError:
+        return None
+    ax = list(axes)
+    Ea = 0.5 * (E[np.ix_(ax, ax)] + E[np.ix_(ax, ax)].T)
+    if len(ax) == 1:
+        r = float(np.sqrt(max(Ea[0, 0], 0.0)))
+        return np.array([[c[ax[0]] - r], [c[ax[0]] + r]])
+    try:
+        L = np.linalg.cholesky(Ea)
+    except np.linalg.LinAlgError:
+        return None
+    s = np.linspace(0.0, 2.0 * np.pi, points)
+    s[-1] = 0.0  # (closed exactly)
+    return c[ax][None, :] + np.column_stack([np.cos(s), np.sin(s)]) @ L.T
 
 
 def _plant_parts(problem: Problem):

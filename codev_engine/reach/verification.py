@@ -602,11 +602,19 @@ def verify(
             reason = "max_depth"
         # a possible violation is worth a few concrete simulations (under disturbances,
         # also the adjoint's extreme signals towards the properties at the findings' times)
-        cex = _search(problem, law, hold)
-        if cex is None and plant is not None:
-            cex = _adjoint_search(problem, law, hold, [f.t for f in findings])
-        if cex is None and plant is not None:
-            cex = _input_search(problem, law, hold)
+        # (the searches in turn, the first replayed counterexample ends them; the input
+        # rows' search first when the tube's undecided boxes break the input bounds only)
+        searches = [lambda: _search(problem, law, hold)]
+        if plant is not None:
+            searches += [lambda: _adjoint_search(problem, law, hold, [f.t for f in findings]),
+                         lambda: _input_search(problem, law, hold)]
+            if _inputs_only(problem, tube, findings):
+                searches = [searches[2], searches[0], searches[1]]
+        cex = None
+        for search in searches:
+            cex = search()
+            if cex is not None:
+                break
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
     if unbounded and verdict == "robustly_safe":
@@ -682,12 +690,29 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
     while True:
         k = min(2 * k, vs.max_samples)
         bounded = replace(problem, verify=replace(vs, time_horizon=k * Ts))
-        eng = NonlinearReach(bounded, law, hold, depth, progress=progress)
+        serial = executor is None or executor.kind == "serial"
+        # (in this process: each set of the tube stops where it enters an ellipsoid)
+        eng = NonlinearReach(bounded, law, hold, depth, progress=progress,
+                             absorb=_in_ellipsoids(ells) if serial else None)
         eng.run(executor, cells=cells)
         if eng.findings:
             return None, ("the bounded tube meets a property before it enters an invariant "
                           f"ellipsoid (within {k} samples)")
         tube = Tube.concatenate(eng.tubes, problem.plant.n)
+        if eng.absorb is not None:
+            if (eng.absorbed and eng.open_sets == 0 and eng.absorb_mask is not None
+                    and eng.absorb_mask.any()):
+                # every set entered the ellipsoids: one holds all of them
+                e = ells[int(np.flatnonzero(eng.absorb_mask)[0])]
+                j = max(a[0] for a in eng.absorbed)
+                lo = np.vstack([a[1] for a in eng.absorbed])
+                hi = np.vstack([a[2] for a in eng.absorbed])
+                return _ellipsoid_result(problem, law, hold, eng, tube, e, j, lo, hi, t0,
+                                         per_set=True), ""
+            if k >= vs.max_samples:
+                return None, (f"the bounded tube did not enter an invariant ellipsoid within "
+                              f"max_samples = {vs.max_samples} samples")
+            continue  # (some sets reached the horizon outside: a longer tube)
         for j in range(1, k + 1):
             tj = j * Ts
             # every box whose interval meets t_j, with a tolerance for the rounding of the
@@ -698,30 +723,95 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
                 continue
             lo, hi = tube.lower[sel], tube.upper[sel]
             for e in ells:
-                if not e.contains_boxes(lo, hi):
-                    continue
-                stats = dict(eng.stats)
-                stats["partitions"] = 1
-                stats["boxes"] = tube.num_boxes
-                stats["certificate"] = {
-                    "kind": "ellipsoid", "closed_sample": j, "closed_time": tj,
-                    "region": int(e.region), "rho": float(e.rho), "margin": float(e.margin),
-                }
-                stats["seconds"] = time.perf_counter() - t0
-                certificate = {"P": e.P, "centre": e.centre, "lower": lo, "upper": hi}
-                detail = (
-                    f"every reach set at sample {j} (t = {tj:g}) lies in an invariant ellipsoid "
-                    f"around the operating point (region {e.region}, contraction "
-                    f"{e.rho:.4g}, margin {e.margin:.3g}): every later state stays in it at the "
-                    "samples and in its period's enclosure between them"
-                )
-                result = VerificationResult("robustly_safe", "invariant", tube, hold, None,
-                                            stats, detail, certificate)
-                result.attach_display(problem=problem, law=law)
-                return result, ""
+                if e.contains_boxes(lo, hi):
+                    return _ellipsoid_result(problem, law, hold, eng, tube, e, j, lo, hi,
+                                             t0), ""
         if k >= vs.max_samples:
             return None, (f"the bounded tube did not enter an invariant ellipsoid within "
                           f"max_samples = {vs.max_samples} samples")
+
+
+def _in_ellipsoids(ells: list) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``inside(lo, hi) -> (e,) bool``: which of the ellipsoids hold the box
+    (:func:`codev_engine.reach.terminal.ellipsoid_holds`), for ``NonlinearReach``'s
+    ``absorb``.
+
+    Parameters
+    ----------
+    ells : list of TerminalEllipsoid
+
+    Returns
+    -------
+    callable
+    """
+    from codev_engine.reach.terminal import ellipsoid_holds
+
+    # each ellipsoid's bounding box (c +- sqrt(diag(P^-1)), widened): a box not inside it is
+    # not inside the ellipsoid (a quick refusal; refusing is always sound)
+    reach = [np.sqrt(np.abs(np.diag(np.linalg.inv(e.P)))) * (1 + 1e-6) for e in ells]
+
+    def inside(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        return np.array([
+            bool(np.all(lo >= e.centre - r) and np.all(hi <= e.centre + r))
+            and ellipsoid_holds(e.P, e.centre, lo[None], hi[None])
+            for e, r in zip(ells, reach, strict=True)
+        ])
+
+    return inside
+
+
+def _ellipsoid_result(problem: Problem, law: ExplicitLaw, hold: str, eng, tube: Tube, e,
+                      j: int, lo: np.ndarray, hi: np.ndarray, t0: float,
+                      per_set: bool = False) -> VerificationResult:
+    """``robustly_safe`` / ``invariant`` with the ellipsoid ``e`` and the boxes ``[lo, hi]``
+    that lie in it (the certificate, re-checked when loaded).
+
+    Parameters
+    ----------
+    problem : Problem
+    law : ExplicitLaw
+    hold : str
+    eng : NonlinearReach
+        The run (its counters).
+    tube : Tube
+    e : TerminalEllipsoid
+    j : int
+        The closing sample (with ``per_set``: the last sample at which a set entered).
+    lo, hi : (p, n) ndarray
+    t0 : float
+        ``time.perf_counter()`` at the start.
+    per_set : bool
+        Each set of the tube stopped at the sample it entered ``e`` (``lo, hi`` those
+        sets' boxes), rather than every reach set at sample ``j``.
+
+    Returns
+    -------
+    VerificationResult
+    """
+    Ts = float(problem.model.sample_time)
+    tj = j * Ts
+    stats = dict(eng.stats)
+    stats["partitions"] = 1
+    stats["boxes"] = tube.num_boxes
+    stats["certificate"] = {
+        "kind": "ellipsoid", "closed_sample": j, "closed_time": tj,
+        "region": int(e.region), "rho": float(e.rho), "margin": float(e.margin),
+        "per_set": bool(per_set),
+    }
+    stats["seconds"] = time.perf_counter() - t0
+    certificate = {"P": e.P, "centre": e.centre, "lower": lo, "upper": hi}
+    where = (f"each reach set lies, at a sample up to {j} (t = {tj:g}), in an invariant "
+             "ellipsoid" if per_set else
+             f"every reach set at sample {j} (t = {tj:g}) lies in an invariant ellipsoid")
+    detail = (
+        f"{where} around the operating point (region {e.region}, contraction "
+        f"{e.rho:.4g}, margin {e.margin:.3g}): every later state stays in it at the "
+        "samples and in its period's enclosure between them"
+    )
+    result = VerificationResult("robustly_safe", "invariant", tube, hold, None, stats, detail,
+                                certificate)
+    result.attach_display(problem=problem, law=law)
+    return result
 
 
 def _limited(problem: Problem, law: ExplicitLaw, hold: str, t0: float, reason: str,
@@ -982,11 +1072,13 @@ def _search_runs(problem: Problem, law: ExplicitLaw, hold: str, X0: np.ndarray,
         piece, W, Q = _signals(problem, X0.shape[0] * per)
         X0 = np.repeat(X0, per, axis=0)
         dist = (piece, W, Q)
+    ap = _search_plant(problem)
+    dt = _search_step(problem, dist[0] if dist is not None else None) if ap else None
     with np.errstate(all="ignore"):
         try:
             runs = simulate_many(problem, law, X0[:, :nx], hold=hold,
                                  extra0=X0[:, nx:] if n > nx else None,
-                                 disturbance=dist, noise=noise)
+                                 disturbance=dist, noise=noise, affine=ap, dt=dt, dt_out=dt)
             t, X, U, alive = runs
         except SolverError:  # a trajectory is not finite: search the others
             if dist is not None or noise is not None:
@@ -1067,9 +1159,12 @@ def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[f
         try:
             piece, W, Q, Xs = adjoint_signals(problem, law, X0r, L, hold=hold, t_target=tq,
                                               iterations=3, dt=dt)
+            ap = _search_plant(problem)
+            sdt = float(vs.step) if ap else None
             with np.errstate(all="ignore"):
                 t, X, U, alive = simulate_many(problem, law, Xs, hold=hold,
-                                               disturbance=(piece, W, Q))
+                                               disturbance=(piece, W, Q), affine=ap,
+                                               dt=sdt, dt_out=sdt)
         except (SolverError, ValueError):
             continue
         bad, _ = violations_many(problem, t, X, U, alive)
@@ -1147,9 +1242,12 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
     try:
         piece, W, Q, Xs = adjoint_signals(problem, law, X0[a], D[b], hold=hold,
                                           t_target=times[c], iterations=2, dt=dt)
+        ap = _search_plant(problem)
+        sdt = float(vs.step) if ap else None
         with np.errstate(all="ignore"):
             t, X, U, alive = simulate_many(problem, law, Xs, hold=hold,
-                                           disturbance=(piece, W, Q))
+                                           disturbance=(piece, W, Q), affine=ap, dt=sdt,
+                                           dt_out=sdt)
     except (SolverError, ValueError):
         return None
     bad, _ = violations_many(problem, t, X, U, alive)
@@ -1158,6 +1256,100 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
         if cex is not None:
             return cex
     return None
+
+
+def _inputs_only(problem: Problem, tube: Tube, findings: list) -> bool:
+    """Do the tube's boxes at the undecided findings (``max_depth``) all satisfy the state
+    properties, so that only the input bounds can have kept them undecided? (It orders the
+    concrete searches; it claims nothing.)
+
+    Parameters
+    ----------
+    problem : Problem
+    tube : Tube
+        The tube with the undecided boxes (the engine appends them at the findings' times).
+    findings : list of Finding
+
+    Returns
+    -------
+    bool
+        False without ``verify.input_bounds``, with findings of other kinds than
+        ``max_depth`` or without a box at some finding's time.
+    """
+    vs = problem.verify
+    if not vs.input_bounds or not findings or any(f.kind != "max_depth" for f in findings):
+        return False
+    if tube.num_boxes == 0:
+        return False
+    rows = [(np.asarray(A, float), np.asarray(b, float), False)
+            for A, b in (st.halfspaces() for st in vs.safe)]
+    rows += [(np.asarray(A, float), np.asarray(b, float), True)
+             for A, b in (st.halfspaces() for st in vs.unsafe)]
+    for f in findings:
+        sel = np.abs(tube.t_start - f.t) <= 1e-9 * max(1.0, abs(f.t))
+        if not sel.any():
+            return False
+        lo, hi = tube.lower[sel], tube.upper[sel]
+        for A, b, unsafe in rows:
+            Ap, An = np.maximum(A, 0.0), np.minimum(A, 0.0)
+            if unsafe:  # the boxes may meet {A x <= b}: every row's minimum within b
+                low = lo @ Ap.T + hi @ An.T
+                if np.any(np.all(low <= b, axis=1)):
+                    return False
+            else:  # some box may leave {A x <= b}
+                high = hi @ Ap.T + lo @ An.T
+                if np.any(high > b):
+                    return False
+    return True
+
+
+def _search_plant(problem: Problem):
+    """The affine plant whose exact flow the searches simulate (``simulate_many``'s
+    ``affine``), or None (a nonlinear plant, uncertain parameters: RK4).
+
+    Parameters
+    ----------
+    problem : Problem
+
+    Returns
+    -------
+    AffinePlant or None
+    """
+    from codev_engine.reach.linear import affine_plant
+
+    if problem.plant.parameters is not None:
+        return None
+    return affine_plant(problem)
+
+
+def _search_step(problem: Problem, piece: float | None = None) -> float:
+    """The step of the searches' exact-flow simulations: at most ``verify.step / 4`` (the
+    states and inputs are checked at every step, as densely as the RK4 searches' output),
+    dividing the sample time and (given) the signals' ``piece``, a multiple of the RK4 step
+    ``sample_time / ceil(10 sample_time / verify.step)`` (:func:`_signals`).
+
+    Parameters
+    ----------
+    problem : Problem
+    piece : float, optional
+
+    Returns
+    -------
+    float
+    """
+    import math
+
+    vs = problem.verify
+    Ts = float(problem.model.sample_time)
+    target = vs.step / 4.0
+    S10 = max(1, int(np.ceil(Ts / (vs.step / 10.0) - 1e-9)))
+    if piece is None:
+        return target
+    k = max(1, int(round(piece / (Ts / S10))))
+    g = math.gcd(k, S10)
+    e = max(q for q in range(1, g + 1) if g % q == 0 and Ts * q / S10 <= target * (1 + 1e-9)
+            or q == 1)
+    return Ts * e / S10
 
 
 def with_hold(problem: Problem, hold: str) -> Problem:

@@ -635,9 +635,36 @@ class RecordingContent:
                 out.append((name, v, None if poly is None else poly[:-1]))
         return out
 
+    def certificate_ellipse(self) -> np.ndarray | None:
+        """The invariant ellipsoid of a nonlinear certificate (time_horizon = "inf"),
+        projected on the plane: a closed outline (k, 2) (n == 1: the interval as a band over
+        ``[0, horizon]``); None without one."""
+        cert = None if self.result is None else self.result.certificate
+        if cert is None or "P" not in cert or np.shape(cert["P"]) != (self.n, self.n):
+            return None
+        from codev_engine.reach.terminal import ellipsoid_outline
+
+        if self.axes is None:
+            ends = ellipsoid_outline(cert["P"], cert["centre"], (0,))
+            if ends is None:
+                return None
+            a, b = float(ends[0, 0]), float(ends[1, 0])
+            lo, hi = self.plane_window
+            return np.array([[lo[0], a], [hi[0], a], [hi[0], b], [lo[0], b], [lo[0], a]])
+        return ellipsoid_outline(cert["P"], cert["centre"], tuple(self.axes))
+
     def _log_sets(self, w: EntityWriter) -> None:
         import rerun as rr
 
+        ring = self.certificate_ellipse()
+        if ring is not None:
+            # the invariant ellipsoid that closes the induction (on the tube and the regions)
+            w.static(
+                "/plane/certificate",
+                rr.LineStrips2D([ring], colors=[_PURPLE],
+                                radii=rr.components.Radius.ui_points(2.5), draw_order=30.0),
+                1,
+            )
         sets = self._sets()
         if not sets:
             return
@@ -1165,7 +1192,11 @@ class RecordingContent:
             + (", the invariance certificate's set purple (every reach set at the closing "
                "sample lies in it)" if self.result is not None
                and self.result.certificate is not None
-               and "H" in self.result.certificate else ""),
+               and "H" in self.result.certificate else "")
+            + (", the invariant ellipsoid of the certificate purple (its projection: every "
+               "reach set enters it)" if self.result is not None
+               and self.result.certificate is not None
+               and "P" in self.result.certificate else ""),
             "- **state views**: each state against time, the tube's lower and upper bound "
             "orange, traces grey, the counterexample red",
             "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "
@@ -1204,9 +1235,12 @@ def _uncertainty_lines(p, r) -> list[str]:
         c = r.stats.get("certificate", {})
         lines += ["### invariance certificate", ""]
         if c and c.get("kind") == "ellipsoid":
+            when = (f"each reach set, at a sample up to {c.get('closed_sample')} (t = "
+                    f"{float(c.get('closed_time', 0.0)):.4g} s), lies" if c.get("per_set")
+                    else f"every reach set at sample {c.get('closed_sample')} (t = "
+                    f"{float(c.get('closed_time', 0.0)):.4g} s) lies")
             lines.append(
-                f"- every reach set at sample {c.get('closed_sample')} (t = "
-                f"{float(c.get('closed_time', 0.0)):.4g} s) lies in an ellipsoid around the "
+                f"- {when} in an ellipsoid around the "
                 f"operating point, inside region {c.get('region')}, invariant for the sampled "
                 f"nonlinear loop (contraction {float(c.get('rho', 0.0)):.4g}, margin "
                 f"{float(c.get('margin', 0.0)):.3g}, linearisation error included): for all "

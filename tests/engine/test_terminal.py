@@ -108,7 +108,7 @@ def test_a_continuous_hold_gets_no_ellipsoid_and_says_why():
 
 
 def test_a_tube_that_has_not_entered_the_ellipsoid_is_unknown_no_invariant():
-    # the pendulum's tube enters its ellipsoid at sample 41: within 30 samples it has not
+    # the pendulum's tube enters its ellipsoid at samples 35-40: within 30 samples it has not
     text = (EXAMPLES / "pendulum.toml").read_text()
     text = re.sub(r"time_horizon = [0-9.]+", 'time_horizon = "inf"\nmax_samples = 30', text)
     problem = loads_spec(text, path="<pendulum inf 30>")
@@ -148,4 +148,81 @@ def test_the_recording_of_the_pendulum_for_all_time_describes_its_ellipsoid(tmp_
     entities = read(write_recording(tmp_path / "p.rrd", problem, law, result).path)
     text = str(entities["/verdict"].per_row("TextDocument:text")[0][0])
     assert "ellipsoid around the operating point" in text and "for all time" in text
-    assert "/plane/certificate" not in entities  # (a polytope's outline only)
+    # the ellipsoid drawn on the plane (read back from the .rrd): its outline is the
+    # ellipsoid's boundary ((y - c)' P (y - c) = 1 for n = 2) and holds the certificate's boxes
+    from matplotlib.path import Path as MPath
+
+    strip = np.array(entities["/plane/certificate"].per_row("LineStrips2D:strips")[0][0],
+                     dtype=float)
+    cert = result.certificate
+    P, c = np.asarray(cert["P"]), np.asarray(cert["centre"])
+    d = strip - c
+    np.testing.assert_allclose(np.einsum("pi,ij,pj->p", d, P, d), 1.0, rtol=1e-4)  # (float32)
+    assert strip.shape[0] > 40 and np.allclose(strip[0], strip[-1])
+    corners = np.vstack([cert["lower"], cert["upper"],
+                         np.column_stack([cert["lower"][:, 0], cert["upper"][:, 1]]),
+                         np.column_stack([cert["upper"][:, 0], cert["lower"][:, 1]])])
+    # (the polygon is inscribed in the ellipse: 1 % towards the centre clears its chords)
+    assert MPath(strip).contains_points(c + 0.99 * (corners - c)).all()
+    assert "invariant ellipsoid of the certificate purple" in text
+
+
+def test_the_outline_of_an_ellipsoid_is_its_shadow_on_the_plane():
+    # n = 3: the projection of {x : (x - c)' P (x - c) <= 1} on axes (0, 2) has, in every
+    # direction l of the plane, the ellipsoid's support sqrt(l' P^-1 l) (lifted to 3-d)
+    from codev_engine.reach.terminal import ellipsoid_outline
+
+    rng = np.random.default_rng(3)
+    R = rng.normal(size=(3, 3))
+    P = R @ R.T + 0.5 * np.eye(3)
+    c = np.array([0.3, -1.0, 2.0])
+    ring = ellipsoid_outline(P, c, (0, 2), points=2001)
+    assert ring.shape == (2001, 2) and np.allclose(ring[0], ring[-1])
+    E = np.linalg.inv(P)
+    for ang in np.linspace(0.0, np.pi, 7):
+        lp = np.array([np.cos(ang), np.sin(ang)])
+        l3 = np.array([lp[0], 0.0, lp[1]])
+        support = float(l3 @ c + np.sqrt(l3 @ E @ l3))
+        assert abs(float(np.max(ring @ lp)) - support) <= 1e-5 * (1 + abs(support))
+    # one axis: the interval; not positive definite: None
+    ends = ellipsoid_outline(P, c, (1,))
+    np.testing.assert_allclose(ends[:, 0], c[1] + np.array([-1, 1]) * np.sqrt(E[1, 1]))
+    assert ellipsoid_outline(-P, c, (0, 1)) is None
+
+
+def test_each_set_of_the_tube_stops_where_it_enters_an_invariant_ellipsoid():
+    # the nonlinear engine with absorb: a set whose box at a sample lies in an ellipsoid
+    # is not followed further (the ellipsoid is invariant); every set of the pendulum's tube
+    # enters one within 60 samples (none reaches the horizon), with fewer branches than the
+    # tube followed to the horizon, and every simulated trajectory is, from the last
+    # absorption's sample on, in the ellipsoid that holds every absorbed box
+    from dataclasses import replace
+
+    from codev_engine.reach.nonlinear import NonlinearReach
+    from codev_engine.reach.terminal import ellipsoid_holds
+    from codev_engine.reach.verification import _in_ellipsoids
+
+    problem = _pendulum()
+    law = synthesize(problem)
+    ells, why = terminal_ellipsoids(problem, law)
+    assert ells, why
+    vs = problem.verify
+    Ts = float(problem.model.sample_time)
+    bounded = replace(problem, verify=replace(vs, time_horizon=60 * Ts))
+    eng = NonlinearReach(bounded, law, "zoh", vs.max_depth, absorb=_in_ellipsoids(ells))
+    eng.run()
+    assert not eng.findings and eng.open_sets == 0 and eng.absorbed
+    assert eng.absorb_mask is not None and eng.absorb_mask.any()
+    e = ells[int(np.flatnonzero(eng.absorb_mask)[0])]
+    for k, lo, hi in eng.absorbed:
+        assert 0 < k < 60 and ellipsoid_holds(e.P, e.centre, lo[None], hi[None])
+    plain = NonlinearReach(bounded, law, "zoh", vs.max_depth)
+    plain.run()
+    assert eng.stats["branches"] < plain.stats["branches"]
+    last = max(a[0] for a in eng.absorbed)
+    rng = np.random.default_rng(5)
+    X0 = rng.uniform(vs.initial_lower, vs.initial_upper, (60, 2))
+    t, X, _, _ = simulate_many(problem, law, X0, hold="zoh", t_end=80 * Ts, dt_out=Ts)
+    for k in range(last, 81):
+        d = X[:, np.flatnonzero(np.abs(t - k * Ts) < 1e-9)[-1]] - e.centre
+        assert np.all(np.einsum("pi,ij,pj->p", d, e.P, d) <= 1.0)

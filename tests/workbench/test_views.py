@@ -350,3 +350,21 @@ def test_plane_text_draws_the_invariance_certificate(di):
     bare = plane_text(replace(result, certificate=None), 80, 24, problem=p)
     assert _count(_pixels(bare, 24), COLOURS["certificate"]) == 0
     assert "invariant set" not in bare.plain
+
+
+def test_plane_text_draws_the_invariant_ellipsoid_of_a_nonlinear_certificate():
+    # the pendulum for all time: its certificate is an ellipsoid (not a polytope), outlined
+    # on the plane like the polytope's set (not drawn before)
+    import re
+    from dataclasses import replace
+
+    text = re.sub(r"time_horizon = [0-9.]+", 'time_horizon = "inf"',
+                  (ROOT / "examples" / "pendulum.toml").read_text(encoding="utf-8"))
+    p = ce.loads_spec(text)
+    result = ce.verify(p, ce.synthesize(p))
+    assert result.reason == "invariant" and "P" in result.certificate, result.summary()
+    drawn = plane_text(result, 80, 24, problem=p)
+    assert _count(_pixels(drawn, 24), COLOURS["certificate"]) > 0
+    assert "invariant set" in drawn.plain.split("\n")[-1]
+    bare = plane_text(replace(result, certificate=None), 80, 24, problem=p)
+    assert _count(_pixels(bare, 24), COLOURS["certificate"]) == 0

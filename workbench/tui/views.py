@@ -185,10 +185,17 @@ def _with_edges_near(values: np.ndarray, edges: list[float]) -> np.ndarray:
 
 def _certificate_outline(result: VerificationResult, axes: tuple[int, int]
                          ) -> np.ndarray | None:
-    """The invariance certificate's set (``H x <= h``, time_horizon = "inf") projected on
-    ``axes``, as a closed outline (k + 1, 2); None without a certificate (or a flat one)."""
+    """The invariance certificate's set (``H x <= h``, or the invariant ellipsoid of a
+    nonlinear plant; time_horizon = "inf") projected on ``axes``, as a closed outline
+    (k + 1, 2); None without a certificate (or a flat one)."""
     cert = result.certificate
-    if cert is None or "H" not in cert:  # (an ellipsoid certificate: not drawn)
+    if cert is not None and "P" in cert:  # an invariant ellipsoid: its shadow on the plane
+        from codev_engine.reach.terminal import ellipsoid_outline
+
+        if np.ndim(cert["P"]) != 2 or max(axes) >= np.shape(cert["P"])[0]:
+            return None
+        return ellipsoid_outline(cert["P"], cert["centre"], tuple(axes))
+    if cert is None or "H" not in cert:
         return None
     from scipy.spatial import ConvexHull, QhullError
 
