@@ -28,6 +28,12 @@
    further past every skipped piece are probed, and a feasible one in no region is a hole:
    its region is explored like any other, or the solve stops with the clear "too
    degenerate" error (:meth:`_Explorer._fill_holes`).
+5. **Beyond double precision, stop at once.** A region whose boundary rounding can move
+   by more than :data:`PRECISION_LIMIT` of the parameter set's scale
+   (:func:`boundary_uncertainty`), or a lexicographic refinement that does not settle
+   within its work limit (:data:`REFINE_WORK`), ends the solve with the one-line
+   :func:`too_imprecise` error naming ``mpc.horizon`` (issue 29: a long horizon's tail
+   with norm 1 or inf), instead of retrying for minutes and failing anyway.
 """
 
 from __future__ import annotations

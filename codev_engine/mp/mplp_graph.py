@@ -42,6 +42,9 @@ that step.
 When a step of the search cannot be made exact (a basis matrix numerically singular, a
 region that comes out thinner than ``region_tol``, a neighbour that does not touch the
 facet) :func:`explore_bases` returns None and the caller uses the geometric explorer.
+A region whose boundary is beyond double precision (``mplp.boundary_uncertainty`` above
+``mplp.PRECISION_LIMIT``) raises the explorer's ``too_imprecise`` error at once: the
+explorer would meet the same law and fail after far longer.
 """
 
 from __future__ import annotations
