@@ -28,6 +28,12 @@
    further past every skipped piece are probed, and a feasible one in no region is a hole:
    its region is explored like any other, or the solve stops with the clear "too
    degenerate" error (:meth:`_Explorer._fill_holes`).
+5. **Beyond double precision, stop at once.** A region whose boundary rounding can move
+   by more than :data:`PRECISION_LIMIT` of the parameter set's scale
+   (:func:`boundary_uncertainty`), or a lexicographic refinement that does not settle
+   within its work limit (:data:`REFINE_WORK`), ends the solve with the one-line
+   :func:`too_imprecise` error naming ``mpc.horizon`` (issue 29: a long horizon's tail
+   with norm 1 or inf), instead of retrying for minutes and failing anyway.
 """
 
 from __future__ import annotations
@@ -51,7 +57,7 @@ from codev_engine.geometry.vertices import vertices
 from codev_engine.mp.reduce import ParameterBox, Reduced, lifted, start_point
 from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 
-__all__ = ["COUNTERS", "explore_facets"]
+__all__ = ["COUNTERS", "PRECISION_LIMIT", "boundary_uncertainty", "explore_facets"]
 
 #: the exploration's counters, which always appear in its stats (rarer steps add their own)
 COUNTERS = ("solves", "pieces", "jitters", "step_refinements")
@@ -116,6 +122,105 @@ def explore_facets(
 
 class _NoRegionError(SolverError):
     """No full-dimensional region could be identified around a point (degenerate spot)."""
+
+
+#: the largest uncertainty of a region's boundary, in double precision and relative to the
+#: parameter set's scale, that the mp-LP engines accept (:func:`boundary_uncertainty`).
+#: Above it the tightness and lexicographic decisions fall to rounding and both engines
+#: end after many seconds (minutes at N = 100) of pivots with "too degenerate"; they now
+#: stop at once. Measured (issue 29) over every region computed: the double integrator
+#: with norm inf solves at N = 30 with at most 3e-8, norm 1 at N = 20 with 5.6e-7; norm 1
+#: N = 30 to 60 exceed it at once; the paper mp-LPs and the test set's stay below 1e-12.
+PRECISION_LIMIT = 1e-6
+
+#: the work (in units of one multiply-add) that the lexicographic pivots of one
+#: refinement (:meth:`_Explorer._lex_pivots`) may take, ~nw^3 a pivot, before the program
+#: is taken to be beyond double precision: 4e9 lets the double integrator with norm inf and
+#: N = 30 finish its longest refinement (790 pivots, nw = 89: 5.6e8) and stops the walks
+#: that never settle (N = 100: 4,000 pivots of nw = 299, 16 s) after ~150 pivots, 0.6 s.
+#: The paper mp-LPs and the test set's need at most 29 pivots (nw = 63: 7e6).
+REFINE_WORK = 4e9
+
+
+def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: float,
+                         scale: float) -> float:
+    """How far, relative to ``scale``, the computed boundary of a basis's critical region
+    may be from the true one, from the rounding of its rows in double precision.
+
+    Row i of the region is ``a_i theta <= b_i`` with ``a_i = G_i K - S_i`` and
+    ``b_i = w_i - G_i k0``; rounding makes ``a_i`` uncertain by about
+    ``e_i = eps (|G_i| |K| + |S_i|)`` and ``b_i`` by ``f_i = eps (|G_i| |k0| + |w_i|)``, so
+    within ``|theta|_inf <= bound`` its hyperplane moves by up to
+    ``(|e_i| bound + f_i) / |a_i|``. On a long horizon with norm 1 or inf the optimal
+    plan decays geometrically (the double integrator: by 0.6 a step), ``a_i`` of the tail's
+    rows shrinks with it while ``e_i`` does not (the condensed rows sum terms of the size of
+    the head to get the tail), and the hyperplanes get lost in rounding.
+
+    Parameters
+    ----------
+    red : Reduced
+        The reduced mp-LP.
+    K, k0 : numpy.ndarray
+        The basis's law ``w = K theta + k0``.
+    bound : float
+        Of ``|theta|_inf`` on the parameter set.
+    scale : float
+        The parameter set's size.
+
+    Returns
+    -------
+    float
+        The largest such move over the rows that are not constant (gradient above 1e-10
+        and ten times its rounding) and whose hyperplane can meet the parameter set,
+        divided by ``scale``.
+    """
+    eps = np.finfo(float).eps
+    a = red.G @ K - red.S
+    b = red.w - red.G @ k0
+    e = eps * (np.abs(red.G) @ np.abs(K) + np.abs(red.S))
+    f = eps * (np.abs(red.G) @ np.abs(k0) + np.abs(red.w))
+    na = np.linalg.norm(a, axis=1)
+    ne = np.linalg.norm(e, axis=1)
+    d = K.shape[1]
+    # a gradient not clearly above its own rounding is a constant row (the engines drop
+    # slacks that are identically zero; cruise control has one at 1e-10 with rounding 6e-10)
+    live = (na > 1e-10) & (na > 10.0 * ne) & (np.abs(b) <= 2.0 * bound * np.sqrt(d) * na)
+    if not np.any(live):
+        return 0.0
+    move = (ne[live] * bound + f[live]) / na[live]
+    return float(np.max(move)) / max(scale, 1e-300)
+
+
+def too_imprecise(q: np.ndarray | None, move: float | None) -> SolverError:
+    """The error the mp-LP engines raise where double precision cannot decide a region
+    (one line, naming what to change).
+
+    Parameters
+    ----------
+    q : numpy.ndarray or None
+        The parameter where it was found.
+    move : float or None
+        The uncertainty of the boundary (:func:`boundary_uncertainty`) when it is above
+        :data:`PRECISION_LIMIT`; None when the lexicographic pivots did not settle.
+
+    Returns
+    -------
+    SolverError
+        To raise.
+    """
+    where = "" if q is None else (
+        f" near theta={np.array2string(np.asarray(q, dtype=float), precision=4)}")
+    why = (
+        f"its critical regions' boundaries are known only to {move:.0e} of the parameter "
+        "range in double precision"
+        if move is not None
+        else "its lexicographic pivots do not settle in double precision"
+    )
+    return SolverError(
+        f"the mp-LP is too ill-conditioned to solve exactly{where}: {why} (with norm 1 "
+        "or inf, typically a long horizon whose optimal tail decays to rounding level); "
+        "shorten mpc.horizon, or use norm = \"2\""
+    )
 
 
 class _Explorer:
@@ -255,6 +360,13 @@ class _Explorer:
         qn = q + self.rng.normal(size=q.shape) * size
         return qn if self._in_theta(qn) else q
 
+    def _check_precision(self, q: np.ndarray, K: np.ndarray, k0: np.ndarray) -> None:
+        """Raise :func:`too_imprecise` when the rows of the law ``K theta + k0`` cannot
+        locate its region's boundary in double precision (:func:`boundary_uncertainty`)."""
+        move = boundary_uncertainty(self.r, K, k0, self.bound, self.scale)
+        if move > PRECISION_LIMIT:
+            raise too_imprecise(q, move)
+
     def _lex_state(self, act, q: np.ndarray):
         """Duals of the basis ``act`` at q -> (vertex, d0, d1, tie, inverse), or None when the
         basis matrix is singular.
@@ -308,6 +420,36 @@ class _Explorer:
         return bool(np.all(r.G @ x <= r.w + r.S @ q + 1e-9 * self.scale))
 
     def _lex_refine(self, act: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+        """:meth:`_lex_pivots`; when it fails after more pivots than the basis has rows,
+        :func:`too_imprecise` is raised instead.
+
+        Such a walk (a basis repeated, a basis that drifts out of primal feasibility, the
+        pivot limit) means that the lexicographic decisions are at rounding level (a long
+        horizon's tail with norm 1 or inf, issue 29): the retries from other points and
+        perturbations did the same, for tens of seconds (minutes at N = 100), and the
+        search ended with "too degenerate" anyway. The programs that solve need at most
+        a few pivots where a refinement fails (measured: the paper mp-LPs, the test set's,
+        the double integrator up to the horizons it solves).
+
+        Parameters
+        ----------
+        act : numpy.ndarray
+            A primal-feasible basis at ``q``.
+        q : numpy.ndarray
+            The parameter.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            The lexicographically optimal basis (sorted), or None.
+        """
+        before = self.stats.get("lex_pivots", 0)
+        out = self._lex_pivots(act, q)
+        if out is None and self.stats.get("lex_pivots", 0) - before > self.nw:
+            raise too_imprecise(q, None)
+        return out
+
+    def _lex_pivots(self, act: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """Primal simplex from the primal-feasible basis ``act`` to the lexicographically
         optimal one; None if ``act`` is not a primal-feasible basis or the pivots do not
         settle.
@@ -325,7 +467,8 @@ class _Explorer:
            simplex for r on the optimal face, whose decisions do not depend on the
            classification of ties.
 
-        A basis seen twice (ties classified differently at different bases) ends it.
+        A basis seen twice (ties classified differently at different bases) ends it. The
+        pivots are limited (:data:`REFINE_WORK`); the limit raises :func:`too_imprecise`.
         """
         r = self.r
         h = r.w + r.S @ q
@@ -335,7 +478,10 @@ class _Explorer:
         held: np.ndarray | None = None  # phase B: rows of the optimal face
         seen: set[bytes] = set()
         feas_tol = 1e-9 * self.scale
-        for _ in range(20 * self.nw + 100):
+        # the pivots allowed: 20 nw + 100, and work of at most REFINE_WORK (a fresh
+        # factorisation and inverse, ~nw^3, per pivot); reaching the limit raises
+        limit = min(20 * self.nw + 100, max(self.nw + 100, int(REFINE_WORK / self.nw**3)))
+        for _ in range(limit):
             key = np.sort(B).tobytes()
             if key in seen:
                 break
@@ -373,6 +519,8 @@ class _Explorer:
             inB[B[i]] = False
             inB[j] = True
             B[i] = j
+        else:
+            raise too_imprecise(q, None)
         self.stats["lex_refine_failed"] = self.stats.get("lex_refine_failed", 0) + 1
         return None
 
@@ -492,6 +640,7 @@ class _Explorer:
         except np.linalg.LinAlgError:
             return None
         k0, K = Z[:, 0], Z[:, 1:]
+        self._check_precision(q, K, k0)
         Ar = r.G @ K - r.S
         br = r.w - r.G @ k0
         if np.any(r.C):

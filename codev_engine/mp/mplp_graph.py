@@ -42,6 +42,9 @@ that step.
 When a step of the search cannot be made exact (a basis matrix numerically singular, a
 region that comes out thinner than ``region_tol``, a neighbour that does not touch the
 facet) :func:`explore_bases` returns None and the caller uses the geometric explorer.
+A region whose boundary is beyond double precision (``mplp.boundary_uncertainty`` above
+``mplp.PRECISION_LIMIT``) raises the explorer's ``too_imprecise`` error at once: the
+explorer would meet the same law and fail after far longer.
 """
 
 from __future__ import annotations
@@ -54,7 +57,13 @@ import numpy as np
 from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
 
 from codev_engine.geometry.polytope import certified_minimal_rows, chebyshev_ball
-from codev_engine.mp.mplp import _TIE, _Explorer
+from codev_engine.mp.mplp import (
+    _TIE,
+    PRECISION_LIMIT,
+    _Explorer,
+    boundary_uncertainty,
+    too_imprecise,
+)
 from codev_engine.mp.reduce import ParameterBox, Reduced, start_point
 from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 
@@ -392,7 +401,21 @@ class _Search:
         """The critical region of basis B -> (CriticalRegion, from_theta, facets) where
         ``from_theta`` marks the rows of the parameter set and ``facets`` is None or the
         centres (r, d) and radii (r,) of its facets in their hyperplanes (NaN radius: not
-        known); None when thinner than ``region_tol``. ``x0``: a point near the region."""
+        known); None when thinner than ``region_tol``. ``x0``: a point near the region.
+
+        Raises the explorer's ``too_imprecise`` error when the region's boundary cannot be
+        located in double precision (``mplp.boundary_uncertainty``): the explorer would
+        meet the same law and fail after far longer."""
+        out = self._region_raw(B, x0)
+        if out is not None:
+            reg = out[0]
+            move = boundary_uncertainty(self.r, reg.K, reg.k, self.size.bound, self.scale)
+            if move > PRECISION_LIMIT:
+                c, _ = chebyshev_ball(reg.A, reg.b)
+                raise too_imprecise(c if c is not None else x0, move)
+        return out
+
+    def _region_raw(self, B: np.ndarray, x0: np.ndarray | None = None):
         if self.jit is not None:
             jit = self.jit
             status, K, k0, A, b, mark, fc, frho = jit.region(

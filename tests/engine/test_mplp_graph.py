@@ -183,3 +183,59 @@ def test_too_degenerate_mp_lp_names_what_to_change():
     not identify a full-dimensional critical region"."""
     with pytest.raises(ce.SolverError, match="mpc.horizon"):
         ce.synthesize(_di_problem("inf", 50))
+
+
+def _explore_counted(prog: ce.MpProgram, engine: str, stats: dict):
+    """The explorer (``facets``) or the basis graph (``bases``) on ``prog`` as ``mpsolve``
+    calls it, with its counters in ``stats``."""
+    from codev_engine.mp.mplp import explore_facets
+    from codev_engine.mp.reduce import parameter_box, reduce_program
+
+    red = reduce_program(prog)
+    size = parameter_box(red)
+    opts = ce.SolveOptions()
+    common = dict(region_tol=opts.region_tol * size.scale, lp_perturbation=opts.lp_perturbation,
+                  seed=opts.seed, max_regions=opts.max_regions, stats=stats)
+    if engine == "facets":
+        return explore_facets(red, size, step=opts.step * size.scale, **common)
+    return mplp_graph.explore_bases(red, size, **common)
+
+
+@pytest.mark.parametrize(
+    "norm, horizon, engine",
+    [("inf", 50, "facets"), ("inf", 50, "bases"), ("1", 30, "facets"), ("inf", 60, "facets"),
+     ("inf", 60, "bases")],
+)
+def test_beyond_double_precision_stops_at_once(norm, horizon, engine):
+    """Issue 29: on the double integrator with a long horizon the optimal tail decays by
+    0.6 a step, and the regions' boundaries (inf N = 50, norm 1 N = 30) or the
+    lexicographic pivots (inf N = 60) are beyond double precision. Both engines used to
+    go on for seconds to minutes (tens of thousands of Bland pivots, hundreds of LP
+    solves) and end with "too degenerate" (the graph: fall back to the explorer); now
+    each stops at the first such region or walk with the one-line error naming
+    ``mpc.horizon``. The work is counted, not timed. (The graph falls back on norm 1,
+    N = 30: its dual simplex cycles before it meets such a region.)"""
+    prog = _mpc("double_integrator", norm=norm, horizon=horizon)
+    stats: dict = {}
+    with pytest.raises(ce.SolverError, match=r"too ill-conditioned.*mpc\.horizon.*norm"):
+        _explore_counted(prog, engine, stats)
+    from codev_engine.mp.mplp import REFINE_WORK
+
+    nw = prog.A.shape[1]
+    # one refinement at most, within its limit (before: 9,000-30,000 pivots)
+    assert stats.get("lex_pivots", 0) <= max(nw + 100, REFINE_WORK / nw**3) + 1, stats
+    assert stats.get("solves", 0) <= 200, stats
+
+
+def test_boundary_uncertainty_separates_the_horizons():
+    """The measure behind the early stop stays below ``PRECISION_LIMIT`` (by more than 10x)
+    on every region of the double integrator with norm inf and N = 20, which solves."""
+    from codev_engine.mp.mplp import PRECISION_LIMIT, boundary_uncertainty
+    from codev_engine.mp.reduce import parameter_box, reduce_program
+
+    red = reduce_program(_mpc("double_integrator", norm="inf", horizon=20))
+    size = parameter_box(red)
+    sol = _explore_counted(_mpc("double_integrator", norm="inf", horizon=20), "bases", {})
+    assert len(sol) == 160
+    worst = max(boundary_uncertainty(red, r.K, r.k, size.bound, size.scale) for r in sol)
+    assert worst < 0.1 * PRECISION_LIMIT
