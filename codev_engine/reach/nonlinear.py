@@ -15,7 +15,9 @@ proofs):
    a-priori enclosure ``B^c_j``); its distance ``eps_j`` to ``y_{j+1}`` goes into ``psi``.
 2. **A-priori enclosure** ``B_j``: a box with ``S_j + [0, h] f(B_j, U) subset B_j``
    (Picard-Lindeloef in interval arithmetic, ``S_j`` the box of the set at ``t_j``): every
-   trajectory of the set stays in ``B_j`` over the substep; ``B_j`` is the tube's box.
+   trajectory of the set stays in ``B_j`` over the substep. The tube's box is ``B_j``
+   intersected with the linear part's bound: the centre's enclosure plus the star and the
+   ellipsoid carried by ``Phi(t)`` over the substep (chord plus curvature) plus the ball.
 3. **Deviation**: by the mean-value theorem ``d/dt (x - z) = Jbar (x - z)`` (+ the held
    input's deviation) with ``Jbar`` in the interval Jacobian over the hull of ``B_j`` and
    ``B^c_j``; the point part ``Jc`` drives ``Phi`` exactly, the spread ``E`` (|E| <= R)
@@ -30,7 +32,9 @@ every substep (induction over ``j``); otherwise the guess is raised and the peri
 
 Sets that reach the same sample are merged into one star when that costs little (the
 difference of their affine maps is absorbed by the ellipsoid), which keeps the number of
-branches from multiplying at every crossing of a region boundary.
+branches from multiplying at every crossing of a region boundary. A cell of the initial set
+whose ellipsoid outgrows its star is bisected (the second-order remainder shrinks with the
+square of the cell's size), up to ``bloat_depth``.
 """
 
 from __future__ import annotations
@@ -1317,7 +1321,7 @@ class NonlinearReach(ClosedLoopSetup):
 
         token = uuid.uuid4().hex
         data = (self.problem, self.law, self.hold, self.max_depth, self.merge_cost,
-                self.max_sets)
+                self.max_sets, self.bloat, self.bloat_depth)
         shared = scattered(client, data)
 
         def submit(lo, hi, depth):
@@ -1376,7 +1380,8 @@ def _cell_task(shared: tuple, token: str, lo: np.ndarray, hi: np.ndarray, depth:
     Parameters
     ----------
     shared : tuple
-        ``(problem, law, hold, max_depth, merge_cost, max_sets)`` of the run.
+        ``(problem, law, hold, max_depth, merge_cost, max_sets, bloat, bloat_depth)`` of
+        the run.
     token : str
         The run's id (the worker's engine for it is reused).
     lo, hi : (n,) ndarray
@@ -1386,9 +1391,9 @@ def _cell_task(shared: tuple, token: str, lo: np.ndarray, hi: np.ndarray, depth:
     """
     engine = _ENGINES.get(token)
     if engine is None:
-        problem, law, hold, max_depth, merge_cost, max_sets = shared
+        problem, law, hold, max_depth, merge_cost, max_sets, bloat, bloat_depth = shared
         engine = NonlinearReach(problem, law, hold, max_depth, merge_cost=merge_cost,
-                                max_sets=max_sets)
+                                max_sets=max_sets, bloat=bloat, bloat_depth=bloat_depth)
         while len(_ENGINES) >= 2:
             _ENGINES.pop(next(iter(_ENGINES)))
         _ENGINES[token] = engine
