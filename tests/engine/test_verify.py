@@ -449,7 +449,8 @@ def _frontier_membership(problem, law, hold: str, n_random: int = 300) -> dict:
 
 @pytest.mark.parametrize(
     ("stem", "hold"),
-    [("tora", "zoh"), ("tora-arch", "zoh"), ("vanderpol", "continuous"), ("pendulum", "zoh")],
+    [("tora", "zoh"), ("tora-arch", "zoh"), ("vanderpol", "continuous"), ("pendulum", "zoh"),
+     ("cstr", "zoh")],
 )
 def test_nonlinear_sets_contain_simulated_states_at_samples(example_law, stem, hold):
     if stem == "tora-arch":
