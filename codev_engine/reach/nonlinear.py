@@ -15,7 +15,9 @@ proofs):
    a-priori enclosure ``B^c_j``); its distance ``eps_j`` to ``y_{j+1}`` goes into ``psi``.
 2. **A-priori enclosure** ``B_j``: a box with ``S_j + [0, h] f(B_j, U) subset B_j``
    (Picard-Lindeloef in interval arithmetic, ``S_j`` the box of the set at ``t_j``): every
-   trajectory of the set stays in ``B_j`` over the substep; ``B_j`` is the tube's box.
+   trajectory of the set stays in ``B_j`` over the substep. The tube's box is ``B_j``
+   intersected with the linear part's bound: the centre's enclosure plus the star and the
+   ellipsoid carried by ``Phi(t)`` over the substep (chord plus curvature) plus the ball.
 3. **Deviation**: by the mean-value theorem ``d/dt (x - z) = Jbar (x - z)`` (+ the held
    input's deviation) with ``Jbar`` in the interval Jacobian over the hull of ``B_j`` and
    ``B^c_j``; the point part ``Jc`` drives ``Phi`` exactly, the spread ``E`` (|E| <= R)
@@ -30,7 +32,9 @@ every substep (induction over ``j``); otherwise the guess is raised and the peri
 
 Sets that reach the same sample are merged into one star when that costs little (the
 difference of their affine maps is absorbed by the ellipsoid), which keeps the number of
-branches from multiplying at every crossing of a region boundary.
+branches from multiplying at every crossing of a region boundary. A cell of the initial set
+whose ellipsoid outgrows its star is bisected (the second-order remainder shrinks with the
+square of the cell's size), up to ``bloat_depth``.
 """
 
 from __future__ import annotations
@@ -142,6 +146,11 @@ class NonlinearReach(ClosedLoopSetup):
         fraction of the set's size (in the W-norm; a heuristic: any merge is sound) ...
     max_sets : int
         ... and at most this many sets are kept per sample (cheapest merges first).
+    bloat : float
+        A cell whose remainder ellipsoid's W-size exceeds this multiple of its star's at a
+        sample is bisected (a tightness heuristic; every split is sound) ...
+    bloat_depth : int
+        ... while its refinement depth is below this (and below ``max_depth``).
     absorb : callable, optional
         ``absorb(lo (n,), hi (n,)) -> (e,) bool``: which of ``e`` invariant sets (the
         ellipsoids of ``reach.terminal``) hold the box. A set whose box at a sample lies in
@@ -170,6 +179,12 @@ class NonlinearReach(ClosedLoopSetup):
     #: further; ``absorbed`` records it. None: every set is followed to the horizon (serial
     #: runs only: an executor's cells ignore it)
     absorb: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    #: a cell whose remainder ellipsoid outgrows this fraction of its star (W-sizes) at a
+    #: sample is bisected (a tightness heuristic: the second-order remainder shrinks with
+    #: the square of the cell's size; every split is sound) ...
+    bloat: float = 1.0
+    #: ... while its refinement depth is below this (and below ``max_depth``)
+    bloat_depth: int = 2
 
     def __post_init__(self) -> None:
         from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
@@ -770,6 +785,21 @@ class NonlinearReach(ClosedLoopSetup):
             )
             return None, tube, [self._failure(t_k + taus[bad])], None
         self._rho_hint = 0.5 * self._rho_hint + 0.5 * float(rho[N])
+        # within a substep the set is also the centre's enclosure plus the star and the
+        # ellipsoid carried by Phi(t) plus the remainder ball: far tighter than the sweep
+        # S_j + [0, h] f(B_j) once the set is wide across a fast direction of f
+        if zoh:
+            Ma = np.abs(Me)
+            zeta = np.hstack([
+                np.maximum(np.abs(slo_star[:-1]), np.abs(shi_star[:-1])) + Mrows[:-1],
+                np.broadcast_to(np.maximum(np.abs(FDlo), np.abs(FDhi)) + FMn, (N, m)),
+            ])
+        else:
+            Ma = np.abs(Jc)
+            zeta = np.maximum(np.abs(slo_star[:-1]), np.abs(shi_star[:-1])) + Mrows[:-1]
+        Blo, Bhi = self._linear_boxes(
+            Blo, Bhi, Bclo, Bchi, slo_star, shi_star, Mrows, rho, fpm, Ma, zeta, hs, vmag
+        )
         tube = _tube(t_k + taus[:-1], t_k + taus[1:], Blo, Bhi, self.stats["branches"])
         swlo = _dn(hc * np.minimum(flo, 0.0))
         swhi = _up(hc * np.maximum(fhi, 0.0))
@@ -777,6 +807,70 @@ class NonlinearReach(ClosedLoopSetup):
         Mn = self._ell_plus_ball(PM[N], float(rho[N]))
         nxt = _Set(Y[N].copy(), PD[N], Mn, s.k + 1, s.path, s.H, s.h, s.V, s.base)
         return nxt, tube, [], rec
+
+    def _linear_boxes(
+        self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The substeps' tube boxes ``B_j`` intersected with the linear-part bound.
+
+        Over substep ``j`` (``tau in [0, h]``) every trajectory is ``x = z_j + g(tau) +
+        psi``: ``z_j`` the exact centre (in ``B^c_j``), ``g(tau) = Phi(t_j + tau) (D d + M
+        e)`` and ``|psi|_W <= max(rho_j, rho_{j+1})`` (each Groenwall bound is monotone in
+        ``tau``, from ``rho_j`` towards its fixed point), plus ``fpm_j`` for the rounding of
+        the computed ``Phi_{j+1}`` (the chord's far end). ``g`` is the x part of ``exp(Me
+        tau) zeta``, ``zeta = (Phi_j v, F v)`` (zoh; ``Me = [[Jx, Ju], [0, 0]]``) or
+        ``exp(Jc tau) Phi_j v`` (continuous hold): it lies within ``h^2/8 max |g''|`` of the
+        chord between ``g(0)`` and ``g(h)``, and ``|g''| <= |Me|^2 exp(|Me| h) |zeta|``
+        element-wise. The chord's range over the star and the ellipsoid lies in the hull of
+        their ranges at the two ends.
+
+        Parameters
+        ----------
+        Blo, Bhi : (N, n) ndarray
+            The substeps' a-priori boxes.
+        Bclo, Bchi : (N, n) ndarray
+            The centre's enclosures over the substeps.
+        slo, shi : (N + 1, n) ndarray
+            The star's ranges at the substep points.
+        Mrows : (N + 1, n) ndarray
+            The ellipsoid's half-widths at the substep points.
+        rho : (N + 1,) ndarray
+            The remainder radii (W-norm) at the substep points.
+        fpm : (N,) ndarray
+            The substeps' rounding allowances of the exponentials and products (W-norm).
+        Ma : (N, q, q) ndarray
+            ``|Me|`` (zoh, ``q = n + m``) or ``|Jc|`` (continuous hold, ``q = n``).
+        zeta : (N, q) ndarray
+            Bounds of ``|zeta|`` over the set.
+        hs : (N,) ndarray
+            The substep lengths.
+        vmag : (N + 1, n) ndarray
+            Magnitudes of the star's and the ellipsoid's terms (rounding allowance).
+
+        Returns
+        -------
+        lo, hi : (N, n) ndarray
+            The tightened boxes (each inside the a-priori one).
+        """
+        n = self.n
+        v = _expabs_vec(Ma * hs[:, None, None], zeta)
+        if v is None:
+            return Blo, Bhi
+        g2 = np.einsum("jab,jbc,jc->ja", Ma, Ma, v)[:, :n] * (1 + 1e-10)
+        err = (0.125 * hs * hs)[:, None] * g2 * (1 + 1e-10)
+        ell = np.maximum(Mrows[:-1], Mrows[1:])
+        ball = self.wrow[None, :] * (np.maximum(rho[:-1], rho[1:]) + fpm)[:, None]
+        dlo = np.minimum(slo[:-1], slo[1:]) - ell - ball - err
+        dhi = np.maximum(shi[:-1], shi[1:]) + ell + ball + err
+        pad = 1e-12 * (
+            np.abs(Bclo) + np.abs(Bchi) + np.maximum(vmag[:-1], vmag[1:]) + ell + ball + err
+        ) + 1e-15
+        lo = _dn(Bclo + dlo - pad)
+        hi = _up(Bchi + dhi + pad)
+        ok = np.all(np.isfinite(lo), axis=1) & np.all(np.isfinite(hi), axis=1)
+        lo = np.where(ok[:, None], np.maximum(Blo, lo), Blo)
+        hi = np.where(ok[:, None], np.minimum(Bhi, hi), Bhi)
+        return lo, hi
 
     # ---- properties -------------------------------------------------------------------
 
@@ -875,9 +969,11 @@ class NonlinearReach(ClosedLoopSetup):
     # ---- driver -----------------------------------------------------------------------
 
     def _piece(
-        self, lo: np.ndarray, hi: np.ndarray, complete: bool = False
+        self, lo: np.ndarray, hi: np.ndarray, complete: bool = False, split: bool = False
     ) -> tuple[str, list[Tube], float | None]:
-        """Reach the initial box [lo, hi]: 'ok', 'violation' or 'undefined' (possible).
+        """Reach the initial box [lo, hi]: 'ok', 'violation' or 'undefined' (possible), or
+        'bloat' (with ``split``: a set's remainder outgrew ``bloat`` times its star, the
+        box is better bisected).
 
         Stops at the first possible violation unless ``complete``: then it records the
         first one and goes on, so the tube still holds every trajectory of the piece for
@@ -937,7 +1033,24 @@ class NonlinearReach(ClosedLoopSetup):
                     elif nxt is not None:
                         self.open_sets += 1
             frontier = self._merge(nexts, root.poly)
+            if split and status == "ok" and any(self._bloated(s) for s in frontier):
+                return "bloat", tubes, frontier[0].k * self.Ts
         return status, tubes, first_t
+
+    def _bloated(self, s: _Set) -> bool:
+        """Is the set's remainder ellipsoid larger than ``bloat`` times its star (W-sizes)?
+
+        Parameters
+        ----------
+        s : _Set
+            A set at a sample.
+
+        Returns
+        -------
+        bool
+        """
+        star = float(np.max(np.linalg.norm(s.V @ (self.W @ s.D).T, axis=1)))
+        return float(np.linalg.norm(self.W @ s.M, 2)) > self.bloat * star
 
     def _absorbed(self, s: _Set) -> bool:
         """Does the set (at a sample) lie in an invariant ellipsoid of ``absorb`` that holds
@@ -1097,9 +1210,16 @@ class NonlinearReach(ClosedLoopSetup):
         self._failed = None
         kept = (len(self.absorbed), self.open_sets,
                 None if self.absorb_mask is None else self.absorb_mask.copy())
-        status, tubes, t_bad = self._piece(lo, hi, complete=depth >= self.max_depth)
+        status, tubes, t_bad = self._piece(
+            lo, hi, complete=depth >= self.max_depth,
+            split=depth < min(self.bloat_depth, self.max_depth),
+        )
         v = None
-        if status != "ok":
+        if status == "bloat":
+            # bisected for tightness: nothing was found, the halves are reached afresh
+            del self.absorbed[kept[0]:]
+            self.open_sets, self.absorb_mask = kept[1], kept[2]
+        elif status != "ok":
             # (a piece not proved: what it absorbed is not part of the run's tube)
             del self.absorbed[kept[0]:]
             self.open_sets, self.absorb_mask = kept[1], kept[2]
@@ -1201,7 +1321,7 @@ class NonlinearReach(ClosedLoopSetup):
 
         token = uuid.uuid4().hex
         data = (self.problem, self.law, self.hold, self.max_depth, self.merge_cost,
-                self.max_sets)
+                self.max_sets, self.bloat, self.bloat_depth)
         shared = scattered(client, data)
 
         def submit(lo, hi, depth):
@@ -1260,7 +1380,8 @@ def _cell_task(shared: tuple, token: str, lo: np.ndarray, hi: np.ndarray, depth:
     Parameters
     ----------
     shared : tuple
-        ``(problem, law, hold, max_depth, merge_cost, max_sets)`` of the run.
+        ``(problem, law, hold, max_depth, merge_cost, max_sets, bloat, bloat_depth)`` of
+        the run.
     token : str
         The run's id (the worker's engine for it is reused).
     lo, hi : (n,) ndarray
@@ -1270,9 +1391,9 @@ def _cell_task(shared: tuple, token: str, lo: np.ndarray, hi: np.ndarray, depth:
     """
     engine = _ENGINES.get(token)
     if engine is None:
-        problem, law, hold, max_depth, merge_cost, max_sets = shared
+        problem, law, hold, max_depth, merge_cost, max_sets, bloat, bloat_depth = shared
         engine = NonlinearReach(problem, law, hold, max_depth, merge_cost=merge_cost,
-                                max_sets=max_sets)
+                                max_sets=max_sets, bloat=bloat, bloat_depth=bloat_depth)
         while len(_ENGINES) >= 2:
             _ENGINES.pop(next(iter(_ENGINES)))
         _ENGINES[token] = engine
@@ -1348,6 +1469,40 @@ def _imatvec(Al, Ah, xl, xh):
     hi = cands.max(axis=0).sum(axis=-1)
     pad = (xl.shape[-1] + 2) * _GAMMA * np.abs(cands).max(axis=0).sum(axis=-1) + 1e-300
     return lo - pad, hi + pad
+
+
+def _expabs_vec(A: np.ndarray, z: np.ndarray) -> np.ndarray | None:
+    """Upper bounds of ``exp(A) z`` for non-negative ``A`` (N, q, q) and ``z`` (N, q).
+
+    The Taylor series, every term non-negative (so float sums round by a relative
+    ``(k + q) u`` at most, covered by the ``1e-9`` inflation), cut once the terms shrink
+    geometrically (ratio ``|A|_inf / (k + 1) <= 1/2``) and are below ``1e-17`` of the sum;
+    the tail is at most twice the last term's max-norm, added to every entry.
+
+    Parameters
+    ----------
+    A : (N, q, q) ndarray
+        Non-negative matrices.
+    z : (N, q) ndarray
+        Non-negative vectors.
+
+    Returns
+    -------
+    ndarray or None
+        (N, q) bounds, or None when an entry is not finite or the series is too long.
+    """
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(z))):
+        return None
+    an = float(np.abs(A).sum(axis=2).max()) if A.size else 0.0
+    total = z.copy()
+    term = z.copy()
+    for k in range(1, 200):
+        term = np.einsum("jab,jb->ja", A, term) / k
+        total = total + term
+        tn = float(term.max()) if term.size else 0.0
+        if an / (k + 1) <= 0.5 and tn <= 1e-17 * float(total.max() + 1e-300):
+            return total * (1 + 1e-9) + 2.0 * tn * (1 + 1e-9) + 1e-300
+    return None
 
 
 def _add_pad(*terms):

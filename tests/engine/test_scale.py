@@ -274,7 +274,7 @@ def _set_limits(text: str | None) -> None:
 @pytest.mark.slow  # (~20 s on a quiet machine)
 def test_the_limits_count_the_whole_run_on_a_cluster(cluster, cstr, monkeypatch):
     """The run-time limits count the whole verification, as in serial, not each cell on
-    each worker: the CSTR (219 branches) with a limit of 120 stops at the same branch with
+    each worker: the CSTR (271 branches) with a limit of 120 stops at the same branch with
     the same tube; and a worker whose own limits are lower stops nothing early."""
     problem, law, _ = cstr
     monkeypatch.setenv("CODEV_LIMITS", "branches=120")
