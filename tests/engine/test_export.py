@@ -472,6 +472,65 @@ def test_candidates_filtered_by_the_cell_keep_the_tree_exact(monkeypatch, tmp_pa
     assert_agrees(lw, C, X)
 
 
+def _traversal_worst(t) -> tuple[int, int]:
+    """The deepest path and the most rows of one call, by walking the node table from
+    the root (independent of ``Tree.cost``)."""
+    nrows = np.diff(t.row_off)
+    worst = depth = 0
+    stack = [(0, 0)] if t.num_nodes else [(-1, 0)]
+    while stack:
+        k, dep = stack.pop()
+        if k < 0:
+            leaf = -1 - k
+            members = int(nrows[t.leaf_members[leaf]].sum())
+            fast = members if t.leaf_general[leaf] else t.leaf_fast[leaf].size
+            if t.group(leaf).size:
+                fast = int(nrows[t.group(leaf)].sum())
+            worst = max(worst, dep + max(fast, members))
+            depth = max(depth, dep)
+            continue
+        for child in t.node_next[k]:
+            stack.append((int(child), dep + 1))
+    return depth, worst
+
+
+@needs_cc
+@pytest.mark.parametrize("key", ["voronoi", "magnetic_pointer_c:inf:unmerged"])
+def test_nodes_no_split_shrinks_become_buckets_and_stay_exact(key, monkeypatch, tmp_path):
+    """The large-partition policy (``plan.LARGE``, forced here on a law of a few hundred
+    regions, with no table of extents as a large law has none): a node whose best split
+    keeps most of its regions in one child is a bucket leaf, larger than ``leaf_size``;
+    the C still returns locate's region on random states and on facets, and the
+    header's worst case is the exhaustive traversal's, never exceeded by a counting
+    build."""
+    import codev_engine.deploy.bst as bst
+    import codev_engine.deploy.plan as plan_mod
+
+    monkeypatch.setattr(bst, "TABLE_ENTRIES", 0)
+    monkeypatch.setattr(plan_mod, "LARGE_FROM", 0)
+    monkeypatch.setattr(plan_mod, "LARGE", {"leaf_size": 2, "stop_ratio": 0.6,
+                                            "bucket_max": 24, "budget": 5e5, "tries": 1})
+    lw = law(key)
+    ex = plan(lw, "bst")
+    t = ex.tree
+    st = t.stats
+    assert st.get("stopped", 0) + st.get("stopped_est", 0) > 0
+    assert max(g.size for g in t.leaf_group) > 2
+    assert max(g.size for g in t.leaf_group) <= 24
+    depth, worst = _traversal_worst(t)
+    assert (ex.depth, ex.tests) == (depth, worst)
+    C = Compiled(ex, tmp_path, count=True)
+    assert C.define("WORST_TESTS") == worst
+    X = np.vstack([random_points(lw, 20_000, seed=61), facet_points(lw, 2, seed=62, cap=20_000)])
+    assert_agrees(lw, C, X)
+    most = 0
+    for p in range(0, X.shape[0], 7):
+        C.count.value = 0
+        C(X[p : p + 1])
+        most = max(most, C.count.value)
+    assert 0 < most <= worst
+
+
 def test_cutting_keeps_the_hyperplanes_through_the_cell_points():
     """``prune_kernel.cutting``: a hyperplane cuts when the points in the cell (vertices
     and witnesses) lie on both sides; points outside the cell do not count."""
