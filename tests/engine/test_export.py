@@ -589,6 +589,50 @@ def test_a_test_set_mp_qp_tree_on_1e5_states(tmp_path):
     assert np.array_equal(C(Xf)[0], sol.locate(Xf))
 
 
+@needs_cc
+@pytest.mark.slow
+def test_a_1e4_region_mp_qp_gets_its_tree(tmp_path):
+    """pop_mpqp_083 (13,266 regions, d = 5; its tree gave up at 1,500 s CPU before the
+    large-partition policy, ``plan.LARGE``): the tree is built, the header's worst case is
+    the traversal's, the C returns locate's region on 10^5 random states and on 10^5
+    facet points, and a counting build stays within the header (~4 min)."""
+    from tests.engine.test_mp_testset import TESTSET
+
+    f = TESTSET / "pop_mpqp_083.npz"
+    if not f.is_file():
+        pytest.skip(f"mp_testset not found: {f}")
+    keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta")
+    with np.load(f, allow_pickle=False) as z:
+        sol = ce.mpsolve(ce.MpProgram(**{k: z[k] for k in keys}, name=f.stem))
+    assert sol.num_regions > 10_000
+    ex = plan(sol, "bst")
+    assert ex.method == "bst"
+    assert (ex.depth, ex.tests) == _traversal_worst(ex.tree)
+    C = Compiled(ex, tmp_path, count=True)
+    assert C.define("WORST_TESTS") == ex.tests
+    lo, hi = ex.dep.boxes
+    lo, hi = lo.min(axis=0), hi.max(axis=0)
+    X = np.random.default_rng(71).uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo),
+                                          size=(100_000, lo.size))
+    idx, Z = C(X)
+    ref = sol.locate(X)
+    assert np.array_equal(idx, ref)
+    inside = ref >= 0
+    assert inside.sum() > 1000
+    assert np.allclose(Z[inside], sol.primal(X[inside]), rtol=1e-12, atol=1e-12)
+    lw_like = type("L", (), {})()
+    lw_like.A = [ex.dep.A[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    lw_like.b = [ex.dep.b[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    Xf = facet_points(lw_like, 1, seed=72, cap=100_000)
+    assert np.array_equal(C(Xf)[0], sol.locate(Xf))
+    most = 0
+    for p in range(0, Xf.shape[0], 10):
+        C.count.value = 0
+        C(Xf[p : p + 1])
+        most = max(most, C.count.value)
+    assert 0 < most <= ex.tests
+
+
 def test_a_tree_past_its_budget_leaves_the_sequential_search(monkeypatch, tmp_path, capsys):
     """The voronoi law needs over 7,000 nodes: with a budget of 1,000, ``auto`` takes the
     sequential search and ``bst`` says why in one line (exit 1: not the input's fault)."""
