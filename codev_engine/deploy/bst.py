@@ -26,7 +26,8 @@ With ``sort="vertices"``
 the hyperplane (a neighbour across a shared facet) or lies beyond it within the cell.
 Splitting stops when at most one proper region is left (the leaf's *owner*), at a bucket
 (at most ``leaf_size`` proper regions, or all of one law: the fast path runs the rule
-over them), or where no hyperplane takes a proper region off.
+over them; with ``stop_ratio``, also a node of at most ``bucket_max`` that no split makes
+much smaller), or where no hyperplane takes a proper region off.
 
 At run time every test also notes whether ``|s| <= delta`` (``delta = 1e-7 (1 + |b|)``,
 float32: ``1e-4 (1 + |b|)``): the point is *near* a tested hyperplane.
