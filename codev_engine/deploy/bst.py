@@ -26,7 +26,8 @@ With ``sort="vertices"``
 the hyperplane (a neighbour across a shared facet) or lies beyond it within the cell.
 Splitting stops when at most one proper region is left (the leaf's *owner*), at a bucket
 (at most ``leaf_size`` proper regions, or all of one law: the fast path runs the rule
-over them), or where no hyperplane takes a proper region off.
+over them; with ``stop_ratio``, also a node of at most ``bucket_max`` that no split makes
+much smaller), or where no hyperplane takes a proper region off.
 
 At run time every test also notes whether ``|s| <= delta`` (``delta = 1e-7 (1 + |b|)``,
 float32: ``1e-4 (1 + |b|)``): the point is *near* a tested hyperplane.
@@ -347,6 +348,10 @@ def build_tree(
     sort: str = "cell",
     labels: np.ndarray | None = None,
     leaf_size: int = 1,
+    stop_ratio: float | None = None,
+    bucket_max: int = 0,
+    budget: float = BUDGET,
+    tries: int = TRIES,
 ) -> Tree:
     """The binary search tree of regions ``{theta : A[off[i]:off[i+1]] theta <= b[...]}``.
 
@@ -376,6 +381,22 @@ def build_tree(
         leaf checks them (a *bucket*, as a group leaf). 1: split down to one region. A
         few regions a leaf bound the worst case by their rows while the tree of a large
         partition has far fewer nodes (the last splits copy the most regions).
+    stop_ratio : float, optional
+        With the cell sort, a node of at most ``bucket_max`` proper regions is not split
+        either (it becomes a bucket leaf, as above) when its best split leaves more than
+        ``stop_ratio`` of them in the larger child: by the cell's vertices (an optimistic
+        estimate, before any LP) or by the split's LPs. Where a thin region crosses
+        every hyperplane that could split a node, each split copies most regions into
+        both children and the tree multiplies its leaves without making them smaller
+        (``pop_mpqp_083``: 13,266 regions in d = 5). None: split down to ``leaf_size``.
+    bucket_max : int
+        The largest node the stopping rule may turn into a leaf (see ``stop_ratio``).
+    budget : float
+        Vertex evaluations spent scoring a node's candidate hyperplanes (at least one
+        chunk; ``BUDGET`` by default).
+    tries : int
+        Candidates confirmed by the LPs of their split, at most, before the best by all
+        vertices (``TRIES`` by default).
 
     Returns
     -------
@@ -522,7 +543,8 @@ def build_tree(
 
     from codev_engine.deploy.prune_kernel import (
         both_counts,
-        cutting,
+        cell_points,
+        cuts,
         local_counts,
         split_node,
     )
@@ -564,6 +586,7 @@ def build_tree(
             return leaf(P, M, path, False, group=True)
         if len(path) >= MAX_DEPTH:
             return leaf(P, M, path, True)
+        stoppable = stop_ratio is not None and P.size <= bucket_max
         used = {h for h, _ in path}
         cand = np.unique(np.concatenate([region_h[i] for i in P]))
         if used:
@@ -572,9 +595,9 @@ def build_tree(
             return leaf(P, M, path, True)
         CA, Cb, Cbp = cell_rows(path) if cellwise else (None, None, None)
         nvert = int(vcount[P].sum())
-        # the candidates in chunks of at most ~2e7 vertex evaluations (the first chunks
-        # up to BUDGET evaluations in all, at least one)
-        per = int(np.clip(2e7 / max(1, nvert), 16, 4096))
+        # the candidates in chunks of at most ~min(2e7, budget) vertex evaluations (the
+        # first chunks up to ``budget`` evaluations in all, at least one)
+        per = int(np.clip(min(2e7, budget) / max(1, nvert), 16, 4096))
         allm = np.union1d(P, M)
         memo = memo + [{}]
         if wit is None:
@@ -611,13 +634,14 @@ def build_tree(
                     best + [(int(score[j]), int(worst[j]), int(chunk[j])) for j in top]
                 )[:k]
 
-            for c0 in range(0, cand.size, per):
-                chunk = cand[c0 : c0 + per]
+            # (the points in the cell, for the filter, are found once a node)
+            pts = cell_points(Vc, vstart, vcount, P, CA, Cb, in_tol, W, Wn) if filt else None
+            for s0 in range(0, cand.size, per):
+                chunk = cand[s0 : s0 + per]
                 stats["candidates"] = stats.get("candidates", 0) + chunk.size
                 if filt:
-                    cut, nin = cutting(Vc, vstart, vcount, P, CA, Cb, in_tol, W, Wn, H_A, H_b,
-                                       chunk, PROPER * (1.0 + np.abs(H_b[chunk])))
-                    spent += chunk.size * nin
+                    cut = cuts(pts, H_A, H_b, chunk, PROPER * (1.0 + np.abs(H_b[chunk])))
+                    spent += chunk.size * pts.shape[0]
                     chunk = chunk[cut]
                     if chunk.size == 0:
                         continue
@@ -643,7 +667,7 @@ def build_tree(
                 spent += chunk.size * nvert
                 found = bool(best_g) and best_g[0][1] < P.size and (
                     not local or (bool(best_l) and best_l[0][1] < P.size))
-                if found and (not cellwise or spent >= BUDGET):
+                if found and (not cellwise or spent >= budget):
                     break
             return best_g, best_l
 
@@ -660,7 +684,7 @@ def build_tree(
             for q, (est, _, h) in enumerate(loc):
                 if bound_g is not None and est >= bound_g:
                     break
-                if q >= TRIES and best_o is not None:
+                if q >= tries and best_o is not None:
                     break
                 o = tried(h)
                 if o[1] < P.size and (best_o is None or o[0] < best_o[0]):
@@ -676,13 +700,16 @@ def build_tree(
                     best_o = o
             return best_o
 
-        glob, loc = choose_both(4 * TRIES, cellwise, filt)
+        glob, loc = choose_both(4 * tries, cellwise, filt)
         best_o = None
+        if stoppable and loc and loc[0][1] > stop_ratio * P.size:
+            stats["stopped_est"] = stats.get("stopped_est", 0) + 1
+            return leaf(P, M, path, False, group=True)
         if filt:
             best_o = pick(glob, loc)
             if best_o is None or best_o[1] >= P.size:
                 stats["uncut"] = stats.get("uncut", 0) + 1
-                glob, loc = choose_both(4 * TRIES, cellwise)
+                glob, loc = choose_both(4 * tries, cellwise)
                 best_o = None
         if not cellwise:
             if not glob or glob[0][1] >= P.size:
@@ -695,15 +722,20 @@ def build_tree(
                 best_o = pick(glob, loc)
             if best_o is None or best_o[1] >= P.size:
                 return leaf(P, M, path, True)
-            _, _, h, got = best_o
+            _, worst, h, got = best_o
+            if stoppable and worst > stop_ratio * P.size:
+                stats["stopped"] = stats.get("stopped", 0) + 1
+                return leaf(P, M, path, False, group=True)
             sides = ((got[0], got[1]), (got[2], got[3]))
         node = len(nodes_b)
         if node >= max_nodes or (node % 256 == 0 and time.process_time() - c0 > TIME_LIMIT):
-            raise TreeTooLargeError(
+            exc = TreeTooLargeError(
                 f"the search tree for {R} regions in {d} dimensions would exceed "
                 f"{max_nodes} nodes or {TIME_LIMIT:g} s of CPU ({node} nodes after "
                 f"{time.process_time() - c0:.0f} s; use the sequential search)"
             )
+            exc.stats = dict(stats, leaves=len(leaves))
+            raise exc
         nodes_a.append(H_A[h])
         nodes_b.append(float(H_b[h]))
         nodes_next.append([0, 0])

@@ -22,6 +22,14 @@ METHODS = ("bst", "sequential", "auto")
 #: above this many regions a tree leaf checks up to ``BUCKET`` regions (``plan``)
 BUCKET_FROM = 2000
 BUCKET = 8
+#: above this many regions the tree of a large partition (``plan``): leaves of up to
+#: ``LARGE["leaf_size"]`` regions, and a node of at most ``LARGE["bucket_max"]`` whose
+#: best split keeps over ``LARGE["stop_ratio"]`` of them in one child is a leaf too; a
+#: cheaper choice of hyperplane (``budget`` vertex evaluations, ``tries`` LP
+#: confirmations a node). ``bst.build_tree`` explains each; measured on
+#: ``pop_mpqp_083`` (13,266 regions, d = 5) in ``docs/deploy.md``.
+LARGE_FROM = 8000
+LARGE = {"leaf_size": 32, "stop_ratio": 0.7, "bucket_max": 128, "budget": 5e5, "tries": 1}
 
 
 @dataclass(frozen=True)
@@ -197,7 +205,9 @@ def plan(
         its own law). Fewer nodes and leaves; the leaf checks more rows.
     leaf_size : int, optional
         Regions a tree leaf may check (``bst.build_tree``); default 1 up to
-        ``BUCKET_FROM`` regions, ``BUCKET`` beyond (a large partition's tree stays small).
+        ``BUCKET_FROM`` regions, ``BUCKET`` beyond (a large partition's tree stays small),
+        ``LARGE["leaf_size"]`` beyond ``LARGE_FROM`` (where the tree also stops at nodes
+        no split makes much smaller: ``LARGE``).
 
     Returns
     -------
@@ -219,11 +229,12 @@ def plan(
     if method in ("bst", "auto"):
         try:
             labels = law_labels(dep) if merge_equal_laws else None
-            if leaf_size is None:
-                leaf_size = 1 if dep.num_regions <= BUCKET_FROM else BUCKET
-            tree = build_tree(
-                dep.A, dep.b, dep.off, dep.boxes, labels=labels, leaf_size=leaf_size
-            )
+            R = dep.num_regions
+            opts = dict(LARGE) if R > LARGE_FROM else {}
+            if leaf_size is not None:
+                opts["leaf_size"] = leaf_size
+            opts.setdefault("leaf_size", 1 if R <= BUCKET_FROM else BUCKET)
+            tree = build_tree(dep.A, dep.b, dep.off, dep.boxes, labels=labels, **opts)
             choices.append(("bst", tree))
         except TreeTooLargeError:
             if method == "bst":

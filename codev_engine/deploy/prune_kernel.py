@@ -129,6 +129,36 @@ def cutting(V, vstart, vcount, P, CA, Cb, tol, W, Wn, HA, Hb, cand, eps):
     n : int
         The points in the cell.
     """
+    pts = cell_points(V, vstart, vcount, P, CA, Cb, tol, W, Wn)
+    return cuts(pts, HA, Hb, cand, eps), pts.shape[0]
+
+
+@njit(cache=True)
+def cell_points(V, vstart, vcount, P, CA, Cb, tol, W, Wn):
+    """The points :func:`cutting` tests the candidates on: the (enlarged) vertices of
+    regions ``P`` inside the cell and the witnesses inside it.
+
+    Parameters
+    ----------
+    V : (K, d) float64 ndarray
+        The regions' (enlarged) vertices, region after region.
+    vstart, vcount : (R,) int64 ndarrays
+        Region ``i``'s vertices are ``V[vstart[i]:vstart[i] + vcount[i]]``.
+    P : (p,) int64 ndarray
+        The regions whose vertices count.
+    CA, Cb : (c, d), (c,) float64 ndarrays
+        The cell.
+    tol : float
+        A point is in the cell when ``CA v - Cb <= tol``.
+    W : (Q, K, d) float64 ndarray
+        Witnesses (rings of ``K`` per region, as in :func:`split_node`).
+    Wn : (Q,) int64 ndarray
+        Witnesses stored per region.
+
+    Returns
+    -------
+    (n, d) float64 ndarray
+    """
     d = V.shape[1]
     n = 0
     for q in range(P.size):
@@ -153,9 +183,32 @@ def cutting(V, vstart, vcount, P, CA, Cb, tol, W, Wn, HA, Hb, cand, eps):
             if _in_cell(W[q], w, CA, Cb, tol):
                 pts[m] = W[q, w]
                 m += 1
+    return pts
+
+
+@njit(cache=True)
+def cuts(pts, HA, Hb, cand, eps):
+    """Which candidates have points of ``pts`` on both sides beyond their margin (all of
+    them where there is no point): :func:`cutting` on points found once.
+
+    Parameters
+    ----------
+    pts : (n, d) float64 ndarray
+    HA, Hb : (H, d), (H,) float64 ndarrays
+        Every hyperplane.
+    cand : (k,) int64 ndarray
+        The candidates.
+    eps : (k,) float64 ndarray
+        Each candidate's margin.
+
+    Returns
+    -------
+    (k,) bool ndarray
+    """
+    n, d = pts.shape
     out = np.ones(cand.size, dtype=np.bool_)
     if n == 0:
-        return out, n
+        return out
     for c in range(cand.size):
         h = cand[c]
         below = False
@@ -171,7 +224,7 @@ def cutting(V, vstart, vcount, P, CA, Cb, tol, W, Wn, HA, Hb, cand, eps):
             if below and above:
                 break
         out[c] = below and above
-    return out, n
+    return out
 
 
 @njit(cache=True)

@@ -472,6 +472,65 @@ def test_candidates_filtered_by_the_cell_keep_the_tree_exact(monkeypatch, tmp_pa
     assert_agrees(lw, C, X)
 
 
+def _traversal_worst(t) -> tuple[int, int]:
+    """The deepest path and the most rows of one call, by walking the node table from
+    the root (independent of ``Tree.cost``)."""
+    nrows = np.diff(t.row_off)
+    worst = depth = 0
+    stack = [(0, 0)] if t.num_nodes else [(-1, 0)]
+    while stack:
+        k, dep = stack.pop()
+        if k < 0:
+            leaf = -1 - k
+            members = int(nrows[t.leaf_members[leaf]].sum())
+            fast = members if t.leaf_general[leaf] else t.leaf_fast[leaf].size
+            if t.group(leaf).size:
+                fast = int(nrows[t.group(leaf)].sum())
+            worst = max(worst, dep + max(fast, members))
+            depth = max(depth, dep)
+            continue
+        for child in t.node_next[k]:
+            stack.append((int(child), dep + 1))
+    return depth, worst
+
+
+@needs_cc
+@pytest.mark.parametrize("key", ["voronoi", "magnetic_pointer_c:inf:unmerged"])
+def test_nodes_no_split_shrinks_become_buckets_and_stay_exact(key, monkeypatch, tmp_path):
+    """The large-partition policy (``plan.LARGE``, forced here on a law of a few hundred
+    regions, with no table of extents as a large law has none): a node whose best split
+    keeps most of its regions in one child is a bucket leaf, larger than ``leaf_size``;
+    the C still returns locate's region on random states and on facets, and the
+    header's worst case is the exhaustive traversal's, never exceeded by a counting
+    build."""
+    import codev_engine.deploy.bst as bst
+    import codev_engine.deploy.plan as plan_mod
+
+    monkeypatch.setattr(bst, "TABLE_ENTRIES", 0)
+    monkeypatch.setattr(plan_mod, "LARGE_FROM", 0)
+    monkeypatch.setattr(plan_mod, "LARGE", {"leaf_size": 2, "stop_ratio": 0.6,
+                                            "bucket_max": 24, "budget": 5e5, "tries": 1})
+    lw = law(key)
+    ex = plan(lw, "bst")
+    t = ex.tree
+    st = t.stats
+    assert st.get("stopped", 0) + st.get("stopped_est", 0) > 0
+    assert max(g.size for g in t.leaf_group) > 2
+    assert max(g.size for g in t.leaf_group) <= 24
+    depth, worst = _traversal_worst(t)
+    assert (ex.depth, ex.tests) == (depth, worst)
+    C = Compiled(ex, tmp_path, count=True)
+    assert C.define("WORST_TESTS") == worst
+    X = np.vstack([random_points(lw, 20_000, seed=61), facet_points(lw, 2, seed=62, cap=20_000)])
+    assert_agrees(lw, C, X)
+    most = 0
+    for p in range(0, X.shape[0], 7):
+        C.count.value = 0
+        C(X[p : p + 1])
+        most = max(most, C.count.value)
+    assert 0 < most <= worst
+
+
 def test_cutting_keeps_the_hyperplanes_through_the_cell_points():
     """``prune_kernel.cutting``: a hyperplane cuts when the points in the cell (vertices
     and witnesses) lie on both sides; points outside the cell do not count."""
@@ -528,6 +587,50 @@ def test_a_test_set_mp_qp_tree_on_1e5_states(tmp_path):
     lw_like.b = [ex.dep.b[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
     Xf = facet_points(lw_like, 1, seed=42, cap=100_000)
     assert np.array_equal(C(Xf)[0], sol.locate(Xf))
+
+
+@needs_cc
+@pytest.mark.slow
+def test_a_1e4_region_mp_qp_gets_its_tree(tmp_path):
+    """pop_mpqp_083 (13,266 regions, d = 5; its tree gave up at 1,500 s CPU before the
+    large-partition policy, ``plan.LARGE``): the tree is built, the header's worst case is
+    the traversal's, the C returns locate's region on 10^5 random states and on 10^5
+    facet points, and a counting build stays within the header (~4 min)."""
+    from tests.engine.test_mp_testset import TESTSET
+
+    f = TESTSET / "pop_mpqp_083.npz"
+    if not f.is_file():
+        pytest.skip(f"mp_testset not found: {f}")
+    keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta")
+    with np.load(f, allow_pickle=False) as z:
+        sol = ce.mpsolve(ce.MpProgram(**{k: z[k] for k in keys}, name=f.stem))
+    assert sol.num_regions > 10_000
+    ex = plan(sol, "bst")
+    assert ex.method == "bst"
+    assert (ex.depth, ex.tests) == _traversal_worst(ex.tree)
+    C = Compiled(ex, tmp_path, count=True)
+    assert C.define("WORST_TESTS") == ex.tests
+    lo, hi = ex.dep.boxes
+    lo, hi = lo.min(axis=0), hi.max(axis=0)
+    X = np.random.default_rng(71).uniform(lo - 0.2 * (hi - lo), hi + 0.2 * (hi - lo),
+                                          size=(100_000, lo.size))
+    idx, Z = C(X)
+    ref = sol.locate(X)
+    assert np.array_equal(idx, ref)
+    inside = ref >= 0
+    assert inside.sum() > 1000
+    assert np.allclose(Z[inside], sol.primal(X[inside]), rtol=1e-12, atol=1e-12)
+    lw_like = type("L", (), {})()
+    lw_like.A = [ex.dep.A[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    lw_like.b = [ex.dep.b[ex.dep.off[i] : ex.dep.off[i + 1]] for i in range(sol.num_regions)]
+    Xf = facet_points(lw_like, 1, seed=72, cap=100_000)
+    assert np.array_equal(C(Xf)[0], sol.locate(Xf))
+    most = 0
+    for p in range(0, Xf.shape[0], 10):
+        C.count.value = 0
+        C(Xf[p : p + 1])
+        most = max(most, C.count.value)
+    assert 0 < most <= ex.tests
 
 
 def test_a_tree_past_its_budget_leaves_the_sequential_search(monkeypatch, tmp_path, capsys):
