@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/mplp.py [--repeats 2] [--horizons 20] [--testset DIR] [--json OUT]
+    python benchmarks/mplp.py [--repeats 2] [--horizons 20] [--pointer-horizons 8]
+                              [--testset DIR] [--json OUT]
                               [--ppopt combinatorial,geometric] [--ppopt-timeout 120]
 
 For each of the five paper mp-LPs (the condensed MPC of ``examples/<name>.toml``) it
@@ -17,8 +18,9 @@ the same MPC with ``norm = "2"`` (the mp-QP active-set search), its time per reg
 Then the double integrator with norms inf and 1 at each of ``--horizons``
 (``mplp="auto"``: the graph, or the explorer where the graph falls back), with its
 outcome (and the explorer's facet pieces skipped as flat, and the holes found past them and
-explored: ``mplp._Explorer._fill_holes``). With ``--testset``: the mp-LPs of that folder
-(the shared mp test set), facets against auto. With ``--ppopt``: PPOPT 1.6.12 on the
+explored: ``mplp._Explorer._fill_holes``), and the magnetic pointer with norm inf at
+each of ``--pointer-horizons`` (``auto``, one warm run). With ``--testset``: the mp-LPs of
+that folder (the shared mp test set), facets against auto. With ``--ppopt``: PPOPT 1.6.12 on the
 same five programs, each algorithm in its own subprocess killed at ``--ppopt-timeout``
 (``synth.run_peer``; CPU of the subprocess tree). Prints a table; asserts nothing.
 """
@@ -86,6 +88,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--horizons", default="20", help="comma-separated horizons")
+    ap.add_argument("--pointer-horizons", default="8",
+                    help="comma-separated horizons of the magnetic pointer (norm inf), or ''")
     ap.add_argument("--testset", default=None, help="folder of .npz programs")
     ap.add_argument("--json", default=None)
     ap.add_argument("--ppopt", default="", help="comma-separated PPOPT algorithms")
@@ -136,6 +140,18 @@ def main() -> None:
             rows.append(dict(problem=f"double_integrator norm={norm} N={n}", seconds=dt,
                              outcome=out))
             print(f"double integrator norm={norm:3s} N={n:3d}: {dt:7.2f} s CPU  {out}")
+    for n in (int(h) for h in args.pointer_horizons.split(",") if h):
+        # issue 29's target: N = 8 (~8,500 regions) under 5 s (auto, warm)
+        prog = program("magnetic_pointer_a", horizon=n)
+        try:
+            t, sol = timed(prog, "auto", 1)
+            out = f"{len(sol.regions)} regions, {sol.stats.get('mplp')}, " \
+                  f"{1e3 * t / max(1, len(sol.regions)):.2f} ms/region, " \
+                  f"slivers {sol.stats.get('slivers', 0)}"
+        except ce.CodevError as e:
+            t, out = float("nan"), f"error: {e}"
+        rows.append(dict(problem=f"magnetic_pointer_a N={n}", seconds=t, outcome=out))
+        print(f"magnetic pointer N={n:3d}: {t:7.2f} s CPU  {out}")
     if args.testset:
         tot = {"facets": 0.0, "auto": 0.0}
         for path in sorted(Path(args.testset).glob("*.npz")):

@@ -144,6 +144,7 @@ def solve_lp(
     beq: np.ndarray | None = None,
     lb: np.ndarray | None = None,
     ub: np.ndarray | None = None,
+    iter_limit: int = 10000,
 ) -> tuple[np.ndarray | None, str, np.ndarray | None]:
     """``min f'x  s.t.  A x <= b, Aeq x = beq, lb <= x <= ub``.
 
@@ -157,6 +158,8 @@ def solve_lp(
     beq : (ke,) ndarray, optional
     lb, ub : (nx,) ndarray, optional
         Bounds of the variables; infinite entries are no bound.
+    iter_limit : int
+        DAQP's iteration limit (its default); past it HiGHS answers.
 
     Returns
     -------
@@ -197,6 +200,7 @@ def solve_lp(
         # centre 3e-7 off its hyperplane made the exploration cycle
         primal_tol=1e-11,
         dual_tol=1e-12,
+        iter_limit=iter_limit,
     )
     if flag == 1:
         return np.asarray(x, dtype=float), "optimal", np.asarray(info["lam"], dtype=float)

@@ -191,6 +191,29 @@ def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: flo
     return float(np.max(move)) / max(scale, 1e-300)
 
 
+def cannot_step(p: np.ndarray) -> SolverError:
+    """The explorer's error where it cannot find the region past a facet: every step
+    across, down to rounding level, lands in the region it starts from or in none that
+    touches the facet (one line, naming what to change).
+
+    Parameters
+    ----------
+    p : numpy.ndarray
+        The point of the facet stepped from.
+
+    Returns
+    -------
+    SolverError
+        To raise.
+    """
+    where = np.array2string(np.asarray(p, dtype=float), precision=4)
+    return SolverError(
+        f"the mp-LP explorer could not step across a facet near theta={where}: the regions "
+        "there are thinner than its steps resolve in double precision (with norm 1 or inf, "
+        "typically a long horizon); shorten mpc.horizon, or use norm = \"2\""
+    )
+
+
 def too_imprecise(q: np.ndarray | None, move: float | None) -> SolverError:
     """The error the mp-LP engines raise where double precision cannot decide a region
     (one line, naming what to change).
@@ -911,7 +934,7 @@ class _Explorer:
             if target == -2:
                 return new_regions  # the facet is on the feasible set's boundary
             if target < 0:
-                raise SolverError("could not step across a facet (numerical trouble)")
+                raise cannot_step(p)
             if whole and self._covers_whole_facet(i, j, target):
                 return new_regions  # neighbour meets this facet facet-to-facet (or more)
             whole = False

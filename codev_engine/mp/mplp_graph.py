@@ -39,9 +39,15 @@ the dual simplex and the lexicographic test are compiled calls (``mplp_kernel``)
 decisions as the numpy code here; where the kernel cannot conclude, the numpy code does
 that step.
 
+**Slivers.** A neighbour thinner than ``region_tol`` is computed again with the floor
+``SLIVER_FLOOR`` and kept when a ball checked on all its rows is above that floor and
+``SLIVER_MARGIN`` times its boundary's uncertainty (the magnetic pointer with N = 8 has ten,
+radius ~5e-9, among 8,706 regions).
+
 When a step of the search cannot be made exact (a basis matrix numerically singular, a
-region that comes out thinner than ``region_tol``, a neighbour that does not touch the
-facet) :func:`explore_bases` returns None and the caller uses the geometric explorer.
+neighbour thinner than ``region_tol`` that is no certified sliver, a neighbour that does
+not touch the facet) :func:`explore_bases` returns None and the caller uses the geometric
+explorer.
 A region whose boundary is beyond double precision (``mplp.boundary_uncertainty`` above
 ``mplp.PRECISION_LIMIT``) raises the explorer's ``too_imprecise`` error at once: the
 explorer would meet the same law and fail after far longer.
@@ -76,6 +82,12 @@ JIT_AFTER = 32
 #: pivots of the compiled dual simplex between fresh factorisations (rank-1 updates of the
 #: basis inverse in between; the basis it ends on is checked from a fresh factorisation)
 REFRESH = 8
+#: a neighbour thinner than ``region_tol`` (a sliver: the lexicographic pivots make it
+#: full-dimensional in exact arithmetic) is kept when its inscribed radius is above this
+#: (relative to the parameter set's size) and ``SLIVER_MARGIN`` times the uncertainty of
+#: its boundary in double precision
+SLIVER_FLOOR = 1e-12
+SLIVER_MARGIN = 1e3
 
 
 class _NotExactError(Exception):
@@ -415,12 +427,71 @@ class _Search:
                 raise too_imprecise(c if c is not None else x0, move)
         return out
 
-    def _region_raw(self, B: np.ndarray, x0: np.ndarray | None = None):
+    def _sliver(self, B: np.ndarray, x0: np.ndarray):
+        """:meth:`_region` for a neighbour that came out thinner than ``region_tol``: its
+        region again with the tolerance ``SLIVER_FLOOR`` (relative), accepted when its
+        inscribed radius is also ``SLIVER_MARGIN`` times its boundary's uncertainty in
+        double precision (``mplp.boundary_uncertainty``), else None.
+
+        Parameters
+        ----------
+        B : numpy.ndarray
+            The neighbour's basis, reached by the lexicographic dual simplex (so its
+            region is full-dimensional in exact arithmetic).
+        x0 : numpy.ndarray
+            The centre of the facet crossed.
+
+        Returns
+        -------
+        tuple or None
+            As :meth:`_region`, with the tolerance used for its facets last.
+        """
+        from codev_engine.geometry.lp_kernel import OPTIMAL, chebyshev
+        from codev_engine.mp import mplp_kernel
+
+        r, f = self.r, np.ascontiguousarray
+        tol = SLIVER_FLOOR * self.scale
+        B = np.sort(np.asarray(B, dtype=np.int64))
+        # the compiled region in either mode: its Chebyshev LP is a simplex to rounding
+        # level (DAQP's can be off by far more than a sliver's width)
+        status, K, k0, A, b, mark, fc, frho = mplp_kernel.region(
+            f(r.G), f(r.w), f(r.S), f(r.At), f(r.bt), B, self.zero, float(tol),
+            float(self.size.bound), np.asarray(x0, dtype=float), self.maxit,
+        )
+        if status != mplp_kernel.FULL:
+            return None
+        move = boundary_uncertainty(r, K, k0, self.size.bound, self.scale)
+        if move > PRECISION_LIMIT:
+            raise too_imprecise(x0, move)
+        st, centre, _, _ = chebyshev(A, b, np.asarray(x0, dtype=float), float(self.size.bound),
+                                     self.maxit)
+        if st != OPTIMAL:
+            return None
+        # the ball certified on every row of the region (the slacks of all other rows and
+        # the parameter set), not only on the rows kept
+        nb = np.ones(self.m, dtype=bool)
+        nb[B] = False
+        Ar = np.vstack([(r.G @ K - r.S)[nb], r.At])
+        br = np.concatenate([(r.w - r.G @ k0)[nb], r.bt])
+        nrm = np.linalg.norm(Ar, axis=1)
+        live = nrm > 1e-12
+        if np.any(br[~live] < 0.0):
+            return None
+        radius = float(np.min((br[live] - Ar[live] @ centre) / nrm[live]))
+        if not radius > max(tol, SLIVER_MARGIN * move * self.scale):
+            return None
+        self.stats["slivers"] = self.stats.get("slivers", 0) + 1
+        reg = CriticalRegion(A=A, b=b, K=K, k=k0, active=tuple(int(i) for i in B))
+        return reg, mark, (fc, frho), tol
+
+    def _region_raw(self, B: np.ndarray, x0: np.ndarray | None = None,
+                    tol: float | None = None):
+        tol = self.region_tol if tol is None else tol
         if self.jit is not None:
             jit = self.jit
             status, K, k0, A, b, mark, fc, frho = jit.region(
                 self.G, self.w, self.S, self.At, self.bt, np.sort(B).astype(np.int64),
-                self.zero, float(self.region_tol), float(self.size.bound),
+                self.zero, float(tol), float(self.size.bound),
                 np.zeros(self.d) if x0 is None else np.asarray(x0, dtype=float), self.maxit,
             )
             if status == jit.THIN:
@@ -430,9 +501,9 @@ class _Search:
             else:
                 active = tuple(int(i) for i in np.sort(B))
                 return CriticalRegion(A=A, b=b, K=K, k=k0, active=active), mark, (fc, frho)
-        return self._region_numpy(B)
+        return self._region_numpy(B, tol)
 
-    def _region_numpy(self, B: np.ndarray):
+    def _region_numpy(self, B: np.ndarray, tol: float):
         r = self.r
         lu = self._lu(B)
         Z = lu_solve(lu, np.hstack([r.w[B, None], r.S[B]]), check_finite=False)
@@ -458,7 +529,7 @@ class _Search:
             Ar, br, mark, nrm = Ar[~zero_rows], br[~zero_rows], mark[~zero_rows], nrm[~zero_rows]
         Ar, br = Ar / nrm[:, None], br / nrm
         centre, radius = chebyshev_ball(Ar, br)
-        if not radius > self.region_tol:
+        if not radius > tol:
             return None
         keep = certified_minimal_rows(Ar, br, self.size.bound)
         active = tuple(int(i) for i in np.sort(B))
@@ -498,15 +569,17 @@ class _Search:
         regions: list[CriticalRegion] = []
         marks: list[np.ndarray] = []
         facets: list = []
+        tols: list[float] = []  # each region's tolerance (``region_tol``, or a sliver's)
         known: dict[bytes, int] = {}
         self.known = known
 
         def add(B, out) -> int:
-            reg, mark, fac = out
+            reg, mark, fac = out[:3]
             known[np.sort(B).tobytes()] = len(regions)
             regions.append(reg)
             marks.append(mark)
             facets.append(fac)
+            tols.append(out[3] if len(out) > 3 else self.region_tol)
             self.stats["bases"] += 1
             if self.progress is not None:
                 self.progress(len(regions))
@@ -527,12 +600,13 @@ class _Search:
             todo = np.flatnonzero(~marks[i])
             stats["facets"] += todo.size
             fac = facets[i]
+            tol = tols[i]
             if fac is not None:
                 # the compiled kernel's facet centres: the rows that only touch the region
                 # and the slacks' rows on the parameter set's boundary go at once
                 fc, frho = fac
                 rho = frho[todo]
-                touching = rho <= self.region_tol
+                touching = rho <= tol
                 stats["touching_rows"] += int(np.count_nonzero(touching))
                 todo = todo[~touching]
                 if todo.size and At.shape[0]:
@@ -553,7 +627,7 @@ class _Search:
                     centre, rho = chebyshev_ball(
                         reg.A[others], reg.b[others], a[None, :], np.array([beta])
                     )
-                    if not rho > self.region_tol:
+                    if not rho > tol:
                         # a row kept without a proof of redundancy that only touches the
                         # region (at a vertex, say): not a facet, nothing to cross
                         stats["touching_rows"] += 1
@@ -575,6 +649,8 @@ class _Search:
                     )
                     continue
                 out = self._region(nbr, centre)
+                if out is None:
+                    out = self._sliver(nbr, centre)
                 if out is None:
                     raise _NotExactError("a neighbour's region is lower-dimensional")
                 nreg = out[0]

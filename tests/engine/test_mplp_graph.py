@@ -239,3 +239,87 @@ def test_boundary_uncertainty_separates_the_horizons():
     assert len(sol) == 160
     worst = max(boundary_uncertainty(red, r.K, r.k, size.bound, size.scale) for r in sol)
     assert worst < 0.1 * PRECISION_LIMIT
+
+
+def sliver_program(delta: float) -> ce.MpProgram:
+    """``min z`` with ``z >= 0, z >= t1, z >= 2 t1 - delta`` (and ``z <= 10``),
+    ``t in [-1, 1]^2``: the law ``z = t1`` holds on the slab ``0 <= t1 <= delta`` only."""
+    return program(c=[1.0], A=[[-1.0], [-1.0], [-1.0], [1.0]], b=[0.0, 0.0, delta, 10.0],
+                   F=[[-1.0, 0.0], [0.0, 0.0], [-2.0, 0.0], [0.0, 0.0]],
+                   theta_lo=[-1.0, -1.0], theta_hi=[1.0, 1.0])
+
+
+@pytest.mark.parametrize("kernel_mode", ["numpy", "compiled"])
+def test_sliver_thinner_than_region_tol_stays_on_the_graph(kernel_mode, monkeypatch):
+    """A neighbour reached by the lexicographic pivots is full-dimensional in exact
+    arithmetic; one thinner than ``region_tol`` (here 2e-9 for this parameter box) whose
+    certified inscribed radius is far above its boundary's rounding is a real region (the
+    magnetic pointer with N = 8 has ten, radius ~5e-9 near the box's face x2 = 10). The
+    graph used to give up there ("a neighbour's region is lower-dimensional") and hand the
+    program to the explorer, which drops such slivers (a hole) and on that MPC failed."""
+    monkeypatch.setattr(mplp_graph, "JIT_AFTER", 0 if kernel_mode == "compiled" else 10**9)
+    sol = _solve(sliver_program(3e-9), "auto")
+    assert sol.stats["mplp"] == "bases", sol.stats.get("graph_fallback")
+    assert sol.stats.get("slivers") == 1
+    assert len(sol.regions) == 3
+    # the slab's law at a point inside it (no other region holds that point)
+    x = np.array([1.5e-9, 0.3])
+    inside = [r for r in sol.regions if np.all(r.A @ x <= r.b)]
+    assert len(inside) == 1
+    reg = inside[0]
+    assert np.allclose(reg.K @ x + reg.k, [x[0]], rtol=0, atol=1e-15)
+
+
+@pytest.mark.slow
+def test_magnetic_pointer_long_horizon_passes_the_oracle():
+    """Issue 29's target: the magnetic pointer (norm inf) with N = 8, 8,706 regions on the
+    basis graph (ten slivers thinner than ``region_tol``), where it used to fall back at
+    1,390 regions and the explorer ended with "could not step across a facet" after
+    5,248. The synthesis oracle on 400 random points and the facet probes, and HiGHS's
+    optimum of the condensed LP at the centre of every region thinner than 1e-6 (98, the
+    ten slivers among them)."""
+    from scipy.optimize import linprog
+
+    from codev_engine.synthesis import law_from_solution
+    from tests.engine.test_synthesis_oracle import _check, compare
+
+    prob = load_spec(EXAMPLES / "magnetic_pointer_a.toml")
+    prob = dataclasses.replace(prob, mpc=dataclasses.replace(prob.mpc, horizon=8))
+    model = discretize(prob)
+    mp = build_program(prob.mpc, model)
+    sol = ce.mpsolve(mp.program)
+    assert sol.stats["mplp"] == "bases", sol.stats.get("graph_fallback")
+    assert len(sol.regions) == 8706
+    assert sol.stats.get("slivers", 0) >= 1
+    law = law_from_solution(mp, sol, simplify=prob.mpc.simplify)
+    prog = mp.program
+    thin = 0
+    for reg in sol.regions:
+        centre, radius = chebyshev_ball(reg.A, reg.b, solver="highs")
+        if radius > 1e-6:
+            continue
+        thin += 1
+        # the region's own law against HiGHS on the condensed LP at its centre (the online
+        # MPC is no reference this close to the box's faces: its first move passes u_max
+        # by its tolerance, 6e-7 at one of them, and the cost there is steep in u)
+        z = reg.K @ centre + reg.k
+        rhs = prog.b + prog.F @ centre
+        assert np.max(prog.A @ z - rhs) <= 1e-8, centre
+        lp = linprog(prog.c, A_ub=prog.A, b_ub=rhs, bounds=(None, None), method="highs")
+        assert lp.status == 0
+        assert prog.c @ z <= lp.fun + 1e-9 * max(1.0, abs(lp.fun)), centre
+    assert thin >= 10, thin
+    _check(compare("magnetic_pointer_a_N8", prob.mpc, model, law, n_uniform=400))
+
+
+@pytest.mark.slow
+def test_explorer_that_cannot_step_names_what_to_change():
+    """The explorer alone on the magnetic pointer with N = 8 (``mplp="facets"``) still
+    cannot step across a facet near the slivers (at about 5,200 regions, ~22 s of CPU);
+    it used to say only "could not step across a facet (numerical trouble)"."""
+    prob = load_spec(EXAMPLES / "magnetic_pointer_a.toml")
+    prob = dataclasses.replace(prob, mpc=dataclasses.replace(prob.mpc, horizon=8))
+    prog = build_program(prob.mpc, discretize(prob)).program
+    with pytest.raises(ce.SolverError, match=r"could not step across a facet near theta=.*"
+                       r"shorten mpc\.horizon, or use norm = \"2\""):
+        _solve(prog, "facets")
