@@ -180,6 +180,11 @@ class NonlinearReach(ClosedLoopSetup):
         self.enc = plant_enclosures(p)
         self.hess = plant_hessian(p)
         self._init_properties()
+        # measurement noise (docs/verification.md, "Nonlinear plants with measurement
+        # noise"): vc, vr, the offsets Gn = G + F vc (None: no noise, nothing changes)
+        self._init_noise()
+        if self.vr is not None and self.hold != "zoh":
+            raise ValueError("the nonlinear engine follows measurement noise under zoh only")
         # disturbances and uncertain parameters (docs/verification.md, "Nonlinear plants
         # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
         self.xlo = self.xhi = self.xnom = self.xdev = None
@@ -516,6 +521,11 @@ class NonlinearReach(ClosedLoopSetup):
         self.domain_note = None
         n, m = self.n, self.m
         F, G = self.law.F[i], self.law.G[i]
+        # with noise: the input is F (x_k + vc) + G + F delta, |delta| <= vr: the centre's
+        # offset Gn, the rest a bounded input ``nu`` held over the period (zoh)
+        nu = None
+        if self.vr is not None:
+            G, nu = self.Gn[i], self._noise_input(i)
         t_k = s.k * self.Ts
         tau_end = min(self.Ts, self.T - t_k)
         N = max(1, int(np.ceil(tau_end / self.h - 1e-9)))
@@ -534,6 +544,8 @@ class NonlinearReach(ClosedLoopSetup):
             uhi = _up(uc + FDhi + FMn + pad)
             # the centre's input may lie outside (y need not be in a cut set): hull
             ulo, uhi = np.minimum(ulo, _dn(uc)), np.maximum(uhi, _up(uc))
+            if nu is not None:  # every held input of every noise value
+                ulo, uhi = _dn(ulo - nu), _up(uhi + nu)
             FDv = s.V @ (F @ s.D).T
             du_norm = (
                 float(np.max(np.linalg.norm(FDv, axis=1))) + float(np.linalg.norm(F @ s.M, 2))
@@ -702,6 +714,8 @@ class NonlinearReach(ClosedLoopSetup):
                     q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, :n])
                 if self.xlo is not None:
                     q = q + Jwc[jfin] @ self.xdev
+                if nu is not None:  # the linear part leaves out Juc F delta
+                    q = q + np.abs(Juc[jfin]) @ nu
                 with np.errstate(invalid="ignore"):
                     c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
                 c2 = np.where(np.isnan(c2), np.inf, c2)
@@ -720,6 +734,13 @@ class NonlinearReach(ClosedLoopSetup):
                     Ul, Uh = Ul[..., :m], Uh[..., :m]
                 else:
                     bw = 0.0
+                if nu is not None:
+                    # the noise's part of the held input: a forcing |Ju| |F delta| (mean
+                    # value over the enclosures, the input box holds every noise value)
+                    Jn = np.maximum(np.abs(Ul), np.abs(Uh))
+                    with np.errstate(invalid="ignore"):
+                        bn = np.linalg.norm((Jn @ nu) @ self.absW.T, axis=1)
+                    bw = bw + np.where(np.isnan(bn), np.inf, bn) * (1 + 1e-10) + 1e-300
                 Rx = np.maximum(np.abs(Xl - Jxc[jfin]), np.abs(Xh - Jxc[jfin]))
                 Ru = np.maximum(np.abs(Ul - Juc[jfin]), np.abs(Uh - Juc[jfin]))
                 R = Rx if zoh else Rx + Ru @ np.abs(F)
@@ -832,16 +853,22 @@ class NonlinearReach(ClosedLoopSetup):
         if self.check_u:
             F, G = self.law.F[i], self.law.G[i]
             if self.hold == "zoh":
+                # (with noise too: the input is the law at a point x + v of the region)
                 if self._region_u_ok(i):
                     return False
                 # range of the held input: over the star (cut by the region) and over the
                 # box within the region (LPs); both are sound, take the tighter
                 dlo, dhi = s.range(F)
                 e = s.ell(F)
+                nu = np.zeros(self.m)
+                if self.vr is not None:  # F (x + vc) + G + F delta, |F delta| <= nu
+                    G, nu = self.Gn[i], self._noise_input(i)
                 c = F @ s.y + G
                 pad = 1e-12 * (1 + np.abs(c) + np.abs(F) @ (np.abs(s.y) + s.mag()) + e)
-                slo, shi = c + dlo - e - pad, c + dhi + e + pad
+                slo, shi = c + dlo - e - pad - nu, c + dhi + e + pad + nu
                 xlo, xhi = self._box(s)
+                if self.vr is not None:  # the measurement x + v: in this box and the region
+                    xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
                 ulo, uhi = self._u_range(i, xlo, xhi)
                 ulo, uhi = np.maximum(ulo, slo), np.minimum(uhi, shi)
                 return bool(np.any(ulo < self.u_min) or np.any(uhi > self.u_max))
@@ -911,6 +938,8 @@ class NonlinearReach(ClosedLoopSetup):
                     _, up = s.range(A)
                     pad = 1e-12 * (1 + np.abs(A) @ (np.abs(s.y) + s.mag()))
                     sup = A @ s.y + up + s.ell(A) + pad
+                    if self.vr is not None:  # a measurement x + v that may leave
+                        sup = sup + (A @ self.vc + np.abs(A) @ self.vr) * (1.0 + 1e-12)
                     if np.any(sup > b) and flag("undefined", t):
                         return status, tubes, first_t
                 children = self._split(s)
@@ -963,6 +992,8 @@ class NonlinearReach(ClosedLoopSetup):
         state of the region (plus 1e-9) -- exact for the star part, sound for the ellipsoid.
         """
         xlo, xhi = self._box(s)
+        if self.vr is not None:  # what the law may see: x + v
+            xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
         cand = np.flatnonzero(
             np.all(self.boxes_lo <= xhi + 1e-9, axis=1)
             & np.all(self.boxes_hi >= xlo - 1e-9, axis=1)
@@ -972,7 +1003,8 @@ class NonlinearReach(ClosedLoopSetup):
         xpad = 1e-12 * (np.abs(s.y) + s.mag())
         poly = s.poly
         for i in cand:
-            Ai, bi = self.law.A[i], self.law.b[i]
+            # (with noise: the states whose measurement x + v may be in the region)
+            Ai, bi = self.law.A[i], self._reach_rows(self.law.A[i], self.law.b[i])
             slack = s.ell(Ai) + 1e-9 + np.abs(Ai) @ xpad
             viol = X @ Ai.T - bi  # (nv, rows)
             if np.any(np.all(viol > slack, axis=0)):
@@ -1089,6 +1121,7 @@ class NonlinearReach(ClosedLoopSetup):
         """
         from codev_engine.reach.simulate import (
             first_violation,
+            nominal_signal,
             simulate,
             simulate_many,
             violations_many,
@@ -1106,13 +1139,20 @@ class NonlinearReach(ClosedLoopSetup):
             # a concrete trajectory from the piece's centre may settle it (screened with the
             # fast fixed-step simulation, confirmed with the reference integrator)
             x0 = 0.5 * (lo + hi)
+            # (with noise: the noise's centre at every sample, one valid sequence)
+            noise = sig = None
+            if self.vr is not None:
+                noise = self.vc[None, None, : self.n]
+                sig = replace(nominal_signal(self.problem), noise=self.vc[None, : self.n])
             try:
                 with np.errstate(all="ignore"):
                     sims = simulate_many(
-                        self.problem, self.law, x0[None], hold=self.hold, dt=self.h
+                        self.problem, self.law, x0[None], hold=self.hold, dt=self.h,
+                        noise=noise,
                     )
                 if violations_many(self.problem, *sims)[0][0]:
-                    trace = simulate(self.problem, self.law, x0, hold=self.hold)
+                    trace = simulate(self.problem, self.law, x0, hold=self.hold,
+                                     disturbance=sig)
                     v = first_violation(self.problem, self.law, trace)
             except SolverError:
                 v = None  # the trajectory is not finite (a singularity): no counterexample
