@@ -183,8 +183,6 @@ class NonlinearReach(ClosedLoopSetup):
         # measurement noise (docs/verification.md, "Nonlinear plants with measurement
         # noise"): vc, vr, the offsets Gn = G + F vc (None: no noise, nothing changes)
         self._init_noise()
-        if self.vr is not None and self.hold != "zoh":
-            raise ValueError("the nonlinear engine follows measurement noise under zoh only")
         # disturbances and uncertain parameters (docs/verification.md, "Nonlinear plants
         # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
         self.xlo = self.xhi = self.xnom = self.xdev = None
@@ -389,7 +387,7 @@ class NonlinearReach(ClosedLoopSetup):
         nominal values for the centre, ``nom``), unless it already has them.
         """
         if ulo is None:
-            ulo, uhi = self._u_boxes(i, lo, hi)
+            ulo, uhi = self._u_boxes(i, lo, hi, nom)
         ulo, uhi = self._with_extra(ulo, uhi, nom)
         return self._eval(self.enc.f_fn, *self.enc.box(lo, hi, ulo, uhi))
 
@@ -405,12 +403,19 @@ class NonlinearReach(ClosedLoopSetup):
                     np.hstack([uhi, np.broadcast_to(ehi, (P, ehi.size))]))
         return np.concatenate([ulo, elo]), np.concatenate([uhi, ehi])
 
-    def _u_boxes(self, i, lo, hi):
+    def _u_boxes(self, i, lo, hi, nom=False):
+        """Boxes of the continuous hold's input ``F_i x + G_i`` over state boxes; with
+        measurement noise ``F_i (x + v_k) + G_i``: about the noise's centre (``Gn``), widened
+        by ``_noise_input`` unless ``nom`` (the centre's own input, the noise's centre)."""
         F, G = self.law.F[i], self.law.G[i]
+        if self.vr is not None:
+            G = self.Gn[i]
         c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
         mid = c @ F.T + G
         rad = r @ np.abs(F).T
         pad = 4 * _U * (np.abs(c) @ np.abs(F).T + np.abs(G) + rad) + 1e-300
+        if self.vr is not None and not nom:
+            rad = rad + self._noise_input(i)
         return _dn(mid - rad - pad), _up(mid + rad + pad)
 
     def _picard(self, slo, shi, i, ulo, uhi, h, nom=False):
@@ -467,7 +472,7 @@ class NonlinearReach(ClosedLoopSetup):
         """Interval Jacobians (Jx, Ju) over boxes, for the mode's input (Ju also in the
         disturbances and parameters, after the inputs' m columns, when there are any)."""
         if ulo is None:
-            ulo, uhi = self._u_boxes(i, lo, hi)
+            ulo, uhi = self._u_boxes(i, lo, hi, nom)
         ulo, uhi = self._with_extra(ulo, uhi, nom)
         z = self.enc.box(lo, hi, ulo, uhi)
         return self._eval(self.enc.jac_x_fn, *z), self._eval(self.enc.jac_u_fn, *z)
@@ -521,8 +526,9 @@ class NonlinearReach(ClosedLoopSetup):
         self.domain_note = None
         n, m = self.n, self.m
         F, G = self.law.F[i], self.law.G[i]
-        # with noise: the input is F (x_k + vc) + G + F delta, |delta| <= vr: the centre's
-        # offset Gn, the rest a bounded input ``nu`` held over the period (zoh)
+        # with noise: the input is F (x_k + vc) + G + F delta (continuous: F (x(t) + vc) +
+        # G + F delta), |delta| <= vr: the centre's offset Gn, the rest a bounded input
+        # ``nu`` held over the period
         nu = None
         if self.vr is not None:
             G, nu = self.Gn[i], self._noise_input(i)
@@ -694,6 +700,8 @@ class NonlinearReach(ClosedLoopSetup):
                     zh = np.hstack([Hhi[jfin], np.broadcast_to(uhi, (jfin.size, m))])
                 else:
                     Du_ = Dx @ np.abs(F).T
+                    if nu is not None:  # u - u_z = F (x - z) + eta, |eta| <= nu
+                        Du_ = Du_ + nu
                     ul_, uh_ = self._u_boxes(i, Hlo[jfin], Hhi[jfin])
                     zl = np.hstack([Hlo[jfin], ul_])
                     zh = np.hstack([Hhi[jfin], uh_])
@@ -714,8 +722,12 @@ class NonlinearReach(ClosedLoopSetup):
                     q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, :n])
                 if self.xlo is not None:
                     q = q + Jwc[jfin] @ self.xdev
-                if nu is not None:  # the linear part leaves out Juc F delta
-                    q = q + np.abs(Juc[jfin]) @ nu
+                if nu is not None:  # the linear part leaves out the noise's input eta:
+                    # Juc eta under zoh (J(z, uc) - Jc is in Rc Dz, Dz holding |eta|); the
+                    # Jacobian along the centre J_u(z) eta under continuous hold (Rc is the
+                    # closed loop's, over x - z only)
+                    Jn = np.abs(Juc) if zoh else np.maximum(np.abs(cjl[1]), np.abs(cjh[1]))
+                    q = q + Jn[jfin] @ nu
                 with np.errstate(invalid="ignore"):
                     c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
                 c2 = np.where(np.isnan(c2), np.inf, c2)
@@ -875,8 +887,13 @@ class NonlinearReach(ClosedLoopSetup):
             zl, zu = self._support(rec, F)
             c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
             bl, bu = c @ F.T - r @ np.abs(F).T, c @ F.T + r @ np.abs(F).T
-            umin = np.maximum(zl, bl) + G
-            umax = np.minimum(zu, bu) + G
+            if self.vr is None:
+                umin = np.maximum(zl, bl) + G
+                umax = np.minimum(zu, bu) + G
+            else:  # F (x + vc) + G + F delta: about Gn, widened by |F delta| <= nu
+                nu = self._noise_input(i)
+                umin = np.maximum(zl, bl) + self.Gn[i] - nu
+                umax = np.minimum(zu, bu) + self.Gn[i] + nu
             # u(t) = u(t_k) + int F f: u(t_k) lies in the region's range of the law, and the
             # integral is bounded by the substeps' [F f](B) (a state at the region's edge
             # that moves inwards keeps its input inside the bounds)

@@ -69,8 +69,8 @@ UNKNOWN_WORDS = {
     "invariant": "for all time: an invariance certificate",
     "uncertain": "the reach engines do not follow a nonlinear plant's disturbances or "
     "uncertain parameters yet",
-    "noise": "the nonlinear engine does not follow measurement noise here yet (continuous "
-    "hold, time_horizon = inf)",
+    "noise": "the nonlinear engine does not follow measurement noise here yet "
+    "(time_horizon = inf, a law over theta)",
 }
 
 
@@ -511,14 +511,14 @@ def verify(
                         field="cells")
     t0 = time.perf_counter()
     if vs.noisy and affine_plant(problem) is None and (
-        hold != "zoh" or not np.isfinite(vs.time_horizon) or law.n > problem.plant.n
+        not np.isfinite(vs.time_horizon) or law.n > problem.plant.n
     ):
-        # measurement noise on a nonlinear plant: followed by the nonlinear engine under zoh
-        # over a bounded horizon only -- elsewhere a limitation, so a verdict; a
-        # counterexample is still sought under concrete noise sequences (and signals)
+        # measurement noise on a nonlinear plant: followed by the nonlinear engine over a
+        # bounded horizon only -- elsewhere a limitation, so a verdict; a counterexample is
+        # still sought under concrete noise sequences (and signals)
         return _limited(problem, law, hold, t0, "noise",
-                        "measurement noise on a nonlinear plant is verified under zoh, "
-                        "over a bounded horizon, for a law over the state only")
+                        "measurement noise on a nonlinear plant is verified over a bounded "
+                        "horizon, for a law over the state only")
     if law.n > problem.plant.n and (
         hold != "zoh" or not np.isfinite(vs.time_horizon) or affine_plant(problem) is None
     ):

@@ -1,7 +1,8 @@
-"""Measurement noise on a nonlinear plant (the pendulum), followed by the nonlinear engine under
-zoh (docs/verification.md, "Nonlinear plants with measurement noise"): a set branches into
-every region its Minkowski sum with the noise box meets, and the noise's part of the held
-input, ``F_i delta`` with ``|delta| <= vr``, widens the input box and forces the discrepancy.
+"""Measurement noise on a nonlinear plant (the pendulum), followed by the nonlinear engine
+(docs/verification.md, "Nonlinear plants with measurement noise"): a set branches into every
+region its Minkowski sum with the noise box meets, and the noise's part of the input,
+``F_i delta`` with ``|delta| <= vr`` held over the period, widens the input boxes and forces
+the discrepancy (zoh and continuous hold).
 
 The oracle: dense simulation under random, bang-bang and adversarial noise sequences (the
 adversaries pick, at each sample, the corner of the box whose region and law push furthest
@@ -40,21 +41,26 @@ def _pendulum(lo, hi, T=0.6, hold="zoh", initial=INITIAL, depth=6):
     return loads_spec(text)
 
 
-def test_pendulum_tube_holds_noisy_runs():
+@pytest.mark.parametrize("hold", ["zoh", "continuous"])
+def test_pendulum_tube_holds_noisy_runs(hold):
     # noise of 0.5 % of the state range (th in [-1, 1], w in [-5, 5])
-    problem = _pendulum([-0.005, -0.025], [0.005, 0.025])
+    problem = _pendulum([-0.005, -0.025], [0.005, 0.025], hold=hold)
     law = synthesize(problem)
     result = verify(problem, law)
     assert result.verdict == "robustly_safe", result.summary()
     _assert_sound(problem, law, result, P=150, seed=3)
 
 
-@pytest.mark.parametrize("lo, hi, T", [([-0.002, -0.01], [0.002, 0.01], 3.0),
-                                       ([-0.005, -0.025], [0.005, 0.025], 0.6)])
-def test_point_like_initial_set_tube_holds_noisy_runs(lo, hi, T):
-    # (without the noise's input widening and forcing, hundreds of these noisy states
-    # leave the tube: the tube of a point-like set is that of one noise sequence)
-    problem = _pendulum(lo, hi, T=T, initial=POINT)
+@pytest.mark.parametrize("lo, hi, T, hold", [
+    ([-0.002, -0.01], [0.002, 0.01], 3.0, "zoh"),
+    ([-0.005, -0.025], [0.005, 0.025], 0.6, "zoh"),
+    ([-0.002, -0.01], [0.002, 0.01], 2.0, "continuous"),
+    ([-0.005, -0.025], [0.005, 0.025], 0.6, "continuous"),
+])
+def test_point_like_initial_set_tube_holds_noisy_runs(lo, hi, T, hold):
+    # (without the noise's input widening or without its forcing, hundreds of these noisy
+    # states leave the tube: the tube of a point-like set is that of one noise sequence)
+    problem = _pendulum(lo, hi, T=T, initial=POINT, hold=hold)
     law = synthesize(problem)
     result = verify(problem, law)
     assert result.verdict == "robustly_safe", result.summary()
@@ -95,13 +101,14 @@ def test_split_keeps_every_region_a_noisy_measurement_may_select():
     assert tried >= 5
 
 
-def test_verdict_is_no_longer_unknown_noise_and_continuous_hold_still_is():
+def test_verdict_is_no_longer_unknown_noise_and_for_all_time_still_is():
     problem = _pendulum([-0.002, -0.01], [0.002, 0.01], T=3.0)
     law = synthesize(problem)
     result = verify(problem, law)
     assert (result.verdict, result.reason) == ("robustly_safe", None), result.summary()
-    cont = verify(_pendulum([-0.002, -0.01], [0.002, 0.01], T=0.3, hold="continuous"), law)
-    assert (cont.verdict, cont.reason) == ("unknown", "noise")
+    # (time_horizon = "inf": the ellipsoids of reach.terminal are the nominal loop's)
+    ever = verify(_pendulum([-0.002, -0.01], [0.002, 0.01], T='"inf"\nmax_samples = 20'), law)
+    assert (ever.verdict, ever.reason) == ("unknown", "noise")
 
 
 def test_noise_large_enough_gives_a_replayed_counterexample():
