@@ -298,6 +298,51 @@ class ClosedLoopSetup:
         self._max_boxes = max(1, lim["tube_bytes"] // ((2 * self.n + 3) * 8))
         self._tube_gib = lim["tube_bytes"] / 2**30
 
+    def _init_noise(self) -> None:
+        """The measurement noise's centre ``vc`` and radius ``vr`` (None without noise), the
+        law's offsets with the noise's centre ``Gn`` and a bound ``Gn_err`` on their
+        rounding (docs/verification.md, "Measurement noise"). After :meth:`_init_properties`.
+        """
+        vs = self.problem.verify
+        # measurement noise (docs/verification.md, "Measurement noise"): the law sees
+        # theta + v, v in the box (centre vc, radius vr; zero on u_prev and r). Region i
+        # applies F_i (theta + vc) + G_i + F_i delta, |delta| <= vr: the centre goes into
+        # the law's offset Gn, the rest is a bounded input held over the period (the linear
+        # engine: a disturbance (Bc F_i, vr); the nonlinear one: a widened input box)
+        F = self.law.F
+        self.vc = self.vr = None
+        self.Gn = self.law.G
+        if vs.noisy:
+            pad = np.zeros(self.d - self.n)
+            lo, hi = np.asarray(vs.noise_lower, float), np.asarray(vs.noise_upper, float)
+            self.vc = np.concatenate([0.5 * (lo + hi), pad])
+            self.vr = np.concatenate([0.5 * (hi - lo), pad]) * (1.0 + 1e-12)
+            if self.law.num_regions:
+                self.Gn = self.law.G + np.einsum("rmd,d->rm", F, self.vc)
+        #: a bound on the rounding of Gn (per region, (R, m)): an input disturbance too
+        self.Gn_err = (
+            4e-16 * (self.d + 2) * (np.abs(self.law.G) + np.einsum("rmd,d->rm", np.abs(F),
+                                                                   np.abs(self.vc)))
+            if self.vc is not None and self.law.num_regions else None
+        )
+
+    def _reach_rows(self, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The right-hand side of ``{theta : A (theta + v) <= b for some v in the noise
+        box}`` (a superset: row by row, ``b - A vc + |A| vr`` and its rounding); ``b``
+        without noise."""
+        if self.vr is None:
+            return b
+        absA = np.abs(A)
+        return (b - A @ self.vc + absA @ self.vr
+                + 1e-12 * (np.abs(b) + absA @ (np.abs(self.vc) + self.vr)))
+
+    def _noise_input(self, i: int) -> np.ndarray:
+        """(m,) bound on the input's part from the noise about its centre (and the rounding
+        of the noisy offset): ``|F_i| vr + Gn_err_i``; zeros without noise."""
+        if self.vr is None:
+            return np.zeros(self.m)
+        return (np.abs(self.law.F[i]) @ self.vr + self.Gn_err[i]) * (1.0 + 1e-12)
+
     def _tick(self, boxes: int, sample: int, t: float) -> None:
         """Count one branch period's ``boxes``; report progress (``samples``: the sample
         reached); raise :class:`ExplorationLimitError` past ``codev_engine.limits``."""
@@ -387,26 +432,7 @@ class LinearReach(ClosedLoopSetup):
         self._flows: dict = {}
         #: the arrays of an invariance certificate (H, h, points, pads), when one closed
         self.certificate: dict | None = None
-        # measurement noise (docs/verification.md, "Measurement noise"): the law sees
-        # theta + v, v in the box (centre vc, radius vr; zero on u_prev and r). Region i
-        # applies F_i (theta + vc) + G_i + F_i delta, |delta| <= vr: the centre goes into
-        # the law's offset Gn, the rest is an input disturbance (Bc F_i, vr) of the period
-        F = self.law.F
-        self.vc = self.vr = None
-        self.Gn = self.law.G
-        if vs.noisy:
-            pad = np.zeros(self.d - self.n)
-            lo, hi = np.asarray(vs.noise_lower, float), np.asarray(vs.noise_upper, float)
-            self.vc = np.concatenate([0.5 * (lo + hi), pad])
-            self.vr = np.concatenate([0.5 * (hi - lo), pad]) * (1.0 + 1e-12)
-            if self.law.num_regions:
-                self.Gn = self.law.G + np.einsum("rmd,d->rm", F, self.vc)
-        #: a bound on the rounding of Gn (per region, (R, m)): an input disturbance too
-        self.Gn_err = (
-            4e-16 * (self.d + 2) * (np.abs(self.law.G) + np.einsum("rmd,d->rm", np.abs(F),
-                                                                   np.abs(self.vc)))
-            if self.vc is not None and self.law.num_regions else None
-        )
+        self._init_noise()
         #: uncertain parameters: their deviation from the nominal model is an additive
         #: disturbance whose radius ``_prad`` (n,) is bounded per period (:meth:`_param_bound`)
         self.param = self.plant.dA is not None
@@ -495,13 +521,6 @@ class LinearReach(ClosedLoopSetup):
             return None
         return (np.hstack([c[0] for c in cols]), np.hstack([c[1] for c in cols]),
                 np.concatenate([c[2] for c in cols]))
-
-    def _noise_input(self, i: int) -> np.ndarray:
-        """(m,) bound on the input's part from the noise about its centre (and the rounding
-        of the noisy offset): ``|F_i| vr + Gn_err_i``; zeros without noise."""
-        if self.vr is None:
-            return np.zeros(self.m)
-        return (np.abs(self.law.F[i]) @ self.vr + self.Gn_err[i]) * (1.0 + 1e-12)
 
     def _disturbance(self, i: int, taus: np.ndarray) -> np.ndarray | None:
         """(J, n) bounds ``D(tau)`` on ``|int_0^tau e^{M (tau - s)} E delta(s) ds|`` for
@@ -887,16 +906,6 @@ class LinearReach(ClosedLoopSetup):
         return True
 
     # ---- samples: domain check and split --------------------------------------------
-
-    def _reach_rows(self, A: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """The right-hand side of ``{theta : A (theta + v) <= b for some v in the noise
-        box}`` (a superset: row by row, ``b - A vc + |A| vr`` and its rounding); ``b``
-        without noise."""
-        if self.vr is None:
-            return b
-        absA = np.abs(A)
-        return (b - A @ self.vc + absA @ self.vr
-                + 1e-12 * (np.abs(b) + absA @ (np.abs(self.vc) + self.vr)))
 
     def _split(self, s: _Star) -> list[tuple[int, _Star]] | Finding:
         """Children of s, one per region it meets, or a Finding if it leaves the domain.

@@ -195,6 +195,9 @@ class NonlinearReach(ClosedLoopSetup):
         self.enc = plant_enclosures(p)
         self.hess = plant_hessian(p)
         self._init_properties()
+        # measurement noise (docs/verification.md, "Nonlinear plants with measurement
+        # noise"): vc, vr, the offsets Gn = G + F vc (None: no noise, nothing changes)
+        self._init_noise()
         # disturbances and uncertain parameters (docs/verification.md, "Nonlinear plants
         # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
         self.xlo = self.xhi = self.xnom = self.xdev = None
@@ -399,7 +402,7 @@ class NonlinearReach(ClosedLoopSetup):
         nominal values for the centre, ``nom``), unless it already has them.
         """
         if ulo is None:
-            ulo, uhi = self._u_boxes(i, lo, hi)
+            ulo, uhi = self._u_boxes(i, lo, hi, nom)
         ulo, uhi = self._with_extra(ulo, uhi, nom)
         return self._eval(self.enc.f_fn, *self.enc.box(lo, hi, ulo, uhi))
 
@@ -415,12 +418,19 @@ class NonlinearReach(ClosedLoopSetup):
                     np.hstack([uhi, np.broadcast_to(ehi, (P, ehi.size))]))
         return np.concatenate([ulo, elo]), np.concatenate([uhi, ehi])
 
-    def _u_boxes(self, i, lo, hi):
+    def _u_boxes(self, i, lo, hi, nom=False):
+        """Boxes of the continuous hold's input ``F_i x + G_i`` over state boxes; with
+        measurement noise ``F_i (x + v_k) + G_i``: about the noise's centre (``Gn``), widened
+        by ``_noise_input`` unless ``nom`` (the centre's own input, the noise's centre)."""
         F, G = self.law.F[i], self.law.G[i]
+        if self.vr is not None:
+            G = self.Gn[i]
         c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
         mid = c @ F.T + G
         rad = r @ np.abs(F).T
         pad = 4 * _U * (np.abs(c) @ np.abs(F).T + np.abs(G) + rad) + 1e-300
+        if self.vr is not None and not nom:
+            rad = rad + self._noise_input(i)
         return _dn(mid - rad - pad), _up(mid + rad + pad)
 
     def _picard(self, slo, shi, i, ulo, uhi, h, nom=False):
@@ -477,7 +487,7 @@ class NonlinearReach(ClosedLoopSetup):
         """Interval Jacobians (Jx, Ju) over boxes, for the mode's input (Ju also in the
         disturbances and parameters, after the inputs' m columns, when there are any)."""
         if ulo is None:
-            ulo, uhi = self._u_boxes(i, lo, hi)
+            ulo, uhi = self._u_boxes(i, lo, hi, nom)
         ulo, uhi = self._with_extra(ulo, uhi, nom)
         z = self.enc.box(lo, hi, ulo, uhi)
         return self._eval(self.enc.jac_x_fn, *z), self._eval(self.enc.jac_u_fn, *z)
@@ -531,6 +541,12 @@ class NonlinearReach(ClosedLoopSetup):
         self.domain_note = None
         n, m = self.n, self.m
         F, G = self.law.F[i], self.law.G[i]
+        # with noise: the input is F (x_k + vc) + G + F delta (continuous: F (x(t) + vc) +
+        # G + F delta), |delta| <= vr: the centre's offset Gn, the rest a bounded input
+        # ``nu`` held over the period
+        nu = None
+        if self.vr is not None:
+            G, nu = self.Gn[i], self._noise_input(i)
         t_k = s.k * self.Ts
         tau_end = min(self.Ts, self.T - t_k)
         N = max(1, int(np.ceil(tau_end / self.h - 1e-9)))
@@ -549,6 +565,8 @@ class NonlinearReach(ClosedLoopSetup):
             uhi = _up(uc + FDhi + FMn + pad)
             # the centre's input may lie outside (y need not be in a cut set): hull
             ulo, uhi = np.minimum(ulo, _dn(uc)), np.maximum(uhi, _up(uc))
+            if nu is not None:  # every held input of every noise value
+                ulo, uhi = _dn(ulo - nu), _up(uhi + nu)
             FDv = s.V @ (F @ s.D).T
             du_norm = (
                 float(np.max(np.linalg.norm(FDv, axis=1))) + float(np.linalg.norm(F @ s.M, 2))
@@ -697,6 +715,8 @@ class NonlinearReach(ClosedLoopSetup):
                     zh = np.hstack([Hhi[jfin], np.broadcast_to(uhi, (jfin.size, m))])
                 else:
                     Du_ = Dx @ np.abs(F).T
+                    if nu is not None:  # u - u_z = F (x - z) + eta, |eta| <= nu
+                        Du_ = Du_ + nu
                     ul_, uh_ = self._u_boxes(i, Hlo[jfin], Hhi[jfin])
                     zl = np.hstack([Hlo[jfin], ul_])
                     zh = np.hstack([Hhi[jfin], uh_])
@@ -717,6 +737,12 @@ class NonlinearReach(ClosedLoopSetup):
                     q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, :n])
                 if self.xlo is not None:
                     q = q + Jwc[jfin] @ self.xdev
+                if nu is not None:  # the linear part leaves out the noise's input eta:
+                    # Juc eta under zoh (J(z, uc) - Jc is in Rc Dz, Dz holding |eta|); the
+                    # Jacobian along the centre J_u(z) eta under continuous hold (Rc is the
+                    # closed loop's, over x - z only)
+                    Jn = np.abs(Juc) if zoh else np.maximum(np.abs(cjl[1]), np.abs(cjh[1]))
+                    q = q + Jn[jfin] @ nu
                 with np.errstate(invalid="ignore"):
                     c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
                 c2 = np.where(np.isnan(c2), np.inf, c2)
@@ -735,6 +761,13 @@ class NonlinearReach(ClosedLoopSetup):
                     Ul, Uh = Ul[..., :m], Uh[..., :m]
                 else:
                     bw = 0.0
+                if nu is not None:
+                    # the noise's part of the held input: a forcing |Ju| |F delta| (mean
+                    # value over the enclosures, the input box holds every noise value)
+                    Jn = np.maximum(np.abs(Ul), np.abs(Uh))
+                    with np.errstate(invalid="ignore"):
+                        bn = np.linalg.norm((Jn @ nu) @ self.absW.T, axis=1)
+                    bw = bw + np.where(np.isnan(bn), np.inf, bn) * (1 + 1e-10) + 1e-300
                 Rx = np.maximum(np.abs(Xl - Jxc[jfin]), np.abs(Xh - Jxc[jfin]))
                 Ru = np.maximum(np.abs(Ul - Juc[jfin]), np.abs(Uh - Juc[jfin]))
                 R = Rx if zoh else Rx + Ru @ np.abs(F)
@@ -926,24 +959,35 @@ class NonlinearReach(ClosedLoopSetup):
         if self.check_u:
             F, G = self.law.F[i], self.law.G[i]
             if self.hold == "zoh":
+                # (with noise too: the input is the law at a point x + v of the region)
                 if self._region_u_ok(i):
                     return False
                 # range of the held input: over the star (cut by the region) and over the
                 # box within the region (LPs); both are sound, take the tighter
                 dlo, dhi = s.range(F)
                 e = s.ell(F)
+                nu = np.zeros(self.m)
+                if self.vr is not None:  # F (x + vc) + G + F delta, |F delta| <= nu
+                    G, nu = self.Gn[i], self._noise_input(i)
                 c = F @ s.y + G
                 pad = 1e-12 * (1 + np.abs(c) + np.abs(F) @ (np.abs(s.y) + s.mag()) + e)
-                slo, shi = c + dlo - e - pad, c + dhi + e + pad
+                slo, shi = c + dlo - e - pad - nu, c + dhi + e + pad + nu
                 xlo, xhi = self._box(s)
+                if self.vr is not None:  # the measurement x + v: in this box and the region
+                    xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
                 ulo, uhi = self._u_range(i, xlo, xhi)
                 ulo, uhi = np.maximum(ulo, slo), np.minimum(uhi, shi)
                 return bool(np.any(ulo < self.u_min) or np.any(uhi > self.u_max))
             zl, zu = self._support(rec, F)
             c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
             bl, bu = c @ F.T - r @ np.abs(F).T, c @ F.T + r @ np.abs(F).T
-            umin = np.maximum(zl, bl) + G
-            umax = np.minimum(zu, bu) + G
+            if self.vr is None:
+                umin = np.maximum(zl, bl) + G
+                umax = np.minimum(zu, bu) + G
+            else:  # F (x + vc) + G + F delta: about Gn, widened by |F delta| <= nu
+                nu = self._noise_input(i)
+                umin = np.maximum(zl, bl) + self.Gn[i] - nu
+                umax = np.minimum(zu, bu) + self.Gn[i] + nu
             # u(t) = u(t_k) + int F f: u(t_k) lies in the region's range of the law, and the
             # integral is bounded by the substeps' [F f](B) (a state at the region's edge
             # that moves inwards keeps its input inside the bounds)
@@ -1007,6 +1051,8 @@ class NonlinearReach(ClosedLoopSetup):
                     _, up = s.range(A)
                     pad = 1e-12 * (1 + np.abs(A) @ (np.abs(s.y) + s.mag()))
                     sup = A @ s.y + up + s.ell(A) + pad
+                    if self.vr is not None:  # a measurement x + v that may leave
+                        sup = sup + (A @ self.vc + np.abs(A) @ self.vr) * (1.0 + 1e-12)
                     if np.any(sup > b) and flag("undefined", t):
                         return status, tubes, first_t
                 children = self._split(s)
@@ -1076,6 +1122,8 @@ class NonlinearReach(ClosedLoopSetup):
         state of the region (plus 1e-9) -- exact for the star part, sound for the ellipsoid.
         """
         xlo, xhi = self._box(s)
+        if self.vr is not None:  # what the law may see: x + v
+            xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
         cand = np.flatnonzero(
             np.all(self.boxes_lo <= xhi + 1e-9, axis=1)
             & np.all(self.boxes_hi >= xlo - 1e-9, axis=1)
@@ -1085,7 +1133,8 @@ class NonlinearReach(ClosedLoopSetup):
         xpad = 1e-12 * (np.abs(s.y) + s.mag())
         poly = s.poly
         for i in cand:
-            Ai, bi = self.law.A[i], self.law.b[i]
+            # (with noise: the states whose measurement x + v may be in the region)
+            Ai, bi = self.law.A[i], self._reach_rows(self.law.A[i], self.law.b[i])
             slack = s.ell(Ai) + 1e-9 + np.abs(Ai) @ xpad
             viol = X @ Ai.T - bi  # (nv, rows)
             if np.any(np.all(viol > slack, axis=0)):
@@ -1202,6 +1251,7 @@ class NonlinearReach(ClosedLoopSetup):
         """
         from codev_engine.reach.simulate import (
             first_violation,
+            nominal_signal,
             simulate,
             simulate_many,
             violations_many,
@@ -1226,13 +1276,20 @@ class NonlinearReach(ClosedLoopSetup):
             # a concrete trajectory from the piece's centre may settle it (screened with the
             # fast fixed-step simulation, confirmed with the reference integrator)
             x0 = 0.5 * (lo + hi)
+            # (with noise: the noise's centre at every sample, one valid sequence)
+            noise = sig = None
+            if self.vr is not None:
+                noise = self.vc[None, None, : self.n]
+                sig = replace(nominal_signal(self.problem), noise=self.vc[None, : self.n])
             try:
                 with np.errstate(all="ignore"):
                     sims = simulate_many(
-                        self.problem, self.law, x0[None], hold=self.hold, dt=self.h
+                        self.problem, self.law, x0[None], hold=self.hold, dt=self.h,
+                        noise=noise,
                     )
                 if violations_many(self.problem, *sims)[0][0]:
-                    trace = simulate(self.problem, self.law, x0, hold=self.hold)
+                    trace = simulate(self.problem, self.law, x0, hold=self.hold,
+                                     disturbance=sig)
                     v = first_violation(self.problem, self.law, trace)
             except SolverError:
                 v = None  # the trajectory is not finite (a singularity): no counterexample

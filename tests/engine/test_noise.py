@@ -265,6 +265,9 @@ def test_nonlinear_plant_with_noise_is_a_verdict_not_an_error():
     text = (Path(__file__).resolve().parents[2] / "examples" / "pendulum.toml").read_text()
     text = text.replace("[verify]", "[verify]\nmeasurement_noise = { lower = [-0.001, -0.001], "
                         "upper = [0.001, 0.001] }", 1)
+    # (over a bounded horizon the nonlinear engine follows the noise:
+    # tests/engine/test_nonlinear_noise.py; for all time it does not yet: a verdict)
+    text = text.replace("time_horizon = 3.0", 'time_horizon = "inf"\nmax_samples = 20')
     problem = loads_spec(text)
     law = synthesize(problem)
     result = verify(problem, law)
