@@ -200,13 +200,24 @@ def test_linear_tube_contains_disturbed_simulations(plant, hold):
 
 
 def test_cruise_grade_example_is_robustly_safe_and_sound():
-    from codev_engine.pipeline import load_spec
 
-    problem = load_spec(EXAMPLES / "cruise_grade.toml")
+    # over 40 s: its tube checked against disturbed runs (the bundled horizon is "inf")
+    text = (EXAMPLES / "cruise_grade.toml").read_text()
+    problem = loads_spec(text.replace('time_horizon = "inf"', "time_horizon = 40.0"))
     law = synthesize(problem)
     result = verify(problem, law)
     assert result.verdict == "robustly_safe", result.summary()
     _assert_sound(problem, law, result, P=60)
+
+
+def test_cruise_loaded_example_is_robustly_safe_for_every_mass_and_grade():
+    from codev_engine.pipeline import load_spec
+
+    problem = load_spec(EXAMPLES / "cruise_loaded.toml")
+    assert problem.plant.parameters is not None and problem.plant.disturbances is not None
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe", result.summary()
 
 
 def test_signal_of_the_simulator_is_replayed_piece_by_piece():
@@ -231,7 +242,7 @@ def test_safe_nominally_unsafe_under_disturbance_with_a_replayed_signal(tmp_path
     # grade force exceeds what is left of its 1500 N
     text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
         "disturbances = { w = [-98.1, 98.1] }", "disturbances = { w = [0.0, 2000.0] }"
-    ).replace("time_horizon = 40.0", "time_horizon = 20.0")
+    ).replace('time_horizon = "inf"', "time_horizon = 20.0")
     problem = loads_spec(text)
     law = synthesize(problem)
     nominal = loads_spec(text.replace("disturbances = { w = [0.0, 2000.0] }", "")
@@ -265,8 +276,8 @@ def test_nonlinear_plant_with_a_disturbance_is_followed_by_the_nonlinear_engine(
 
 
 def test_cruise_grade_is_safe_for_all_time_and_the_invariant_set_holds_disturbed_runs():
-    text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
-        "time_horizon = 40.0", 'time_horizon = "inf"')
+    text = (EXAMPLES / "cruise_grade.toml").read_text()
+    assert 'time_horizon = "inf"' in text  # the example as bundled
     problem = loads_spec(text)
     law = synthesize(problem)
     result = verify(problem, law)
@@ -455,7 +466,7 @@ def test_the_recording_plots_the_disturbance_box_and_the_counterexample_signal(t
 
     text = (EXAMPLES / "cruise_grade.toml").read_text().replace(
         "disturbances = { w = [-98.1, 98.1] }", "disturbances = { w = [0.0, 2000.0] }"
-    ).replace("time_horizon = 40.0", "time_horizon = 20.0")
+    ).replace('time_horizon = "inf"', "time_horizon = 20.0")
     problem = loads_spec(text)
     law = synthesize(problem)
     result = verify(problem, law)

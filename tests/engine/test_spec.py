@@ -157,6 +157,7 @@ FORMULATIONS = {
 #: names, their intervals)
 UNCERTAIN = {
     "cruise_grade.toml": ("cruise-grade", ("w",), [[-98.1, 98.1]]),
+    "cruise_loaded.toml": ("cruise-loaded", ("w",), [[-107.9, 107.9]]),
 }
 
 
