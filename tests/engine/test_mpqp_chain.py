@@ -6,9 +6,10 @@ horizon 4, norm 2, Q = I, R = 1, ``|u| <= 1``, ``|x_i| <= 2``) ended in a divisi
 inside the compiled LP of the search: a blocking row 1e-15 from the span of the working rows
 entered the working set, and a later re-orthonormalisation made ``R`` singular
 (``geometry/lp_kernel._lp``). The law is checked against the online MPC at random points and
-facet probes (the oracle of ``test_synthesis_oracle.py``); both chains take minutes, so they
-are slow tests, and the default run evaluates the candidate that crashed with the compiled
-kernel directly. The search's failures are shown to reach the CLI as one line, exit 1.
+facet probes (the oracle of ``test_synthesis_oracle.py``); it takes minutes, so it is a slow
+test, as is the 10-state chain, which ends in the region limit's one line; the default run
+evaluates the candidate that crashed with the compiled kernel directly. The search's
+failures are shown to reach the CLI as one line, exit 1.
 """
 
 from __future__ import annotations
@@ -70,8 +71,18 @@ def test_chain_of_8_integrators_matches_online_mpc():
 
 
 @pytest.mark.slow
-def test_chain_of_10_integrators_matches_online_mpc():
-    _oracle(10)
+def test_chain_of_10_integrators_ends_in_a_one_line_limit(monkeypatch):
+    """The 10-state chain's law is too large to solve and check in a test (about 60 ms of
+    CPU a region, 19 KB each; it did not end within 28 min): under a region memory limit of
+    20 MB its synthesis ends in the limit's one line, naming what to change, after about
+    1,000 regions (60 s of CPU). Issue 23: a law or a one-line limit, never an internal
+    error."""
+    monkeypatch.setenv("CODEV_LIMITS", "region_bytes=2e7")
+    problem = loads_spec(chain_spec(10), check_mpc=False)
+    with pytest.raises(SolverError, match=r"stopped past [\d,]+ critical regions.*"
+                                          r"shorten mpc\.horizon") as info:
+        ce.synthesize(problem)
+    assert "\n" not in str(info.value)
 
 
 def test_the_candidate_that_divided_by_zero_is_classified():
