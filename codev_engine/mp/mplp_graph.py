@@ -55,12 +55,14 @@ explorer would meet the same law and fail after far longer.
 
 from __future__ import annotations
 
-import warnings
 from collections import deque
 from collections.abc import Callable
 
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+
+# LAPACK straight (what scipy's lu_factor / lu_solve call, bit for bit): their wrappers
+# cost several times the factorisation of a small basis
+from scipy.linalg.lapack import dgetrf, dgetrs
 
 from codev_engine.geometry.polytope import certified_minimal_rows, chebyshev_ball
 from codev_engine.mp.mplp import (
@@ -79,6 +81,8 @@ __all__ = ["JIT_AFTER", "explore_bases"]
 #: importing numba and loading the kernel costs ~0.7 s of CPU, more than a small mp-LP
 #: takes altogether); a fixed count, so the partition depends on the problem alone
 JIT_AFTER = 32
+#: factorisations of basis matrices kept (see ``_Search._factor``)
+LU_CACHE = 64
 #: pivots of the compiled dual simplex between fresh factorisations (rank-1 updates of the
 #: basis inverse in between; the basis it ends on is checked from a fresh factorisation)
 REFRESH = 8
@@ -214,6 +218,15 @@ class _Search:
         self.jit = None  # the module mplp_kernel once _start_jit succeeded
         self.jit_tried = False
         self.maxit = int(50 * (self.m + red.At.shape[0] + self.d))
+        # the numpy code's factorisations, by basis (rows in their order): a basis is
+        # factorised for its settling, its lexicographic test and its region, and a region's
+        # for each of its facets; the same LAPACK call on the same matrix, done once
+        self._lus: dict[bytes, list] = {}
+        self._eye = np.eye(self.nw)
+        # the cost at theta = 0 as the explorer's ``_lex_state`` forms it (C = 0)
+        self._cq0 = red.c + red.C @ np.zeros(self.d)
+        self._abs_G = np.abs(red.G)
+        self._pert_tol = 1e-9 * np.max(np.abs(self.pert))
 
     def _start_jit(self) -> None:
         """Do each basis's work with the compiled kernel (``mplp_kernel``) from now on;
@@ -234,15 +247,33 @@ class _Search:
 
     # ---- one basis --------------------------------------------------------------------
 
-    def _lu(self, B: np.ndarray):
-        GB = self.r.G[B]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LinAlgWarning)
-            lu, piv = lu_factor(GB, check_finite=False)
+    def _factor(self, B: np.ndarray) -> list:
+        """The LU factorisation of ``G[B]`` (B's rows in their order) -> ``[lu, piv,
+        inverse or None]``, computed once (``LU_CACHE`` kept; the inverse when first
+        asked for, by :meth:`_inverse`). Not checked: see :meth:`_lu`."""
+        key = np.asarray(B, dtype=np.intp).tobytes()
+        hit = self._lus.get(key)
+        if hit is None:
+            lu, piv, _ = dgetrf(self.r.G[B])
+            if len(self._lus) >= LU_CACHE:
+                self._lus.clear()
+            hit = self._lus[key] = [lu, piv, None]
+        return hit
+
+    def _inverse(self, fac: list) -> np.ndarray:
+        """``G_B^-1`` (nw, nw) of a factorisation of :meth:`_factor` (shared: not to be
+        written to)."""
+        if fac[2] is None:
+            fac[2] = dgetrs(fac[0], fac[1], self._eye)[0]
+        return fac[2]
+
+    def _lu(self, B: np.ndarray) -> list:
+        fac = self._factor(B)
+        lu = fac[0]
         diag = np.abs(np.diag(lu))
         if not np.all(np.isfinite(lu)) or np.min(diag) <= 1e-12 * max(1.0, np.max(diag)):
             raise _NotExactError("a basis matrix is numerically singular")
-        return lu, piv
+        return fac
 
     def _settle(
         self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None, verified: bool = False
@@ -275,11 +306,19 @@ class _Search:
                 self.jit.lex_ok(self.G, self.c, self.pertc, np.asarray(B, dtype=np.int64),
                                 float(self.cmag))
             )
-        st = self.ex._lex_state(B, np.zeros(self.d))
-        if st is None:
+        # the explorer's test (``_Explorer._lex_state`` at theta = 0, then
+        # ``_lex_negative``), on the shared factorisation
+        fac = self._factor(B)
+        lu, piv = fac[0], fac[1]
+        if not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) == 0.0:
             return False
-        _, d0, d1, tie, _ = st
-        return not np.any(self.ex._lex_negative(d0, d1, tie))
+        cq = self._cq0
+        d0 = dgetrs(lu, piv, -cq, trans=1)[0]
+        d1 = dgetrs(lu, piv, -self.pert, trans=1)[0]
+        Binv = self._inverse(fac)
+        err0 = np.abs(Binv.T) @ (np.abs(cq) + self._abs_G[B].T @ np.abs(d0))
+        tie = np.abs(d0) <= np.minimum(_TIE * (err0 + self.cmag), 1e-9 * self.cmag)
+        return not np.any((~tie & (d0 < 0)) | (tie & (d1 < -self._pert_tol)))
 
     def _settle_once(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
         if self.jit is not None:
@@ -308,8 +347,8 @@ class _Search:
         r = self.r
         h = r.w + r.S @ theta
         ha = r.S @ a if a is not None else np.zeros(self.m)
-        lu = self._lu(B)
-        x = lu_solve(lu, h[B], check_finite=False)
+        fac = self._lu(B)
+        x = dgetrs(fac[0], fac[1], h[B])[0]
         s = h - r.G @ x
         nb = np.ones(self.m, dtype=bool)
         nb[B] = False
@@ -320,7 +359,7 @@ class _Search:
             return B, True
         # the local tableau: rows T (the basis, then the tight rows), in basis coordinates
         T = np.concatenate([B, tight])
-        Binv = lu_solve(lu, np.eye(self.nw), check_finite=False)
+        Binv = self._inverse(fac).copy()  # (updated below)
         M = r.G[T] @ Binv  # (|T|, nw); row g = M_g' G_B
         M[: self.nw] = np.eye(self.nw)
         pos_of = np.full(T.size, -1, dtype=np.intp)  # position in the basis, or -1
@@ -337,8 +376,7 @@ class _Search:
             if since >= self.refresh:
                 # rounding accumulates in the updates: a fresh factorisation now and then
                 since = 0
-                lu = self._lu(T[Bloc])
-                Binv = lu_solve(lu, np.eye(self.nw), check_finite=False)
+                Binv = self._inverse(self._lu(T[Bloc])).copy()
                 M = r.G[T] @ Binv
                 M[Bloc] = np.eye(self.nw)
                 d0 = -(r.c @ Binv)
@@ -505,8 +543,8 @@ class _Search:
 
     def _region_numpy(self, B: np.ndarray, tol: float):
         r = self.r
-        lu = self._lu(B)
-        Z = lu_solve(lu, np.hstack([r.w[B, None], r.S[B]]), check_finite=False)
+        fac = self._lu(B)
+        Z = dgetrs(fac[0], fac[1], np.hstack([r.w[B, None], r.S[B]]))[0]
         k0, K = Z[:, 0], Z[:, 1:]
         Ar = r.G @ K - r.S
         br = r.w - r.G @ k0
