@@ -140,10 +140,13 @@ PRECISION_LIMIT = 1e-6
 #: that never settle (N = 100: 4,000 pivots of nw = 299, 16 s) after ~150 pivots, 0.6 s.
 #: The paper mp-LPs and the test set's need at most 29 pivots (nw = 63: 7e6).
 REFINE_WORK = 4e9
+_EPS = float(np.finfo(float).eps)
 
 
 def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: float,
-                         scale: float) -> float:
+                         scale: float, *, rows: tuple[np.ndarray, np.ndarray] | None = None,
+                         absolute: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                         ) -> float:
     """How far, relative to ``scale``, the computed boundary of a basis's critical region
     may be from the true one, from the rounding of its rows in double precision.
 
@@ -166,6 +169,11 @@ def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: flo
         Of ``|theta|_inf`` on the parameter set.
     scale : float
         The parameter set's size.
+    rows : tuple of numpy.ndarray, optional
+        ``(G K - S, w - G k0)`` ((m, d), (m,)) when the caller has them (the same
+        products, not computed again).
+    absolute : tuple of numpy.ndarray, optional
+        ``(|G|, |S|, |w|)`` of ``red`` when the caller keeps them.
 
     Returns
     -------
@@ -174,11 +182,11 @@ def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: flo
         and ten times its rounding) and whose hyperplane can meet the parameter set,
         divided by ``scale``.
     """
-    eps = np.finfo(float).eps
-    a = red.G @ K - red.S
-    b = red.w - red.G @ k0
-    e = eps * (np.abs(red.G) @ np.abs(K) + np.abs(red.S))
-    f = eps * (np.abs(red.G) @ np.abs(k0) + np.abs(red.w))
+    eps = _EPS
+    a, b = (red.G @ K - red.S, red.w - red.G @ k0) if rows is None else rows
+    aG, aS, aw = (np.abs(red.G), np.abs(red.S), np.abs(red.w)) if absolute is None else absolute
+    e = eps * (aG @ np.abs(K) + aS)
+    f = eps * (aG @ np.abs(k0) + aw)
     na = np.linalg.norm(a, axis=1)
     ne = np.linalg.norm(e, axis=1)
     d = K.shape[1]

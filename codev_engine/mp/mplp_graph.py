@@ -215,6 +215,7 @@ class _Search:
         #: pivots between fresh factorisations in the dual simplex
         self.refresh = REFRESH
         self.known: dict[bytes, int] = {}
+        self._rows: tuple[np.ndarray, np.ndarray] | None = None  # see _region
         self.jit = None  # the module mplp_kernel once _start_jit succeeded
         self.jit_tried = False
         self.maxit = int(50 * (self.m + red.At.shape[0] + self.d))
@@ -226,6 +227,8 @@ class _Search:
         # the cost at theta = 0 as the explorer's ``_lex_state`` forms it (C = 0)
         self._cq0 = red.c + red.C @ np.zeros(self.d)
         self._abs_G = np.abs(red.G)
+        # (|G|, |S|, |w|) for ``boundary_uncertainty``, once
+        self._absolute = (self._abs_G, np.abs(red.S), np.abs(red.w))
         self._pert_tol = 1e-9 * np.max(np.abs(self.pert))
 
     def _start_jit(self) -> None:
@@ -456,10 +459,13 @@ class _Search:
         Raises the explorer's ``too_imprecise`` error when the region's boundary cannot be
         located in double precision (``mplp.boundary_uncertainty``): the explorer would
         meet the same law and fail after far longer."""
+        self._rows = None
         out = self._region_raw(B, x0)
         if out is not None:
             reg = out[0]
-            move = boundary_uncertainty(self.r, reg.K, reg.k, self.size.bound, self.scale)
+            # (the numpy code leaves the region's rows before the clean-up in ``_rows``)
+            move = boundary_uncertainty(self.r, reg.K, reg.k, self.size.bound, self.scale,
+                                        rows=self._rows, absolute=self._absolute)
             if move > PRECISION_LIMIT:
                 c, _ = chebyshev_ball(reg.A, reg.b)
                 raise too_imprecise(c if c is not None else x0, move)
@@ -548,6 +554,7 @@ class _Search:
         k0, K = Z[:, 0], Z[:, 1:]
         Ar = r.G @ K - r.S
         br = r.w - r.G @ k0
+        self._rows = (Ar, br)
         nb = np.ones(self.m, dtype=bool)
         nb[B] = False
         Ar, br = Ar[nb], br[nb]
