@@ -225,7 +225,10 @@ class _Search:
         self._lus: dict[bytes, list] = {}
         self._eye = np.eye(self.nw)
         # the cost at theta = 0 as the explorer's ``_lex_state`` forms it (C = 0)
-        self._cq0 = red.c + red.C @ np.zeros(self.d)
+        cq0 = red.c + red.C @ np.zeros(self.d)
+        self._neg_cq0, self._abs_cq0 = -cq0, np.abs(cq0)
+        self._neg_pert = -self.pert
+        self._abs_c = np.abs(red.c)
         self._abs_G = np.abs(red.G)
         # (|G|, |S|, |w|) for ``boundary_uncertainty``, once
         self._absolute = (self._abs_G, np.abs(red.S), np.abs(red.w))
@@ -252,15 +255,17 @@ class _Search:
 
     def _factor(self, B: np.ndarray) -> list:
         """The LU factorisation of ``G[B]`` (B's rows in their order) -> ``[lu, piv,
-        inverse or None]``, computed once (``LU_CACHE`` kept; the inverse when first
-        asked for, by :meth:`_inverse`). Not checked: see :meth:`_lu`."""
+        inverse or None, diag]``, computed once (``LU_CACHE`` kept; the inverse when first
+        asked for, by :meth:`_inverse`; ``diag``: ``|diag(lu)|``, or None when ``lu`` is
+        not finite). Not checked: see :meth:`_lu`."""
         key = np.asarray(B, dtype=np.intp).tobytes()
         hit = self._lus.get(key)
         if hit is None:
             lu, piv, _ = dgetrf(self.r.G[B])
             if len(self._lus) >= LU_CACHE:
                 self._lus.clear()
-            hit = self._lus[key] = [lu, piv, None]
+            diag = np.abs(np.diag(lu)) if np.isfinite(lu).all() else None
+            hit = self._lus[key] = [lu, piv, None, diag]
         return hit
 
     def _inverse(self, fac: list) -> np.ndarray:
@@ -272,9 +277,8 @@ class _Search:
 
     def _lu(self, B: np.ndarray) -> list:
         fac = self._factor(B)
-        lu = fac[0]
-        diag = np.abs(np.diag(lu))
-        if not np.all(np.isfinite(lu)) or np.min(diag) <= 1e-12 * max(1.0, np.max(diag)):
+        diag = fac[3]
+        if diag is None or diag.min() <= 1e-12 * max(1.0, diag.max()):
             raise _NotExactError("a basis matrix is numerically singular")
         return fac
 
@@ -313,15 +317,14 @@ class _Search:
         # ``_lex_negative``), on the shared factorisation
         fac = self._factor(B)
         lu, piv = fac[0], fac[1]
-        if not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) == 0.0:
+        if fac[3] is None or fac[3].min() == 0.0:
             return False
-        cq = self._cq0
-        d0 = dgetrs(lu, piv, -cq, trans=1)[0]
-        d1 = dgetrs(lu, piv, -self.pert, trans=1)[0]
+        d0 = dgetrs(lu, piv, self._neg_cq0, trans=1)[0]
+        d1 = dgetrs(lu, piv, self._neg_pert, trans=1)[0]
         Binv = self._inverse(fac)
-        err0 = np.abs(Binv.T) @ (np.abs(cq) + self._abs_G[B].T @ np.abs(d0))
+        err0 = np.abs(Binv.T) @ (self._abs_cq0 + self._abs_G[B].T @ np.abs(d0))
         tie = np.abs(d0) <= np.minimum(_TIE * (err0 + self.cmag), 1e-9 * self.cmag)
-        return not np.any((~tie & (d0 < 0)) | (tie & (d1 < -self._pert_tol)))
+        return not ((~tie & (d0 < 0)) | (tie & (d1 < -self._pert_tol))).any()
 
     def _settle_once(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
         if self.jit is not None:
@@ -349,29 +352,29 @@ class _Search:
     def _settle_once_numpy(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
         r = self.r
         h = r.w + r.S @ theta
-        ha = r.S @ a if a is not None else np.zeros(self.m)
         fac = self._lu(B)
         x = dgetrs(fac[0], fac[1], h[B])[0]
         s = h - r.G @ x
         nb = np.ones(self.m, dtype=bool)
         nb[B] = False
-        if np.any(s[nb] < -1e3 * self.zero):
+        if (s[nb] < -1e3 * self.zero).any():
             raise _NotExactError("a basis is not primal feasible where it should be")
         tight = np.flatnonzero(nb & (s <= self.zero))
         if tight.size == 0:
             return B, True
+        ha = r.S @ a if a is not None else np.zeros(self.m)
         # the local tableau: rows T (the basis, then the tight rows), in basis coordinates
         T = np.concatenate([B, tight])
         Binv = self._inverse(fac).copy()  # (updated below)
         M = r.G[T] @ Binv  # (|T|, nw); row g = M_g' G_B
-        M[: self.nw] = np.eye(self.nw)
+        M[: self.nw] = self._eye
         pos_of = np.full(T.size, -1, dtype=np.intp)  # position in the basis, or -1
         pos_of[: self.nw] = np.arange(self.nw)
         Bloc = np.arange(self.nw)  # local index of the basis's rows
         d0 = -(r.c @ Binv)
         d1 = -(self.pert @ Binv)
         cap = 1e-9 * self.cmag
-        absc = np.abs(r.c)
+        absc = self._abs_c
         haT = ha[T]
         seen: set[bytes] = set()
         since = 0
@@ -381,69 +384,73 @@ class _Search:
                 since = 0
                 Binv = self._inverse(self._lu(T[Bloc])).copy()
                 M = r.G[T] @ Binv
-                M[Bloc] = np.eye(self.nw)
+                M[Bloc] = self._eye
                 d0 = -(r.c @ Binv)
                 d1 = -(self.pert @ Binv)
             since += 1
-            key = np.sort(T[Bloc]).tobytes()
+            rowsB = T[Bloc]  # (a new array: returned as it is)
+            key = np.sort(rowsB).tobytes()
             if key in seen:
                 raise _NotExactError("the lexicographic dual simplex cycled")
             seen.add(key)
             nbl = np.flatnonzero(pos_of < 0)
             Mn = M[nbl]
-            der = haT[nbl] - Mn @ haT[Bloc]
-            dtol = 1e-9 * (np.abs(haT[nbl]) + np.abs(Mn) @ np.abs(haT[Bloc]) + 1e-3)
+            haN, haB = haT[nbl], haT[Bloc]
+            absM = np.abs(Mn)
+            der = haN - Mn @ haB
+            dtol = 1e-9 * (np.abs(haN) + absM @ np.abs(haB) + 1e-3)
             negd = der < -dtol
-            if np.any(negd):
-                kk = int(np.argmin(np.where(negd, der, np.inf)))
+            if negd.any():
+                kk = int(np.where(negd, der, np.inf).argmin())
             else:
                 # the eps part of slack g: +eps_g - sum_j M_gj eps_{B_j}; its sign is that
                 # of the lowest-numbered row with a nonzero coefficient
                 zerod = np.abs(der) <= dtol
-                absM = np.abs(Mn)
                 big = absM > 1e-9 * np.maximum(absM.max(axis=1, keepdims=True), 1.0)
-                rowsB = T[Bloc]
                 cand = np.where(big, rowsB[None, :], self.m)
                 first = cand.argmin(axis=1)
                 lowB = cand[np.arange(nbl.size), first]
-                epsneg = zerod & (lowB < T[nbl]) & (Mn[np.arange(nbl.size), first] > 0)
-                if not np.any(epsneg):
-                    return T[Bloc].copy(), True
-                kk = int(np.flatnonzero(epsneg)[np.argmin(T[nbl][epsneg])])
+                TN = T[nbl]
+                epsneg = zerod & (lowB < TN) & (Mn[np.arange(nbl.size), first] > 0)
+                if not epsneg.any():
+                    return rowsB, True
+                kk = int(np.flatnonzero(epsneg)[TN[epsneg].argmin()])
             k = int(nbl[kk])
             al = M[k].copy()
-            al[np.abs(al) <= 1e-9 * max(1.0, float(np.max(np.abs(al))))] = 0.0  # rounding
+            aal = np.abs(al)
+            al[aal <= 1e-9 * max(1.0, float(aal.max()))] = 0.0  # rounding
             pos = np.flatnonzero(al > 0)
             if pos.size == 0:
                 if negd[kk]:
                     return None, True  # dual unbounded: the LP is infeasible past theta
                 raise _NotExactError("an infinitesimal infeasibility (rounding)")
             # ties: the explorer's rule (_Explorer._lex_state), from the updated inverse
-            err0 = np.abs(Binv.T) @ (absc + np.abs(r.G[T[Bloc]].T) @ np.abs(d0))
+            err0 = np.abs(Binv.T) @ (absc + self._abs_G[rowsB].T @ np.abs(d0))
             thr = np.minimum(_TIE * (err0 + self.cmag), cap)
             d0 = np.where(np.abs(d0) <= thr, 0.0, d0)
-            if np.any(d0 < 0):
-                return T[Bloc].copy(), False  # drifted: refactorise
+            if (d0 < 0).any():
+                return rowsB, False  # drifted: refactorise
             # the lexicographic ratio test, with ties as the zeroing above makes them: a
             # dual that the step brings within the cap of zero is a tie, and the ties are
             # decided by r (so that every tie the step makes has d1 >= 0)
-            r0 = d0[pos] / al[pos]
-            rmin = float(np.min(r0))
-            cand_i = pos[d0[pos] - rmin * al[pos] <= thr[pos]]
-            i = int(cand_i[np.argmin(d1[cand_i] / al[cand_i])])
+            d0p, alp = d0[pos], al[pos]
+            rmin = float((d0p / alp).min())
+            cand_i = pos[d0p - rmin * alp <= thr[pos]]
+            i = int(cand_i[(d1[cand_i] / al[cand_i]).argmin()])
             if rmin == 0.0 and d1[i] < 0:
-                return T[Bloc].copy(), False  # drifted: refactorise
+                return rowsB, False  # drifted: refactorise
             self.stats["pivots"] += 1
             t0, t1 = rmin, d1[i] / al[i]
             d0 = d0 - t0 * al
             d0[i] = t0
             d1 = d1 - t1 * al
             d1[i] = t1
+            # (np.outer's products, without its wrapper)
             col = M[:, i] / al[i]
-            M -= np.outer(col, al)
+            M -= col[:, None] * al[None, :]
             M[:, i] = col
             col = Binv[:, i] / al[i]
-            Binv -= np.outer(col, al)
+            Binv -= col[:, None] * al[None, :]
             Binv[:, i] = col
             pos_of[Bloc[i]] = -1
             pos_of[k] = i
