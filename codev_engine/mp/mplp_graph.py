@@ -584,7 +584,7 @@ class _Search:
         if not radius > tol:
             return None
         keep = certified_minimal_rows(Ar, br, self.size.bound)
-        active = tuple(int(i) for i in np.sort(B))
+        active = tuple(np.sort(B).tolist())  # (Python ints)
         reg = CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=active)
         return reg, mark[keep], None
 
@@ -675,7 +675,8 @@ class _Search:
                 else:
                     if fac is not None:
                         stats["ball_retries"] = stats.get("ball_retries", 0) + 1
-                    others = np.delete(np.arange(reg.A.shape[0]), j)
+                    others = np.arange(reg.A.shape[0])
+                    others = others[others != j]  # (np.delete's indices)
                     centre, rho = chebyshev_ball(
                         reg.A[others], reg.b[others], a[None, :], np.array([beta])
                     )
