@@ -38,13 +38,14 @@
 
 from __future__ import annotations
 
-import warnings
 from collections import deque
 from collections.abc import Callable
 
 import daqp
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+
+# LAPACK straight: what lu_factor / lu_solve call, without their wrappers' cost
+from scipy.linalg.lapack import dgetrf, dgetrs
 
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.geometry.polytope import (
@@ -419,18 +420,16 @@ class _Explorer:
         """
         r = self.r
         GB = r.G[act]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LinAlgWarning)  # singular: checked below
-            lu, piv = lu_factor(GB, check_finite=False)
+        lu, piv, _ = dgetrf(GB)  # singular: checked below
         if not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) == 0.0:
             return None
         cq = r.c + r.C @ q
         # LU solves (backward stable), not products with the inverse: a dual that is zero
         # by the structure of the basis comes out zero, not as rounding noise of the inverse
-        d0 = lu_solve((lu, piv), -cq, trans=1, check_finite=False)
-        d1 = lu_solve((lu, piv), -self.pert, trans=1, check_finite=False)
-        x = lu_solve((lu, piv), r.w[act] + r.S[act] @ q, check_finite=False)
-        Binv = lu_solve((lu, piv), np.eye(self.nw), check_finite=False)
+        d0 = dgetrs(lu, piv, -cq, trans=1)[0]
+        d1 = dgetrs(lu, piv, -self.pert, trans=1)[0]
+        x = dgetrs(lu, piv, r.w[act] + r.S[act] @ q)[0]
+        Binv = dgetrs(lu, piv, np.eye(self.nw))[0]
         err0 = np.abs(Binv.T) @ (np.abs(cq) + np.abs(GB.T) @ np.abs(d0))
         tie = np.abs(d0) <= np.minimum(_TIE * (err0 + self.cmag), 1e-9 * self.cmag)
         return x, d0, d1, tie, Binv
