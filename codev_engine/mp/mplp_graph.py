@@ -81,8 +81,9 @@ __all__ = ["JIT_AFTER", "explore_bases"]
 #: importing numba and loading the kernel costs ~0.7 s of CPU, more than a small mp-LP
 #: takes altogether); a fixed count, so the partition depends on the problem alone
 JIT_AFTER = 32
-#: factorisations of basis matrices kept (see ``_Search._factor``)
-LU_CACHE = 64
+#: factorisations of basis matrices kept, the least recently used dropped (see
+#: ``_Search._factor``): a region's basis for its facets, and the few a crossing makes
+LU_CACHE = 8
 #: pivots of the compiled dual simplex between fresh factorisations (rank-1 updates of the
 #: basis inverse in between; the basis it ends on is checked from a fresh factorisation)
 REFRESH = 8
@@ -259,13 +260,15 @@ class _Search:
         asked for, by :meth:`_inverse`; ``diag``: ``|diag(lu)|``, or None when ``lu`` is
         not finite). Not checked: see :meth:`_lu`."""
         key = np.asarray(B, dtype=np.intp).tobytes()
-        hit = self._lus.get(key)
+        lus = self._lus
+        hit = lus.pop(key, None)
         if hit is None:
             lu, piv, _ = dgetrf(self.r.G[B])
-            if len(self._lus) >= LU_CACHE:
-                self._lus.clear()
+            if len(lus) >= LU_CACHE:
+                del lus[next(iter(lus))]  # the least recently used
             diag = np.abs(np.diag(lu)) if np.isfinite(lu).all() else None
-            hit = self._lus[key] = [lu, piv, None, diag]
+            hit = [lu, piv, None, diag]
+        lus[key] = hit  # (the most recently used last)
         return hit
 
     def _inverse(self, fac: list) -> np.ndarray:
