@@ -123,7 +123,7 @@ def main() -> None:
     print(f"{'together':22s} {'':7s} {tot['facets']:9.3f} {tot['bases']:9.3f} "
           f"{tot['facets'] / tot['bases']:6.2f}")
     for norm in ("inf", "1"):
-        for n in (int(h) for h in args.horizons.split(",")):
+        for n in (int(h) for h in args.horizons.split(",") if h):
             prog = program("double_integrator", norm=norm, horizon=n)
             t = time.process_time()
             try:

@@ -171,30 +171,35 @@ def solve_lp(
         ``f + A' lam = 0`` at the optimum); None when they come from the fallback.
     """
     nx = f.shape[0]
-    rows = [A]
-    upper = [b]
-    lower = [np.full(b.shape[0], -_INF)]
-    sense = [np.zeros(b.shape[0], dtype=np.int32)]
-    if Aeq is not None and Aeq.shape[0]:
-        rows.append(Aeq)
-        upper.append(beq)
-        lower.append(beq)
-        sense.append(np.full(beq.shape[0], 5, dtype=np.int32))
-    if lb is not None or ub is not None:
-        lo = np.full(nx, -_INF) if lb is None else np.where(np.isfinite(lb), lb, -_INF)
-        hi = np.full(nx, _INF) if ub is None else np.where(np.isfinite(ub), ub, _INF)
-        rows.append(np.eye(nx))
-        upper.append(hi)
-        lower.append(lo)
-        sense.append(np.zeros(nx, dtype=np.int32))
-    M = np.ascontiguousarray(np.vstack(rows), dtype=float)
+    k = b.shape[0]
+    ke = Aeq.shape[0] if Aeq is not None else 0
+    bounded = lb is not None or ub is not None
+    n = k + ke + (nx if bounded else 0)
+    # DAQP's rows: those of A, of Aeq (sense 5: equalities), then the bounds, written in
+    # place (these LPs are small and many: their set-up costs as much as the solve)
+    M = np.empty((n, nx))
+    M[:k] = A
+    upper = np.empty(n)
+    upper[:k] = b
+    lower = np.full(n, -_INF)
+    sense = np.zeros(n, dtype=np.int32)
+    if ke:
+        M[k : k + ke] = Aeq
+        upper[k : k + ke] = beq
+        lower[k : k + ke] = beq
+        sense[k : k + ke] = 5
+    if bounded:
+        M[k + ke :] = np.eye(nx)
+        upper[k + ke :] = _INF if ub is None else np.where(np.isfinite(ub), ub, _INF)
+        if lb is not None:
+            lower[k + ke :] = np.where(np.isfinite(lb), lb, -_INF)
     x, _, flag, info = daqp.solve(
         np.zeros((nx, nx)),
         np.ascontiguousarray(f, dtype=float),
         M,
-        np.concatenate(upper).astype(float),
-        np.concatenate(lower).astype(float),
-        np.concatenate(sense),
+        upper,
+        lower,
+        sense,
         eps_prox=1e-2,
         # DAQP's default primal tolerance (1e-6) is far too loose for geometry: a facet
         # centre 3e-7 off its hyperplane made the exploration cycle

@@ -38,13 +38,14 @@
 
 from __future__ import annotations
 
-import warnings
 from collections import deque
 from collections.abc import Callable
 
 import daqp
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+
+# LAPACK straight: what lu_factor / lu_solve call, without their wrappers' cost
+from scipy.linalg.lapack import dgetrf, dgetrs
 
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.geometry.polytope import (
@@ -140,10 +141,13 @@ PRECISION_LIMIT = 1e-6
 #: that never settle (N = 100: 4,000 pivots of nw = 299, 16 s) after ~150 pivots, 0.6 s.
 #: The paper mp-LPs and the test set's need at most 29 pivots (nw = 63: 7e6).
 REFINE_WORK = 4e9
+_EPS = float(np.finfo(float).eps)
 
 
 def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: float,
-                         scale: float) -> float:
+                         scale: float, *, rows: tuple[np.ndarray, np.ndarray] | None = None,
+                         absolute: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                         ) -> float:
     """How far, relative to ``scale``, the computed boundary of a basis's critical region
     may be from the true one, from the rounding of its rows in double precision.
 
@@ -166,6 +170,11 @@ def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: flo
         Of ``|theta|_inf`` on the parameter set.
     scale : float
         The parameter set's size.
+    rows : tuple of numpy.ndarray, optional
+        ``(G K - S, w - G k0)`` ((m, d), (m,)) when the caller has them (the same
+        products, not computed again).
+    absolute : tuple of numpy.ndarray, optional
+        ``(|G|, |S|, |w|)`` of ``red`` when the caller keeps them.
 
     Returns
     -------
@@ -174,11 +183,11 @@ def boundary_uncertainty(red: Reduced, K: np.ndarray, k0: np.ndarray, bound: flo
         and ten times its rounding) and whose hyperplane can meet the parameter set,
         divided by ``scale``.
     """
-    eps = np.finfo(float).eps
-    a = red.G @ K - red.S
-    b = red.w - red.G @ k0
-    e = eps * (np.abs(red.G) @ np.abs(K) + np.abs(red.S))
-    f = eps * (np.abs(red.G) @ np.abs(k0) + np.abs(red.w))
+    eps = _EPS
+    a, b = (red.G @ K - red.S, red.w - red.G @ k0) if rows is None else rows
+    aG, aS, aw = (np.abs(red.G), np.abs(red.S), np.abs(red.w)) if absolute is None else absolute
+    e = eps * (aG @ np.abs(K) + aS)
+    f = eps * (aG @ np.abs(k0) + aw)
     na = np.linalg.norm(a, axis=1)
     ne = np.linalg.norm(e, axis=1)
     d = K.shape[1]
@@ -411,18 +420,16 @@ class _Explorer:
         """
         r = self.r
         GB = r.G[act]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LinAlgWarning)  # singular: checked below
-            lu, piv = lu_factor(GB, check_finite=False)
+        lu, piv, _ = dgetrf(GB)  # singular: checked below
         if not np.all(np.isfinite(lu)) or np.min(np.abs(np.diag(lu))) == 0.0:
             return None
         cq = r.c + r.C @ q
         # LU solves (backward stable), not products with the inverse: a dual that is zero
         # by the structure of the basis comes out zero, not as rounding noise of the inverse
-        d0 = lu_solve((lu, piv), -cq, trans=1, check_finite=False)
-        d1 = lu_solve((lu, piv), -self.pert, trans=1, check_finite=False)
-        x = lu_solve((lu, piv), r.w[act] + r.S[act] @ q, check_finite=False)
-        Binv = lu_solve((lu, piv), np.eye(self.nw), check_finite=False)
+        d0 = dgetrs(lu, piv, -cq, trans=1)[0]
+        d1 = dgetrs(lu, piv, -self.pert, trans=1)[0]
+        x = dgetrs(lu, piv, r.w[act] + r.S[act] @ q)[0]
+        Binv = dgetrs(lu, piv, np.eye(self.nw))[0]
         err0 = np.abs(Binv.T) @ (np.abs(cq) + np.abs(GB.T) @ np.abs(d0))
         tie = np.abs(d0) <= np.minimum(_TIE * (err0 + self.cmag), 1e-9 * self.cmag)
         return x, d0, d1, tie, Binv

@@ -55,12 +55,14 @@ explorer would meet the same law and fail after far longer.
 
 from __future__ import annotations
 
-import warnings
 from collections import deque
 from collections.abc import Callable
 
 import numpy as np
-from scipy.linalg import LinAlgWarning, lu_factor, lu_solve
+
+# LAPACK straight (what scipy's lu_factor / lu_solve call, bit for bit): their wrappers
+# cost several times the factorisation of a small basis
+from scipy.linalg.lapack import dgetrf, dgetrs
 
 from codev_engine.geometry.polytope import certified_minimal_rows, chebyshev_ball
 from codev_engine.mp.mplp import (
@@ -79,6 +81,9 @@ __all__ = ["JIT_AFTER", "explore_bases"]
 #: importing numba and loading the kernel costs ~0.7 s of CPU, more than a small mp-LP
 #: takes altogether); a fixed count, so the partition depends on the problem alone
 JIT_AFTER = 32
+#: factorisations of basis matrices kept, the least recently used dropped (see
+#: ``_Search._factor``): a region's basis for its facets, and the few a crossing makes
+LU_CACHE = 8
 #: pivots of the compiled dual simplex between fresh factorisations (rank-1 updates of the
 #: basis inverse in between; the basis it ends on is checked from a fresh factorisation)
 REFRESH = 8
@@ -211,9 +216,24 @@ class _Search:
         #: pivots between fresh factorisations in the dual simplex
         self.refresh = REFRESH
         self.known: dict[bytes, int] = {}
+        self._rows: tuple[np.ndarray, np.ndarray] | None = None  # see _region
         self.jit = None  # the module mplp_kernel once _start_jit succeeded
         self.jit_tried = False
         self.maxit = int(50 * (self.m + red.At.shape[0] + self.d))
+        # the numpy code's factorisations, by basis (rows in their order): a basis is
+        # factorised for its settling, its lexicographic test and its region, and a region's
+        # for each of its facets; the same LAPACK call on the same matrix, done once
+        self._lus: dict[bytes, list] = {}
+        self._eye = np.eye(self.nw)
+        # the cost at theta = 0 as the explorer's ``_lex_state`` forms it (C = 0)
+        cq0 = red.c + red.C @ np.zeros(self.d)
+        self._neg_cq0, self._abs_cq0 = -cq0, np.abs(cq0)
+        self._neg_pert = -self.pert
+        self._abs_c = np.abs(red.c)
+        self._abs_G = np.abs(red.G)
+        # (|G|, |S|, |w|) for ``boundary_uncertainty``, once
+        self._absolute = (self._abs_G, np.abs(red.S), np.abs(red.w))
+        self._pert_tol = 1e-9 * np.max(np.abs(self.pert))
 
     def _start_jit(self) -> None:
         """Do each basis's work with the compiled kernel (``mplp_kernel``) from now on;
@@ -234,15 +254,36 @@ class _Search:
 
     # ---- one basis --------------------------------------------------------------------
 
-    def _lu(self, B: np.ndarray):
-        GB = self.r.G[B]
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", LinAlgWarning)
-            lu, piv = lu_factor(GB, check_finite=False)
-        diag = np.abs(np.diag(lu))
-        if not np.all(np.isfinite(lu)) or np.min(diag) <= 1e-12 * max(1.0, np.max(diag)):
+    def _factor(self, B: np.ndarray) -> list:
+        """The LU factorisation of ``G[B]`` (B's rows in their order) -> ``[lu, piv,
+        inverse or None, diag]``, computed once (``LU_CACHE`` kept; the inverse when first
+        asked for, by :meth:`_inverse`; ``diag``: ``|diag(lu)|``, or None when ``lu`` is
+        not finite). Not checked: see :meth:`_lu`."""
+        key = np.asarray(B, dtype=np.intp).tobytes()
+        lus = self._lus
+        hit = lus.pop(key, None)
+        if hit is None:
+            lu, piv, _ = dgetrf(self.r.G[B])
+            if len(lus) >= LU_CACHE:
+                del lus[next(iter(lus))]  # the least recently used
+            diag = np.abs(np.diag(lu)) if np.isfinite(lu).all() else None
+            hit = [lu, piv, None, diag]
+        lus[key] = hit  # (the most recently used last)
+        return hit
+
+    def _inverse(self, fac: list) -> np.ndarray:
+        """``G_B^-1`` (nw, nw) of a factorisation of :meth:`_factor` (shared: not to be
+        written to)."""
+        if fac[2] is None:
+            fac[2] = dgetrs(fac[0], fac[1], self._eye)[0]
+        return fac[2]
+
+    def _lu(self, B: np.ndarray) -> list:
+        fac = self._factor(B)
+        diag = fac[3]
+        if diag is None or diag.min() <= 1e-12 * max(1.0, diag.max()):
             raise _NotExactError("a basis matrix is numerically singular")
-        return lu, piv
+        return fac
 
     def _settle(
         self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None, verified: bool = False
@@ -275,11 +316,18 @@ class _Search:
                 self.jit.lex_ok(self.G, self.c, self.pertc, np.asarray(B, dtype=np.int64),
                                 float(self.cmag))
             )
-        st = self.ex._lex_state(B, np.zeros(self.d))
-        if st is None:
+        # the explorer's test (``_Explorer._lex_state`` at theta = 0, then
+        # ``_lex_negative``), on the shared factorisation
+        fac = self._factor(B)
+        lu, piv = fac[0], fac[1]
+        if fac[3] is None or fac[3].min() == 0.0:
             return False
-        _, d0, d1, tie, _ = st
-        return not np.any(self.ex._lex_negative(d0, d1, tie))
+        d0 = dgetrs(lu, piv, self._neg_cq0, trans=1)[0]
+        d1 = dgetrs(lu, piv, self._neg_pert, trans=1)[0]
+        Binv = self._inverse(fac)
+        err0 = np.abs(Binv.T) @ (self._abs_cq0 + self._abs_G[B].T @ np.abs(d0))
+        tie = np.abs(d0) <= np.minimum(_TIE * (err0 + self.cmag), 1e-9 * self.cmag)
+        return not ((~tie & (d0 < 0)) | (tie & (d1 < -self._pert_tol))).any()
 
     def _settle_once(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
         if self.jit is not None:
@@ -307,29 +355,29 @@ class _Search:
     def _settle_once_numpy(self, B: np.ndarray, theta: np.ndarray, a: np.ndarray | None):
         r = self.r
         h = r.w + r.S @ theta
-        ha = r.S @ a if a is not None else np.zeros(self.m)
-        lu = self._lu(B)
-        x = lu_solve(lu, h[B], check_finite=False)
+        fac = self._lu(B)
+        x = dgetrs(fac[0], fac[1], h[B])[0]
         s = h - r.G @ x
         nb = np.ones(self.m, dtype=bool)
         nb[B] = False
-        if np.any(s[nb] < -1e3 * self.zero):
+        if (s[nb] < -1e3 * self.zero).any():
             raise _NotExactError("a basis is not primal feasible where it should be")
         tight = np.flatnonzero(nb & (s <= self.zero))
         if tight.size == 0:
             return B, True
+        ha = r.S @ a if a is not None else np.zeros(self.m)
         # the local tableau: rows T (the basis, then the tight rows), in basis coordinates
         T = np.concatenate([B, tight])
-        Binv = lu_solve(lu, np.eye(self.nw), check_finite=False)
+        Binv = self._inverse(fac).copy()  # (updated below)
         M = r.G[T] @ Binv  # (|T|, nw); row g = M_g' G_B
-        M[: self.nw] = np.eye(self.nw)
+        M[: self.nw] = self._eye
         pos_of = np.full(T.size, -1, dtype=np.intp)  # position in the basis, or -1
         pos_of[: self.nw] = np.arange(self.nw)
         Bloc = np.arange(self.nw)  # local index of the basis's rows
         d0 = -(r.c @ Binv)
         d1 = -(self.pert @ Binv)
         cap = 1e-9 * self.cmag
-        absc = np.abs(r.c)
+        absc = self._abs_c
         haT = ha[T]
         seen: set[bytes] = set()
         since = 0
@@ -337,72 +385,75 @@ class _Search:
             if since >= self.refresh:
                 # rounding accumulates in the updates: a fresh factorisation now and then
                 since = 0
-                lu = self._lu(T[Bloc])
-                Binv = lu_solve(lu, np.eye(self.nw), check_finite=False)
+                Binv = self._inverse(self._lu(T[Bloc])).copy()
                 M = r.G[T] @ Binv
-                M[Bloc] = np.eye(self.nw)
+                M[Bloc] = self._eye
                 d0 = -(r.c @ Binv)
                 d1 = -(self.pert @ Binv)
             since += 1
-            key = np.sort(T[Bloc]).tobytes()
+            rowsB = T[Bloc]  # (a new array: returned as it is)
+            key = np.sort(rowsB).tobytes()
             if key in seen:
                 raise _NotExactError("the lexicographic dual simplex cycled")
             seen.add(key)
             nbl = np.flatnonzero(pos_of < 0)
             Mn = M[nbl]
-            der = haT[nbl] - Mn @ haT[Bloc]
-            dtol = 1e-9 * (np.abs(haT[nbl]) + np.abs(Mn) @ np.abs(haT[Bloc]) + 1e-3)
+            haN, haB = haT[nbl], haT[Bloc]
+            absM = np.abs(Mn)
+            der = haN - Mn @ haB
+            dtol = 1e-9 * (np.abs(haN) + absM @ np.abs(haB) + 1e-3)
             negd = der < -dtol
-            if np.any(negd):
-                kk = int(np.argmin(np.where(negd, der, np.inf)))
+            if negd.any():
+                kk = int(np.where(negd, der, np.inf).argmin())
             else:
                 # the eps part of slack g: +eps_g - sum_j M_gj eps_{B_j}; its sign is that
                 # of the lowest-numbered row with a nonzero coefficient
                 zerod = np.abs(der) <= dtol
-                absM = np.abs(Mn)
                 big = absM > 1e-9 * np.maximum(absM.max(axis=1, keepdims=True), 1.0)
-                rowsB = T[Bloc]
                 cand = np.where(big, rowsB[None, :], self.m)
                 first = cand.argmin(axis=1)
                 lowB = cand[np.arange(nbl.size), first]
-                epsneg = zerod & (lowB < T[nbl]) & (Mn[np.arange(nbl.size), first] > 0)
-                if not np.any(epsneg):
-                    return T[Bloc].copy(), True
-                kk = int(np.flatnonzero(epsneg)[np.argmin(T[nbl][epsneg])])
+                TN = T[nbl]
+                epsneg = zerod & (lowB < TN) & (Mn[np.arange(nbl.size), first] > 0)
+                if not epsneg.any():
+                    return rowsB, True
+                kk = int(np.flatnonzero(epsneg)[TN[epsneg].argmin()])
             k = int(nbl[kk])
             al = M[k].copy()
-            al[np.abs(al) <= 1e-9 * max(1.0, float(np.max(np.abs(al))))] = 0.0  # rounding
+            aal = np.abs(al)
+            al[aal <= 1e-9 * max(1.0, float(aal.max()))] = 0.0  # rounding
             pos = np.flatnonzero(al > 0)
             if pos.size == 0:
                 if negd[kk]:
                     return None, True  # dual unbounded: the LP is infeasible past theta
                 raise _NotExactError("an infinitesimal infeasibility (rounding)")
             # ties: the explorer's rule (_Explorer._lex_state), from the updated inverse
-            err0 = np.abs(Binv.T) @ (absc + np.abs(r.G[T[Bloc]].T) @ np.abs(d0))
+            err0 = np.abs(Binv.T) @ (absc + self._abs_G[rowsB].T @ np.abs(d0))
             thr = np.minimum(_TIE * (err0 + self.cmag), cap)
             d0 = np.where(np.abs(d0) <= thr, 0.0, d0)
-            if np.any(d0 < 0):
-                return T[Bloc].copy(), False  # drifted: refactorise
+            if (d0 < 0).any():
+                return rowsB, False  # drifted: refactorise
             # the lexicographic ratio test, with ties as the zeroing above makes them: a
             # dual that the step brings within the cap of zero is a tie, and the ties are
             # decided by r (so that every tie the step makes has d1 >= 0)
-            r0 = d0[pos] / al[pos]
-            rmin = float(np.min(r0))
-            cand_i = pos[d0[pos] - rmin * al[pos] <= thr[pos]]
-            i = int(cand_i[np.argmin(d1[cand_i] / al[cand_i])])
+            d0p, alp = d0[pos], al[pos]
+            rmin = float((d0p / alp).min())
+            cand_i = pos[d0p - rmin * alp <= thr[pos]]
+            i = int(cand_i[(d1[cand_i] / al[cand_i]).argmin()])
             if rmin == 0.0 and d1[i] < 0:
-                return T[Bloc].copy(), False  # drifted: refactorise
+                return rowsB, False  # drifted: refactorise
             self.stats["pivots"] += 1
             t0, t1 = rmin, d1[i] / al[i]
             d0 = d0 - t0 * al
             d0[i] = t0
             d1 = d1 - t1 * al
             d1[i] = t1
+            # (np.outer's products, without its wrapper)
             col = M[:, i] / al[i]
-            M -= np.outer(col, al)
+            M -= col[:, None] * al[None, :]
             M[:, i] = col
             col = Binv[:, i] / al[i]
-            Binv -= np.outer(col, al)
+            Binv -= col[:, None] * al[None, :]
             Binv[:, i] = col
             pos_of[Bloc[i]] = -1
             pos_of[k] = i
@@ -418,10 +469,13 @@ class _Search:
         Raises the explorer's ``too_imprecise`` error when the region's boundary cannot be
         located in double precision (``mplp.boundary_uncertainty``): the explorer would
         meet the same law and fail after far longer."""
+        self._rows = None
         out = self._region_raw(B, x0)
         if out is not None:
             reg = out[0]
-            move = boundary_uncertainty(self.r, reg.K, reg.k, self.size.bound, self.scale)
+            # (the numpy code leaves the region's rows before the clean-up in ``_rows``)
+            move = boundary_uncertainty(self.r, reg.K, reg.k, self.size.bound, self.scale,
+                                        rows=self._rows, absolute=self._absolute)
             if move > PRECISION_LIMIT:
                 c, _ = chebyshev_ball(reg.A, reg.b)
                 raise too_imprecise(c if c is not None else x0, move)
@@ -505,11 +559,12 @@ class _Search:
 
     def _region_numpy(self, B: np.ndarray, tol: float):
         r = self.r
-        lu = self._lu(B)
-        Z = lu_solve(lu, np.hstack([r.w[B, None], r.S[B]]), check_finite=False)
+        fac = self._lu(B)
+        Z = dgetrs(fac[0], fac[1], np.hstack([r.w[B, None], r.S[B]]))[0]
         k0, K = Z[:, 0], Z[:, 1:]
         Ar = r.G @ K - r.S
         br = r.w - r.G @ k0
+        self._rows = (Ar, br)
         nb = np.ones(self.m, dtype=bool)
         nb[B] = False
         Ar, br = Ar[nb], br[nb]
@@ -532,7 +587,7 @@ class _Search:
         if not radius > tol:
             return None
         keep = certified_minimal_rows(Ar, br, self.size.bound)
-        active = tuple(int(i) for i in np.sort(B))
+        active = tuple(np.sort(B).tolist())  # (Python ints)
         reg = CriticalRegion(A=Ar[keep], b=br[keep], K=K, k=k0, active=active)
         return reg, mark[keep], None
 
@@ -623,7 +678,8 @@ class _Search:
                 else:
                     if fac is not None:
                         stats["ball_retries"] = stats.get("ball_retries", 0) + 1
-                    others = np.delete(np.arange(reg.A.shape[0]), j)
+                    others = np.arange(reg.A.shape[0])
+                    others = others[others != j]  # (np.delete's indices)
                     centre, rho = chebyshev_ball(
                         reg.A[others], reg.b[others], a[None, :], np.array([beta])
                     )

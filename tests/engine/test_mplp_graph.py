@@ -241,6 +241,24 @@ def test_boundary_uncertainty_separates_the_horizons():
     assert worst < 0.1 * PRECISION_LIMIT
 
 
+def test_boundary_uncertainty_from_the_callers_products():
+    """Given the region's rows and ``|G|, |S|, |w|`` (as the basis graph keeps them), the
+    measure is the one it computes itself, bit for bit."""
+    from codev_engine.mp.mplp import boundary_uncertainty
+    from codev_engine.mp.reduce import parameter_box, reduce_program
+
+    red = reduce_program(_mpc("magnetic_pointer_c"))
+    size = parameter_box(red)
+    absolute = (np.abs(red.G), np.abs(red.S), np.abs(red.w))
+    sol = _explore_counted(_mpc("magnetic_pointer_c"), "bases", {})
+    for r in sol:
+        rows = (red.G @ r.K - red.S, red.w - red.G @ r.k)
+        alone = boundary_uncertainty(red, r.K, r.k, size.bound, size.scale)
+        given = boundary_uncertainty(red, r.K, r.k, size.bound, size.scale, rows=rows,
+                                     absolute=absolute)
+        assert given == alone
+
+
 def sliver_program(delta: float) -> ce.MpProgram:
     """``min z`` with ``z >= 0, z >= t1, z >= 2 t1 - delta`` (and ``z <= 10``),
     ``t in [-1, 1]^2``: the law ``z = t1`` holds on the slab ``0 <= t1 <= delta`` only."""
