@@ -12,6 +12,7 @@ The dense comparison (more random programs, bigger MPCs) is ``slow``.
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -331,13 +332,34 @@ def test_magnetic_pointer_long_horizon_passes_the_oracle():
 
 
 @pytest.mark.slow
-def test_explorer_that_cannot_step_names_what_to_change():
-    """The explorer alone on the magnetic pointer with N = 8 (``mplp="facets"``) still
-    cannot step across a facet near the slivers (at about 5,200 regions, ~22 s of CPU);
-    it used to say only "could not step across a facet (numerical trouble)"."""
+def test_explorer_alone_on_the_slivers_gives_the_graphs_law_or_names_what_to_change():
+    """The explorer alone on the magnetic pointer with N = 8 (``mplp="facets"``): it used
+    to stop near the slivers, at about 5,200 regions, with "could not step across a facet
+    (numerical trouble)". Today it ends in a law of 8,692 regions: the graph's 8,706 but
+    for regions thinner than its steps. Either ending is allowed: the message naming what
+    to change, or a law that is the graph's wherever both have a region (the first move at
+    2,000 random parameters)."""
     prob = load_spec(EXAMPLES / "magnetic_pointer_a.toml")
     prob = dataclasses.replace(prob, mpc=dataclasses.replace(prob.mpc, horizon=8))
-    prog = build_program(prob.mpc, discretize(prob)).program
-    with pytest.raises(ce.SolverError, match=r"could not step across a facet near theta=.*"
-                       r"shorten mpc\.horizon, or use norm = \"2\""):
-        _solve(prog, "facets")
+    mp = build_program(prob.mpc, discretize(prob))
+    prog = mp.program
+    try:
+        alone = _solve(prog, "facets")
+    except ce.SolverError as exc:
+        assert re.search(r"could not step across a facet near theta=.*"
+                         r"shorten mpc\.horizon, or use norm = \"2\"", str(exc)), str(exc)
+        return
+    graph = _solve(prog, "bases")
+    assert 0.99 * graph.num_regions <= alone.num_regions <= graph.num_regions
+    rng = np.random.default_rng(8)
+    # parameters in the parameter box (the first 2 d rows of A_theta are the box's)
+    upper, lower = prog.b_theta[:prog.d], -prog.b_theta[prog.d:2 * prog.d]
+    Theta = rng.uniform(lower, upper, size=(2000, prog.d))
+    ia, ig = alone.locate(Theta), graph.locate(Theta)
+    both = (ia >= 0) & (ig >= 0)
+    assert both.sum() >= 200, both.sum()
+    # where one solution has a region the other has one too (no hole bigger than a sliver)
+    assert np.array_equal(ia >= 0, ig >= 0)
+    za, zg = alone.primal(Theta[both]), graph.primal(Theta[both])
+    ua, ug = za[:, mp.u0_slice], zg[:, mp.u0_slice]
+    assert np.allclose(ua, ug, atol=1e-7 * (1.0 + np.abs(ug).max()))
