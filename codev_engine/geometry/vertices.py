@@ -409,7 +409,14 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
       one corner.)
 
     Otherwise the corners of the polytope's bounding box (2d LPs) are returned, which
-    over-approximate.
+    over-approximate: they are no points of the polytope in general, so a caller must
+    never take one for a state (an LP over the rows decides what is attained).
+
+    A thin polytope (an interior ball of radius ~1e-10, a sliver between a region's row
+    and its slack) can defeat the bounding box LPs, which then call it infeasible within
+    their own tolerances although it is not empty. Such a polytope is never dropped: its
+    box is taken from the rows relaxed by ``_BLOAT (1 + |b|)``, a superset, and widened by
+    the same amount (far above the LPs' tolerances, ~1e-9), which still contains it.
 
     Parameters
     ----------
@@ -427,9 +434,8 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
     Raises
     ------
     ValueError
-        The polytope is unbounded (a bounding box LP is unbounded).
-    SolverError
-        A bounding box LP has no solution (the polytope is empty, or the LP failed).
+        The polytope is unbounded (a bounding box LP is unbounded), or even the relaxed
+        rows' box LPs fail: no enclosing points (the caller keeps a superset it knows).
     """
     d = A.shape[1]
     V = vertices(A, b, tol)
@@ -437,13 +443,41 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
         on = np.abs(V @ A.T - b[None, :]) <= FACET_TOL
         if np.all(on.sum(axis=0) >= d) and _closed_under_edges(V, A, b, tol):
             return V
+    try:
+        lo, hi = _bounding_box(A, b)
+    except SolverError:
+        # a thin polytope the LPs call infeasible within their tolerances: the box of the
+        # relaxed rows (a superset), widened by the relaxation (module docstring)
+        pad = _BLOAT * (1.0 + np.abs(b))
+        try:
+            lo, hi = _bounding_box(A, b + pad)
+        except SolverError as exc:
+            raise ValueError(f"no bounding box for a degenerate polytope: {exc}") from exc
+        widen = _BLOAT * (1.0 + np.abs(b).max() + np.maximum(np.abs(lo), np.abs(hi)))
+        lo, hi = lo - widen, hi + widen
+    return box_corners(lo, hi)
+
+
+#: relative relaxation of a thin polytope's rows (its bounding box LPs failed, or its
+#: interior ball is below ``_THIN``): a superset with an interior
+_BLOAT = 1e-7
+#: an interior radius below which a piece is decided again (HiGHS) and relaxed if kept
+_THIN = 1e-9
+#: a piece whose Chebyshev radius is below ``-_EMPTY`` is empty (dropped)
+_EMPTY = 1e-6
+
+
+def _bounding_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding box of ``{A x <= b}`` by 2d LPs (SolverError when one has no
+    solution, ValueError when unbounded)."""
+    d = A.shape[1]
     lo, hi = np.empty(d), np.empty(d)
     for j in range(d):
         e = np.zeros(d)
         e[j] = 1.0
         lo[j] = _box_side(e, A, b)[j]
         hi[j] = _box_side(-e, A, b)[j]
-    return box_corners(lo, hi)
+    return lo, hi
 
 
 def _closed_under_edges(V: np.ndarray, A: np.ndarray, b: np.ndarray, tol: float) -> bool:
@@ -557,10 +591,21 @@ def checked_piece(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """A polytope ``{x : A x <= b}`` made ready for reachability, or None when it is empty.
 
-    The rows are normalised, the set is dropped when it has no interior (a Chebyshev ball of
-    radius 0: empty or flat), the redundant rows are removed and the set is bounded by
-    :func:`checked_vertices` -- the sequence both reach engines run on a set cut by a
-    critical region.
+    The rows are normalised, the set is dropped when it is empty, the redundant rows are
+    removed and the set is bounded by :func:`checked_vertices` -- the sequence both reach
+    engines run on a set cut by a critical region.
+
+    Dropping is sound only for a set that is truly empty. The reach engines cut sets by a
+    region's rows relaxed by 1e-9 (and the rounding bound), so a set that holds a state of
+    the region yields a piece with an interior ball of radius ~1e-10 or more, which an LP
+    can misjudge within its tolerances. So a piece is dropped only when its Chebyshev
+    radius is below ``-_EMPTY`` (every point violates some row by more than 1e-6: empty
+    far beyond any LP's tolerance); a radius in ``[-_EMPTY, _THIN]`` (thin, flat, or empty
+    within tolerance) is decided again by HiGHS, and unless HiGHS too finds it empty by
+    more than ``_EMPTY`` the piece is kept with its rows relaxed by ``_BLOAT (1 + |b|)``
+    (plus twice a negative radius):
+    a superset with an interior, which over-approximates (never an exception, never a
+    state lost).
 
     Parameters
     ----------
@@ -573,14 +618,21 @@ def checked_piece(
     -------
     tuple of ((k', d) ndarray, (k',) ndarray, (v, d) ndarray) or None
         The non-redundant unit rows, their right-hand sides and points whose convex hull
-        contains the polytope; None when the polytope has no interior.
+        contains the polytope; None when the polytope is empty.
     """
     A, b, ok = normalize_rows(A, b)
     if not ok:
         return None
     _, radius = chebyshev_ball(A, b)
-    if not radius > 0:
+    if radius < -_EMPTY:
         return None
+    if not radius > _THIN:
+        # thin, flat or empty within the LP's tolerance: HiGHS decides, else a superset
+        _, radius = chebyshev_ball(A, b, solver="highs")
+        if radius < -_EMPTY:
+            return None
+        if not radius > _THIN:
+            b = b + _BLOAT * (1.0 + np.abs(b)) + 2.0 * max(-float(radius), 0.0)
     keep = minimal_rows(A, b)
     A, b = A[keep], b[keep]
     return A, b, checked_vertices(A, b)

@@ -298,6 +298,57 @@ class ClosedLoopSetup:
         self._max_boxes = max(1, lim["tube_bytes"] // ((2 * self.n + 3) * 8))
         self._tube_gib = lim["tube_bytes"] / 2**30
 
+    def _region_u(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The range of the law's input over region ``i`` and the bounds it is checked
+        against (cached; 4m small LPs per region).
+
+        Every state the law gives region ``i`` lies in ``{A_i x <= b_i + 1e-9}`` (point
+        location: inside the region, or within 1e-9 of it outside the domain), so any input
+        region ``i`` applies at a sample -- with measurement noise too: it is the law at a
+        measured point of the region -- lies in the LP range of ``F_i x + G_i`` over it,
+        padded by ``1e-9`` of the terms for the LPs' accuracy (``lo``, ``hi``). The input
+        bounds are meant up to the law's rounding: the mp solvers meet ``u_min``, ``u_max``
+        to their tolerance (``1e-7 (1 + |bound|)``, the slack of ``u_min`` / ``u_max``), on
+        the region itself; what the 1e-9 of point location adds beyond the region (its
+        spill, ``range over the relaxed rows - range over the rows``, up to ``|F| 1e-9`` near
+        a sharp corner) is the locator's rounding, not the law's, and widens the bounds
+        the region is checked against (``umin``, ``umax``). Infinite where an LP fails.
+
+        Parameters
+        ----------
+        i : int
+            The region.
+
+        Returns
+        -------
+        lo, hi, umin, umax : (m,) ndarray
+        """
+        cache = self.__dict__.setdefault("_u_cache", {})
+        if i not in cache:
+            F, G = self.law.F[i], self.law.G[i]
+            A, b = self.law.A[i], self.law.b[i]
+            m = F.shape[0]
+            ext = {}
+            for slack in (0.0, 1e-9):
+                lo, hi = np.full(m, -np.inf), np.full(m, np.inf)
+                for r in range(m):
+                    for sgn in (1.0, -1.0):
+                        x, st, _ = solve_lp(sgn * F[r], A, b + slack)
+                        if st != "optimal":
+                            continue
+                        v = F[r] @ x + G[r]
+                        pad = 1e-9 * (1 + np.abs(F[r]) @ np.abs(x) + abs(G[r]))
+                        if sgn > 0:
+                            lo[r] = v - pad
+                        else:
+                            hi[r] = v + pad
+                ext[slack] = (lo, hi)
+            (lo0, hi0), (lo, hi) = ext[0.0], ext[1e-9]
+            spill_hi = np.where(np.isfinite(hi) & np.isfinite(hi0), np.maximum(hi - hi0, 0), 0)
+            spill_lo = np.where(np.isfinite(lo) & np.isfinite(lo0), np.maximum(lo0 - lo, 0), 0)
+            cache[i] = (lo, hi, self.u_min - spill_lo, self.u_max + spill_hi)
+        return cache[i]
+
     def _init_noise(self) -> None:
         """The measurement noise's centre ``vc`` and radius ``vr`` (None without noise), the
         law's offsets with the noise's centre ``Gn`` and a bound ``Gn_err`` on their
@@ -428,6 +479,10 @@ class LinearReach(ClosedLoopSetup):
         p = self.problem
         vs = p.verify
         self._init_properties()
+        #: this period's held input is decided (zoh: once per period, :meth:`_period`)
+        self._held_ok = False
+        #: the input bounds this period's region is checked against (:meth:`_region_u`)
+        self._ubounds = (self.u_min, self.u_max)
         self.step = float(vs.step)
         self._flows: dict = {}
         #: the arrays of an invariance certificate (H, h, points, pads), when one closed
@@ -606,8 +661,14 @@ class LinearReach(ClosedLoopSetup):
                                      + _REL * (np.abs(F) @ np.abs(s.Gw)).sum(axis=1))
                                 * (1.0 + 1e-12))
             ue = ue + self._noise_input(i)
-            u_lo = np.repeat((uv.min(axis=0) - ue)[None], len(taus) - 1, 0)
-            u_hi = np.repeat((uv.max(axis=0) + ue)[None], len(taus) - 1, 0)
+            u_lo, u_hi = uv.min(axis=0) - ue, uv.max(axis=0) + ue
+            if self.check_u:
+                # the held input is the law at a state of region i: within its range there
+                # (sound whatever the star's vertices are -- its bounding box's corners too)
+                rlo, rhi, _, _ = self._region_u(i)
+                u_lo, u_hi = np.maximum(u_lo, rlo), np.minimum(u_hi, rhi)
+            u_lo = np.repeat(u_lo[None], len(taus) - 1, 0)
+            u_hi = np.repeat(u_hi[None], len(taus) - 1, 0)
         else:
             _, v = self._mode(i)
             acc = Y @ (M @ M).T + (M @ v)[None, None]
@@ -651,8 +712,9 @@ class LinearReach(ClosedLoopSetup):
         for A, b in self.safe:
             high = np.where(A > 0, A, 0) @ shi.T + np.where(A < 0, A, 0) @ slo.T
             bad |= np.any(high > b[:, None], axis=0)
-        if self.check_u:
-            bad |= np.any(u_lo < self.u_min, axis=1) | np.any(u_hi > self.u_max, axis=1)
+        if self.check_u and not self._held_ok:
+            umin, umax = self._ubounds
+            bad |= np.any(u_lo < umin, axis=1) | np.any(u_hi > umax, axis=1)
         return bad
 
     def _exact_violation(self, s: _Star, i: int, tau: float, t: float) -> Finding | None:
@@ -682,14 +744,15 @@ class LinearReach(ClosedLoopSetup):
                 x, st, _ = solve_lp(-(A[r] @ W), s.H, s.h)
                 if st == "optimal" and A[r] @ (X + W @ x) > b[r] + margin:
                     return Finding("safe", idx, t, x)
-        if self.check_u:
+        if self.check_u and not self._held_ok:
             F, G = self.law.F[i], self.Gn[i]
             if self.hold == "zoh":
                 Xu, Wu = s.c, s.V
             else:
                 Xu, Wu = X, W
+            umin, umax = self._ubounds
             for r in range(self.m):
-                for sign, bound in ((1.0, self.u_max[r]), (-1.0, -self.u_min[r])):
+                for sign, bound in ((1.0, umax[r]), (-1.0, -umin[r])):
                     if not np.isfinite(bound):
                         continue
                     row = sign * F[r]
@@ -697,6 +760,40 @@ class LinearReach(ClosedLoopSetup):
                     if st == "optimal" and row @ (Xu + Wu @ x) + sign * G[r] > bound + margin:
                         return Finding("input_bounds", r, t, x)
         return None
+
+    def _held_violation(self, s: _Star, i: int, t: float, err: np.ndarray,
+                        u_lo: np.ndarray, u_hi: np.ndarray) -> Finding:
+        """Decide a held input (zoh) that may leave its bounds, once for the period.
+
+        An LP over the star's polytope finds the largest (smallest) held input
+        ``F_i (c + V a) + G_i``; beyond the region's bound by more than ten times the
+        star's error it is a concrete violation (``alpha`` set, the initial state). Else
+        it is a possible violation that no time refinement can decide (the input is held):
+        a ``"max_depth"`` finding whose ``detail`` says which input, the range and the
+        tolerance.
+        """
+        F, G = self.law.F[i], self.Gn[i]
+        umin, umax = self._ubounds
+        margin = float(np.max(err)) * 10 + 1e-12
+        for r in range(self.m):
+            for sign, bound in ((1.0, umax[r]), (-1.0, -umin[r])):
+                if not np.isfinite(bound):
+                    continue
+                row = sign * F[r]
+                a, st, _ = solve_lp(-(row @ s.V), s.H, s.h)
+                if st == "optimal" and row @ (s.c + s.V @ a) + sign * G[r] > bound + margin:
+                    if s.exact or not self.uncertain:
+                        return Finding("input_bounds", r, t, a)
+        r = int(np.argmax(np.maximum(u_hi - umax, umin - u_lo)))
+        tol_hi = umax[r] - float(self.problem.mpc.u_max[r])
+        tol_lo = float(self.problem.mpc.u_min[r]) - umin[r]
+        return Finding(
+            "max_depth", -1, t, None,
+            f"at t = {t:.6g} the input {r} held by region {i} lies in [{u_lo[r]:.10g}, "
+            f"{u_hi[r]:.10g}] (bounds [{self.problem.mpc.u_min[r]:g}, "
+            f"{self.problem.mpc.u_max[r]:g}], tolerance {max(tol_lo, tol_hi):.3g}); "
+            "held over the period, it is not decided by time refinement",
+        )
 
     def _param_bound(self, s: _Star, i: int, taus: np.ndarray) -> bool:
         """Set ``_prad``, the radius of the parameters' deviation over this period.
@@ -745,7 +842,26 @@ class LinearReach(ClosedLoopSetup):
             # violation the engine cannot decide (the tube stops holding this branch)
             self.findings.append(Finding("max_depth", -1, t_k, None))
             return None
+        self._held_ok, self._ubounds = False, (self.u_min, self.u_max)
+        if self.check_u and self.hold == "zoh":
+            self._ubounds = self._region_u(i)[2:]
         X, W, err, slo, shi, u_lo, u_hi = self._segments(s, i, taus)
+        if self.check_u and self.hold == "zoh":
+            # the held input does not change over the period: no time refinement can
+            # change its check, so it is decided here, once (docs/verification.md)
+            umin, umax = self._ubounds
+            self._held_ok = bool(np.all(u_lo[0] >= umin) and np.all(u_hi[0] <= umax))
+            if not self._held_ok:
+                f = self._held_violation(s, i, t_k, err[0], u_lo[0], u_hi[0])
+                self._held_ok = True  # decided: the segments check the states alone
+                if f.alpha is not None:
+                    self.findings.append(f)
+                    branch = self.stats["branches"]
+                    t0 = np.full(len(taus) - 1, t_k) + taus[:-1]
+                    self.tubes.append(Tube(t0, t0 + np.diff(taus), slo, shi,
+                                           np.full(len(taus) - 1, branch)))
+                    return None
+                self.findings.append(f)
         bad = self._bad_segments(slo, shi, u_lo, u_hi)
         t0 = np.full(len(taus) - 1, t_k) + taus[:-1]
         t1 = np.full(len(taus) - 1, t_k) + taus[1:]
@@ -927,16 +1043,24 @@ class LinearReach(ClosedLoopSetup):
             if self.vr is not None:
                 viol = viol + (A @ self.vc + np.abs(A) @ self.vr)[None, :] * (1.0 + 1e-12)
             if np.max(viol) > 0:
-                v = int(np.argmax(np.max(viol, axis=1)))
                 # (a measured state that may leave the domain is no concrete violation: the
-                # concrete search decides, under noise sequences)
-                exact = self.vr is None and np.max(Y[v] @ A.T - b) > 10 * np.max(s.err) + 1e-12
-                if exact:
-                    return Finding("undefined", -1, t, s.verts[v])
+                # concrete search decides, under noise sequences.) The star's points may be
+                # its bounding box's corners (the vertex enumeration's fallback), which are
+                # no states: an exit is exact only when an LP over the polytope attains it
+                alpha, worst = None, float(np.max(viol))
+                if self.vr is None:
+                    alpha, worst = self._exit(s, A, b, viol)
+                if alpha is not None:
+                    return Finding("undefined", -1, t, alpha)
+            if np.max(viol) > 0 and worst is not None:
                 # only the over-approximation leaves the domain: say so, and go on with the
                 # part inside the regions so the tube still holds every trajectory for as
                 # long as its law is defined
-                self.findings.append(Finding("undefined", -1, t, None))
+                self.findings.append(Finding(
+                    "undefined", -1, t, None,
+                    f"at t = {t:.6g} the reach set's over-approximation may leave the law's "
+                    f"domain by {worst:.3g} (no state of it is shown to); the tube goes on "
+                    "with its part inside the regions"))
         cand = np.flatnonzero(
             np.all(self.boxes_lo <= hi + 1e-9, axis=1) & np.all(self.boxes_hi >= lo - 1e-9, axis=1)
         )
@@ -976,6 +1100,42 @@ class LinearReach(ClosedLoopSetup):
         if not children:
             self.findings.append(Finding("undefined", -1, t, None))
         return children
+
+    def _exit(self, s: _Star, A: np.ndarray, b: np.ndarray, viol: np.ndarray
+              ) -> tuple[np.ndarray | None, float]:
+        """Does a state of the star leave the domain ``{A x <= b}``? LPs over its polytope.
+
+        For each row some point of the star's over-approximation violates (largest first):
+        the largest ``A_r (c + V a) - b_r`` over ``H a <= h``. An exit is exact when it
+        exceeds ten times the star's error at a point ``a`` of the polytope (checked):
+        returns that ``a`` and the LP's largest violation; ``(None, None)`` when every such
+        row's maximum, widened by the star's error and the LP's accuracy (1e-9 of the
+        terms), is within its bound: no state leaves (the points were loose, e.g. the
+        corners of a bounding box); else ``(None, largest)``, a possible exit.
+        """
+        top = viol.max(axis=0)
+        rows = np.argsort(-top)
+        rows = rows[top[rows] > 0]
+        margin = 10 * float(np.max(s.err)) + 1e-12
+        worst = -np.inf
+        inside = True  # every flagged row's LP maximum, widened, is within its bound
+        for r in rows:
+            a, st, _ = solve_lp(-(A[r] @ s.V), s.H, s.h)
+            if st != "optimal" or not np.all(s.H @ a <= s.h + 1e-9 * (1 + np.abs(s.h))):
+                inside = False
+                continue
+            AV = A[r] @ s.V
+            gap = float(A[r] @ (s.c + s.V @ a) - b[r])
+            worst = max(worst, gap)
+            if gap > margin:
+                return a, gap
+            # the LP's accuracy (1e-9 of the terms) and the star's error
+            pad = (float(np.abs(A[r]) @ s.err)
+                   + 1e-9 * (1 + abs(b[r]) + np.abs(A[r]) @ np.abs(s.c) + np.abs(AV) @ np.abs(a)))
+            inside = inside and gap + pad <= 0
+        if inside:
+            return None, None
+        return None, float(worst if np.isfinite(worst) else viol.max())
 
     def run(self) -> None:
         """Explore every branch; results in ``self.tubes`` and ``self.findings``.

@@ -534,7 +534,11 @@ class NonlinearReach(ClosedLoopSetup):
         """The finding of an enclosure that could not be established at time t."""
         if self.domain_note:
             return Finding("enclosure", -1, t, None, f"{self.domain_note} at t = {t:.6g}")
-        return Finding("max_depth", -1, t, None)
+        # (no singularity: the Picard iteration or the remainder's bound did not close)
+        return Finding("enclosure", -1, t, None,
+                       f"no a-priori enclosure of the set's trajectories at t = {t:.6g} (the "
+                       "Picard iteration or the remainder's bound did not close); the tube "
+                       "of that piece of the initial set ends there")
 
     def _period(self, s: _Set, i: int):
         """Reach over one period in region i: (next set, tube, findings, record)."""
@@ -1144,9 +1148,14 @@ class NonlinearReach(ClosedLoopSetup):
                     (int(i), _Set(s.y, s.D, s.M, s.k, s.path + (int(i),), s.H, s.h, s.V, poly))
                 )
                 continue  # the whole set is inside the region: no cut needed
-            piece = checked_piece(
-                np.vstack([s.H, Ai @ s.D]), np.concatenate([s.h, bi - Ai @ s.y + slack])
-            )
+            try:
+                piece = checked_piece(
+                    np.vstack([s.H, Ai @ s.D]), np.concatenate([s.h, bi - Ai @ s.y + slack])
+                )
+            except ValueError:
+                # no enclosing points for the cut (a degenerate sliver): the uncut
+                # polytope, a superset
+                piece = (s.H, s.h, s.V)
             if piece is None:
                 continue
             Hn, hn, V = piece
@@ -1311,7 +1320,11 @@ class NonlinearReach(ClosedLoopSetup):
             return True
         if depth >= self.max_depth:
             if failed is not None:
-                self.findings.append(failed)  # names the singular expression
+                # names the singular expression, or the enclosure that did not close: the
+                # piece's tube ends there (a possible exit found before it is kept too)
+                self.findings.append(failed)
+                if status == "undefined":
+                    self.findings.append(Finding("undefined", -1, float(t_bad or 0.0), None))
             else:
                 kind = "undefined" if status == "undefined" else "max_depth"
                 self.findings.append(Finding(kind, -1, float(t_bad or 0.0), None))

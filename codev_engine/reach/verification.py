@@ -63,7 +63,8 @@ UNKNOWN_WORDS = {
     "infeasible_region": "the reach set leaves the law's domain",
     "law_parameters": "the law also takes the previous input or a reference, which the "
     "reach engines do not track yet",
-    "enclosure": "an interval enclosure meets a singularity",
+    "enclosure": "an interval enclosure meets a singularity, or an a-priori enclosure "
+    "did not close",
     "no_invariant": "no invariance certificate within max_samples",
     "limit": "the exploration grew past the verifier's limits",
     "invariant": "for all time: an invariance certificate",
@@ -592,18 +593,8 @@ def verify(
             break
     detail = None
     if verdict != "unsafe" and findings:
-        kinds = {f.kind for f in findings}
         verdict = "unknown"
-        if "limit" in kinds:
-            reason = "limit"
-            detail = next(f.detail for f in findings if f.kind == "limit")
-        elif "undefined" in kinds:
-            reason = "infeasible_region"
-        elif "enclosure" in kinds:
-            reason = "enclosure"
-            detail = next(f.detail for f in findings if f.kind == "enclosure")
-        else:
-            reason = "max_depth"
+        reason, detail = _unknown_reason(findings, concrete)
         # a possible violation is worth a few concrete simulations (under disturbances,
         # also the adjoint's extreme signals towards the properties at the findings' times)
         # (the searches in turn, the first replayed counterexample ends them; the input
@@ -654,6 +645,56 @@ def verify(
     result = VerificationResult(verdict, reason, tube, hold, cex, stats, detail, certificate)
     result.attach_display(problem=problem, law=law)  # state names and sets in the picture
     return result
+
+
+def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
+    """The reason and ``detail`` of an ``unknown`` from the engine's findings.
+
+    The reasons in order: ``limit`` (the run stopped: partial tube), ``enclosure`` (an
+    a-priori enclosure failed: that piece's tube ends there), ``infeasible_region`` (the
+    over-approximation may leave the law's domain; the tube goes on, or, when a state of
+    the reach set was shown to leave it but no simulation reproduced the exit, ends
+    there), ``max_depth``. ``detail`` names the time and the cause, and says where the
+    tube ends when it is partial (docs/verification.md, "The tube file").
+
+    Parameters
+    ----------
+    findings : list of Finding
+        Not empty.
+    concrete : list of Finding
+        The findings with a concrete initial state that no simulation confirmed: the run
+        stopped at the first of them.
+
+    Returns
+    -------
+    reason, detail : str
+    """
+    kinds = {f.kind for f in findings}
+
+    def first(kind: str):
+        return min((f for f in findings if f.kind == kind), key=lambda f: f.t)
+
+    if "limit" in kinds:
+        reason, f = "limit", first("limit")
+        detail = f"{f.detail}; the tube ends at t = {f.t:.6g}"
+    elif "enclosure" in kinds:
+        reason, f = "enclosure", first("enclosure")
+        detail = f.detail or f"an a-priori enclosure failed at t = {f.t:.6g}"
+        if "tube" not in detail:
+            detail += "; the tube of that piece of the initial set ends there"
+    elif "undefined" in kinds:
+        reason, f = "infeasible_region", first("undefined")
+        detail = f.detail or f"at t = {f.t:.6g} the reach set may leave the law's domain"
+    else:
+        reason, f = "max_depth", first("max_depth")
+        detail = f.detail or (f"a possible violation at t = {f.t:.6g} was not decided "
+                              "within max_depth refinements")
+    if concrete:
+        c = min(concrete, key=lambda f: f.t)
+        detail += (f"; a {c.kind} violation found on the reach set at t = {c.t:.6g} was not "
+                   "reproduced by simulation, and the exploration stopped there: the tube "
+                   f"is partial after t = {c.t:.6g}")
+    return reason, detail
 
 
 def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth: int,
