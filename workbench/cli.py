@@ -887,6 +887,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise SpecError("give --c DIR and/or --python FILE.py", field="codev export")
     if args.method not in METHODS:  # (argparse checks too; kept for direct calls)
         raise SpecError(f"must be one of {', '.join(METHODS)}", field="--method")
+    if args.c:  # before the plan, which can take minutes on a large law
+        from codev_engine.deploy.escape import c_prefix
+
+        try:
+            c_prefix(args.name)
+        except SpecError as exc:
+            raise SpecError(exc.reason, field="--name") from None
     data = read_npz(args.file, "law or solution file")
     try:
         tag = text(data, "format") if "format" in data else ""

@@ -259,3 +259,15 @@ def test_cli_refuses_a_bad_prefix_in_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and err.startswith("codev: error:"), err
     assert not (tmp_path / "c").exists()
+
+
+def test_cli_checks_the_prefix_before_planning(tmp_path, capsys, monkeypatch):
+    import codev_engine.deploy.plan as plan_module
+
+    def no_plan(*args, **kwargs):
+        raise AssertionError("planned before the prefix was checked")
+
+    monkeypatch.setattr(plan_module, "plan", no_plan)
+    f = box_law(["a", "b"], ["u"], "").save(tmp_path / "law.npz")
+    assert main(["export", str(f), "--c", str(tmp_path / "c"), "--name", "int"]) == 2
+    assert "--name: name 'int' is a C keyword" in capsys.readouterr().err
