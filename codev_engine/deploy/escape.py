@@ -11,7 +11,8 @@ never put such text into code directly:
 - :func:`py_str` and :func:`py_names` make it Python literals (``ascii`` of a plain
   ``str``: every character outside printable ASCII escaped);
 - :func:`c_prefix` checks the one name that does become C identifiers and file names, the
-  export's prefix (chosen on the command line, not read from the law).
+  export's prefix (chosen on the command line, not read from the law); :func:`prefix_for`
+  makes one from any text (the workbench names the files after the design).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from collections.abc import Iterable
 
 from codev_engine.errors import SpecError
 
-__all__ = ["C_KEYWORDS", "c_prefix", "comment", "py_names", "py_str"]
+__all__ = ["C_KEYWORDS", "c_prefix", "comment", "prefix_for", "py_names", "py_str"]
 
 #: the characters a comment keeps as they are (every other one is escaped)
 _PLAIN = frozenset(
@@ -163,3 +164,30 @@ def c_prefix(name: str) -> str:
     if name.lower() in _DEVICES:
         raise SpecError(f"name '{name}' is a device name on Windows", field="name")
     return name
+
+
+def prefix_for(text: str, default: str = "codev_law") -> str:
+    """A prefix :func:`c_prefix` accepts, made from any text (a design's name).
+
+    Parameters
+    ----------
+    text : str
+        ``dc-motor-servo``, ``2d.plant``, ``int``...
+    default : str
+        The prefix when ``text`` has no letter or digit.
+
+    Returns
+    -------
+    str
+        ``text`` with every character but ASCII letters and digits made '_' (runs of them
+        one '_', none at the ends), ``law_`` in front of one that does not start with a
+        letter or is reserved (a C keyword, a standard header's or a device name), cut to
+        ``PREFIX_MAX`` characters: ``dc_motor_servo``, ``law_2d_plant``, ``law_int``.
+    """
+    stem = re.sub(r"[^A-Za-z0-9]+", "_", str(text)).strip("_")
+    if not stem:
+        return default
+    reserved = stem in C_KEYWORDS or stem.lower() in _C_HEADERS | _DEVICES
+    if not stem[0].isalpha() or reserved:
+        stem = "law_" + stem
+    return stem[:PREFIX_MAX].rstrip("_")

@@ -271,3 +271,14 @@ def test_cli_checks_the_prefix_before_planning(tmp_path, capsys, monkeypatch):
     f = box_law(["a", "b"], ["u"], "").save(tmp_path / "law.npz")
     assert main(["export", str(f), "--c", str(tmp_path / "c"), "--name", "int"]) == 2
     assert "--name: name 'int' is a C keyword" in capsys.readouterr().err
+
+
+def test_a_prefix_is_made_from_any_design_name():
+    from codev_engine.deploy.escape import prefix_for
+
+    assert prefix_for("dc-motor-servo") == "dc_motor_servo"
+    assert prefix_for("2d.plant") == "law_2d_plant"
+    assert prefix_for("int") == "law_int" and prefix_for("Math") == "law_Math"
+    assert prefix_for("") == prefix_for("--") == "codev_law"
+    for text in corpus(seed=5, count=200) + ["a" * 64, "a" * 50 + "-b"]:
+        assert c_prefix(prefix_for(text)) == prefix_for(text)
