@@ -20,7 +20,7 @@ from codev_engine.display import Displayable
 from codev_engine.errors import SpecError
 from codev_engine.geometry.locate import PointLocator, bounding_boxes
 from codev_engine.geometry.polytope import Polytope
-from codev_engine.io.npz import NpzFormat, load_npz, offsets, save_npz
+from codev_engine.io.npz import NpzFormat, check_identifiers, load_npz, offsets, save_npz
 from codev_engine.io.npz import names as _names
 from codev_engine.io.npz import pair as _pair
 from codev_engine.io.npz import real as _real
@@ -229,7 +229,14 @@ class ExplicitLaw(Displayable):
         -------
         Path
             The path written.
+
+        Raises
+        ------
+        SpecError
+            A name that is not an identifier (``load`` would refuse the file).
         """
+        for key in ("states", "inputs", "parameters"):
+            check_identifiers(getattr(self, key), key)
         path = Path(path)
         offsets = np.cumsum([0] + [a.shape[0] for a in self.A])
         n = self.n

@@ -33,6 +33,7 @@ __all__ = [
     "real",
     "text",
     "names",
+    "check_identifiers",
     "pair",
     "offsets",
 ]
@@ -382,15 +383,33 @@ def names(
         raise SpecError(f"must have {count} names, got {arr.size}", field=key)
     out = tuple(str(s) for s in arr)
     if identifiers:
-        for i, name in enumerate(out):
-            if not IDENTIFIER_RE.fullmatch(name):
-                shown = ascii(name) if len(name) <= 40 else ascii(name[:40])[:-1] + "...'"
-                raise SpecError(
-                    f"name {shown} is not an identifier (ASCII letters, digits and '_', not "
-                    "starting with a digit): refused",
-                    field=f"{key}[{i}]",
-                )
+        check_identifiers(out, key)
     return out
+
+
+def check_identifiers(values: tuple[str, ...], key: str) -> None:
+    """Refuse a name that is not an identifier (``IDENTIFIER_RE``).
+
+    Parameters
+    ----------
+    values : tuple of str
+        The names.
+    key : str
+        The array they are (or will be) stored as, for the message.
+
+    Raises
+    ------
+    SpecError
+        Naming ``key[i]`` and showing the name escaped (``ascii``, cut at 40 characters).
+    """
+    for i, name in enumerate(values):
+        if not isinstance(name, str) or not IDENTIFIER_RE.fullmatch(name):
+            shown = ascii(str(name)[:40]) + ("..." if len(str(name)) > 40 else "")
+            raise SpecError(
+                f"name {shown} is not an identifier (ASCII letters, digits and '_', not "
+                "starting with a digit): refused",
+                field=f"{key}[{i}]",
+            )
 
 
 def pair(data: dict[str, np.ndarray], a: str, b: str) -> None:
