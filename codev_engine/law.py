@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from codev_engine.display import Displayable
 from codev_engine.errors import SpecError
 from codev_engine.geometry.locate import PointLocator, bounding_boxes
 from codev_engine.geometry.polytope import Polytope
-from codev_engine.io.npz import NpzFormat, load_npz, offsets, save_npz
+from codev_engine.io.npz import NpzFormat, check_identifiers, load_npz, offsets, save_npz
 from codev_engine.io.npz import names as _names
 from codev_engine.io.npz import pair as _pair
 from codev_engine.io.npz import real as _real
@@ -29,6 +30,8 @@ __all__ = ["ExplicitLaw", "LAW_FORMAT"]
 
 #: format tag written into every law file; bumped on incompatible changes
 LAW_FORMAT = "codev-explicit-law/1"
+#: what a law file's fingerprint may hold (codev writes 16 hex digits; empty: none)
+_FINGERPRINT_RE = re.compile(r"[A-Za-z0-9_-]{0,64}")
 _LAW_FILE = NpzFormat("law file", LAW_FORMAT, "law")
 
 
@@ -226,7 +229,14 @@ class ExplicitLaw(Displayable):
         -------
         Path
             The path written.
+
+        Raises
+        ------
+        SpecError
+            A name that is not an identifier (``load`` would refuse the file).
         """
+        for key in ("states", "inputs", "parameters"):
+            check_identifiers(getattr(self, key), key)
         path = Path(path)
         offsets = np.cumsum([0] + [a.shape[0] for a in self.A])
         n = self.n
@@ -285,11 +295,23 @@ class ExplicitLaw(Displayable):
             raise SpecError(f"has {A.shape[1]} columns, F has {n}", field="A")
         b = _real(data, "b", shape=(A.shape[0],))
         off = offsets(data, "offsets", k, A.shape[0])
-        parameters = _names(data, "parameters", n if k else None) if "parameters" in data else ()
-        states = _names(data, "states", n if k and not parameters else None)
-        inputs = _names(data, "inputs", m if k else None)
+        # identifiers only, as the spec's: they reach exported code, figures, recordings
+        parameters = (
+            _names(data, "parameters", n if k else None, identifiers=True)
+            if "parameters" in data
+            else ()
+        )
+        states = _names(data, "states", n if k and not parameters else None, identifiers=True)
+        inputs = _names(data, "inputs", m if k else None, identifiers=True)
         cols = n if k else None  # the columns of domain_A and the boxes (any: no regions)
         fingerprint = _text(data, "fingerprint")
+        if not _FINGERPRINT_RE.fullmatch(fingerprint):
+            shown = ascii(fingerprint[:40]) + ("..." if len(fingerprint) > 40 else "")
+            raise SpecError(
+                f"fingerprint {shown} is not a hash (up to 64 ASCII letters, digits, '_' or "
+                "'-'): refused",
+                field="fingerprint",
+            )
         meta_text = _text(data, "meta")
         try:
             meta = json.loads(meta_text)

@@ -77,11 +77,18 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     if law.meta.get("regions_before_merge") != law.num_regions:
         print(f"  merged from {law.meta['regions_before_merge']} regions (simplify)")
     shown = min(law.num_regions, 5)
+    # the law is over theta (the states, prev_<input>, ref_<...>), not the states alone
+    theta = law.parameter_names
+    if len(theta) != law.n:
+        theta = tuple(f"theta{k}" for k in range(law.n))
+    if len(theta) != len(law.states):
+        print(f"  law over theta = ({', '.join(theta)})")
+    inputs = law.inputs if len(law.inputs) == law.m else tuple(f"u{k}" for k in range(law.m))
     for i in range(shown):
         terms = []
         for r in range(law.m):
-            coef = " ".join(f"{v:+.4g}*{s}" for v, s in zip(law.F[i, r], law.states, strict=True))
-            terms.append(f"{law.inputs[r]} = {coef} {law.G[i, r]:+.4g}")
+            coef = " ".join(f"{v:+.4g}*{s}" for v, s in zip(law.F[i, r], theta, strict=True))
+            terms.append(f"{inputs[r]} = {coef} {law.G[i, r]:+.4g}")
         print(f"  region {i}: {law.A[i].shape[0]} facets; " + "; ".join(terms))
     if law.num_regions > shown:
         print(f"  ... {law.num_regions - shown} more regions")
@@ -880,6 +887,13 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise SpecError("give --c DIR and/or --python FILE.py", field="codev export")
     if args.method not in METHODS:  # (argparse checks too; kept for direct calls)
         raise SpecError(f"must be one of {', '.join(METHODS)}", field="--method")
+    if args.c:  # before the plan, which can take minutes on a large law
+        from codev_engine.deploy.escape import c_prefix
+
+        try:
+            c_prefix(args.name)
+        except SpecError as exc:
+            raise SpecError(exc.reason, field="--name") from None
     data = read_npz(args.file, "law or solution file")
     try:
         tag = text(data, "format") if "format" in data else ""

@@ -12,20 +12,12 @@ import os
 from pathlib import Path
 
 from codev_engine.deploy.c_code import c_source
+from codev_engine.deploy.escape import c_prefix
 from codev_engine.deploy.plan import Export, plan
 from codev_engine.deploy.python_code import python_source
-from codev_engine.errors import SpecError
 from codev_engine.io.atomic import write_text
 
 __all__ = ["export_c", "export_python"]
-
-
-def _check_name(name: str) -> str:
-    if not name or not (name[0].isalpha() or name[0] == "_") or not all(
-        c.isalnum() or c == "_" for c in name
-    ):
-        raise SpecError(f"name {name!r} is not a C identifier", field="name")
-    return name
 
 
 def export_c(
@@ -51,7 +43,9 @@ def export_c(
     directory : path-like
         Created if missing.
     name : str
-        The prefix of the files and of every C name (a C identifier).
+        The prefix of the files and of every C name: ASCII letters, digits and '_',
+        starting with a letter, at most 51 characters, not a C keyword nor a C standard
+        header's name (``escape.c_prefix``).
     float32 : bool
         ``float`` tables and arithmetic instead of ``double``.
     method : {"auto", "bst", "sequential"}
@@ -69,7 +63,7 @@ def export_c(
     SpecError
         A bad name or method, or nothing to export.
     """
-    _check_name(name)
+    c_prefix(name)
     ex = obj if isinstance(obj, Export) else plan(obj, method, merge_equal_laws)
     header, source = c_source(ex, name, float32)
     directory = Path(directory)

@@ -10,6 +10,7 @@ import numpy as np
 
 from codev_engine.deploy.bst import DELTA, LOCATE_TOL
 from codev_engine.deploy.c_code import leaf_tables
+from codev_engine.deploy.escape import comment, py_names, py_str
 from codev_engine.deploy.plan import Export
 
 __all__ = ["python_source"]
@@ -32,20 +33,25 @@ def python_source(ex: Export) -> str:
     Returns
     -------
     str
+        The law's names and fingerprint are Python literals (``escape.py_names``,
+        ``py_str``) and, in the raw docstring, escaped text (``escape.comment``): whatever
+        the law file holds, the module is codev's.
     """
     dep, t = ex.dep, ex.tree
     d, m = dep.F.shape[2], dep.F.shape[1]
     delta = DELTA["double"] * (1.0 + np.abs(t.node_b))
     owner, fast_start, fast, mem_start, mem, group_start = leaf_tables(t)
-    names = tuple(dep.parameter_names)
-    return f'''"""The explicit {'law' if dep.kind == 'law' else 'mp solution'} of codev\
+    names, outputs = py_names(dep.parameter_names), py_names(dep.output_names)
+    shown_names = ", ".join(comment(n) for n in dep.parameter_names)
+    shown_outputs = ", ".join(comment(n) for n in dep.output_names)
+    return f'''r"""The explicit {'law' if dep.kind == 'law' else 'mp solution'} of codev\
  as Python (generated; do not edit).
 
-fingerprint: {dep.fingerprint or '(none)'}
+fingerprint: {comment(dep.fingerprint) or '(none)'}
 regions: {dep.num_regions}; search: {ex.method}; worst case per call: {ex.tests} row
 evaluations, {ex.macs} multiply-adds (exhaustive traversal of the tree).
-theta = {names!r}
-outputs = {tuple(dep.output_names)!r}
+theta: {shown_names} (PARAMETER_NAMES)
+outputs: {shown_outputs} (OUTPUT_NAMES)
 
 ``evaluate(theta)`` returns ``(region, u)``: the region ``ExplicitLaw.locate`` returns
 (lowest index holding theta, else the nearest within {LOCATE_TOL:g}, else -1) and
@@ -58,9 +64,9 @@ import numpy as np
 
 NTHETA = {d}
 NU = {m}
-PARAMETER_NAMES = {names!r}
-OUTPUT_NAMES = {tuple(dep.output_names)!r}
-FINGERPRINT = {dep.fingerprint!r}
+PARAMETER_NAMES = {names}
+OUTPUT_NAMES = {outputs}
+FINGERPRINT = {py_str(dep.fingerprint)}
 TOL = {LOCATE_TOL!r}
 
 BOX_LO = {None if t.box_lo is None else _lit(t.box_lo)}

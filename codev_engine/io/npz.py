@@ -11,6 +11,7 @@ below (``SpecError`` naming the array, ``field``); the file name is added here.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,7 @@ __all__ = [
     "real",
     "text",
     "names",
+    "check_identifiers",
     "pair",
     "offsets",
 ]
@@ -336,7 +338,17 @@ def text(data: dict[str, np.ndarray], key: str) -> str:
     return str(arr)
 
 
-def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str, ...]:
+#: a name codev writes into a law file (the spec's names, ``prev_<input>``, ``ref_<...>``)
+IDENTIFIER_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+
+
+def names(
+    data: dict[str, np.ndarray],
+    key: str,
+    count: int | None,
+    *,
+    identifiers: bool = False,
+) -> tuple[str, ...]:
     """A 1-D text array of ``count`` names (or none: unnamed); any count if ``None``.
 
     Parameters
@@ -347,6 +359,10 @@ def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str
         The array's name.
     count : int or None
         The number of names required (an empty array is always accepted).
+    identifiers : bool
+        Each name must be an identifier (``IDENTIFIER_RE``: ASCII letters, digits and
+        '_', not starting with a digit): names that reach generated code, figures and
+        recordings hold nothing else (no quote, newline or control character).
 
     Returns
     -------
@@ -355,7 +371,8 @@ def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str
     Raises
     ------
     SpecError
-        Naming ``key``, when it is missing, not a list of names or of another length.
+        Naming ``key`` (and the name's index), when it is missing, not a list of names, of
+        another length or, with ``identifiers``, holds a name that is not an identifier.
     """
     arr = array(data, key)
     if arr.ndim != 1 or (arr.dtype.kind != "U" and arr.size):
@@ -364,7 +381,35 @@ def names(data: dict[str, np.ndarray], key: str, count: int | None) -> tuple[str
         )
     if count is not None and arr.size not in (0, count):
         raise SpecError(f"must have {count} names, got {arr.size}", field=key)
-    return tuple(str(s) for s in arr)
+    out = tuple(str(s) for s in arr)
+    if identifiers:
+        check_identifiers(out, key)
+    return out
+
+
+def check_identifiers(values: tuple[str, ...], key: str) -> None:
+    """Refuse a name that is not an identifier (``IDENTIFIER_RE``).
+
+    Parameters
+    ----------
+    values : tuple of str
+        The names.
+    key : str
+        The array they are (or will be) stored as, for the message.
+
+    Raises
+    ------
+    SpecError
+        Naming ``key[i]`` and showing the name escaped (``ascii``, cut at 40 characters).
+    """
+    for i, name in enumerate(values):
+        if not isinstance(name, str) or not IDENTIFIER_RE.fullmatch(name):
+            shown = ascii(str(name)[:40]) + ("..." if len(str(name)) > 40 else "")
+            raise SpecError(
+                f"name {shown} is not an identifier (ASCII letters, digits and '_', not "
+                "starting with a digit): refused",
+                field=f"{key}[{i}]",
+            )
 
 
 def pair(data: dict[str, np.ndarray], a: str, b: str) -> None:

@@ -400,8 +400,10 @@ def plot_partition(
     input ``u = F_i x + G_i`` over it as a line.
     """
     ax = _new_axes(ax)
-    names = _state_names(law.n, law.states)
-    label = str(law.meta.get("problem", "explicit law"))
+    # the law's axes are theta's (the states, prev_<input>, ref_<...>), not the states alone
+    names = _state_names(law.n, law.parameter_names)
+    # free text of the law file's metadata: its '$' drawn as such, never as mathtext
+    label = str(law.meta.get("problem", "explicit law")).replace("$", r"\$")
     if law.n == 1:
         return _plot_intervals(law, ax, names[0], label, linewidth)
     i, j = _check_axes(axes, law.n)
@@ -1079,9 +1081,11 @@ def law_html(law: ExplicitLaw, png: bytes | None = None) -> str:
         png = png_bytes(figure_law(law))
     rows = [
         ("regions", str(law.num_regions)),
-        ("states", f"{law.n} ({', '.join(law.states)})" if law.states else str(law.n)),
+        ("states", f"{len(law.states)} ({', '.join(law.states)})" if law.states else str(law.n)),
         ("inputs", f"{law.m} ({', '.join(law.inputs)})" if law.inputs else str(law.m)),
     ]
+    if law.parameters and len(law.parameters) != len(law.states):
+        rows.append(("theta", f"{law.n} ({', '.join(law.parameters)})"))
     for key in ("norm", "horizon", "seconds"):
         if key in law.meta:
             rows.append((key, str(law.meta[key])))

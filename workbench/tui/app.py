@@ -968,12 +968,13 @@ class CodevApp(App):
         import re
 
         from codev_engine import export_c
+        from codev_engine.deploy.escape import prefix_for
 
-        stem = re.sub(r"\W", "_", str(law.meta.get("problem", "") or "codev_law")).strip("_")
-        name = stem if stem[:1].isalpha() else f"law_{stem}"
+        # named after the design, made a prefix export_c accepts (no keyword, header...)
+        name = prefix_for(str(law.meta.get("problem", "")))
         pane = self.query_one(SynthesisPane)
         try:
-            h, c = export_c(law, dest, name=name or "codev_law")
+            h, c = export_c(law, dest, name=name)
         except (CodevError, OSError, ValueError) as exc:
             self.call_from_thread(pane.show_law_export, typed, error=str(exc))
             return
