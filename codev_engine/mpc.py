@@ -29,7 +29,9 @@ if TYPE_CHECKING:
 
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.formulation import Formulation, formulation
+from codev_engine.mp.coverage import feasibility_rows
 from codev_engine.mp.program import MpProgram
+from codev_engine.mp.reduce import reduce_program
 from codev_engine.plant import LinearModel
 from codev_engine.spec.choices import NORMS
 from codev_engine.spec.problem import MpcSpec, Problem
@@ -598,24 +600,37 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
     b_list = [bu]
     F_list = [Fu]
     s = nd  # index of the next slack
+    # each slack is measured in its weight's units, t = sigma t' (sigma: the largest entry
+    # of the weight's row (norm "1") or matrix (norm "inf"); 1 for a zero weight), at the
+    # cost sigma: the rows are then the same for the weights times any factor, and the
+    # cost only scales (the solver normalises it), where rows M G u - t <= ... with t of
+    # size 1e7 had left the slack's coefficient at 1e-7 after row normalisation (issue 37).
+    # (Scaling only the weights far from 1 was tried: the designs near the edge of that
+    # band, R = 1e3 next to Q = 1e10, failed in the basis graph)
+    c_slack = np.ones(n_slack)
     for M, G, dv, Ph in terms:
         q = M.shape[0]
-        MG, Md, MP = M @ G, M @ dv, M @ Ph
+        sig = np.max(np.abs(M), axis=1 if spec.norm == "1" else None, keepdims=True)
+        sig = np.where(sig > 0.0, sig, 1.0).reshape(-1, 1) * np.ones((q, 1))
+        Ms = M / sig
+        MG, Md, MP = Ms @ G, Ms @ dv, Ms @ Ph
         S = np.zeros((q, n_slack))
         if spec.norm == "1":
             S[:, s - nd:s - nd + q] = -np.eye(q)
+            c_slack[s - nd:s - nd + q] = sig[:, 0]
             s += q
         else:
             S[:, s - nd] = -1.0
+            c_slack[s - nd] = sig[0, 0]
             s += 1
-        #  M(G u + Ph theta + dv) - t <= 0   and   -M(...) - t <= 0
+        #  M(G u + Ph theta + dv) / sigma - t' <= 0   and   -M(...) / sigma - t' <= 0
         A_rows += [np.hstack([MG, S]), np.hstack([-MG, S])]
         b_list += [-Md, Md]
         F_list += [-MP, MP]
     A_all = np.vstack(A_rows)
     b_all = np.concatenate(b_list)
     F_all = np.vstack(F_list)
-    cz = np.concatenate([np.zeros(nu), np.full(ns, float(spec.soft_weight)), np.ones(n_slack)])
+    cz = np.concatenate([np.zeros(nu), np.full(ns, float(spec.soft_weight)), c_slack])
     program = MpProgram(
         H=np.zeros((nz, nz)), c=cz, C=np.zeros((nz, dth)), A=A_all, b=b_all, F=F_all,
         A_theta=A_theta, b_theta=b_theta,
@@ -662,8 +677,12 @@ def _onto_bounds(v: np.ndarray, lo: np.ndarray, hi: np.ndarray,
 def check_feasible(problem: Problem, model: LinearModel | None = None) -> None:
     """Raise ``SpecError`` if no initial state in the state bounds has a feasible MPC.
 
-    Solves the feasibility LP of the lifted set ``{(theta, z): A z <= b + F theta,
-    A_theta theta <= b_theta}`` with HiGHS.
+    Feasibility does not depend on the cost: the LP (HiGHS, zero cost) is over the lifted
+    set ``{(theta, z): A z <= b + F theta, A_theta theta <= b_theta}`` without the rows
+    that the cost's and the soft constraints' slacks satisfy for any moves
+    (``mp.coverage.feasibility_rows``), rows normalised. With those rows, whose size
+    follows the weights, HiGHS had called a feasible MPC with ``Q = 1e16`` infeasible
+    (issue 37).
 
     Parameters
     ----------
@@ -684,22 +703,18 @@ def check_feasible(problem: Problem, model: LinearModel | None = None) -> None:
 
         model = discretize(problem)
     prog = build_program(problem.mpc, model).program
-    d, nz = prog.d, prog.nz
-    A_ub = np.vstack([
-        np.hstack([-prog.F, prog.A]),
-        np.hstack([prog.A_theta, np.zeros((prog.A_theta.shape[0], nz))]),
-    ])
-    b_ub = np.concatenate([prog.b, prog.b_theta])
-    kw: dict = {}
-    if prog.Aeq is not None:
-        kw = {"A_eq": np.hstack([-prog.Feq, prog.Aeq]), "b_eq": prog.beq}
+    infeasible = SpecError("the MPC is infeasible for every initial state in the state bounds",
+                           field="mpc")
+    try:
+        red = reduce_program(prog)
+    except SpecError:
+        raise infeasible from None  # an empty parameter set, inconsistent equalities
+    A, b, _ = feasibility_rows(red.G, red.S, red.w, red.At, red.bt)
     from scipy.optimize import linprog
 
-    res = linprog(np.zeros(d + nz), A_ub=A_ub, b_ub=b_ub, bounds=(None, None),
-                  method="highs", **kw)
+    res = linprog(np.zeros(A.shape[1]), A_ub=A, b_ub=b, bounds=(None, None), method="highs")
     if res.status == 2:
-        raise SpecError("the MPC is infeasible for every initial state in the state bounds",
-                        field="mpc")
+        raise infeasible
     if res.status != 0:
         raise SolverError(f"MPC feasibility LP failed: {res.message}")
 
@@ -867,6 +882,18 @@ class OnlineMpc:
         Q = _as2d(spec.Q, n)
         R = _as2d(spec.R, m)
         P = None if fm.P is None else _as2d(fm.P, n)
+        Rd = None if spec.Rd is None else _as2d(spec.Rd, m)
+        # the objective divided by the largest weight (the same optimum; costs are scaled
+        # back): Clarabel's absolute tolerances had called the MPC infeasible at most
+        # states with Q = 1e10 (issue 37). Not by soft_weight, a penalty usually far above
+        # the weights: the regulator's terms would shrink below the absolute tolerances
+        weights = [M for M in (Q, R, P, Rd) if M is not None]
+        kappa = max((float(np.max(np.abs(M), initial=0.0)) for M in weights), default=0.0)
+        kappa = kappa if np.isfinite(kappa) and kappa > 0.0 else 1.0
+        self._cost_scale = kappa
+        Q, R = Q / kappa, R / kappa
+        P = None if P is None else P / kappa
+        Rd = None if Rd is None else Rd / kappa
         terms = []
         if spec.norm == "2":
             def quad(v, M):
@@ -889,14 +916,13 @@ class OnlineMpc:
                 terms.append(quad(eu[k], R))
         if P is not None and P.shape[0]:
             terms.append(quad(ex[N], P))
-        if spec.Rd is not None:
-            Rd = _as2d(spec.Rd, m)
+        if Rd is not None:
             terms += [quad(v, Rd) for v in rate]
         if slacks:
             eps = cp.hstack(slacks)
-            terms.append(float(spec.soft_weight) * cp.sum(eps))
+            terms.append(float(spec.soft_weight) / kappa * cp.sum(eps))
             if spec.norm == "2":  # see SOFT_COST
-                terms.append(float(spec.soft_weight) * cp.sum_squares(eps))
+                terms.append(float(spec.soft_weight) / kappa * cp.sum_squares(eps))
         objective = cp.Minimize(cp.sum(cp.hstack(terms)) if terms else cp.Constant(0.0))
 
         self._cons = cons
@@ -1074,7 +1100,7 @@ class OnlineMpc:
         U = np.array(self._u.value, dtype=float)
         return OnlineSolution(
             status="optimal", u0=U[0].copy(), U=U, X=np.array(self._x.value, dtype=float),
-            cost=float(self._prob.value),
+            cost=float(self._prob.value) * self._cost_scale,
         )
 
     def first_move_cost(self, x: np.ndarray, u0: np.ndarray) -> float:
@@ -1105,7 +1131,7 @@ class OnlineMpc:
         self._u0.value = np.asarray(u0, dtype=float).reshape(self.m)
         if not self._run(self._prob_fixed, u0=self._u0.value):
             return float("inf")
-        return float(self._prob_fixed.value)
+        return float(self._prob_fixed.value) * self._cost_scale
 
     def solve_many(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Solve the MPC at each of several plant states (see :meth:`solve`).

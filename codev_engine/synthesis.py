@@ -21,7 +21,57 @@ from codev_engine.mpc import MpcProgram, build_program
 from codev_engine.plant import LinearModel, discretize
 from codev_engine.spec.problem import Problem
 
-__all__ = ["synthesize", "law_from_solution", "problem_fingerprint", "region_limit"]
+__all__ = [
+    "synthesize", "law_from_solution", "problem_fingerprint", "region_limit", "weight_spread",
+    "WEIGHT_SPREAD_LIMIT",
+]
+
+#: the largest ratio between the cost's weights (:func:`weight_spread`) that is solved:
+#: past it the smaller weights' share of the cost is below what the solvers resolve next
+#: to the larger ones (rounding of the largest terms, the mp-LP's tie tolerance of 1e-9
+#: of the largest cost), and the law would be the larger weights' alone, or, as with the
+#: CSTR's Q times 1e12 (R = 0.1), a partition with holes
+WEIGHT_SPREAD_LIMIT = 1e12
+
+#: above this spread a failure of the solver names the weights as a likely cause
+_SPREAD_NOTED = 1e6
+
+
+def weight_spread(spec) -> tuple[float, str]:
+    """How far apart in magnitude the cost's weights are.
+
+    Each non-zero row of ``Q``, ``R``, ``P``, ``Rd`` counts with its largest entry (a row
+    is one term's scale in norms 1 / inf, and one state's or input's in norm 2), and
+    ``soft_weight`` when a constraint is soft. Scaling every weight by one factor leaves
+    the spread, and the law, as they are.
+
+    Parameters
+    ----------
+    spec : MpcSpec
+        The design.
+
+    Returns
+    -------
+    spread : float
+        The largest of those scales over the smallest (1 with fewer than two).
+    detail : str
+        Which fields hold the largest and the smallest, for messages.
+    """
+    scales: list[tuple[float, str]] = []
+    for name in ("Q", "R", "P", "Rd"):
+        M = getattr(spec, name, None)
+        if M is None or isinstance(M, str):
+            continue
+        M = np.atleast_2d(np.asarray(M, dtype=float))
+        rows = np.max(np.abs(M), axis=1, initial=0.0)
+        scales += [(float(v), f"mpc.{name}") for v in rows[rows > 0.0]]
+    if spec.soft:
+        scales.append((float(spec.soft_weight), "mpc.soft_weight"))
+    if len(scales) < 2:
+        return 1.0, ""
+    big, small = max(scales), min(scales)
+    detail = f"largest |{big[1]}| entry {big[0]:.3g}, smallest |{small[1]}| {small[0]:.3g}"
+    return big[0] / small[0], detail
 
 def region_limit(program: MpProgram) -> tuple[int, int]:
     """How many critical regions of ``program`` fit in the ``region_bytes`` limit.
@@ -180,9 +230,18 @@ def synthesize(
     SolverError
         When the multi-parametric solver gives up: numerical trouble, or more regions than
         ``options.max_regions`` or than fit in the ``region_bytes`` limit (see
-        :func:`region_limit`; the message names the fields to change).
+        :func:`region_limit`; the message names the fields to change), or the cost's
+        weights span more than ``WEIGHT_SPREAD_LIMIT`` (:func:`weight_spread`; a failure
+        with weights spanning more than 1e6 names them too).
     """
     t0 = time.perf_counter()
+    spread, which = weight_spread(problem.mpc)
+    if spread > WEIGHT_SPREAD_LIMIT:
+        raise SolverError(
+            f"the cost's weights span {spread:.1e} ({which}), more than the "
+            f"{WEIGHT_SPREAD_LIMIT:.0e} the solver resolves in double precision: bring them "
+            "closer (the law does not change when every weight is scaled by one factor)"
+        )
     model = model if model is not None else discretize(problem)
     mp = build_program(problem.mpc, model)
     options = options if options is not None else SolveOptions()
@@ -200,6 +259,13 @@ def synthesize(
             + ": the explicit law is too large; shorten mpc.horizon, bound fewer states or "
             "inputs in [mpc], or use fewer states"
         ) from None
+    except SolverError as exc:
+        if spread <= _SPREAD_NOTED:
+            raise
+        raise SolverError(
+            f"{exc}; the cost's weights span {spread:.1e} ({which}): weights closer in "
+            "magnitude may solve"
+        ) from exc
     law = law_from_solution(
         mp, sol, simplify=problem.mpc.simplify if simplify is None else simplify
     )

@@ -55,6 +55,7 @@ from codev_engine.geometry.polytope import (
     solve_lp,
 )
 from codev_engine.geometry.vertices import vertices
+from codev_engine.mp.coverage import feasibility_rows
 from codev_engine.mp.reduce import ParameterBox, Reduced, lifted, start_point
 from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 
@@ -301,6 +302,7 @@ class _Explorer:
         self._nrows = 0
         self._starts = np.zeros(0, dtype=np.intp)
         self._far: dict[bytes, np.ndarray | None] = {}  # see _past
+        self._feas_rows: tuple[np.ndarray, np.ndarray, int] | None = None  # see _highs_max
         self._lifted = lifted(red)
         # facet pieces skipped as numerically flat: (a point of the piece, its normal)
         self._skipped: list[tuple[np.ndarray, np.ndarray]] = []
@@ -330,18 +332,22 @@ class _Explorer:
         m = rhs.shape[0]
         sense = np.zeros(m, dtype=np.int32)
         lower = np.full(m, -1e30)
-        x, _, flag, info = daqp.solve(
-            np.zeros((self.nw, self.nw)),
-            self.c_pert + r.C @ q,
-            r.G,
-            rhs,
-            lower,
-            sense,
-            eps_prox=1e-2,
-            iter_limit=10_000,
-            primal_tol=1e-11,
-            dual_tol=1e-12,
-        )
+        flag = -3
+        for cost in (self.c_pert, *self._smaller_perturbations()):
+            x, _, flag, info = daqp.solve(
+                np.zeros((self.nw, self.nw)),
+                cost + r.C @ q,
+                r.G,
+                rhs,
+                lower,
+                sense,
+                eps_prox=1e-2,
+                iter_limit=10_000,
+                primal_tol=1e-11,
+                dual_tol=1e-12,
+            )
+            if flag != -3:
+                break
         if flag == -1:
             return None if self._infeasible(q) else self._solve_at_fallback(q)
         if flag == -3:
@@ -354,6 +360,18 @@ class _Explorer:
         if flag != 1:
             return self._solve_at_fallback(q)
         return np.asarray(x), np.asarray(info["lam"])
+
+    def _smaller_perturbations(self) -> tuple[np.ndarray, ...]:
+        """Costs to try when the perturbed LP is unbounded: the perturbation can outweigh
+        a cost coefficient far below ``max|c|`` (weights Q = 1e7 next to R = 1 give slack
+        costs 1 and 1e-7 after the reduction's normalisation) and make its slack's cost
+        negative. The perturbation relative to the smallest cost, then none (the
+        selection is lexicographic anyway: only DAQP's start basis depends on it)."""
+        c = np.abs(self.r.c)
+        small = float(np.min(c[c > 0.0], initial=self.cmag))
+        if small >= self.cmag:
+            return (self.r.c,)
+        return (self.r.c + self.lp_perturbation * small * self.pert, self.r.c)
 
     def _solve_at_fallback(self, q: np.ndarray):
         """HiGHS when DAQP reports trouble (cycling near the feasibility boundary)."""
@@ -563,7 +581,7 @@ class _Explorer:
         fails the lexicographic test is finished by ``_lex_refine``.
         """
         act = np.flatnonzero(lam > 0)
-        if act.size == self.nw:
+        if act.size == self.nw and self._primal_ok(act, q):
             if self._lex_optimal(act, q):
                 return act
             act = self._lex_refine(act, q)
@@ -580,6 +598,20 @@ class _Explorer:
                 return act
             self.stats["rejected_bases"] = self.stats.get("rejected_bases", 0) + 1
         return None
+
+    def _primal_ok(self, act: np.ndarray, q: np.ndarray) -> bool:
+        """Is the vertex of the basis ``act`` feasible at q (to 1e-9, relative)? DAQP's
+        working set can be the right duals' but not a vertex at q: on the cruise control
+        with its slacks scaled, its LP stopped short (7.8504 for 7.8520 on another LP), and
+        the basis it handed on gave an empty region at q, so two sliver regions were
+        never found."""
+        r = self.r
+        rhs = r.w + r.S @ q
+        try:
+            z = np.linalg.solve(r.G[act], rhs[act])
+        except np.linalg.LinAlgError:
+            return False
+        return bool(np.all(r.G @ z - rhs <= 1e-9 * (1.0 + np.abs(rhs) + np.abs(r.G) @ np.abs(z))))
 
     def _highs(self, q: np.ndarray, delta: float | None = None):
         """Solve the perturbed LP at q with HiGHS (warm-started dual simplex)."""
@@ -673,6 +705,18 @@ class _Explorer:
         self._check_precision(q, K, k0)
         Ar = r.G @ K - r.S
         br = r.w - r.G @ k0
+        # a row whose theta part cancels to rounding level (relative to the terms that
+        # cancel, not to 1: a row of norm 1.2e-10 and offset -3.6e-10 on the cruise
+        # control with its slacks scaled read "theta >= 3" once normalised, and emptied
+        # the region) is a constant row: it holds (to rounding) or the region is empty
+        size = np.abs(r.G) @ np.abs(K) + np.abs(r.S)
+        flat = np.linalg.norm(Ar, axis=1) <= 1e-10 * np.maximum(np.linalg.norm(size, axis=1),
+                                                                1e-300)
+        if np.any(flat):
+            off = 1e-9 * (np.abs(r.w) + np.abs(r.G) @ np.abs(k0) + 1e-300)
+            if np.any(br[flat] < -off[flat] - np.linalg.norm(Ar[flat], axis=1) * self.bound):
+                return None
+            Ar, br = Ar[~flat], br[~flat]
         if np.any(r.C):
             # with a parameter-dependent cost the basis needs duals >= 0 as well
             Dl = np.linalg.solve(GB.T, -np.hstack([r.c[:, None], r.C]))
@@ -797,8 +841,31 @@ class _Explorer:
             self._far[key] = x[nw:] if st == "optimal" and x is not None else None
         z = self._far[key]
         if z is None or a @ z <= beta + self.region_tol:
-            return None
+            # DAQP's LP mode can stop short of the maximum: 7.8504 for 7.8520 on the cruise
+            # control once its slacks were scaled (issue 37), which made two regions' facets
+            # boundary facets and dropped the regions past them. HiGHS, on the rows that can
+            # restrict theta, decides before a facet is called a boundary
+            hkey = b"highs" + key
+            if hkey not in self._far:
+                self._far[hkey] = self._highs_max(a)
+            z = self._far[hkey]
+            if z is None or a @ z <= beta + self.region_tol:
+                return None
         return z
+
+    def _highs_max(self, a: np.ndarray) -> np.ndarray | None:
+        """A parameter of the feasible set farthest along ``a`` (HiGHS), or None."""
+        from scipy.optimize import linprog
+
+        if self._feas_rows is None:
+            r = self.r
+            self._feas_rows = feasibility_rows(r.G, r.S, r.w, r.At, r.bt)
+        A, b, nw = self._feas_rows
+        res = linprog(np.concatenate([np.zeros(nw), -a]), A_ub=A, b_ub=b, bounds=(None, None),
+                      method="highs", options={"primal_feasibility_tolerance": 1e-10,
+                                               "dual_feasibility_tolerance": 1e-10})
+        self.stats["boundary_lps"] = self.stats.get("boundary_lps", 0) + 1
+        return np.asarray(res.x[nw:]) if res.status == 0 else None
 
     def _known(self, V: np.ndarray | None) -> int:
         """Index of a found region that a new region (vertices ``V``) is a copy of (a

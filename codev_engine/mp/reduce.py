@@ -21,6 +21,7 @@ import numpy as np
 
 from codev_engine.errors import SpecError
 from codev_engine.geometry.polytope import bounding_box, normalize_rows, solve_lp
+from codev_engine.mp.coverage import feasibility_rows, feasible_ball
 from codev_engine.mp.program import MpProgram
 
 __all__ = ["ParameterBox", "Reduced", "lifted", "parameter_box", "reduce_program", "start_point"]
@@ -102,6 +103,18 @@ def reduce_program(p: MpProgram) -> Reduced:
         w = w - G @ Z0
         S = S - G @ Z1
         G = G @ Nz
+    # the optimizer does not change when the cost is multiplied by a positive number: make
+    # its largest coefficient 1, so that the engines' tolerances on costs, duals and
+    # multipliers see the same numbers for weights Q, R, P and the same weights times 1e8
+    # (an absolute floor of 1 on the cost's size had let the LP's perturbation swamp a cost
+    # of 1e-8, issue 37)
+    # (an mp-QP only when its cost is far from that size: the classifications of sliver
+    # candidates that tests pin moved when every H was divided)
+    cost_scale = max(np.max(np.abs(H), initial=0.0), np.max(np.abs(c), initial=0.0),
+                     np.max(np.abs(C), initial=0.0))
+    qp_far = not 1e-6 <= cost_scale <= 1e6
+    if (qp_far or not np.any(H)) and np.isfinite(cost_scale) and cost_scale > 0.0:
+        H, c, C = H / cost_scale, c / cost_scale, C / cost_scale
     # pure parameter rows belong to the parameter set
     gnorm = np.linalg.norm(G, axis=1)
     pure = gnorm <= 1e-12 * max(1.0, np.max(gnorm, initial=1.0))
@@ -231,8 +244,17 @@ def start_point(
     ub = np.full(nw + d + 1, np.inf)
     ub[-1] = scale
     x, st, _ = solve_lp(f, np.hstack([A, norms[:, None]]), b, ub=ub)
-    if st != "optimal" or x is None or x[-1] <= region_tol:
-        return None
+    if st == "optimal" and x is not None and x[-1] > region_tol:
+        centre, radius = x[nw : nw + d], float(x[-1])
+    else:
+        # empty or thin by DAQP: HiGHS on the rows that can restrict theta (DAQP answered
+        # "optimal" with a radius of 1e-12 for a ball of radius 7, on rows where an LP
+        # norm's slack had the coefficient 1e-7: issue 37)
+        ball = feasible_ball(*feasibility_rows(red.G, red.S, red.w, red.At, red.bt), scale,
+                             robust=True)
+        if ball is None or ball[1] <= region_tol:
+            return None
+        centre, radius = ball
     # the centre is often a symmetric, degenerate point (the origin): start off it
     u = rng.normal(size=d)
-    return x[nw : nw + d] + 0.37 * x[-1] * u / np.linalg.norm(u)
+    return centre + 0.37 * radius * u / np.linalg.norm(u)

@@ -29,6 +29,7 @@ import numpy as np
 from codev_engine.errors import CodevError, SolverError
 from codev_engine.executor import Executor
 from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
+from codev_engine.mp.coverage import check_coverage, feasibility_rows
 from codev_engine.mp.mplp import COUNTERS, explore_facets
 from codev_engine.mp.mplp_graph import explore_bases
 from codev_engine.mp.mpqp import explore_active_sets
@@ -67,6 +68,11 @@ class SolveOptions:
         geometric explorer of ``mplp.py``), ``"bases"`` (the graph only: a
         ``SolverError`` when it cannot be made exact) or ``"facets"`` (the explorer
         only). The laws do not depend on it.
+    coverage_samples : int
+        Points well inside the feasible parameter set that must each lie in a region once
+        the search is done (``coverage.check_coverage``; a ``SolverError`` otherwise, never
+        a law with a hole or no region for a feasible program); 0 checks only that a
+        solution without regions belongs to a program without a feasible ball.
     """
 
     region_tol: float = 1e-9
@@ -76,6 +82,7 @@ class SolveOptions:
     max_regions: int = 1_000_000
     workers: int | None = None
     mplp: str = "auto"
+    coverage_samples: int = 8
 
 
 def mpsolve(
@@ -126,14 +133,26 @@ def mpsolve(
     if not (np.array_equal(red.Nz, np.eye(program.nz)) and not red.Z0.any() and not red.Z1.any()):
         regions.K = red.Z1 + np.einsum("ij,rjk->rik", red.Nz, regions.K)
         regions.k = red.Z0 + regions.k @ red.Nz.T
-    return MpSolution(
+    sol = MpSolution(
         program=program,
         regions=regions,
         domain_A=domain[0],
         domain_b=domain[1],
-        seconds=time.perf_counter() - t0,
+        seconds=0.0,
         stats=stats,
     )
+    stats.update(check_coverage(
+        feasibility_rows(red.G, red.S, red.w, red.At, red.bt),
+        sol.locate,
+        sol.num_regions,
+        scale=size.scale,
+        region_tol=region_tol,
+        kind="mp-QP" if np.any(red.H) else "mp-LP",
+        seed=opts.seed,
+        samples=max(0, int(opts.coverage_samples)),
+    ))
+    sol.seconds = time.perf_counter() - t0
+    return sol
 
 
 #: the failures of a search that are breakdowns of its arithmetic or of a library it calls
