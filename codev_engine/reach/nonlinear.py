@@ -185,6 +185,11 @@ class NonlinearReach(ClosedLoopSetup):
     bloat: float = 1.0
     #: ... while its refinement depth is below this (and below ``max_depth``)
     bloat_depth: int = 2
+    #: with disturbances or uncertain parameters: a set at a sample whose remainder
+    #: ellipsoid's W-size exceeds this fraction of its star's is re-rooted (its star and
+    #: ellipsoid replaced by a polytope over the deviation from its centre, which the region
+    #: cuts then act on; ``_rerooted``). None: never (the remainder stays an ellipsoid)
+    reroot: float | None = 0.25
 
     def __post_init__(self) -> None:
         from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
@@ -1035,6 +1040,7 @@ class NonlinearReach(ClosedLoopSetup):
         V0 = np.array(np.meshgrid(*[[-ri, ri] for ri in r], indexing="ij")).reshape(n, -1).T
         root = _Set(c, np.eye(n), np.zeros((n, n)), 0, (), H0, h0, V0)
         root.base = root.poly
+        root_poly = root.poly  # holds every set's deviation polytope (for merges)
         frontier = [root]
         tubes: list[Tube] = []
         status, first_t = "ok", None
@@ -1082,10 +1088,105 @@ class NonlinearReach(ClosedLoopSetup):
                             nexts.append(nxt)
                     elif nxt is not None:
                         self.open_sets += 1
-            frontier = self._merge(nexts, root.poly)
+            frontier = self._merge(nexts, root_poly)
+            if self.reroot is not None and self.xlo is not None and frontier:
+                # disturbances, parameters: the remainder ellipsoid (their doing) becomes
+                # part of the star, so the region cuts of the next sample act on it
+                frontier, root_poly = self._rerooted(frontier, root_poly)
             if split and status == "ok" and any(self._bloated(s) for s in frontier):
                 return "bloat", tubes, frontier[0].k * self.Ts
         return status, tubes, first_t
+
+    def _template(self, s: _Set) -> np.ndarray:
+        """Directions of a set's template hull (rows, in state coordinates).
+
+        The axes and pairwise diagonals measured in the metric ``W`` (16 directions evenly
+        spread in the plane of ``W`` when ``n = 2``), and the facets of the star
+        ``{D d : H d <= h}`` (``H D^-1`` when ``D`` is well conditioned). Any directions
+        give a sound hull; these keep it tight.
+        """
+        n = self.n
+        if n == 2:
+            ang = np.arange(16) * (np.pi / 8)
+            U = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+        else:
+            rows = [np.eye(n), -np.eye(n)]
+            for i in range(n):
+                for j in range(i + 1, n):
+                    for si in (1.0, -1.0):
+                        for sj in (1.0, -1.0):
+                            r = np.zeros(n)
+                            r[i], r[j] = si, sj
+                            rows.append(r[None, :] / np.sqrt(2.0))
+            U = np.vstack(rows)
+        A = U @ self.W  # a' z = u' (W z): the direction u in W-space
+        if s.H is not None and np.linalg.cond(s.D) < 1e8:
+            A = np.vstack([A, s.H @ np.linalg.inv(s.D)])
+        A = A[np.linalg.norm(A, axis=1) > 0]
+        return A / np.linalg.norm(A, axis=1, keepdims=True)
+
+    def _rerooted(self, sets: list[_Set], root_poly: tuple) -> tuple[list[_Set], tuple]:
+        """Each set whose remainder ellipsoid outweighs ``reroot`` times its star, as a
+        star over the deviation from its centre with no ellipsoid, and the polytope that
+        holds every set's deviation polytope (for the merges of later samples).
+
+        The set ``{y + D d + M e : d in P, |e|_2 <= 1}`` lies in ``{y + z : a_r' z <=
+        e_r}`` with ``e_r = max_{v in vert P} a_r' D v + |M' a_r|_2`` for any rows
+        ``a_r`` (the support of a Minkowski sum is the sum of the supports; a star's is
+        at a vertex, an ellipsoid's is ``|M' a|_2``), padded by the rounding of the
+        products (``1e-12`` of the magnitudes). The new set is ``{y + I z + 0 e : z in
+        P'}``, ``P'`` that polytope: it contains the old one, so every trajectory it held
+        is still held. Its coordinates ``z`` are no initial deviations (the nonlinear
+        engine never turns a set's coordinates into an initial state: its concrete
+        findings come from simulated cell centres), and merges later need a polytope
+        holding every set's coordinates: the box hull of the old one and the new ``P'``.
+
+        Parameters
+        ----------
+        sets : list of _Set
+            The sets at one sample.
+        root_poly : tuple
+            ``(H, h, V)`` holding every set's deviation polytope.
+
+        Returns
+        -------
+        (list of _Set, tuple)
+        """
+        n = self.n
+        out: list[_Set] = []
+        pts = [root_poly[2]]
+        for s in sets:
+            star = float(np.max(np.linalg.norm(s.V @ (self.W @ s.D).T, axis=1)))
+            ell = float(np.linalg.norm(self.W @ s.M, 2))
+            if not ell > self.reroot * star:
+                out.append(s)
+                continue
+            A = self._template(s)
+            _, up = s.range(A)
+            mag = np.abs(A) @ s.mag()
+            e = (up + s.ell(A)) * (1 + 1e-12) + 1e-12 * (1.0 + mag) + 1e-300
+            try:
+                piece = checked_piece(A, e)
+            except ValueError:
+                piece = None
+            if piece is None:  # (not expected: the set holds its centre's neighbourhood)
+                out.append(s)
+                continue
+            H, h, V = piece
+            poly = (H, h, V)
+            out.append(_Set(s.y, np.eye(n), np.zeros((n, n)), s.k, s.path, H, h, V, poly))
+            pts.append(V)
+        if len(pts) == 1:
+            return out, root_poly
+        P = np.vstack(pts)
+        lo, hi = P.min(axis=0), P.max(axis=0)
+        pad = 1e-12 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
+        lo, hi = lo - pad, hi + pad
+        H0 = np.vstack([np.eye(n), -np.eye(n)])
+        h0 = np.concatenate([hi, -lo])
+        V0 = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
+                                  indexing="ij")).reshape(n, -1).T
+        return out, (H0, h0, V0)
 
     def _bloated(self, s: _Set) -> bool:
         """Is the set's remainder ellipsoid larger than ``bloat`` times its star (W-sizes)?

@@ -541,6 +541,7 @@ def verify(
         vs = problem.verify
     plant = affine_plant(problem)
     certificate = None
+    searched = False  # the concrete search of an uncertain nonlinear plant ran already
     why = "invariance certificates are computed for affine plants only"
     if unbounded and plant is None:
         # a nonlinear plant: an invariant ellipsoid around the operating point
@@ -578,6 +579,21 @@ def verify(
     else:
         from codev_engine.reach.nonlinear import NonlinearReach
 
+        if _uncertain(problem):
+            # refute first: under disturbances, parameters or noise the nonlinear engine's
+            # proof can take minutes where a concrete search under extreme and switching
+            # signals and the parameter box's corners takes a second; a counterexample it
+            # finds is replayed (DOP853) and stands for itself, whatever the proof says
+            # (docs/verification.md, "Refuting first")
+            cex = _search(problem, law, hold)
+            searched = True
+            if cex is not None:
+                stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0,
+                         "refuted_first": True}
+                result = VerificationResult("unsafe", cex.kind, Tube.empty(problem.plant.n),
+                                            hold, cex, stats)
+                result.attach_display(problem=problem, law=law)
+                return result
         eng = NonlinearReach(problem, law, hold, depth, progress=progress)
         eng.run(executor, cells=cells)
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
@@ -599,7 +615,9 @@ def verify(
         # also the adjoint's extreme signals towards the properties at the findings' times)
         # (the searches in turn, the first replayed counterexample ends them; the input
         # rows' search first when the tube's undecided boxes break the input bounds only)
-        searches = [lambda: _search(problem, law, hold)]
+        # (the concrete search ran before the proof when ``searched``: it would find the
+        # same nothing again)
+        searches = [] if searched else [lambda: _search(problem, law, hold)]
         if plant is not None:
             searches += [lambda: _adjoint_search(problem, law, hold, [f.t for f in findings]),
                          lambda: _input_search(problem, law, hold)]

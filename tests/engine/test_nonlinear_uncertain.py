@@ -10,8 +10,10 @@ in a box of the tube active at its time, and no simulated violation contradicts
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from codev_engine.pipeline import loads_spec
@@ -80,3 +82,62 @@ def test_nonlinear_unsafe_for_some_parameter_value_is_found_and_replayed():
     assert 0.6 <= ce.disturbance.parameters[0] < 1.0
     v = first_violation(problem, law, simulate(problem, law, ce.x0, disturbance=ce.disturbance))
     assert v is not None and v.kind == ce.kind
+
+
+# ---- issue 38, "decisive under uncertainty": the pendulum near the point of no return ----
+# |T| <= 6 holds the pendulum up to asin(6/9.81) = 0.658 rad; it starts at 0.55-0.6 rad with
+# the damping uncertain in [0.4, 0.6] and a torque disturbance (m = l = 1, g = 9.81, the
+# bundled example's MPC on the linearisation, unsafe beyond 0.7 rad or past upright).
+
+
+def _near_saturation(d: float, T: float = 3.0, point: bool = False):
+    problem = _pendulum(d=d, c=(0.4, 0.6), T=T)
+    if point:  # one initial state: the tube's width is the uncertainty's doing alone
+        vs = problem.verify
+        lo = np.array([0.575, -0.05])
+        problem = replace(problem, verify=replace(vs, initial_lower=lo,
+                                                  initial_upper=lo + 1e-6))
+    return problem
+
+
+def test_near_saturation_with_a_large_disturbance_is_refuted_before_the_proof():
+    # +-3 N m against a 0.46 N m torque margin at 0.6 rad: the search under extreme signals
+    # and parameter corners finds it in about a second, before any reach set is computed
+    problem = _near_saturation(3.0)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "unsafe", result.summary()
+    assert result.stats.get("refuted_first") and result.stats["branches"] == 0
+    ce = result.counterexample
+    assert 0.4 <= ce.disturbance.parameters[0] <= 0.6
+    assert np.all(np.abs(ce.disturbance.values) <= 3.0)
+    # replayed with the law's own loop (the reference integrator, the same signal)
+    v = first_violation(problem, law, simulate(problem, law, ce.x0, disturbance=ce.disturbance))
+    assert v is not None and v.kind == ce.kind and abs(v.t - ce.t) < 1e-6
+
+
+def test_near_saturation_disturbance_tube_is_rerooted_and_holds_every_run():
+    # from one initial state the whole width is the disturbance's and the damping's: kept
+    # as a remainder ellipsoid that no region cut could touch, it grew to 10 rad by 0.9 s
+    # (every saturated child carried the states of the unsaturated region and vice versa);
+    # re-rooted into the star at each sample it is cut by the regions and stays bounded
+    problem = _near_saturation(0.2, T=1.5, point=True)
+    law = synthesize(problem)
+    result = verify(problem, law, max_depth=0)
+    assert result.verdict in ("robustly_safe", "unknown"), result.summary()
+    tube = result.tube
+    assert float(tube.t_end.max()) >= 1.5 - 1e-9  # complete
+    sel = (tube.t_start <= 0.9) & (tube.t_end >= 0.9)
+    assert (tube.upper[sel] - tube.lower[sel]).max() < 1.0
+    _assert_sound(problem, law, result, P=100, seed=3)
+
+
+@pytest.mark.slow
+def test_near_saturation_with_the_reported_disturbance_is_sound():
+    # the reported design (+-0.2, damping in [0.4, 0.6], 3 s): the verdict, and every run
+    # under bang-bang and random signals and parameter corners inside the tube
+    problem = _near_saturation(0.2)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict in ("robustly_safe", "unknown"), result.summary()
+    _assert_sound(problem, law, result, P=200, seed=4)
