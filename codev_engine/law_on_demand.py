@@ -105,8 +105,7 @@ class OnDemandLaw:
         self.b: list[np.ndarray] = []
         self.F = np.zeros((0, m, d))
         self.G = np.zeros((0, m))
-        self._lo = np.zeros((0, d))
-        self._hi = np.zeros((0, d))
+        self._boxes: tuple[np.ndarray, np.ndarray] | None = (np.zeros((0, d)), np.zeros((0, d)))
         self._last: tuple[bytes, np.ndarray] | None = None  # the last box asked, its answer
         self._stacked: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
@@ -135,7 +134,10 @@ class OnDemandLaw:
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """Bounding boxes of the regions computed so far, lower and upper (k, d)."""
-        return self._lo, self._hi
+        if self._boxes is None:
+            lo, hi = self._solver.boxes
+            self._boxes = (lo + self._op, hi + self._op)
+        return self._boxes
 
     @property
     def stats(self) -> dict:
@@ -286,8 +288,7 @@ class OnDemandLaw:
         G = np.array([mp.u_op + r.k[sl] - r.K[sl] @ op for r in new]).reshape(len(new), mp.m)
         self.F = np.concatenate([self.F, F])
         self.G = np.concatenate([self.G, G])
-        lo, hi = self._solver.boxes
-        self._lo, self._hi = lo + op, hi + op
+        self._boxes = None
         self._stacked = None
         self.meta["regions"] = len(self.A)
 

@@ -30,20 +30,30 @@ from __future__ import annotations
 import numpy as np
 
 from codev_engine.errors import SolverError
-from codev_engine.geometry.polytope import normalize_rows, solve_lp
-from codev_engine.mp.mpqp import _active_set_at, _Kernel, dependent_rows
+from codev_engine.geometry.polytope import (
+    chebyshev_ball,
+    normalize_rows,
+    radius_upper_bound,
+    solve_lp,
+)
+from codev_engine.mp.mpqp import JIT_AFTER, _active_set_at, _Kernel, dependent_rows
 from codev_engine.mp.program import MpProgram
-from codev_engine.mp.reduce import lifted, parameter_box, reduce_program
+from codev_engine.mp.reduce import lifted, parameter_box, reduce_program, start_point
 from codev_engine.mp.solution import CriticalRegion
 from codev_engine.mp.solve import SolveOptions
 
 __all__ = ["OnDemandRegions"]
 
 #: a candidate meets a set when its rows, relaxed by this times the parameter set's size,
-#: meet the set (lower-dimensional optimal sets: the tolerance the full search uses for the
-#: constraints tight on them)
-MEET_TOL = 1e-8
-LOWER_TOL = 1e-7
+#: meet the set relaxed as much. Generous on purpose: a region found too many costs a
+#: little walking, one missed is a hole. Slivers the kernel proves full (radius 2e-8) were
+#: called empty by DAQP and by HiGHS (whose feasibility tolerance is 1e-7) on a chain of 5
+#: integrators when relaxed by 1e-8 only
+MEET_TOL = 1e-6
+#: candidates of the full search's numpy phase replayed at most (:meth:`_replay`)
+REPLAY_CANDIDATES = 300
+#: the same for a lower-dimensional optimal set (its rows as the kernel writes them)
+LOWER_TOL = 1e-6
 
 
 class OnDemandRegions:
@@ -106,7 +116,13 @@ class OnDemandRegions:
         self._boxes_hi: list[np.ndarray] = []
         self._boundary: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._row_valid: dict[bytes, bool] = {}
-        self.stats = {"candidates": 0, "walks": 0, "lps": 0}
+        self.stats = {"candidates": 0, "walks": 0, "lps": 0, "compiled": 0}
+        self._seed = opts.seed
+        #: the active sets the full search evaluates with the numpy kernel (known once
+        #: :meth:`_replay` has run); every other one it evaluates compiled
+        self._numpy_acts: set[tuple[int, ...]] = set()
+        self._replayed = False
+        self._bound = size.bound  # max |theta| over the set asked about (_rows_meet)
 
     # ---- the walk ----------------------------------------------------------------------
 
@@ -126,6 +142,8 @@ class OnDemandRegions:
             Indices into :attr:`regions`, ascending by active set (the full partition's
             order).
         """
+        if not self._replayed:
+            self._replay()
         self.stats["walks"] += 1
         A, b, ok = normalize_rows(np.asarray(A, float), np.asarray(b, float))
         if not ok:
@@ -134,6 +152,7 @@ class OnDemandRegions:
         lo, hi = self._box_of(A, b)
         if lo is None:
             return []
+        self._bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
         starts = self._starts(A, b)
         if not starts:
             return []
@@ -200,21 +219,56 @@ class OnDemandRegions:
                 continue
         return out
 
+    def _replay(self) -> None:
+        """The full search's first steps, as it takes them: from its start point, depth
+        first, with the numpy kernel, until it has ``mpqp.JIT_AFTER`` regions (then it
+        goes on with the compiled kernel). The two kernels prove the same regions but
+        round differently (rows and laws differ in the last bits), so the candidates
+        evaluated here are the ones this walk evaluates with the numpy kernel too, and
+        every other one with the compiled kernel: each region is the full partition's bit
+        for bit. A search that ends first is the whole partition (all numpy). The replay
+        stops after ``REPLAY_CANDIDATES`` candidates (the rest of the full search's numpy
+        phase is evaluated compiled here: the same regions, rounded differently): on a
+        chain of 8 integrators its 200 regions take 5,000 candidates, ~50 s."""
+        red = self._red
+        self._replayed = True
+        q0 = start_point(red, self.scale, self._region_tol, np.random.default_rng(self._seed))
+        if q0 is None:
+            return
+        act0 = _active_set_at(red.H, red.c, red.C, red.G, red.w, red.S, q0)
+        explored, stack, found = {act0}, [act0], 0
+        while stack and found < JIT_AFTER and len(self._numpy_acts) < REPLAY_CANDIDATES:
+            act = stack.pop()
+            self._numpy_acts.add(act)
+            entry = self._evaluate(act)
+            if entry[0] == "empty":
+                continue
+            found += entry[0] == "full"
+            moves = entry[2] if entry[0] in ("full", "lower") else None
+            for nxt in self._neighbours(act, entry[0], moves):
+                if nxt not in explored:
+                    explored.add(nxt)
+                    stack.append(nxt)
+        if stack:
+            self._kernel.start_jit()  # (False without numba: the numpy kernel throughout)
+
     def _evaluate(self, act: tuple[int, ...]) -> tuple:
         """The candidate ``act`` classified by the full search's kernel, cached."""
         hit = self._cache.get(act)
         if hit is not None:
             return hit
         self.stats["candidates"] += 1
-        status, rows, law, moves, _ = self._kernel.evaluate_numpy(act)
+        kernel = self._kernel
+        if kernel._jit is not None and act not in self._numpy_acts:
+            self.stats["compiled"] += 1
+            status, rows, law, moves, _ = kernel.evaluate(act)
+        else:
+            status, rows, law, moves, _ = kernel.evaluate_numpy(act)
         if status == "full":
             red = self._red
             K = red.Z1 + red.Nz @ law[0]
             k = red.Z0 + red.Nz @ law[1]
             self.regions.append(CriticalRegion(A=rows[0], b=rows[1], K=K, k=k, active=act))
-            lo, hi = _region_box(rows[0], rows[1])
-            self._boxes_lo.append(lo)
-            self._boxes_hi.append(hi)
             entry: tuple = ("full", len(self.regions) - 1, moves)
         elif status == "lower":
             entry = ("lower", self._candidate_rows(act), moves)
@@ -266,17 +320,29 @@ class OnDemandRegions:
 
     def _region_meets(self, i: int, A, b, lo, hi) -> bool:
         """Does region ``i``, relaxed by ``MEET_TOL``, meet ``A theta <= b`` (box lo, hi)?"""
-        rlo, rhi = self._boxes_lo[i], self._boxes_hi[i]
         tol = MEET_TOL * self.scale
-        if np.any(rlo > hi + tol) or np.any(rhi < lo - tol):
-            return False
+        if i < len(self._boxes_lo):  # (its box known: a box apart is a quick no)
+            if np.any(self._boxes_lo[i] > hi + tol) or np.any(self._boxes_hi[i] < lo - tol):
+                return False
         reg = self.regions[i]
         return self._rows_meet(reg.A, reg.b + tol, A, b)
 
     def _rows_meet(self, Ar, br, A, b) -> bool:
+        """Is ``{Ar theta <= br, A theta <= b}`` non-empty? DAQP's Chebyshev centre first
+        (its plain LP with a zero cost said "infeasible" to most sets); a "no" stands when
+        its multipliers prove it (``radius_upper_bound`` below 0), else HiGHS's Chebyshev
+        ball decides (DAQP called slivers of radius 2e-8 that the kernel had
+        proved full infeasible, on a chain of 4 integrators)."""
         self.stats["lps"] += 1
-        _, st, _ = solve_lp(np.zeros(A.shape[1]), np.vstack([Ar, A]), np.concatenate([br, b]))
-        return st == "optimal"
+        M, v = np.vstack([Ar, A]), np.concatenate([br, b])
+        centre, rho, y = chebyshev_ball(M, v, multipliers=True)
+        if np.max(M @ centre - v) <= 0.1 * MEET_TOL * self.scale:
+            return True
+        if y is not None and radius_upper_bound(M, v, y, self._bound) < 0.0:
+            return False  # (proved empty: weak duality, whatever DAQP's accuracy)
+        self.stats["highs"] = self.stats.get("highs", 0) + 1
+        centre, rho = chebyshev_ball(M, v, solver="highs")
+        return bool(rho >= 0.0 or float(np.max(M @ centre - v)) <= 0.0)
 
     # ---- the domain ----------------------------------------------------------------------
 
@@ -385,12 +451,14 @@ class OnDemandRegions:
         d = self._red.At.shape[1]
         if not self.regions:
             return np.zeros((0, d)), np.zeros((0, d))
+        k = len(self._boxes_lo)
+        if k < len(self.regions):
+            # the new regions' boxes in one call (compiled from 64 regions on: one LP each
+            # by HiGHS took 35 ms a region on a chain of 8 integrators)
+            from codev_engine.geometry.locate import bounding_boxes
+
+            new = self.regions[k:]
+            lo, hi = bounding_boxes([r.A for r in new], [r.b for r in new])
+            self._boxes_lo += list(lo)
+            self._boxes_hi += list(hi)
         return np.array(self._boxes_lo), np.array(self._boxes_hi)
-
-
-def _region_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A box that holds the region ``A theta <= b`` (its LP bounds, widened by 1e-9)."""
-    from codev_engine.geometry.locate import bounding_boxes
-
-    lo, hi = bounding_boxes([A], [b])
-    return lo[0], hi[0]

@@ -329,10 +329,10 @@ class ClosedLoopSetup:
         )
 
     def _law_grown(self) -> None:
-        """After a law computed on demand has grown: its regions' boxes and offsets again."""
+        """After a law computed on demand has grown: the regions' offsets again (``Gn``;
+        the linear engine asks the law for the regions meeting a set, not their boxes)."""
         if self.law.num_regions != self._known:
             self._known = self.law.num_regions
-            self.boxes_lo, self.boxes_hi = self.law.boxes
             self._init_noise()
 
     def _reach_rows(self, A: np.ndarray, b: np.ndarray) -> np.ndarray:
