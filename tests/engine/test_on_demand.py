@@ -40,15 +40,18 @@ def _same_verification(problem) -> None:
     od = OnDemandLaw(problem)
     mine = ce.verify(problem, od)
     assert mine.verdict == full.verdict and mine.reason == full.reason
-    assert np.array_equal(mine.tube.t_start, full.tube.t_start)
-    assert np.array_equal(mine.tube.lower, full.tube.lower)
-    assert np.array_equal(mine.tube.upper, full.tube.upper)
-    if full.counterexample is not None:
-        assert np.array_equal(mine.counterexample.x0, full.counterexample.x0)
-    assert 0 < od.num_regions <= law.num_regions
+    merged = law.meta["stats"].get("merged", 0)
+    if not merged:
+        # (regions of one law the full search merges where LICQ fails stay apart on
+        # demand: more, smaller children, so another tube of the same verdict)
+        assert np.array_equal(mine.tube.t_start, full.tube.t_start)
+        assert np.array_equal(mine.tube.lower, full.tube.lower)
+        assert np.array_equal(mine.tube.upper, full.tube.upper)
+        if full.counterexample is not None:
+            assert np.array_equal(mine.counterexample.x0, full.counterexample.x0)
+    assert 0 < od.num_regions <= law.num_regions + merged
     rows = {(a.tobytes(), b.tobytes()): i for i, (a, b) in enumerate(zip(law.A, law.b,
                                                                              strict=True))}
-    merged = law.meta["stats"].get("merged", 0)
     same = 0
     for i in range(od.num_regions):
         j = rows.get((od.A[i].tobytes(), od.b[i].tobytes()))
