@@ -170,6 +170,41 @@ class ExplicitLaw(Displayable):
     def __call__(self, X: np.ndarray) -> np.ndarray:
         return self.evaluate(X)
 
+    # ---- what the reach engines ask (the interface an on-demand law shares) ----------
+
+    def regions_meeting(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """The regions whose bounding box meets the box ``[lo, hi]`` (within 1e-9).
+
+        Parameters
+        ----------
+        lo, hi : (n,) ndarray
+
+        Returns
+        -------
+        (q,) ndarray of int
+            Ascending; every region that meets the box is among them.
+        """
+        blo, bhi = self.boxes
+        return np.flatnonzero(np.all(blo <= hi + 1e-9, axis=1) & np.all(bhi >= lo - 1e-9, axis=1))
+
+    def domain_rows(
+        self, lo: np.ndarray, hi: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Rows of the law's domain that describe it inside the box ``[lo, hi]``: here
+        :attr:`domain_A`, :attr:`domain_b` whatever the box (None when unknown).
+
+        Parameters
+        ----------
+        lo, hi : (n,) ndarray
+
+        Returns
+        -------
+        (A, b) or None
+        """
+        if self.domain_A is None:
+            return None
+        return self.domain_A, self.domain_b
+
     def _check_dim(self, X: np.ndarray) -> None:
         if X.shape[1] != self.n:
             what = "states" if not self.parameters else f"theta = ({', '.join(self.parameters)})"

@@ -140,7 +140,8 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
 def _print_result(problem, law, result, tube_path) -> None:
     import numpy as np
 
-    print(f"{problem.name}: {law.num_regions} regions; " + result.summary())
+    how = " computed on demand" if getattr(law, "on_demand", False) else ""
+    print(f"{problem.name}: {law.num_regions} regions{how}; " + result.summary())
     width = result.width_at(_horizon_shown(problem, result))
     print("  tube width at the horizon: " + np.array2string(width, precision=4))
     if tube_path:
@@ -224,6 +225,8 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
     problem = load_spec(args.spec)
     if problem.verify is None:
         raise CodevError(f"{args.spec}: verify: the spec has no [verify] section")
+    if (getattr(args, "regions", None) or problem.regions) == "reached":
+        return _verify_reached(args, problem, executor)
     if args.law:
         law = ExplicitLaw.load(args.law)
         check_law_matches(problem, law, file=args.law)
@@ -233,6 +236,22 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
             law = synthesize(problem, progress=update, executor=executor)
         synth_seconds = law.meta["seconds"]
     return _verification(args, problem, law, synth_seconds, executor)
+
+
+def _verify_reached(args: argparse.Namespace, problem, executor) -> int:
+    """Verify on the regions the reach sets meet, computed on demand (``--regions reached``
+    or ``[synthesis] regions = "reached"``): no law file, no recording (it draws the
+    whole partition), no session yet."""
+    from codev_engine.law_on_demand import OnDemandLaw
+
+    for flag, given in (("--law", getattr(args, "law", None)),
+                        ("--record", getattr(args, "record", None)),
+                        ("--session", getattr(args, "session", None))):
+        if given:
+            raise SpecError(f"{flag} needs the whole law: not with regions = \"reached\"",
+                            field=flag)
+    law = OnDemandLaw(problem)
+    return _verification(args, problem, law, None, executor)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -248,6 +267,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
     # bad input fails here or in Session.run's own checks, before the session is touched;
     # the MPC's feasibility LP (python-control, ~1 s of imports) only when not cached
     problem = load_spec(args.spec, check_mpc=False)
+    if (args.regions or problem.regions) == "reached":
+        raise SpecError('--session needs the whole law: not with regions = "reached"',
+                        field="--session")
     session = Session.open_or_create(args.session)
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
@@ -959,6 +981,9 @@ def _build_parser() -> argparse.ArgumentParser:
             p.add_argument("--law", help="use this law file (from codev synth --out)")
         p.add_argument("--hold", choices=["zoh", "continuous"], help="override verify.hold")
         p.add_argument("--max-depth", type=int, help="override verify.max_depth")
+        p.add_argument("--regions", choices=["all", "reached"],
+                       help="override synthesis.regions: the whole law, or only the regions "
+                       "the reach sets meet, computed on demand (norm 2, linear plants)")
         p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
         p.add_argument("--json", action="store_true", help="print a JSON summary only")
         _add_executor_options(p, "the mp-QP search and the nonlinear verification's cells")

@@ -285,7 +285,9 @@ class ClosedLoopSetup:
         self.boxes_lo, self.boxes_hi = self.law.boxes
         # the closed loop's state is the law's parameter theta = (x, u_prev, r): u_prev is
         # the input held over the last period, r a constant (d = n for a law in x alone)
-        self.d = int(self.law.n) if self.law.num_regions else self.n
+        self.d = (int(self.law.n) if self.law.num_regions or getattr(self.law, "on_demand", False)
+                  else self.n)
+        self._known = self.law.num_regions  # (a law on demand grows: _law_grown)
         lo, hi = theta_initial_box(p) if self.d > self.n else (vs.initial_lower,
                                                                  vs.initial_upper)
         self.c0 = 0.5 * (lo + hi)
@@ -376,6 +378,13 @@ class ClosedLoopSetup:
                                                                    np.abs(self.vc)))
             if self.vc is not None and self.law.num_regions else None
         )
+
+    def _law_grown(self) -> None:
+        """After a law computed on demand has grown: the regions' offsets again (``Gn``;
+        the linear engine asks the law for the regions meeting a set, not their boxes)."""
+        if self.law.num_regions != self._known:
+            self._known = self.law.num_regions
+            self._init_noise()
 
     def _reach_rows(self, A: np.ndarray, b: np.ndarray) -> np.ndarray:
         """The right-hand side of ``{theta : A (theta + v) <= b for some v in the noise
@@ -1036,8 +1045,13 @@ class LinearReach(ClosedLoopSetup):
             lo, hi = lo + self.vc - self.vr, hi + self.vc + self.vr
         law = self.law
         t = s.k * self.Ts
-        if law.domain_A is not None and law.domain_A.shape[0]:
-            A, b = law.domain_A, law.domain_b
+        # (the law's domain near the set, and its regions meeting it: a law computed on
+        # demand computes them now, law_on_demand.py)
+        domain = law.domain_rows(lo, hi)
+        cand = law.regions_meeting(lo, hi)
+        self._law_grown()
+        if domain is not None and domain[0].shape[0]:
+            A, b = domain
             # (with noise: the largest A v over the box, so any measurement that may leave)
             viol = Y @ A.T + (np.abs(A) @ s.err)[None, :] - b[None, :]
             if self.vr is not None:
@@ -1061,9 +1075,6 @@ class LinearReach(ClosedLoopSetup):
                     f"at t = {t:.6g} the reach set's over-approximation may leave the law's "
                     f"domain by {worst:.3g} (no state of it is shown to); the tube goes on "
                     "with its part inside the regions"))
-        cand = np.flatnonzero(
-            np.all(self.boxes_lo <= hi + 1e-9, axis=1) & np.all(self.boxes_hi >= lo - 1e-9, axis=1)
-        )
         children = []
         # a disturbed star's generators are not tied to alpha: cutting alpha alone would keep
         # the whole disturbance box in every child (and the law's value over it). Where a

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from codev_engine.errors import SpecError
-from codev_engine.spec.choices import HOLDS, METHODS, NORMS, RESERVED_NAMES
+from codev_engine.spec.choices import HOLDS, METHODS, NORMS, REGIONS, RESERVED_NAMES
 from codev_engine.spec.problem import (
     SOFT_GROUPS,
     MixedConstraint,
@@ -47,7 +47,7 @@ _IDENT_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 DEFAULT_HORIZON = 5  # mpc.horizon when the spec leaves it out (docs/spec.md)
 _SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
 
-_TOP = ("name", "plant", "model", "mpc", "verify")
+_TOP = ("name", "plant", "model", "mpc", "verify", "synthesis")
 _PLANT = ("states", "inputs", "dynamics", "A", "B", "disturbances", "parameters", "nominal", "E")
 _MODEL = ("sample_time", "method", "operating_point", "A", "B")
 _MPC = (
@@ -140,7 +140,7 @@ def parse_spec(text: str, *, path: str = "<string>") -> Problem:
 
 
 def _build(data: dict[str, Any], text: str, file: str) -> Problem:
-    _table(data, "", required=("name", "plant", "model", "mpc"), optional=("verify",))
+    _table(data, "", required=("name", "plant", "model", "mpc"), optional=("verify", "synthesis"))
     name = _spec_name(data["name"], "name")
     plant_t = _table(
         data["plant"], "plant", required=("states", "inputs"), optional=_PLANT[2:]
@@ -186,8 +186,11 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
                 "plant.A and plant.B (an explicit discrete model is not enough)",
                 field="verify",
             )
+    synthesis_t = _table(data.get("synthesis", {}), "synthesis", optional=("regions",))
+    regions = _choice(synthesis_t.get("regions", "all"), "synthesis.regions", REGIONS)
     return Problem(
-        name=name, plant=plant, model=model, mpc=mpc, verify=verify, path=file, source=text
+        name=name, plant=plant, model=model, mpc=mpc, verify=verify, path=file, source=text,
+        regions=regions,
     )
 
 

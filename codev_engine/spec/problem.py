@@ -449,6 +449,10 @@ class Problem:
         problem built in code.
     source : str
         The TOML text, for hashing and sessions.
+    regions : str
+        ``[synthesis] regions``: ``"all"`` (the whole explicit law, the default) or
+        ``"reached"`` (the regions the verification's reach sets meet, computed on demand;
+        ``codev_engine.law_on_demand``).
     """
 
     name: str
@@ -458,3 +462,4 @@ class Problem:
     verify: VerifySpec | None
     path: str | None = None
     source: str = ""  # the TOML text, for hashing and sessions
+    regions: str = "all"

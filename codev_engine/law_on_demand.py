@@ -1,0 +1,330 @@
+"""An explicit MPC law whose critical regions are computed where they are asked for.
+
+:class:`OnDemandLaw` has the interface the reach engines read from an ``ExplicitLaw``
+(``A``, ``b``, ``F``, ``G``, ``boxes``, ``num_regions``, ``locate``, ``evaluate``, and the
+two questions :meth:`regions_meeting` and :meth:`domain_rows`), but it holds only the
+regions computed so far: asked for the regions meeting a box, it computes the missing ones
+by the restricted walk of ``mp.on_demand`` (the full search's graph and kernel, so each
+region has the full law's rows and law). Regions are appended, never reordered: an index
+once returned stays valid while the law grows. In plant coordinates, as ``ExplicitLaw``
+(``law_from_solution``'s mapping). Norm 2 only (an mp-QP); see issue 39.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codev_engine.errors import SolverError, SpecError
+from codev_engine.formulation import parameter_names
+from codev_engine.geometry.locate import PointLocator
+from codev_engine.geometry.polytope import box_halfspaces
+from codev_engine.mp.on_demand import OnDemandRegions
+from codev_engine.mp.solve import SolveOptions
+from codev_engine.mpc import build_program
+from codev_engine.plant import LinearModel, discretize
+from codev_engine.spec.problem import Problem
+from codev_engine.synthesis import problem_fingerprint
+
+__all__ = ["OnDemandLaw", "law_for"]
+
+#: tolerance of the bounding-box test of the full law's reach engines (``regions_meeting``)
+_BOX_TOL = 1e-9
+
+
+class OnDemandLaw:
+    """A piecewise-affine MPC law on the critical regions computed so far.
+
+    Parameters
+    ----------
+    problem : Problem
+        A design with ``norm = "2"`` (a strictly convex mp-QP).
+    model : LinearModel, optional
+        A discrete model to use instead of discretising ``problem``.
+    options : SolveOptions, optional
+        The multi-parametric solver's tolerances.
+
+    Raises
+    ------
+    SpecError
+        For norms 1 and inf, or an mp-QP with a singular Hessian (field
+        ``synthesis.regions``): their regions are not computed on demand yet.
+
+    Attributes
+    ----------
+    A, b : list of ndarray
+        The rows of the regions found so far (``A_i theta <= b_i``, unit rows).
+    F : (k, m, d) ndarray
+    G : (k, m) ndarray
+        The affine law of each region found so far.
+    states, inputs, parameters : tuple of str
+        As for ``ExplicitLaw``.
+    fingerprint : str
+        The problem's fingerprint (``synthesis.problem_fingerprint``).
+    meta : dict
+        ``on_demand``, ``norm``, ``horizon``, ``problem``; ``regions`` the regions computed.
+    """
+
+    #: the reach engines and the front ends tell this law from a full one by it
+    on_demand = True
+    #: the domain is not known as a whole: :meth:`domain_rows` gives its rows near a set
+    domain_A = None
+    domain_b = None
+
+    def __init__(
+        self,
+        problem: Problem,
+        *,
+        model: LinearModel | None = None,
+        options: SolveOptions | None = None,
+    ):
+        model = model if model is not None else discretize(problem)
+        mp = build_program(problem.mpc, model)
+        if mp.spec.norm != "2":
+            raise SpecError(
+                f"regions = \"reached\" computes the regions of a 2-norm MPC (an mp-QP) "
+                f"only; this design has norm = \"{mp.spec.norm}\" (an mp-LP): use "
+                "regions = \"all\"",
+                field="synthesis.regions",
+            )
+        try:
+            self._solver = OnDemandRegions(mp.program, options)
+        except SolverError as exc:
+            raise SpecError(str(exc), field="synthesis.regions") from None
+        self._mp = mp
+        self._op = np.asarray(mp.theta_op, float)
+        self.states = tuple(problem.plant.states)
+        self.inputs = tuple(problem.plant.inputs)
+        self.parameters: tuple[str, ...] = ()
+        if mp.d > mp.n:
+            self.parameters = parameter_names(problem.mpc, self.states, self.inputs)
+        self.fingerprint = problem_fingerprint(mp)
+        self.meta: dict = {"on_demand": True, "norm": mp.spec.norm, "horizon": mp.N,
+                           "problem": problem.name, "regions": 0}
+        d, m = mp.d, mp.m
+        self.A: list[np.ndarray] = []
+        self.b: list[np.ndarray] = []
+        self.F = np.zeros((0, m, d))
+        self.G = np.zeros((0, m))
+        self._boxes: tuple[np.ndarray, np.ndarray] | None = (np.zeros((0, d)), np.zeros((0, d)))
+        self._last: tuple[bytes, np.ndarray] | None = None  # the last box asked, its answer
+        self._stacked: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    # ---- shape -------------------------------------------------------------------------
+
+    @property
+    def num_regions(self) -> int:
+        """The number of regions computed so far."""
+        return len(self.A)
+
+    @property
+    def n(self) -> int:
+        """The length of ``theta``."""
+        return self._mp.d
+
+    @property
+    def m(self) -> int:
+        """The input dimension."""
+        return self._mp.m
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of ``theta`` (the states, then ``prev_<input>``, ``ref_<signal>``)."""
+        return self.parameters or self.states
+
+    @property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding boxes of the regions computed so far, lower and upper (k, d)."""
+        if self._boxes is None:
+            lo, hi = self._solver.boxes
+            self._boxes = (lo + self._op, hi + self._op)
+        return self._boxes
+
+    @property
+    def stats(self) -> dict:
+        """The walk's counters (``mp.on_demand.OnDemandRegions.stats``)."""
+        return dict(self._solver.stats)
+
+    # ---- the questions of the reach engines ----------------------------------------------
+
+    def regions_meeting(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """Every region that meets the box ``[lo, hi]`` (computed if need be).
+
+        Parameters
+        ----------
+        lo, hi : (d,) ndarray
+            The box, in ``theta``.
+
+        Returns
+        -------
+        (q,) ndarray of int
+            Region indices, ascending by active set (the full law's order); a superset of
+            the regions the full law's bounding-box test would offer that meet the box.
+        """
+        lo = np.asarray(lo, float) - _BOX_TOL
+        hi = np.asarray(hi, float) + _BOX_TOL
+        key = np.concatenate([lo, hi]).tobytes()
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        A, b = box_halfspaces(lo - self._op, hi - self._op)
+        found = np.array(self._solver.meeting(A, b), dtype=int)
+        self._sync()
+        self._last = (key, found)
+        return found
+
+    def domain_rows(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of the law's domain (the MPC's feasible set) that describe it inside the
+        box ``[lo, hi]``: every row holds on the whole domain, and a point of the box is in
+        the domain when it satisfies them all.
+
+        The rows of the regions meeting the box that hold on the whole domain (its facets
+        that cut the box are among them), and the parameter set's; when no region meets
+        the box, one row valid on the domain that the whole box violates (when one is
+        found; else none, and the engine finds no region for the set).
+
+        Parameters
+        ----------
+        lo, hi : (d,) ndarray
+
+        Returns
+        -------
+        A : (q, d) ndarray
+        b : (q,) ndarray
+        """
+        idx = self.regions_meeting(lo, hi)
+        op = self._op
+        if idx.size:
+            A, b = self._solver.boundary_rows(list(idx))
+            return A, b + A @ op
+        Ab, bb = box_halfspaces(np.asarray(lo, float) - op, np.asarray(hi, float) - op)
+        sep = self._solver.separating_row(Ab, bb)
+        if sep is None:
+            return np.zeros((0, self.n)), np.zeros(0)
+        a, beta = sep
+        return a[None, :], np.array([beta + a @ op])
+
+    # ---- evaluation ---------------------------------------------------------------------
+
+    def locate(self, X: np.ndarray) -> np.ndarray:
+        """Region index of each ``theta`` (-1 outside the domain), computing the regions
+        around a point when none of those known holds it well inside.
+
+        A point inside a known region by more than a small margin is in no other
+        (regions are interior-disjoint); elsewhere the regions meeting a small box around
+        it are computed and ``PointLocator``'s rule (the full law's) picks among them in
+        the full law's order.
+
+        Parameters
+        ----------
+        X : (P, d) or (d,) array_like
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        if X.shape[1] != self.n:
+            raise ValueError(f"expected theta of dimension {self.n}, got {X.shape[1]}")
+        out = np.full(X.shape[0], -1, dtype=int)
+        margin = 1e-8 * self._solver.scale
+        pad = 1e-7 * self._solver.scale
+        for p, x in enumerate(X):
+            if not np.all(np.isfinite(x)):
+                continue
+            inside = self._well_inside(x, margin)
+            if inside >= 0:
+                out[p] = inside
+                continue
+            cand = self.regions_meeting(x - pad, x + pad)
+            if cand.size:
+                loc = PointLocator([self.A[i] for i in cand], [self.b[i] for i in cand],
+                                   grid=False)
+                j = int(loc.locate(x[None, :])[0])
+                out[p] = -1 if j < 0 else int(cand[j])
+        return out
+
+    def evaluate(self, X: np.ndarray) -> np.ndarray:
+        """The control ``u = F_i theta + G_i`` (NaN rows outside the domain).
+
+        Parameters
+        ----------
+        X : (P, d) or (d,) array_like
+
+        Returns
+        -------
+        (P, m) ndarray
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        idx = self.locate(X)
+        U = np.full((X.shape[0], self.m), np.nan)
+        ok = idx >= 0
+        U[ok] = np.einsum("pij,pj->pi", self.F[idx[ok]], X[ok]) + self.G[idx[ok]]
+        return U
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return self.evaluate(X)
+
+    def summary(self) -> str:
+        """One line: the regions computed so far and the dimensions."""
+        return (f"explicit law on demand: {self.num_regions} regions computed, n={self.n}, "
+                f"m={self.m}")
+
+    def __repr__(self) -> str:
+        return f"OnDemandLaw(num_regions={self.num_regions}, n={self.n}, m={self.m})"
+
+    # ---- growth --------------------------------------------------------------------------
+
+    def _sync(self) -> None:
+        """Append the regions the walk found since the last call, in plant coordinates."""
+        regs = self._solver.regions
+        k = len(self.A)
+        if len(regs) == k:
+            return
+        mp, op = self._mp, self._op
+        sl = mp.u0_slice
+        new = regs[k:]
+        self.A += [r.A for r in new]
+        self.b += [r.b + r.A @ op for r in new]
+        F = np.array([r.K[sl] for r in new]).reshape(len(new), mp.m, mp.d)
+        G = np.array([mp.u_op + r.k[sl] - r.K[sl] @ op for r in new]).reshape(len(new), mp.m)
+        self.F = np.concatenate([self.F, F])
+        self.G = np.concatenate([self.G, G])
+        self._boxes = None
+        self._stacked = None
+        self.meta["regions"] = len(self.A)
+
+    def _well_inside(self, x: np.ndarray, margin: float) -> int:
+        """A known region that holds ``x`` with every row by more than ``margin``, or -1."""
+        if not self.A:
+            return -1
+        if self._stacked is None:
+            sizes = np.array([a.shape[0] for a in self.A])
+            off = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+            self._stacked = (np.vstack(self.A), np.concatenate(self.b), off)
+        A, b, off = self._stacked
+        worst = np.maximum.reduceat(A @ x - b, off)
+        best = int(np.argmin(worst))
+        return best if worst[best] < -margin else -1
+
+
+def law_for(problem: Problem, regions: str, **kwargs):
+    """The law a verification of ``problem`` runs on: the full law (``regions = "all"``,
+    :func:`codev_engine.synthesis.synthesize`) or an :class:`OnDemandLaw` (``"reached"``).
+
+    Parameters
+    ----------
+    problem : Problem
+    regions : {"all", "reached"}
+    **kwargs
+        Passed on to ``synthesize`` (``progress``, ``executor``, ...) for ``"all"``; only
+        ``model`` and ``options`` for ``"reached"``.
+
+    Returns
+    -------
+    ExplicitLaw or OnDemandLaw
+    """
+    if regions == "reached":
+        keep = {k: v for k, v in kwargs.items() if k in ("model", "options")}
+        return OnDemandLaw(problem, **keep)
+    from codev_engine.synthesis import synthesize
+
+    return synthesize(problem, **kwargs)
