@@ -188,8 +188,12 @@ def check_model(problem: Problem) -> None:
         return
     from codev_engine.plant import linearize
 
-    with np.errstate(all="ignore"):
-        Ac, Bc, f0 = linearize(plant, model.x_op, model.u_op)
+    file = problem.path or "<string>"
+    try:
+        with np.errstate(all="ignore"):
+            Ac, Bc, f0 = linearize(plant, model.x_op, model.u_op)
+    except SpecError as exc:  # the dynamics undefined at the nominal parameters
+        raise (exc.with_file(file) if exc.file is None else exc) from None
     for label, arr in (
         ("f(x_op, u_op)", f0),
         ("the state Jacobian", Ac),
@@ -200,7 +204,7 @@ def check_model(problem: Problem) -> None:
                 f"the dynamics cannot be linearised at the operating point: {label} has "
                 "non-finite entries",
                 field="model.operating_point",
-                file=problem.path or "<string>",
+                file=file,
             )
 
 
