@@ -926,17 +926,20 @@ def _matrix(value: Any, field: str, rows: int | None, cols: int) -> np.ndarray:
 
 def _psd(M: np.ndarray, name: str, field: str, *, definite: bool) -> None:
     scale = float(np.max(np.abs(M))) if M.size else 0.0
-    asym = np.abs(M - M.T)
-    if np.max(asym) > _SYM_TOL * max(scale, 1e-300):
+    S = M / scale if scale > 0 else M  # relative checks; no overflow of entries near 1e308
+    asym = np.abs(S - S.T)
+    if np.max(asym) > _SYM_TOL:
         i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
         raise SpecError(
             f'{name} must be symmetric for norm "2" ({name}[{i}][{j}] = {M[i, j]:g} but '
             f"{name}[{j}][{i}] = {M[j, i]:g})",
             field=field,
         )
-    eig = np.linalg.eigvalsh(0.5 * (M + M.T))
+    eig = np.linalg.eigvalsh(0.5 * (S + S.T))
     top = float(np.max(np.abs(eig)))
     low = float(np.min(eig))
+    if scale > 0:
+        top, low = top * scale, low * scale
     if definite and not low > _SYM_TOL * top:
         raise SpecError(
             f'{name} must be positive definite for norm "2" (smallest eigenvalue {low:.3g})',
