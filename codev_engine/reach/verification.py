@@ -568,7 +568,8 @@ def verify(
         eng = LinearReach(
             problem, law, plant, hold, depth, unbounded=unbounded, progress=progress
         )
-        eng.run()
+        with np.errstate(all="ignore"):  # an overflow is checked on the tube below
+            eng.run()
         certificate = eng.certificate
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
@@ -578,7 +579,8 @@ def verify(
         from codev_engine.reach.nonlinear import NonlinearReach
 
         eng = NonlinearReach(problem, law, hold, depth, progress=progress)
-        eng.run(executor, cells=cells)
+        with np.errstate(all="ignore"):  # an overflow is checked on the tube below
+            eng.run(executor, cells=cells)
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
     tube = Tube.concatenate(tubes, problem.plant.n)
@@ -586,7 +588,8 @@ def verify(
     verdict, reason, cex = "robustly_safe", None, None
     concrete = [f for f in findings if f.alpha is not None]
     for f in concrete:
-        cex = _confirm(problem, law, hold, c0 + V0 @ f.alpha)
+        with np.errstate(all="ignore"):
+            cex = _confirm(problem, law, hold, c0 + V0 @ f.alpha)
         if cex is not None:
             verdict, reason = "unsafe", cex.kind
             break
@@ -616,11 +619,17 @@ def verify(
                 searches = [searches[2], searches[0], searches[1]]
         cex = None
         for search in searches:
-            cex = search()
+            with np.errstate(all="ignore"):  # simulations of a diverging loop
+                cex = search()
             if cex is not None:
                 break
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
+    if verdict != "unsafe" and not _finite(tube):
+        # bounds past 1e308 (huge sets, disturbances or gains): inf and NaN prove nothing
+        verdict, reason, certificate = "unknown", "limit", None
+        detail = ("the reachtube's bounds overflowed (values past 1.8e308): narrow "
+                  "verify.initial_set or plant.disturbances / plant.parameters")
     if unbounded and verdict == "robustly_safe":
         c = stats.get("certificate")
         if c is None or certificate is None or not check_certificate(certificate):
@@ -654,6 +663,11 @@ def verify(
     result = VerificationResult(verdict, reason, tube, hold, cex, stats, detail, certificate)
     result.attach_display(problem=problem, law=law)  # state names and sets in the picture
     return result
+
+
+def _finite(tube: Tube) -> bool:
+    """Every bound of the tube is a finite number."""
+    return bool(np.all(np.isfinite(tube.lower)) and np.all(np.isfinite(tube.upper)))
 
 
 def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth: int,
