@@ -41,6 +41,7 @@ from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import stage_deadline, time_over
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -495,6 +496,11 @@ def verify(
     -------
     VerificationResult
     """
+    with stage_deadline():  # CODEV_LIMITS=time=...: checked at each branch period
+        return _verify(problem, law, hold, max_depth, progress, executor, cells)
+
+
+def _verify(problem, law, hold, max_depth, progress, executor, cells) -> VerificationResult:
     # the reach engines (scipy, the plant model): imported when a verification runs, not
     # when a cached result is loaded
     from codev_engine.reach.linear import LinearReach, affine_plant
@@ -618,6 +624,8 @@ def verify(
             if _inputs_only(problem, tube, findings):
                 searches = [searches[2], searches[0], searches[1]]
         cex = None
+        if time_over() is not None:  # past the time limit: no searches after it
+            searches = []
         for search in searches:
             with np.errstate(all="ignore"):  # simulations of a diverging loop
                 cex = search()
