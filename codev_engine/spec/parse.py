@@ -328,7 +328,7 @@ def _uncertain(t: dict[str, Any], key: str, taken: tuple[str, ...]) -> Uncertain
                 f"expected [lower, upper] with lower <= upper, got [{iv[0]:g}, {iv[1]:g}]",
                 field=f,
             )
-        if not math.isfinite(iv[1] - iv[0]):  # +-1e308: every bound on it overflows
+        if not math.isfinite(float(iv[1]) - float(iv[0])):  # +-1e308: bounds overflow
             raise SpecError(
                 f"the interval [{iv[0]:g}, {iv[1]:g}] is too wide to compute with (its "
                 "width passes 1.8e308)",
