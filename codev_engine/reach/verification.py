@@ -16,8 +16,9 @@ Verdicts
     exhausted on an interval enclosure that meets a singularity: ``detail`` names the
     operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
     "inf"``: no invariance certificate within ``max_samples``), or ``"limit"`` (the
-    exploration grew past ``codev_engine.limits``, branches or reachtube memory: ``detail``
-    says which and what to change). A limitation of the verifier is a verdict, never an error
+    exploration grew past ``codev_engine.limits``, branches, reachtube memory or the time
+    limit, or the tube's bounds overflowed past 1.8e308: ``detail`` says which and what
+    to change). A limitation of the verifier is a verdict, never an error
     blamed on the input.
 
 With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
