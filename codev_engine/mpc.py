@@ -331,6 +331,53 @@ def build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
         of the wrong shape, (norm "2") a weight that is not square or not positive
         semidefinite, a reference with no steady state, a bad terminal set.
     """
+    # One overflow (an unstable model over a long horizon, a weight near 1e308) would
+    # spill RuntimeWarnings and end in an error about the program's internal matrices:
+    # computed quietly, then checked, the error names the spec field it comes from.
+    with np.errstate(all="ignore"):
+        try:
+            mp = _build_program(spec, model)
+        except SpecError as exc:  # MpProgram's own check: names its matrix, not the spec's
+            if exc.field not in _PROGRAM_ARRAYS:
+                raise
+            _overflow(spec, model, [exc.field])
+        arrays = {"Kq": mp._Kq, "kl": mp._kl, "k0": np.asarray(mp._k0)}
+        bad = [k for k, v in arrays.items() if not np.all(np.isfinite(v))]
+        if bad:
+            _overflow(spec, model, bad)
+    return mp
+
+
+_PROGRAM_ARRAYS = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta", "Aeq", "beq", "Feq")
+
+
+def _overflow(spec: MpcSpec, model: LinearModel, bad: list[str | None]) -> None:
+    """Raise the ``SpecError`` naming the spec field an overflow of the program comes
+    from: the horizon (the predictions) or the largest weight (the cost)."""
+    N = int(spec.horizon)
+    Phi, Gam, d = _predictions(model, N)
+    if not all(np.all(np.isfinite(M)) for M in (*Phi[-1:], *Gam[-1:], *d[-1:])):
+        radius = float(np.max(np.abs(np.linalg.eigvals(np.asarray(model.A, dtype=float)))))
+        raise SpecError(
+            f"the predictions overflow over the horizon of {N:,} steps (the prediction "
+            f"model's A has spectral radius {radius:.3g}; its powers pass 1e308): shorten "
+            "mpc.horizon, or change the plant (plant.dynamics / plant.A, model.sample_time)",
+            field="mpc.horizon",
+        )
+    P = spec.P if isinstance(spec.P, np.ndarray) else None
+    weights = {"mpc.Q": spec.Q, "mpc.R": spec.R, "mpc.P": P, "mpc.Rd": spec.Rd}
+    sizes = {k: float(np.max(np.abs(v))) for k, v in weights.items()
+             if v is not None and np.size(v)}
+    field = max(sizes, key=lambda k: sizes[k]) if sizes else "mpc"
+    raise SpecError(
+        f"the condensed MPC overflows (non-finite {', '.join(map(str, bad))}; the largest "
+        f"weight is {field} = {sizes.get(field, 0.0):.3g}): scale the weights and bounds "
+        "down, or shorten mpc.horizon",
+        field=field,
+    )
+
+
+def _build_program(spec: MpcSpec, model: LinearModel) -> MpcProgram:
     n, m = np.asarray(model.B).shape
     N = int(spec.horizon)
     _check_dims(spec, n, m)

@@ -32,13 +32,22 @@ from codev_engine.errors import SpecError
 from codev_engine.spec.parse import parse_spec, read_spec
 from codev_engine.spec.problem import Problem
 
-__all__ = ["LIMITS", "load_spec", "loads_spec", "check_model", "check_mpc_feasible", "check_size"]
+__all__ = [
+    "LIMITS",
+    "load_spec",
+    "loads_spec",
+    "check_model",
+    "check_mpc_feasible",
+    "check_size",
+    "program_bytes",
+]
 
 #: The documented limits of :func:`check_size` (docs/spec.md, "Limits").
 LIMITS = {
     "states": 64,  # n: the plant's states
     "inputs": 64,  # m
-    "decisions": 1000,  # horizon × m: the MPC's decision variables
+    "decisions": 1000,  # control_horizon × m: the MPC's free moves
+    "program_bytes": 2**30,  # the condensed program's matrices (float64), full horizon
     "samples": 100_000,  # verify.time_horizon / model.sample_time: controller steps verified
     "tube_steps": 1_000_000,  # verify.time_horizon / verify.step: reachtube time steps
 }
@@ -141,6 +150,16 @@ def check_size(problem: Problem) -> None:
             LIMITS["decisions"],
             "shorten mpc.horizon",
         )
+    nbytes = program_bytes(problem)
+    if nbytes > LIMITS["program_bytes"]:
+        refuse(
+            "mpc.horizon",
+            "the condensed MPC's matrices (bytes, predictions and constraint rows over the "
+            f"{problem.mpc.horizon:,} steps)",
+            nbytes,
+            LIMITS["program_bytes"],
+            "shorten mpc.horizon",
+        )
     vs = problem.verify
     if vs is None:
         return
@@ -169,6 +188,51 @@ def check_size(problem: Problem) -> None:
         )
 
 
+def program_bytes(problem: Problem) -> float:
+    """The memory the condensed MPC's largest matrices take, from the fields alone.
+
+    ``mpc.build_program`` forms the predictions ``x_k = Phi_k theta + Gam_k u + d_k`` for
+    every step of the **full** horizon N (``Gam_k`` is n × N m before move blocking maps
+    it to the Nc m free moves), the dense ``N m × N m`` input weight of norm "2", and a
+    constraint matrix with a row per bounded quantity and step and a column per decision
+    variable (the free moves, one soft slack per soft row and step, the LP norms' slacks
+    per term and step). Counted as float64, an upper estimate within a small factor.
+
+    Parameters
+    ----------
+    problem : Problem
+        A parsed problem.
+
+    Returns
+    -------
+    float
+        Bytes (a float: a typo'd horizon gives astronomic numbers, not an overflow).
+    """
+    mpc = problem.mpc
+    n, m = float(problem.plant.n), float(problem.plant.m)
+    N, Nc = float(mpc.horizon), float(mpc.Nc)
+    p = float(mpc.C.shape[0]) if mpc.C is not None else 0.0
+    mixed = float(sum(np.asarray(c.h).size for c in mpc.constraints))
+    q = float(np.asarray(mpc.Q).shape[0]) if mpc.Q is not None else n
+    r = float(np.asarray(mpc.R).shape[0]) if mpc.R is not None else m
+    per_step = 2 * n + 2 * p + mixed  # bounded rows of one step (states, outputs, mixed)
+    soft = per_step * (N + 1) if mpc.soft else 0.0
+    if mpc.norm == "2":
+        slacks = 0.0
+        cost_rows = 0.0
+        weight = (N * m) ** 2  # kron(I_N, R)
+    else:
+        rd = float(np.asarray(mpc.Rd).shape[0]) if mpc.Rd is not None else 0.0
+        terms = 2 * N + 1 + (N if rd else 0.0)  # stage, terminal and rate terms
+        slacks = N * (q + r + rd) + q if mpc.norm == "1" else terms
+        cost_rows = 2 * (N * (q + r + rd) + q)  # |M v| <= t: two rows per row of M
+        weight = 0.0
+    decisions = Nc * m + soft + slacks
+    rows = 2 * Nc * m * (2 if mpc.du_min is not None else 1) + per_step * N + 2 * soft + cost_rows
+    predictions = (N + 1) * n * (N + Nc) * m  # Gam over the full horizon, then blocked
+    return 8.0 * (predictions + weight + rows * decisions)
+
+
 def check_model(problem: Problem) -> None:
     """Check that a nonlinear plant is linearisable at the operating point.
 
@@ -188,8 +252,12 @@ def check_model(problem: Problem) -> None:
         return
     from codev_engine.plant import linearize
 
-    with np.errstate(all="ignore"):
-        Ac, Bc, f0 = linearize(plant, model.x_op, model.u_op)
+    file = problem.path or "<string>"
+    try:
+        with np.errstate(all="ignore"):
+            Ac, Bc, f0 = linearize(plant, model.x_op, model.u_op)
+    except SpecError as exc:  # the dynamics undefined at the nominal parameters
+        raise (exc.with_file(file) if exc.file is None else exc) from None
     for label, arr in (
         ("f(x_op, u_op)", f0),
         ("the state Jacobian", Ac),
@@ -200,7 +268,7 @@ def check_model(problem: Problem) -> None:
                 f"the dynamics cannot be linearised at the operating point: {label} has "
                 "non-finite entries",
                 field="model.operating_point",
-                file=problem.path or "<string>",
+                file=file,
             )
 
 

@@ -179,8 +179,23 @@ class SymbolicPlant:
     x: tuple[sympy.Symbol, ...]
     u: tuple[sympy.Symbol, ...]
     f: sympy.ImmutableMatrix
-    Jx: sympy.ImmutableMatrix
-    Ju: sympy.ImmutableMatrix
+
+    # The Jacobians as sympy expressions are derived on first use (the workbench shows
+    # them, the interval enclosures compile them); the numeric ones never build them
+    # (:func:`_compile`), so loading a spec stays polynomial in the expressions' size.
+    @functools.cached_property
+    def Jx(self) -> sympy.ImmutableMatrix:  # noqa: N802 - the documented name
+        """``df/dx`` (n, n)."""
+        import sympy
+
+        return sympy.ImmutableMatrix(self.f.jacobian(sympy.Matrix(self.x)))
+
+    @functools.cached_property
+    def Ju(self) -> sympy.ImmutableMatrix:  # noqa: N802 - the documented name
+        """``df/du`` (n, m)."""
+        import sympy
+
+        return sympy.ImmutableMatrix(self.f.jacobian(sympy.Matrix(self.u)))
 
 
 class NumericDynamics(tuple):
@@ -310,21 +325,131 @@ def _derive(plant: PlantSpec) -> SymbolicPlant:
                 for s, nm in zip((*w, *p), names, strict=True)
             }
             f = sympy.ImmutableMatrix(f.subs(values))
+            if f.has(sympy.zoo, sympy.oo, -sympy.oo, sympy.nan):
+                shown = ", ".join(f"{nm} = {nominal[nm]:g}" for nm in names)
+                raise SpecError(
+                    f"the dynamics are undefined at the nominal values ({shown}): division "
+                    "by zero? Give an interval whose nominal value (plant.nominal, else the "
+                    "midpoint of a parameter) keeps them finite",
+                    field="plant.parameters" if p else "plant.disturbances",
+                )
     else:
         raise _no_continuous_plant()
-    Jx = sympy.ImmutableMatrix(f.jacobian(sympy.Matrix(x)))
-    Ju = sympy.ImmutableMatrix(f.jacobian(sympy.Matrix(u)))
-    return SymbolicPlant(x=x, u=u, f=f, Jx=Jx, Ju=Ju)
+    return SymbolicPlant(x=x, u=u, f=f)
 
 
-def _lambdify(exprs: list[sympy.Expr], args: tuple[sympy.Symbol, ...]):
-    """Compile a flat list of expressions; the result returns one value per expression."""
+def _compile(
+    exprs: list[sympy.Expr],
+    args: tuple[sympy.Symbol, ...],
+    *,
+    wrt: tuple[sympy.Symbol, ...] = (),
+    modules: str = "numpy",
+):
+    """Compile expressions (and their Jacobian) into one function, in time polynomial in
+    their size.
+
+    Each distinct sub-expression becomes one assignment of the generated code (a
+    straight-line program over the DAG, not the tree), and the Jacobian with respect to
+    ``wrt`` is derived by forward differentiation of those assignments: every derivative
+    taken is of one node in its direct arguments. Neither the expressions' tree nor the
+    sympy Jacobian is ever built: ``tanh(tanh(...(x)...))`` nested 200 deep compiles in
+    well under a second, where ``sympy.lambdify(..., dummify=True)`` of its sympy
+    derivative took 36 s at depth 10 (rebuilding the tree over assumption-free dummies
+    re-derives each node's assumptions, exponentially).
+
+    The arguments are renamed ``_a0, _a1, ...`` (real, as the spec's symbols) and the
+    assignments ``_s0, _s1, ...``: no name of the spec can shadow one of the generated
+    code's (``numpy``, a state called ``x0`` against sympy's own temporaries).
+
+    Parameters
+    ----------
+    exprs : list of sympy.Expr
+        The expressions, in the symbols ``args``.
+    args : tuple of sympy.Symbol
+        The compiled function's arguments, in order.
+    wrt : tuple of sympy.Symbol
+        When given, the function returns ``len(exprs) * len(wrt)`` values instead, the
+        Jacobian's entries row by row.
+    modules : str
+        ``"numpy"`` or ``"math"``, as for ``sympy.lambdify``.
+
+    Returns
+    -------
+    callable
+        ``fn(*values) -> list`` of one value per expression (or Jacobian entry).
+    """
     import sympy
 
-    # Derivatives of sign() are DiracDelta: zero almost everywhere, and numpy has no such
-    # function. Replace by 0 (the a.e. derivative).
-    clean = [e.replace(sympy.DiracDelta, lambda *a: sympy.S.Zero) for e in exprs]
-    return sympy.lambdify(args, clean, modules="numpy", dummify=True)
+    safe = {a: sympy.Symbol(f"_a{i}", real=True) for i, a in enumerate(args)}
+    steps: list[tuple[sympy.Symbol, sympy.Expr]] = []
+    value: dict[sympy.Basic, sympy.Expr] = {}  # node -> its symbol (or atom)
+
+    def node_of(root: sympy.Basic) -> sympy.Expr:
+        # iterative post-order over the DAG: no recursion, each distinct node once
+        stack = [(root, False)]
+        while stack:
+            e, ready = stack.pop()
+            if e in value:
+                continue
+            if e in safe:
+                value[e] = safe[e]
+            elif not e.args:
+                value[e] = e  # a number or constant
+            elif not ready:
+                stack.append((e, True))
+                stack.extend((a, False) for a in e.args if a not in value)
+            else:
+                t = sympy.Symbol(f"_s{len(steps)}", real=True)
+                steps.append((t, e.func(*(value[a] for a in e.args))))
+                value[e] = t
+        return value[root]
+
+    outputs = [node_of(e) for e in exprs]
+    if wrt:
+        outputs = _forward_jacobian(steps, outputs, [safe[z] for z in wrt])
+    if modules == "numpy":
+        # Derivatives of sign() are DiracDelta: zero almost everywhere, and numpy has no
+        # such function. Replace by 0 (the a.e. derivative).
+        steps = [(t, e.replace(sympy.DiracDelta, lambda *a: sympy.S.Zero)) for t, e in steps]
+    return sympy.lambdify(
+        tuple(safe[a] for a in args),
+        outputs,
+        modules=modules,
+        dummify=False,
+        cse=lambda _exprs: (steps, outputs),
+    )
+
+
+def _forward_jacobian(
+    steps: list[tuple[sympy.Symbol, sympy.Expr]],
+    outputs: list[sympy.Expr],
+    wrt: list[sympy.Symbol],
+) -> list[sympy.Expr]:
+    """Append to ``steps`` the forward derivatives of its assignments; return the
+    Jacobian of ``outputs`` with respect to ``wrt`` (row by row)."""
+    import sympy
+
+    zero = sympy.S.Zero
+    # d[symbol] = {j: expression of d symbol / d wrt[j]} (absent: zero)
+    d: dict[sympy.Symbol, dict[int, sympy.Expr]] = {z: {j: sympy.S.One} for j, z in enumerate(wrt)}
+    for t, e in list(steps):
+        grad: dict[int, list[sympy.Expr]] = {}
+        for s in sorted(e.free_symbols, key=str):  # the same code in every process
+            ds = d.get(s)
+            if not ds:
+                continue
+            partial = sympy.diff(e, s)  # one node in its direct arguments: shallow
+            if partial == zero:
+                continue
+            for j, dj in ds.items():
+                grad.setdefault(j, []).append(partial * dj)
+        entry = {}
+        for j, terms in grad.items():
+            g = sympy.Symbol(f"_s{len(steps)}", real=True)
+            steps.append((g, sympy.Add(*terms)))
+            entry[j] = g
+        d[t] = entry
+    return [d.get(o, {}).get(j, zero) for o in outputs for j in range(len(wrt))]
 
 
 def _vectorised(
@@ -423,10 +548,11 @@ class PlantModel:
         if plant.dynamics is None and plant.A is not None and plant.B is not None:
             return _matrix_dynamics(plant)
         sym, args = self.sym, self.args
+        f = list(sym.f)
         return NumericDynamics(
-            _vectorised(_lambdify(list(sym.f), args), n, m, (n,)),
-            _vectorised(_lambdify(list(sym.Jx), args), n, m, (n, n)),
-            _vectorised(_lambdify(list(sym.Ju), args), n, m, (n, m)),
+            _vectorised(_compile(f, args), n, m, (n,)),
+            _vectorised(_compile(f, args, wrt=sym.x), n, m, (n, n)),
+            _vectorised(_compile(f, args, wrt=sym.u), n, m, (n, m)),
         )
 
     @functools.cached_property
@@ -443,13 +569,12 @@ class PlantModel:
         wrapper, which dominates the cost of the many small calls an integrator makes
         (about 5x faster per call).
         """
-        import sympy
 
         if self.plant.dynamics is None:
             f = self.numeric.f
             return f, f
         n = self.n
-        compiled = sympy.lambdify(self.args, list(self.sym.f), modules="numpy", dummify=True)
+        compiled = _compile(list(self.sym.f), self.args)
 
         def f_point(x, u):
             return np.array(compiled(*x, *u), dtype=float)
@@ -467,11 +592,10 @@ class PlantModel:
     def uncertain(self) -> Callable[..., np.ndarray]:
         """``f(X (P, n), U (P, m), W (P, d), Q (P, q)) -> (P, n)``: the vector field with
         the disturbances ``W`` and the parameters ``Q`` as arguments (their spec order)."""
-        import sympy
 
         f, x, u, w, p = full_field(self.plant)
         n = self.n
-        compiled = sympy.lambdify((*x, *u, *w, *p), list(f), modules="numpy", dummify=True)
+        compiled = _compile(list(f), (*x, *u, *w, *p))
 
         def call(X, U, W, Q):
             P = X.shape[0]
@@ -487,10 +611,9 @@ class PlantModel:
     def uncertain_point(self) -> Callable[..., np.ndarray]:
         """``f(x (n,), u (m,), w (d,), q (q,)) -> (n,)``: :attr:`uncertain` for one point,
         without the batch's arrays (the many small calls of an adaptive integrator)."""
-        import sympy
 
         f, x, u, w, p = full_field(self.plant)
-        compiled = sympy.lambdify((*x, *u, *w, *p), list(f), modules="numpy", dummify=True)
+        compiled = _compile(list(f), (*x, *u, *w, *p))
 
         def call(x, u, w, q):
             return np.array(compiled(*x, *u, *w, *q), dtype=float)
@@ -504,10 +627,9 @@ class PlantModel:
         Compiled with ``math`` (fastest for one point); when that cannot evaluate (a
         function ``math`` lacks, or a domain error at the probe point), ``f_point``.
         """
-        import sympy
 
         try:
-            fm = sympy.lambdify(self.args, list(self.sym.f), modules="math")
+            fm = _compile(list(self.sym.f), self.args, modules="math")
             fm(*([0.1] * (self.n + self.m)))
             return fm
         except Exception:

@@ -12,7 +12,7 @@ from codev_engine.errors import SolverError
 from codev_engine.executor import Executor
 from codev_engine.formulation import parameter_names
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
-from codev_engine.limits import limits
+from codev_engine.limits import check_time, limits, stage_deadline
 from codev_engine.mp.merge import merge_regions
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.solution import TooManyRegionsError
@@ -234,6 +234,14 @@ def synthesize(
         weights span more than ``WEIGHT_SPREAD_LIMIT`` (:func:`weight_spread`; a failure
         with weights spanning more than 1e6 names them too).
     """
+    with stage_deadline():
+        return _synthesize(problem, model, simplify, options, progress, executor)
+
+
+_TIME_FIX = "shorten mpc.horizon or bound fewer states and inputs in [mpc]"
+
+
+def _synthesize(problem, model, simplify, options, progress, executor) -> ExplicitLaw:
     t0 = time.perf_counter()
     spread, which = weight_spread(problem.mpc)
     if spread > WEIGHT_SPREAD_LIMIT:
@@ -244,13 +252,20 @@ def synthesize(
         )
     model = model if model is not None else discretize(problem)
     mp = build_program(problem.mpc, model)
+    check_time("synthesis", _TIME_FIX)
+
+    def checked(count: int, **extra) -> None:  # the deadline, at each region found
+        check_time("synthesis", _TIME_FIX)
+        if progress is not None:
+            progress(count, **extra)
+
     options = options if options is not None else SolveOptions()
     most, per = region_limit(mp.program)
     capped = most < options.max_regions
     if capped:
         options = replace(options, max_regions=most)
     try:
-        sol = mpsolve(mp.program, options=options, progress=progress, executor=executor)
+        sol = mpsolve(mp.program, options=options, progress=checked, executor=executor)
     except TooManyRegionsError:
         raise SolverError(
             f"synthesis stopped past {options.max_regions:,} critical regions "

@@ -16,6 +16,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -46,7 +47,7 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     from codev_engine.synthesis import synthesize
 
     problem = load_spec(args.spec)
-    with _progress(f"synthesising {problem.name}", not args.json) as update:
+    with _progress(f"synthesising {problem.name}", True) as update:  # stderr, --json too
         law = synthesize(problem, progress=update)
     out = None
     if args.out:
@@ -155,7 +156,7 @@ def _verification(
 
     if problem.verify is None:
         raise CodevError(f"{problem.path}: verify: the spec has no [verify] section")
-    with _progress(f"verifying {problem.name}", not args.json, "branches") as update:
+    with _progress(f"verifying {problem.name}", True, "branches") as update:
         result = verify(
             problem,
             law,
@@ -232,7 +233,7 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
         check_law_matches(problem, law, file=args.law)
         synth_seconds = law.meta.get("seconds")
     else:
-        with _progress(f"synthesising {problem.name}", not args.json) as update:
+        with _progress(f"synthesising {problem.name}", True) as update:
             law = synthesize(problem, progress=update, executor=executor)
         synth_seconds = law.meta["seconds"]
     return _verification(args, problem, law, synth_seconds, executor)
@@ -274,7 +275,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
     )
-    with _executor(args) as executor, _stage_progress(not args.json) as on_event:
+    with _executor(args) as executor, _stage_progress(True) as on_event:
         report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn,
                              executor=executor)
     tube_path = None
@@ -382,7 +383,7 @@ def _replay_sweep(args: argparse.Namespace) -> int:
             f"{d['mismatches']} MISMATCH(ES)" if d["mismatches"] else "ROW MISMATCH")
         print(f"design {d['folder']} [{shown}]: {d['runs']} run(s) -- {state}")
 
-    with _stage_progress(not args.json) as on_event:
+    with _stage_progress(True) as on_event:
         rep = replay_sweep(args.dir, on_design=on_design, on_event=on_event, warn=_warn)
     if args.json:
         print(json.dumps({"dir": str(args.dir), "designs": rep.designs, "match": rep.ok}))
@@ -438,7 +439,7 @@ def _replay_session(args: argparse.Namespace) -> int:
         if rep.recording is not None:
             print(f"  recording: {rep.recording}\n  view it: {_codev()} view {rep.recording}")
 
-    with _stage_progress(not quiet) as on_event:
+    with _stage_progress(True) as on_event:
         rep = session.replay(on_event=on_event, warn=_warn, on_run=on_run)
     if args.json:
         print(
@@ -1156,6 +1157,14 @@ def _build_parser() -> argparse.ArgumentParser:
     p.add_argument("--merge-equal-laws", action="store_true",
                    help="regions with equal laws share tree leaves (same region returned)")
     p.set_defaults(func=_cmd_export)
+    for name in ("synth", "verify", "run", "sweep", "replay"):
+        sub.choices[name].add_argument(
+            "--time-limit",
+            type=float,
+            metavar="SECONDS",
+            help="end the command after SECONDS: a verification is unknown (reason limit), "
+            "a synthesis one line, exit 1 (also CODEV_LIMITS=time=SECONDS)",
+        )
     for name in ("synth", "verify", "run", "sweep", "replay", "mpsolve", "report"):
         sub.choices[name].add_argument(
             "-q",
@@ -1235,7 +1244,9 @@ def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         parser.print_help()
         return 2
     try:
-        status = int(args.func(args))
+        _check_counts(args)
+        with _command_deadline(args):
+            status = int(args.func(args))
         sys.stdout.flush()  # here, where a reader gone away (BrokenPipeError) is handled
         return status
     except KeyboardInterrupt:
@@ -1272,6 +1283,106 @@ def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
             raise
         _err(f"internal error ({exc.__class__.__name__}: {exc}); set CODEV_DEBUG=1 for details")
         return 1
+
+
+def _check_counts(args: argparse.Namespace) -> None:
+    """Bound the options that size work, where they are read: one line naming the option."""
+    from codev_engine.session.options import MAX_DEPTH, MAX_TRACES
+
+    traces = getattr(args, "traces", None)
+    if traces is not None and not 0 <= traces <= MAX_TRACES:
+        raise SpecError(f"must be 0..{MAX_TRACES:,} simulated traces, got {traces:,}",
+                        field="--traces")
+    depth = getattr(args, "max_depth", None)
+    if depth is not None and not 0 <= depth <= MAX_DEPTH:
+        raise SpecError(f"must be 0..{MAX_DEPTH}, got {depth:,}", field="--max-depth")
+    limit = getattr(args, "time_limit", None)
+    if limit is not None and not (math.isfinite(limit) and limit > 0):
+        raise SpecError(f"must be a positive number of seconds, got {limit:g}",
+                        field="--time-limit")
+
+
+#: seconds past the deadline before the backstop interrupts work that does not check it
+_BACKSTOP_GRACE = 2.0
+
+
+@contextmanager
+def _command_deadline(args: argparse.Namespace) -> Iterator[None]:
+    """The command's time limit: ``--time-limit`` or ``CODEV_LIMITS=time=...``.
+
+    The engine checks the deadline cooperatively (``codev_engine.limits``): a verification
+    ends ``unknown`` (reason ``limit``), a synthesis in one line. A stretch of work that
+    reports no progress (one long LP, a compiled kernel) is interrupted by SIGALRM
+    ``_BACKSTOP_GRACE`` seconds later with the same one line, exit 1.
+    """
+    from codev_engine.limits import TimeLimitError, deadline, limits
+
+    seconds = getattr(args, "time_limit", None)
+    if "time_limit" not in vars(args):  # a command without a time limit
+        yield
+        return
+    env = limits()["time"]
+    if env and (seconds is None or env < seconds):
+        seconds = float(env)
+    if not seconds:
+        yield
+        return
+
+    def _expired(_signum, _frame):
+        raise TimeLimitError(
+            f"time limit reached: stopped after {seconds:g} s; raise --time-limit / "
+            "CODEV_LIMITS=time=SECONDS, or make the work smaller (mpc.horizon, "
+            "verify.initial_set, verify.time_horizon)"
+        )
+
+    backstop = hasattr(signal, "setitimer") and _in_main_thread()
+    if backstop:
+        previous = signal.signal(signal.SIGALRM, _expired)
+        signal.setitimer(signal.ITIMER_REAL, seconds + _BACKSTOP_GRACE)
+    # the last resort: a compiled solver that holds the main thread for minutes (one dense
+    # LP of a long horizon) lets no Python handler run; past a longer grace the command
+    # ends from this thread, with the same line (artifacts are written atomically: what
+    # was being written is not there, what was written is whole)
+    ended = threading.Event()
+    last_resort = threading.Thread(
+        target=_hard_stop, args=(ended, seconds), name="codev-time-limit", daemon=True
+    )
+    last_resort.start()
+    try:
+        with deadline(seconds):
+            yield
+    finally:
+        ended.set()
+        if backstop:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+
+
+#: seconds past the deadline before a command that did not stop is ended from a thread
+_HARD_GRACE = 10.0
+
+
+def _hard_stop(ended: threading.Event, seconds: float) -> None:
+    """Wait for the command to end; past its deadline by :data:`_HARD_GRACE` seconds, say
+    the one line, stop the child processes and exit with status 1."""
+    if ended.wait(seconds + _HARD_GRACE):
+        return
+    import multiprocessing
+
+    _err(
+        f"time limit reached: stopped after {seconds:g} s (inside a compiled solver that "
+        "does not check the time); raise --time-limit / CODEV_LIMITS=time=SECONDS, or make "
+        "the work smaller (mpc.horizon, verify.initial_set, verify.time_horizon)"
+    )
+    for child in multiprocessing.active_children():
+        child.terminate()
+    sys.stderr.flush()
+    sys.stdout.flush()
+    os._exit(1)
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
 
 
 def _path(s: str) -> Path:

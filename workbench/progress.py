@@ -10,12 +10,16 @@ verification, ``on_event(stage, event, data)`` of a session run); this module sh
   :data:`PLAIN_EVERY` seconds, and a closing ``codev: STAGE: done in T s`` for a stage that
   printed one. Work shorter than a second prints nothing.
 
-``--json`` and ``--quiet`` turn it off; stdout is never written to.
+A stage that reports nothing for a while (one long step of a search) still gets its
+plain line every :data:`PLAIN_EVERY` seconds, with the last count and the time (a
+heartbeat), so no long run is silent. ``--quiet`` turns progress off; under ``--json`` it
+stays on, on stderr: stdout is never written to.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -88,7 +92,8 @@ def stage_progress(
         return
     live = out.isatty() if tty is None else tty
     if not live:
-        yield _plain(out, unit)
+        with _plain(out, unit) as on_event:
+            yield on_event
         return
     from rich.console import Console
     from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -118,28 +123,62 @@ def stage_progress(
         yield on_event
 
 
-def _plain(out: TextIO, unit: dict[str, str]) -> Callable[[str, str, dict], None]:
-    """Plain, rate-limited progress lines (see the module docstring)."""
+@contextmanager
+def _plain(out: TextIO, unit: dict[str, str]) -> Iterator[Callable[[str, str, dict], None]]:
+    """Plain, rate-limited progress lines (see the module docstring), and the heartbeat
+    of stages that report nothing: a daemon thread that says the last count when a stage
+    has been silent for :data:`PLAIN_EVERY` seconds (:data:`PLAIN_AFTER` at first)."""
     started: dict[str, float] = {}
     said: dict[str, float] = {}  # stage -> when its last line was written
+    last: dict[str, dict] = {}  # stage -> the data of its last progress event
+    lock = threading.Lock()
+    stop = threading.Event()
 
     def line(text: str) -> None:
-        print(f"codev: {text}", file=out, flush=True)
+        try:
+            print(f"codev: {text}", file=out, flush=True)
+        except (OSError, ValueError):  # stderr closed: progress is not worth an error
+            pass
+
+    def say(stage: str, now: float, force: bool = False) -> None:
+        t0 = started.setdefault(stage, now)
+        before = said.get(stage)
+        due = now - t0 >= PLAIN_AFTER if before is None else now - before >= PLAIN_EVERY
+        if due or force:
+            said[stage] = now
+            line(f"{stage}: {describe(last.get(stage, {}), unit.get(stage, ''))}, "
+                 f"{now - t0:.0f} s")
 
     def on_event(stage: str, event: str, data: dict) -> None:
         now = time.monotonic()
-        if event == "start":
-            started[stage] = now
-            said.pop(stage, None)
-            return
-        t0 = started.setdefault(stage, now)
-        if event == "progress":
-            last = said.get(stage)
-            due = now - t0 >= PLAIN_AFTER if last is None else now - last >= PLAIN_EVERY
-            if due:
-                said[stage] = now
-                line(f"{stage}: {describe(data, unit.get(stage, ''))}, {now - t0:.0f} s")
-        elif event == "done" and stage in said:
-            line(f"{stage}: {data.get('status', 'done')} in {now - t0:.1f} s")
+        with lock:
+            if event == "start":
+                started[stage] = now
+                said.pop(stage, None)
+                last.pop(stage, None)
+                return
+            started.setdefault(stage, now)
+            if event == "progress":
+                last[stage] = data
+                say(stage, now)
+            elif event == "done":
+                if stage in said:
+                    line(f"{stage}: {data.get('status', 'done')} in "
+                         f"{now - started[stage]:.1f} s")
+                started.pop(stage, None)
+                said.pop(stage, None)
 
-    return on_event
+    def heartbeat() -> None:
+        while not stop.wait(0.5):
+            now = time.monotonic()
+            with lock:
+                for stage in list(started):
+                    say(stage, now)
+
+    beat = threading.Thread(target=heartbeat, name="codev-progress", daemon=True)
+    beat.start()
+    try:
+        yield on_event
+    finally:
+        stop.set()
+        beat.join(timeout=2)

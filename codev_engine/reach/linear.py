@@ -35,7 +35,7 @@ from codev_engine.geometry.polytope import (
 )
 from codev_engine.geometry.vertices import FACET_TOL, box_corners, checked_piece, vertices
 from codev_engine.law import ExplicitLaw
-from codev_engine.limits import limits
+from codev_engine.limits import limits, time_over
 from codev_engine.plant import symbolic_model
 from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
@@ -418,6 +418,14 @@ class ClosedLoopSetup:
             raise ExplorationLimitError(
                 f"the reachtube passed {self._max_boxes:,} boxes ({self._tube_gib:.3g} GiB) "
                 f"by t = {t:.4g}: raise verify.step or shorten verify.time_horizon",
+                t,
+            )
+        over = time_over()
+        if over is not None:
+            raise ExplorationLimitError(
+                f"the time limit of {over:g} s was reached by t = {t:.4g}: raise "
+                "--time-limit / CODEV_LIMITS=time=SECONDS, shrink verify.initial_set, "
+                "shorten verify.time_horizon or lower verify.max_depth",
                 t,
             )
         progress = getattr(self, "progress", None)

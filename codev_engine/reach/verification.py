@@ -16,8 +16,9 @@ Verdicts
     exhausted on an interval enclosure that meets a singularity: ``detail`` names the
     operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
     "inf"``: no invariance certificate within ``max_samples``), or ``"limit"`` (the
-    exploration grew past ``codev_engine.limits``, branches or reachtube memory: ``detail``
-    says which and what to change). A limitation of the verifier is a verdict, never an error
+    exploration grew past ``codev_engine.limits``, branches, reachtube memory or the time
+    limit, or the tube's bounds overflowed past 1.8e308: ``detail`` says which and what
+    to change). A limitation of the verifier is a verdict, never an error
     blamed on the input.
 
 With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
@@ -41,6 +42,7 @@ from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import stage_deadline, time_over
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -496,6 +498,11 @@ def verify(
     -------
     VerificationResult
     """
+    with stage_deadline():  # CODEV_LIMITS=time=...: checked at each branch period
+        return _verify(problem, law, hold, max_depth, progress, executor, cells)
+
+
+def _verify(problem, law, hold, max_depth, progress, executor, cells) -> VerificationResult:
     # the reach engines (scipy, the plant model): imported when a verification runs, not
     # when a cached result is loaded
     from codev_engine.reach.linear import LinearReach, affine_plant
@@ -572,7 +579,8 @@ def verify(
         eng = LinearReach(
             problem, law, plant, hold, depth, unbounded=unbounded, progress=progress
         )
-        eng.run()
+        with np.errstate(all="ignore"):  # an overflow is checked on the tube below
+            eng.run()
         certificate = eng.certificate
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
@@ -597,7 +605,8 @@ def verify(
                 result.attach_display(problem=problem, law=law)
                 return result
         eng = NonlinearReach(problem, law, hold, depth, progress=progress)
-        eng.run(executor, cells=cells)
+        with np.errstate(all="ignore"):  # an overflow is checked on the tube below
+            eng.run(executor, cells=cells)
         findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
         c0, V0 = eng.c0, eng.V0
     tube = Tube.concatenate(tubes, problem.plant.n)
@@ -605,7 +614,8 @@ def verify(
     verdict, reason, cex = "robustly_safe", None, None
     concrete = [f for f in findings if f.alpha is not None]
     for f in concrete:
-        cex = _confirm(problem, law, hold, c0 + V0 @ f.alpha)
+        with np.errstate(all="ignore"):
+            cex = _confirm(problem, law, hold, c0 + V0 @ f.alpha)
         if cex is not None:
             verdict, reason = "unsafe", cex.kind
             break
@@ -626,12 +636,20 @@ def verify(
             if _inputs_only(problem, tube, findings):
                 searches = [searches[2], searches[0], searches[1]]
         cex = None
+        if time_over() is not None:  # past the time limit: no searches after it
+            searches = []
         for search in searches:
-            cex = search()
+            with np.errstate(all="ignore"):  # simulations of a diverging loop
+                cex = search()
             if cex is not None:
                 break
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
+    if verdict != "unsafe" and not _finite(tube):
+        # bounds past 1e308 (huge sets, disturbances or gains): inf and NaN prove nothing
+        verdict, reason, certificate = "unknown", "limit", None
+        detail = ("the reachtube's bounds overflowed (values past 1.8e308): narrow "
+                  "verify.initial_set or plant.disturbances / plant.parameters")
     if unbounded and verdict == "robustly_safe":
         c = stats.get("certificate")
         if c is None or certificate is None or not check_certificate(certificate):
@@ -735,6 +753,11 @@ def _check_on_demand(problem: Problem, hold: str, affine: bool) -> None:
             f"this verification has {why}: use regions = \"all\"",
             field="synthesis.regions",
         )
+
+
+def _finite(tube: Tube) -> bool:
+    """Every bound of the tube is a finite number."""
+    return bool(np.all(np.isfinite(tube.lower)) and np.all(np.isfinite(tube.upper)))
 
 
 def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth: int,

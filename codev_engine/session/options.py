@@ -9,7 +9,14 @@ from codev_engine.session.stages import STAGES
 from codev_engine.session.store import SessionError
 from codev_engine.spec.choices import HOLDS
 
-__all__ = ["DEFAULT_OPTIONS", "RunOptions"]
+__all__ = ["DEFAULT_OPTIONS", "MAX_DEPTH", "MAX_TRACES", "RunOptions"]
+
+#: the most simulated traces a recording takes (each one simulates the closed loop; the
+#: CLI's ``--traces`` and a journal's ``traces`` are bounded by it where they are read)
+MAX_TRACES = 1000
+#: the largest refinement depth an override takes (``--max-depth``, a journal's
+#: ``max_depth``): past it the verification's branch limit ends any run anyway
+MAX_DEPTH = 64
 
 
 @dataclass(frozen=True)
@@ -111,6 +118,11 @@ class RunOptions:
             or self.max_depth < 0
         ):
             raise SessionError("must be a non-negative integer", field=f"{field_prefix}.max_depth")
+        if self.max_depth is not None and self.max_depth > MAX_DEPTH:
+            raise SessionError(
+                f"must be at most {MAX_DEPTH}, got {self.max_depth:,}",
+                field=f"{field_prefix}.max_depth",
+            )
         if (
             len(self.axes) != 2
             or not all(isinstance(a, int) and not isinstance(a, bool) for a in self.axes)
@@ -120,6 +132,11 @@ class RunOptions:
             raise SessionError("must be two distinct state indices", field=f"{field_prefix}.axes")
         if not isinstance(self.traces, int) or isinstance(self.traces, bool) or self.traces < 0:
             raise SessionError("must be a non-negative integer", field=f"{field_prefix}.traces")
+        if self.traces > MAX_TRACES:
+            raise SessionError(
+                f"must be at most {MAX_TRACES:,} simulated traces, got {self.traces:,}",
+                field=f"{field_prefix}.traces",
+            )
 
 
 #: The options of a plain run (every stage, the spec's own hold and depth).

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import ast
 import math
+import sys
 from collections.abc import Callable, Mapping
 
 import sympy
@@ -63,6 +64,7 @@ if RESERVED_NAMES != _RESERVED:  # pragma: no cover - the two lists are edited t
 _MAX_LENGTH = 10_000  # characters of one expression
 _MAX_EXPONENT = 1_000  # |constant exponent|; stops 9**9**9-style blow-ups
 _MAX_DEPTH = 200  # nesting depth of the syntax tree
+_MAX_FLOAT = sys.float_info.max  # |constant|: what evaluates to a float
 
 _BINOPS: dict[type[ast.operator], Callable[[sympy.Expr, sympy.Expr], sympy.Expr]] = {
     ast.Add: lambda a, b: a + b,
@@ -167,6 +169,11 @@ class _Builder:
         if isinstance(value, bool):
             raise self.fail(f"booleans are not allowed ({value!r})")
         if isinstance(value, int):
+            if abs(value) > _MAX_FLOAT:  # would overflow every numeric evaluation
+                raise self.fail(
+                    f"the integer of {len(str(abs(value)))} digits is too large (at most "
+                    "about 1.8e308)"
+                )
             return sympy.Integer(value)
         if isinstance(value, float):
             if not math.isfinite(value):
@@ -276,6 +283,11 @@ def parse_expression(
         raise builder.fail("the expression is undefined or infinite (division by zero?)")
     if expr.has(sympy.I):
         raise builder.fail("the expression has a complex value")
+    for number in expr.atoms(sympy.Number):  # e.g. 10**400 or 1e308*10, folded by sympy
+        if not abs(number) <= _MAX_FLOAT:
+            raise builder.fail(
+                "a constant is too large to evaluate as a float (at most about 1.8e308)"
+            )
     return expr
 
 

@@ -12,6 +12,7 @@ import difflib
 import keyword
 import math
 import re
+import sys
 import tomllib
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -45,6 +46,7 @@ __all__ = ["read_spec", "parse_spec"]
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 _IDENT_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 DEFAULT_HORIZON = 5  # mpc.horizon when the spec leaves it out (docs/spec.md)
+_MAX_COUNT = 10**9  # the largest count field (mpc.horizon, verify.max_depth, ...) read
 _SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
 
 _TOP = ("name", "plant", "model", "mpc", "verify", "synthesis")
@@ -130,10 +132,26 @@ def parse_spec(text: str, *, path: str = "<string>") -> Problem:
         raise SpecError(f"invalid TOML: {msg}", file=file) from None
     except RecursionError:
         raise SpecError("invalid TOML: arrays or tables nested too deeply", file=file) from None
+    except ValueError as exc:  # tomllib's int(): more digits than sys.get_int_max_str_digits()
+        raise SpecError(f"invalid TOML: {_too_many_digits(text, exc)}", file=file) from None
     try:
         return _build(data, text, file)
     except SpecError as exc:
         raise (exc.with_file(file) if exc.file is None else exc) from None
+
+
+def _too_many_digits(text: str, exc: ValueError) -> str:
+    """The reason of tomllib's ``ValueError`` on an integer too long to convert, located."""
+    digits = sys.get_int_max_str_digits() or 4300
+    found = re.search(rf"[0-9_]{{{digits + 1},}}", text)
+    if found is None:  # pragma: no cover - tomllib raises no other ValueError
+        return f"a value cannot be read ({exc})"
+    line = text.count("\n", 0, found.start()) + 1
+    column = found.start() - (text.rfind("\n", 0, found.start()) + 1) + 1
+    return (
+        f"an integer with more than {digits:,} digits (at line {line}, column {column}); "
+        "write large numbers as floats (1e30)"
+    )
 
 
 # --- building the problem -------------------------------------------------------------------
@@ -311,6 +329,12 @@ def _uncertain(t: dict[str, Any], key: str, taken: tuple[str, ...]) -> Uncertain
         if iv[0] > iv[1]:
             raise SpecError(
                 f"expected [lower, upper] with lower <= upper, got [{iv[0]:g}, {iv[1]:g}]",
+                field=f,
+            )
+        if not math.isfinite(float(iv[1]) - float(iv[0])):  # +-1e308: bounds overflow
+            raise SpecError(
+                f"the interval [{iv[0]:g}, {iv[1]:g}] is too wide to compute with (its "
+                "width passes 1.8e308)",
                 field=f,
             )
         lower.append(iv[0])
@@ -725,6 +749,8 @@ def _kind(value: Any) -> str:
     if isinstance(value, bool):
         return f"a boolean ({str(value).lower()})"
     if isinstance(value, int):
+        if abs(value) >= 10**15:  # not thousands of digits in a one-line message
+            return f"an integer of {len(str(abs(value)))} digits"
         return f"an integer ({value})"
     if isinstance(value, float):
         return f"a float ({value!r})"
@@ -803,7 +829,12 @@ def _names(value: Any, field: str) -> tuple[str, ...]:
 def _number(value: Any, field: str, *, allow_inf: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SpecError(f"expected a number, got {_kind(value)}", field=field)
-    x = float(value)
+    try:
+        x = float(value)
+    except OverflowError:  # a TOML integer of hundreds of digits
+        raise SpecError(
+            f"the number is too large ({_kind(value)}; at most about 1.8e308)", field=field
+        ) from None
     if math.isnan(x):
         raise SpecError("NaN is not allowed", field=field)
     if math.isinf(x) and not allow_inf:
@@ -822,7 +853,10 @@ def _integer(value: Any, field: str, *, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise SpecError(f"expected an integer, got {_kind(value)}", field=field)
     if value < minimum:
-        raise SpecError(f"must be >= {minimum}, got {value}", field=field)
+        shown = value if value > -(10**15) else _kind(value)
+        raise SpecError(f"must be >= {minimum}, got {shown}", field=field)
+    if value > _MAX_COUNT:  # larger counts are never work that ends (pipeline.check_size)
+        raise SpecError(f"must be <= {_MAX_COUNT:,}, got {_kind(value)}", field=field)
     return value
 
 
@@ -901,17 +935,20 @@ def _matrix(value: Any, field: str, rows: int | None, cols: int) -> np.ndarray:
 
 def _psd(M: np.ndarray, name: str, field: str, *, definite: bool) -> None:
     scale = float(np.max(np.abs(M))) if M.size else 0.0
-    asym = np.abs(M - M.T)
-    if np.max(asym) > _SYM_TOL * max(scale, 1e-300):
+    S = M / scale if scale > 0 else M  # relative checks; no overflow of entries near 1e308
+    asym = np.abs(S - S.T)
+    if np.max(asym) > _SYM_TOL:
         i, j = np.unravel_index(int(np.argmax(asym)), asym.shape)
         raise SpecError(
             f'{name} must be symmetric for norm "2" ({name}[{i}][{j}] = {M[i, j]:g} but '
             f"{name}[{j}][{i}] = {M[j, i]:g})",
             field=field,
         )
-    eig = np.linalg.eigvalsh(0.5 * (M + M.T))
+    eig = np.linalg.eigvalsh(0.5 * (S + S.T))
     top = float(np.max(np.abs(eig)))
     low = float(np.min(eig))
+    if scale > 0:
+        top, low = top * scale, low * scale
     if definite and not low > _SYM_TOL * top:
         raise SpecError(
             f'{name} must be positive definite for norm "2" (smallest eigenvalue {low:.3g})',

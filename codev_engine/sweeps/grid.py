@@ -47,7 +47,7 @@ def parse_sets(items: Sequence[str], *, origin: str = "--set") -> dict[str, list
             raise SpecError("set twice", field=f"{origin} {name}")
         try:
             values = tomllib.loads(f"v = [{text}]")["v"]
-        except tomllib.TOMLDecodeError:
+        except ValueError:  # TOMLDecodeError, or an integer of more than 4,300 digits
             raise SpecError(
                 f"not a list of TOML values: {text!r} (strings need quotes: '\"a\",\"b\"')",
                 field=f"{origin} {name}",
