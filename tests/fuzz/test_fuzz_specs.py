@@ -44,7 +44,7 @@ from tests.fuzz.mutations import (
 
 _HEALTH = [HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.large_base_example,
            HealthCheck.filter_too_much]
-DEFAULT = settings(max_examples=25, derandomize=True, database=None, deadline=None,
+DEFAULT = settings(max_examples=10, derandomize=True, database=None, deadline=None,
                    phases=[Phase.explicit, Phase.generate], suppress_health_check=_HEALTH)
 SLOW = settings(max_examples=300, database=None, deadline=None, suppress_health_check=_HEALTH)
 TIMEOUT = 20.0
