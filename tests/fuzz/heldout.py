@@ -71,6 +71,8 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=200)
     ap.add_argument("--timeout", type=float, default=60.0)
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--time-limit", type=float, default=None,
+                    help="pass codev's --time-limit (a run past it ends in one line, exit 1)")
     ap.add_argument("--out", type=Path)
     args = ap.parse_args(argv)
     out = args.out or Path(f"fuzz-heldout-{args.seed}")
@@ -84,7 +86,10 @@ def main(argv=None) -> int:
             canary = tmp / "CANARY-executed"
             spec = tmp / "spec.toml"
             spec.write_text(fill_canary(text, canary), encoding="utf-8")
-            o = run_subprocess(["run", "-q", str(spec)], cwd=tmp, timeout=args.timeout)
+            argv = ["run", "-q", str(spec)]
+            if args.time_limit:
+                argv[2:2] = ["--time-limit", f"{args.time_limit:g}"]
+            o = run_subprocess(argv, cwd=tmp, timeout=args.timeout)
             cls = classify(o, names=(str(spec),), canaries=(canary,))
         return name, text, o, cls
 
