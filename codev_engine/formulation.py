@@ -27,7 +27,7 @@ import numpy as np
 
 from codev_engine.errors import SpecError
 from codev_engine.plant import LinearModel
-from codev_engine.spec.problem import MpcSpec
+from codev_engine.spec.problem import MpcSpec, parameter_names
 from codev_engine.terminal import lqr_terms, maximal_invariant_set
 
 __all__ = ["Formulation", "formulation", "parameter_names", "U_PREV_MARGIN"]
@@ -127,32 +127,6 @@ class Formulation:
             j = min(k, self.Nc - 1)
             Bk[k * m:(k + 1) * m, j * m:(j + 1) * m] = np.eye(m)
         return Bk
-
-
-def parameter_names(spec: MpcSpec, states: tuple[str, ...], inputs: tuple[str, ...]
-                    ) -> tuple[str, ...]:
-    """Names of ``theta``: the states, ``prev_<input>``, ``ref_<state or y index>``.
-
-    Parameters
-    ----------
-    spec : MpcSpec
-    states, inputs : tuple of str
-
-    Returns
-    -------
-    tuple of str
-    """
-    names = list(states)
-    if spec.has_rates:
-        names += [f"prev_{u}" for u in inputs]
-    if spec.free_reference:
-        ref = spec.reference
-        assert ref is not None and ref.lower is not None
-        if ref.signal == "x":
-            names += [f"ref_{s}" for s in states]
-        else:
-            names += [f"ref_y{i}" for i in range(ref.lower.shape[0])]
-    return tuple(names)
 
 
 _CACHE: dict[str, Formulation] = {}

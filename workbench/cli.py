@@ -18,6 +18,7 @@ import signal
 import sys
 import threading
 import time
+import unicodedata
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import replace
@@ -28,8 +29,21 @@ from codev_engine.errors import CodevError, SolverError, SpecError
 __all__ = ["main"]
 
 
+def _terminal_text(msg: str) -> str:
+    """``msg`` with every control, format and separator character escaped (``\\x1b``,
+    ``\\u202e``, ``\\n``): an error quoting a hostile spec can neither move the cursor, recolour
+    or rewrite the terminal, nor span two lines."""
+    out = []
+    for ch in str(msg):
+        if unicodedata.category(ch) in ("Cc", "Cf", "Cs", "Zl", "Zp", "Co", "Cn"):
+            out.append(ch.encode("unicode_escape", "backslashreplace").decode("ascii"))
+        else:
+            out.append(ch)
+    return "".join(out)
+
+
 def _err(msg: str) -> None:
-    print(f"codev: error: {msg}", file=sys.stderr)
+    print(f"codev: error: {_terminal_text(msg)}", file=sys.stderr)
 
 
 @contextmanager
@@ -330,7 +344,7 @@ def _outcome_text(outcome: dict) -> str:
 
 
 def _warn(msg: str) -> None:
-    print(f"codev: warning: {msg}", file=sys.stderr)
+    print(f"codev: warning: {_terminal_text(msg)}", file=sys.stderr)
 
 
 @contextmanager

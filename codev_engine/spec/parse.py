@@ -33,6 +33,7 @@ from codev_engine.spec.problem import (
     SetSpec,
     Uncertain,
     VerifySpec,
+    parameter_names,
 )
 
 __all__ = ["read_spec", "parse_spec"]
@@ -188,6 +189,7 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
         n,
         m,
     )
+    _distinct_theta(mpc, states, inputs)
     verify = None
     if "verify" in data:
         verify = _verify(data["verify"], n)
@@ -210,6 +212,23 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
         name=name, plant=plant, model=model, mpc=mpc, verify=verify, path=file, source=text,
         regions=regions,
     )
+
+
+def _distinct_theta(mpc: MpcSpec, states: tuple[str, ...], inputs: tuple[str, ...]) -> None:
+    """Refuse names that make two entries of theta share a name (a state ``prev_u`` beside
+    an input ``u`` with input rates, or ``ref_x1`` beside a state ``x1`` with a free
+    reference): the law, its printout, its export and the workbench's axes go by name."""
+    names = parameter_names(mpc, states, inputs)
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise SpecError(
+                f"the state name {name!r} is also the name the law gives a parameter of theta "
+                "(prev_<input> with input rates, ref_<state> or ref_y<i> with a free reference):"
+                " rename the state",
+                field="plant.states",
+            )
+        seen.add(name)
 
 
 def _plant(

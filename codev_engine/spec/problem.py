@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
+    "parameter_names",
     "PlantSpec",
     "Uncertain",
     "ModelSpec",
@@ -463,3 +464,29 @@ class Problem:
     path: str | None = None
     source: str = ""  # the TOML text, for hashing and sessions
     regions: str = "all"
+
+
+def parameter_names(spec: MpcSpec, states: tuple[str, ...], inputs: tuple[str, ...]
+                    ) -> tuple[str, ...]:
+    """Names of ``theta``: the states, ``prev_<input>``, ``ref_<state or y index>``.
+
+    Parameters
+    ----------
+    spec : MpcSpec
+    states, inputs : tuple of str
+
+    Returns
+    -------
+    tuple of str
+    """
+    names = list(states)
+    if spec.has_rates:
+        names += [f"prev_{u}" for u in inputs]
+    if spec.free_reference:
+        ref = spec.reference
+        assert ref is not None and ref.lower is not None
+        if ref.signal == "x":
+            names += [f"ref_{s}" for s in states]
+        else:
+            names += [f"ref_y{i}" for i in range(ref.lower.shape[0])]
+    return tuple(names)

@@ -279,3 +279,26 @@ def test_progress_under_json_goes_to_stderr_and_stdout_stays_json(tmp_path):
     out = run_codev("verify", DI_PATH, "--json", cwd=tmp_path, timeout=120)
     assert out.returncode == 0, out.stderr
     json.loads(out.stdout)
+
+
+def test_an_error_quoting_control_characters_cannot_drive_the_terminal(tmp_path):
+    # an unknown field whose name holds an escape sequence, a bidi override and a line
+    # separator: the error quotes it, escaped, on one line
+    spec = tmp_path / "ctl.toml"
+    spec.write_text(DI.replace("[model]\n", '[model]\n"x\\u001b[2J\\u202e\\u2028y" = 1\n'),
+                    encoding="utf-8")
+    out = run_codev("run", spec, cwd=tmp_path, timeout=120)
+    line = _one_line(out, 2, "ctl.toml", "model.")
+    assert "\x1b" not in out.stderr and "\u202e" not in out.stderr
+    assert "\u2028" not in out.stderr, out.stderr
+    assert "\\x1b" in line, line
+
+
+def test_theta_names_are_distinct():
+    # a state named prev_u beside an input u with rates would give theta two 'prev_u'
+    text = DI.replace('states = ["x1", "x2"]', 'states = ["x1", "prev_u"]')
+    text = text.replace(DYN, 'dynamics = ["prev_u", "u"]')
+    text = text.replace("R = [[0.8]]", "R = [[0.8]]\nRd = [[0.1]]")
+    with pytest.raises(SpecError, match="prev_u") as exc:
+        loads_spec(text)
+    assert exc.value.field == "plant.states"
