@@ -159,6 +159,11 @@ class NonlinearReach(ClosedLoopSetup):
         hold every absorbed box (None before the first), ``open_sets`` counts the sets that
         reached the horizon. In this process only: the cells an executor computes ignore
         it.
+    reroot : float or None
+        Under disturbances or uncertain parameters, a set whose remainder ellipsoid exceeds
+        this fraction of its star at a sample is replaced by a polytope holding both, so
+        the law's region cuts act on all of it (docs/verification.md, "Refuting first,
+        and the remainder re-rooted"). None: never.
     """
 
     problem: Problem

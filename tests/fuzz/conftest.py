@@ -71,6 +71,9 @@ def fuzz_warmup() -> dict:
     from codev_engine.kernels import compile_group
 
     t0, c0 = time.perf_counter(), time.process_time()
+    # (threads of tests that ran before in this process, e.g. Dask's idle offload thread
+    # under xdist, are not the warm-up's: only what it starts is checked)
+    before = set(threading.enumerate())
     for group in ("mp", "rest"):  # every kernel, loaded (or compiled into the cache)
         compile_group(group)
     outcomes: list[Outcome] = []
@@ -79,6 +82,7 @@ def fuzz_warmup() -> dict:
             outcomes.append(run_inprocess(argv, timeout=300))
     _clear_engine_caches()
     # a thread left running would be copied half-way into every fork (a held lock: a hang)
-    extra = [t.name for t in threading.enumerate() if t is not threading.main_thread()]
+    extra = [t.name for t in threading.enumerate()
+             if t is not threading.main_thread() and t not in before]
     return {"outcomes": outcomes, "threads": extra,
             "seconds": time.perf_counter() - t0, "cpu": time.process_time() - c0}
