@@ -49,8 +49,8 @@ SLOW_FIXTURES = settings(SLOW, suppress_health_check=[
 SPEC = EXAMPLES / "double_integrator.toml"
 
 #: examples per property in the default suite (see tests/fuzz/test_fuzz_specs.py)
-N_SESSION = 20
-N_LAW = 20
+N_SESSION = 15
+N_LAW = 15
 
 
 @pytest.fixture(scope="module")

@@ -50,15 +50,15 @@ TIMEOUT = 20.0
 # every run asks for the time limit codev offers (issue 37: a long run ends in its one-line
 # limit message, exit 1); the backstop in the CLI ends a compiled solver 10 s past it, so
 # TIMEOUT is what a run that ignores the limit may take before it counts as a hang
-TIME_LIMIT = 6
+TIME_LIMIT = 4
 
 # Examples per property in the default suite (module budget: 60 s on one core). An example
 # costs 0.05-0.15 s of CPU once the test process is warmed up (tests/fuzz/conftest.py), so
 # the cheap properties get more than DEFAULT's 10; hostile expressions, big numbers and huge
 # horizons stay at 10 (a huge horizon may run to its time limit).
-N_NEVER_EXECUTED = 30
-N_STRUCTURE = 30
-N_TEXT = 20
+N_NEVER_EXECUTED = 20
+N_STRUCTURE = 20
+N_TEXT = 15
 
 
 _SEEN: dict = {}
