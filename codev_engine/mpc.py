@@ -357,10 +357,14 @@ def _overflow(spec: MpcSpec, model: LinearModel, bad: list[str | None]) -> None:
     N = int(spec.horizon)
     Phi, Gam, d = _predictions(model, N)
     if not all(np.all(np.isfinite(M)) for M in (*Phi[-1:], *Gam[-1:], *d[-1:])):
-        radius = float(np.max(np.abs(np.linalg.eigvals(np.asarray(model.A, dtype=float)))))
+        A = np.asarray(model.A, dtype=float)
+        if np.all(np.isfinite(A)):
+            radius = f"spectral radius {float(np.max(np.abs(np.linalg.eigvals(A)))):.3g}"
+        else:  # (entries past 1e308 already)
+            radius = "entries past 1e308"
         raise SpecError(
             f"the predictions overflow over the horizon of {N:,} steps (the prediction "
-            f"model's A has spectral radius {radius:.3g}; its powers pass 1e308): shorten "
+            f"model's A has {radius}; its powers pass 1e308): shorten "
             "mpc.horizon, or change the plant (plant.dynamics / plant.A, model.sample_time)",
             field="mpc.horizon",
         )

@@ -302,3 +302,11 @@ def test_theta_names_are_distinct():
     with pytest.raises(SpecError, match="prev_u") as exc:
         loads_spec(text)
     assert exc.value.field == "plant.states"
+
+
+def test_a_plant_whose_discretisation_overflows_is_one_line():
+    # (held-out fuzzer: a 6.7e150 entry of plant.A made the discretised A infinite, and the
+    # overflow message's eigenvalues raised LinAlgError)
+    text = DI.replace(DYN, "A = [[0.0, 1.0], [0.0, 6.7e150]]\nB = [[0.0], [1.0]]")
+    with pytest.raises(SpecError, match="overflow"):
+        synthesize(loads_spec(text))
