@@ -120,7 +120,11 @@ class ExplicitLaw(Displayable):
         """
         if self._boxes is None:
             domain = None if self.domain_A is None else (self.domain_A, self.domain_b)
-            self._boxes = bounding_boxes(self.A, self.b, domain=domain)
+            if self.num_regions:
+                self._boxes = bounding_boxes(self.A, self.b, domain=domain)
+            else:  # (no region: a feasible set without interior) (0, n), not (0, 0)
+                empty = np.zeros((0, self.n))
+                self._boxes = (empty, empty.copy())
         return self._boxes
 
     @property

@@ -627,3 +627,18 @@ def test_empty_law_with_boxes_round_trips(tmp_path):
     loaded = ce.ExplicitLaw.load(law.save(tmp_path / "empty.npz"))
     assert loaded.num_regions == 0 and loaded.states == ("a", "b")
     assert np.all(loaded.locate(np.zeros((3, 2))) == -1)
+
+
+def test_a_law_without_regions_meets_no_box():
+    # (the slow fuzzer: a sample time of 9.2e18 s leaves the feasible set no interior, the
+    # law no region, and its (0, 0) boxes broke the reach engine's box test)
+    import codev_engine as ce
+
+    text = (Path(__file__).resolve().parents[2] / "examples" / "double_integrator.toml").read_text()
+    text = text.replace("sample_time = 1.0", "sample_time = 9_223_372_036_854_775_807")
+    law = ce.synthesize(ce.loads_spec(text))
+    assert law.num_regions == 0
+    lo, hi = law.boxes
+    assert lo.shape == hi.shape == (0, 2)
+    assert law.regions_meeting(np.zeros(2), np.ones(2)).size == 0
+    assert ce.verify(ce.loads_spec(text), law).verdict == "unsafe"
