@@ -857,9 +857,17 @@ def discretize(problem: Problem) -> LinearModel:
     import control  # ~0.4 s to import (matplotlib): only when discretising
 
     sys = control.ss(Ac, Bin, np.eye(n), np.zeros((n, Bin.shape[1])))
-    sampled = sys.sample(dt, method=spec.method)
-    A = np.array(sampled.A, dtype=float)
-    Bd = np.array(sampled.B, dtype=float)
+    with np.errstate(all="ignore"):  # an overflow is checked below, quietly
+        sampled = sys.sample(dt, method=spec.method)
+        A = np.array(sampled.A, dtype=float)
+        Bd = np.array(sampled.B, dtype=float)
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(Bd))):
+        raise SpecError(
+            f"the sampled model overflows (exp(A dt) past 1e308 over model.sample_time = "
+            f"{dt:g} s, with the linearisation's largest entry {float(np.max(np.abs(Ac))):.3g}): "
+            "shorten model.sample_time, or change the plant",
+            field="model.sample_time",
+        )
     B = Bd[:, :m].copy()
     c = Bd[:, m].copy() if affine else np.zeros(n)
     return LinearModel(A=A, B=B, c=c, dt=dt, x_op=x_op, u_op=u_op, Ac=Ac, Bc=Bc)

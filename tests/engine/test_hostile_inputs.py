@@ -310,3 +310,13 @@ def test_a_plant_whose_discretisation_overflows_is_one_line():
     text = DI.replace(DYN, "A = [[0.0, 1.0], [0.0, 6.7e150]]\nB = [[0.0], [1.0]]")
     with pytest.raises(SpecError, match="overflow"):
         synthesize(loads_spec(text))
+
+
+def test_a_sampled_model_that_overflows_names_the_sample_time(recwarn):
+    # (the slow fuzzer: plant.A = [[2**63 - 1]] overflowed scipy's expm with five
+    # RuntimeWarnings before the horizon's overflow message)
+    text = DI.replace(DYN, "A = [[0.0, 1.0], [0.0, 9223372036854775807]]\nB = [[0.0], [1.0]]")
+    with pytest.raises(SpecError, match="overflows") as exc:
+        synthesize(loads_spec(text))
+    assert exc.value.field == "model.sample_time"
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
