@@ -905,3 +905,19 @@ def test_cli_without_a_verify_section(tmp_path):
     spec = tmp_path / "noverify.toml"
     spec.write_text(text[: text.index("[verify]")])
     _assert_bad_input(run_codev("verify", spec, cwd=tmp_path), "verify")
+
+
+def test_a_huge_initial_set_keeps_the_nonlinear_metric_quiet(recwarn):
+    # (the slow fuzzer: an initial set 7e19 wide made scipy's Lyapunov solve for the
+    # nonlinear engine's metric perturb its problem and warn; the metric, a heuristic,
+    # falls back on the identity quietly)
+    from pathlib import Path
+
+    import codev_engine as ce
+
+    text = (Path(__file__).resolve().parents[2] / "examples" / "vanderpol.toml").read_text()
+    text = text.replace("upper = [-1.5, 1.25]", "upper = [73333333333333333333, 1.25]")
+    problem = ce.loads_spec(text)
+    result = ce.verify(problem, ce.synthesize(problem))
+    assert result.verdict in ("unsafe", "unknown")
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
