@@ -994,8 +994,21 @@ def _bounds(t: Mapping[str, Any], var: str, n: int) -> tuple[np.ndarray, np.ndar
     )
     _no_wrong_inf(lo, f"mpc.{lo_key}", lo_key, +1)
     _no_wrong_inf(hi, f"mpc.{hi_key}", hi_key, -1)
+    for v, key in ((lo, lo_key), (hi, hi_key)):
+        big = np.flatnonzero(np.isfinite(v) & (np.abs(v) > BOUND_MAX))
+        if big.size:
+            raise SpecError(
+                f"{v[big[0]]:g} is past {BOUND_MAX:g}: the MPC's rows cannot be normalised or "
+                "solved with it; write inf (or leave the field out) for no bound",
+                field=f"mpc.{key}[{big[0]}]",
+            )
     _ordered(lo, hi, f"mpc.{lo_key}", lo_key, hi_key)
     return lo, hi
+
+
+#: the largest finite bound of ``[mpc]`` (x, u, du, y): past it, products of the program's
+#: rows overflow double precision; ``inf`` says "no bound"
+BOUND_MAX = 1e100
 
 
 def _no_wrong_inf(v: np.ndarray, field: str, name: str, sign: int) -> None:

@@ -320,3 +320,12 @@ def test_a_sampled_model_that_overflows_names_the_sample_time(recwarn):
         synthesize(loads_spec(text))
     assert exc.value.field == "model.sample_time"
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
+def test_a_finite_bound_past_1e100_is_refused_naming_it():
+    # (the slow fuzzer: x_min = -1e308 overflowed the reduction's row normalisation, then
+    # linprog refused its own input: an internal error)
+    text = DI.replace("x_min = [-10.0, -10.0]", "x_min = [-1e308, -10.0]")
+    with pytest.raises(SpecError, match="inf") as exc:
+        loads_spec(text)
+    assert exc.value.field == "mpc.x_min[0]"
