@@ -41,7 +41,7 @@ from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
-__all__ = ["AffinePlant", "affine_plant", "LinearReach", "Finding"]
+__all__ = ["AffinePlant", "affine_plant", "LinearReach", "Finding", "affine_range"]
 
 _REL = 1e-12  # relative floating-point margin per propagated quantity
 
@@ -258,6 +258,42 @@ class Finding:
     detail: str | None = None
 
 
+
+def affine_range(F: np.ndarray, G: np.ndarray, A: np.ndarray, b: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Range of ``u = F x + G`` over the polytope ``A x <= b``, by two LPs per input.
+
+    Each bound is widened by ``1e-9 (1 + |F_r| |x| + |G_r|)`` (the LP's and the
+    evaluation's rounding), so it holds the law's value at every point of the polytope.
+
+    Parameters
+    ----------
+    F : (m, n) ndarray
+    G : (m,) ndarray
+    A : (k, n) ndarray
+    b : (k,) ndarray
+
+    Returns
+    -------
+    lo, hi : (m,) ndarray
+        Infinite where an LP fails.
+    """
+    m = F.shape[0]
+    lo, hi = np.full(m, -np.inf), np.full(m, np.inf)
+    for r in range(m):
+        for sgn in (1.0, -1.0):
+            x, st, _ = solve_lp(sgn * F[r], A, b)
+            if st != "optimal":
+                continue
+            v = F[r] @ x + G[r]
+            pad = 1e-9 * (1 + np.abs(F[r]) @ np.abs(x) + abs(G[r]))
+            if sgn > 0:
+                lo[r] = v - pad
+            else:
+                hi[r] = v + pad
+    return lo, hi
+
+
 class ClosedLoopSetup:
     """What both reach engines (linear and nonlinear) read from the problem and the law.
 
@@ -329,23 +365,8 @@ class ClosedLoopSetup:
         if i not in cache:
             F, G = self.law.F[i], self.law.G[i]
             A, b = self.law.A[i], self.law.b[i]
-            m = F.shape[0]
-            ext = {}
-            for slack in (0.0, 1e-9):
-                lo, hi = np.full(m, -np.inf), np.full(m, np.inf)
-                for r in range(m):
-                    for sgn in (1.0, -1.0):
-                        x, st, _ = solve_lp(sgn * F[r], A, b + slack)
-                        if st != "optimal":
-                            continue
-                        v = F[r] @ x + G[r]
-                        pad = 1e-9 * (1 + np.abs(F[r]) @ np.abs(x) + abs(G[r]))
-                        if sgn > 0:
-                            lo[r] = v - pad
-                        else:
-                            hi[r] = v + pad
-                ext[slack] = (lo, hi)
-            (lo0, hi0), (lo, hi) = ext[0.0], ext[1e-9]
+            lo0, hi0 = affine_range(F, G, A, b)
+            lo, hi = affine_range(F, G, A, b + 1e-9)
             spill_hi = np.where(np.isfinite(hi) & np.isfinite(hi0), np.maximum(hi - hi0, 0), 0)
             spill_lo = np.where(np.isfinite(lo) & np.isfinite(lo0), np.maximum(lo0 - lo, 0), 0)
             cache[i] = (lo, hi, self.u_min - spill_lo, self.u_max + spill_hi)

@@ -53,7 +53,12 @@ from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.interval import IntervalDomainError
-from codev_engine.reach.linear import ClosedLoopSetup, ExplorationLimitError, Finding
+from codev_engine.reach.linear import (
+    ClosedLoopSetup,
+    ExplorationLimitError,
+    Finding,
+    affine_range,
+)
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -361,22 +366,8 @@ class NonlinearReach(ClosedLoopSetup):
     def _region_u(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Range of u = F_i x + G_i over region i (LPs, cached; infinite where an LP fails)."""
         if i not in self._u_ok:
-            F, G = self.law.F[i], self.law.G[i]
-            A, b = self.law.A[i], self.law.b[i] + 1e-9
-            lo = np.full(F.shape[0], -np.inf)
-            hi = np.full(F.shape[0], np.inf)
-            for r in range(F.shape[0]):
-                for sgn in (1.0, -1.0):
-                    x, st, _ = solve_lp(sgn * F[r], A, b)
-                    if st != "optimal":
-                        continue
-                    v = F[r] @ x + G[r]
-                    pad = 1e-9 * (1 + np.abs(F[r]) @ np.abs(x) + abs(G[r]))
-                    if sgn > 0:
-                        lo[r] = v - pad
-                    else:
-                        hi[r] = v + pad
-            self._u_ok[i] = (lo, hi)
+            law = self.law
+            self._u_ok[i] = affine_range(law.F[i], law.G[i], law.A[i], law.b[i] + 1e-9)
         return self._u_ok[i]
 
     def _region_u_ok(self, i: int) -> bool:
