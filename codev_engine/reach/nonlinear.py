@@ -1222,7 +1222,7 @@ class NonlinearReach(ClosedLoopSetup):
                             rows.append(r[None, :] / np.sqrt(2.0))
             U = np.vstack(rows)
         A = U @ self.W  # a' z = u' (W z): the direction u in W-space
-        if not carrying and s.H is not None and np.linalg.cond(s.D) < 1e8:
+        if (not carrying or n > 2) and s.H is not None and np.linalg.cond(s.D) < 1e8:
             A = np.vstack([A, s.H @ np.linalg.inv(s.D)])
         A = A[np.linalg.norm(A, axis=1) > 0]
         return A / np.linalg.norm(A, axis=1, keepdims=True)
