@@ -52,6 +52,7 @@ from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import linearize, plant_model
+from codev_engine.reach.carried import carried_zonotope
 from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import (
     ClosedLoopSetup,
@@ -207,9 +208,10 @@ class NonlinearReach(ClosedLoopSetup):
     #: cuts then act on; ``_rerooted``). None: never (the remainder stays an ellipsoid)
     reroot: float | None = 0.25
     #: with disturbances or uncertain parameters: their first-order part ``J_{w,p} (w -
-    #: w_n, p - p_n)`` is carried through the linear flow as a zonotope and folded into
-    #: the star at each sample (docs/verification.md, "The disturbances' linear part");
-    #: False: it goes into the remainder ball, isotropic in ``W``, as before
+    #: w_n, p - p_n)`` is carried through the linear flow as a zonotope
+    #: (``reach/carried.py``) and folded into the star at each sample (docs/verification.md,
+    #: "The disturbances' linear part"); False: it goes into the remainder ball, isotropic
+    #: in ``W``, as before
     carry: bool = True
 
     def __post_init__(self) -> None:
@@ -679,7 +681,8 @@ class NonlinearReach(ClosedLoopSetup):
             # the spread of J_{w,p} along the centre's enclosures about Jw0 (the rest of
             # the second-order bound's first-order term)
             Jwc = np.maximum(np.abs(jwl - Jw0), np.abs(jwh - Jw0))
-            zsub, zgen, zbox = self._carried(Jxc if zoh else Jc, Jw0, hs)
+            frc = np.einsum("jie,e->ji", np.abs(Jw0), self.xdev) * (1 + 1e-12)
+            zsub, zgen, zbox = carried_zonotope(Jxc if zoh else Jc, frc, hs)
         # spread of the Jacobian along the exact centre trajectory, about Jc (joint in
         # (x, u) for zoh; of the closed loop f(x, F x + G) for continuous hold)
         if zoh:
@@ -883,60 +886,6 @@ class NonlinearReach(ClosedLoopSetup):
         Mn = self._ell_plus_ball(PM[N], float(rho[N]))
         nxt = _Set(Y[N].copy(), PD[N], Mn, s.k + 1, s.path, s.H, s.h, s.V, s.base, zgen)
         return nxt, tube, [], rec
-
-    def _carried(
-        self, J: np.ndarray, Jw0: np.ndarray, hs: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The disturbances' and parameters' linear part over one period, as a zonotope.
-
-        ``psi_w' = J_j psi_w + Jw0_j omega`` on substep ``j``, ``psi_w(t_k) = 0``, with
-        ``omega = (w - w_n, p - p_n)`` any signal with ``|omega| <= xdev``: its value after
-        substep ``j`` is ``exp(J_j h) psi_w(t_j) + int_0^h exp(J_j (h - s)) Jw0_j omega(s)
-        ds``, and the integral lies in the box ``K_j |Jw0_j| xdev``, ``K_j = int_0^h
-        exp(|J_j| s) ds`` (``|exp(J t)| <= exp(|J| t)`` element-wise): one generator per
-        axis and substep, the earlier ones mapped by ``exp(J_j h)``. Over the substep,
-        ``|psi_w| <= exp(|J_j| h) |psi_w(t_j)| + K_j |Jw0_j| xdev``. Products padded by
-        ``1e-10`` of their magnitudes (far above the rounding of ``expm`` and of the sums).
-
-        Parameters
-        ----------
-        J : (N, n, n) ndarray
-            The linear part's Jacobian per substep (``Jx`` under zoh, ``Jx + Ju F`` under
-            continuous hold).
-        Jw0 : (N, n, e) ndarray
-            ``df/d(w, p)`` at the centre's substep points (nominal values).
-        hs : (N,) ndarray
-            Substep lengths.
-
-        Returns
-        -------
-        zsub : (N, n) ndarray
-            Half-widths of a box holding ``psi_w`` over each substep.
-        G : (n, n N) ndarray
-            Generators: ``psi_w`` at the period's end lies in ``{G t : |t|_inf <= 1}``.
-        zbox : (N, n) ndarray
-            Half-widths of a box holding ``psi_w(t_j)``.
-        """
-        n = self.n
-        N = hs.size
-        Aa = np.zeros((N, 2 * n, 2 * n))
-        Aa[:, :n, :n] = np.abs(J) * hs[:, None, None]
-        Aa[:, :n, n:] = np.eye(n)[None] * hs[:, None, None]
-        Ea = np.abs(expm(Aa)) * (1 + 1e-10)
-        Eabs, K = Ea[:, :n, :n], Ea[:, :n, n:]
-        E = expm(J * hs[:, None, None])
-        frc = np.einsum("jie,e->ji", np.abs(Jw0), self.xdev) * (1 + 1e-12)
-        box = np.einsum("jik,jk->ji", K, frc) * (1 + 1e-10) + 1e-300
-        G = np.zeros((n, 0))
-        zbox = np.empty((N, n))
-        zsub = np.empty((N, n))
-        for j in range(N):
-            zb = np.abs(G).sum(axis=1) * (1 + 1e-12)
-            zbox[j] = zb
-            zsub[j] = (Eabs[j] @ zb + box[j]) * (1 + 1e-10)
-            pad = 1e-10 * (np.abs(E[j]) @ zb + box[j])
-            G = np.hstack([E[j] @ G, np.diag(box[j] + pad)])
-        return zsub, G, zbox
 
     def _linear_boxes(
         self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub=None
