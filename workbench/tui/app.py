@@ -754,6 +754,9 @@ class CodevApp(App):
 
         def progress(i: int, row: dict) -> None:
             self.call_from_thread(pane.show_row, i, row)
+            interrupt()
+
+        def interrupt() -> None:  # polled inside the current design too (Esc stops it)
             if self._cancel.is_set():
                 raise RunCancelledError
 
@@ -763,7 +766,7 @@ class CodevApp(App):
                 if executor.kind == "local":
                     _start_cluster(executor)
                 rows = sweep(problem, grid, executor=executor, progress=progress,
-                             session=folder)
+                             session=folder, interrupt=interrupt)
         except RunCancelledError:
             self.call_from_thread(self._sweep_finished, None, "cancelled", 0.0, folder)
         except Exception as exc:  # an engine bug must not take the app down
