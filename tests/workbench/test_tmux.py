@@ -242,3 +242,30 @@ def test_esc_stops_a_sweep_inside_its_current_design(tmux, tmp_path):
     tmux.keys("C-q")
     tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")
     assert time.perf_counter() - t0 < 30
+
+
+def test_a_dynamics_error_shows_under_its_field_with_the_other_tabs_empty(tmux, tmp_path):
+    """Issue 41: 'x^2' typed in Dynamics, nothing else but the states and inputs (no sample
+    time, no MPC, no verify entries): the loader's message is under Dynamics at once, not
+    held back until every other tab is valid."""
+    _start(tmux, "--session", str(tmp_path / "s"))
+    tmux.wait_for(lambda s: "Plant [F1]" in s, 60, "the first screen")
+
+    def typed(text: str) -> None:
+        tmux("send-keys", "-t", tmux.name, "-l", "--", text)
+
+    typed("sq")
+    tmux.keys("Tab")
+    typed("x")
+    tmux.keys("Tab")
+    typed("u")
+    tmux.keys("Tab")
+    typed("x^2 + u")
+    screen, took = tmux.wait_for(lambda s: "not a power operator" in s, 30, "the message")
+    print(f"\nthe dynamics message {took:.2f} s after the keys")
+    # under the Dynamics entry (its help line replaced), before the next field
+    field = screen[screen.index("Dynamics dx/dt"):screen.index("Continuous A")]
+    assert "✗ plant.dynamics[0]" in field and "not a power operator" in field, screen
+    assert "use ** for" in field, screen
+    tmux.keys("C-q")
+    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")

@@ -50,7 +50,14 @@ from codev_engine.session import (
     stage_keys,
 )
 
-from .form import FIELD_BY_NAME, FormCheck, check_form, check_plant, field_for_error
+from .form import (
+    FIELD_BY_NAME,
+    FormCheck,
+    check_form,
+    check_plant,
+    field_for_error,
+    with_typed_errors,
+)
 from .messages import (
     CancelRequested,
     ExportRequested,
@@ -316,6 +323,8 @@ class CodevApp(App):
             pchk = check_plant(values)
             if pchk.ok and pchk.problem is not None:
                 plant = (pchk.problem, stage_keys(pchk.problem, self.options)["model"])
+            # a plant entry's own message under it now, whatever the other tabs hold
+            chk = with_typed_errors(chk, pchk, values)
             if has_verify and chk.errors and all(k.startswith("verify.") for k in chk.errors):
                 # only [verify] is unfinished: the MPC preview and the synthesis need none of it
                 before_verify = check_form(
