@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 ## demo: set everything up (the solver kernels compiled once, announced) and replay the
 ##       bundled session (synthesis, verification, recording)
 demo: $(STAMP)
-	$(BIN)/codev replay sessions/double_integrator
+	$(BIN)/codev replay sessions/double-integrator
 
 ## test: the whole test suite (what CI runs), on TEST_WORKERS processes (pytest-xdist)
 TEST_WORKERS ?= 2
