@@ -192,7 +192,7 @@ FIELDS: tuple[FieldDef, ...] = (
         "Norm",
         "1 and inf: mp-LP; 2: mp-QP",
         choices=NORMS,
-        required=True,
+        default="2",
     ),
     _f(
         "mpc.Q",
@@ -806,7 +806,7 @@ def size_errors(values: dict[str, str], *, with_verify: bool = True) -> dict[str
             return {}  # the names themselves are wrong: the loader says why
         names[key] = v
     n, m = len(names["plant.states"]), len(names["plant.inputs"])
-    norm = values.get("mpc.norm", "").strip().strip("\"'")
+    norm = values.get("mpc.norm", "").strip().strip("\"'") or "2"  # (the spec's default)
     square = norm == "2"
     x, u = (n, "state"), (m, "input")
     vectors = {
