@@ -413,3 +413,27 @@ def test_ctrl_g_right_after_f3_and_typing_runs_the_synthesis_of_the_spec_typed(
             assert "current" in text_of(app, "#synth-status")
 
     run(scenario())
+
+
+def test_the_preview_is_marked_stale_when_r_changes(tmp_path):
+    """Issue 41: the preview drawn is of the spec as it was; R changed, the status line
+    says it is stale, and R put back takes it back."""
+    app = CodevApp(open_target(str(EXAMPLES / "double_integrator.toml"),
+                               session_dir=str(tmp_path / "s")))
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f2", "ctrl+g")
+            await settle(pilot, app)
+            shown = text_of(app, "#preview-status")
+            assert "steps" in shown and "stale" not in shown, shown
+            before = entry(app, "mpc.R").text
+            await type_into(pilot, app, "mpc.R", "0.5")
+            await settle(pilot, app)
+            assert "stale" in text_of(app, "#preview-status")
+            await type_into(pilot, app, "mpc.R", before)
+            await settle(pilot, app)
+            assert text_of(app, "#preview-status") == shown
+
+    run(scenario())
