@@ -790,8 +790,8 @@ class CodevApp(App):
         self._show_pipeline()
         pane = self.query_one(SweepPane)
         if error == "cancelled":
-            pane.finished("sweep cancelled: the designs done are cached, the table was not "
-                          "saved")
+            pane.finished(f"sweep cancelled: the designs done are cached in {folder}, the "
+                          "table was not saved")
             self.notify("sweep cancelled", severity="warning")
             return
         if error is not None or rows is None:
@@ -803,7 +803,7 @@ class CodevApp(App):
             v = "error" if r["error"] else str(r["verdict"])
             verdicts[v] = verdicts.get(v, 0) + 1
         note = (f"{len(rows)} designs in {seconds:.2f} s: "
-                + ", ".join(f"{n} {v}" for v, n in verdicts.items()))
+                + ", ".join(f"{n} {v}" for v, n in verdicts.items()) + f" · saved in {folder}")
         pane.finished(note, self._sweep_out(folder))
         self.notify(f"sweep: {note}", timeout=6)
 
