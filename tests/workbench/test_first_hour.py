@@ -123,8 +123,8 @@ def test_open_replaces_the_whole_previous_design(tmp_path, monkeypatch):
 
 
 def test_plant_report_appears_with_only_the_plant_valid(tmp_path):
-    """Name, norm and [verify] still empty: the derived model is shown all the same, and
-    ctrl+g says which tabs hold what is missing."""
+    """Name and [verify] still empty (the norm too: it has a default): the derived model is
+    shown all the same, and ctrl+g says which tabs hold what is missing."""
     app = CodevApp(open_target(None, sessions_root=tmp_path / "sessions"))
 
     async def scenario():
@@ -143,7 +143,7 @@ def test_plant_report_appears_with_only_the_plant_valid(tmp_path):
             await pilot.pause()
             note = app._notifications
             messages = [n.message for n in note]
-            assert any("MPC (F2): mpc.norm" in m for m in messages), messages
+            assert not any("mpc.norm" in m for m in messages), messages  # default "2"
             assert any("Verification (F4)" in m for m in messages), messages
             assert "Plant (F1): name" in text_of(app, "#pipeline")
 
@@ -257,11 +257,10 @@ def test_empty_optional_entries_show_their_default(tmp_path):
             for name, text in {"model.method": "zoh", "verify.hold": "zoh"}.items():
                 sel = entry(app, name).query_one(Select)
                 assert sel.is_blank() and sel.prompt == f"default: {text}", name
-            # Norm is required and starts empty (not preset to its first choice)
+            # Norm starts empty and shows its default (issue 41), not preset to a choice
             norm = entry(app, "mpc.norm").query_one(Select)
-            assert norm.is_blank() and "required" in str(
-                entry(app, "mpc.norm").query_one("#help", Static).render()
-            )
+            assert norm.is_blank() and norm.prompt == "default: 2"
+            assert "required" not in str(entry(app, "mpc.norm").query_one("#help", Static).render())
             # a character typed on the closed choice picks it: i -> inf, 2 -> 2
             await pilot.press("f2", "tab", "i")
             await settle(pilot, app)
