@@ -56,11 +56,21 @@ def _progress(label: str, enabled: bool, unit: str = "regions") -> Iterator[Call
         on_event(label, "done", {"status": "done"})
 
 
+def _prepare_kernels() -> None:
+    """Compile the solver kernels now, announced on stderr, if this installation never did
+    (once per machine: ``codev_engine.kernels.prepare``); called by the commands that
+    compute, once their input is read (a bad file is reported first)."""
+    from codev_engine.kernels import prepare
+
+    prepare()
+
+
 def _cmd_synth(args: argparse.Namespace) -> int:
     from codev_engine.pipeline import load_spec
     from codev_engine.synthesis import synthesize
 
     problem = load_spec(args.spec)
+    _prepare_kernels()
     with _progress(f"synthesising {problem.name}", True) as update:  # stderr, --json too
         law = synthesize(problem, progress=update)
     out = None
@@ -240,6 +250,7 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
     problem = load_spec(args.spec)
     if problem.verify is None:
         raise CodevError(f"{args.spec}: verify: the spec has no [verify] section")
+    _prepare_kernels()
     if (getattr(args, "regions", None) or problem.regions) == "reached":
         return _verify_reached(args, problem, executor)
     if args.law:
@@ -286,6 +297,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise SpecError('--session needs the whole law: not with regions = "reached"',
                         field="--session")
     session = Session.open_or_create(args.session)
+    _prepare_kernels()
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
     )
@@ -378,6 +390,7 @@ def _codev() -> str:
 def _cmd_replay(args: argparse.Namespace) -> int:
     from codev_engine.sweeps.folder import is_sweep
 
+    _prepare_kernels()
     if is_sweep(args.dir):
         return _replay_sweep(args)
     return _replay_session(args)
@@ -704,7 +717,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations", "sweep", "startup", "scale",
+    "long_horizon", "formulations", "sweep", "startup", "scale", "first_run",
 )
 
 
@@ -737,6 +750,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise SpecError("must be a positive number of workers", field="--workers")
     grid = _sweep_grid(args.set)
     problem = load_spec(args.spec)
+    _prepare_kernels()  # before the first design: no row's time holds the compile
     count = math.prod(len(v) for v in grid.values())
     executor = Executor(workers=args.workers, scheduler=args.scheduler)
     t0 = time.perf_counter()
@@ -932,6 +946,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         except SpecError as exc:
             raise SpecError(exc.reason, field="--name") from None
     data = read_npz(args.file, "law or solution file")
+    _prepare_kernels()
     try:
         tag = text(data, "format") if "format" in data else ""
     except SpecError as exc:

@@ -47,6 +47,7 @@ __all__ = ["read_spec", "parse_spec"]
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 _IDENT_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 DEFAULT_HORIZON = 5  # mpc.horizon when the spec leaves it out (docs/spec.md)
+DEFAULT_NORM = "2"  # mpc.norm when the spec leaves it out: the quadratic cost (docs/spec.md)
 _MAX_COUNT = 10**9  # the largest count field (mpc.horizon, verify.max_depth, ...) read
 _SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
 
@@ -183,8 +184,8 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
         _table(
             data["mpc"],
             "mpc",
-            required=("norm",),
-            optional=tuple(k for k in _MPC if k != "norm"),
+            required=(),
+            optional=_MPC,
         ),
         n,
         m,
@@ -432,7 +433,7 @@ def _model(t: dict[str, Any], n: int, m: int) -> ModelSpec:
 def _mpc(t: dict[str, Any], n: int, m: int) -> MpcSpec:
     # documented defaults (docs/spec.md): horizon 5, Q and R identities
     horizon = _integer(t.get("horizon", DEFAULT_HORIZON), "mpc.horizon", minimum=1)
-    norm = _norm(t["norm"], "mpc.norm")
+    norm = _norm(t.get("norm", DEFAULT_NORM), "mpc.norm")
     square = norm == "2"
     Q = _matrix(t["Q"], "mpc.Q", n if square else None, n) if "Q" in t else _frozen(np.eye(n))
     R = _matrix(t["R"], "mpc.R", m if square else None, m) if "R" in t else _frozen(np.eye(m))
