@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import fields, is_dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from codev_engine.spec.problem import Problem, SetSpec, Uncertain
+# The problem's classes are not imported, not even for type checking: Problem.to_toml
+# imports this module, and the import graph stays without cycles (tests/contract).
+Problem = SetSpec = Uncertain = Any
 
-__all__ = ["dumps", "problem_data", "same_design"]
+__all__ = ["dumps", "problem_data", "same_design", "toml_value"]
 
 #: fields of a Problem that say where it came from, not what it is
 _ORIGIN = ("path", "source")
@@ -164,7 +165,7 @@ def dumps(data: dict[str, Any]) -> str:
     str
         A TOML document that ``tomllib.loads`` reads back to ``data`` (ints and floats kept).
     """
-    lines = [f"{_key(k)} = {_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    lines = [f"{_key(k)} = {toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
     for section, table in data.items():
         if not isinstance(table, dict):
             continue
@@ -174,11 +175,11 @@ def dumps(data: dict[str, Any]) -> str:
             if isinstance(v, list) and v and all(isinstance(i, dict) for i in v):
                 blocks.append((k, v))
             else:
-                lines.append(f"{_key(k)} = {_value(v)}")
+                lines.append(f"{_key(k)} = {toml_value(v)}")
         for k, items in blocks:
             for item in items:
                 lines += ["", f"[[{_key(section)}.{_key(k)}]]"]
-                lines += [f"{_key(ik)} = {_value(iv)}" for ik, iv in item.items()]
+                lines += [f"{_key(ik)} = {toml_value(iv)}" for ik, iv in item.items()]
     return "\n".join(lines) + "\n"
 
 
@@ -203,7 +204,17 @@ def _string(s: str) -> str:
     return "".join(out)
 
 
-def _value(v: Any) -> str:
+def toml_value(v: Any) -> str:
+    """One value as TOML text (inline: ``[1.0, inf]``, ``{ lower = [0.0] }``).
+
+    Parameters
+    ----------
+    v : bool, int, float, str, list or dict
+
+    Returns
+    -------
+    str
+    """
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
@@ -217,9 +228,9 @@ def _value(v: Any) -> str:
     if isinstance(v, str):
         return _string(v)
     if isinstance(v, list):
-        return "[" + ", ".join(_value(i) for i in v) + "]"
+        return "[" + ", ".join(toml_value(i) for i in v) + "]"
     if isinstance(v, dict):
-        return "{ " + ", ".join(f"{_key(k)} = {_value(i)}" for k, i in v.items()) + " }"
+        return "{ " + ", ".join(f"{_key(k)} = {toml_value(i)}" for k, i in v.items()) + " }"
     raise TypeError(f"cannot write a {type(v).__name__} as TOML")
 
 
