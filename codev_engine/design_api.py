@@ -171,7 +171,7 @@ def _from_system(
     if discrete:
         data["model"]["sample_time"] = _plain(dt)
         names["model.sample_time"] = "system.dt"
-    n, m = np.shape(A)[0] if np.ndim(A) else 0, np.shape(B)[-1] if np.ndim(B) == 2 else 1
+    n, m = _rows(A), _rows(B[0] if _rows(B) else None) or 1  # the parser checks shapes
     data["plant"]["states"] = _labels(getattr(system, "state_labels", None), "x", n)
     data["plant"]["inputs"] = _labels(getattr(system, "input_labels", None), "u", m)
     outputs = ("y_min", "y_max", "mpc.y_min", "mpc.y_max")
@@ -188,6 +188,15 @@ def _from_system(
             )
         data["mpc"]["C"] = _plain(C)
         names["mpc.C"] = "system.C"
+
+
+def _rows(M: Any) -> int:
+    """How many rows a matrix-like value has (0 for anything else: a ragged list, a
+    number), without numpy's error on ragged lists."""
+    try:
+        return len(M) if not isinstance(M, str | bytes | Mapping) else 0
+    except TypeError:
+        return 0
 
 
 def _labels(labels: Any, stem: str, k: int) -> list[str]:

@@ -106,6 +106,10 @@ def test_a_missing_required_field_is_a_missing_keyword():
     missing = r"^sample_time: missing required keyword 'sample_time'$"
     with pytest.raises(ce.SpecError, match=missing):
         ce.design(sys, norm="2")
+    with pytest.raises(ce.SpecError, match=r"^system\.A: expected a 2×2 matrix, got rows of"):
+        ce.design(([[1, 2], [3]], [[0], [1]]), norm="2", sample_time=1.0)
+    with pytest.raises(ce.SpecError, match=r"^system\.B: expected a 2×1 matrix"):
+        ce.design((np.eye(2), 3.0), norm="2", sample_time=1.0)
     with pytest.raises(ce.SpecError, match=r"^system: expected a python-control StateSpace"):
         ce.design("x' = u", norm="2", sample_time=1.0)
 
