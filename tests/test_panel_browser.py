@@ -150,7 +150,9 @@ def test_jupyterlab_shows_the_panel_and_the_partition(tmp_path):
         page.wait_for(
             """(() => {
                 document.querySelector('.jp-Dialog .jp-mod-accept')?.click();
-                const nb = window.jupyterapp?.shell?.currentWidget;
+                const app = window.jupyterapp;  // the notebook's panel (headless: no focus)
+                const nb = app && [...app.shell.widgets('main')].find(w => w.sessionContext);
+                if (nb) app.shell.activateById(nb.id);  // run-all-cells acts on the active one
                 return nb?.sessionContext?.session?.kernel?.status === 'idle';
             })()""",
             180, "the notebook and its kernel")
@@ -163,7 +165,9 @@ def test_jupyterlab_shows_the_panel_and_the_partition(tmp_path):
                 const panel = document.querySelector('.codev-workbench');
                 if (!panel) return null;
                 const buttons = [...panel.querySelectorAll('button')].map(b => b.innerText);
-                const inPanel = panel.querySelectorAll('img[src^="data:image/png"]').length;
+                // the partition on the Design tab, drawn and visible (not a hidden tab's)
+                const inPanel = [...panel.querySelectorAll('img[src^="data:image/png"]')]
+                    .filter(i => i.getBoundingClientRect().width > 100).length;
                 const all = document.querySelectorAll(
                     '.jp-OutputArea img[src^="data:image/png"]').length;
                 return inPanel > 0 ? {buttons, inPanel, all,

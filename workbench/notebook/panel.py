@@ -124,7 +124,7 @@ class Workbench:
             else:
                 w = widgets.Text(value="" if value is None else toml_value(value),
                                  description=desc, continuous_update=False)  # fmt: skip
-            w.layout = widgets.Layout(width="420px")
+            w.layout = widgets.Layout(width="340px")
             w.observe(self._edited, names="value")
             self.fields[kw] = w
         if self._base.verify is None:
@@ -153,7 +153,9 @@ class Workbench:
         mpc = [w for kw, w in self.fields.items() if FIELDS[kw] == "mpc"]
         ver = [w for kw, w in self.fields.items() if FIELDS[kw] == "verify"]
         design = widgets.VBox([widgets.HTML("<b>MPC</b>"), *mpc,
-                               widgets.HTML("<b>Verification</b>"), *ver])  # fmt: skip
+                               widgets.HTML("<b>Verification</b>"), *ver],
+                              layout=widgets.Layout(flex="0 0 360px"))  # fmt: skip
+        self.law_out.layout = widgets.Layout(flex="1 1 auto", overflow="auto")
         self.tabs = widgets.Tab(children=[
             widgets.HBox([design, self.law_out]), self.model_out, self.result_out,
             widgets.VBox([self.rrd_path, self.viewer_box]),
@@ -371,8 +373,7 @@ class Workbench:
         if self._shown[stage] == key and out.outputs:
             return  # that picture is on screen: a cached stage costs no redraw
         self._shown[stage] = key
-        out.clear_output()
-        out.append_display_data(value)  # the engine's own figure and summary
+        _replace_output(out, value)  # the engine's own figure and summary
 
     def _load_cached(self) -> None:
         """The cached law and verdict of the design as it is, shown at once."""
@@ -391,14 +392,13 @@ class Workbench:
         self._refresh()
 
     def _show_model(self) -> None:
-        self.model_out.clear_output()
         try:
             from workbench.tui.design import plant_report
 
             text, _model = plant_report(self._base)
         except CodevError as exc:
             text = f"✗ {exc}"
-        self.model_out.append_display_data(Markdown(text))
+        _replace_output(self.model_out, Markdown(text))
 
     def _show_recording(self, path: Path) -> None:
         self.recording = path
@@ -443,6 +443,17 @@ class Workbench:
 
     def _say(self, text: str, colour: str) -> None:
         self.message.value = f"<span style='color:{colour}'>{_escape(text)}</span>"
+
+
+def _replace_output(out: Any, obj: object) -> None:
+    """Show ``obj`` alone in an Output widget, from any thread.
+
+    Not ``clear_output()``: from a thread it is a message to the front end, whose cleared
+    outputs sync back after (and over) the ones appended here -- the partition never showed
+    in JupyterLab. Both steps here set the widget's ``outputs`` on this side.
+    """
+    out.outputs = ()
+    out.append_display_data(obj)
 
 
 def _escape(text: str) -> str:
