@@ -68,6 +68,9 @@ def test_the_wheel_carries_the_examples_and_the_stylesheets():
     for f in sorted((ROOT / "examples").iterdir()):
         if f.suffix in (".toml", ".ipynb"):
             assert f"workbench/examples/{f.name}" in want
+    # both notebooks: the engine walk-through and the panel tuned from python-control
+    for nb in ("double_integrator.ipynb", "python_control_panel.ipynb"):
+        assert f"workbench/examples/{nb}" in want
     for f in sorted((ROOT / "workbench" / "tui").glob("*.tcss")):
         assert f"workbench/tui/{f.name}" in want
 
