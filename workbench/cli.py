@@ -255,16 +255,14 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
 
 def _verify_reached(args: argparse.Namespace, problem, executor) -> int:
     """Verify on the regions the reach sets meet, computed on demand (``--regions reached``
-    or ``[synthesis] regions = "reached"``): no law file, no recording (it draws the
-    whole partition), no session yet."""
+    or ``[synthesis] regions = "reached"``): no law file (the regions are cached in a
+    session: ``codev run --session``); a recording draws the regions computed."""
     from codev_engine.law_on_demand import OnDemandLaw
 
-    for flag, given in (("--law", getattr(args, "law", None)),
-                        ("--record", getattr(args, "record", None)),
-                        ("--session", getattr(args, "session", None))):
-        if given:
-            raise SpecError(f"{flag} needs the whole law: not with regions = \"reached\"",
-                            field=flag)
+    if getattr(args, "law", None):
+        raise SpecError('--law needs the whole law: not with regions = "reached" (a '
+                        "session caches the regions computed: codev run --session)",
+                        field="--law")
     law = OnDemandLaw(problem)
     return _verification(args, problem, law, None, executor)
 
@@ -282,9 +280,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     # bad input fails here or in Session.run's own checks, before the session is touched;
     # the MPC's feasibility LP (python-control, ~1 s of imports) only when not cached
     problem = load_spec(args.spec, check_mpc=False)
-    if (args.regions or problem.regions) == "reached":
-        raise SpecError('--session needs the whole law: not with regions = "reached"',
-                        field="--session")
+    if args.regions and args.regions != problem.regions:
+        # (a session runs and replays its spec: the choice must be written in it)
+        raise SpecError(f"with --session, write [synthesis] regions = \"{args.regions}\" in "
+                        "the spec instead (a session replays its spec)", field="--regions")
     session = Session.open_or_create(args.session)
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
@@ -670,7 +669,6 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def _from_session(d: Path):
     """The spec, the law and the result (or None) cached in a session folder."""
-    from codev_engine.law import ExplicitLaw
     from codev_engine.reach.verification import VerificationResult
     from codev_engine.session import Session
 
@@ -684,7 +682,8 @@ def _from_session(d: Path):
             f"--session {d}",
             file=str(d),
         )
-    law = ExplicitLaw.load(d / syn.artifact)
+    # (the stage's loader: a full law, or the region cache of regions = "reached")
+    law = session.table["synthesis"].load(d / syn.artifact, problem)
     ver = status.get("verification")
     result = None
     if ver is not None and ver.status == "cached":
