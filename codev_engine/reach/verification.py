@@ -518,7 +518,7 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
         raise SpecError(f"must be a positive number of cells per axis, got {cells}",
                         field="cells")
     if getattr(law, "on_demand", False):
-        _check_on_demand(problem, hold, affine_plant(problem) is not None)
+        check_on_demand(problem, hold, affine_plant(problem) is not None)
     t0 = time.perf_counter()
     if vs.noisy and affine_plant(problem) is None and (
         not np.isfinite(vs.time_horizon) or law.n > problem.plant.n
@@ -735,7 +735,7 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     return reason, detail
 
 
-def _check_on_demand(problem: Problem, hold: str, affine: bool) -> None:
+def check_on_demand(problem: Problem, hold: str, affine: bool) -> None:
     """Refuse what a law computed on demand (``law_on_demand.OnDemandLaw``) is not verified
     with yet: only the linear engine asks the law for the regions its sets meet, under
     zoh, over a bounded horizon (the all-time certificate, the nonlinear engine and the

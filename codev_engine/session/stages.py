@@ -254,6 +254,16 @@ def _synthesis_check(problem: Problem) -> None:
     from codev_engine.pipeline import check_mpc_feasible
 
     check_mpc_feasible(problem)
+    if problem.regions == "reached":
+        # what a law on demand is not computed or verified for (norms 1 and inf, a
+        # nonlinear plant, ...), refused before the spec is stored
+        from codev_engine.law_on_demand import OnDemandLaw
+        from codev_engine.reach.linear import affine_plant
+        from codev_engine.reach.verification import check_on_demand
+
+        OnDemandLaw(problem)
+        if problem.verify is not None:
+            check_on_demand(problem, problem.verify.hold, affine_plant(problem) is not None)
 
 
 def _synthesis_compute(run: StageRun) -> Any:

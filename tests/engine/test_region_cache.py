@@ -130,3 +130,13 @@ def test_cli_session_with_regions_reached(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and 'write [synthesis] regions = "reached"' in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_a_session_refuses_what_is_not_verified_on_demand_before_writing(tmp_path):
+    text = (EXAMPLES / "pendulum.toml").read_text()
+    spec = tmp_path / "pend.toml"
+    spec.write_text(text + '\n[synthesis]\nregions = "reached"\n')
+    session = Session.create(tmp_path / "s")
+    with pytest.raises(SpecError, match="synthesis.regions: .*nonlinear plant"):
+        session.run(load_spec(spec))
+    assert session.journal() == [] and not (tmp_path / "s" / "spec.toml").exists()
