@@ -12,7 +12,9 @@ Cases: the bundled 2-norm linear examples (``double_integrator_lqr``, ``mass_spr
 ``--horizon`` seconds (2.5 by default: the loop leaves the MPC's feasible set at 3 s, an
 ``unsafe``/``undefined`` verdict that is the design's, not the tool's). Per case: regions
 computed, wall seconds (the law, then ``ce.verify``; ``time.perf_counter``), verdict, for the
-full law (``ce.synthesize``) and on demand (``OnDemandLaw``), and whether the tubes are
+full law (``ce.synthesize``), on demand (``OnDemandLaw``) and, for the chain, on demand again
+from the region cache the first run saved (``OnDemandLaw.save``/``load``: what a session's
+later run or another verification of the same MPC does), and whether the tubes are
 identical. The chain's full synthesis takes minutes (11,794 regions): it runs only with
 ``--full-chain``.
 
@@ -22,6 +24,7 @@ A benchmark, not a test: it asserts nothing and exits 0.
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 
@@ -72,13 +75,21 @@ upper = {vec(2.0)}
     return ce.loads_spec(text, path=f"<chain of {n} integrators>", check_mpc=False)
 
 
-def run(problem: ce.Problem, how: str) -> dict:
-    """The law (``how``: "all" or "reached") and its verification, timed."""
+def run(problem: ce.Problem, how: str, cache: Path | None = None) -> dict:
+    """The law (``how``: "all", "reached", or "cached": the law on demand loaded from the
+    region cache ``cache`` a "reached" run wrote) and its verification, timed."""
     t0 = time.perf_counter()
-    law = ce.synthesize(problem) if how == "all" else OnDemandLaw(problem)
+    if how == "all":
+        law = ce.synthesize(problem)
+    elif how == "cached":
+        law = OnDemandLaw.load(cache, problem)
+    else:
+        law = OnDemandLaw(problem)
     t1 = time.perf_counter()
     result = ce.verify(problem, law)
     t2 = time.perf_counter()
+    if how == "reached" and cache is not None:
+        law.save(cache)
     return {"regions": law.num_regions, "law_s": t1 - t0, "verify_s": t2 - t1,
             "wall_s": t2 - t0, "verdict": f"{result.verdict}"
             + (f" ({result.reason})" if result.reason else ""), "tube": result.tube}
@@ -108,7 +119,11 @@ def main() -> int:
         _row(name, "reached", mine, "identical" if same else "differs")
     problem = chain(args.chain, args.horizon)
     name = f"chain{args.chain} T={args.horizon:g}"
-    mine = run(problem, "reached")
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = Path(tmp) / "regions.npz"
+        mine = run(problem, "reached", cache)
+        again = run(problem, "cached", cache)
+    _row(name, "cached", again)
     if args.full_chain:
         full = run(problem, "all")
         same = (np.array_equal(full["tube"].lower, mine["tube"].lower)
