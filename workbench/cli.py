@@ -248,9 +248,46 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
         synth_seconds = law.meta.get("seconds")
     else:
         with _progress(f"synthesising {problem.name}", True) as update:
-            law = synthesize(problem, progress=update, executor=executor)
+            law = synthesize(problem, progress=_hint_reached(problem, update),
+                             executor=executor)
         synth_seconds = law.meta["seconds"]
     return _verification(args, problem, law, synth_seconds, executor)
+
+
+#: a full synthesis still running after this many seconds, with at least ``HINT_REGIONS``
+#: regions, suggests ``--regions reached`` (once) when the design can be verified so
+HINT_SECONDS = 15.0
+HINT_REGIONS = 1000
+
+
+def _hint_reached(problem, update: Callable[..., None]) -> Callable[..., None]:
+    """``update`` that also says, once, when the full law looks too large to wait for, that
+    the verification can run on the regions reached (issue 39): past ``HINT_SECONDS`` and
+    ``HINT_REGIONS``, for a design the law on demand serves."""
+    import time
+
+    from codev_engine.reach.linear import affine_plant
+    from codev_engine.reach.verification import check_on_demand
+
+    try:
+        if problem.mpc.norm != "2" or problem.verify is None:
+            return update
+        check_on_demand(problem, problem.verify.hold, affine_plant(problem) is not None)
+    except SpecError:
+        return update
+    t0, said = time.perf_counter(), [False]
+
+    def progress(count: int, **extra) -> None:
+        update(count, **extra)
+        t = time.perf_counter() - t0
+        if not said[0] and t >= HINT_SECONDS and count >= HINT_REGIONS:
+            said[0] = True
+            _warn(f"{problem.name}: {count:,} critical regions after {t:.0f} s of synthesis "
+                  f"({count / t:,.0f} a second) and counting; if the whole law is out of "
+                  "reach, verify on the regions the reach sets meet alone: --regions "
+                  "reached (or [synthesis] regions = \"reached\")")
+
+    return progress
 
 
 def _verify_reached(args: argparse.Namespace, problem, executor) -> int:
@@ -289,7 +326,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
     )
     with _executor(args) as executor, _stage_progress(True) as on_event:
-        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn,
+        hint = _hint_reached(problem, lambda count, **extra: None)
+
+        def event(stage: str, what: str, data: dict) -> None:
+            on_event(stage, what, data)
+            if stage == "synthesis" and what == "progress" and problem.regions == "all":
+                hint(int(data.get("count", 0)))
+
+        report = session.run(problem, options, fresh=args.fresh, on_event=event, warn=_warn,
                              executor=executor)
     tube_path = None
     if args.export_tube and report.result is not None:

@@ -140,3 +140,29 @@ def test_a_session_refuses_what_is_not_verified_on_demand_before_writing(tmp_pat
     with pytest.raises(SpecError, match="synthesis.regions: .*nonlinear plant"):
         session.run(load_spec(spec))
     assert session.journal() == [] and not (tmp_path / "s" / "spec.toml").exists()
+
+
+def test_a_law_past_its_region_limit_suggests_regions_reached():
+    from codev_engine.errors import SolverError
+    from codev_engine.mp.solve import SolveOptions
+
+    with pytest.raises(SolverError, match=r"stopped past 5 critical.*--regions reached"):
+        ce.synthesize(load_spec(LQR), options=SolveOptions(max_regions=5))
+    # (norm inf: an mp-LP, not computed on demand, so not suggested)
+    with pytest.raises(SolverError) as info:
+        ce.synthesize(load_spec(EXAMPLES / "double_integrator.toml"),
+                      options=SolveOptions(max_regions=5))
+    assert "reached" not in str(info.value)
+
+
+def test_a_long_full_synthesis_suggests_regions_reached_once(monkeypatch, capsys):
+    from workbench import cli
+
+    monkeypatch.setattr(cli, "HINT_SECONDS", 0.0)
+    monkeypatch.setattr(cli, "HINT_REGIONS", 2)
+    assert cli.main(["verify", str(LQR)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("--regions reached") == 1 and "critical regions after" in err
+    # (norm inf: not suggested)
+    cli.main(["verify", str(EXAMPLES / "double_integrator.toml")])
+    assert "--regions reached" not in capsys.readouterr().err
