@@ -737,17 +737,14 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
 
 def check_on_demand(problem: Problem, hold: str, affine: bool) -> None:
     """Refuse what a law computed on demand (``law_on_demand.OnDemandLaw``) is not verified
-    with yet: only the linear engine asks the law for the regions its sets meet (both
-    holds), over a bounded horizon (the all-time certificate and the nonlinear engine read
-    every region of a full law)."""
+    with yet: the reach engines ask the law for the regions their sets meet over a bounded
+    horizon (the all-time certificate reads every region of a full law)."""
     why = None
-    if not affine:
-        why = "a nonlinear plant (the nonlinear engine reads the full law)"
-    elif not np.isfinite(problem.verify.time_horizon):
+    if not np.isfinite(problem.verify.time_horizon):
         why = "time_horizon = \"inf\" (the all-time certificate reads the full law)"
     if why is not None:
         raise SpecError(
-            f"regions = \"reached\" verifies linear plants over a bounded horizon; "
+            f"regions = \"reached\" verifies over a bounded horizon; "
             f"this verification has {why}: use regions = \"all\"",
             field="synthesis.regions",
         )

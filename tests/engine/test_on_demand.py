@@ -7,7 +7,7 @@ set asked about, and a verification on it gives the full law's verdict and tube.
 - random boxes and polytopes in the parameter space: every region of the full solution that
   meets the set is returned (by active set), and random points of the set are located in
   the returned regions with the online optimum's input;
-- what is refused, and how (norms 1 and inf, nonlinear plants, all-time horizons);
+- what is refused, and how (norms 1 and inf, all-time horizons);
 - the spec field ``[synthesis] regions`` and the CLI's ``--regions``.
 """
 
@@ -131,6 +131,20 @@ upper = {vec(bound * np.ones(n))}
 """
 
 
+@pytest.mark.parametrize("name", ["tora.toml"])
+def test_nonlinear_examples_verify_the_same_on_demand(name):
+    # (the nonlinear engine asks the law for the regions meeting each set's box and for the
+    # domain's rows there)
+    _same_verification(load_spec(EXAMPLES / name))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("hold", ["zoh", "continuous"])
+@pytest.mark.parametrize("name", ["pendulum.toml", "cstr.toml", "tora.toml"])
+def test_nonlinear_examples_verify_the_same_on_demand_slow(name, hold):
+    _same_verification(load_spec(EXAMPLES / name), hold=hold)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_random_mpcs_verify_the_same_on_demand(seed):
     _same_verification(loads_spec(_random_spec(seed), check_mpc=False))
@@ -238,9 +252,11 @@ def test_locate_and_evaluate_agree_with_the_full_law():
 def test_what_is_refused_says_so():
     with pytest.raises(SpecError, match="norm = \"inf\""):
         OnDemandLaw(load_spec(EXAMPLES / "double_integrator.toml"))
-    pend = load_spec(EXAMPLES / "pendulum.toml")
-    with pytest.raises(SpecError, match="nonlinear plant"):
-        ce.verify(pend, OnDemandLaw(pend))
+    text = (EXAMPLES / "double_integrator_lqr.toml").read_text()
+    forever = loads_spec(text.replace("time_horizon = 20.0", 'time_horizon = "inf"'),
+                         check_mpc=False)
+    with pytest.raises(SpecError, match="synthesis.regions: .*time_horizon = \"inf\""):
+        ce.verify(forever, OnDemandLaw(forever))
 
 
 def test_spec_field_and_cli_flag(tmp_path, capsys):

@@ -133,11 +133,11 @@ def test_cli_session_with_regions_reached(tmp_path, capsys):
 
 
 def test_a_session_refuses_what_is_not_verified_on_demand_before_writing(tmp_path):
-    text = (EXAMPLES / "pendulum.toml").read_text()
-    spec = tmp_path / "pend.toml"
+    text = LQR.read_text().replace("time_horizon = 20.0", 'time_horizon = "inf"')
+    spec = tmp_path / "forever.toml"
     spec.write_text(text + '\n[synthesis]\nregions = "reached"\n')
     session = Session.create(tmp_path / "s")
-    with pytest.raises(SpecError, match="synthesis.regions: .*nonlinear plant"):
+    with pytest.raises(SpecError, match="synthesis.regions: .*time_horizon"):
         session.run(load_spec(spec))
     assert session.journal() == [] and not (tmp_path / "s" / "spec.toml").exists()
 
