@@ -974,12 +974,19 @@ def _cmd_export(args: argparse.Namespace) -> int:
             c_prefix(args.name)
         except SpecError as exc:
             raise SpecError(exc.reason, field="--name") from None
-    data = read_npz(args.file, "law or solution file")
-    try:
-        tag = text(data, "format") if "format" in data else ""
-    except SpecError as exc:
-        raise exc.with_file(str(args.file)) from None
-    if tag.startswith("codev-mp-solution/"):
+    note = None
+    if Path(args.file).is_dir():
+        obj, note = _operation_of(Path(args.file))
+        tag = None
+    else:
+        data = read_npz(args.file, "law or solution file")
+        try:
+            tag = text(data, "format") if "format" in data else ""
+        except SpecError as exc:
+            raise exc.with_file(str(args.file)) from None
+    if tag is None:
+        pass
+    elif tag.startswith("codev-mp-solution/"):
         from codev_engine.mp.solution import MpSolution
 
         obj = MpSolution.load(args.file)
@@ -998,12 +1005,28 @@ def _cmd_export(args: argparse.Namespace) -> int:
         f"{ex.tests} row evaluations, {ex.macs} multiply-adds per call"
     )
     if args.c:
-        h, c = export_c(ex, args.c, name=args.name, float32=args.float32)
+        h, c = export_c(ex, args.c, name=args.name, float32=args.float32, note=note)
         print(f"C written to {h} and {c}")
     if args.python:
-        path = export_python(ex, args.python)
+        path = export_python(ex, args.python, note=note)
         print(f"Python written to {path}")
     return 0
+
+
+def _operation_of(folder: Path):
+    """The law of the region of operation of a session verified on demand (``regions =
+    "reached"``) and the header note stating it (``deploy.operation``)."""
+    from codev_engine.deploy.operation import operation_law, operation_note
+
+    problem, law, result = _from_session(folder)
+    if not getattr(law, "on_demand", False):
+        raise SpecError('a session exports its region of operation with regions = "reached" '
+                        "(export a full law from its law file)", file=str(folder))
+    if result is None:
+        raise SpecError("the session has no verification cached for its spec; run: codev run "
+                        f"{folder / 'spec.toml'} --session {folder}", file=str(folder))
+    obj, cert = operation_law(problem, law, result)
+    return obj, operation_note(problem, cert)
 
 
 def _jsonable(v):
@@ -1203,7 +1226,9 @@ def _build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "export", help="write a law (or an mp solution) as C99 or Python code"
     )
-    p.add_argument("file", metavar="LAW.npz|SOLUTION.npz")
+    p.add_argument("file", metavar="LAW.npz|SOLUTION.npz|SESSION",
+                   help="a law or mp solution file, or a session verified with regions = "
+                   "\"reached\": the law of its region of operation (certified)")
     p.add_argument("--c", metavar="DIR", help="write DIR/PREFIX.h and DIR/PREFIX.c")
     p.add_argument("--python", metavar="FILE.py", help="write a numpy-only Python module")
     p.add_argument("--name", default="codev_law", metavar="PREFIX",

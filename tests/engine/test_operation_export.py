@@ -149,3 +149,24 @@ def test_what_is_not_a_region_of_operation_is_refused():
     servo = load_spec(EXAMPLES / "dc_motor_servo.toml")
     with pytest.raises(SpecError, match="over the state alone"):
         operation_law(servo, OnDemandLaw(servo), None)
+
+
+def test_codev_export_of_a_session_verified_on_demand(tmp_path, capsys):
+    from codev_engine.session import RunOptions, Session
+    from workbench.cli import main
+
+    spec = tmp_path / "lqr.toml"
+    spec.write_text((EXAMPLES / "double_integrator_lqr.toml").read_text()
+                    + '\n[synthesis]\nregions = "reached"\n')
+    Session.create(tmp_path / "s").run(load_spec(spec), RunOptions(upto="verification"))
+    out = tmp_path / "op.py"
+    assert main(["export", str(tmp_path / "s"), "--python", str(out)]) == 0
+    assert "REGION OF OPERATION" in out.read_text()
+    capsys.readouterr()
+    # a session of the full law: one line, exit 2
+    plain = tmp_path / "plain.toml"
+    plain.write_text((EXAMPLES / "double_integrator_lqr.toml").read_text())
+    Session.create(tmp_path / "f").run(load_spec(plain), RunOptions(upto="synthesis"))
+    assert main(["export", str(tmp_path / "f"), "--python", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert 'regions = "reached"' in err and len(err.strip().splitlines()) == 1
