@@ -76,14 +76,14 @@ def test_bundled_examples_verify_the_same_on_demand_slow(name):
     _same_verification(load_spec(EXAMPLES / name))
 
 
-@pytest.mark.parametrize("name", FAST)
+@pytest.mark.parametrize("name", ["mass_spring_soft.toml"])
 def test_bundled_examples_verify_the_same_on_demand_continuous_hold(name):
     # (the simulations' per-region flows and the adjoint's steps grow with the law)
     _same_verification(load_spec(EXAMPLES / name), hold="continuous")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", SLOW)
+@pytest.mark.parametrize("name", ["double_integrator_lqr.toml", *SLOW])
 def test_bundled_examples_verify_the_same_on_demand_continuous_hold_slow(name):
     _same_verification(load_spec(EXAMPLES / name), hold="continuous")
 
@@ -178,14 +178,13 @@ def _disturbed_spec(seed: int) -> str:
                         'disturbances = { w = [-0.5, 0.5] }', 1)
 
 
-@pytest.mark.parametrize("hold", ["zoh", "continuous"])
-def test_disturbed_mpcs_verify_the_same_on_demand(hold):
+def test_disturbed_mpcs_verify_the_same_on_demand():
     # (seed 2: unsafe, the counterexample by the adjoint's extreme signals)
-    _same_verification(loads_spec(_disturbed_spec(2), check_mpc=False), hold=hold)
+    _same_verification(loads_spec(_disturbed_spec(2), check_mpc=False), hold="continuous")
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", range(3, 13))
+@pytest.mark.parametrize("seed", range(2, 13))
 @pytest.mark.parametrize("hold", ["zoh", "continuous"])
 def test_disturbed_mpcs_verify_the_same_on_demand_slow(seed, hold):
     _same_verification(loads_spec(_disturbed_spec(seed), check_mpc=False), hold=hold)
