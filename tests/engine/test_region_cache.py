@@ -166,3 +166,16 @@ def test_a_long_full_synthesis_suggests_regions_reached_once(monkeypatch, capsys
     # (norm inf: not suggested)
     cli.main(["verify", str(EXAMPLES / "double_integrator.toml")])
     assert "--regions reached" not in capsys.readouterr().err
+
+
+def test_pictures_say_the_regions_are_those_reached(grown):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from codev_engine.view.figures import plot_partition
+    from codev_engine.view.record_content import RecordingContent, RecordingOptions
+
+    problem, law, result, _ = grown
+    assert "regions reached (computed on demand" in plot_partition(law).get_title()
+    content = RecordingContent.build(problem, law, result, RecordingOptions(traces=2), (0, 1))
+    assert "reached (computed on demand; not the whole law)" in content.verdict_text()
