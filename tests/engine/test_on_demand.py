@@ -277,3 +277,68 @@ def test_spec_field_and_cli_flag(tmp_path, capsys):
     plain.write_text(text)
     assert main(["run", str(plain), "--regions", "reached"]) == 0
     assert "computed on demand" in capsys.readouterr().out
+
+
+def _online_loop_in_tube(problem, runs: int, seed: int, tol: float) -> None:
+    """Test (c) of issue 39: the closed loop with the online MPC (cvxpy + Clarabel, an
+    independent controller) in the loop, the plant's exact zoh flow, from random states and
+    corners of the initial set: every state at the samples and at 4 points per period lies
+    in the tube verified on demand (within the online solver's accuracy ``tol``)."""
+    from scipy.linalg import expm
+
+    from codev_engine.mpc import OnlineMpc
+    from codev_engine.plant import linearize
+
+    od = OnDemandLaw(problem)
+    result = ce.verify(problem, od)
+    assert result.verdict == "robustly_safe", result.summary()
+    tube = result.tube
+    model = discretize(problem)
+    online = OnlineMpc(problem.mpc, model)
+    Ac, Bc, _ = linearize(problem.plant, problem.model.x_op, problem.model.u_op)
+    n, m = Bc.shape
+    Ts = float(problem.model.sample_time)
+    M = np.zeros((n + m, n + m))
+    M[:n, :n], M[:n, n:] = Ac, Bc
+    taus = np.linspace(0.0, Ts, 5)[1:]
+    flows = [expm(M * tau)[:n] for tau in taus]
+    vs = problem.verify
+    lo, hi = np.asarray(vs.initial_lower), np.asarray(vs.initial_upper)
+    rng = np.random.default_rng(seed)
+    X0 = [lo, hi, *(lo + rng.uniform(size=(runs - 2, n)) * (hi - lo))]
+    worst = 0.0
+    for x in X0:
+        t = 0.0
+        while t < vs.time_horizon - 1e-9:
+            sol = online.solve(x)
+            assert sol.feasible
+            z = np.concatenate([x, sol.u0])
+            for tau, Phi in zip(taus, flows, strict=True):
+                y = Phi @ z
+                sel = (tube.t_start <= t + tau + 1e-12) & (tube.t_end >= t + tau - 1e-12)
+                exc = np.maximum(tube.lower[sel] - y, y - tube.upper[sel]).max(-1).min()
+                worst = max(worst, float(exc))
+            x, t = flows[-1] @ z, t + Ts
+    assert worst <= tol, f"an online-MPC trajectory leaves the tube by {worst:g}"
+
+
+@pytest.mark.slow
+def test_online_mpc_loops_stay_in_the_tube_on_demand_chain():
+    from tests.engine.test_mpqp_chain import chain_spec
+
+    n = 6
+    text = chain_spec(n) + f"""
+[verify]
+time_horizon = 2.5
+initial_set = {{ lower = {[-0.02] * n}, upper = {[0.02] * n} }}
+input_bounds = true
+"""
+    _online_loop_in_tube(loads_spec(text, check_mpc=False), runs=12, seed=0, tol=1e-6)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("hold", ["zoh", "continuous"])
+def test_nonlinear_plant_with_measurement_noise_verifies_the_same_on_demand(hold):
+    from tests.engine.test_nonlinear_noise import _pendulum
+
+    _same_verification(_pendulum([-0.005, -0.025], [0.005, 0.025], hold=hold))
