@@ -255,15 +255,11 @@ def _synthesis_check(problem: Problem) -> None:
 
     check_mpc_feasible(problem)
     if problem.regions == "reached":
-        # what a law on demand is not computed or verified for (norms 1 and inf, a
-        # nonlinear plant, ...), refused before the spec is stored
+        # what a law on demand is not computed for (norms 1 and inf: an mp-LP), refused
+        # before the spec is stored
         from codev_engine.law_on_demand import OnDemandLaw
-        from codev_engine.reach.linear import affine_plant
-        from codev_engine.reach.verification import check_on_demand
 
         OnDemandLaw(problem)
-        if problem.verify is not None:
-            check_on_demand(problem, problem.verify.hold, affine_plant(problem) is not None)
 
 
 def _synthesis_compute(run: StageRun) -> Any:

@@ -133,11 +133,11 @@ def test_cli_session_with_regions_reached(tmp_path, capsys):
 
 
 def test_a_session_refuses_what_is_not_verified_on_demand_before_writing(tmp_path):
-    text = LQR.read_text().replace("time_horizon = 20.0", 'time_horizon = "inf"')
-    spec = tmp_path / "forever.toml"
+    text = (EXAMPLES / "double_integrator.toml").read_text()  # (norm inf: an mp-LP)
+    spec = tmp_path / "di.toml"
     spec.write_text(text + '\n[synthesis]\nregions = "reached"\n')
     session = Session.create(tmp_path / "s")
-    with pytest.raises(SpecError, match="synthesis.regions: .*time_horizon"):
+    with pytest.raises(SpecError, match="synthesis.regions: .*norm = \"inf\""):
         session.run(load_spec(spec))
     assert session.journal() == [] and not (tmp_path / "s" / "spec.toml").exists()
 
