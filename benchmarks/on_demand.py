@@ -3,20 +3,21 @@
 
 Usage::
 
-    python benchmarks/on_demand.py [--full-chain] [--chain N] [--horizon T]
+    python benchmarks/on_demand.py [CASE ...] [--full] [--horizon T]
 
-Cases: the bundled 2-norm linear examples (``double_integrator_lqr``, ``mass_spring_soft``,
-``two_carts_mixed``, ``dc_motor_servo``) and a chain of integrators (8 states by default:
-``x_i' = x_{i+1}``, ``x_7' = u``, sample time 0.5, norm 2, N = 4, Q = I, R = 1, ``|x_i| <=
-2``, ``|u| <= 1``) verified from a box of 1 % of the state range around the origin over
-``--horizon`` seconds (2.5 by default: the loop leaves the MPC's feasible set at 3 s, an
-``unsafe``/``undefined`` verdict that is the design's, not the tool's). Per case: regions
-computed, wall seconds (the law, then ``ce.verify``; ``time.perf_counter``), verdict, for the
-full law (``ce.synthesize``), on demand (``OnDemandLaw``) and, for the chain, on demand again
-from the region cache the first run saved (``OnDemandLaw.save``/``load``: what a session's
-later run or another verification of the same MPC does), and whether the tubes are
-identical. The chain's full synthesis takes minutes (11,794 regions): it runs only with
-``--full-chain``.
+Cases: ``examples`` (the bundled 2-norm linear examples ``double_integrator_lqr``,
+``mass_spring_soft``, ``two_carts_mixed``, ``dc_motor_servo``, full law and on demand),
+``chain6``, ``chain8``, ``chain10`` (chains of integrators: ``tests/engine/test_mpqp_chain.py``'s
+spec, N = 4, from a box of 1 % of the state range over ``--horizon`` seconds, 2.5 by
+default: over 5 s the loop leaves the MPC's feasible set at 3 s, the design's verdict),
+``afti16-5``, ``afti16-10`` and ``quadrotor-5``, ``quadrotor-10`` (:func:`afti16`,
+:func:`quadrotor`); default ``examples chain8``. Per case: regions computed, wall seconds
+(the law, then ``ce.verify``; ``time.perf_counter``), CPU seconds and peak resident memory
+of the process, verdict, on demand (``OnDemandLaw``), again from the region cache the first
+run saved (``OnDemandLaw.save``/``load``: what a session's later run or another
+verification of the same MPC does) and, with ``--full``, for the full law
+(``ce.synthesize``: minutes to hours) with whether the tubes are identical. Run one case per
+process for its own peak memory.
 
 A benchmark, not a test: it asserts nothing and exits 0.
 """
