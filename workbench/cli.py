@@ -740,7 +740,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations", "sweep", "startup", "scale",
+    "long_horizon", "formulations", "sweep", "startup", "scale", "on_demand",
 )
 
 
