@@ -179,3 +179,14 @@ def test_pictures_say_the_regions_are_those_reached(grown):
     assert "regions reached (computed on demand" in plot_partition(law).get_title()
     content = RecordingContent.build(problem, law, result, RecordingOptions(traces=2), (0, 1))
     assert "reached (computed on demand; not the whole law)" in content.verdict_text()
+
+
+def test_cli_records_the_regions_reached(tmp_path, capsys):
+    from workbench.cli import main
+
+    rrd = tmp_path / "od.rrd"
+    assert main(["verify", str(LQR), "--regions", "reached", "--record", str(rrd),
+                 "--traces", "2"]) == 0
+    assert rrd.stat().st_size > 0 and "computed on demand" in capsys.readouterr().out
+    code = main(["verify", str(LQR), "--regions", "reached", "--law", str(rrd)])
+    assert code == 2 and "--law needs the whole law" in capsys.readouterr().err
