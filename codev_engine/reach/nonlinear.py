@@ -1095,11 +1095,13 @@ class NonlinearReach(ClosedLoopSetup):
                 status, first_t = kind, when
             return not complete  # stop now?
 
-        A, b = self.law.domain_A, self.law.domain_b
         while frontier:
             nexts: list[_Set] = []
             for s in frontier:
                 t = s.k * self.Ts
+                # the law's domain near the set (the whole domain of a full law; the rows
+                # there of a law computed on demand, law_on_demand.py)
+                A, b = self._domain_near(s)
                 if A is not None and A.shape[0]:
                     _, up = s.range(A)
                     pad = 1e-12 * (1 + np.abs(A) @ (np.abs(s.y) + s.mag()))
@@ -1283,6 +1285,22 @@ class NonlinearReach(ClosedLoopSetup):
         self.absorbed.append((int(s.k), lo, hi))
         return True
 
+    def _seen_box(self, s: _Set) -> tuple[np.ndarray, np.ndarray]:
+        """The box of what the law may see of the set: its states, plus the noise."""
+        xlo, xhi = self._box(s)
+        if self.vr is not None:  # what the law may see: x + v
+            xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
+        return xlo, xhi
+
+    def _domain_near(self, s: _Set) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Rows of the law's domain valid on it that describe it around the set (what the
+        law may see of it): ``law.domain_rows`` (None, None when unknown)."""
+        if not getattr(self.law, "on_demand", False):
+            return self.law.domain_A, self.law.domain_b
+        rows = self.law.domain_rows(*self._seen_box(s))
+        self._law_grown()
+        return (None, None) if rows is None else rows
+
     def _split(self, s: _Set) -> list[tuple[int, _Set]]:
         """One child per region the set meets, its deviation polytope cut by the region.
 
@@ -1290,13 +1308,11 @@ class NonlinearReach(ClosedLoopSetup):
         and |a' M e| <= |M' a|_2: adding these rows to the deviation polytope keeps every
         state of the region (plus 1e-9) -- exact for the star part, sound for the ellipsoid.
         """
-        xlo, xhi = self._box(s)
-        if self.vr is not None:  # what the law may see: x + v
-            xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
-        cand = np.flatnonzero(
-            np.all(self.boxes_lo <= xhi + 1e-9, axis=1)
-            & np.all(self.boxes_hi >= xlo - 1e-9, axis=1)
-        )
+        xlo, xhi = self._seen_box(s)
+        # the regions whose box meets the set's (within 1e-9); a law computed on demand
+        # computes those that meet it now
+        cand = self.law.regions_meeting(xlo, xhi)
+        self._law_grown()
         out = []
         X = s.y[None, :] + s.V @ s.D.T  # images of the deviation polytope's vertices
         xpad = 1e-12 * (np.abs(s.y) + s.mag())
