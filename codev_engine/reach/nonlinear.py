@@ -176,6 +176,10 @@ class NonlinearReach(ClosedLoopSetup):
         this fraction of its star at a sample is replaced by a polytope holding both, so
         the law's region cuts act on all of it (docs/verification.md, "Refuting first,
         and the remainder re-rooted"). None: never.
+    carry : bool
+        Under disturbances or uncertain parameters, their first-order part is carried
+        through the linear flow as a zonotope (``reach/carried.py``) and folded into the
+        star at each sample; False: it goes into the remainder ball, as before.
     """
 
     problem: Problem
