@@ -41,8 +41,8 @@ def describe(data: dict, unit: str) -> str:
     Parameters
     ----------
     data : dict
-        The event's data: ``count`` and, for verification, ``samples`` (the sample reached)
-        and ``boxes`` (reachtube boxes so far).
+        The event's data: ``count`` and, for verification, ``samples`` (the sample reached),
+        ``boxes`` (reachtube boxes so far) and ``doing`` (what a long step is doing).
     unit : str
         What ``count`` counts.
 
@@ -55,6 +55,8 @@ def describe(data: dict, unit: str) -> str:
         words.append(f"sample {data['samples']:,}")
     if data.get("boxes") is not None:
         words.append(f"{data['boxes']:,} boxes")
+    if data.get("doing"):  # the engine's heartbeat in a long step (limits.beat)
+        words.append(str(data["doing"]))
     return ", ".join(words)
 
 

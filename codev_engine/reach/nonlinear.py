@@ -51,6 +51,7 @@ from codev_engine.executor import Executor, result_resubmitting, scattered
 from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import beat
 from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import (
@@ -1071,6 +1072,8 @@ class NonlinearReach(ClosedLoopSetup):
                     return status, tubes, first_t
                 for i, child in children:
                     self.stats["branches"] += 1
+                    self._t_now, self._sample = t, s.k  # (where a deadline stops the run)
+                    beat("enclosures")
                     nxt, tube, findings, rec = self._period(child, i)
                     tubes.append(tube)
                     self._tick(tube.num_boxes, child.k + 1, (child.k + 1) * self.Ts)
@@ -1412,6 +1415,11 @@ class NonlinearReach(ClosedLoopSetup):
         status, tubes, t_bad, failed, v = out
         if status == "ok":
             self.tubes.extend(tubes)
+            # the share of the initial set proved so far (a budget's verdict reports it)
+            vs = self.problem.verify
+            w0 = vs.initial_upper - vs.initial_lower
+            share = np.prod(np.where(w0 > 0, (hi - lo) / np.where(w0 > 0, w0, 1.0), 1.0))
+            self.stats["proved_share"] = self.stats.get("proved_share", 0.0) + float(share)
             return False
         if v is not None:
             x0 = 0.5 * (lo + hi)
@@ -1444,6 +1452,12 @@ class NonlinearReach(ClosedLoopSetup):
         queue.append([lo2, hi, depth + 1, None])
         queue.append([lo, hi1, depth + 1, None])
         return False
+
+    def _complete_until(self, t: float) -> float:
+        """After a stop: 0 -- a cell's tube joins the run's when the cell is proved whole,
+        so the stopped cell's initial states have no tube (``stats["proved_share"]``
+        says how much of the initial set the proved cells cover)."""
+        return 0.0
 
     def run(self, executor: Executor | None = None, cells: int = 1) -> None:
         """Refine the initial set until every cell is proved or the depth runs out (or

@@ -18,8 +18,11 @@ Verdicts
     "inf"``: no invariance certificate within ``max_samples``), or ``"limit"`` (the
     exploration grew past ``codev_engine.limits``, branches, reachtube memory or the time
     limit, or the tube's bounds overflowed past 1.8e308: ``detail`` says which and what
-    to change). A limitation of the verifier is a verdict, never an error
-    blamed on the input.
+    to change), or ``"budget"`` (the verification's time budget, ``[verify] time_budget``
+    or ``budget=``, ran out: ``detail`` says where the proof stopped -- time, sample
+    period, region -- how much of the horizon and of the initial set it proved, and the
+    best margin reached to each property, also in ``stats["margins"]``). A limitation of
+    the verifier is a verdict, never an error blamed on the input.
 
 With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
 ``certificate`` (re-checked when loaded): a polytope (affine plants, by LP) or an invariant
@@ -42,7 +45,8 @@ from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
-from codev_engine.limits import stage_deadline, time_over
+from codev_engine.limits import budget as time_budget
+from codev_engine.limits import heartbeat, stage_deadline, time_over
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -69,6 +73,7 @@ UNKNOWN_WORDS = {
     "did not close",
     "no_invariant": "no invariance certificate within max_samples",
     "limit": "the exploration grew past the verifier's limits",
+    "budget": "the verification's time budget ran out",
     "invariant": "for all time: an invariance certificate",
     "uncertain": "the reach engines do not follow a nonlinear plant's disturbances or "
     "uncertain parameters yet",
@@ -469,6 +474,7 @@ def verify(
     progress: Callable[[dict], None] | None = None,
     executor: Executor | None = None,
     cells: int = 1,
+    budget: float | None = None,
 ) -> VerificationResult:
     """Verify the sampled closed loop of ``problem``'s plant with ``law``.
 
@@ -493,13 +499,31 @@ def verify(
         The nonlinear engine cuts the initial set into ``cells`` parts along each axis
         before refining (``cells ** n`` cells: more, smaller tasks for an executor; the
         tube differs, the argument is the same). Default 1; the linear engine ignores it.
+    budget : float, optional
+        Seconds the verification may take; default ``problem.verify.time_budget`` (None:
+        none). Past them the verdict is ``unknown`` with reason ``"budget"`` and a
+        ``detail`` saying where the proof stopped and the best margins reached (also
+        ``stats["margins"]``). Unlike a time limit (``codev --time-limit``), it is the
+        verification's own and always ends in a verdict.
 
     Returns
     -------
     VerificationResult
+
+    Notes
+    -----
+    ``progress`` is also called between the engine's reports, with the last counters and
+    ``doing`` (what a long step is doing: an LP, a vertex enumeration, an enclosure, a
+    simulation), once a second has passed without a report (``limits.heartbeat``).
     """
-    with stage_deadline():  # CODEV_LIMITS=time=...: checked at each branch period
-        return _verify(problem, law, hold, max_depth, progress, executor, cells)
+    if budget is not None and not (np.isfinite(budget) and budget > 0):
+        raise SpecError(f"must be a positive number of seconds, got {budget:g}",
+                        field="budget")
+    if budget is None and problem.verify is not None:
+        budget = problem.verify.time_budget
+    # CODEV_LIMITS=time=... and the budget: checked at each branch period
+    with stage_deadline(), time_budget(budget), heartbeat(progress) as beating:
+        return _verify(problem, law, hold, max_depth, beating, executor, cells)
 
 
 def _verify(problem, law, hold, max_depth, progress, executor, cells) -> VerificationResult:
@@ -645,6 +669,13 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
                 break
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
+    if verdict == "unknown" and reason == "budget":
+        # how far the proof got: where it stopped, the share proved, the best margins
+        from codev_engine.reach.margin import budget_detail, property_margins
+
+        stats["margins"] = property_margins(problem, tube)
+        stopped = next(f.detail for f in findings if f.kind == "budget").split(": raise")[0]
+        detail = budget_detail(problem, tube, stats, stopped)
     if verdict != "unsafe" and not _finite(tube):
         # bounds past 1e308 (huge sets, disturbances or gains): inf and NaN prove nothing
         verdict, reason, certificate = "unknown", "limit", None
@@ -712,7 +743,10 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     def first(kind: str):
         return min((f for f in findings if f.kind == kind), key=lambda f: f.t)
 
-    if "limit" in kinds:
+    if "budget" in kinds:  # (the detail is completed by the caller: the margins)
+        reason, f = "budget", first("budget")
+        detail = f"{f.detail}; the tube ends at t = {f.t:.6g}"
+    elif "limit" in kinds:
         reason, f = "limit", first("limit")
         detail = f"{f.detail}; the tube ends at t = {f.t:.6g}"
     elif "enclosure" in kinds:
