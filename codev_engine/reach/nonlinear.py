@@ -371,10 +371,27 @@ class NonlinearReach(ClosedLoopSetup):
             self._u_ok[i] = affine_range(law.F[i], law.G[i], law.A[i], law.b[i] + 1e-9)
         return self._u_ok[i]
 
+    def _u_bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The input bounds region ``i``'s input is checked against: ``u_min``, ``u_max``
+        with their 1e-7 slack (the law's rounding), widened by the region's spill -- what
+        the 1e-9 of point location adds to the law's range beyond the region, the
+        locator's rounding, not the law's -- as in the linear engine
+        (``linear.ClosedLoopSetup._region_u``, docs/verification.md). Cached."""
+        cache = self.__dict__.setdefault("_u_bounds_cache", {})
+        if i not in cache:
+            law = self.law
+            lo, hi = self._region_u(i)
+            lo0, hi0 = affine_range(law.F[i], law.G[i], law.A[i], law.b[i])
+            spill_hi = np.where(np.isfinite(hi) & np.isfinite(hi0), np.maximum(hi - hi0, 0), 0)
+            spill_lo = np.where(np.isfinite(lo) & np.isfinite(lo0), np.maximum(lo0 - lo, 0), 0)
+            cache[i] = (self.u_min - spill_lo, self.u_max + spill_hi)
+        return cache[i]
+
     def _region_u_ok(self, i: int) -> bool:
         """Does u = F_i x + G_i meet the input bounds on the whole region i?"""
         lo, hi = self._region_u(i)
-        return bool(np.all(lo >= self.u_min) and np.all(hi <= self.u_max))
+        umin, umax = self._u_bounds(i)
+        return bool(np.all(lo >= umin) and np.all(hi <= umax))
 
     def _eval(self, fn, zlo, zhi):
         """``fn`` over joint boxes, a box meeting a singularity giving ``[-inf, inf]``.
@@ -988,7 +1005,8 @@ class NonlinearReach(ClosedLoopSetup):
                     xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
                 ulo, uhi = self._u_range(i, xlo, xhi)
                 ulo, uhi = np.maximum(ulo, slo), np.minimum(uhi, shi)
-                return bool(np.any(ulo < self.u_min) or np.any(uhi > self.u_max))
+                umin, umax = self._u_bounds(i)
+                return bool(np.any(ulo < umin) or np.any(uhi > umax))
             zl, zu = self._support(rec, F)
             c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
             bl, bu = c @ F.T - r @ np.abs(F).T, c @ F.T + r @ np.abs(F).T
@@ -1017,7 +1035,8 @@ class NonlinearReach(ClosedLoopSetup):
             umin = np.maximum(umin, rlo + cl - cpad)
             umax = np.minimum(umax, rhi + ch + cpad)
             pad = 1e-12 * (1 + np.abs(umin) + np.abs(umax))
-            if np.any(umin - pad < self.u_min) or np.any(umax + pad > self.u_max):
+            bmin, bmax = self._u_bounds(i)
+            if np.any(umin - pad < bmin) or np.any(umax + pad > bmax):
                 return True
         return False
 
