@@ -8,6 +8,7 @@ degenerate pieces and the bounding box corners that are no states.
 
 from __future__ import annotations
 
+import re
 import time
 
 import numpy as np
@@ -260,3 +261,20 @@ def test_a_bounding_box_corner_is_no_exit_from_the_domain():
     alpha, gap = eng._exit(star, A, b2, Y @ A.T - b2[None, :])
     assert alpha is not None and gap > 0
     assert np.all(H @ alpha <= h + 1e-9)
+
+
+def test_failed_enclosure_tube_ends_where_the_detail_says():
+    """The stiff beam from a start whose first periods close: the enclosure fails later
+    (t = 0.1); the detail gives that time, no box lies past it, and every simulated state
+    up to it is in the tube (the contract of a partial tube, docs/verification.md)."""
+    problem = loads_spec(STIFF_BEAM.replace("lower = [1.0, 1.0], upper = [1.5, 1.5]",
+                                            "lower = [2.0, -0.1], upper = [2.5, 0.1]"))
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert (result.verdict, result.reason) == ("unknown", "enclosure"), result.summary()
+    t_fail = float(re.search(r"at t = ([0-9.eE+-]+)", result.detail).group(1))
+    assert t_fail > 0 and "ends there" in result.detail
+    assert result.tube.num_boxes and result.tube.t_end.max() <= t_fail + 1e-9
+    vs = problem.verify
+    t, X, U, alive = simulate_many(problem, law, _initial(vs.initial_lower, vs.initial_upper, 60))
+    assert _outside(result.tube, t, X, t_fail) == 0
