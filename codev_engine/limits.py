@@ -241,18 +241,16 @@ def heartbeat(
     Parameters
     ----------
     progress : callable or None
-        Called with a dict of counters (None: no heartbeat, None yielded).
+        Called with a dict of counters (None: no reports).
     every : float
         Seconds without a report after which :func:`beat` reports again.
 
     Yields
     ------
     callable or None
-        The callback to give the engine: it reports and remembers the report.
+        The callback to give the engine: it reports and remembers the report (None without
+        ``progress``; :func:`stoppable` then still stops at the deadline).
     """
-    if progress is None:
-        yield None
-        return
     state = {"fn": progress, "stats": {}, "last": time.monotonic(), "every": float(every)}
 
     def report(stats: dict) -> None:
@@ -262,7 +260,7 @@ def heartbeat(
     previous = getattr(_BEAT, "state", None)
     _BEAT.state = state
     try:
-        yield report
+        yield None if progress is None else report
     finally:
         _BEAT.state = previous
 
@@ -330,7 +328,7 @@ def beat(doing: str) -> None:
         if over is not None:
             raise DeadlineReached(*over)
     now = time.monotonic()
-    if now - state["last"] < state["every"]:
+    if state["fn"] is None or now - state["last"] < state["every"]:
         return
     state["last"] = now
     state["fn"]({**state["stats"], "doing": doing})
