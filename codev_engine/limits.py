@@ -234,7 +234,7 @@ _BEAT = threading.local()
 
 @contextmanager
 def heartbeat(
-    progress: Callable[[dict], None] | None, every: float = BEAT_EVERY
+    progress: Callable[[dict], None] | None, every: float | None = None
 ) -> Iterator[Callable[[dict], None] | None]:
     """Wrap a progress callback so that :func:`beat` can repeat its last report.
 
@@ -242,8 +242,9 @@ def heartbeat(
     ----------
     progress : callable or None
         Called with a dict of counters (None: no reports).
-    every : float
-        Seconds without a report after which :func:`beat` reports again.
+    every : float, optional
+        Seconds without a report after which :func:`beat` reports again (default
+        :data:`BEAT_EVERY`, read now).
 
     Yields
     ------
@@ -251,6 +252,7 @@ def heartbeat(
         The callback to give the engine: it reports and remembers the report (None without
         ``progress``; :func:`stoppable` then still stops at the deadline).
     """
+    every = BEAT_EVERY if every is None else every
     state = {"fn": progress, "stats": {}, "last": time.monotonic(), "every": float(every)}
 
     def report(stats: dict) -> None:
