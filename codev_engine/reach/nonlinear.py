@@ -1476,6 +1476,7 @@ class NonlinearReach(ClosedLoopSetup):
         """After a stop: 0 -- a cell's tube joins the run's when the cell is proved whole,
         so the stopped cell's initial states have no tube (``stats["proved_share"]``
         says how much of the initial set the proved cells cover)."""
+        self.stats.setdefault("proved_share", 0.0)
         return 0.0
 
     def run(self, executor: Executor | None = None, cells: int = 1) -> None:

@@ -837,6 +837,21 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
         eng = NonlinearReach(bounded, law, hold, depth, progress=progress,
                              absorb=_in_ellipsoids(ells) if serial else None)
         eng.run(executor, cells=cells)
+        stop = [f for f in eng.findings if f.kind in ("budget", "limit")]
+        if stop:  # the run stopped (a limit, the budget): that is the verdict's cause
+            tube = Tube.concatenate(eng.tubes, problem.plant.n)
+            stats = {**eng.stats, "boxes": tube.num_boxes}
+            detail = f"{stop[0].detail}; the tube ends at t = {stop[0].t:.6g}"
+            if stop[0].kind == "budget":
+                from codev_engine.reach.margin import budget_detail, property_margins
+
+                stats["margins"] = property_margins(bounded, tube)
+                detail = budget_detail(bounded, tube, stats, stop[0].detail.split(": raise")[0])
+            stats["seconds"] = time.perf_counter() - t0
+            result = VerificationResult("unknown", stop[0].kind, tube, hold, None, stats,
+                                        detail)
+            result.attach_display(problem=problem, law=law)
+            return result, ""
         if eng.findings:
             return None, ("the bounded tube meets a property before it enters an invariant "
                           f"ellipsoid (within {k} samples)")

@@ -249,3 +249,17 @@ def test_headbox_inf_norm_with_a_disturbance_is_decided_and_its_tube_holds():
     assert _outside(result.tube, t, X, problem.verify.time_horizon) == 0
     assert not violations_many(problem, t, X, U, alive)[0].any()
 
+
+
+def test_nonlinear_budget_says_how_much_of_the_initial_set_it_proved():
+    """The nonlinear engine's cells join the tube when proved whole: a budget that stops
+    one says the share of the initial set proved, and a tube complete up to t = 0 (also
+    under time_horizon = "inf", where the run looks for an invariant ellipsoid)."""
+    for text in (PENDULUM_SAT, PENDULUM_SAT.replace("time_horizon = 0.5",
+                                                    'time_horizon = "inf"')):
+        problem = loads_spec(text)
+        law = synthesize(problem)
+        result = verify(problem, law, budget=0.02)
+        assert (result.verdict, result.reason) == ("unknown", "budget"), result.summary()
+        assert "% of the initial set proved" in result.detail
+        assert result.stats["complete_until"] == 0.0
