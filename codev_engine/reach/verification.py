@@ -671,11 +671,8 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
             verdict, reason, detail = "unsafe", cex.kind, None
     if verdict == "unknown" and reason == "budget":
         # how far the proof got: where it stopped, the share proved, the best margins
-        from codev_engine.reach.margin import budget_detail, property_margins
-
-        stats["margins"] = property_margins(problem, tube)
-        stopped = next(f.detail for f in findings if f.kind == "budget").split(": raise")[0]
-        detail = budget_detail(problem, tube, stats, stopped)
+        detail = _budget_answer(problem, tube, stats,
+                                next(f for f in findings if f.kind == "budget"))
     if verdict != "unsafe" and not _finite(tube):
         # bounds past 1e308 (huge sets, disturbances or gains): inf and NaN prove nothing
         verdict, reason, certificate = "unknown", "limit", None
@@ -769,6 +766,18 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     return reason, detail
 
 
+def _budget_answer(problem: Problem, tube: Tube, stats: dict, finding) -> str:
+    """The ``detail`` of a verification stopped by its budget: where (the engine's words),
+    how far it got and the best margins (``stats["margins"]``, set here), then what to
+    change (``reach.margin``)."""
+    from codev_engine.reach.margin import budget_detail, property_margins
+
+    stats["margins"] = property_margins(problem, tube)
+    where, _, fix = finding.detail.partition(": raise")
+    detail = budget_detail(problem, tube, stats, where)
+    return detail + (f"; to go further raise{fix}" if fix else "")
+
+
 def _check_on_demand(problem: Problem, hold: str, affine: bool) -> None:
     """Refuse what a law computed on demand (``law_on_demand.OnDemandLaw``) is not verified
     with yet: only the linear engine asks the law for the regions its sets meet, under
@@ -843,10 +852,7 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
             stats = {**eng.stats, "boxes": tube.num_boxes}
             detail = f"{stop[0].detail}; the tube ends at t = {stop[0].t:.6g}"
             if stop[0].kind == "budget":
-                from codev_engine.reach.margin import budget_detail, property_margins
-
-                stats["margins"] = property_margins(bounded, tube)
-                detail = budget_detail(bounded, tube, stats, stop[0].detail.split(": raise")[0])
+                detail = _budget_answer(bounded, tube, stats, stop[0])
             stats["seconds"] = time.perf_counter() - t0
             result = VerificationResult("unknown", stop[0].kind, tube, hold, None, stats,
                                         detail)
