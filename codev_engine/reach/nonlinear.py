@@ -1569,6 +1569,8 @@ class NonlinearReach(ClosedLoopSetup):
                     return
                 if self.progress is not None:
                     self.progress(dict(self.stats))
+                # (the cells' own checks run on the workers: the deadline is checked here)
+                beat("cells on the cluster")
         finally:
             client.cancel([e[3] for e in queue if e[3] is not None] + [shared])
 

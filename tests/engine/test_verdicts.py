@@ -89,6 +89,20 @@ lower = [-1.0, -3.0, -0.5, -5.0]
 upper = [1.0, 3.0, 0.5, 5.0]
 """
 
+# The same cart-pendulum tracking a cart position: a free reference r (the law's parameter
+# theta = (x, u_prev, r), 6 dimensions), a step to an unknown 0.4..0.42 m
+CART_TRACKING = CART_PENDULUM.replace(
+    'P = "lqr"\n',
+    'P = "lqr"\nC = [[1.0, 0.0, 0.0, 0.0]]\n'
+    '[mpc.reference]\nsignal = "y"\nlower = [-0.5]\nupper = [0.5]\n',
+).replace(
+    "initial_input = [0.0]\n",
+    "initial_input = [0.0]\nreference = { lower = [0.4], upper = [0.42] }\n",
+).replace(
+    "lower = [-0.02, -0.01, 0.04, -0.01], upper = [0.02, 0.01, 0.06, 0.01]",
+    "lower = [-0.01, -0.01, -0.01, -0.01], upper = [0.01, 0.01, 0.01, 0.01]",
+).replace('name = "cart-pendulum-rate"', 'name = "cart-pendulum-tracking"')
+
 # A ball on a beam with a stiff (cubic) drag: the trajectories settle, but over the reach
 # step the Picard iteration of a wide initial box cannot close
 STIFF_BEAM = """
@@ -183,6 +197,26 @@ def test_rate_limited_cart_pendulum_tube_holds_the_law_s_own_loop():
     T0 = _initial(lo, hi, 60)
     n = problem.plant.n
     t, X, U, alive = simulate_many(problem, law, T0[:, :n], extra0=T0[:, n:])
+    assert _outside(result.tube, t, X, problem.verify.time_horizon) == 0
+    assert not violations_many(problem, t, X, U, alive)[0].any()
+
+
+@pytest.mark.slow
+def test_rate_limited_cart_pendulum_tracking_a_position_holds_the_law_s_own_loop():
+    """theta = (x, u_prev, r): the rate limit binds at the step (|du| = du_max), and the
+    tube holds every simulated state of the law's own loop, u_prev and r included."""
+    problem = loads_spec(CART_TRACKING)
+    law = synthesize(problem)
+    assert law.n == 6
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe", result.summary()
+    assert result.tube.t_end.max() >= problem.verify.time_horizon - 1e-9
+    lo, hi = theta_initial_box(problem)
+    T0 = _initial(lo, hi, 60)
+    n = problem.plant.n
+    t, X, U, alive = simulate_many(problem, law, T0[:, :n], extra0=T0[:, n:])
+    # the rate limit binds at the step: the first input is u_prev + du_max (u_max is 5)
+    assert np.abs(U[:, 0, 0] - T0[:, n]).max() >= 2.0 - 1e-6
     assert _outside(result.tube, t, X, problem.verify.time_horizon) == 0
     assert not violations_many(problem, t, X, U, alive)[0].any()
 
