@@ -6,7 +6,8 @@ Usage::
 
 Cases (the test suite's fixtures, written from published parameters): ``pitch`` (a
 saturating aircraft pitch loop, ``input_bounds = true``), ``cart-pendulum-rate`` (a
-rate-limited 4-state law over theta = (x, u_prev)), ``ball-beam-stiff`` (a nonlinear plant
+rate-limited 4-state law over theta = (x, u_prev)), ``cart-pendulum-tracking`` (the same
+tracking a cart position, theta = (x, u_prev, r)), ``ball-beam-stiff`` (a nonlinear plant
 whose a-priori enclosure fails: ``unknown`` / ``enclosure``), ``headbox`` (a paper machine,
 inf-norm law, a disturbance) and ``pendulum-sat`` (the nonlinear engine's input check on a
 saturating law). Per case: the verdict, the synthesis and the verification's wall seconds,
@@ -35,9 +36,15 @@ from codev_engine.pipeline import loads_spec  # noqa: E402
 from codev_engine.reach.verification import verify  # noqa: E402
 from codev_engine.synthesis import synthesize  # noqa: E402
 from tests.engine.test_budget import HEADBOX, PENDULUM_SAT  # noqa: E402
-from tests.engine.test_verdicts import CART_PENDULUM, PITCH, STIFF_BEAM  # noqa: E402
+from tests.engine.test_verdicts import (  # noqa: E402
+    CART_PENDULUM,
+    CART_TRACKING,
+    PITCH,
+    STIFF_BEAM,
+)
 
-CASES = {"pitch": PITCH, "cart-pendulum-rate": CART_PENDULUM, "ball-beam-stiff": STIFF_BEAM,
+CASES = {"pitch": PITCH, "cart-pendulum-rate": CART_PENDULUM,
+         "cart-pendulum-tracking": CART_TRACKING, "ball-beam-stiff": STIFF_BEAM,
          "headbox": HEADBOX, "pendulum-sat": PENDULUM_SAT}
 
 

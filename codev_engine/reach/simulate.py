@@ -488,6 +488,7 @@ def simulate(
     if disturbance is not None and not problem.plant.uncertain:
         disturbance = replace(disturbance, values=np.zeros((1, 0)))
     while True:
+        beat("a replay")  # (a verification's heartbeat: a long replay of a counterexample)
         a = k * Ts
         vk = disturbance.noise_at(k) if noisy else np.zeros(n)
         theta = np.concatenate([x + vk, extra])
