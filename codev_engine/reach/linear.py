@@ -1446,6 +1446,8 @@ class LinearReach(ClosedLoopSetup):
         next_try, attempts = 1, 0
         while frontier:
             k = frontier[0].k
+            # (sample by sample: a stop leaves the tube complete up to this sample)
+            self._pending = frontier
             if anchor is not None and k > anchor["k"]:
                 if all(self._inside(s, anchor["S"]) for s in frontier):
                     anchor["closing"] = frontier

@@ -263,3 +263,20 @@ def test_nonlinear_budget_says_how_much_of_the_initial_set_it_proved():
         assert (result.verdict, result.reason) == ("unknown", "budget"), result.summary()
         assert "% of the initial set proved" in result.detail
         assert result.stats["complete_until"] == 0.0
+
+
+def test_budget_partial_tube_of_merged_exploration_holds_up_to_its_time():
+    """The pitch loop (the linear engine's sample-by-sample merged exploration) stopped by a
+    budget: the tube holds every simulated state up to the time the detail gives (the
+    sample the frontier had reached, not the end of the period that ran past the budget)."""
+    from tests.engine.test_verdicts import PITCH, _initial
+
+    problem = loads_spec(PITCH)
+    law = synthesize(problem)
+    result = verify(problem, law, budget=0.1)
+    assert (result.verdict, result.reason) == ("unknown", "budget"), result.summary()
+    done = result.stats["complete_until"]
+    assert f"up to t = {done:.6g}" in result.detail
+    vs = problem.verify
+    t, X, _, _ = simulate_many(problem, law, _initial(vs.initial_lower, vs.initial_upper, 60))
+    assert _outside(result.tube, t, X, done) == 0
