@@ -63,7 +63,7 @@ def main() -> None:
     ap.add_argument("--budget", type=float, default=10.0)
     args = ap.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f}")
-    print(f"{'case':<20} {'verdict':<36} {'synth s':>8} {'verify s':>9} {'max pause s':>12}")
+    print(f"{'case':<24} {'verdict':<36} {'synth s':>8} {'verify s':>9} {'max pause s':>12}")
     for name, text in CASES.items():
         problem = loads_spec(text)
         t0 = time.perf_counter()
@@ -71,7 +71,7 @@ def main() -> None:
         synth = time.perf_counter() - t0
         result, seconds, pause = _timed(problem, law)
         verdict = f"{result.verdict}/{result.reason or '-'}"
-        print(f"{name:<20} {verdict:<36} {synth:>8.2f} {seconds:>9.2f} {pause:>12.2f}")
+        print(f"{name:<24} {verdict:<36} {synth:>8.2f} {seconds:>9.2f} {pause:>12.2f}")
     # the stall of the issue: horizon 4 (310 regions), its disturbed sets' region cuts
     # take tens of seconds per sample period
     problem = loads_spec(HEADBOX.replace("\nhorizon = 2\n", "\nhorizon = 4\n"))
