@@ -45,8 +45,8 @@ from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import DeadlineReached, heartbeat, stage_deadline, stoppable, time_over
 from codev_engine.limits import budget as time_budget
-from codev_engine.limits import heartbeat, stage_deadline, time_over
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -619,7 +619,7 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
             # signals and the parameter box's corners takes a second; a counterexample it
             # finds is replayed (DOP853) and stands for itself, whatever the proof says
             # (docs/verification.md, "Refuting first")
-            cex = _search(problem, law, hold)
+            cex = _stoppable_search(lambda: _search(problem, law, hold))
             searched = True
             if cex is not None:
                 stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0,
@@ -664,8 +664,8 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
             searches = []
         for search in searches:
             with np.errstate(all="ignore"):  # simulations of a diverging loop
-                cex = search()
-            if cex is not None:
+                cex = _stoppable_search(search)
+            if cex is not None or time_over() is not None:
                 break
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
@@ -764,6 +764,17 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
                    "reproduced by simulation, and the exploration stopped there: the tube "
                    f"is partial after t = {c.t:.6g}")
     return reason, detail
+
+
+def _stoppable_search(search: Callable[[], Counterexample | None]) -> Counterexample | None:
+    """``search()``, stopped (no counterexample) when the deadline passes inside it: the
+    concrete searches' simulations beat (``limits.beat``), so a budget or a time limit
+    ends a long search too, and the verdict says what the proof reached."""
+    try:
+        with stoppable():
+            return search()
+    except DeadlineReached:
+        return None
 
 
 def _budget_answer(problem: Problem, tube: Tube, stats: dict, finding) -> str:
