@@ -280,3 +280,4 @@ def test_budget_partial_tube_of_merged_exploration_holds_up_to_its_time():
     vs = problem.verify
     t, X, _, _ = simulate_many(problem, law, _initial(vs.initial_lower, vs.initial_upper, 60))
     assert _outside(result.tube, t, X, done) == 0
+
