@@ -4,8 +4,9 @@ A verification stopped by its time budget (``[verify] time_budget``, ``codev ver
 --budget``) is ``unknown``; what it proved is still worth saying. :func:`property_margins`
 measures, over the tube explored so far, the smallest signed distance between its boxes and
 each checked set (positive: every box keeps clear of the unsafe set / inside the safe set by
-at least that much; negative: some box crosses the boundary by that much, a possible
-violation not yet decided), and the time where it is smallest. :func:`budget_detail` puts it
+at least that much; negative: for an unsafe set, no row of the set separates some box from
+it -- the box may meet it, a possible violation not yet decided -- and for a safe set some
+box sticks out of it by that much), and the time where it is smallest. :func:`budget_detail` puts it
 in words with how much of the horizon and of the initial set was proved.
 
 The distances are along the sets' normalised rows (``normalize_rows``), so a positive margin
