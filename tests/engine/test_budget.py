@@ -281,3 +281,21 @@ def test_budget_partial_tube_of_merged_exploration_holds_up_to_its_time():
     t, X, _, _ = simulate_many(problem, law, _initial(vs.initial_lower, vs.initial_upper, 60))
     assert _outside(result.tube, t, X, done) == 0
 
+
+
+def test_property_margins_are_signed_distances_along_the_sets_rows():
+    from codev_engine.reach.margin import property_margins
+    from codev_engine.reach.tube import Tube
+
+    spec = HEADBOX.replace(
+        "[[verify.safe]]",
+        "[[verify.unsafe]]\nlower = [2.0, -inf, -inf, -inf]\nupper = [inf, inf, inf, inf]\n"
+        "[[verify.safe]]")
+    problem = loads_spec(spec, check_mpc=False)
+    lo = np.array([[0.0, 0.0, 0.0, 0.0], [1.0, -9.5, 0.0, 0.0]])
+    hi = np.array([[0.5, 1.0, 1.0, 1.0], [2.5, 0.0, 0.0, 0.0]])
+    tube = Tube(np.array([0.0, 1.0]), np.array([1.0, 2.0]), lo, hi, np.zeros(2, dtype=int))
+    unsafe, safe = property_margins(problem, tube)
+    # box 0 keeps 1.5 from x1 >= 2, box 1 reaches 0.5 into it; box 1 is 0.5 from x2 = -10
+    assert unsafe == {"property": "unsafe set 0", "margin": -0.5, "t": 1.0}
+    assert safe == {"property": "safe set 0", "margin": 0.5, "t": 1.0}
