@@ -1199,7 +1199,7 @@ def _build_parser() -> argparse.ArgumentParser:
             "--quiet",
             action="store_true",
             help="no progress on stderr (by default: a live line on a terminal, else a plain "
-            "line once work has run 1 s, then every 5 s)",
+            "line once work has run 1 s, then every 4 s)",
         )
     return parser
 

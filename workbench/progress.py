@@ -30,7 +30,7 @@ __all__ = ["PLAIN_AFTER", "PLAIN_EVERY", "describe", "stage_progress"]
 #: seconds a stage runs before its first plain progress line
 PLAIN_AFTER = 1.0
 #: seconds between two plain progress lines of one stage
-PLAIN_EVERY = 5.0
+PLAIN_EVERY = 4.0  # (the heartbeat thread polls every 0.5 s: lines at most 4.5 s apart)
 #: the unit of each stage's count
 UNITS = {"synthesis": "regions", "verification": "branches"}
 
