@@ -94,7 +94,8 @@ def budget_detail(problem: Problem, tube: Tube, stats: dict, stopped: str) -> st
     done = stats.get("complete_until")
     if done is not None and np.isfinite(T) and T > 0:
         words.append(f"the tube holds every trajectory up to t = {done:.6g} "
-                     f"({100 * min(done / T, 1.0):.0f} % of the horizon)")
+                     f"({100 * min(done / T, 1.0):.0f} % of the horizon)" if done > 0 else
+                     "no stretch of the horizon is proved for every trajectory")
     share = stats.get("proved_share")
     if share is not None:
         words.append(f"{100 * min(share, 1.0):.1f} % of the initial set proved")

@@ -62,6 +62,10 @@ lower = [-10.0, -10.0, -10.0, -10.0]
 upper = [10.0, 10.0, 10.0, 10.0]
 """
 
+# the headbox over 200 sample periods: its verification takes far longer than the budgets
+# below on any machine (about 2 s per 10 periods here), so they always run out
+HEADBOX_LONG = HEADBOX.replace("time_horizon = 20.0", "time_horizon = 400.0")
+
 # the bundled pendulum (examples/pendulum.toml) over its saturated first 0.5 s, coarser
 PENDULUM_SAT = """
 name = "pendulum-sat"
@@ -110,9 +114,10 @@ def _outside(tube, t: np.ndarray, X: np.ndarray, t_max: float, tol: float = 1e-9
     return count
 
 
-def _disturbed_runs(problem, law, P: int = 60, seed: int = 3):
-    """Dense simulations from the initial box's corners and random points, each under its
-    own disturbance signal (held corners, bang-bang and random pieces)."""
+def _disturbed_runs(problem, law, P: int = 60, seed: int = 3, t_end: float | None = None):
+    """Dense simulations (up to ``t_end``, default the horizon) from the initial box's
+    corners and random points, each under its own disturbance signal (held corners,
+    bang-bang and random pieces)."""
     vs = problem.verify
     n = problem.plant.n
     lo, hi = vs.initial_lower, vs.initial_upper
@@ -120,7 +125,7 @@ def _disturbed_runs(problem, law, P: int = 60, seed: int = 3):
     rng = np.random.default_rng(seed)
     X0 = np.vstack([corners.reshape(n, -1).T, rng.uniform(lo, hi, (P, n))])
     piece, W, Q = _signals(problem, X0.shape[0], seed=seed)
-    return simulate_many(problem, law, X0, disturbance=(piece, W, Q))
+    return simulate_many(problem, law, X0, disturbance=(piece, W, Q), t_end=t_end)
 
 
 # --- the spec field ---------------------------------------------------------------------------
@@ -156,7 +161,7 @@ def test_budget_ends_in_unknown_with_margins_and_a_partial_tube_that_holds(tmp_p
     and how far it got, the margins are in stats, --json and the saved result; the tube holds
     every disturbed trajectory up to the time the detail gives. Progress never paused for
     more than a few heartbeats (each long step beats once a second)."""
-    problem = loads_spec(HEADBOX)
+    problem = loads_spec(HEADBOX_LONG)
     law = synthesize(problem)
     reports: list[tuple[float, dict]] = []
     # beats after 0.1 s without a report (1 s by default): on an idle machine the steps
@@ -167,10 +172,10 @@ def test_budget_ends_in_unknown_with_margins_and_a_partial_tube_that_holds(tmp_p
         reports.append((time.monotonic(), stats))
 
     start = time.monotonic()
-    result = verify(problem, law, budget=4.0, progress=progress)
+    result = verify(problem, law, budget=3.0, progress=progress)
     end = time.monotonic()
     assert (result.verdict, result.reason) == ("unknown", "budget"), result.summary()
-    assert "time budget of 4 s ran out at t = " in result.detail
+    assert "time budget of 3 s ran out at t = " in result.detail
     assert "sample period" in result.detail and "% of the horizon" in result.detail
     assert "best margins so far" in result.detail and "safe set 0" in result.detail
     (margin,) = result.stats["margins"]
@@ -180,12 +185,12 @@ def test_budget_ends_in_unknown_with_margins_and_a_partial_tube_that_holds(tmp_p
     times = [start] + [t for t, _ in reports] + [end]
     assert max(np.diff(times)) < 3.0, max(np.diff(times))
     doing = {s.get("doing") for _, s in reports}
-    assert {"a disturbed set cut by a region", "vertex enumeration"} <= doing, doing
+    assert "a disturbed set cut by a region" in doing, doing
     # the partial tube's contract, against the law's own loop under disturbances
     done = result.stats["complete_until"]
     assert f"up to t = {done:.6g}" in result.detail
     assert done > 0 and result.tube.t_end.max() >= done
-    t, X, _, _ = _disturbed_runs(problem, law)
+    t, X, _, _ = _disturbed_runs(problem, law, t_end=done)
     assert _outside(result.tube, t, X, done) == 0
     # the verdict artifact keeps them
     again = VerificationResult.load(result.save(tmp_path / "r.npz"))
@@ -196,7 +201,7 @@ def test_cli_budget_answers_with_margins_in_json(tmp_path):
     import json
 
     spec = tmp_path / "headbox.toml"
-    spec.write_text(HEADBOX.replace('hold = "zoh"', 'hold = "zoh"\ntime_budget = 600'))
+    spec.write_text(HEADBOX_LONG.replace('hold = "zoh"', 'hold = "zoh"\ntime_budget = 600'))
     out = run_codev("verify", spec, "--budget", "2", "--json", cwd=tmp_path)
     assert out.returncode == 1, out.stderr
     payload = json.loads(out.stdout)  # the flag overrides the spec's budget
@@ -276,6 +281,9 @@ def test_budget_partial_tube_of_merged_exploration_holds_up_to_its_time():
     result = verify(problem, law, budget=0.1)
     assert (result.verdict, result.reason) == ("unknown", "budget"), result.summary()
     done = result.stats["complete_until"]
+    if done == 0:  # (a loaded machine: the budget ran out before the first period)
+        assert "no stretch of the horizon is proved" in result.detail
+        return
     assert f"up to t = {done:.6g}" in result.detail
     vs = problem.verify
     t, X, _, _ = simulate_many(problem, law, _initial(vs.initial_lower, vs.initial_upper, 60))
