@@ -149,6 +149,8 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
         "partitions": result.stats.get("partitions"),
         "boxes": result.tube.num_boxes,
         "tube_width_at_horizon": [None if not np.isfinite(w) else float(w) for w in width],
+        # a verdict stopped by its budget: the best margin to each property, where
+        "margins": result.stats.get("margins"),
         "counterexample": None
         if cex is None
         else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind, "index": cex.index,
@@ -187,9 +189,11 @@ def _verification(
             hold=args.hold,
             max_depth=args.max_depth,
             progress=lambda st: update(
-                st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
+                st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes"),
+                doing=st.get("doing"),
             ),
             executor=executor,
+            budget=args.budget,
         )
     tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
     if getattr(args, "record", None):
@@ -315,6 +319,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 "--fresh needs --session (there is no cache without one)", field="--fresh"
             )
         return _cmd_verify(args)
+    if args.budget is not None:  # (a session records the spec, where the budget belongs)
+        raise SpecError("--budget is not recorded by a session: write [verify] time_budget "
+                        "in the spec instead", field="--budget")
     from codev_engine.pipeline import load_spec
     from codev_engine.session import RunOptions, Session
 
@@ -1075,6 +1082,12 @@ def _build_parser() -> argparse.ArgumentParser:
                        help="override synthesis.regions: the whole law, or only the regions "
                        "the reach sets meet, computed on demand (norm 2, linear plants)")
         p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
+        p.add_argument(
+            "--budget", type=float, metavar="SECONDS",
+            help="the verification's time budget (overrides verify.time_budget): past it "
+            "the verdict is unknown (reason budget) with where the proof stopped and the "
+            "best margins reached. Unlike --time-limit (the whole command, synthesis "
+            "included, which may end without a verdict) it always ends in a verdict")
         p.add_argument("--json", action="store_true", help="print a JSON summary only")
         _add_executor_options(p, "the mp-QP search and the nonlinear verification's cells")
         p.add_argument("--record", metavar="FILE.rrd", help="write a Rerun recording")
@@ -1254,7 +1267,8 @@ def _build_parser() -> argparse.ArgumentParser:
             type=float,
             metavar="SECONDS",
             help="end the command after SECONDS: a verification is unknown (reason limit), "
-            "a synthesis one line, exit 1 (also CODEV_LIMITS=time=SECONDS)",
+            "a synthesis one line, exit 1 (also CODEV_LIMITS=time=SECONDS; for the "
+            "verification alone, with margins: --budget)",
         )
     for name in ("synth", "verify", "run", "sweep", "replay", "mpsolve", "report"):
         sub.choices[name].add_argument(
@@ -1262,7 +1276,7 @@ def _build_parser() -> argparse.ArgumentParser:
             "--quiet",
             action="store_true",
             help="no progress on stderr (by default: a live line on a terminal, else a plain "
-            "line once work has run 1 s, then every 5 s)",
+            "line once work has run 1 s, then every 4 s)",
         )
     return parser
 
@@ -1387,10 +1401,11 @@ def _check_counts(args: argparse.Namespace) -> None:
     depth = getattr(args, "max_depth", None)
     if depth is not None and not 0 <= depth <= MAX_DEPTH:
         raise SpecError(f"must be 0..{MAX_DEPTH}, got {depth:,}", field="--max-depth")
-    limit = getattr(args, "time_limit", None)
-    if limit is not None and not (math.isfinite(limit) and limit > 0):
-        raise SpecError(f"must be a positive number of seconds, got {limit:g}",
-                        field="--time-limit")
+    for flag in ("time_limit", "budget"):
+        limit = getattr(args, flag, None)
+        if limit is not None and not (math.isfinite(limit) and limit > 0):
+            raise SpecError(f"must be a positive number of seconds, got {limit:g}",
+                            field="--" + flag.replace("_", "-"))
 
 
 #: seconds past the deadline before the backstop interrupts work that does not check it

@@ -30,7 +30,7 @@ __all__ = ["PLAIN_AFTER", "PLAIN_EVERY", "describe", "stage_progress"]
 #: seconds a stage runs before its first plain progress line
 PLAIN_AFTER = 1.0
 #: seconds between two plain progress lines of one stage
-PLAIN_EVERY = 5.0
+PLAIN_EVERY = 4.0  # (the heartbeat thread polls every 0.5 s: lines at most 4.5 s apart)
 #: the unit of each stage's count
 UNITS = {"synthesis": "regions", "verification": "branches"}
 
@@ -41,8 +41,8 @@ def describe(data: dict, unit: str) -> str:
     Parameters
     ----------
     data : dict
-        The event's data: ``count`` and, for verification, ``samples`` (the sample reached)
-        and ``boxes`` (reachtube boxes so far).
+        The event's data: ``count`` and, for verification, ``samples`` (the sample reached),
+        ``boxes`` (reachtube boxes so far) and ``doing`` (what a long step is doing).
     unit : str
         What ``count`` counts.
 
@@ -55,6 +55,8 @@ def describe(data: dict, unit: str) -> str:
         words.append(f"sample {data['samples']:,}")
     if data.get("boxes") is not None:
         words.append(f"{data['boxes']:,} boxes")
+    if data.get("doing"):  # the engine's heartbeat in a long step (limits.beat)
+        words.append(str(data["doing"]))
     return ", ".join(words)
 
 

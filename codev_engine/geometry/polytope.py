@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import daqp
 import numpy as np
 
+from codev_engine.limits import beat
+
 __all__ = [
     "Polytope",
     "solve_lp",
@@ -170,6 +172,7 @@ def solve_lp(
         Multipliers of the rows of ``A`` (>= 0), then of ``Aeq`` (DAQP's sign convention,
         ``f + A' lam = 0`` at the optimum); None when they come from the fallback.
     """
+    beat("LPs")  # (a verification's heartbeat: loops of many LPs report progress)
     nx = f.shape[0]
     k = b.shape[0]
     ke = Aeq.shape[0] if Aeq is not None else 0

@@ -62,6 +62,7 @@ import numpy as np
 
 from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+from codev_engine.limits import beat
 
 __all__ = [
     "DET_TOL",
@@ -238,6 +239,7 @@ def _enumerate(
     """Vertices of G polytopes of k rows each, ``A`` (G, k, d), ``b`` (G, k), from the row
     subsets ``idx`` (C, d) -> the polytope of each (N,), non-decreasing, and the vertices
     (N, d)."""
+    beat("vertex enumeration")
     G, k, d = A.shape
     C = idx.shape[0]
     bound = b + (tol + rtol * np.abs(b))  # (G, k) what A x may reach
@@ -488,6 +490,7 @@ def _closed_under_edges(V: np.ndarray, A: np.ndarray, b: np.ndarray, tol: float)
     (``T`` its tight rows): the null direction of d - 1 independent tight rows that
     leaves no tight row. Each is followed to the first row it meets.
     """
+    beat("vertex enumeration")
     nv, d = V.shape
     slack = b[None, :] - V @ A.T  # (v, k)
     tight = np.abs(slack) <= tol

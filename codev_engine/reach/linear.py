@@ -35,7 +35,7 @@ from codev_engine.geometry.polytope import (
 )
 from codev_engine.geometry.vertices import FACET_TOL, box_corners, checked_piece, vertices
 from codev_engine.law import ExplicitLaw
-from codev_engine.limits import limits, time_over
+from codev_engine.limits import DeadlineReached, beat, limits, stoppable, time_over_kind
 from codev_engine.plant import symbolic_model
 from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
@@ -47,14 +47,16 @@ _REL = 1e-12  # relative floating-point margin per propagated quantity
 
 class ExplorationLimitError(Exception):
     """The exploration grew past ``codev_engine.limits`` (``branches``, ``tube_bytes``; the
-    message says which, and what to change); ``t`` is the time reached."""
+    message says which, and what to change); ``t`` is the time reached; ``kind`` is
+    ``"limit"``, or ``"budget"`` when the verification's time budget ran out."""
 
-    def __init__(self, message: str, t: float):
+    def __init__(self, message: str, t: float, kind: str = "limit"):
         super().__init__(message)
         self.t = t
+        self.kind = kind
 
     def __reduce__(self):  # (whole through pickle: a worker's exception reaches the client)
-        return type(self), (str(self), self.t)
+        return type(self), (str(self), self.t, self.kind)
 
 
 @dataclass(frozen=True)
@@ -441,24 +443,50 @@ class ClosedLoopSetup:
                 f"by t = {t:.4g}: raise verify.step or shorten verify.time_horizon",
                 t,
             )
-        over = time_over()
+        over = time_over_kind()
         if over is not None:
-            raise ExplorationLimitError(
-                f"the time limit of {over:g} s was reached by t = {t:.4g}: raise "
-                "--time-limit / CODEV_LIMITS=time=SECONDS, shrink verify.initial_set, "
-                "shorten verify.time_horizon or lower verify.max_depth",
-                t,
-            )
+            raise self._deadline_error(*over, t, max(sample - 1, 0))
         progress = getattr(self, "progress", None)
         if progress is not None:
             progress({**self.stats, "samples": sample, "boxes": self.boxes})
 
+    def _deadline_error(self, kind: str, seconds: float, t: float,
+                        period: int) -> ExplorationLimitError:
+        """The stop at a deadline (``kind`` ``"limit"`` or ``"budget"``) at time ``t`` of
+        sample period ``period``, in words: where (and in which region), what to change."""
+        where = f"t = {t:.4g} (sample period {period}"
+        region = getattr(self, "_region", None)
+        where += ")" if region is None else f", region {region})"
+        if kind == "budget":
+            return ExplorationLimitError(
+                f"the time budget of {seconds:g} s ran out at {where}: raise "
+                "verify.time_budget / --budget, shrink verify.initial_set or shorten "
+                "verify.time_horizon", t, "budget")
+        return ExplorationLimitError(
+            f"the time limit of {seconds:g} s was reached at {where}: raise "
+            "--time-limit / CODEV_LIMITS=time=SECONDS, shrink verify.initial_set, "
+            "shorten verify.time_horizon or lower verify.max_depth", t)
+
     def _limited(self, run: Callable[[], None]) -> None:
         """``run()``; past a limit, a ``"limit"`` finding (what was explored is kept)."""
         try:
-            run()
+            with stoppable():  # a long step stops within a heartbeat of the deadline
+                run()
+        except DeadlineReached as stop:
+            # in the middle of a period: its star (``_t_now``, 0 for a nonlinear cell) is
+            # not finished, what was explored before it is kept
+            exc = self._deadline_error(stop.kind, stop.seconds, getattr(self, "_t_now", 0.0),
+                                       getattr(self, "_sample", 0))
+            self.findings.append(Finding(exc.kind, -1, exc.t, None, str(exc)))
+            self.stats["complete_until"] = self._complete_until(exc.t)
         except ExplorationLimitError as exc:
-            self.findings.append(Finding("limit", -1, exc.t, None, str(exc)))
+            self.findings.append(Finding(exc.kind, -1, exc.t, None, str(exc)))
+            self.stats["complete_until"] = self._complete_until(exc.t)
+
+    def _complete_until(self, t: float) -> float:
+        """After a stop at time ``t``: every trajectory is in the tube up to the earliest
+        branch left unexplored (the stack of stars at their samples, the stopped one)."""
+        return float(min([t, *(st.k * self.Ts for st in getattr(self, "_pending", ()))]))
 
 
 @dataclass
@@ -872,6 +900,8 @@ class LinearReach(ClosedLoopSetup):
 
     def _period(self, s: _Star, i: int) -> _Star | None:
         """Propagate star s (at sample k, in region i) through one period; check it."""
+        # (where a limit stops the run, in its message)
+        self._region, self._t_now, self._sample = i, s.k * self.Ts, s.k
         t_k = s.k * self.Ts
         tau_end = min(self.Ts, self.T - t_k)
         taus = _grid(tau_end, self.step)
@@ -1067,6 +1097,7 @@ class LinearReach(ClosedLoopSetup):
         With measurement noise, one child per region that the star's Minkowski sum with
         the noise box meets: the child holds the states whose measurement may select it.
         """
+        self._region, self._t_now, self._sample = None, s.k * self.Ts, s.k
         Y = s.c[None, :] + s.verts @ s.V.T
         lo = Y.min(axis=0) - s.err
         hi = Y.max(axis=0) + s.err
@@ -1213,6 +1244,7 @@ class LinearReach(ClosedLoopSetup):
         h0 = np.ones(2 * n)
         verts0 = box_corners(-np.ones(n), np.ones(n))  # P's vertices, exact
         stack = [_Star(self.c0.copy(), self.V0.copy(), H0, h0, verts0, np.zeros(n), 0)]
+        self._pending = stack  # (what a limit leaves unexplored: stats["complete_until"])
         while stack:
             s = stack.pop()
             out = self._split(s)
@@ -1307,6 +1339,7 @@ class LinearReach(ClosedLoopSetup):
         """The part of disturbed star s in region i as a star in state coordinates: its
         template hull (:meth:`_hull`, the generators' exact support) cut by region i's rows
         (+1e-9); None when that is empty (the star misses the region)."""
+        beat("a disturbed set cut by a region")
         D = self._directions([s], i)
         absD = np.abs(D)
         X = s.c[None, :] + s.verts @ s.V.T
@@ -1413,6 +1446,8 @@ class LinearReach(ClosedLoopSetup):
         next_try, attempts = 1, 0
         while frontier:
             k = frontier[0].k
+            # (sample by sample: a stop leaves the tube complete up to this sample)
+            self._pending = frontier
             if anchor is not None and k > anchor["k"]:
                 if all(self._inside(s, anchor["S"]) for s in frontier):
                     anchor["closing"] = frontier

@@ -51,6 +51,7 @@ from codev_engine.executor import Executor, result_resubmitting, scattered
 from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import beat
 from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.carried import carried_zonotope
 from codev_engine.reach.interval import IntervalDomainError
@@ -386,10 +387,27 @@ class NonlinearReach(ClosedLoopSetup):
             self._u_ok[i] = affine_range(law.F[i], law.G[i], law.A[i], law.b[i] + 1e-9)
         return self._u_ok[i]
 
+    def _u_bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """The input bounds region ``i``'s input is checked against: ``u_min``, ``u_max``
+        with their 1e-7 slack (the law's rounding), widened by the region's spill -- what
+        the 1e-9 of point location adds to the law's range beyond the region, the
+        locator's rounding, not the law's -- as in the linear engine
+        (``linear.ClosedLoopSetup._region_u``, docs/verification.md). Cached."""
+        cache = self.__dict__.setdefault("_u_bounds_cache", {})
+        if i not in cache:
+            law = self.law
+            lo, hi = self._region_u(i)
+            lo0, hi0 = affine_range(law.F[i], law.G[i], law.A[i], law.b[i])
+            spill_hi = np.where(np.isfinite(hi) & np.isfinite(hi0), np.maximum(hi - hi0, 0), 0)
+            spill_lo = np.where(np.isfinite(lo) & np.isfinite(lo0), np.maximum(lo0 - lo, 0), 0)
+            cache[i] = (self.u_min - spill_lo, self.u_max + spill_hi)
+        return cache[i]
+
     def _region_u_ok(self, i: int) -> bool:
         """Does u = F_i x + G_i meet the input bounds on the whole region i?"""
         lo, hi = self._region_u(i)
-        return bool(np.all(lo >= self.u_min) and np.all(hi <= self.u_max))
+        umin, umax = self._u_bounds(i)
+        return bool(np.all(lo >= umin) and np.all(hi <= umax))
 
     def _eval(self, fn, zlo, zhi):
         """``fn`` over joint boxes, a box meeting a singularity giving ``[-inf, inf]``.
@@ -1033,7 +1051,8 @@ class NonlinearReach(ClosedLoopSetup):
                     xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
                 ulo, uhi = self._u_range(i, xlo, xhi)
                 ulo, uhi = np.maximum(ulo, slo), np.minimum(uhi, shi)
-                return bool(np.any(ulo < self.u_min) or np.any(uhi > self.u_max))
+                umin, umax = self._u_bounds(i)
+                return bool(np.any(ulo < umin) or np.any(uhi > umax))
             zl, zu = self._support(rec, F)
             c, r = 0.5 * (lo + hi), 0.5 * (hi - lo)
             bl, bu = c @ F.T - r @ np.abs(F).T, c @ F.T + r @ np.abs(F).T
@@ -1062,7 +1081,8 @@ class NonlinearReach(ClosedLoopSetup):
             umin = np.maximum(umin, rlo + cl - cpad)
             umax = np.minimum(umax, rhi + ch + cpad)
             pad = 1e-12 * (1 + np.abs(umin) + np.abs(umax))
-            if np.any(umin - pad < self.u_min) or np.any(umax + pad > self.u_max):
+            bmin, bmax = self._u_bounds(i)
+            if np.any(umin - pad < bmin) or np.any(umax + pad > bmax):
                 return True
         return False
 
@@ -1119,6 +1139,8 @@ class NonlinearReach(ClosedLoopSetup):
                     return status, tubes, first_t
                 for i, child in children:
                     self.stats["branches"] += 1
+                    self._t_now, self._sample = t, s.k  # (where a deadline stops the run)
+                    beat("enclosures")
                     nxt, tube, findings, rec = self._period(child, i)
                     tubes.append(tube)
                     self._tick(tube.num_boxes, child.k + 1, (child.k + 1) * self.Ts)
@@ -1536,6 +1558,11 @@ class NonlinearReach(ClosedLoopSetup):
         status, tubes, t_bad, failed, v = out
         if status == "ok":
             self.tubes.extend(tubes)
+            # the share of the initial set proved so far (a budget's verdict reports it)
+            vs = self.problem.verify
+            w0 = vs.initial_upper - vs.initial_lower
+            share = np.prod(np.where(w0 > 0, (hi - lo) / np.where(w0 > 0, w0, 1.0), 1.0))
+            self.stats["proved_share"] = self.stats.get("proved_share", 0.0) + float(share)
             return False
         if v is not None:
             x0 = 0.5 * (lo + hi)
@@ -1568,6 +1595,13 @@ class NonlinearReach(ClosedLoopSetup):
         queue.append([lo2, hi, depth + 1, None])
         queue.append([lo, hi1, depth + 1, None])
         return False
+
+    def _complete_until(self, t: float) -> float:
+        """After a stop: 0 -- a cell's tube joins the run's when the cell is proved whole,
+        so the stopped cell's initial states have no tube (``stats["proved_share"]``
+        says how much of the initial set the proved cells cover)."""
+        self.stats.setdefault("proved_share", 0.0)
+        return 0.0
 
     def run(self, executor: Executor | None = None, cells: int = 1) -> None:
         """Refine the initial set until every cell is proved or the depth runs out (or
@@ -1659,6 +1693,8 @@ class NonlinearReach(ClosedLoopSetup):
                     return
                 if self.progress is not None:
                     self.progress(dict(self.stats))
+                # (the cells' own checks run on the workers: the deadline is checked here)
+                beat("cells on the cluster")
         finally:
             client.cancel([e[3] for e in queue if e[3] is not None] + [shared])
 

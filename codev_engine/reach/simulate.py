@@ -47,6 +47,7 @@ import numpy as np
 
 from codev_engine.errors import SolverError
 from codev_engine.law import ExplicitLaw
+from codev_engine.limits import beat
 from codev_engine.plant import plant_model
 from codev_engine.spec.choices import HOLDS
 from codev_engine.spec.problem import Problem, VerifySpec
@@ -487,6 +488,7 @@ def simulate(
     if disturbance is not None and not problem.plant.uncertain:
         disturbance = replace(disturbance, values=np.zeros((1, 0)))
     while True:
+        beat("a replay")  # (a verification's heartbeat: a long replay of a counterexample)
         a = k * Ts
         vk = disturbance.noise_at(k) if noisy else np.zeros(n)
         theta = np.concatenate([x + vk, extra])
@@ -859,6 +861,8 @@ def simulate_many(
         x[idx] = y + (hh / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
     for j in range(J + 1):
+        if j % 64 == 0:
+            beat("simulations")  # (a verification's heartbeat in a long search)
         tj = time(j)
         # states of trajectories that stopped at an earlier sample are NaN from now on
         x[dead_state] = np.nan

@@ -18,8 +18,11 @@ Verdicts
     "inf"``: no invariance certificate within ``max_samples``), or ``"limit"`` (the
     exploration grew past ``codev_engine.limits``, branches, reachtube memory or the time
     limit, or the tube's bounds overflowed past 1.8e308: ``detail`` says which and what
-    to change). A limitation of the verifier is a verdict, never an error
-    blamed on the input.
+    to change), or ``"budget"`` (the verification's time budget, ``[verify] time_budget``
+    or ``budget=``, ran out: ``detail`` says where the proof stopped -- time, sample
+    period, region -- how much of the horizon and of the initial set it proved, and the
+    best margin reached to each property, also in ``stats["margins"]``). A limitation of
+    the verifier is a verdict, never an error blamed on the input.
 
 With ``time_horizon = "inf"`` a ``robustly_safe`` verdict has reason ``"invariant"`` and a
 ``certificate`` (re-checked when loaded): a polytope (affine plants, by LP) or an invariant
@@ -42,7 +45,8 @@ from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.law import ExplicitLaw
-from codev_engine.limits import stage_deadline, time_over
+from codev_engine.limits import DeadlineReached, heartbeat, stage_deadline, stoppable, time_over
+from codev_engine.limits import budget as time_budget
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -69,6 +73,7 @@ UNKNOWN_WORDS = {
     "did not close",
     "no_invariant": "no invariance certificate within max_samples",
     "limit": "the exploration grew past the verifier's limits",
+    "budget": "the verification's time budget ran out",
     "invariant": "for all time: an invariance certificate",
     "uncertain": "the reach engines do not follow a nonlinear plant's disturbances or "
     "uncertain parameters yet",
@@ -469,6 +474,7 @@ def verify(
     progress: Callable[[dict], None] | None = None,
     executor: Executor | None = None,
     cells: int = 1,
+    budget: float | None = None,
 ) -> VerificationResult:
     """Verify the sampled closed loop of ``problem``'s plant with ``law``.
 
@@ -493,13 +499,31 @@ def verify(
         The nonlinear engine cuts the initial set into ``cells`` parts along each axis
         before refining (``cells ** n`` cells: more, smaller tasks for an executor; the
         tube differs, the argument is the same). Default 1; the linear engine ignores it.
+    budget : float, optional
+        Seconds the verification may take; default ``problem.verify.time_budget`` (None:
+        none). Past them the verdict is ``unknown`` with reason ``"budget"`` and a
+        ``detail`` saying where the proof stopped and the best margins reached (also
+        ``stats["margins"]``). Unlike a time limit (``codev --time-limit``), it is the
+        verification's own and always ends in a verdict.
 
     Returns
     -------
     VerificationResult
+
+    Notes
+    -----
+    ``progress`` is also called between the engine's reports, with the last counters and
+    ``doing`` (what a long step is doing: an LP, a vertex enumeration, an enclosure, a
+    simulation), once a second has passed without a report (``limits.heartbeat``).
     """
-    with stage_deadline():  # CODEV_LIMITS=time=...: checked at each branch period
-        return _verify(problem, law, hold, max_depth, progress, executor, cells)
+    if budget is not None and not (np.isfinite(budget) and budget > 0):
+        raise SpecError(f"must be a positive number of seconds, got {budget:g}",
+                        field="budget")
+    if budget is None and problem.verify is not None:
+        budget = problem.verify.time_budget
+    # CODEV_LIMITS=time=... and the budget: checked at each branch period
+    with stage_deadline(), time_budget(budget), heartbeat(progress) as beating:
+        return _verify(problem, law, hold, max_depth, beating, executor, cells)
 
 
 def _verify(problem, law, hold, max_depth, progress, executor, cells) -> VerificationResult:
@@ -593,7 +617,7 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
             # signals and the parameter box's corners takes a second; a counterexample it
             # finds is replayed (DOP853) and stands for itself, whatever the proof says
             # (docs/verification.md, "Refuting first")
-            cex = _search(problem, law, hold)
+            cex = _stoppable_search(lambda: _search(problem, law, hold))
             searched = True
             if cex is not None:
                 stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0,
@@ -638,11 +662,15 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
             searches = []
         for search in searches:
             with np.errstate(all="ignore"):  # simulations of a diverging loop
-                cex = search()
-            if cex is not None:
+                cex = _stoppable_search(search)
+            if cex is not None or time_over() is not None:
                 break
         if cex is not None:
             verdict, reason, detail = "unsafe", cex.kind, None
+    if verdict == "unknown" and reason == "budget":
+        # how far the proof got: where it stopped, the share proved, the best margins
+        detail = _budget_answer(problem, tube, stats,
+                                next(f for f in findings if f.kind == "budget"))
     if verdict != "unsafe" and not _finite(tube):
         # bounds past 1e308 (huge sets, disturbances or gains): inf and NaN prove nothing
         verdict, reason, certificate = "unknown", "limit", None
@@ -710,7 +738,10 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     def first(kind: str):
         return min((f for f in findings if f.kind == kind), key=lambda f: f.t)
 
-    if "limit" in kinds:
+    if "budget" in kinds:  # (the detail is completed by the caller: the margins)
+        reason, f = "budget", first("budget")
+        detail = f"{f.detail}; the tube ends at t = {f.t:.6g}"
+    elif "limit" in kinds:
         reason, f = "limit", first("limit")
         detail = f"{f.detail}; the tube ends at t = {f.t:.6g}"
     elif "enclosure" in kinds:
@@ -731,6 +762,29 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
                    "reproduced by simulation, and the exploration stopped there: the tube "
                    f"is partial after t = {c.t:.6g}")
     return reason, detail
+
+
+def _stoppable_search(search: Callable[[], Counterexample | None]) -> Counterexample | None:
+    """``search()``, stopped (no counterexample) when the deadline passes inside it: the
+    concrete searches' simulations beat (``limits.beat``), so a budget or a time limit
+    ends a long search too, and the verdict says what the proof reached."""
+    try:
+        with stoppable():
+            return search()
+    except DeadlineReached:
+        return None
+
+
+def _budget_answer(problem: Problem, tube: Tube, stats: dict, finding) -> str:
+    """The ``detail`` of a verification stopped by its budget: where (the engine's words),
+    how far it got and the best margins (``stats["margins"]``, set here), then what to
+    change (``reach.margin``)."""
+    from codev_engine.reach.margin import budget_detail, property_margins
+
+    stats["margins"] = property_margins(problem, tube)
+    where, _, fix = finding.detail.partition(": raise")
+    detail = budget_detail(problem, tube, stats, where)
+    return detail + (f"; to go further raise{fix}" if fix else "")
 
 
 def _finite(tube: Tube) -> bool:
@@ -781,6 +835,18 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
         eng = NonlinearReach(bounded, law, hold, depth, progress=progress,
                              absorb=_in_ellipsoids(ells) if serial else None)
         eng.run(executor, cells=cells)
+        stop = [f for f in eng.findings if f.kind in ("budget", "limit")]
+        if stop:  # the run stopped (a limit, the budget): that is the verdict's cause
+            tube = Tube.concatenate(eng.tubes, problem.plant.n)
+            stats = {**eng.stats, "boxes": tube.num_boxes}
+            detail = f"{stop[0].detail}; the tube ends at t = {stop[0].t:.6g}"
+            if stop[0].kind == "budget":
+                detail = _budget_answer(bounded, tube, stats, stop[0])
+            stats["seconds"] = time.perf_counter() - t0
+            result = VerificationResult("unknown", stop[0].kind, tube, hold, None, stats,
+                                        detail)
+            result.attach_display(problem=problem, law=law)
+            return result, ""
         if eng.findings:
             return None, ("the bounded tube meets a property before it enters an invariant "
                           f"ellipsoid (within {k} samples)")

@@ -362,7 +362,8 @@ def _verification_compute(run: StageRun) -> Any:
         hold=run.options.hold,
         max_depth=run.options.max_depth,
         progress=lambda st: run.progress(
-            st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes")
+            st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes"),
+            doing=st.get("doing"),
         ),
         executor=run.executor,
     )

@@ -61,7 +61,7 @@ _MPC = (
 )  # fmt: skip
 _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
-    "max_samples", "initial_input", "reference", "measurement_noise",
+    "max_samples", "initial_input", "reference", "measurement_noise", "time_budget",
 )  # fmt: skip
 #: every field of every table, by table ("" holds the top level's)
 FIELDS: dict[str, tuple[str, ...]] = {
@@ -686,6 +686,9 @@ def _verify(value: Any, n: int) -> VerifySpec:
         nhi = _vector(b["upper"], f"{f}.upper", n)
         _ordered(nlo, nhi, f"{f}.lower", "lower", "upper")
         noise = {"noise_lower": nlo, "noise_upper": nhi}
+    budget = None
+    if "time_budget" in t:  # seconds of the verification; past them a verdict (unknown)
+        budget = _positive(t["time_budget"], "verify.time_budget")
     return VerifySpec(
         time_horizon=horizon,
         initial_lower=_frozen(lower),
@@ -697,6 +700,7 @@ def _verify(value: Any, n: int) -> VerifySpec:
         unsafe=unsafe,
         safe=safe,
         max_samples=max_samples,
+        time_budget=budget,
         **noise,
     )
 

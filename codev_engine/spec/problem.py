@@ -403,6 +403,10 @@ class VerifySpec:
         Measurement noise (``measurement_noise``): at each sample the law sees
         ``x(t_k) + v_k`` with ``v_k`` any value in this box (chosen anew at every sample);
         None: the law sees the state exactly.
+    time_budget : float or None
+        Seconds the verification may take (``time_budget``); past them the verdict is
+        ``unknown`` with reason ``"budget"``, the best margins reached and where the proof
+        stopped. None: no budget.
     """
 
     time_horizon: float
@@ -421,6 +425,7 @@ class VerifySpec:
     reference_upper: np.ndarray | None = _since_v2(None)
     noise_lower: np.ndarray | None = _since_v2(None)
     noise_upper: np.ndarray | None = _since_v2(None)
+    time_budget: float | None = _since_v2(None)
 
     @property
     def noisy(self) -> bool:

@@ -1,5 +1,5 @@
 """The command line's progress on stderr when it is not a terminal (issue 23): plain lines,
-the first once a stage has run a second, then one per five seconds, and a closing line;
+the first once a stage has run a second, then one per four seconds, and a closing line;
 nothing for work shorter than a second or when turned off. The clock is the module's own
 ``time.monotonic``, set by the test."""
 
@@ -29,7 +29,7 @@ def test_plain_lines_are_rate_limited_and_closed(clock):
         on_event("verification", "done", {"status": "computed"})
     assert out.getvalue().splitlines() == [
         "codev: verification: 11 branches, sample 3, 1 s",
-        "codev: verification: 62 branches, sample 3, 6 s",
+        "codev: verification: 59 branches, sample 3, 6 s",
         "codev: verification: computed in 7.0 s",
     ]
 

@@ -237,6 +237,7 @@ class CodevApp(App):
         # the stage run in flight
         self.busy: str | None = None
         self.progress: tuple[str, int, float] | None = None  # (stage, count, started)
+        self.doing: str | None = None  # what the running stage's long step is doing
         self._cancel = threading.Event()
         self._check_timer: Any = None
         # the model key of the plant report shown or being derived
@@ -577,7 +578,7 @@ class CodevApp(App):
             if self._cancel.is_set():
                 raise RunCancelledError
             if event == "start":
-                self.progress = (stage, 0, time.perf_counter())
+                self.progress, self.doing = (stage, 0, time.perf_counter()), None
             elif event == "progress":
                 p = self.progress
                 self.progress = (
@@ -585,6 +586,7 @@ class CodevApp(App):
                     int(data.get("count", 0)),
                     p[2] if p else time.perf_counter(),
                 )
+                self.doing = data.get("doing")  # a long step's heartbeat (limits.beat)
 
         warnings: list[str] = []
         try:
@@ -814,7 +816,9 @@ class CodevApp(App):
         stage, count, started = self.progress
         elapsed = time.perf_counter() - started
         unit = {"synthesis": "regions", "verification": "branches"}.get(stage, "")
-        text = f"{stage}: {count} {unit} · {elapsed:.1f} s · Esc cancels".replace("  ", " ")
+        doing = f" · {self.doing}" if self.doing else ""
+        text = (f"{stage}: {count} {unit}{doing} · {elapsed:.1f} s · Esc cancels"
+                .replace("  ", " "))
         self.query_one(SynthesisPane).show_progress(stage, text)
         self.query_one(VerificationPane).show_progress(stage, text)
 
