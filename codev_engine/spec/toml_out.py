@@ -116,6 +116,8 @@ def problem_data(problem: Problem) -> dict[str, Any]:
         ):
             if lo is not None:
                 ver[key] = {"lower": _vec(lo), "upper": _vec(hi)}
+        if v.time_budget is not None:
+            ver["time_budget"] = float(v.time_budget)
         if v.unsafe:
             ver["unsafe"] = [_set(s) for s in v.unsafe]
         if v.safe:

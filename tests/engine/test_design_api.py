@@ -198,6 +198,8 @@ def designs(draw) -> dict:
                   initial_set={"lower": c, "upper": [v + 0.5 for v in c]},
                   unsafe=[{"lower": [v + 10.0 for v in c], "upper": [np.inf] * n}],
                   max_depth=draw(st.integers(0, 8)))  # fmt: skip
+        if draw(st.booleans()):
+            kw["time_budget"] = draw(st.floats(0.5, 1e4))
     return {"system": (np.array(A), np.array(B)), **kw}
 
 
