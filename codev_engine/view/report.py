@@ -184,7 +184,9 @@ def figure_inputs(
         ax.autoscale_view()
         ax.set_ylabel(problem.plant.inputs[j])
         ax.set_xlabel("t")
-        ax.set_xlim(0.0, float(problem.verify.time_horizon) if problem.verify else None)
+        # the traces' own end: for time_horizon = "inf" that is the shown horizon, not inf
+        t_end = float(traces.t[-1]) if traces.t.size else None
+        ax.set_xlim(0.0, t_end if t_end and np.isfinite(t_end) and t_end > 0 else None)
     axs[0].set_title("inputs of the simulated traces (bounds dashed)", fontsize="medium")
     return fig
 
