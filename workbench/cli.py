@@ -124,6 +124,8 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
     """The JSON summary of a verification (``codev verify --json``, ``codev run --json``)."""
     import numpy as np
 
+    from codev_engine.reach.claim import build_claim
+
     width = result.width_at(_horizon_shown(problem, result))
     cex = result.counterexample
     return {
@@ -149,16 +151,22 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
                   **({} if cex.disturbance.noise is None
                      else {"noise": cex.disturbance.noise.tolist()})}})},
         "tube": tube_path,
+        "claim": build_claim(problem, result).as_dict(),
     }
 
 
 def _print_result(problem, law, result, tube_path) -> None:
     import numpy as np
 
+    from codev_engine.reach.claim import build_claim
+
     how = " computed on demand" if getattr(law, "on_demand", False) else ""
     print(f"{problem.name}: {law.num_regions} regions{how}; " + result.summary())
     width = result.width_at(_horizon_shown(problem, result))
     print("  tube width at the horizon: " + np.array2string(width, precision=4))
+    print("the claim:")  # what the verdict says, and what it does not
+    for line in build_claim(problem, result).lines():
+        print("  " + line)
     if tube_path:
         print(f"tube written to {tube_path}")
 

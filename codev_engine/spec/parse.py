@@ -33,6 +33,7 @@ from codev_engine.spec.problem import (
     SetSpec,
     Uncertain,
     VerifySpec,
+    design_safe_sets,
     parameter_names,
 )
 
@@ -60,7 +61,7 @@ _MPC = (
 )  # fmt: skip
 _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
-    "max_samples", "initial_input", "reference", "measurement_noise",
+    "max_samples", "initial_input", "reference", "measurement_noise", "constraints",
 )  # fmt: skip
 
 
@@ -194,6 +195,7 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
     if "verify" in data:
         verify = _verify(data["verify"], n)
         verify = _verify_theta(data["verify"], verify, mpc, m)
+        verify = _verify_constraints(data["verify"], verify, mpc)
         if mpc.has_rates and verify.hold == "continuous":
             raise SpecError(
                 'input rates (du_min, du_max, Rd) need a sampled controller: hold = "continuous" '
@@ -658,6 +660,18 @@ def _verify(value: Any, n: int) -> VerifySpec:
         safe=safe,
         max_samples=max_samples,
         **noise,
+    )
+
+
+def _verify_constraints(t: dict[str, Any], verify: VerifySpec, mpc: MpcSpec) -> VerifySpec:
+    """``constraints = true``: the MPC's hard bounds become properties checked for all t."""
+    import dataclasses
+
+    if not _boolean(t.get("constraints", False), "verify.constraints"):
+        return verify
+    extra = design_safe_sets(mpc)
+    return dataclasses.replace(
+        verify, safe=verify.safe + extra, input_bounds=True, constraints=True
     )
 
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
+    "design_safe_sets",
     "parameter_names",
     "PlantSpec",
     "Uncertain",
@@ -403,6 +404,10 @@ class VerifySpec:
         Measurement noise (``measurement_noise``): at each sample the law sees
         ``x(t_k) + v_k`` with ``v_k`` any value in this box (chosen anew at every sample);
         None: the law sees the state exactly.
+    constraints : bool
+        ``[verify] constraints = true``: the last ``safe`` sets are the MPC's own hard state
+        and output bounds (:func:`design_safe_sets`) and ``input_bounds`` is on; False: the
+        design's constraints are not checked between samples.
     """
 
     time_horizon: float
@@ -421,6 +426,7 @@ class VerifySpec:
     reference_upper: np.ndarray | None = _since_v2(None)
     noise_lower: np.ndarray | None = _since_v2(None)
     noise_upper: np.ndarray | None = _since_v2(None)
+    constraints: bool = _since_v2(False)
 
     @property
     def noisy(self) -> bool:
@@ -464,6 +470,47 @@ class Problem:
     path: str | None = None
     source: str = ""  # the TOML text, for hashing and sessions
     regions: str = "all"
+
+
+def design_safe_sets(mpc: MpcSpec) -> tuple[SetSpec, ...]:
+    """The MPC's hard state and output bounds as safe sets (``[verify] constraints = true``).
+
+    The design imposes ``x_min <= x <= x_max`` and ``y_min <= C x <= y_max`` on its
+    predictions only; as safe sets the verification checks them on the tube, for all t.
+    Soft groups (``mpc.soft``) are left out: the design may cross them.
+
+    Parameters
+    ----------
+    mpc : MpcSpec
+
+    Returns
+    -------
+    tuple of SetSpec
+        A box (infinite sides for absent bounds) when some state bound is finite, then a
+        polytope ``[C; -C] x <= [y_max; -y_min]`` (finite rows only) when some output bound
+        is; () when the design has no finite hard bound.
+    """
+    sets: list[SetSpec] = []
+    lo = np.where("x_min" in mpc.soft, -np.inf, np.asarray(mpc.x_min, dtype=float))
+    hi = np.where("x_max" in mpc.soft, np.inf, np.asarray(mpc.x_max, dtype=float))
+    if np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)):
+        sets.append(SetSpec("box", lower=_read_only(lo), upper=_read_only(hi)))
+    if mpc.C is not None and mpc.y_min is not None and mpc.y_max is not None:
+        C = np.asarray(mpc.C, dtype=float)
+        ylo = np.where("y_min" in mpc.soft, -np.inf, np.asarray(mpc.y_min, dtype=float))
+        yhi = np.where("y_max" in mpc.soft, np.inf, np.asarray(mpc.y_max, dtype=float))
+        A = np.vstack([C, -C])
+        b = np.concatenate([yhi, -ylo])
+        keep = np.isfinite(b)
+        if np.any(keep):
+            sets.append(SetSpec("polytope", A=_read_only(A[keep]), b=_read_only(b[keep])))
+    return tuple(sets)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
 
 
 def parameter_names(spec: MpcSpec, states: tuple[str, ...], inputs: tuple[str, ...]

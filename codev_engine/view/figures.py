@@ -1094,15 +1094,20 @@ def law_html(law: ExplicitLaw, png: bytes | None = None) -> str:
     return f"<div>{head}{_table(rows)}{_img(png)}</div>"
 
 
-def result_html(result: VerificationResult, png: bytes | None = None) -> str:
-    """HTML summary of a verification result: a coloured verdict banner, the counterexample,
-    timings and sizes, and the tube picture.
+def result_html(
+    result: VerificationResult, png: bytes | None = None, *, problem: Problem | None = None
+) -> str:
+    """HTML summary of a verification result: a coloured verdict banner, the claim (with
+    the spec), the counterexample, timings and sizes, and the tube picture.
 
     Parameters
     ----------
     result : VerificationResult
     png : bytes, optional
         The picture (:func:`figure_result` rendered by :func:`png_bytes`); drawn if None.
+    problem : Problem, optional
+        The spec verified: the claim (:func:`codev_engine.reach.claim.build_claim`) is
+        listed under the banner.
     """
     if png is None:
         png = png_bytes(figure_result(result))
@@ -1123,7 +1128,13 @@ def result_html(result: VerificationResult, png: bytes | None = None) -> str:
             ("counterexample x0", np.array2string(np.asarray(ce.x0), precision=6)),
             ("violation", f"{ce.kind} (index {ce.index}) at t = {ce.t:.4f}"),
         ]
-    return f"<div>{banner}{_table(rows)}{_img(png)}</div>"
+    claim = ""
+    if problem is not None and problem.verify is not None:
+        from codev_engine.reach.claim import build_claim
+
+        items = build_claim(problem, result).lines()
+        claim = "<ul>" + "".join(f"<li>{html.escape(i[2:])}</li>" for i in items) + "</ul>"
+    return f"<div>{banner}{claim}{_table(rows)}{_img(png)}</div>"
 
 
 # --------------------------------------------------------------------------------------------

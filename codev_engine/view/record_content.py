@@ -1107,6 +1107,11 @@ class RecordingContent:
         else:
             lines += [f"## {_VERDICT_WORDS.get(r.verdict, r.verdict)}", ""]
             lines += [_verdict_sentence(self), ""]
+        if p.verify is not None:
+            from codev_engine.reach.claim import build_claim
+
+            # what was proved (or asked), and what was not: first, before any detail
+            lines += ["### the claim", "", *build_claim(p, r).lines(bold=True), ""]
         cex = self.counterexample
         if cex is not None:
             pairs = zip(self.states, np.asarray(cex.x0), strict=True)
@@ -1282,14 +1287,14 @@ def _verdict_sentence(content: RecordingContent) -> str:
     T = content.horizon
     if r.verdict == "robustly_safe" and r.reason == "invariant":
         return (
-            "Every closed-loop trajectory from the initial set stays out of the unsafe sets "
-            "(and inside the law's domain) for all time: an invariance certificate closes "
+            "Every closed-loop trajectory from the initial set has every property checked "
+            "(the claim below) for all time: an invariance certificate closes "
             f"the induction; the views show the first {T:.4g} s."
         )
     if r.verdict == "robustly_safe":
         return (
-            f"Every closed-loop trajectory from the initial set stays out of the unsafe sets "
-            f"(and inside the law's domain) up to t = {T:.4g} s: the tube of "
+            f"Every closed-loop trajectory from the initial set has every property checked "
+            f"(the claim below) up to t = {T:.4g} s: the tube of "
             f"{r.tube.num_boxes} boxes contains them all."
         )
     cex = r.counterexample

@@ -370,8 +370,9 @@ def test_law_repr_png_and_html(di):
 @pytest.mark.parametrize(
     ("key", "words"),
     [
-        ("safe", ["robustly safe"]),
-        ("unsafe", ["unsafe: enters unsafe set 0", "counterexample x0", "[ 8.99"]),
+        ("safe", ["robustly safe", "initial set: x1 in", "NOT checked: "]),
+        ("unsafe", ["unsafe: enters unsafe set 0", "checked: never enters unsafe set 0",
+                    "counterexample x0", "[ 8.99"]),
         ("unknown", ["unknown (max_depth)"]),
     ],
 )

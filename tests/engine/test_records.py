@@ -331,7 +331,13 @@ def test_verdict_and_blueprint(di, di_recording):
     text = entities["/verdict"].per_row("TextDocument:text")[0][0]
     assert "ROBUSTLY SAFE" in text and f"| tube boxes | {result.tube.num_boxes} |" in text
     assert "tube width at t = 9 s" in text and "codev 0." in text and "sha256" in text
-    assert "| branches |" in text and "stays out of the unsafe sets" in text
+    assert "| branches |" in text and "has every property checked" in text
+    # the claim, before the sizes: the initial set, each property, the time, the hold
+    claim = text[text.index("### the claim"):text.index("### sizes")]
+    assert "x1 in [8.99, 9.01], x2 in [-5.01, -4.99]" in claim
+    assert "stays inside safe set 0: -10 <= x1 <= 10" in claim
+    assert "for all t in [0, 9] s" in claim and "**hold**: continuous" in claim
+    assert "**NOT checked**" in claim
     reader = RrdReader(summary.path)
     assert len(reader.recordings()) == 1 and len(reader.blueprints()) == 1
     kinds = view_kinds(summary.path)

@@ -377,6 +377,12 @@ FIELDS: tuple[FieldDef, ...] = (
         "u(t) within [u_min, u_max] (default off)",
     ),
     _f(
+        "verify.constraints",
+        "bool",
+        "Check the design's bounds",
+        "the MPC's hard x/y/u bounds checked for all t (default off: at samples only)",
+    ),
+    _f(
         "verify.unsafe",
         "sets",
         "Unsafe sets",
