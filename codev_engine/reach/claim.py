@@ -219,8 +219,9 @@ def build_claim(problem: Problem, result: VerificationResult | None = None) -> C
     if vs.input_bounds:
         lo, hi = np.asarray(mpc.u_min, float), np.asarray(mpc.u_max, float)
         checked.append("the input stays within its bounds: " + _box(inputs, lo, hi))
-    where = "at every sample" if hold == "zoh" else "at every t"
-    checked.append(f"the law is defined {where} (the state stays in the explicit law's domain)")
+    # both holds locate the region at the samples only (continuous: fixed for the period)
+    checked.append("the law is defined at every sample (the state is in the explicit law's "
+                   "domain)")
 
     T = vs.time_horizon
     time = f"for all t in [0, {_g(T)}] s" if math.isfinite(T) else _certificate_words(result)
