@@ -23,7 +23,8 @@ from codev_engine.spec.problem import Problem, SetSpec, design_safe_sets
 if TYPE_CHECKING:
     from codev_engine.reach.verification import VerificationResult
 
-__all__ = ["Claim", "build_claim", "describe_set"]
+__all__ = ["CertificateBand", "Claim", "build_claim", "certificate_band", "describe_set",
+           "width_at_end"]
 
 
 @dataclass(frozen=True)
@@ -261,3 +262,86 @@ def build_claim(problem: Problem, result: VerificationResult | None = None) -> C
         hold=hold_words,
         not_checked=tuple(not_checked),
     )
+
+
+@dataclass(frozen=True)
+class CertificateBand:
+    """Where every state lies after an invariance certificate closed (kind ``invariant``).
+
+    The tube's part over one period ``[t_anchor, t_closed]``, shifted by multiples of the
+    period, covers every later time (docs/verification.md, "Safety for all time"); so the
+    hull of its boxes holds every state for all ``t >= t_anchor``. Drawn from ``t_closed``
+    on instead of a repeated tube.
+
+    Attributes
+    ----------
+    t_anchor, t_closed : float
+        The anchor and the closing sample's times (s).
+    lower, upper : (n,) ndarray
+        The hull of the tube's boxes over ``[t_anchor, t_closed]``.
+    """
+
+    t_anchor: float
+    t_closed: float
+    lower: np.ndarray
+    upper: np.ndarray
+
+
+def certificate_band(result: VerificationResult) -> CertificateBand | None:
+    """The band that holds every state after the certificate closed (None without a
+    periodic certificate: no certificate, or the nonlinear engine's ellipsoid).
+
+    Parameters
+    ----------
+    result : VerificationResult
+
+    Returns
+    -------
+    CertificateBand or None
+    """
+    c = result.stats.get("certificate") or {}
+    if result.certificate is None or c.get("kind") != "invariant" or "anchor_time" not in c:
+        return None
+    t0, t1 = float(c["anchor_time"]), float(c["closed_time"])
+    tube = result.tube
+    ts, te = np.asarray(tube.t_start, dtype=float), np.asarray(tube.t_end, dtype=float)
+    eps = 1e-9 * max(1.0, abs(t1))
+    # the boxes that cover [t0, t1] (each box's interval meets it)
+    keep = (te > t0 + eps) & (ts < t1 - eps)
+    if not np.any(keep):
+        return None
+    return CertificateBand(t0, t1, np.min(tube.lower[keep], axis=0),
+                           np.max(tube.upper[keep], axis=0))
+
+
+def width_at_end(problem: Problem, result: VerificationResult) -> tuple[float, np.ndarray, str]:
+    """The width, per state, of the set known to hold the state at the end of the view.
+
+    Parameters
+    ----------
+    problem : Problem
+    result : VerificationResult
+
+    Returns
+    -------
+    t : float
+        The end: ``time_horizon``, or the shown horizon for ``"inf"``.
+    width : (n,) ndarray
+        NaN where nothing is known (no box active at ``t``).
+    which : str
+        ``"tube"`` (the tube's boxes active at ``t``, when the tube reaches ``t``) or
+        ``"certificate band"`` (a tube that stops at the closing sample of a certificate,
+        ``time_horizon = "inf"``: :func:`certificate_band`).
+    """
+    from codev_engine.reach.simulate import shown_horizon
+
+    T = shown_horizon(problem)
+    tube = result.tube
+    covered = tube.num_boxes and float(np.max(tube.t_end)) >= T * (1 - 1e-12)
+    band = certificate_band(result)
+    if not covered and band is not None and T >= band.t_closed:
+        # "inf": the tube stops at the closing sample; the band holds every later state
+        return T, band.upper - band.lower, "certificate band"
+    # the tube's boxes at T (a finite horizon's tube, repeated after a certificate, is sound
+    # and tighter pointwise than the band)
+    return T, result.width_at(T), "tube"

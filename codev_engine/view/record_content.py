@@ -1156,10 +1156,12 @@ class RecordingContent:
                 f"| branches | {branches} |",
                 f"| tube boxes | {r.tube.num_boxes} |",
             ]
-            if r.tube.num_boxes:
-                width = r.width_at(float(np.max(r.tube.t_end)))
+            if r.tube.num_boxes and p.verify is not None:
+                from codev_engine.reach.claim import width_at_end
+
+                t_end, width, which = width_at_end(p, r)
                 text = ", ".join(f"{s} {x:.3g}" for s, x in zip(self.states, width, strict=True))
-                lines.append(f"| tube width at t = {float(np.max(r.tube.t_end)):.4g} s | {text} |")
+                lines.append(f"| width at t = {t_end:.4g} s ({which}) | {text} |")
             lines.append(f"| verification time | {r.seconds:.3f} s |")
         if "seconds" in law.meta:
             lines.append(f"| synthesis time | {float(law.meta['seconds']):.3f} s |")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import codev_engine as ce
@@ -91,3 +92,30 @@ def test_every_bundled_claim_states_time_initial_set_and_properties(name):
     c = build_claim(problem)
     assert c.initial and c.checked and c.time.startswith("for all t")
     assert c.checked[-1].startswith("the law is defined")
+
+
+def test_certificate_band_holds_simulated_states_long_after_the_tube_stops():
+    # cruise_grade, "inf": the tube stops at the closing sample (1 s); the band must hold
+    # every state after it, for any grade profile -- simulated up to 40 s, piecewise
+    # constant extreme and random grades
+    from codev_engine.reach.claim import certificate_band, width_at_end
+    from codev_engine.reach.simulate import simulate_many
+
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    band = certificate_band(result)
+    assert band is not None and band.t_closed == pytest.approx(1.0)
+    T, width, which = width_at_end(problem, result)
+    assert which == "certificate band" and np.allclose(width, band.upper - band.lower)
+    rng = np.random.default_rng(3)
+    P, piece, t_end = 24, 0.5, 40.0
+    X0 = rng.uniform(8.0, 9.0, (P, 1))
+    W = np.where(rng.random((P, int(t_end / piece) + 1, 1)) < 0.5, -98.1, 98.1)
+    W[:4] = rng.uniform(-98.1, 98.1, W[:4].shape)
+    tr = simulate_many(problem, law, X0, t_end=t_end, dt_out=0.05,
+                       disturbance=(piece, W, np.zeros((P, 0))))
+    after = tr.t >= band.t_anchor
+    x = tr.X[:, after, 0]
+    assert np.all(tr.alive) and np.all(np.isfinite(x))
+    assert x.min() >= band.lower[0] - 1e-9 and x.max() <= band.upper[0] + 1e-9
