@@ -65,6 +65,8 @@ _UNSAFE = "#e53935"
 _SAFE = "#2e7d32"
 _INITIAL = "#111111"
 _REFERENCE = "#8e24aa"
+#: the certificate band after an all-time certificate closed (hatched: a bound, not a tube)
+_CERTIFICATE = "#6a1b9a"
 #: resolution of the notebook pictures (dots per inch)
 _DPI = 80
 
@@ -608,17 +610,33 @@ def _plot_signal(
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
+    from codev_engine.reach.claim import certificate_band
     from codev_engine.view.signals import output_bounds, reference_band
 
     ax = _new_axes(ax, (6.0, 3.0))
     tube = result.tube
-    bands = merge_bands(tube.t_start, tube.t_end, lower, upper)
+    cert = certificate_band(result)
+    t_start, t_end = np.asarray(tube.t_start, float), np.asarray(tube.t_end, float)
+    drawn_boxes = np.ones(t_start.shape[0], dtype=bool)
+    if cert is not None:  # after the certificate the band, not the tube repeated
+        drawn_boxes = t_start < cert.t_closed - 1e-9 * max(1.0, cert.t_closed)
+    bands = merge_bands(t_start[drawn_boxes], t_end[drawn_boxes], lower[drawn_boxes],
+                        upper[drawn_boxes])
     handles: list[Any] = []
     ylo, yhi, tmax = np.inf, -np.inf, 0.0
     if bands.shape[0]:
         ylo, yhi = float(bands[:, 2].min()), float(bands[:, 3].max())
         tmax = float(bands[:, 1].max())
         handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
+    cert_span = None
+    if cert is not None:
+        # the signal row @ x over the band's box (an interval per term)
+        terms = np.stack([row * cert.lower, row * cert.upper])
+        cert_span = (float(terms.min(axis=0).sum()), float(terms.max(axis=0).sum()))
+        ylo, yhi = min(ylo, cert_span[0]), max(yhi, cert_span[1])
+        tmax = max(tmax, float(t_end.max(initial=0.0)))
+        handles.append(Patch(facecolor="none", edgecolor=_CERTIFICATE, hatch="///",
+                             label=f"certificate band (every state, t >= {cert.t_closed:.3g})"))
     ce = result.counterexample
     if ce is not None:
         n = tube.lower.shape[1]
@@ -651,6 +669,10 @@ def _plot_signal(
     for v in near:
         if not np.isfinite(ylo) or abs(v - np.clip(v, ylo, yhi)) <= max(span, 1e-9):
             ylo, yhi = min(ylo, v), max(yhi, v)
+    if state is not None and problem is not None and problem.verify is not None:
+        # the properties on this state are always in view: a reader sees the margin
+        for v in _property_edges(problem, state):
+            ylo, yhi = min(ylo, v), max(yhi, v)
     ylim = _padded(ylo, yhi)
     if bands.shape[0]:
         # at least 1 % of the axis high, so a thin tube does not read as a line (the
@@ -659,6 +681,12 @@ def _plot_signal(
             bands[:, [0, 2]], bands[:, [1, 3]], np.array([0.0, 0.01 * (ylim[1] - ylim[0])])
         )
         _add_boxes(ax, lo_b, hi_b, fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.8)
+    if cert_span is not None:
+        t_band_end = tmax if tmax > cert.t_closed else cert.t_closed + 4 * (
+            cert.t_closed - cert.t_anchor)
+        ax.add_patch(_rectangle(cert.t_closed, cert_span[0], t_band_end - cert.t_closed,
+                                cert_span[1] - cert_span[0]))
+        tmax = max(tmax, t_band_end)
     ax.set_ylim(*ylim)
     ax.set_xlim(0.0, tmax if tmax > 0 else 1.0)
     if problem is not None and problem.verify is not None and state is not None:
@@ -689,6 +717,14 @@ def _plot_signal(
     return ax
 
 
+def _rectangle(x: float, y: float, w: float, h: float) -> Any:
+    """The certificate band's patch: hatched, outlined, not filled (a bound, not a tube)."""
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((x, y), w, h, facecolor="none", edgecolor=_CERTIFICATE, hatch="///",
+                     lw=1.0, zorder=1.5)
+
+
 def _bounds_on(s: SetSpec, state: int, *, alone: bool) -> tuple[float, float] | None:
     """Bounds ``(lo, hi)`` (+-inf allowed) that a verify set puts on one state.
 
@@ -704,6 +740,19 @@ def _bounds_on(s: SetSpec, state: int, *, alone: bool) -> tuple[float, float] | 
     lo = np.max(c[a < 0] / a[a < 0], initial=-np.inf)
     hi = np.min(c[a > 0] / a[a > 0], initial=np.inf)
     return float(lo), float(hi)
+
+
+def _property_edges(problem: Problem, state: int) -> list[float]:
+    """The finite edges the verify sets put on one state (unsafe sets on it alone, every
+    safe set's bounds on it), which its time plot must show."""
+    vs = problem.verify
+    edges: list[float] = []
+    for sets, alone in ((vs.unsafe, True), (vs.safe, False)):
+        for s in sets:
+            ext = _bounds_on(s, state, alone=alone)
+            if ext is not None:
+                edges += [float(v) for v in ext if np.isfinite(v)]
+    return edges
 
 
 def _state_bounds(ax: Axes, problem: Problem, state: int, ylim: tuple[float, float]) -> list:
