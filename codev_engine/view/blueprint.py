@@ -72,7 +72,8 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     time_views = [
         rrb.TimeSeriesView(
             origin=f"/time/{s}",
-            name=f"{s}(t): tube orange, traces grey" + cex + reference(f"/time/{s}"),
+            name=f"{s}(t): tube orange, traces grey" + cex + reference(f"/time/{s}")
+            + (", certificate band purple" if f"/time/{s}/certificate/lower" in e else ""),
             plot_legend=no_legend,
         )
         for s in states

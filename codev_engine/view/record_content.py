@@ -792,8 +792,15 @@ class RecordingContent:
                 *rr.Boxes3D.columns(colors=color),
             ]
             w.columns("/space/tube", times, cols, K)
-        # per state: the hull of the boxes over time, lower and upper bound as step series
-        t_env, lo_env, hi_env = tube_envelope(ts, te, lo, hi)
+        # per state: the hull of the boxes over time, lower and upper bound as step series;
+        # after an all-time certificate, up to its closing sample, then the band (below)
+        from codev_engine.reach.claim import certificate_band
+
+        cert = certificate_band(self.result) if self.result is not None else None
+        mine = np.ones(K, dtype=bool)
+        if cert is not None:
+            mine = ts < cert.t_closed - 1e-9 * max(1.0, cert.t_closed)
+        t_env, lo_env, hi_env = tube_envelope(ts[mine], te[mine], lo[mine], hi[mine])
         tt = np.repeat(t_env, 2)[1:-1]  # each interval's value at its start and its end
         for i, s in enumerate(self.states):
             for side, val in (("lower", lo_env[:, i]), ("upper", hi_env[:, i])):
@@ -806,6 +813,15 @@ class RecordingContent:
                 v = np.repeat(val, 2)
                 keep = np.isfinite(v)
                 w.columns(entity, tt[keep], [*rr.Scalars.columns(scalars=v[keep])], int(keep.sum()))
+        if cert is None:
+            return
+        t_band = np.array([cert.t_closed, max(self.horizon, cert.t_closed)])
+        for i, s in enumerate(self.states):
+            for side, val in (("lower", cert.lower[i]), ("upper", cert.upper[i])):
+                entity = f"/time/{s}/certificate/{side}"
+                w.static(entity, rr.SeriesLines(colors=[_PURPLE], widths=[2.0],
+                                                names=[f"certificate band {side}"]), 0)
+                w.columns(entity, t_band, [*rr.Scalars.columns(scalars=np.full(2, val))], 2)
 
     def _log_traces(self, w: EntityWriter) -> None:
         import rerun as rr

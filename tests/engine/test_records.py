@@ -793,3 +793,26 @@ def test_counterexample_output_is_c_of_its_states(tmp_path):
     assert len(y) > 2 and np.array_equal(t, t2) and np.allclose(y, x, atol=1e-6)
     assert any(n.startswith("y0(t) = C x") and "counterexample red" in n
                for n in view_kinds(summary.path))
+
+
+def test_all_time_recording_draws_the_certificate_band_to_the_view_s_end(tmp_path):
+    # cruise_grade ("inf"): the tube's series stop at the closing sample (1 s), the band's
+    # run from there to the shown horizon (25 s); the verdict names the set of the width
+    from codev_engine.reach.claim import certificate_band
+
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    write_recording(tmp_path / "cg.rrd", problem, law, result,
+                    options=RecordingOptions(traces=2))
+    entities = read(tmp_path / "cg.rrd")
+    band = certificate_band(result)
+    lo, hi = entities["/time/v/certificate/lower"], entities["/time/v/certificate/upper"]
+    assert np.allclose(lo.time / 1e9, [1.0, 25.0]) and np.allclose(hi.time, lo.time)
+    assert np.allclose(lo.values("Scalars:scalars"), band.lower[0], atol=1e-5)
+    assert np.allclose(hi.values("Scalars:scalars"), band.upper[0], atol=1e-5)
+    assert entities["/time/v/tube/lower"].time.max() / 1e9 == pytest.approx(1.0)
+    text = entities["/verdict"].per_row("TextDocument:text")[0][0]
+    assert "| width at t = 25 s (certificate band) |" in text
+    assert "**time**: for all t >= 0 (invariance certificate" in text
+    assert any("certificate band purple" in n for n in view_names(tmp_path / "cg.rrd"))
