@@ -48,11 +48,13 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     left: list = []
     if any(k.startswith("/plane/") for k in e):
         xname, yname = content.plane_names
+        section = content.section_words()
+        at = f", section at {section}" if section is not None else ""
         left.append(
             rrb.Spatial2DView(
                 origin="/",
                 contents=["/plane/**"],
-                name=f"plane: {xname} → , {yname} ↑  (orange tube, red unsafe, blue initial, "
+                name=f"plane: {xname} → , {yname} ↑{at}  (orange tube, red unsafe, blue initial, "
                 "grey traces" + (", purple certificate" if "/plane/certificate" in e else "")
                 + ")",
                 time_ranges=up_to_cursor,

@@ -168,7 +168,9 @@ def section_polygons(
 def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.ndarray:
     """The point whose other coordinates fix a 2-D section of a law of ``n > 2`` parameters.
 
-    The states (and, without a verified spec, every parameter): the centre of the bounding
+    The states: with a ``problem`` that has a ``[verify]`` section, the centre of its initial
+    set (where the tube starts: the one section rule of recordings, reports, notebook
+    figures); else (and every parameter without a verified spec) the centre of the bounding
     box of the law's domain (the MPC's feasible set; two LPs per coordinate) -- for the usual
     designs around an operating point with symmetric bounds, that operating point. Without
     a stored domain: the centre of the regions' bounding boxes.
@@ -203,9 +205,12 @@ def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.
         else:
             lo, hi = law.boxes
             point = 0.5 * (lo.min(axis=0) + hi.max(axis=0))
+    point = np.array(point, dtype=float)
+    vs = problem.verify if problem is not None else None
+    if vs is not None and len(law.states) == problem.plant.n <= law.n:
+        point[: problem.plant.n] = 0.5 * (vs.initial_lower + vs.initial_upper)
     extra = verified_parameters(law, problem)
     if extra is not None:
-        point = np.array(point, dtype=float)
         point[law.n - extra.size :] = extra
     return point
 
@@ -417,9 +422,12 @@ def plot_partition(
     ax.set_xlabel(names[i])
     ax.set_ylabel(names[j])
     title = f"{label}: {law.num_regions} regions"
-    if at_full is not None:
-        fixed = ", ".join(f"{names[k]} = {at_full[k]:.3g}" for k in range(law.n) if k not in (i, j))
-        title += f"\nsection at {fixed} ({len(polys)} regions meet it)"
+    # every value the picture fixes: the states off the plane, a theta law's u_prev and r
+    fixed_at = [f"{names[k]} = {at_full[k]:.3g}" for k in range(law.n) if k not in (i, j)
+                ] if at_full is not None else []
+    fixed_at += [f"{k} = {v:.3g}" for k, v in dict(law.meta.get("section", {})).items()]
+    if fixed_at:
+        title += f"\nsection at {', '.join(fixed_at)} ({len(polys)} regions meet it)"
     ax.set_title(title, fontsize="medium")
     return ax
 
@@ -902,8 +910,7 @@ def plot_plane(
     if law is not None:
         at = None
         if law.n > 2:
-            at = 0.5 * (vs.initial_lower + vs.initial_upper) if vs is not None else None
-            at = default_slice_point(law) if at is None else at
+            at = default_slice_point(law, problem)  # the one section rule
         dom = _domain_polygon(law, (i, j), at, view)
         if dom is not None:
             ax.add_patch(Polygon(dom, fill=False, ec="#555555", ls=":", lw=1.2))

@@ -414,17 +414,26 @@ class RecordingContent:
         ax = list(self.axes)
         return self.view_lo[ax].copy(), self.view_hi[ax].copy()
 
+    def section_words(self) -> str | None:
+        """The values the partition's section fixes, in words (``x3 = 0.025, prev_V = 0``):
+        the states off the plane (n > 2) and a theta law's ``u_prev`` and ``r``; None when
+        the partition drawn is not a section."""
+        fixed = []
+        s0 = self.slice_point()
+        if s0 is not None and self.axes is not None:
+            fixed += [f"{self.states[k]} = {s0[k]:.3g}" for k in range(self.n)
+                      if k not in self.axes]
+        fixed += [f"{k} = {v:.3g}" for k, v in dict(self.law.meta.get("section", {})).items()]
+        return ", ".join(fixed) if fixed else None
+
     def slice_point(self) -> np.ndarray | None:
         """The values of the states off the plane (n > 2): the centre of the initial set
         (else the centre of the law's domain); None when n <= 2."""
         if self.n <= 2:
             return None
-        vs = self.problem.verify
-        if vs is not None:
-            return 0.5 * (np.asarray(vs.initial_lower) + np.asarray(vs.initial_upper))
         from codev_engine.view.figures import default_slice_point
 
-        return default_slice_point(self.law)
+        return default_slice_point(self.law, self.problem)  # the rule every picture uses
 
     def region_polygons(self) -> tuple[list[np.ndarray], np.ndarray]:
         """The regions in the plane, clipped to the window -> (polygons, region index).
@@ -1198,13 +1207,9 @@ class RecordingContent:
             return "\n".join(lines) + "\n"
         xname, yname = self.plane_names
         where = f"{xname} → right, {yname} ↑ up"
-        if self.n > 2:
-            s0 = self.slice_point()
-            assert s0 is not None and self.axes is not None
-            rest = ", ".join(
-                f"{self.states[k]} = {s0[k]:.3g}" for k in range(self.n) if k not in self.axes
-            )
-            where += f"; regions: the section at {rest}; sets, tube and traces: projections"
+        section = self.section_words()
+        if section is not None:
+            where += f"; regions: the section at {section}; sets, tube and traces: projections"
         lines += [
             "",
             "### how to read the views",

@@ -88,8 +88,13 @@ def report_html(
             caption += f" of {problem.plant.states[plane[0]]} and {problem.plant.states[plane[1]]}"
         parts.append((_svg(fig), caption + ", with the sets and the counterexample (if any)."))
     law_axes = plane if plane is not None else (0, 1)
-    fig = figures.figure_law(law, axes=law_axes) if law.n >= 2 else figures.figure_law(law)
-    parts.append((_svg(fig), f"The partition of the explicit law: {law.num_regions} regions."))
+    # the partition's section: the recording's (figures.default_slice_point with the spec)
+    at = figures.default_slice_point(law, problem) if law.n > 2 else None
+    fig = figures.figure_law(law, axes=law_axes, at=at) if law.n >= 2 else figures.figure_law(law)
+    section = content.section_words()
+    at_words = f", section at {section}" if section is not None else ""
+    parts.append((_svg(fig), f"The partition of the explicit law{at_words}: "
+                  f"{law.num_regions} regions."))
     if content.traces is not None and problem.plant.m:
         fig = figure_inputs(problem, content.traces, result)
         parts.append((_svg(fig), "The inputs of the simulated traces, with their bounds."))

@@ -816,3 +816,20 @@ def test_all_time_recording_draws_the_certificate_band_to_the_view_s_end(tmp_pat
     assert "| width at t = 25 s (certificate band) |" in text
     assert "**time**: for all t >= 0 (invariance certificate" in text
     assert any("certificate band purple" in n for n in view_names(tmp_path / "cg.rrd"))
+
+
+def test_recording_and_report_name_the_same_section(magnetic, tmp_path):
+    # one rule (figures.default_slice_point with the spec): the plane view's title, the
+    # report's partition caption and its figure title say the same "section at x3 = ..."
+    from codev_engine.view.report import report_html
+
+    problem, law = magnetic
+    summary = write_recording(tmp_path / "s.rrd", problem, law, None,
+                              options=RecordingOptions(traces=0))
+    x3 = 0.5 * (problem.verify.initial_lower[2] + problem.verify.initial_upper[2])
+    words = f"section at x3 = {x3:.3g}"
+    (plane,) = [n for n in view_names(summary.path) if n.startswith("plane")]
+    assert words in plane
+    text = report_html(problem, law, None, traces=0)
+    assert f"The partition of the explicit law, {words}: " in text
+    assert text.count(words) >= 2  # the caption and the figure's own title
