@@ -66,7 +66,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             rrb.Spatial3DView(origin="/space", name="state space", time_ranges=up_to_cursor)
         )
     left.append(rrb.TextDocumentView(origin="/verdict", name="verdict"))
-    cex = ", counterexample red" if content.counterexample is not None else ""
+    cex = ", counterexample black" if content.counterexample is not None else ""
 
     def reference(root: str) -> str:
         return ", reference purple" if any(k.startswith(f"{root}/reference/") for k in e) else ""

@@ -60,10 +60,11 @@ VERDICT_COLOURS: dict[str, str] = {
     "unknown": "#e69500",
 }
 _TUBE_FACE = "#6baed6"
-_TRACE = "#c62828"
+#: the counterexample: a colour of its own (the unsafe sets are red), drawn on top
+_TRACE = "#000000"
 _UNSAFE = "#e53935"
 _SAFE = "#2e7d32"
-_INITIAL = "#111111"
+_INITIAL = "#1e63d6"  # blue, as in the recordings
 _REFERENCE = "#8e24aa"
 #: the certificate band after an all-time certificate closed (hatched: a bound, not a tube)
 _CERTIFICATE = "#6a1b9a"

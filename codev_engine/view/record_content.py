@@ -46,6 +46,8 @@ TIMELINE = "time"
 
 # colours (RGB / RGBA, 0-255)
 _RED = (220, 40, 40)
+#: the counterexample: a colour of its own (not the unsafe sets' red), drawn over everything
+_CEX = (0, 0, 0)
 _GREEN = (40, 170, 60)
 _BLUE = (40, 110, 230)
 _PURPLE = (150, 60, 200)
@@ -961,7 +963,7 @@ class RecordingContent:
             ts = np.column_stack([t0, t0 + float(sig.piece) * (1 - 1e-9)]).ravel()
             for j, nm in enumerate(box.names):
                 entity = f"/scalars/disturbance/{nm}/counterexample"
-                w.static(entity, rr.SeriesLines(colors=[_RED], widths=[2.0],
+                w.static(entity, rr.SeriesLines(colors=[_CEX], widths=[2.0],
                                                 names=["counterexample"]), 0)
                 w.columns(entity, ts, [*rr.Scalars.columns(scalars=np.repeat(vals[:, j], 2))],
                           2 * K)
@@ -971,7 +973,7 @@ class RecordingContent:
             tk = np.arange(noise.shape[0]) * float(p.model.sample_time)
             for j, nm in enumerate(p.plant.states):
                 entity = f"/scalars/noise/{nm}/counterexample"
-                w.static(entity, rr.SeriesPoints(colors=[_RED], markers=["circle"],
+                w.static(entity, rr.SeriesPoints(colors=[_CEX], markers=["circle"],
                                                  marker_sizes=[3.0], names=["counterexample"]),
                          0)
                 w.columns(entity, tk, [*rr.Scalars.columns(scalars=noise[:, j])], tk.size)
@@ -1010,7 +1012,7 @@ class RecordingContent:
             Y = X[keep] @ C.T
             for k, y in enumerate(names):
                 entity = f"/output/{y}/counterexample"
-                w.static(entity, rr.SeriesLines(colors=[_RED], widths=[2.5],
+                w.static(entity, rr.SeriesLines(colors=[_CEX], widths=[2.5],
                                                 names=["counterexample"]), 0)
                 w.columns(entity, t[keep], [*rr.Scalars.columns(scalars=Y[:, k])],
                           int(keep.sum()))
@@ -1073,7 +1075,7 @@ class RecordingContent:
         P = np.column_stack([t[ok], X[ok, 0]]) if self.axes is None else X[ok][:, list(self.axes)]
         w.static(
             "/plane/counterexample",
-            rr.LineStrips2D([P], colors=[_RED], radii=radius, draw_order=40.0),
+            rr.LineStrips2D([P], colors=[_CEX], radii=radius, draw_order=40.0),
             1,
         )
         # the violation, marked where it happens
@@ -1083,7 +1085,7 @@ class RecordingContent:
             "/plane/counterexample/violation",
             rr.Points2D(
                 [pv],
-                colors=[_RED],
+                colors=[_CEX],
                 radii=rr.components.Radius.ui_points(6.0),
                 labels=[f"{cex.kind} at t = {cex.t:.4g} s"],
                 draw_order=41.0,
@@ -1093,17 +1095,17 @@ class RecordingContent:
         if self.n == 3:
             w.static(
                 "/space/counterexample",
-                rr.LineStrips3D([X[ok]], colors=[_RED], radii=radius),
+                rr.LineStrips3D([X[ok]], colors=[_CEX], radii=radius),
                 1,
             )
         for i, s in enumerate(self.states):
             entity = f"/time/{s}/counterexample"
             w.static(
-                entity, rr.SeriesLines(colors=[_RED], widths=[2.5], names=["counterexample"]), 0
+                entity, rr.SeriesLines(colors=[_CEX], widths=[2.5], names=["counterexample"]), 0
             )
             w.columns(entity, t[ok], [*rr.Scalars.columns(scalars=X[ok, i])], int(ok.sum()))
         alive = np.asarray(trace.region) >= 0
-        self._log_scalars(w, t, U, X, alive, "counterexample", _RED, 2.5)
+        self._log_scalars(w, t, U, X, alive, "counterexample", _CEX, 2.5)
 
     def verdict_text(self, *, views: bool = True) -> str:
         """The verdict document: it tells the story without the other views.
@@ -1148,7 +1150,7 @@ class RecordingContent:
                 f"- what: {describe} (`{cex.kind}`, index {cex.index})",
                 f"- when: t = {cex.t:.6g} s",
                 f"- from: x0 = ({x0})",
-                "- drawn thick red in every view; its end is marked in the plane",
+                "- drawn thick black in every view, on top; its end is marked in the plane",
             ]
             sig = cex.disturbance
             if sig is not None:
@@ -1216,7 +1218,7 @@ class RecordingContent:
             "",
             f"- **plane** ({where}), scaled to a square: regions filled (hover for the id "
             "`R<i>`), unsafe sets red, the tube orange (at least two pixels wide), the "
-            "initial set blue, traces grey, the counterexample red"
+            "initial set blue, traces grey, the counterexample black"
             + (", the invariance certificate's set purple (every reach set at the closing "
                "sample lies in it)" if self.result is not None
                and self.result.certificate is not None
@@ -1226,7 +1228,7 @@ class RecordingContent:
                and self.result.certificate is not None
                and "P" in self.result.certificate else ""),
             "- **state views**: each state against time, the tube's lower and upper bound "
-            "orange, traces grey, the counterexample red",
+            "orange, traces grey, the counterexample black",
             "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "
             "nearest unsafe set, 0 marked red (below 0 is inside)",
         ]

@@ -417,6 +417,8 @@ def test_counterexample(unsafe_case):
         assert k in entities, k
     series = entities["/time/x1/counterexample"]
     assert series.instances("Scalars:scalars") == len(series.time) > 1
+    # a colour of its own: black (0xRRGGBBAA), not the unsafe sets' red
+    assert series.values("SeriesLines:colors").tolist() == [0x000000FF]
     margin = entities["/scalars/unsafe_distance/counterexample"]
     m = margin.values("Scalars:scalars")
     t = margin.time
@@ -431,7 +433,7 @@ def test_counterexample(unsafe_case):
     rows, cols = np.nonzero(np.isin(image, (1, 3)))
     xy = shift[:2] + (np.column_stack([cols, rows]) + 0.5) * scale[:2]
     assert rows.size and np.all(np.abs(xy) <= 1.0 + 1e-9)  # the box [-1, 1]^2
-    assert "counterexample red" in " ".join(view_kinds(summary.path))
+    assert "counterexample black" in " ".join(view_kinds(summary.path))
 
 
 def test_without_result(di, tmp_path):
@@ -791,7 +793,7 @@ def test_counterexample_output_is_c_of_its_states(tmp_path):
     t, y = _series(entities["/output/y0/counterexample"])
     t2, x = _series(entities["/time/p/counterexample"])
     assert len(y) > 2 and np.array_equal(t, t2) and np.allclose(y, x, atol=1e-6)
-    assert any(n.startswith("y0(t) = C x") and "counterexample red" in n
+    assert any(n.startswith("y0(t) = C x") and "counterexample black" in n
                for n in view_kinds(summary.path))
 
 

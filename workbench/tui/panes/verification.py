@@ -319,7 +319,7 @@ class VerificationPane(Horizontal):
             cex_out.update(
                 f"[red]counterexample[/red]: from x0 = ({x0}), {cex.describe()} "
                 f"at t = {cex.t:.4g} s — "
-                "drawn in red; replay it with `codev verify --json`"
+                "drawn in its own colour; replay it with `codev verify --json`"
             )
         else:
             cex_out.update("")
