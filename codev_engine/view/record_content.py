@@ -639,7 +639,10 @@ class RecordingContent:
                 out.append((name, None, None))
             elif self.axes is None:
                 a, b = float(v.min()), float(v.max())
-                band = np.array([[plo[0], a], [phi[0], a], [phi[0], b], [plo[0], b]])
+                # the initial set holds at t = 0 only: a thin bar there, not a band in time
+                t0 = min(plo[0], 0.0)
+                t1 = 0.01 * (phi[0] - plo[0]) if name == "initial" else phi[0]
+                band = np.array([[t0, a], [t1, a], [t1, b], [t0, b]])
                 out.append((name, v, band if b > a else None))
             else:
                 poly = outline(v, self.axes)

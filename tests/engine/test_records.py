@@ -835,3 +835,14 @@ def test_recording_and_report_name_the_same_section(magnetic, tmp_path):
     text = report_html(problem, law, None, traces=0)
     assert f"The partition of the explicit law, {words}: " in text
     assert text.count(words) >= 2  # the caption and the figure's own title
+
+
+def test_one_state_initial_set_is_drawn_at_t0_only(tmp_path):
+    # n == 1: the plane is (t, v); the initial set holds at t = 0, not across the horizon
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    summary = write_recording(tmp_path / "i.rrd", problem, law, None,
+                              options=RecordingOptions(traces=0))
+    strip = np.array(read(summary.path)["/plane/initial"].per_row("LineStrips2D:strips")[0][0])
+    assert strip[:, 0].min() <= 0.0 and 0.0 < strip[:, 0].max() <= 0.02 * 25.0 + 1e-6
+    assert np.allclose([strip[:, 1].min(), strip[:, 1].max()], [8.0, 9.0], atol=1e-5)
