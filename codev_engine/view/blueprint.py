@@ -75,7 +75,11 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         rrb.TimeSeriesView(
             origin=f"/time/{s}",
             name=f"{s}(t): tube orange, traces grey" + cex + reference(f"/time/{s}")
-            + (", certificate band purple" if f"/time/{s}/certificate/lower" in e else ""),
+            + (", certificate band purple" if f"/time/{s}/certificate/lower" in e else "")
+            + (", unsafe limits red" if any(k.startswith(f"/time/{s}/unsafe/") for k in e)
+               else "")
+            + (", safe limits green" if any(k.startswith(f"/time/{s}/safe/") for k in e)
+               else ""),
             plot_legend=no_legend,
         )
         for s in states

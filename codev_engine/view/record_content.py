@@ -483,6 +483,7 @@ class RecordingContent:
         self._log_traces(w)
         self._log_counterexample(w)
         self._log_bounds(w)
+        self._log_state_limits(w)
         self._log_uncertainty(w)
         self._log_outputs(w)
         self._log_reference(w)
@@ -836,6 +837,32 @@ class RecordingContent:
                 w.static(entity, rr.SeriesLines(colors=[_PURPLE], widths=[2.0],
                                                 names=[f"certificate band {side}"]), 0)
                 w.columns(entity, t_band, [*rr.Scalars.columns(scalars=np.full(2, val))], 2)
+
+    def _log_state_limits(self, w: EntityWriter) -> None:
+        """Each state's limits from the verify sets in its time view (unsafe red, safe
+        green), over the whole horizon, so the view's range includes them."""
+        import rerun as rr
+
+        from codev_engine.view.figures import _bounds_on
+
+        vs = self.problem.verify
+        if vs is None:
+            return
+        T = np.array([0.0, self.horizon])
+        for i, s in enumerate(self.states):
+            for kind, sets, alone, color in (("unsafe", vs.unsafe, True, _RED),
+                                              ("safe", vs.safe, False, _GREEN)):
+                for k, spec in enumerate(sets):
+                    ext = _bounds_on(spec, i, alone=alone)
+                    if ext is None:
+                        continue
+                    for side, v in zip(("lower", "upper"), ext, strict=True):
+                        if not np.isfinite(v):
+                            continue
+                        entity = f"/time/{s}/{kind}/{k}/{side}"
+                        w.static(entity, rr.SeriesLines(colors=[color], widths=[1.5],
+                                                        names=[f"{kind} {k} {side}"]), 0)
+                        w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, v))], 2)
 
     def _log_traces(self, w: EntityWriter) -> None:
         import rerun as rr

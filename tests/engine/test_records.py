@@ -846,3 +846,16 @@ def test_one_state_initial_set_is_drawn_at_t0_only(tmp_path):
     strip = np.array(read(summary.path)["/plane/initial"].per_row("LineStrips2D:strips")[0][0])
     assert strip[:, 0].min() <= 0.0 and 0.0 < strip[:, 0].max() <= 0.02 * 25.0 + 1e-6
     assert np.allclose([strip[:, 1].min(), strip[:, 1].max()], [8.0, 9.0], atol=1e-5)
+
+
+def test_each_state_view_draws_its_unsafe_limits(tmp_path):
+    # cruise_grade: v >= 11 and v <= 7 are unsafe; the v(t) view draws 11 and 7 (red)
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    summary = write_recording(tmp_path / "l.rrd", problem, law, None,
+                              options=RecordingOptions(traces=0))
+    e = read(summary.path)
+    assert np.allclose(e["/time/v/unsafe/0/lower"].values("Scalars:scalars"), 11.0)
+    assert np.allclose(e["/time/v/unsafe/1/upper"].values("Scalars:scalars"), 7.0)
+    assert "/time/v/unsafe/0/upper" not in e  # an infinite side is not drawn
+    assert any("unsafe limits red" in n for n in view_names(summary.path))
