@@ -52,7 +52,10 @@ _MAX_COUNT = 10**9  # the largest count field (mpc.horizon, verify.max_depth, ..
 _SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
 
 _TOP = ("name", "plant", "model", "mpc", "verify", "synthesis")
-_PLANT = ("states", "inputs", "dynamics", "A", "B", "disturbances", "parameters", "nominal", "E")
+_PLANT = (
+    "states", "inputs", "dynamics", "A", "B", "disturbances", "parameters", "nominal", "E",
+    "state_units", "input_units",
+)  # fmt: skip
 _MODEL = ("sample_time", "method", "operating_point", "A", "B")
 _MPC = (
     "horizon", "norm", "Q", "R", "P", "x_min", "x_max", "u_min", "u_max", "simplify",
@@ -322,7 +325,28 @@ def _plant(
         disturbances=disturbances,
         parameters=parameters,
         E=E,
+        state_units=_units(t, "state_units", states),
+        input_units=_units(t, "input_units", inputs),
     )
+
+
+def _units(t: dict[str, Any], key: str, names: tuple[str, ...]) -> tuple[str, ...]:
+    """``plant.state_units`` / ``plant.input_units``: one label per name ("" for none),
+    shown on the axes; plain text, never evaluated."""
+    field = f"plant.{key}"
+    if key not in t:
+        return ()
+    value = t[key]
+    if not isinstance(value, list) or not all(isinstance(u, str) for u in value):
+        raise SpecError(f"expected a list of strings (one unit per name), got {_kind(value)}",
+                        field=field)
+    if len(value) != len(names):
+        raise SpecError(f"expected {len(names)} units (one per name: {', '.join(names)}), "
+                        f"got {len(value)}", field=field)
+    for i, u in enumerate(value):
+        if len(u) > 32 or any(not c.isprintable() for c in u):
+            raise SpecError("a unit is at most 32 printable characters", field=f"{field}[{i}]")
+    return tuple(value)
 
 
 def _uncertain(t: dict[str, Any], key: str, taken: tuple[str, ...]) -> Uncertain | None:

@@ -99,6 +99,9 @@ class PlantSpec:
         Uncertain constants of ``dynamics``, fixed during a run.
     E : (n, d) ndarray or None
         A matrix plant's disturbance input: ``dx/dt = A x + B u + E w``.
+    state_units, input_units : tuple of str
+        Optional units, one per state / input (``plant.state_units``, ``plant.input_units``),
+        shown on the pictures' axes; () when not given.
 
     Notes
     -----
@@ -114,6 +117,18 @@ class PlantSpec:
     disturbances: Uncertain | None = _since_v2(None)
     parameters: Uncertain | None = _since_v2(None)
     E: np.ndarray | None = _since_v2(None)
+    state_units: tuple[str, ...] = _since_v2(())
+    input_units: tuple[str, ...] = _since_v2(())
+
+    def state_label(self, i: int) -> str:
+        """The state's name with its unit, ``v (m/s)`` (the name alone without one)."""
+        u = self.state_units[i] if i < len(self.state_units) else ""
+        return f"{self.states[i]} ({u})" if u else self.states[i]
+
+    def input_label(self, j: int) -> str:
+        """The input's name with its unit, ``F (N)`` (the name alone without one)."""
+        u = self.input_units[j] if j < len(self.input_units) else ""
+        return f"{self.inputs[j]} ({u})" if u else self.inputs[j]
 
     @property
     def n(self) -> int:

@@ -71,10 +71,14 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     def reference(root: str) -> str:
         return ", reference purple" if any(k.startswith(f"{root}/reference/") for k in e) else ""
 
+    def unit(label: str, name: str) -> str:
+        return label[len(name):] if label != name else ""  # " (m/s)" or ""
+
     time_views = [
         rrb.TimeSeriesView(
             origin=f"/time/{s}",
-            name=f"{s}(t): tube orange, traces grey" + cex + reference(f"/time/{s}")
+            name=f"{s}(t){unit(content.problem.plant.state_label(k), s)}: tube orange, "
+            "traces grey" + cex + reference(f"/time/{s}")
             + (", certificate band purple" if f"/time/{s}/certificate/lower" in e else "")
             + (", unsafe limits red" if any(k.startswith(f"/time/{s}/unsafe/") for k in e)
                else "")
@@ -82,8 +86,8 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                else ""),
             plot_legend=no_legend,
         )
-        for s in states
-        if any(k.startswith(f"/time/{s}/") for k in e)
+        for k, s in enumerate(states)
+        if any(key.startswith(f"/time/{s}/") for key in e)
     ]
     # the outputs y = C x, after the states: their bounds black, the reference if followed
     time_views += [
@@ -100,9 +104,11 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     p_dist = content.problem.plant.disturbances
     series = [
         rrb.TimeSeriesView(
-            origin=f"/scalars/u/{u}", name=f"{u}(t), bounds black", plot_legend=no_legend
+            origin=f"/scalars/u/{u}",
+            name=f"{u}(t){unit(content.problem.plant.input_label(j), u)}, bounds black",
+            plot_legend=no_legend,
         )
-        for u in content.inputs
+        for j, u in enumerate(content.inputs)
         if any(k.startswith(f"/scalars/u/{u}/") for k in e)
     ]
     for kind, names, what in (

@@ -554,8 +554,9 @@ def plot_tube(
         raise ValueError(f"state must be in [0, {n}), got {state}")
     names = _state_names(n, problem.plant.states if problem is not None else None)
     row = np.eye(n)[state]
+    label = problem.plant.state_label(state) if problem is not None else names[state]
     return _plot_signal(result, ax, row, tube.lower[:, state], tube.upper[:, state],
-                        names[state], problem, state=state)
+                        label, problem, state=state)
 
 
 def plot_output(
@@ -719,7 +720,7 @@ def _plot_signal(
                 ax.axhline(v, color=_REFERENCE, lw=1.0)
             handles.append(Patch(facecolor=_REFERENCE, alpha=0.3,
                                  label=f"reference in [{lo_r:.4g}, {hi_r:.4g}]"))
-    ax.set_xlabel("t")
+    ax.set_xlabel("t (s)")
     ax.set_ylabel(ylabel)
     if handles:
         ax.legend(handles=handles, fontsize="small", loc="upper right")
@@ -921,8 +922,12 @@ def plot_plane(
         _mark_if_small(ax, initial_box, xlim, ylim, _INITIAL)
     ax.set_xlim(*xlim)
     ax.set_ylim(*ylim)
-    ax.set_xlabel(names[i])
-    ax.set_ylabel(names[j])
+    if problem is not None:
+        ax.set_xlabel(problem.plant.state_label(i))
+        ax.set_ylabel(problem.plant.state_label(j))
+    else:
+        ax.set_xlabel(names[i])
+        ax.set_ylabel(names[j])
     if handles:  # where it covers least (the tube is one patch: one box to avoid)
         ax.legend(handles=handles, fontsize="small", loc="best", framealpha=0.85)
     return ax

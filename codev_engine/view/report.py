@@ -187,8 +187,8 @@ def figure_inputs(
             if np.isfinite(v):
                 ax.axhline(float(v), color="k", lw=1.0, ls="--")
         ax.autoscale_view()
-        ax.set_ylabel(problem.plant.inputs[j])
-        ax.set_xlabel("t")
+        ax.set_ylabel(problem.plant.input_label(j))
+        ax.set_xlabel("t (s)")
         # the traces' own end: for time_horizon = "inf" that is the shown horizon, not inf
         t_end = float(traces.t[-1]) if traces.t.size else None
         ax.set_xlim(0.0, t_end if t_end and np.isfinite(t_end) and t_end > 0 else None)

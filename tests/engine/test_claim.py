@@ -119,3 +119,16 @@ def test_certificate_band_holds_simulated_states_long_after_the_tube_stops():
     x = tr.X[:, after, 0]
     assert np.all(tr.alive) and np.all(np.isfinite(x))
     assert x.min() >= band.lower[0] - 1e-9 and x.max() <= band.upper[0] + 1e-9
+
+
+def test_units_label_the_axes_and_bad_units_are_one_line():
+    from codev_engine.errors import SpecError
+    from codev_engine.view import figures
+
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    assert problem.plant.state_label(0) == "v (m/s)" and problem.plant.input_label(0) == "F (N)"
+    result = ce.verify(problem, ce.synthesize(problem))
+    ax = figures.figure_result(result, problem).axes[0]
+    assert ax.get_ylabel() == "v (m/s)" and ax.get_xlabel() == "t (s)"
+    with pytest.raises(SpecError, match="plant.state_units: expected 1 units"):
+        ce.loads_spec(GRADE.replace('state_units = ["m/s"]', 'state_units = ["m/s", "m"]'))
