@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from codev_engine.spec.problem import Problem, SetSpec, design_safe_sets
+from codev_engine.spec.problem import Problem, SetSpec, design_safe_sets, parameter_names
 
 if TYPE_CHECKING:
     from codev_engine.reach.verification import VerificationResult
@@ -181,17 +181,20 @@ def build_claim(problem: Problem, result: VerificationResult | None = None) -> C
     system = (f"{problem.name} (state{'s' if len(states) > 1 else ''} {', '.join(states)}; "
               f"input{'s' if len(inputs) > 1 else ''} {', '.join(inputs)})")
     initial = [_box(states, vs.initial_lower, vs.initial_upper)]
+    # u_prev and r by the law's parameter names (prev_V, ref_y0), as the pictures' sections
+    theta = parameter_names(mpc, states, inputs)[len(states):]
+    prev = theta[: len(inputs)] if mpc.has_rates else ()
+    refs = theta[len(prev):]
     if vs.initial_input_lower is not None:
         initial.append("input before t = 0: " + _box(
-            tuple(f"{u}_prev" for u in inputs), vs.initial_input_lower, vs.initial_input_upper))
-    if vs.reference_lower is not None:
-        initial.append("reference (a constant): " + _box(
-            tuple(f"r{k}" for k in range(len(vs.reference_lower))),
-            vs.reference_lower, vs.reference_upper))
-    elif mpc.free_reference and mpc.reference is not None:
-        ref = mpc.reference
-        initial.append("reference (a constant): " + _box(
-            tuple(f"r{k}" for k in range(len(ref.lower))), ref.lower, ref.upper))
+            prev or tuple(f"prev_{u}" for u in inputs), vs.initial_input_lower,
+            vs.initial_input_upper))
+    ref_lo, ref_hi = vs.reference_lower, vs.reference_upper
+    if ref_lo is None and mpc.free_reference and mpc.reference is not None:
+        ref_lo, ref_hi = mpc.reference.lower, mpc.reference.upper
+    if ref_lo is not None:
+        names = refs if len(refs) == len(ref_lo) else tuple(f"r{k}" for k in range(len(ref_lo)))
+        initial.append("reference (a constant): " + _box(names, ref_lo, ref_hi))
     uncertainty = []
     if p.disturbances is not None:
         u = p.disturbances
