@@ -121,12 +121,32 @@ class PlantSpec:
     input_units: tuple[str, ...] = _since_v2(())
 
     def state_label(self, i: int) -> str:
-        """The state's name with its unit, ``v (m/s)`` (the name alone without one)."""
+        """The state's name with its unit, ``v (m/s)`` (the name alone without one).
+
+        Parameters
+        ----------
+        i : int
+            The state's index.
+
+        Returns
+        -------
+        str
+        """
         u = self.state_units[i] if i < len(self.state_units) else ""
         return f"{self.states[i]} ({u})" if u else self.states[i]
 
     def input_label(self, j: int) -> str:
-        """The input's name with its unit, ``F (N)`` (the name alone without one)."""
+        """The input's name with its unit, ``F (N)`` (the name alone without one).
+
+        Parameters
+        ----------
+        j : int
+            The input's index.
+
+        Returns
+        -------
+        str
+        """
         u = self.input_units[j] if j < len(self.input_units) else ""
         return f"{self.inputs[j]} ({u})" if u else self.inputs[j]
 
