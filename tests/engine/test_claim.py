@@ -132,3 +132,12 @@ def test_units_label_the_axes_and_bad_units_are_one_line():
     assert ax.get_ylabel() == "v (m/s)" and ax.get_xlabel() == "t (s)"
     with pytest.raises(SpecError, match="plant.state_units: expected 1 units"):
         ce.loads_spec(GRADE.replace('state_units = ["m/s"]', 'state_units = ["m/s", "m"]'))
+
+
+def test_constraints_off_keeps_the_session_keys_and_on_changes_them():
+    from codev_engine.session import RunOptions, stage_keys
+
+    default, off, on = _grade(), _grade(constraints="false"), _grade(constraints="true")
+    k = stage_keys(default, RunOptions())["verification"]
+    assert stage_keys(off, RunOptions())["verification"] == k
+    assert stage_keys(on, RunOptions())["verification"] != k
