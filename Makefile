@@ -10,11 +10,13 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m codev_engine.kernels --prepare
 	touch $(STAMP)
 
-## demo: set everything up and replay the bundled session (synthesis, verification, recording)
+## demo: set everything up (the solver kernels compiled once, announced) and replay the
+##       bundled session (synthesis, verification, recording)
 demo: $(STAMP)
-	$(BIN)/codev replay sessions/double_integrator
+	$(BIN)/codev replay sessions/double-integrator
 
 ## test: the whole test suite (what CI runs), on TEST_WORKERS processes (pytest-xdist)
 TEST_WORKERS ?= 2

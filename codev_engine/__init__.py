@@ -4,6 +4,7 @@ Public API::
 
     import codev_engine as ce
     problem = ce.load_spec("examples/double_integrator.toml")
+    # or from python-control: ce.design(ct.ss(A, B, C, D), sample_time=1.0, norm="inf", ...)
     law = ce.synthesize(problem)
     law.evaluate([[1.0, 2.0]])
 
@@ -46,6 +47,7 @@ _LAZY: dict[str, str] = {
     "LinearModel": "plant",
     "discretize": "plant",
     "Problem": "spec.problem",
+    "design": "design_api",
     "load_spec": "pipeline",
     "loads_spec": "pipeline",
     "synthesize": "synthesis",
@@ -88,6 +90,7 @@ __all__ = [
     "OnlineMpc",
     "Problem",
     "SolveOptions",
+    "design",
     "SolverError",
     "SpecError",
     "build_program",

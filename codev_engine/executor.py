@@ -22,6 +22,7 @@ import contextlib
 import os
 import signal
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
@@ -201,6 +202,7 @@ class Executor:
         *,
         on_result: Callable[[int, Any], None] | None = None,
         cost: Sequence[float] | None = None,
+        interrupt: Callable[[], None] | None = None,
     ) -> list[Any]:
         """Call ``fn(*a)`` for each ``a`` of ``args``; the results in the order of ``args``.
 
@@ -220,6 +222,10 @@ class Executor:
             end (longest-processing-time-first scheduling), instead of one long call left
             for last while the other workers idle. The results and their order do not
             depend on it; serially it is ignored.
+        interrupt : callable, optional
+            Called between calls and, on a cluster, every 0.2 s while waiting for one: an
+            exception it raises cancels the calls still running and propagates (serially
+            the running call is not interrupted: pass the call its own check).
 
         Returns
         -------
@@ -235,6 +241,8 @@ class Executor:
         if self.kind == "serial" or not calls:
             results = []
             for i, a in enumerate(calls):
+                if interrupt is not None:
+                    interrupt()
                 results.append(fn(*a))
                 if on_result is not None:
                     on_result(i, results[-1])
@@ -257,11 +265,18 @@ class Executor:
         index = {f.key: i for i, f in enumerate(futures)}
         results: list[Any] = [None] * len(calls)
         try:
-            for future in as_completed(futures):
-                i = index[future.key]
-                results[i] = future.result()
-                if on_result is not None:
-                    on_result(i, results[i])
+            pending = as_completed(futures)
+            while not pending.is_empty():
+                if interrupt is not None:
+                    interrupt()
+                    if not pending.has_ready():
+                        time.sleep(0.2)
+                        continue
+                for future in pending.next_batch(block=True):
+                    i = index[future.key]
+                    results[i] = future.result()
+                    if on_result is not None:
+                        on_result(i, results[i])
         except BaseException:
             client.cancel(futures)
             raise

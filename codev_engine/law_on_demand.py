@@ -12,20 +12,34 @@ once returned stays valid while the law grows. In plant coordinates, as ``Explic
 
 from __future__ import annotations
 
+import hashlib
+import os
+from pathlib import Path
+
 import numpy as np
 
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.formulation import parameter_names
 from codev_engine.geometry.locate import PointLocator
 from codev_engine.geometry.polytope import box_halfspaces
+from codev_engine.io.npz import NpzFormat, array, load_npz, save_npz, text
 from codev_engine.mp.on_demand import OnDemandRegions
 from codev_engine.mp.solve import SolveOptions
 from codev_engine.mpc import build_program
 from codev_engine.plant import LinearModel, discretize
 from codev_engine.spec.problem import Problem
 from codev_engine.synthesis import problem_fingerprint
+from codev_engine.version import __version__
 
 __all__ = ["OnDemandLaw", "law_for"]
+
+#: the region cache's file format (``OnDemandLaw.save``)
+REGIONS_FORMAT = "codev-regions/1"
+_REGIONS_FILE = NpzFormat("region cache", REGIONS_FORMAT, "region cache")
+#: the integer arrays of a region cache (every other one is real)
+_INT_ARRAYS = ("acts", "acts_len", "kind", "region", "moves", "moves_len", "lower_len",
+               "reg_len", "numpy_acts", "numpy_len", "flags")
+_REAL_ARRAYS = ("lower_A", "lower_b", "reg_A", "reg_b", "reg_K", "reg_k", "box_lo", "box_hi")
 
 #: tolerance of the bounding-box test of the full law's reach engines (``regions_meeting``)
 _BOX_TOL = 1e-9
@@ -98,6 +112,13 @@ class OnDemandLaw:
         if mp.d > mp.n:
             self.parameters = parameter_names(problem.mpc, self.states, self.inputs)
         self.fingerprint = problem_fingerprint(mp)
+        opts = options or SolveOptions()
+        # what the cached regions depend on besides the program: the kernel's tolerance and
+        # seed (the replay's start), and the engine (its rounding)
+        self._cache_key = (f"{self.fingerprint} region_tol={opts.region_tol!r} "
+                           f"seed={opts.seed!r} engine={__version__}")
+        #: candidates the walk had evaluated when last saved or loaded (:attr:`grown`)
+        self._saved_candidates = 0
         self.meta: dict = {"on_demand": True, "norm": mp.spec.norm, "horizon": mp.N,
                            "problem": problem.name, "regions": 0}
         d, m = mp.d, mp.m
@@ -271,6 +292,90 @@ class OnDemandLaw:
     def __repr__(self) -> str:
         return f"OnDemandLaw(num_regions={self.num_regions}, n={self.n}, m={self.m})"
 
+    # ---- persistence ---------------------------------------------------------------------
+
+    @property
+    def grown(self) -> bool:
+        """Regions were computed since the law was last saved or loaded."""
+        return self._solver.stats["candidates"] != self._saved_candidates
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the regions computed so far and the walk's cache to ``path`` (``.npz``,
+        format ``REGIONS_FORMAT``), atomically.
+
+        The file holds the MPC's fingerprint (with the solver's tolerance and seed and the
+        engine's version) and a SHA-256 of its arrays: :meth:`load` refuses a cache made
+        for another MPC or damaged.
+
+        Parameters
+        ----------
+        path : path-like
+
+        Returns
+        -------
+        Path
+        """
+        arrays = self._solver.state()
+        arrays["fingerprint"] = np.array(self._cache_key)
+        arrays["checksum"] = np.array(_checksum(arrays))
+        out = save_npz(path, _REGIONS_FILE, arrays)
+        self._saved_candidates = self._solver.stats["candidates"]
+        return out
+
+    @classmethod
+    def load(cls, path: str | os.PathLike, problem: Problem, *,
+             model: LinearModel | None = None, options: SolveOptions | None = None
+             ) -> OnDemandLaw:
+        """The law of ``problem`` with the regions of a cache written by :meth:`save`.
+
+        Parameters
+        ----------
+        path : path-like
+        problem : Problem
+        model, options
+            As for the constructor (the cache must have been made with the same).
+
+        Returns
+        -------
+        OnDemandLaw
+
+        Raises
+        ------
+        SpecError
+            Naming the file and the array: not a region cache, made for another MPC (or
+            another engine, tolerance or seed), or damaged (its checksum or its arrays do
+            not hold). A cache is never half trusted: the caller recomputes.
+        """
+        law = cls(problem, model=model, options=options)
+        load_npz(path, _REGIONS_FILE, law._adopt)
+        return law
+
+    def _adopt(self, data: dict[str, np.ndarray]) -> None:
+        """Check a region cache's arrays and take its regions (``SpecError`` names one)."""
+        key = text(data, "fingerprint")
+        if key != self._cache_key:
+            raise SpecError(f"made for another MPC or engine ({key[:60]!r}; this one is "
+                            f"{self._cache_key[:60]!r})", field="fingerprint")
+        arrays = {}
+        for name in _INT_ARRAYS:
+            a = array(data, name)
+            if a.dtype.kind not in "iu" or a.ndim != 1:
+                raise SpecError(f"must be a vector of integers, got {a.dtype} {a.shape}",
+                                field=name)
+            arrays[name] = a.astype(np.int64)
+        for name in _REAL_ARRAYS:
+            a = array(data, name)
+            if a.dtype.kind != "f":
+                raise SpecError(f"must hold real numbers, got dtype {a.dtype}", field=name)
+            arrays[name] = a
+        if text(data, "checksum") != _checksum(arrays | {"fingerprint": data["fingerprint"]}):
+            raise SpecError("its arrays do not match their SHA-256 (damaged or edited)",
+                            field="checksum")
+        self._solver.restore(arrays)
+        self._sync()
+        self._last = None
+        self._saved_candidates = self._solver.stats["candidates"]
+
     # ---- growth --------------------------------------------------------------------------
 
     def _sync(self) -> None:
@@ -304,6 +409,18 @@ class OnDemandLaw:
         worst = np.maximum.reduceat(A @ x - b, off)
         best = int(np.argmin(worst))
         return best if worst[best] < -margin else -1
+
+
+def _checksum(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 over the arrays of a region cache, by name: dtype, shape and bytes."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        if name in ("checksum", "format"):
+            continue
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 def law_for(problem: Problem, regions: str, **kwargs):

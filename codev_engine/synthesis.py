@@ -239,6 +239,15 @@ def synthesize(
 
 
 _TIME_FIX = "shorten mpc.horizon or bound fewer states and inputs in [mpc]"
+#: what a message about a law too large to enumerate suggests, when it applies
+REACHED_HINT = ("a verification can run on the critical regions its reach sets meet alone, "
+                "computed on demand: [synthesis] regions = \"reached\" (codev verify/run "
+                "--regions reached)")
+
+
+def _walked_on_demand(mp: MpcProgram) -> bool:
+    """The regions of this MPC can be computed on demand (``mp.on_demand``: an mp-QP)."""
+    return mp.spec.norm == "2"
 
 
 def _synthesize(problem, model, simplify, options, progress, executor) -> ExplicitLaw:
@@ -273,6 +282,7 @@ def _synthesize(problem, model, simplify, options, progress, executor) -> Explic
                if capped else "(the solver's safety stop)")
             + ": the explicit law is too large; shorten mpc.horizon, bound fewer states or "
             "inputs in [mpc], or use fewer states"
+            + (f"; {REACHED_HINT}" if _walked_on_demand(mp) else "")
         ) from None
     except SolverError as exc:
         if spread <= _SPREAD_NOTED:

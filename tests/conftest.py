@@ -12,29 +12,28 @@ EXAMPLES_DIR = Path(__file__).resolve().parents[1] / "examples"
 
 
 def pytest_configure(config):
-    """With test processes (``-n 2``, as ``make test``): compile the engine's numba kernels
-    once, before the processes start (``codev_engine.kernels``, its two groups at once).
+    """Compile the engine's numba kernels once, before any test (and before the test
+    processes of ``-n 2`` start): ``codev_engine.kernels.prepare``, its two groups at once,
+    nothing when this checkout's kernels are ready.
 
     Without it each process compiled the kernels its first tests needed, at the same time
     as the other, on a fresh clone: about a minute of CPU each (a kernel in the cache is
-    only loaded, a few seconds in all). A failure here is left to the tests to show.
+    only loaded, a few seconds in all); and each ``codev`` the tests start would announce
+    the compile on its stderr. A failure here is left to the tests to show.
     """
-    workers = getattr(config.option, "numprocesses", None)
-    if hasattr(config, "workerinput") or not workers or workers in (0, 1):
+    if hasattr(config, "workerinput"):
         return
-    from codev_engine.kernels import compile_all
+    from codev_engine.kernels import prepare
 
-    config._codev_kernels = compile_all()
+    config._codev_kernels = prepare(announce=lambda line, lasting: None)
 
 
 def pytest_report_header(config):
     """Say how long compiling the kernels ahead took (see ``pytest_configure``)."""
-    done = getattr(config, "_codev_kernels", None)
-    if done is None:
+    seconds = getattr(config, "_codev_kernels", None)
+    if seconds is None:
         return None
-    return "kernels compiled ahead (python -m codev_engine.kernels): " + ", ".join(
-        f"{name} {seconds:.1f} s" for name, seconds in done.items()) + (
-        "" if len(done) == 2 else " (a group failed: its kernels compile on first use)")
+    return f"kernels compiled ahead (codev_engine.kernels.prepare): {seconds:.1f} s"
 
 
 @pytest.fixture(scope="session")

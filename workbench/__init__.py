@@ -33,5 +33,10 @@ def run_workbench(target: str | None, *, session_dir: str | None = None) -> int:
     from workbench.tui.state import open_target
 
     opened = open_target(target, session_dir=session_dir)
+    # before the app takes the terminal: a fresh installation compiles its solver kernels
+    # here, announced, not in the middle of the first synthesis or sweep
+    from codev_engine.kernels import prepare
+
+    prepare()
     CodevApp(opened).run()
     return 0

@@ -56,11 +56,21 @@ def _progress(label: str, enabled: bool, unit: str = "regions") -> Iterator[Call
         on_event(label, "done", {"status": "done"})
 
 
+def _prepare_kernels() -> None:
+    """Compile the solver kernels now, announced on stderr, if this installation never did
+    (once per machine: ``codev_engine.kernels.prepare``); called by the commands that
+    compute, once their input is read (a bad file is reported first)."""
+    from codev_engine.kernels import prepare
+
+    prepare()
+
+
 def _cmd_synth(args: argparse.Namespace) -> int:
     from codev_engine.pipeline import load_spec
     from codev_engine.synthesis import synthesize
 
     problem = load_spec(args.spec)
+    _prepare_kernels()
     with _progress(f"synthesising {problem.name}", True) as update:  # stderr, --json too
         law = synthesize(problem, progress=update)
     out = None
@@ -241,6 +251,7 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
     problem = load_spec(args.spec)
     if problem.verify is None:
         raise CodevError(f"{args.spec}: verify: the spec has no [verify] section")
+    _prepare_kernels()
     if (getattr(args, "regions", None) or problem.regions) == "reached":
         return _verify_reached(args, problem, executor)
     if args.law:
@@ -249,23 +260,51 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
         synth_seconds = law.meta.get("seconds")
     else:
         with _progress(f"synthesising {problem.name}", True) as update:
-            law = synthesize(problem, progress=update, executor=executor)
+            law = synthesize(problem, progress=_hint_reached(problem, update),
+                             executor=executor)
         synth_seconds = law.meta["seconds"]
     return _verification(args, problem, law, synth_seconds, executor)
 
 
+#: a full synthesis still running after this many seconds, with at least ``HINT_REGIONS``
+#: regions, suggests ``--regions reached`` (once) when the design can be verified so
+HINT_SECONDS = 15.0
+HINT_REGIONS = 1000
+
+
+def _hint_reached(problem, update: Callable[..., None]) -> Callable[..., None]:
+    """``update`` that also says, once, when the full law looks too large to wait for, that
+    the verification can run on the regions reached (issue 39): past ``HINT_SECONDS`` and
+    ``HINT_REGIONS``, for a design the law on demand serves."""
+    import time
+
+    if problem.mpc.norm != "2" or problem.verify is None:
+        return update
+    t0, said = time.perf_counter(), [False]
+
+    def progress(count: int, **extra) -> None:
+        update(count, **extra)
+        t = time.perf_counter() - t0
+        if not said[0] and t >= HINT_SECONDS and count >= HINT_REGIONS:
+            said[0] = True
+            _warn(f"{problem.name}: {count:,} critical regions after {t:.0f} s of synthesis "
+                  f"({count / t:,.0f} a second) and counting; if the whole law is out of "
+                  "reach, verify on the regions the reach sets meet alone: --regions "
+                  "reached (or [synthesis] regions = \"reached\")")
+
+    return progress
+
+
 def _verify_reached(args: argparse.Namespace, problem, executor) -> int:
     """Verify on the regions the reach sets meet, computed on demand (``--regions reached``
-    or ``[synthesis] regions = "reached"``): no law file, no recording (it draws the
-    whole partition), no session yet."""
+    or ``[synthesis] regions = "reached"``): no law file (the regions are cached in a
+    session: ``codev run --session``); a recording draws the regions computed."""
     from codev_engine.law_on_demand import OnDemandLaw
 
-    for flag, given in (("--law", getattr(args, "law", None)),
-                        ("--record", getattr(args, "record", None)),
-                        ("--session", getattr(args, "session", None))):
-        if given:
-            raise SpecError(f"{flag} needs the whole law: not with regions = \"reached\"",
-                            field=flag)
+    if getattr(args, "law", None):
+        raise SpecError('--law needs the whole law: not with regions = "reached" (a '
+                        "session caches the regions computed: codev run --session)",
+                        field="--law")
     law = OnDemandLaw(problem)
     return _verification(args, problem, law, None, executor)
 
@@ -283,15 +322,24 @@ def _cmd_run(args: argparse.Namespace) -> int:
     # bad input fails here or in Session.run's own checks, before the session is touched;
     # the MPC's feasibility LP (python-control, ~1 s of imports) only when not cached
     problem = load_spec(args.spec, check_mpc=False)
-    if (args.regions or problem.regions) == "reached":
-        raise SpecError('--session needs the whole law: not with regions = "reached"',
-                        field="--session")
+    if args.regions and args.regions != problem.regions:
+        # (a session runs and replays its spec: the choice must be written in it)
+        raise SpecError(f"with --session, write [synthesis] regions = \"{args.regions}\" in "
+                        "the spec instead (a session replays its spec)", field="--regions")
     session = Session.open_or_create(args.session)
+    _prepare_kernels()
     options = RunOptions(
         hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
     )
     with _executor(args) as executor, _stage_progress(True) as on_event:
-        report = session.run(problem, options, fresh=args.fresh, on_event=on_event, warn=_warn,
+        hint = _hint_reached(problem, lambda count, **extra: None)
+
+        def event(stage: str, what: str, data: dict) -> None:
+            on_event(stage, what, data)
+            if stage == "synthesis" and what == "progress" and problem.regions == "all":
+                hint(int(data.get("count", 0)))
+
+        report = session.run(problem, options, fresh=args.fresh, on_event=event, warn=_warn,
                              executor=executor)
     tube_path = None
     if args.export_tube and report.result is not None:
@@ -379,6 +427,7 @@ def _codev() -> str:
 def _cmd_replay(args: argparse.Namespace) -> int:
     from codev_engine.sweeps.folder import is_sweep
 
+    _prepare_kernels()
     if is_sweep(args.dir):
         return _replay_sweep(args)
     return _replay_session(args)
@@ -671,7 +720,6 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def _from_session(d: Path):
     """The spec, the law and the result (or None) cached in a session folder."""
-    from codev_engine.law import ExplicitLaw
     from codev_engine.reach.verification import VerificationResult
     from codev_engine.session import Session
 
@@ -685,7 +733,8 @@ def _from_session(d: Path):
             f"--session {d}",
             file=str(d),
         )
-    law = ExplicitLaw.load(d / syn.artifact)
+    # (the stage's loader: a full law, or the region cache of regions = "reached")
+    law = session.table["synthesis"].load(d / syn.artifact, problem)
     ver = status.get("verification")
     result = None
     if ver is not None and ver.status == "cached":
@@ -705,7 +754,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations", "sweep", "startup", "scale",
+    "long_horizon", "formulations", "sweep", "startup", "scale", "first_run", "on_demand",
 )
 
 
@@ -738,6 +787,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise SpecError("must be a positive number of workers", field="--workers")
     grid = _sweep_grid(args.set)
     problem = load_spec(args.spec)
+    _prepare_kernels()  # before the first design: no row's time holds the compile
     count = math.prod(len(v) for v in grid.values())
     executor = Executor(workers=args.workers, scheduler=args.scheduler)
     t0 = time.perf_counter()
@@ -932,12 +982,21 @@ def _cmd_export(args: argparse.Namespace) -> int:
             c_prefix(args.name)
         except SpecError as exc:
             raise SpecError(exc.reason, field="--name") from None
-    data = read_npz(args.file, "law or solution file")
-    try:
-        tag = text(data, "format") if "format" in data else ""
-    except SpecError as exc:
-        raise exc.with_file(str(args.file)) from None
-    if tag.startswith("codev-mp-solution/"):
+    note = None
+    if Path(args.file).is_dir():
+        _prepare_kernels()  # (the region cache may grow: the mp-QP kernel)
+        obj, note = _operation_of(Path(args.file))
+        tag = None
+    else:
+        data = read_npz(args.file, "law or solution file")
+        try:
+            tag = text(data, "format") if "format" in data else ""
+        except SpecError as exc:
+            raise exc.with_file(str(args.file)) from None
+        _prepare_kernels()
+    if tag is None:
+        pass
+    elif tag.startswith("codev-mp-solution/"):
         from codev_engine.mp.solution import MpSolution
 
         obj = MpSolution.load(args.file)
@@ -956,12 +1015,28 @@ def _cmd_export(args: argparse.Namespace) -> int:
         f"{ex.tests} row evaluations, {ex.macs} multiply-adds per call"
     )
     if args.c:
-        h, c = export_c(ex, args.c, name=args.name, float32=args.float32)
+        h, c = export_c(ex, args.c, name=args.name, float32=args.float32, note=note)
         print(f"C written to {h} and {c}")
     if args.python:
-        path = export_python(ex, args.python)
+        path = export_python(ex, args.python, note=note)
         print(f"Python written to {path}")
     return 0
+
+
+def _operation_of(folder: Path):
+    """The law of the region of operation of a session verified on demand (``regions =
+    "reached"``) and the header note stating it (``deploy.operation``)."""
+    from codev_engine.deploy.operation import operation_law, operation_note
+
+    problem, law, result = _from_session(folder)
+    if not getattr(law, "on_demand", False):
+        raise SpecError('a session exports its region of operation with regions = "reached" '
+                        "(export a full law from its law file)", file=str(folder))
+    if result is None:
+        raise SpecError("the session has no verification cached for its spec; run: codev run "
+                        f"{folder / 'spec.toml'} --session {folder}", file=str(folder))
+    obj, cert = operation_law(problem, law, result)
+    return obj, operation_note(problem, cert)
 
 
 def _jsonable(v):
@@ -1161,7 +1236,9 @@ def _build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "export", help="write a law (or an mp solution) as C99 or Python code"
     )
-    p.add_argument("file", metavar="LAW.npz|SOLUTION.npz")
+    p.add_argument("file", metavar="LAW.npz|SOLUTION.npz|SESSION",
+                   help="a law or mp solution file, or a session verified with regions = "
+                   "\"reached\": the law of its region of operation (certified)")
     p.add_argument("--c", metavar="DIR", help="write DIR/PREFIX.h and DIR/PREFIX.c")
     p.add_argument("--python", metavar="FILE.py", help="write a numpy-only Python module")
     p.add_argument("--name", default="codev_law", metavar="PREFIX",

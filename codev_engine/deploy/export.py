@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 
 from codev_engine.deploy.c_code import c_source
-from codev_engine.deploy.escape import c_prefix
+from codev_engine.deploy.escape import c_prefix, comment
 from codev_engine.deploy.plan import Export, plan
 from codev_engine.deploy.python_code import python_source
 from codev_engine.io.atomic import write_text
@@ -28,6 +28,7 @@ def export_c(
     float32: bool = False,
     method: str = "auto",
     merge_equal_laws: bool = False,
+    note: str | None = None,
 ) -> tuple[Path, Path]:
     """Write the law as C99: ``directory/name.h`` and ``directory/name.c``.
 
@@ -53,6 +54,9 @@ def export_c(
     merge_equal_laws : bool
         Regions with equal laws share tree leaves (``plan.plan``); the code still returns
         ``locate``'s region.
+    note : str, optional
+        Lines the header states after its first (escaped as comment text): the region of
+        operation and its verdict (``deploy.operation.operation_note``).
 
     Returns
     -------
@@ -66,6 +70,10 @@ def export_c(
     c_prefix(name)
     ex = obj if isinstance(obj, Export) else plan(obj, method, merge_equal_laws)
     header, source = c_source(ex, name, float32)
+    if note:
+        first, rest = header.split("\n", 1)
+        header = first + "\n *\n" + "".join(f" * {comment(x)}\n" for x in note.splitlines()) \
+            + rest
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     h, c = directory / f"{name}.h", directory / f"{name}.c"
@@ -75,7 +83,8 @@ def export_c(
 
 
 def export_python(
-    obj, path: str | os.PathLike, *, method: str = "auto", merge_equal_laws: bool = False
+    obj, path: str | os.PathLike, *, method: str = "auto", merge_equal_laws: bool = False,
+    note: str | None = None,
 ) -> Path:
     """Write the law as a Python module (numpy only) with ``evaluate(theta)``.
 
@@ -86,6 +95,9 @@ def export_python(
         The ``.py`` file to write.
     method : {"auto", "bst", "sequential"}
     merge_equal_laws : bool
+    note : str, optional
+        Lines the module's docstring states after its first (escaped), as for
+        :func:`export_c`.
 
     Returns
     -------
@@ -94,5 +106,9 @@ def export_python(
     ex = obj if isinstance(obj, Export) else plan(obj, method, merge_equal_laws)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text(path, python_source(ex))
+    text = python_source(ex)
+    if note:
+        first, rest = text.split("\n", 1)
+        text = first + "\n\n" + "".join(f"{comment(x)}\n" for x in note.splitlines()) + rest
+    write_text(path, text)
     return path

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from codev_engine.errors import SolverError
+from codev_engine.errors import SolverError, SpecError
 from codev_engine.geometry.polytope import (
     chebyshev_ball,
     normalize_rows,
@@ -43,6 +43,9 @@ from codev_engine.mp.solution import CriticalRegion
 from codev_engine.mp.solve import SolveOptions
 
 __all__ = ["OnDemandRegions"]
+
+#: the kinds of a candidate in the walk's cache, as :meth:`OnDemandRegions.state` numbers them
+_KINDS = ("full", "lower", "empty", "licq")
 
 #: a candidate meets a set when its rows, relaxed by this times the parameter set's size,
 #: meet the set relaxed as much. Generous on purpose: a region found too many costs a
@@ -444,6 +447,147 @@ class OnDemandRegions:
             return None
         return a, beta
 
+    # ---- persistence ---------------------------------------------------------------------
+
+    def state(self) -> dict[str, np.ndarray]:
+        """Every candidate evaluated so far and how (the walk's cache), as plain arrays.
+
+        What :meth:`restore` needs to go on as if it had evaluated them itself: each active
+        set's kind, moves and rows, the regions (rows and law, bit for bit), the active sets
+        of the replayed numpy phase and whether the compiled kernel had started (so later
+        candidates are evaluated by the same kernel as in the full search).
+
+        Returns
+        -------
+        dict of str to ndarray
+            ``acts``/``acts_len`` (flat active sets, their sizes (q,)); ``kind`` (q,) 0 full,
+            1 lower, 2 empty, 3 LICQ; ``region`` (q,) the region index of a full one (-1);
+            ``moves``/``moves_len`` (-1: none); ``lower_A`` (r, d), ``lower_b``,
+            ``lower_len``; ``reg_A`` (R, d), ``reg_b``, ``reg_len`` (k,), ``reg_K``
+            (k, nz, d), ``reg_k`` (k, nz); ``numpy_acts``/``numpy_len``; ``flags``
+            (replayed, compiled kernel started); ``box_lo``, ``box_hi`` (k', d) the boxes
+            of the first k' regions (those computed).
+        """
+        d = self._red.At.shape[1]
+        acts, acts_len, kind, region, moves, moves_len = [], [], [], [], [], []
+        lower_A, lower_b, lower_len = [np.zeros((0, d))], [np.zeros(0)], []
+        for act, entry in self._cache.items():
+            acts += act
+            acts_len.append(len(act))
+            kind.append(_KINDS.index(entry[0]))
+            region.append(entry[1] if entry[0] == "full" else -1)
+            mv = entry[2] if entry[0] in ("full", "lower") else None
+            moves_len.append(-1 if mv is None else len(mv))
+            moves += [] if mv is None else [int(v) for v in mv]
+            rows = entry[1] if entry[0] == "lower" else None
+            lower_len.append(0 if rows is None else rows[0].shape[0])
+            if rows is not None:
+                lower_A.append(rows[0])
+                lower_b.append(rows[1])
+        regs = self.regions
+        nz = self._red.Z1.shape[0]
+        numpy_acts = [a for a in self._numpy_acts]
+        i64 = np.int64
+        return {
+            "acts": np.array(acts, i64), "acts_len": np.array(acts_len, i64),
+            "kind": np.array(kind, i64), "region": np.array(region, i64),
+            "moves": np.array(moves, i64), "moves_len": np.array(moves_len, i64),
+            "lower_A": np.vstack(lower_A), "lower_b": np.concatenate(lower_b),
+            "lower_len": np.array(lower_len, i64),
+            "reg_A": np.vstack([np.zeros((0, d))] + [r.A for r in regs]),
+            "reg_b": np.concatenate([np.zeros(0)] + [r.b for r in regs]),
+            "reg_len": np.array([r.A.shape[0] for r in regs], i64),
+            "reg_K": np.array([r.K for r in regs]).reshape(len(regs), nz, d),
+            "reg_k": np.array([r.k for r in regs]).reshape(len(regs), nz),
+            "numpy_acts": np.array([x for a in numpy_acts for x in a], i64),
+            "numpy_len": np.array([len(a) for a in numpy_acts], i64),
+            "flags": np.array([self._replayed, self._kernel._jit is not None], i64),
+            # (the boxes known: a loaded cache need not solve their LPs again)
+            "box_lo": np.array(self._boxes_lo).reshape(-1, d),
+            "box_hi": np.array(self._boxes_hi).reshape(-1, d),
+        }
+
+    def restore(self, st: dict[str, np.ndarray]) -> None:
+        """Take over a walk's cache written by :meth:`state` (by a walk of the same program
+        and options: the caller checks the fingerprint), replacing this one's.
+
+        Parameters
+        ----------
+        st : dict of str to ndarray
+            As :meth:`state` returns; shapes, ranges and consistency are checked here.
+
+        Raises
+        ------
+        SpecError
+            Naming the array that does not fit this program (``field``).
+        """
+        d = self._red.At.shape[1]
+        ncons = self._red.G.shape[0]
+        nz = self._red.Z1.shape[0]
+        q = st["kind"].shape[0]
+        acts = _split(st, "acts", "acts_len", q)
+        for a in acts:
+            if any(x < 0 or x >= ncons for x in a) or list(a) != sorted(set(a)) \
+                    or len(a) > self._nz + 1:
+                raise SpecError("not active sets of this program", field="acts")
+        if len(set(acts)) != q:
+            raise SpecError("an active set twice", field="acts")
+        kind, region = st["kind"], st["region"]
+        if kind.shape != (q,) or np.any((kind < 0) | (kind >= len(_KINDS))):
+            raise SpecError("must be q kinds in 0..3", field="kind")
+        k = st["reg_len"].shape[0]
+        full = kind == 0
+        if region.shape != (q,) or sorted(region[full].tolist()) != list(range(k)) \
+                or np.any(region[~full] != -1):
+            raise SpecError("must number the full regions 0..k-1 once each", field="region")
+        ml = st["moves_len"]
+        if ml.shape != (q,) or np.any(ml < -1) or np.any((ml == -1) & (kind < 2)):
+            raise SpecError("bad move counts", field="moves_len")
+        mv = _split(st, "moves", None, q, sizes=np.maximum(ml, 0))
+        if any(abs(v) > ncons for m in mv for v in m):  # (0: a row of the parameter set)
+            raise SpecError("moves out of range", field="moves")
+        ll = st["lower_len"]
+        if ll.shape != (q,) or np.any(ll < 0) or np.any((ll > 0) & (kind != 1)):
+            raise SpecError("bad row counts", field="lower_len")
+        lA, lb = _rows(st, "lower_A", "lower_b", ll, d)
+        rA, rb = _rows(st, "reg_A", "reg_b", st["reg_len"], d)
+        K, kk = st["reg_K"], st["reg_k"]
+        if K.shape != (k, nz, d) or kk.shape != (k, nz):
+            raise SpecError(f"must have shapes ({k}, {nz}, {d}) and ({k}, {nz})",
+                            field="reg_K")
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(kk))):
+            raise SpecError("non-finite numbers (NaN or inf)", field="reg_K")
+        flags = st["flags"]
+        if flags.shape != (2,):
+            raise SpecError("must have shape (2,)", field="flags")
+        numpy_acts = _split(st, "numpy_acts", "numpy_len", st["numpy_len"].shape[0])
+        order = np.argsort(region[full], kind="stable")
+        full_acts = [acts[i] for i in np.flatnonzero(full)[order]]
+        regions = [CriticalRegion(A=rA[i], b=rb[i], K=K[i].copy(), k=kk[i].copy(),
+                                  active=full_acts[i]) for i in range(k)]
+        cache: dict[tuple[int, ...], tuple] = {}
+        for i, act in enumerate(acts):
+            name = _KINDS[int(kind[i])]
+            moves = None if ml[i] < 0 else np.array(mv[i], dtype=np.int64)
+            if name == "full":
+                cache[act] = ("full", int(region[i]), moves)
+            elif name == "lower":
+                cache[act] = ("lower", (lA[i], lb[i]), moves)
+            else:
+                cache[act] = (name,)
+        self._cache = cache
+        self.regions = regions
+        lo, hi = st["box_lo"], st["box_hi"]
+        if lo.ndim != 2 or lo.shape[1] != d or lo.shape[0] > k or hi.shape != lo.shape \
+                or np.any(np.isnan(lo)) or np.any(np.isnan(hi)):
+            raise SpecError(f"must be at most {k} boxes of {d} columns", field="box_lo")
+        self._boxes_lo, self._boxes_hi = list(lo), list(hi)
+        self._boundary, self._row_valid = {}, {}
+        self._numpy_acts = set(numpy_acts)
+        self._replayed = bool(flags[0])
+        if flags[1] and self._kernel._jit is None:
+            self._kernel.start_jit()
+
     # ---- bounding boxes ------------------------------------------------------------------
 
     @property
@@ -463,3 +607,30 @@ class OnDemandRegions:
             self._boxes_lo += list(lo)
             self._boxes_hi += list(hi)
         return np.array(self._boxes_lo), np.array(self._boxes_hi)
+
+
+def _split(st: dict[str, np.ndarray], key: str, lens: str | None, q: int,
+           sizes: np.ndarray | None = None) -> list[tuple[int, ...]]:
+    """The flat integer array ``st[key]`` cut into ``q`` tuples of sizes ``st[lens]``."""
+    flat = st[key]
+    sizes = st[lens] if sizes is None else sizes
+    if flat.dtype.kind not in "iu" or flat.ndim != 1 or sizes.shape != (q,) \
+            or np.any(sizes < 0) or int(sizes.sum()) != flat.shape[0]:
+        raise SpecError("does not match its sizes", field=key)
+    cuts = np.cumsum(sizes)[:-1] if q else []
+    return [tuple(int(x) for x in part) for part in np.split(flat, cuts)] if q else []
+
+
+def _rows(st: dict[str, np.ndarray], ka: str, kb: str, sizes: np.ndarray, d: int
+          ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The stacked rows ``st[ka] theta <= st[kb]`` cut into blocks of ``sizes`` rows."""
+    A, b = st[ka], st[kb]
+    if A.ndim != 2 or A.shape[1] != d or b.shape != (A.shape[0],) or np.any(sizes < 0) \
+            or int(sizes.sum()) != A.shape[0]:
+        raise SpecError(f"must be rows of {d} columns matching their counts", field=ka)
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(b))):
+        raise SpecError("non-finite numbers (NaN or inf)", field=ka)
+    if not sizes.size:
+        return [], []
+    cuts = np.cumsum(sizes)[:-1]
+    return np.split(A, cuts), np.split(b, cuts)

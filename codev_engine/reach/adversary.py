@@ -101,14 +101,26 @@ def adjoint_signals(
     E = ap.E
     q = np.asarray(pl.parameters.nominal, float) if pl.parameters is not None else np.zeros(0)
     Q = np.repeat(q[None, :], P, axis=0)
-    R = max(law.num_regions, 1)
-    # per region: the adjoint's step over h within a period, and (zoh) the jump at a sample
+    # the adjoint's step over h within a period: per region (continuous hold), computed for
+    # the regions the runs visit (a law on demand grows while they run); one for zoh, whose
+    # jump at a sample is applied below
     if hold == "continuous":
-        step_T = np.stack([expm((ap.Ac + ap.Bc @ law.F[r]) * h).T for r in range(R)])
+        steps: dict[int, np.ndarray] = {}
+
+        def step_T(regs: np.ndarray) -> np.ndarray:
+            for r in np.unique(regs):
+                if int(r) not in steps:
+                    steps[int(r)] = expm((ap.Ac + ap.Bc @ law.F[r]) * h).T
+            return np.stack([steps[int(r)] for r in regs]).reshape(len(regs), n, n)
+        width = n
     else:
         Ma = np.zeros((n + m, n + m))
         Ma[:n, :n], Ma[:n, n:] = ap.Ac, ap.Bc
-        step_T = np.repeat(expm(Ma * h).T[None], R, axis=0)
+        one = expm(Ma * h).T
+
+        def step_T(regs: np.ndarray) -> np.ndarray:
+            return np.broadcast_to(one, (len(regs), n + m, n + m))
+        width = n + m
     W = np.repeat(np.repeat(wc[None, None, :], K, axis=1), P, axis=0)
     out_W = []
     for it in range(iterations):
@@ -139,7 +151,7 @@ def adjoint_signals(
             r[ok] = np.maximum(law.locate(xk[ok]), 0)
             reg[:, k] = r
         # the adjoint backwards over the steps; lam (P, n [+ m]) at the step's end
-        lam = np.zeros((P, step_T.shape[1]))
+        lam = np.zeros((P, width))
         grad = np.zeros((P, K, E.shape[1]))
         for j in range(J - 1, -1, -1):
             hit = jt == j + 1
@@ -147,7 +159,7 @@ def adjoint_signals(
             k = min(j // S, reg.shape[1] - 1)
             # the step's sensitivity: x at the step's end moves with E w over the step
             grad[:, j] = lam[:, :n] @ E
-            lam = np.einsum("pab,pb->pa", step_T[reg[:, k]], lam)
+            lam = np.einsum("pab,pb->pa", step_T(reg[:, k]), lam)
             if j % S == 0 and hold == "zoh":  # u_k = F x(t_k) + G: the jump's adjoint
                 F = law.F[reg[:, k]]  # (P, m, n)
                 lam[:, :n] = lam[:, :n] + np.einsum("pmn,pm->pn", F, lam[:, n:])

@@ -208,8 +208,7 @@ def build_claim(problem: Problem, result: VerificationResult | None = None) -> C
             tuple(f"v_{s}" for s in states), vs.noise_lower, vs.noise_upper)
             + " at every sample (the law sees x + v)")
 
-    design = design_safe_sets(mpc) if vs.constraints else ()
-    own = len(vs.safe) - len(design)
+    own = len(problem.own_safe_sets())
     checked = [f"never enters unsafe set {i}: {describe_set(s, states)}"
                for i, s in enumerate(vs.unsafe)]
     for j, s in enumerate(vs.safe):

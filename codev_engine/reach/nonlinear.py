@@ -52,6 +52,7 @@ from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.plant import linearize, plant_model
+from codev_engine.reach.carried import carried_zonotope
 from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import (
     ClosedLoopSetup,
@@ -82,6 +83,10 @@ class _Set:
     h: np.ndarray | None = None
     V: np.ndarray | None = None  # ... a polytope with these vertices (nv, n)
     base: tuple | None = None  # polytope (H, h, V) this one was cut from (contains it)
+    #: (n, k) generators of the disturbances' linear part ``{Z t : |t|_inf <= 1}`` added
+    #: to the set at a sample (``_period``); folded into the star by ``_rerooted`` before
+    #: the set is used (None: none)
+    Z: np.ndarray | None = None
 
     @property
     def poly(self) -> tuple:
@@ -121,6 +126,7 @@ class _Rec:
     fhi: np.ndarray
     hs: np.ndarray  # (N,) substep lengths
     vmag: np.ndarray  # (N, n) magnitudes of the star's and ellipsoid's terms
+    zsub: np.ndarray | None = None  # (N, n) box of the disturbances' linear part
 
 
 @dataclass
@@ -170,6 +176,10 @@ class NonlinearReach(ClosedLoopSetup):
         this fraction of its star at a sample is replaced by a polytope holding both, so
         the law's region cuts act on all of it (docs/verification.md, "Refuting first,
         and the remainder re-rooted"). None: never.
+    carry : bool
+        Under disturbances or uncertain parameters, their first-order part is carried
+        through the linear flow as a zonotope (``reach/carried.py``) and folded into the
+        star at each sample; False: it goes into the remainder ball, as before.
     """
 
     problem: Problem
@@ -201,6 +211,12 @@ class NonlinearReach(ClosedLoopSetup):
     #: ellipsoid replaced by a polytope over the deviation from its centre, which the region
     #: cuts then act on; ``_rerooted``). None: never (the remainder stays an ellipsoid)
     reroot: float | None = 0.25
+    #: with disturbances or uncertain parameters: their first-order part ``J_{w,p} (w -
+    #: w_n, p - p_n)`` is carried through the linear flow as a zonotope
+    #: (``reach/carried.py``) and folded into the star at each sample (docs/verification.md,
+    #: "The disturbances' linear part"); False: it goes into the remainder ball, isotropic
+    #: in ``W``, as before
+    carry: bool = True
 
     def __post_init__(self) -> None:
         from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
@@ -602,6 +618,7 @@ class NonlinearReach(ClosedLoopSetup):
         # |df/d(w, p)| along the centre's substeps (nominal values): the first-order part of
         # the disturbances' and parameters' forcing
         Jwc = np.maximum(np.abs(jul[..., m:]), np.abs(juh[..., m:]))
+        jwl, jwh = jul[..., m:], juh[..., m:]
         jul, juh = jul[..., :m], juh[..., :m]  # (the inputs' columns)
         gl, gh = self._fb(Bclo, Bchi, i, *uC, nom=True)
         if zoh:
@@ -623,6 +640,14 @@ class NonlinearReach(ClosedLoopSetup):
 
         # 2. Jacobian at the centre and the linear flow Phi (exact up to rounding)
         (cxl, cxh), (cul, cuh) = self._jac(Y0, Y0, i, *uC, nom=True)
+        # the disturbances' and parameters' Jacobian at the centre's points (nominal
+        # values): their first-order part Jw0 (w - w_n, p - p_n) is carried by the linear
+        # flow (``zsub``, ``Z`` below); only the spread about Jw0 enters the remainder
+        Jw0 = None
+        if self.xlo is not None and self.carry:
+            Jw0 = 0.5 * (cul[..., m:] + cuh[..., m:])
+            if not np.all(np.isfinite(Jw0)):
+                Jw0 = None
         cul, cuh = cul[..., :m], cuh[..., :m]
         if not (np.all(np.isfinite(cxl + cxh)) and np.all(np.isfinite(cul + cuh))):
             j = int(np.argmin(np.all(np.isfinite(cxl + cxh), axis=(1, 2))))
@@ -655,6 +680,13 @@ class NonlinearReach(ClosedLoopSetup):
             for j in range(N):
                 Phi[j + 1] = E[j] @ Phi[j]
             phin = np.linalg.norm(Phi, axis=(1, 2))
+        zsub = zgen = None
+        if Jw0 is not None:
+            # the spread of J_{w,p} along the centre's enclosures about Jw0 (the rest of
+            # the second-order bound's first-order term)
+            Jwc = np.maximum(np.abs(jwl - Jw0), np.abs(jwh - Jw0))
+            frc = np.einsum("jie,e->ji", np.abs(Jw0), self.xdev) * (1 + 1e-12)
+            zsub, zgen, zbox = carried_zonotope(Jxc if zoh else Jc, frc, hs)
         # spread of the Jacobian along the exact centre trajectory, about Jc (joint in
         # (x, u) for zoh; of the closed loop f(x, F x + G) for continuous hold)
         if zoh:
@@ -682,6 +714,8 @@ class NonlinearReach(ClosedLoopSetup):
         if zoh:
             WJu = np.linalg.norm(self.W @ Juc, 2, axis=(1, 2)) * (1 + 1e-12)
             Sfull = Sfull + grow * hs * WJu * du_norm
+        if zsub is not None:  # x - z holds the carried part too
+            Sfull = Sfull + np.linalg.norm(zsub @ self.absW.T, axis=1) * (1 + 1e-12)
         # rounding of the exponentials and products (Phi, Phi D, Phi M and the vertex
         # images), relative to the magnitude of their terms
         fpm = _FPM * self.Wn * (1.0 + phin[:-1] + phin[1:]) * (1.0 + dabs) + _REL * (
@@ -701,6 +735,8 @@ class NonlinearReach(ClosedLoopSetup):
             base_lo = Y0 + slo_star[:-1] - Mrows[:-1]
             base_hi = Y0 + shi_star[:-1] + Mrows[:-1]
             ext = self.wrow[None, :] * guess[:, None]
+            if zsub is not None:
+                ext = ext + zbox
             bpad = 1e-12 * (np.abs(Y0) + vmag[:-1] + Mrows[:-1] + ext) + 1e-15
             Slo = _dn(base_lo - ext - bpad)
             Shi = _up(base_hi + ext + bpad)
@@ -765,6 +801,9 @@ class NonlinearReach(ClosedLoopSetup):
                     # the disturbances' and parameters' deviation from the centre's nominal
                     # values: a forcing |Jw| |w - w_nom| (mean value over the boxes)
                     Jw = np.maximum(np.abs(Ul[..., m:]), np.abs(Uh[..., m:]))
+                    if Jw0 is not None:  # (its spread about the carried Jw0)
+                        Jw = np.maximum(np.abs(Ul[..., m:] - Jw0[jfin]),
+                                        np.abs(Uh[..., m:] - Jw0[jfin]))
                     with np.errstate(invalid="ignore"):
                         bw = np.linalg.norm((Jw @ self.xdev) @ self.absW.T, axis=1)
                     bw = np.where(np.isnan(bw), np.inf, bw) * (1 + 1e-10) + 1e-300
@@ -841,18 +880,19 @@ class NonlinearReach(ClosedLoopSetup):
             Ma = np.abs(Jc)
             zeta = np.maximum(np.abs(slo_star[:-1]), np.abs(shi_star[:-1])) + Mrows[:-1]
         Blo, Bhi = self._linear_boxes(
-            Blo, Bhi, Bclo, Bchi, slo_star, shi_star, Mrows, rho, fpm, Ma, zeta, hs, vmag
+            Blo, Bhi, Bclo, Bchi, slo_star, shi_star, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub
         )
         tube = _tube(t_k + taus[:-1], t_k + taus[1:], Blo, Bhi, self.stats["branches"])
         swlo = _dn(hc * np.minimum(flo, 0.0))
         swhi = _up(hc * np.maximum(fhi, 0.0))
-        rec = _Rec(Y0, PD[:-1], PM[:-1], rho[:-1], swlo, swhi, s.V, flo, fhi, hs, vmag[:-1])
+        rec = _Rec(Y0, PD[:-1], PM[:-1], rho[:-1], swlo, swhi, s.V, flo, fhi, hs, vmag[:-1],
+                   zsub)
         Mn = self._ell_plus_ball(PM[N], float(rho[N]))
-        nxt = _Set(Y[N].copy(), PD[N], Mn, s.k + 1, s.path, s.H, s.h, s.V, s.base)
+        nxt = _Set(Y[N].copy(), PD[N], Mn, s.k + 1, s.path, s.H, s.h, s.V, s.base, zgen)
         return nxt, tube, [], rec
 
     def _linear_boxes(
-        self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag
+        self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub=None
     ) -> tuple[np.ndarray, np.ndarray]:
         """The substeps' tube boxes ``B_j`` intersected with the linear-part bound.
 
@@ -889,6 +929,8 @@ class NonlinearReach(ClosedLoopSetup):
             The substep lengths.
         vmag : (N + 1, n) ndarray
             Magnitudes of the star's and the ellipsoid's terms (rounding allowance).
+        zsub : (N, n) ndarray, optional
+            Half-widths of the disturbances' carried linear part over the substeps.
 
         Returns
         -------
@@ -903,6 +945,8 @@ class NonlinearReach(ClosedLoopSetup):
         err = (0.125 * hs * hs)[:, None] * g2 * (1 + 1e-10)
         ell = np.maximum(Mrows[:-1], Mrows[1:])
         ball = self.wrow[None, :] * (np.maximum(rho[:-1], rho[1:]) + fpm)[:, None]
+        if zsub is not None:
+            ball = ball + zsub
         dlo = np.minimum(slo[:-1], slo[1:]) - ell - ball - err
         dhi = np.maximum(shi[:-1], shi[1:]) + ell + ball + err
         pad = 1e-12 * (
@@ -926,6 +970,8 @@ class NonlinearReach(ClosedLoopSetup):
         dlo, dhi = vals.min(axis=2), vals.max(axis=2)
         ell = _ell_rows(A @ rec.PM)
         ball = self._ball_rows(A)[None, :] * rec.rho[:, None]
+        if rec.zsub is not None:  # the disturbances' carried part
+            ball = ball + rec.zsub @ np.abs(A).T * (1 + 1e-12)
         pl, ph = A[None] * rec.swlo[:, None, :], A[None] * rec.swhi[:, None, :]
         lo_sw = np.minimum(pl, ph).sum(axis=2)
         hi_sw = np.maximum(pl, ph).sum(axis=2)
@@ -1053,11 +1099,13 @@ class NonlinearReach(ClosedLoopSetup):
                 status, first_t = kind, when
             return not complete  # stop now?
 
-        A, b = self.law.domain_A, self.law.domain_b
         while frontier:
             nexts: list[_Set] = []
             for s in frontier:
                 t = s.k * self.Ts
+                # the law's domain near the set (the whole domain of a full law; the rows
+                # there of a law computed on demand, law_on_demand.py)
+                A, b = self._domain_near(s)
                 if A is not None and A.shape[0]:
                     _, up = s.range(A)
                     pad = 1e-12 * (1 + np.abs(A) @ (np.abs(s.y) + s.mag()))
@@ -1084,6 +1132,9 @@ class NonlinearReach(ClosedLoopSetup):
                         when = float(tube.t_start[0]) if tube.num_boxes else t
                         if flag("violation", when):
                             return status, tubes, first_t
+                    if nxt is not None and nxt.Z is not None:
+                        # the disturbances' carried zonotope becomes part of the star
+                        (nxt,), root_poly = self._rerooted([nxt], root_poly)
                     if nxt is not None and nxt.k * self.Ts < self.T - 1e-12:
                         if not self._absorbed(nxt):
                             nexts.append(nxt)
@@ -1104,11 +1155,16 @@ class NonlinearReach(ClosedLoopSetup):
         The axes and pairwise diagonals measured in the metric ``W`` (16 directions evenly
         spread in the plane of ``W`` when ``n = 2``), and the facets of the star
         ``{D d : H d <= h}`` (``H D^-1`` when ``D`` is well conditioned). Any directions
-        give a sound hull; these keep it tight.
+        give a sound hull; these keep it tight. When the disturbances' linear part is
+        carried (``carry``: every set is re-rooted at every sample) the star's facets are
+        left out, or the polytope would gain a template's worth of vertices per sample;
+        64 directions in the plane instead of 16 keep the hull within 0.12 % of the set.
         """
         n = self.n
+        carrying = self._carrying
         if n == 2:
-            ang = np.arange(16) * (np.pi / 8)
+            q = 64 if carrying else 16
+            ang = np.arange(q) * (2 * np.pi / q)
             U = np.stack([np.cos(ang), np.sin(ang)], axis=1)
         else:
             rows = [np.eye(n), -np.eye(n)]
@@ -1121,7 +1177,7 @@ class NonlinearReach(ClosedLoopSetup):
                             rows.append(r[None, :] / np.sqrt(2.0))
             U = np.vstack(rows)
         A = U @ self.W  # a' z = u' (W z): the direction u in W-space
-        if s.H is not None and np.linalg.cond(s.D) < 1e8:
+        if (not carrying or n > 2) and s.H is not None and np.linalg.cond(s.D) < 1e8:
             A = np.vstack([A, s.H @ np.linalg.inv(s.D)])
         A = A[np.linalg.norm(A, axis=1) > 0]
         return A / np.linalg.norm(A, axis=1, keepdims=True)
@@ -1159,19 +1215,24 @@ class NonlinearReach(ClosedLoopSetup):
         for s in sets:
             star = float(np.max(np.linalg.norm(s.V @ (self.W @ s.D).T, axis=1)))
             ell = float(np.linalg.norm(self.W @ s.M, 2))
-            if not ell > self.reroot * star:
+            if s.Z is None and not ell > self.reroot * star:
                 out.append(s)
                 continue
             A = self._template(s)
             _, up = s.range(A)
             mag = np.abs(A) @ s.mag()
-            e = (up + s.ell(A)) * (1 + 1e-12) + 1e-12 * (1.0 + mag) + 1e-300
+            e = up + s.ell(A)
+            if s.Z is not None:  # the zonotope's support: sum_l |a' z_l|
+                AZ = np.abs(A @ s.Z)
+                e = e + AZ.sum(axis=1)
+                mag = mag + (np.abs(A) @ np.abs(s.Z)).sum(axis=1)
+            e = e * (1 + 1e-12) + 1e-12 * (1.0 + mag) + 1e-300
             try:
                 piece = checked_piece(A, e)
             except ValueError:
                 piece = None
             if piece is None:  # (not expected: the set holds its centre's neighbourhood)
-                out.append(s)
+                out.append(self._unzoned(s))
                 continue
             H, h, V = piece
             poly = (H, h, V)
@@ -1188,6 +1249,14 @@ class NonlinearReach(ClosedLoopSetup):
         V0 = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
                                   indexing="ij")).reshape(n, -1).T
         return out, (H0, h0, V0)
+
+    def _unzoned(self, s: _Set) -> _Set:
+        """The set with its zonotope ``Z`` (if any) folded into the remainder ellipsoid
+        (``|Z t|_W <= sum_l |W z_l|_2``: a ball of that radius holds it)."""
+        if s.Z is None:
+            return s
+        r = float(np.linalg.norm(self.W @ s.Z, axis=0).sum()) * (1 + 1e-12)
+        return _Set(s.y, s.D, self._ell_plus_ball(s.M, r), s.k, s.path, s.H, s.h, s.V, s.base)
 
     def _bloated(self, s: _Set) -> bool:
         """Is the set's remainder ellipsoid larger than ``bloat`` times its star (W-sizes)?
@@ -1220,6 +1289,22 @@ class NonlinearReach(ClosedLoopSetup):
         self.absorbed.append((int(s.k), lo, hi))
         return True
 
+    def _seen_box(self, s: _Set) -> tuple[np.ndarray, np.ndarray]:
+        """The box of what the law may see of the set: its states, plus the noise."""
+        xlo, xhi = self._box(s)
+        if self.vr is not None:  # what the law may see: x + v
+            xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
+        return xlo, xhi
+
+    def _domain_near(self, s: _Set) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Rows of the law's domain valid on it that describe it around the set (what the
+        law may see of it): ``law.domain_rows`` (None, None when unknown)."""
+        if not getattr(self.law, "on_demand", False):
+            return self.law.domain_A, self.law.domain_b
+        rows = self.law.domain_rows(*self._seen_box(s))
+        self._law_grown()
+        return (None, None) if rows is None else rows
+
     def _split(self, s: _Set) -> list[tuple[int, _Set]]:
         """One child per region the set meets, its deviation polytope cut by the region.
 
@@ -1227,13 +1312,11 @@ class NonlinearReach(ClosedLoopSetup):
         and |a' M e| <= |M' a|_2: adding these rows to the deviation polytope keeps every
         state of the region (plus 1e-9) -- exact for the star part, sound for the ellipsoid.
         """
-        xlo, xhi = self._box(s)
-        if self.vr is not None:  # what the law may see: x + v
-            xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
-        cand = np.flatnonzero(
-            np.all(self.boxes_lo <= xhi + 1e-9, axis=1)
-            & np.all(self.boxes_hi >= xlo - 1e-9, axis=1)
-        )
+        xlo, xhi = self._seen_box(s)
+        # the regions whose box meets the set's (within 1e-9); a law computed on demand
+        # computes those that meet it now
+        cand = self.law.regions_meeting(xlo, xhi)
+        self._law_grown()
         out = []
         X = s.y[None, :] + s.V @ s.D.T  # images of the deviation polytope's vertices
         xpad = 1e-12 * (np.abs(s.y) + s.mag())
@@ -1300,12 +1383,53 @@ class NonlinearReach(ClosedLoopSetup):
         merged = _Set(y, D, Mm, k, sets[0].path, poly[0], poly[1], poly[2], poly)
         return merged, cost
 
+    @property
+    def _carrying(self) -> bool:
+        """Is the disturbances' linear part carried as a zonotope (``carry``)?"""
+        return self.carry and self.xlo is not None
+
+    def _rooted(self, s: _Set) -> bool:
+        """Is the set a plain polytope over the deviation from its centre (``D = I``, no
+        ellipsoid: re-rooted, or a cell's first set)?"""
+        return s.Z is None and not s.M.any() and np.array_equal(s.D, np.eye(self.n))
+
+    def _hulled(self, sets: list[_Set]) -> _Set | None:
+        """One polytope holding plain polytopes ``{y_j + z : z in P_j}`` (``_rooted``):
+        ``{y + z : a_r' z <= max_j max_{v in vert P_j} a_r' (v + y_j - y)}`` over the
+        template's directions and every set's facets (the support of a polytope is at a
+        vertex, of a union the largest), padded by ``1e-12`` of the products' magnitudes.
+        None when no polytope could be formed (the caller merges as before)."""
+        y = np.mean([s.y for s in sets], axis=0)
+        A = self._template(sets[0])
+        e = np.full(A.shape[0], -np.inf)
+        mag = np.zeros(A.shape[0])
+        for s in sets:
+            P = s.V + (s.y - y)[None, :]
+            e = np.maximum(e, (P @ A.T).max(axis=0))
+            mag = np.maximum(mag, ((np.abs(s.V) + np.abs(s.y) + np.abs(y)) @ np.abs(A).T)
+                             .max(axis=0))
+        e = e + 1e-12 * (1.0 + mag) + 1e-300
+        try:
+            piece = checked_piece(A, e)
+        except ValueError:
+            piece = None
+        if piece is None:
+            return None
+        H, h, V = piece
+        return _Set(y, np.eye(self.n), np.zeros((self.n, self.n)), sets[0].k, sets[0].path,
+                    H, h, V, (H, h, V))
+
     def _merge(self, sets: list[_Set], root_poly: tuple) -> list[_Set]:
         """Merge the sets of one sample greedily (closest pair first) while the cost is
         below ``merge_cost`` or there are more than ``max_sets`` sets."""
         if len(sets) <= 1:
             return sets
         sets = list(sets)
+        if self._carrying and all(self._rooted(s) for s in sets):
+            hull = self._hulled(sets)
+            if hull is not None:
+                self.stats["merges"] += len(sets) - 1
+                return [hull]
 
         def poly_of(group):
             b = group[0].base

@@ -961,6 +961,11 @@ class _ExactFlows:
             if not have[0]:
                 T[0], have[0] = self._matrix(h, 0), True
             return z @ T[0].T
+        if regions.size and int(regions.max()) >= T.shape[0]:
+            # (a law on demand computed regions since the cache was sized)
+            grow = int(regions.max()) + 1 - T.shape[0]
+            T = self.cache[key] = np.concatenate([T, np.zeros((grow,) + T.shape[1:])])
+            have = self.have[key] = np.concatenate([have, np.zeros(grow, dtype=bool)])
         need = np.unique(regions[~have[regions]])
         for r in need:
             T[r], have[r] = self._matrix(h, int(r)), True

@@ -517,8 +517,6 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
     if int(cells) < 1:
         raise SpecError(f"must be a positive number of cells per axis, got {cells}",
                         field="cells")
-    if getattr(law, "on_demand", False):
-        _check_on_demand(problem, hold, affine_plant(problem) is not None)
     t0 = time.perf_counter()
     if vs.noisy and affine_plant(problem) is None and (
         not np.isfinite(vs.time_horizon) or law.n > problem.plant.n
@@ -733,26 +731,6 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
                    "reproduced by simulation, and the exploration stopped there: the tube "
                    f"is partial after t = {c.t:.6g}")
     return reason, detail
-
-
-def _check_on_demand(problem: Problem, hold: str, affine: bool) -> None:
-    """Refuse what a law computed on demand (``law_on_demand.OnDemandLaw``) is not verified
-    with yet: only the linear engine asks the law for the regions its sets meet, under
-    zoh, over a bounded horizon (the all-time certificate, the nonlinear engine and the
-    continuous hold's simulations read every region of a full law)."""
-    why = None
-    if not affine:
-        why = "a nonlinear plant (the nonlinear engine reads the full law)"
-    elif not np.isfinite(problem.verify.time_horizon):
-        why = "time_horizon = \"inf\" (the all-time certificate reads the full law)"
-    elif hold != "zoh":
-        why = f"hold = \"{hold}\" (only zoh is verified on demand)"
-    if why is not None:
-        raise SpecError(
-            f"regions = \"reached\" verifies linear plants under zoh over a bounded horizon; "
-            f"this verification has {why}: use regions = \"all\"",
-            field="synthesis.regions",
-        )
 
 
 def _finite(tube: Tube) -> bool:

@@ -239,7 +239,7 @@ class Session:
             rel = str(path.relative_to(self.path))
             if why is None:
                 try:
-                    stage.load(path)
+                    stage.load(path, problem)
                 except CodevError as exc:
                     out.append(StageStatus(name, key, "corrupt", rel, str(exc)))
                     continue
@@ -331,7 +331,7 @@ class Session:
                 path, why = self._check_artifact(stage, key)
                 if not fresh and why is None:
                     try:
-                        value = stage.load(path)
+                        value = stage.load(path, problem)
                         status = "cached"
                     except CodevError as exc:
                         why = f"unreadable ({exc})"
@@ -364,11 +364,21 @@ class Session:
                 report.stages.append(sr)
                 records.append(_record(sr, spec_sha, options, started))
                 emit(name, "done", sr.to_json())
+            self._save_regions(values.get("synthesis"), keys)
         finally:
             if journal and records:
                 report.run = store.append_journal(self.path, records, self.table.names)
         report.seconds = time.perf_counter() - t_run
         return report
+
+    def _save_regions(self, law: Any, keys: dict[str, str]) -> None:
+        """Write the region cache of a law on demand again when the run grew it, so that
+        later runs and other verifications of the same MPC start from its regions."""
+        if not getattr(law, "on_demand", False) or not law.grown:
+            return
+        path = self.artifact_path("synthesis", keys["synthesis"])
+        law.save(path)
+        store.register_artifact(self.path, path, "synthesis", keys["synthesis"])
 
     def _check_stages(self, problem: Problem, keys: dict[str, str], fresh: bool) -> None:
         """Run the check of every stage of the spec whose artifact is not usable.

@@ -13,6 +13,7 @@ record, status line and replay comparison all follow from it.
 
     model         plant + model sections                     -> LinearModel       .npz
     synthesis     model key + mpc section + names            -> ExplicitLaw       .npz
+                  (+ regions = "reached": an OnDemandLaw, its region cache .npz)
     verification  synthesis key + plant + verify section     -> VerificationResult .npz
                   + hold/max_depth overrides (only with [verify])
     recording     verification (or synthesis) key + options  -> Rerun recording   .rrd
@@ -112,8 +113,8 @@ class Stage:
     compute : callable
         ``compute(StageRun) -> value``; writes the artifact to ``StageRun.path``.
     load : callable
-        ``load(path) -> value`` of a cached artifact (its SHA-256 already matched);
-        ``CodevError`` if the file is not one.
+        ``load(path, problem) -> value`` of a cached artifact (its SHA-256 already
+        matched); ``CodevError`` if the file is not one.
     describe : callable
         ``describe(value, upstream) -> (outcome, details)``: what a replay compares, and the
         rest (timings, sizes), both JSON-able.
@@ -131,7 +132,7 @@ class Stage:
     report_field: str | None
     inputs: Callable[[Problem, StageOptions, Mapping[str, str]], dict[str, Any] | None]
     compute: Callable[[StageRun], Any]
-    load: Callable[[Path], Any]
+    load: Callable[[Path, Problem], Any]
     describe: Callable[[Any, Mapping[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
     check: Callable[[Problem], None] | None = None
     check_options: Callable[[Problem, StageOptions], None] | None = None
@@ -216,7 +217,7 @@ def _model_compute(run: StageRun) -> Any:
     return model
 
 
-def _model_load(path: Path) -> Any:
+def _model_load(path: Path, problem: Problem) -> Any:
     from codev_engine.plant import LinearModel
 
     return LinearModel.load(path)
@@ -236,13 +237,16 @@ def _model_describe(model: Any, upstream: Mapping[str, Any]) -> tuple[dict, dict
 
 
 def _synthesis_inputs(problem: Problem, options: StageOptions, keys: Mapping[str, str]) -> dict:
-    return {
+    inputs = {
         "model": keys["model"],
         "mpc": problem.mpc,
         "states": problem.plant.states,
         "inputs": problem.plant.inputs,
         "name": problem.name,
     }
+    if problem.regions == "reached":  # (left out for "all": the keys stay as they were)
+        inputs["regions"] = "reached"
+    return inputs
 
 
 def _synthesis_check(problem: Problem) -> None:
@@ -250,10 +254,25 @@ def _synthesis_check(problem: Problem) -> None:
     from codev_engine.pipeline import check_mpc_feasible
 
     check_mpc_feasible(problem)
+    if problem.regions == "reached":
+        # what a law on demand is not computed for (norms 1 and inf: an mp-LP), refused
+        # before the spec is stored
+        from codev_engine.law_on_demand import OnDemandLaw
+
+        OnDemandLaw(problem)
 
 
 def _synthesis_compute(run: StageRun) -> Any:
     from codev_engine.synthesis import synthesize
+
+    if run.problem.regions == "reached":
+        # the law on demand, with no region yet: its artifact is the region cache, which
+        # the session writes again once the later stages have grown it (Session.run)
+        from codev_engine.law_on_demand import OnDemandLaw
+
+        law = OnDemandLaw(run.problem, model=run.upstream["model"])
+        law.save(run.path)
+        return law
 
     law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress,
                      executor=run.executor)
@@ -261,13 +280,22 @@ def _synthesis_compute(run: StageRun) -> Any:
     return law
 
 
-def _synthesis_load(path: Path) -> Any:
+def _synthesis_load(path: Path, problem: Problem) -> Any:
     from codev_engine.law import ExplicitLaw
+
+    if problem.regions == "reached":
+        from codev_engine.law_on_demand import OnDemandLaw
+
+        # (the cache's fingerprint and checksum are checked: a damaged one is recomputed)
+        return OnDemandLaw.load(path, problem)
 
     return ExplicitLaw.load(path)
 
 
 def _synthesis_describe(law: Any, upstream: Mapping[str, Any]) -> tuple[dict, dict]:
+    if getattr(law, "on_demand", False):
+        # (the regions computed grow from run to run: not an outcome a replay compares)
+        return {"regions": "reached"}, {"regions_computed": law.num_regions}
     return (
         {"regions": law.num_regions},
         {
@@ -350,7 +378,7 @@ def _verification_compute(run: StageRun) -> Any:
     return result
 
 
-def _verification_load(path: Path) -> Any:
+def _verification_load(path: Path, problem: Problem) -> Any:
     from codev_engine.reach.verification import VerificationResult
 
     return VerificationResult.load(path)
@@ -413,7 +441,7 @@ def _recording_compute(run: StageRun) -> Path:
     return run.path
 
 
-def _recording_load(path: Path) -> Path:
+def _recording_load(path: Path, problem: Problem) -> Path:
     from codev_engine.view.records import check_recording
 
     check_recording(path, deep=False)  # the SHA-256 already matched the written file

@@ -37,7 +37,7 @@ from codev_engine.spec.problem import (
     parameter_names,
 )
 
-__all__ = ["read_spec", "parse_spec"]
+__all__ = ["read_spec", "parse_spec", "build_spec", "FIELDS"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -48,6 +48,7 @@ __all__ = ["read_spec", "parse_spec"]
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]{0,63}")
 _IDENT_RE = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
 DEFAULT_HORIZON = 5  # mpc.horizon when the spec leaves it out (docs/spec.md)
+DEFAULT_NORM = "2"  # mpc.norm when the spec leaves it out: the quadratic cost (docs/spec.md)
 _MAX_COUNT = 10**9  # the largest count field (mpc.horizon, verify.max_depth, ...) read
 _SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
 
@@ -66,6 +67,11 @@ _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
     "max_samples", "initial_input", "reference", "measurement_noise", "constraints",
 )  # fmt: skip
+#: every field of every table, by table ("" holds the top level's)
+FIELDS: dict[str, tuple[str, ...]] = {
+    "": _TOP, "plant": _PLANT, "model": _MODEL, "mpc": _MPC, "verify": _VERIFY,
+    "synthesis": ("regions",),
+}  # fmt: skip
 
 
 def read_spec(path: str | Path) -> Problem:
@@ -139,10 +145,44 @@ def parse_spec(text: str, *, path: str = "<string>") -> Problem:
         raise SpecError("invalid TOML: arrays or tables nested too deeply", file=file) from None
     except ValueError as exc:  # tomllib's int(): more digits than sys.get_int_max_str_digits()
         raise SpecError(f"invalid TOML: {_too_many_digits(text, exc)}", file=file) from None
+    return build_spec(data, source=text, path=file)
+
+
+def build_spec(data: dict[str, Any], *, source: str, path: str | None = None) -> Problem:
+    """Validate spec data already read (the dict ``tomllib`` gives) into a problem.
+
+    The same checks and messages as :func:`parse_spec`, which calls it: the design API
+    (:mod:`codev_engine.design_api`) builds this dict from keywords.
+
+    Parameters
+    ----------
+    data : dict
+        The spec's tables, as ``tomllib.loads`` returns them.
+    source : str
+        The TOML text of ``data``, kept as ``Problem.source``.
+    path : str, optional
+        ``Problem.path`` and the file errors name (None: errors name only the field).
+
+    Returns
+    -------
+    Problem
+
+    Raises
+    ------
+    SpecError
+        The first bad field, named by its dotted name.
+    """
+    if not isinstance(data, dict):
+        raise SpecError(f"expected a table, got {_kind(data)}", file=path)
     try:
-        return _build(data, text, file)
+        problem = _build(data, source, path or "<string>")
     except SpecError as exc:
-        raise (exc.with_file(file) if exc.file is None else exc) from None
+        raise (exc.with_file(path) if exc.file is None and path else exc) from None
+    if path is None:
+        import dataclasses
+
+        problem = dataclasses.replace(problem, path=None)
+    return problem
 
 
 def _too_many_digits(text: str, exc: ValueError) -> str:
@@ -187,8 +227,8 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
         _table(
             data["mpc"],
             "mpc",
-            required=("norm",),
-            optional=tuple(k for k in _MPC if k != "norm"),
+            required=(),
+            optional=_MPC,
         ),
         n,
         m,
@@ -458,7 +498,7 @@ def _model(t: dict[str, Any], n: int, m: int) -> ModelSpec:
 def _mpc(t: dict[str, Any], n: int, m: int) -> MpcSpec:
     # documented defaults (docs/spec.md): horizon 5, Q and R identities
     horizon = _integer(t.get("horizon", DEFAULT_HORIZON), "mpc.horizon", minimum=1)
-    norm = _norm(t["norm"], "mpc.norm")
+    norm = _norm(t.get("norm", DEFAULT_NORM), "mpc.norm")
     square = norm == "2"
     Q = _matrix(t["Q"], "mpc.Q", n if square else None, n) if "Q" in t else _frozen(np.eye(n))
     R = _matrix(t["R"], "mpc.R", m if square else None, m) if "R" in t else _frozen(np.eye(m))

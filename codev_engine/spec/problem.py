@@ -506,6 +506,69 @@ class Problem:
     source: str = ""  # the TOML text, for hashing and sessions
     regions: str = "all"
 
+    # Equality is the design's: two problems are equal when every field but ``path`` and
+    # ``source`` is (the generated __eq__ compared arrays with ``==`` and raised).
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Problem):
+            return NotImplemented
+        from codev_engine.spec.toml_out import same_design
+
+        return same_design(self, other)
+
+    def own_safe_sets(self) -> tuple[SetSpec, ...]:
+        """The ``[[verify.safe]]`` sets the spec gives, without the design's bounds that
+        ``[verify] constraints = true`` appends (:func:`design_safe_sets`).
+
+        Returns
+        -------
+        tuple of SetSpec
+        """
+        vs = self.verify
+        if vs is None:
+            return ()
+        if not vs.constraints:
+            return vs.safe
+        return vs.safe[: len(vs.safe) - len(design_safe_sets(self.mpc))]
+
+    def to_toml(self) -> str:
+        """The spec file of this problem: TOML that ``loads_spec`` reads back to an equal
+        problem (every default written out, floats exact).
+
+        Returns
+        -------
+        str
+        """
+        from codev_engine.spec.toml_out import dumps, problem_data
+
+        return dumps(problem_data(self))
+
+    def replace(self, **changes: object) -> Problem:
+        """A new problem with some fields changed, checked as a spec file is.
+
+        Parameters
+        ----------
+        **changes : object
+            Keywords of :func:`codev_engine.design` (``horizon=8``, ``R=[[0.1]]``,
+            ``verify_reference=...``), or dotted spec fields (``**{"mpc.R": ...}``); a
+            section name (``verify=None``) replaces or drops a whole table; ``None``
+            drops a field.
+
+        Returns
+        -------
+        Problem
+            Checked like :func:`codev_engine.load_spec` (fields, size, model, feasibility).
+
+        Raises
+        ------
+        SpecError
+            One bad value, naming its keyword.
+        """
+        # the design API sits above the pipeline's checks, a layer above this data class:
+        # found by name on use, as codev_engine.display finds its drawing backend
+        import importlib
+
+        return importlib.import_module("codev_engine.design_api").replace(self, **changes)
+
 
 def design_safe_sets(mpc: MpcSpec) -> tuple[SetSpec, ...]:
     """The MPC's hard state and output bounds as safe sets (``[verify] constraints = true``).

@@ -52,6 +52,7 @@ def sweep(
     progress: Callable[[int, dict], None] | None = None,
     session: str | os.PathLike | None = None,
     recording: bool = True,
+    interrupt: Callable[[], None] | None = None,
 ) -> list[dict]:
     """Synthesise and verify every design of a grid of spec values.
 
@@ -78,6 +79,12 @@ def sweep(
         every worker sees.
     recording : bool
         With ``session``: also write the sweep's Rerun recording ``session/sweep.rrd``.
+    interrupt : callable, optional
+        Called often while the designs run (serially: at each step of the current design's
+        synthesis and verification; on a cluster: every 0.2 s while waiting): an exception
+        it raises stops the sweep, the current design included, and propagates (a UI's
+        cancel). The designs done keep their session folders; the sweep's table is not
+        written.
 
     Returns
     -------
@@ -99,7 +106,7 @@ def sweep(
     if executor is None:  # serial, or $CODEV_SCHEDULER's cluster: closed when done
         with Executor() as own:
             return sweep(problem, grid, executor=own, progress=progress, session=session,
-                         recording=recording)
+                         recording=recording, interrupt=interrupt)
     # every design read by the loader before any runs
     loaded = designs(problem, grid)
     texts = [text for text, _ in loaded]
@@ -126,9 +133,14 @@ def sweep(
 
     path = problem.path or "<string>"
     calls = [(text, path, None if folders is None else folders[text]) for text in unique]
+    if executor.kind == "serial" and interrupt is not None:
+        # in this process: the current design itself polls (a callable cannot travel to a
+        # worker; there the executor polls while it waits)
+        calls = [(*call, interrupt) for call in calls]
     started, t0 = _now(), time.perf_counter()
     done = dict(zip(unique, executor.map(
-        design_row, calls, on_result=on_result, cost=[cost_of[text] for text in unique]
+        design_row, calls, on_result=on_result, cost=[cost_of[text] for text in unique],
+        interrupt=interrupt,
     ), strict=True))
     rows = [{"values": v, **done[text]} for v, text in zip(values, texts, strict=True)]
     if session is not None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 from codev_engine.errors import SolverError
@@ -16,7 +17,8 @@ TIMING_FIELDS = ("synthesis_seconds", "verification_seconds")
 # -- one design (runs on a worker) ---------------------------------------------------------
 
 
-def design_row(text: str, path: str, session: str | None = None) -> dict:
+def design_row(text: str, path: str, session: str | None = None,
+               interrupt: Callable[[], None] | None = None) -> dict:
     """Synthesise and verify one design given as TOML text: its row of the sweep table.
 
     Parameters
@@ -29,6 +31,10 @@ def design_row(text: str, path: str, session: str | None = None) -> dict:
         A session folder to run the design in (created if new): its cached stages are
         loaded, the others computed and cached; the wall times are then those recorded
         when each stage was computed.
+    interrupt : callable, optional
+        Called at each step of the synthesis and the verification (a region found, a
+        sample or cell of the tube): an exception it raises stops the design there and
+        propagates (how a sweep is cancelled mid-design; the stages already cached stay).
 
     Returns
     -------
@@ -52,10 +58,10 @@ def design_row(text: str, path: str, session: str | None = None) -> dict:
          "tube_width_at_horizon", "closed_loop_cost", "error")
     )  # fmt: skip
     if session is not None:
-        return _session_row(problem, session, row)
+        return _session_row(problem, session, row, interrupt)
     t0 = time.perf_counter()
     try:
-        law = synthesize(problem)
+        law = synthesize(problem, progress=_step(interrupt))
     except SolverError as exc:
         row["error"] = str(exc)
         return row
@@ -66,19 +72,27 @@ def design_row(text: str, path: str, session: str | None = None) -> dict:
     from codev_engine.reach.verification import verify
 
     try:
-        result = verify(problem, law)
+        result = verify(problem, law, progress=_step(interrupt))
     except SolverError as exc:
         row["error"] = str(exc)
         return row
     return _verified_row(problem, law, result, row)
 
 
-def _session_row(problem, folder: str, row: dict) -> dict:
+def _step(interrupt: Callable[[], None] | None) -> Callable[..., None] | None:
+    """A progress callback (any arguments) that calls ``interrupt``; None without one."""
+    if interrupt is None:
+        return None
+    return lambda *_args, **_kwargs: interrupt()
+
+
+def _session_row(problem, folder: str, row: dict,
+                 interrupt: Callable[[], None] | None = None) -> dict:
     from codev_engine.session import RunOptions, Session
 
     upto = "verification" if problem.verify is not None else "synthesis"
     report = Session.open_or_create(folder).run(
-        problem, RunOptions(upto=upto), raise_errors=False
+        problem, RunOptions(upto=upto), on_event=_step(interrupt), raise_errors=False
     )
     return report_row(problem, report, row)
 

@@ -422,7 +422,7 @@ def plot_partition(
     _add_polygons(ax, polys, _region_colours(index), linewidth)
     ax.set_xlabel(names[i])
     ax.set_ylabel(names[j])
-    title = f"{label}: {law.num_regions} regions"
+    title = f"{label}: {_regions_text(law, law.num_regions)}"
     # every value the picture fixes: the states off the plane, a theta law's u_prev and r
     fixed_at = [f"{names[k]} = {at_full[k]:.3g}" for k in range(law.n) if k not in (i, j)
                 ] if at_full is not None else []
@@ -481,8 +481,16 @@ def _plot_intervals(law: ExplicitLaw, ax: Axes, name: str, label: str, lw: float
     ax.set_ylim(umin, umax)
     ax.set_xlabel(name)
     ax.set_ylabel(law.inputs[0] if law.inputs else "u[0]")
-    ax.set_title(f"{label}: {k} regions", fontsize="medium")
+    ax.set_title(f"{label}: {_regions_text(law, k)}", fontsize="medium")
     return ax
+
+
+def _regions_text(law, k: int) -> str:
+    """``"k regions"``, or for a law computed on demand ``"k regions reached"``: the regions
+    its verification reached, not the whole law (issue 39)."""
+    if getattr(law, "on_demand", False):
+        return f"{k} regions reached (computed on demand, not the whole law)"
+    return f"{k} regions"
 
 
 def figure_law(

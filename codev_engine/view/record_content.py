@@ -1204,7 +1204,8 @@ class RecordingContent:
         lines += [
             f"| states | {', '.join(p.plant.states)} |",
             f"| inputs | {', '.join(p.plant.inputs)} |",
-            f"| regions | {law.num_regions} |",
+            f"| regions | {law.num_regions} |" if not getattr(law, "on_demand", False) else
+            f"| regions | {law.num_regions} reached (computed on demand; not the whole law) |",
         ]
         if r is not None:
             branches = r.stats.get("branches", r.stats.get("partitions", "-"))

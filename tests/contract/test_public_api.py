@@ -45,6 +45,8 @@ PINNED = {
     # scale out (issue 28)
     "Executor": "codev_engine.executor",
     "sweep": "codev_engine.sweeps",
+    # the Python design API (issue 42)
+    "design": "codev_engine.design_api",
 }
 
 

@@ -10,7 +10,7 @@ from codev_engine.pipeline import loads_spec
 from codev_engine.session import RunOptions, Session, stage_keys
 from workbench.cli import main
 
-BUNDLED = Path(__file__).resolve().parents[2] / "sessions" / "double_integrator"
+BUNDLED = Path(__file__).resolve().parents[2] / "sessions" / "double-integrator"
 
 
 def _copy(tmp_path: Path) -> Path:

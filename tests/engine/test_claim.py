@@ -141,3 +141,10 @@ def test_constraints_off_keeps_the_session_keys_and_on_changes_them():
     k = stage_keys(default, RunOptions())["verification"]
     assert stage_keys(off, RunOptions())["verification"] == k
     assert stage_keys(on, RunOptions())["verification"] != k
+
+
+def test_to_toml_writes_the_flag_and_the_units_not_the_appended_sets():
+    on = _grade(constraints="true")
+    again = ce.loads_spec(on.to_toml())
+    assert again.verify.constraints and len(again.verify.safe) == len(on.verify.safe) == 1
+    assert again.plant.state_units == ("m/s",) and again == on

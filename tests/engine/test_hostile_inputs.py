@@ -217,7 +217,7 @@ def test_option_values_are_bounded_where_read(tmp_path):
     out = run_codev("verify", DI_PATH, "--time-limit", "-1", cwd=tmp_path, timeout=120)
     _one_line(out, 2, "--time-limit")
     session = tmp_path / "s"
-    shutil.copytree(ROOT / "sessions" / "double_integrator", session)
+    shutil.copytree(ROOT / "sessions" / "double-integrator", session)
     journal = session / "journal.jsonl"
     journal.write_text(journal.read_text().replace('"traces": 16', '"traces": 1000000000'))
     out = run_codev("replay", session, "--json", cwd=tmp_path, timeout=120)

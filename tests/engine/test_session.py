@@ -985,10 +985,10 @@ def test_every_stage_has_exactly_one_table_entry():
 
 def _digest_compute(run: StageRun) -> dict:
     write_text(run.path, json.dumps({"regions": run.upstream["synthesis"].num_regions}))
-    return _digest_load(run.path)
+    return _digest_load(run.path, run.problem)
 
 
-def _digest_load(path: Path) -> dict:
+def _digest_load(path: Path, problem) -> dict:
     data = json.loads(path.read_text(encoding="utf-8"))
     if not isinstance(data, dict) or not isinstance(data.get("regions"), int):
         raise SpecError("not a digest", file=str(path))

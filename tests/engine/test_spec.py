@@ -416,6 +416,13 @@ def test_mpc_defaults_horizon_q_r():
     assert p.mpc.Q.tolist() == [[1.0, 0.0], [0.0, 1.0]] and p.mpc.R.tolist() == [[1.0]]
 
 
+def test_mpc_norm_defaults_to_2():
+    """norm may be left out: "2", the quadratic cost (docs/spec.md; issue 41: the README
+    promises defaults)."""
+    p = loads_spec(edit(('norm = "inf"\n', "")))
+    assert p.mpc.norm == "2"
+
+
 def test_matrix_plant_ints_accepted():
     p = loads_spec(edit(('dynamics = ["x2", "u"]', "A = [[0, 1], [0, 0]]\nB = [[0], [1]]")))
     assert p.plant.A.dtype == float and p.plant.B.tolist() == [[0.0], [1.0]]
@@ -425,7 +432,8 @@ def test_matrix_plant_ints_accepted():
 
 BAD = [
     # id, replacements, field, reason fragment
-    ("missing-field", [('norm = "inf"\n', "")], "mpc.norm", "missing required field"),
+    ("missing-field", [("sample_time = 1.0\n", "")], "model.sample_time",
+     "missing required field"),
     (
         "missing-section",
         [("[verify]\ntime_horizon = 3.0\n", "[verify]\n")],

@@ -335,3 +335,30 @@ def test_design_texts_are_compact_and_ascii_only():
     assert "initial_set = {lower = [0.5], upper = [1.0]}" in text
     assert "constraints = [{h = [1.0]}, {h = [2.0]}]" in text
     assert tomllib.loads(text) == data
+
+
+class _StopError(Exception):
+    pass
+
+
+@pytest.mark.parametrize("session", [False, True])
+def test_interrupt_stops_the_design_that_runs(tmp_path, session):
+    """Issue 41: the sweep's interrupt is called inside the running design (its synthesis
+    and verification progress), not only between designs: raising there stops the design
+    at once, and the exception reaches the caller."""
+    problem = ce.load_spec(DI)
+    calls = []
+
+    def interrupt() -> None:
+        calls.append(1)
+        if len(calls) == 3:  # the first design's third progress event: mid-design
+            raise _StopError
+
+    rows = []
+    with pytest.raises(_StopError):
+        ce.sweep(problem, {"mpc.horizon": [4, 5]}, interrupt=interrupt,
+                 progress=lambda i, row: rows.append(i),
+                 session=tmp_path / "sweep" if session else None)
+    assert rows == []  # stopped inside the first design, before it finished
+    if session:  # the sweep's table is not written (its designs' caches may be)
+        assert not (tmp_path / "sweep" / "sweep.json").exists()

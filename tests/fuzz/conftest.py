@@ -39,7 +39,7 @@ def _commands(tmp: Path) -> list[list[str]]:
     spec = EXAMPLES / "double_integrator.toml"
     law = tmp / "di.npz"
     session = tmp / "session"
-    shutil.copytree(ROOT / "sessions" / "double_integrator", session)
+    shutil.copytree(ROOT / "sessions" / "double-integrator", session)
     return [
         ["synth", "-q", str(spec), "--out", str(law)],
         ["verify", "-q", str(spec), "--law", str(law)],

@@ -57,7 +57,7 @@ N_LAW = 15
 def base_session(tmp_path_factory) -> Path:
     """The bundled session replayed once (artifacts cached), to copy per example."""
     d = tmp_path_factory.mktemp("session") / "di"
-    shutil.copytree(ROOT / "sessions" / "double_integrator", d)
+    shutil.copytree(ROOT / "sessions" / "double-integrator", d)
     o = run_forked(["replay", "-q", str(d)], timeout=120)
     assert o.status == 0, o.short()
     return d

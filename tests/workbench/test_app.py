@@ -219,7 +219,7 @@ def test_unsafe_verdict_shows_the_counterexample(tmp_path, monkeypatch):
 def test_open_and_export_recording(tmp_path, monkeypatch):
     """The Session screen opens a copy of the bundled session and exports its recording."""
     monkeypatch.chdir(tmp_path)
-    src = ROOT / "sessions" / "double_integrator"
+    src = ROOT / "sessions" / "double-integrator"
     dst = tmp_path / "bundled"
     shutil.copytree(src, dst, ignore=shutil.ignore_patterns("artifacts", "tui-draft.json"))
     first = open_target(str(EXAMPLES / "pendulum.toml"), session_dir="other")

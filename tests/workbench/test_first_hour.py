@@ -123,8 +123,8 @@ def test_open_replaces_the_whole_previous_design(tmp_path, monkeypatch):
 
 
 def test_plant_report_appears_with_only_the_plant_valid(tmp_path):
-    """Name, norm and [verify] still empty: the derived model is shown all the same, and
-    ctrl+g says which tabs hold what is missing."""
+    """Name and [verify] still empty (the norm too: it has a default): the derived model is
+    shown all the same, and ctrl+g says which tabs hold what is missing."""
     app = CodevApp(open_target(None, sessions_root=tmp_path / "sessions"))
 
     async def scenario():
@@ -143,7 +143,7 @@ def test_plant_report_appears_with_only_the_plant_valid(tmp_path):
             await pilot.pause()
             note = app._notifications
             messages = [n.message for n in note]
-            assert any("MPC (F2): mpc.norm" in m for m in messages), messages
+            assert not any("mpc.norm" in m for m in messages), messages  # default "2"
             assert any("Verification (F4)" in m for m in messages), messages
             assert "Plant (F1): name" in text_of(app, "#pipeline")
 
@@ -257,11 +257,10 @@ def test_empty_optional_entries_show_their_default(tmp_path):
             for name, text in {"model.method": "zoh", "verify.hold": "zoh"}.items():
                 sel = entry(app, name).query_one(Select)
                 assert sel.is_blank() and sel.prompt == f"default: {text}", name
-            # Norm is required and starts empty (not preset to its first choice)
+            # Norm starts empty and shows its default (issue 41), not preset to a choice
             norm = entry(app, "mpc.norm").query_one(Select)
-            assert norm.is_blank() and "required" in str(
-                entry(app, "mpc.norm").query_one("#help", Static).render()
-            )
+            assert norm.is_blank() and norm.prompt == "default: 2"
+            assert "required" not in str(entry(app, "mpc.norm").query_one("#help", Static).render())
             # a character typed on the closed choice picks it: i -> inf, 2 -> 2
             await pilot.press("f2", "tab", "i")
             await settle(pilot, app)
@@ -411,5 +410,29 @@ def test_ctrl_g_right_after_f3_and_typing_runs_the_synthesis_of_the_spec_typed(
             assert app.check.problem.mpc.u_max.tolist() == [1.5]
             assert app.law_current(), [n.message for n in app._notifications]
             assert "current" in text_of(app, "#synth-status")
+
+    run(scenario())
+
+
+def test_the_preview_is_marked_stale_when_r_changes(tmp_path):
+    """Issue 41: the preview drawn is of the spec as it was; R changed, the status line
+    says it is stale, and R put back takes it back."""
+    app = CodevApp(open_target(str(EXAMPLES / "double_integrator.toml"),
+                               session_dir=str(tmp_path / "s")))
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            await pilot.press("f2", "ctrl+g")
+            await settle(pilot, app)
+            shown = text_of(app, "#preview-status")
+            assert "steps" in shown and "stale" not in shown, shown
+            before = entry(app, "mpc.R").text
+            await type_into(pilot, app, "mpc.R", "0.5")
+            await settle(pilot, app)
+            assert "stale" in text_of(app, "#preview-status")
+            await type_into(pilot, app, "mpc.R", before)
+            await settle(pilot, app)
+            assert text_of(app, "#preview-status") == shown
 
     run(scenario())

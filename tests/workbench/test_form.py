@@ -212,8 +212,15 @@ def test_missing_required_entry(name):
 
 
 def test_all_entry_syntax_errors_are_reported_together():
-    chk = _check(**{"mpc.Q": "a", "mpc.norm": "", "verify.unsafe": "[{"})
-    assert set(chk.errors) == {"mpc.Q", "mpc.norm", "verify.unsafe"}
+    chk = _check(**{"mpc.Q": "a", "name": "", "verify.unsafe": "[{"})
+    assert set(chk.errors) == {"mpc.Q", "name", "verify.unsafe"}
+
+
+def test_an_empty_norm_is_the_default_2():
+    # issue 41: the README promises defaults; the form shows "default: 2"
+    assert FIELD_BY_NAME["mpc.norm"].default == "2" and not FIELD_BY_NAME["mpc.norm"].required
+    chk = _check(**{"mpc.norm": "", "mpc.Q": "1 0; 0 1"})
+    assert chk.ok and chk.problem.mpc.norm == "2", chk.errors
 
 
 def test_nan_is_pinned_with_its_index():

@@ -87,7 +87,7 @@ def test_a_copy_that_fails_is_shown_not_raised(tmp_path, monkeypatch):
     """ctrl+g on the Session tab: RunRequested("recording"), then the pane asks for the
     copy (ExportRequested) and shows why it failed (its folder is a file)."""
     monkeypatch.chdir(tmp_path)
-    src = ROOT / "sessions" / "double_integrator"
+    src = ROOT / "sessions" / "double-integrator"
     shutil.copytree(src, "s", ignore=shutil.ignore_patterns("artifacts", "tui-draft.json"))
     (tmp_path / "a-file").write_text("")
     dest = str(tmp_path / "a-file" / "out.rrd")

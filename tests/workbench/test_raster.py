@@ -358,3 +358,11 @@ def test_nice_limits_are_finite_and_not_empty(lo, hi):
     assert np.isfinite(a) and np.isfinite(b) and a < b
     if np.isfinite(lo) and np.isfinite(hi) and lo <= hi:
         assert a <= lo and b >= hi
+
+
+def test_a_tick_at_zero_within_rounding_reads_0():
+    # issue 41: the preview's u axis read 4.99e-12 where it meant 0
+    r = Raster(20, 5, (0.0, 1.0 + 1e-11), (-1.0, 1.0 + 1e-11))
+    text = plot_text(r).plain
+    assert "e-12" not in text and "e-11" not in text, text
+    assert [ln.split("│")[0].strip() for ln in text.splitlines()[:5]] == ["1", "", "0", "", "-1"]

@@ -118,9 +118,9 @@ def test_session_screen(tmp_path, monkeypatch, snap_compare):
     """The bundled session as committed: its journal (fixed timings), nothing cached yet."""
     monkeypatch.chdir(tmp_path)
     shutil.copytree(
-        ROOT / "sessions" / "double_integrator",
-        Path("sessions/double_integrator"),
+        ROOT / "sessions" / "double-integrator",
+        Path("sessions/double-integrator"),
         ignore=shutil.ignore_patterns("artifacts", "tui-draft.json"),
     )
-    app = CodevApp(open_target("sessions/double_integrator"))
+    app = CodevApp(open_target("sessions/double-integrator"))
     assert snap_compare(app, terminal_size=SIZE, run_before=_steps("f5"))

@@ -54,6 +54,21 @@ def test_open_a_spec_file_creates_a_session_named_after_it(cwd):
     assert sorted(p.name for p in cwd.iterdir()) == ["sessions"]
 
 
+def test_the_bundled_example_opens_the_bundled_session(cwd):
+    """Issue 41: ``make demo`` (which replays ``sessions/double-integrator``), then ``codev
+    tui examples/double_integrator.toml``: one session, the bundled one, not a second
+    folder beside it (the folder is the spec's name, whatever the file's)."""
+    import shutil
+
+    shutil.copytree(ROOT / "sessions" / "double-integrator", cwd / "sessions" /
+                    "double-integrator", ignore=shutil.ignore_patterns("artifacts"))
+    opened = open_target(str(DI), sessions_root="sessions")
+    assert opened.session.path == Path("sessions") / "double-integrator"
+    assert opened.note.startswith("opened session"), opened.note
+    assert opened.session.journal()  # the demo's runs: its cached stages are reused
+    assert sorted(p.name for p in (cwd / "sessions").iterdir()) == ["double-integrator"]
+
+
 def test_open_a_spec_file_with_session_dir(cwd):
     opened = open_target(str(PENDULUM), session_dir=str(cwd / "mine"), sessions_root="unused")
     assert opened.session.path == cwd / "mine"

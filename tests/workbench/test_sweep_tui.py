@@ -52,6 +52,7 @@ def test_sweep_tab_runs_a_grid_and_shows_designs_by_outcomes(di_session, tmp_pat
             ]
             assert "2 designs in" in text_of(app, "#sweep-status")
             assert "2 robustly_safe" in text_of(app, "#sweep-status")
+            assert "saved in sessions/di/sweep" in text_of(app, "#sweep-status")  # issue 41
             assert "replay sessions/di/sweep" in text_of(app, "#sweep-out")
 
             # a bad value: one line naming the field, nothing runs, the table stays

@@ -207,3 +207,67 @@ def test_a_plant_typed_from_scratch_without_a_tab_first(tmux, tmp_path):
     assert values["model.sample_time"] == "0.2"
     tmux.keys("C-q")
     tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")
+
+
+def _start(tmux: Tmux, *args: str) -> None:
+    """The workbench (``codev tui ARGS``) in the tmux pane, the pane kept after it exits."""
+    app = shlex.join(["env", "-u", "COLUMNS", "-u", "LINES", sys.executable, "-m",
+                      "workbench.cli", "tui", *args])
+    tmux("new-session", "-d", "-s", tmux.name, "-x", str(WIDTH), "-y", str(HEIGHT),
+         "-c", str(ROOT), f"{app}; echo CODEV-EXIT=$?; sleep 600")
+
+
+def test_esc_stops_a_sweep_inside_its_current_design(tmux, tmp_path):
+    """Issue 41: Esc during a sweep of inf-norm designs (the double integrator at N = 28
+    and 20 with a fine tube step: the first about 20 s, 8 s of it its synthesis, at load 7)
+    stops the design that runs, not only the ones to come: the status line says
+    "cancelled" within about a second (asserted with slack for a loaded machine: far below
+    what is left of the design)."""
+    _start(tmux, "examples/double_integrator.toml", "--session", str(tmp_path / "s"))
+    tmux.wait_for(lambda s: "Plant [F1]" in s and PIPELINE.search(s), 60, "the first screen")
+    tmux.keys("F6")
+    grid = "mpc.horizon=28,20; verify.step=0.0002"
+    tmux("send-keys", "-t", tmux.name, "-l", "--", grid)
+    tmux.wait_for(lambda s: grid in s, 10, "the grid typed")
+    tmux.keys("C-g")
+    tmux.wait_for(lambda s: "sweeping 2 designs" in s, 30, "the sweep to start")
+    time.sleep(3.0)  # well inside the first design's synthesis
+    screen = tmux.screen()
+    assert "designs done" not in screen and "cancelled" not in screen, screen
+    t0 = time.perf_counter()
+    tmux.keys("Escape")
+    screen, took = tmux.wait_for(lambda s: "sweep cancelled" in s, 30, "the cancel")
+    print(f"\nEsc to 'sweep cancelled' on the status line: {took:.2f} s")
+    assert took < 5.0, f"took {took:.1f} s (issue 41: within about a second)"
+    assert "Esc cancels" not in screen, screen
+    # the app is free again: a new sweep would be refused while one ran
+    tmux.keys("C-q")
+    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")
+    assert time.perf_counter() - t0 < 30
+
+
+def test_a_dynamics_error_shows_under_its_field_with_the_other_tabs_empty(tmux, tmp_path):
+    """Issue 41: 'x^2' typed in Dynamics, nothing else but the states and inputs (no sample
+    time, no MPC, no verify entries): the loader's message is under Dynamics at once, not
+    held back until every other tab is valid."""
+    _start(tmux, "--session", str(tmp_path / "s"))
+    tmux.wait_for(lambda s: "Plant [F1]" in s, 60, "the first screen")
+
+    def typed(text: str) -> None:
+        tmux("send-keys", "-t", tmux.name, "-l", "--", text)
+
+    typed("sq")
+    tmux.keys("Tab")
+    typed("x")
+    tmux.keys("Tab")
+    typed("u")
+    tmux.keys("Tab")
+    typed("x^2 + u")
+    screen, took = tmux.wait_for(lambda s: "not a power operator" in s, 30, "the message")
+    print(f"\nthe dynamics message {took:.2f} s after the keys")
+    # under the Dynamics entry (its help line replaced), before the next field
+    field = screen[screen.index("Dynamics dx/dt"):screen.index("Continuous A")]
+    assert "✗ plant.dynamics[0]" in field and "not a power operator" in field, screen
+    assert "use ** for" in field, screen
+    tmux.keys("C-q")
+    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")

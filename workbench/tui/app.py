@@ -50,7 +50,14 @@ from codev_engine.session import (
     stage_keys,
 )
 
-from .form import FIELD_BY_NAME, FormCheck, check_form, check_plant, field_for_error
+from .form import (
+    FIELD_BY_NAME,
+    FormCheck,
+    check_form,
+    check_plant,
+    field_for_error,
+    with_typed_errors,
+)
 from .messages import (
     CancelRequested,
     ExportRequested,
@@ -316,6 +323,8 @@ class CodevApp(App):
             pchk = check_plant(values)
             if pchk.ok and pchk.problem is not None:
                 plant = (pchk.problem, stage_keys(pchk.problem, self.options)["model"])
+            # a plant entry's own message under it now, whatever the other tabs hold
+            chk = with_typed_errors(chk, pchk, values)
             if has_verify and chk.errors and all(k.startswith("verify.") for k in chk.errors):
                 # only [verify] is unfinished: the MPC preview and the synthesis need none of it
                 before_verify = check_form(
@@ -754,6 +763,9 @@ class CodevApp(App):
 
         def progress(i: int, row: dict) -> None:
             self.call_from_thread(pane.show_row, i, row)
+            interrupt()
+
+        def interrupt() -> None:  # polled inside the current design too (Esc stops it)
             if self._cancel.is_set():
                 raise RunCancelledError
 
@@ -763,7 +775,7 @@ class CodevApp(App):
                 if executor.kind == "local":
                     _start_cluster(executor)
                 rows = sweep(problem, grid, executor=executor, progress=progress,
-                             session=folder)
+                             session=folder, interrupt=interrupt)
         except RunCancelledError:
             self.call_from_thread(self._sweep_finished, None, "cancelled", 0.0, folder)
         except Exception as exc:  # an engine bug must not take the app down
@@ -778,8 +790,8 @@ class CodevApp(App):
         self._show_pipeline()
         pane = self.query_one(SweepPane)
         if error == "cancelled":
-            pane.finished("sweep cancelled: the designs done are cached, the table was not "
-                          "saved")
+            pane.finished(f"sweep cancelled: the designs done are cached in {folder}, the "
+                          "table was not saved")
             self.notify("sweep cancelled", severity="warning")
             return
         if error is not None or rows is None:
@@ -791,7 +803,7 @@ class CodevApp(App):
             v = "error" if r["error"] else str(r["verdict"])
             verdicts[v] = verdicts.get(v, 0) + 1
         note = (f"{len(rows)} designs in {seconds:.2f} s: "
-                + ", ".join(f"{n} {v}" for v, n in verdicts.items()))
+                + ", ".join(f"{n} {v}" for v, n in verdicts.items()) + f" · saved in {folder}")
         pane.finished(note, self._sweep_out(folder))
         self.notify(f"sweep: {note}", timeout=6)
 

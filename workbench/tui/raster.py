@@ -370,7 +370,11 @@ def _clip_span(lo: float, hi: float, lim: tuple[float, float]) -> tuple[float, f
     return max(lo, lim[0]), min(hi, lim[1])
 
 
-def _tick(v: float) -> str:
+def _tick(v: float, span: float = 0.0) -> str:
+    """A tick's label; a value within rounding of 0 against the axis's ``span`` is "0" (the
+    middle of [-1, 1 + 1e-11] read 4.99e-12 where the axis means 0)."""
+    if abs(v) <= 1e-9 * abs(span):
+        return "0"
     return f"{v:.3g}"
 
 
@@ -400,7 +404,9 @@ def plot_text(
     rich.text.Text
     """
     y0, y1 = raster.ylim
-    ticks = {0: _tick(y1), raster.height // 2: _tick((y0 + y1) / 2), raster.height - 1: _tick(y0)}
+    ys = y1 - y0
+    ticks = {0: _tick(y1, ys), raster.height // 2: _tick((y0 + y1) / 2, ys),
+             raster.height - 1: _tick(y0, ys)}
     margin = max(len(s) for s in ticks.values()) + 1
     body = raster.to_text(background).split("\n")
     out = Text(no_wrap=True, overflow="crop")
@@ -410,7 +416,8 @@ def plot_text(
         out.append_text(line)
         out.append("\n")
     x0, x1 = raster.xlim
-    left, mid, right = _tick(x0), _tick((x0 + x1) / 2), _tick(x1)
+    xs = x1 - x0
+    left, mid, right = _tick(x0, xs), _tick((x0 + x1) / 2, xs), _tick(x1, xs)
     w = raster.width
     row = [" "] * (w + 1)
     for pos, s in ((0, left), (w // 2 - len(mid) // 2, mid), (w - len(right), right)):

@@ -220,7 +220,11 @@ def new_design(template: str, *, sessions_root: str | Path = "sessions") -> Open
 
 
 def _safe(name: str) -> str:
-    """A folder name for a spec name: never a path (``/``), never ``.``/``..`` or hidden."""
+    """A folder name for a spec name: never a path (``/``), never ``.``/``..`` or hidden.
+
+    The one rule of session folders (``sessions/<this>``): a spec opened, a *New* design,
+    an ``untitled`` session renamed after its design (whose names already pass it), and
+    the bundled ``sessions/double-integrator`` (``examples/double_integrator.toml``)."""
     safe = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in name)
     return safe.lstrip(".") or "untitled"
 

@@ -20,6 +20,9 @@ from .form import FIELD_BY_NAME, FieldDef
 
 __all__ = ["EntryInput", "EntryTextArea", "FieldEntry", "Plot", "field_entries", "open_groups"]
 
+#: a multi-line entry grows with its lines up to this many, then scrolls
+TEXT_LINES_MAX = 8
+
 
 class _KeysInOrder:
     """An editor that runs its own key bindings (backspace, delete, arrows, Enter, …) as it
@@ -163,6 +166,8 @@ class FieldEntry(Vertical):
 
     def on_mount(self) -> None:
         self._loading = False
+        for area in self.query(TextArea):
+            self._fit(area)
 
     @property
     def editor(self) -> Widget:
@@ -264,7 +269,14 @@ class FieldEntry(Vertical):
 
     def on_text_area_changed(self, event: TextArea.Changed) -> None:
         event.stop()
+        self._fit(event.text_area)
         self._changed(event.text_area.text)
+
+    def _fit(self, area: TextArea) -> None:
+        """A multi-line entry as tall as its lines (2 to TEXT_LINES_MAX, then it scrolls):
+        TORA's four dynamics, a pendulum's unsafe box written over five lines (issue 41)."""
+        lines = min(max(area.document.line_count, 2), TEXT_LINES_MAX)
+        area.styles.height = lines + 2  # (the tall border's two rows)
 
     def on_key(self, event: events.Key) -> None:
         """A character typed on a closed choice picks the (next) choice starting with it:

@@ -51,6 +51,7 @@ class MpcPane(Horizontal):
         self._stop = threading.Event()
         self._problem: Problem | None = None  # the valid spec of the last form check
         self._x0_filled = ""  # the default state last filled in (not typed by the user)
+        self._shown: tuple[str, str] | None = None  # (the spec previewed, its status line)
         self.last: MpcPreview | None = None
         self.reference_lines: list[tuple[str, float]] = []
 
@@ -113,6 +114,7 @@ class MpcPane(Horizontal):
         and steps typed, the status line and both pictures."""
         self._stop.set()
         self.last = None
+        self._shown = None
         self.reference_lines = []
         self.query_one("#preview-x0", Input).value = self._x0_filled = ""
         self.query_one("#preview-steps", Input).value = "20"
@@ -134,6 +136,13 @@ class MpcPane(Horizontal):
         status = self.query_one("#preview-status", Static)
         if problem is not None and "not valid yet" in str(status.render()):
             status.update("")  # the spec is valid now: the refusal is no longer true
+        if self._shown is not None and "solving" not in str(status.render()):
+            # the preview drawn is of the spec as it was: say so once an entry (R, Q, a
+            # bound...) changes it, and take it back when the entry is put back
+            source, msg = self._shown
+            if problem is None or problem.source != source:
+                msg += " · [yellow]stale: the spec changed since (ctrl+g previews again)[/yellow]"
+            status.update(msg)
 
     def cancel_preview(self) -> None:
         """Stop the preview in flight before its next MPC solve (none: nothing happens)."""
@@ -207,6 +216,7 @@ class MpcPane(Horizontal):
         if prev.reference is not None:
             msg += f" · following r = {', '.join(f'{v:g}' for v in prev.reference)}"
         self.query_one("#preview-status", Static).update(msg)
+        self._shown = (problem.source, msg)
         inputs = problem.plant.inputs
         # the states (and outputs that are not a state), and the reference followed
         Y, labels, lines = preview_signals(problem, prev)

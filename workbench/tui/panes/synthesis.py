@@ -167,6 +167,11 @@ class SynthesisPane(Vertical):
         """
         if self._busy in ("model", "synthesis") or stage in ("model", "synthesis"):
             self.query_one("#synth-status", Static).update(f"[cyan]{text}[/cyan]")
+        elif self._busy is not None:
+            # a verification run past its law: its line, not the "model: 0 · 0.0 s" of the
+            # cached stages it loaded on the way (issue 41)
+            self.query_one("#synth-status", Static).update(
+                f"[cyan]{text} (the Verification tab)[/cyan]")
 
     def set_problem(self, problem: Problem | None) -> None:
         """Set the spec whose ``[verify] initial_input`` and ``reference`` fix the default

@@ -1,0 +1,68 @@
+"""A linear system's response to a bounded forcing, carried as a zonotope (issue 38).
+
+The nonlinear engine (``reach/nonlinear.py``) splits the deviation from its centre under
+disturbances and uncertain parameters as ``x - z = Phi (D d + M e) + psi_w + psi``; ``psi_w``
+is the response of the linearisation to the disturbances' and parameters' first-order
+forcing, which this module bounds by a zonotope (docs/verification.md, "The disturbances'
+linear part, carried as a zonotope"). Pure functions of numpy arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import expm
+
+__all__ = ["carried_zonotope"]
+
+
+def carried_zonotope(
+    J: np.ndarray, frc: np.ndarray, hs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The response of ``psi' = J_j psi + phi(t)``, ``psi(0) = 0``, ``|phi| <= frc_j``.
+
+    On substep ``j`` (length ``h``) ``psi`` goes to ``exp(J_j h) psi(t_j) + int_0^h exp(J_j
+    (h - s)) phi(s) ds`` for any measurable ``phi`` within the bound, and the integral lies
+    in the box ``K_j frc_j``, ``K_j = int_0^h exp(|J_j| s) ds`` (``|exp(J t)| <= exp(|J|
+    t)`` element-wise; ``K_j`` is the top-right block of the exponential of ``[[|J_j| h, I
+    h], [0, 0]]``): one generator per axis and substep, the earlier ones mapped by
+    ``exp(J_j h)``. Over the substep ``|psi| <= exp(|J_j| h) |psi(t_j)| + K_j frc_j``.
+    Products are padded by ``1e-10`` of their magnitudes (far above the rounding of
+    ``expm`` and of the sums), the pads added as generators.
+
+    Parameters
+    ----------
+    J : (N, n, n) ndarray
+        The linear part's Jacobian per substep.
+    frc : (N, n) ndarray
+        Element-wise bounds of the forcing's magnitude per substep (for the disturbances
+        and parameters: ``|df/d(w, p)| xdev`` at the centre, nominal values).
+    hs : (N,) ndarray
+        Substep lengths.
+
+    Returns
+    -------
+    zsub : (N, n) ndarray
+        Half-widths of a box holding ``psi`` over each substep.
+    G : (n, n N) ndarray
+        Generators: ``psi`` at the last substep's end lies in ``{G t : |t|_inf <= 1}``.
+    zbox : (N, n) ndarray
+        Half-widths of a box holding ``psi(t_j)`` at each substep's start.
+    """
+    N, n = frc.shape
+    Aa = np.zeros((N, 2 * n, 2 * n))
+    Aa[:, :n, :n] = np.abs(J) * hs[:, None, None]
+    Aa[:, :n, n:] = np.eye(n)[None] * hs[:, None, None]
+    Ea = np.abs(expm(Aa)) * (1 + 1e-10)
+    Eabs, K = Ea[:, :n, :n], Ea[:, :n, n:]
+    E = expm(J * hs[:, None, None])
+    box = np.einsum("jik,jk->ji", K, frc) * (1 + 1e-10) + 1e-300
+    G = np.zeros((n, 0))
+    zbox = np.empty((N, n))
+    zsub = np.empty((N, n))
+    for j in range(N):
+        zb = np.abs(G).sum(axis=1) * (1 + 1e-12)
+        zbox[j] = zb
+        zsub[j] = (Eabs[j] @ zb + box[j]) * (1 + 1e-10)
+        pad = 1e-10 * (np.abs(E[j]) @ zb + box[j])
+        G = np.hstack([E[j] @ G, np.diag(box[j] + pad)])
+    return zsub, G, zbox
