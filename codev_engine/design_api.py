@@ -17,7 +17,8 @@ where the file's would name its field (``mpc.horizon``, ``plant.A``).
 Keywords are the spec's fields (docs/spec.md) without their table: ``horizon``, ``Q``,
 ``x_max``, ``initial_set``, ``unsafe``, ``sample_time``, ``dynamics``, ``regions``... The
 names two tables share take a table: ``reference`` is ``mpc.reference`` and
-``verify_reference`` is ``verify.reference``; ``plant.A`` / ``model.A`` are dotted (or come
+``verify_reference`` is ``verify.reference`` (``constraints`` and ``verify_constraints``
+likewise); ``plant.A`` / ``model.A`` are dotted (or come
 from the system). Any field may be given dotted (``**{"mpc.R": [[0.1]]}``), and a table
 whole (``verify={...}``; ``verify=None`` drops it). ``None`` leaves a field out.
 """
@@ -41,7 +42,7 @@ __all__ = ["KEYWORDS", "design", "replace"]
 
 _TABLES = ("plant", "model", "mpc", "verify", "synthesis")
 #: the keyword of a field two tables share (the other one is written dotted)
-_SHARED = {"verify.reference": "verify_reference"}
+_SHARED = {"verify.reference": "verify_reference", "verify.constraints": "verify_constraints"}
 
 
 def _keywords() -> dict[str, str]:
@@ -55,6 +56,7 @@ def _keywords() -> dict[str, str]:
         if len(dotted) == 1:
             out[key] = dotted[0]
     out["reference"] = "mpc.reference"  # the MPC's: what the law tracks
+    out["constraints"] = "mpc.constraints"  # the MPC's: how its bounds are imposed
     out.update({kw: dotted for dotted, kw in _SHARED.items()})
     return out
 

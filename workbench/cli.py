@@ -122,19 +122,13 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     return 0
 
 
-def _horizon_shown(problem, result) -> float:
-    """The verified horizon; for one verified for all time, the end of the stored tube."""
-    T = problem.verify.time_horizon
-    if T == float("inf"):
-        return float(result.tube.t_end.max(initial=0.0))
-    return T
-
-
 def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
     """The JSON summary of a verification (``codev verify --json``, ``codev run --json``)."""
     import numpy as np
 
-    width = result.width_at(_horizon_shown(problem, result))
+    from codev_engine.reach.claim import build_claim, width_at_end
+
+    t_end, width, which = width_at_end(problem, result)
     cex = result.counterexample
     return {
         "problem": problem.name,
@@ -151,6 +145,7 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
         "tube_width_at_horizon": [None if not np.isfinite(w) else float(w) for w in width],
         # a verdict stopped by its budget: the best margin to each property, where
         "margins": result.stats.get("margins"),
+        "width_at": {"t": t_end, "of": which},  # the set whose width that is
         "counterexample": None
         if cex is None
         else {"x0": cex.x0.tolist(), "t": cex.t, "kind": cex.kind, "index": cex.index,
@@ -161,16 +156,22 @@ def _result_payload(problem, law, result, synth_seconds, tube_path) -> dict:
                   **({} if cex.disturbance.noise is None
                      else {"noise": cex.disturbance.noise.tolist()})}})},
         "tube": tube_path,
+        "claim": build_claim(problem, result).as_dict(),
     }
 
 
 def _print_result(problem, law, result, tube_path) -> None:
     import numpy as np
 
+    from codev_engine.reach.claim import build_claim, width_at_end
+
     how = " computed on demand" if getattr(law, "on_demand", False) else ""
     print(f"{problem.name}: {law.num_regions} regions{how}; " + result.summary())
-    width = result.width_at(_horizon_shown(problem, result))
-    print("  tube width at the horizon: " + np.array2string(width, precision=4))
+    t_end, width, which = width_at_end(problem, result)
+    print(f"  width at t = {t_end:.4g} s ({which}): " + np.array2string(width, precision=4))
+    print("the claim:")  # what the verdict says, and what it does not
+    for line in build_claim(problem, result).lines():
+        print("  " + line)
     if tube_path:
         print(f"tube written to {tube_path}")
 

@@ -321,6 +321,14 @@ def _effective_verify(problem: Problem, options: StageOptions) -> VerifySpec:
     )
 
 
+def _at_default(value, f) -> bool:
+    """A field still at its default (None, or a plain default such as ``constraints =
+    False``)."""
+    if f.default is None:
+        return value is None
+    return type(value) is type(f.default) and value == f.default
+
+
 def _verification_inputs(
     problem: Problem, options: StageOptions, keys: Mapping[str, str]
 ) -> dict | None:
@@ -332,7 +340,7 @@ def _verification_inputs(
     verify_fields = {
         f.name: getattr(vs, f.name)
         for f in fields(vs)
-        if not (f.metadata.get("key_omit_default") and getattr(vs, f.name) is None)
+        if not (f.metadata.get("key_omit_default") and _at_default(getattr(vs, f.name), f))
     }
     if math.isfinite(vs.time_horizon):
         # max_samples only matters for time_horizon = "inf": left out, the keys of every

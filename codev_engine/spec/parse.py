@@ -33,6 +33,7 @@ from codev_engine.spec.problem import (
     SetSpec,
     Uncertain,
     VerifySpec,
+    design_safe_sets,
     parameter_names,
 )
 
@@ -52,7 +53,10 @@ _MAX_COUNT = 10**9  # the largest count field (mpc.horizon, verify.max_depth, ..
 _SYM_TOL = 1e-9  # relative tolerance of the symmetry / definiteness checks (norm "2")
 
 _TOP = ("name", "plant", "model", "mpc", "verify", "synthesis")
-_PLANT = ("states", "inputs", "dynamics", "A", "B", "disturbances", "parameters", "nominal", "E")
+_PLANT = (
+    "states", "inputs", "dynamics", "A", "B", "disturbances", "parameters", "nominal", "E",
+    "state_units", "input_units",
+)  # fmt: skip
 _MODEL = ("sample_time", "method", "operating_point", "A", "B")
 _MPC = (
     "horizon", "norm", "Q", "R", "P", "x_min", "x_max", "u_min", "u_max", "simplify",
@@ -62,6 +66,7 @@ _MPC = (
 _VERIFY = (
     "time_horizon", "hold", "max_depth", "step", "initial_set", "input_bounds", "unsafe", "safe",
     "max_samples", "initial_input", "reference", "measurement_noise", "time_budget",
+    "constraints",
 )  # fmt: skip
 #: every field of every table, by table ("" holds the top level's)
 FIELDS: dict[str, tuple[str, ...]] = {
@@ -234,6 +239,7 @@ def _build(data: dict[str, Any], text: str, file: str) -> Problem:
     if "verify" in data:
         verify = _verify(data["verify"], n)
         verify = _verify_theta(data["verify"], verify, mpc, m)
+        verify = _verify_constraints(data["verify"], verify, mpc)
         if mpc.has_rates and verify.hold == "continuous":
             raise SpecError(
                 'input rates (du_min, du_max, Rd) need a sampled controller: hold = "continuous" '
@@ -360,7 +366,28 @@ def _plant(
         disturbances=disturbances,
         parameters=parameters,
         E=E,
+        state_units=_units(t, "state_units", states),
+        input_units=_units(t, "input_units", inputs),
     )
+
+
+def _units(t: dict[str, Any], key: str, names: tuple[str, ...]) -> tuple[str, ...]:
+    """``plant.state_units`` / ``plant.input_units``: one label per name ("" for none),
+    shown on the axes; plain text, never evaluated."""
+    field = f"plant.{key}"
+    if key not in t:
+        return ()
+    value = t[key]
+    if not isinstance(value, list) or not all(isinstance(u, str) for u in value):
+        raise SpecError(f"expected a list of strings (one unit per name), got {_kind(value)}",
+                        field=field)
+    if len(value) != len(names):
+        raise SpecError(f"expected {len(names)} units (one per name: {', '.join(names)}), "
+                        f"got {len(value)}", field=field)
+    for i, u in enumerate(value):
+        if len(u) > 32 or any(not c.isprintable() for c in u):
+            raise SpecError("a unit is at most 32 printable characters", field=f"{field}[{i}]")
+    return tuple(value)
 
 
 def _uncertain(t: dict[str, Any], key: str, taken: tuple[str, ...]) -> Uncertain | None:
@@ -702,6 +729,18 @@ def _verify(value: Any, n: int) -> VerifySpec:
         max_samples=max_samples,
         time_budget=budget,
         **noise,
+    )
+
+
+def _verify_constraints(t: dict[str, Any], verify: VerifySpec, mpc: MpcSpec) -> VerifySpec:
+    """``constraints = true``: the MPC's hard bounds become properties checked for all t."""
+    import dataclasses
+
+    if not _boolean(t.get("constraints", False), "verify.constraints"):
+        return verify
+    extra = design_safe_sets(mpc)
+    return dataclasses.replace(
+        verify, safe=verify.safe + extra, input_bounds=True, constraints=True
     )
 
 

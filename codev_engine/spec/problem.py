@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 __all__ = [
+    "design_safe_sets",
     "parameter_names",
     "PlantSpec",
     "Uncertain",
@@ -98,6 +99,9 @@ class PlantSpec:
         Uncertain constants of ``dynamics``, fixed during a run.
     E : (n, d) ndarray or None
         A matrix plant's disturbance input: ``dx/dt = A x + B u + E w``.
+    state_units, input_units : tuple of str
+        Optional units, one per state / input (``plant.state_units``, ``plant.input_units``),
+        shown on the pictures' axes; () when not given.
 
     Notes
     -----
@@ -113,6 +117,38 @@ class PlantSpec:
     disturbances: Uncertain | None = _since_v2(None)
     parameters: Uncertain | None = _since_v2(None)
     E: np.ndarray | None = _since_v2(None)
+    state_units: tuple[str, ...] = _since_v2(())
+    input_units: tuple[str, ...] = _since_v2(())
+
+    def state_label(self, i: int) -> str:
+        """The state's name with its unit, ``v (m/s)`` (the name alone without one).
+
+        Parameters
+        ----------
+        i : int
+            The state's index.
+
+        Returns
+        -------
+        str
+        """
+        u = self.state_units[i] if i < len(self.state_units) else ""
+        return f"{self.states[i]} ({u})" if u else self.states[i]
+
+    def input_label(self, j: int) -> str:
+        """The input's name with its unit, ``F (N)`` (the name alone without one).
+
+        Parameters
+        ----------
+        j : int
+            The input's index.
+
+        Returns
+        -------
+        str
+        """
+        u = self.input_units[j] if j < len(self.input_units) else ""
+        return f"{self.inputs[j]} ({u})" if u else self.inputs[j]
 
     @property
     def n(self) -> int:
@@ -407,6 +443,10 @@ class VerifySpec:
         Seconds the verification may take (``time_budget``); past them the verdict is
         ``unknown`` with reason ``"budget"``, the best margins reached and where the proof
         stopped. None: no budget.
+    constraints : bool
+        ``[verify] constraints = true``: the last ``safe`` sets are the MPC's own hard state
+        and output bounds (:func:`design_safe_sets`) and ``input_bounds`` is on; False: the
+        design's constraints are not checked between samples.
     """
 
     time_horizon: float
@@ -426,6 +466,7 @@ class VerifySpec:
     noise_lower: np.ndarray | None = _since_v2(None)
     noise_upper: np.ndarray | None = _since_v2(None)
     time_budget: float | None = _since_v2(None)
+    constraints: bool = _since_v2(False)
 
     @property
     def noisy(self) -> bool:
@@ -479,6 +520,21 @@ class Problem:
 
         return same_design(self, other)
 
+    def own_safe_sets(self) -> tuple[SetSpec, ...]:
+        """The ``[[verify.safe]]`` sets the spec gives, without the design's bounds that
+        ``[verify] constraints = true`` appends (:func:`design_safe_sets`).
+
+        Returns
+        -------
+        tuple of SetSpec
+        """
+        vs = self.verify
+        if vs is None:
+            return ()
+        if not vs.constraints:
+            return vs.safe
+        return vs.safe[: len(vs.safe) - len(design_safe_sets(self.mpc))]
+
     def to_toml(self) -> str:
         """The spec file of this problem: TOML that ``loads_spec`` reads back to an equal
         problem (every default written out, floats exact).
@@ -517,6 +573,47 @@ class Problem:
         import importlib
 
         return importlib.import_module("codev_engine.design_api").replace(self, **changes)
+
+
+def design_safe_sets(mpc: MpcSpec) -> tuple[SetSpec, ...]:
+    """The MPC's hard state and output bounds as safe sets (``[verify] constraints = true``).
+
+    The design imposes ``x_min <= x <= x_max`` and ``y_min <= C x <= y_max`` on its
+    predictions only; as safe sets the verification checks them on the tube, for all t.
+    Soft groups (``mpc.soft``) are left out: the design may cross them.
+
+    Parameters
+    ----------
+    mpc : MpcSpec
+
+    Returns
+    -------
+    tuple of SetSpec
+        A box (infinite sides for absent bounds) when some state bound is finite, then a
+        polytope ``[C; -C] x <= [y_max; -y_min]`` (finite rows only) when some output bound
+        is; () when the design has no finite hard bound.
+    """
+    sets: list[SetSpec] = []
+    lo = np.where("x_min" in mpc.soft, -np.inf, np.asarray(mpc.x_min, dtype=float))
+    hi = np.where("x_max" in mpc.soft, np.inf, np.asarray(mpc.x_max, dtype=float))
+    if np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)):
+        sets.append(SetSpec("box", lower=_read_only(lo), upper=_read_only(hi)))
+    if mpc.C is not None and mpc.y_min is not None and mpc.y_max is not None:
+        C = np.asarray(mpc.C, dtype=float)
+        ylo = np.where("y_min" in mpc.soft, -np.inf, np.asarray(mpc.y_min, dtype=float))
+        yhi = np.where("y_max" in mpc.soft, np.inf, np.asarray(mpc.y_max, dtype=float))
+        A = np.vstack([C, -C])
+        b = np.concatenate([yhi, -ylo])
+        keep = np.isfinite(b)
+        if np.any(keep):
+            sets.append(SetSpec("polytope", A=_read_only(A[keep]), b=_read_only(b[keep])))
+    return tuple(sets)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
 
 
 def parameter_names(spec: MpcSpec, states: tuple[str, ...], inputs: tuple[str, ...]

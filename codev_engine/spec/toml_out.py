@@ -54,6 +54,9 @@ def problem_data(problem: Problem) -> dict[str, Any]:
         plant["nominal"] = nominal
     if p.E is not None:
         plant["E"] = _mat(p.E)
+    for key in ("state_units", "input_units"):
+        if getattr(p, key, ()):
+            plant[key] = list(getattr(p, key))
     model: dict[str, Any] = {
         "sample_time": float(mo.sample_time),
         "method": mo.method,
@@ -120,8 +123,12 @@ def problem_data(problem: Problem) -> dict[str, Any]:
             ver["time_budget"] = float(v.time_budget)
         if v.unsafe:
             ver["unsafe"] = [_set(s) for s in v.unsafe]
-        if v.safe:
-            ver["safe"] = [_set(s) for s in v.safe]
+        # the design's bounds are appended by the parser: write the flag, not their sets
+        own = problem.own_safe_sets()
+        if v.constraints:
+            ver["constraints"] = True
+        if own:
+            ver["safe"] = [_set(s) for s in own]
         out["verify"] = ver
     out["synthesis"] = {"regions": problem.regions}
     return out

@@ -134,17 +134,15 @@ def report_row(problem, report, row: dict | None = None) -> dict:
 
 
 def _verified_row(problem, law, result, row: dict) -> dict:
-    from codev_engine.reach.simulate import shown_horizon
+    from codev_engine.reach.claim import width_at_end
 
     row["verdict"] = result.verdict
     row["reason"] = result.reason
     row["verification_seconds"] = round(result.seconds, 6)
-    T = shown_horizon(problem)
-    if not math.isfinite(problem.verify.time_horizon) and result.tube.num_boxes:
-        T = float(result.tube.t_end.max())
-    row["tube_width_at_horizon"] = [
-        float(w) if math.isfinite(w) else None for w in result.width_at(T)
-    ]
+    # the set that holds the state at the view's end: the tube's boxes, or for "inf" the
+    # certificate band (the same rule as codev verify), so designs compare
+    _, width, _ = width_at_end(problem, result)
+    row["tube_width_at_horizon"] = [float(w) if math.isfinite(w) else None for w in width]
     row["closed_loop_cost"] = closed_loop_cost(problem, law)
     return row
 

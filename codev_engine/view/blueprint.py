@@ -48,11 +48,13 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     left: list = []
     if any(k.startswith("/plane/") for k in e):
         xname, yname = content.plane_names
+        section = content.section_words()
+        at = f", section at {section}" if section is not None else ""
         left.append(
             rrb.Spatial2DView(
                 origin="/",
                 contents=["/plane/**"],
-                name=f"plane: {xname} → , {yname} ↑  (orange tube, red unsafe, blue initial, "
+                name=f"plane: {xname} → , {yname} ↑{at}  (orange tube, red unsafe, blue initial, "
                 "grey traces" + (", purple certificate" if "/plane/certificate" in e else "")
                 + ")",
                 time_ranges=up_to_cursor,
@@ -64,19 +66,28 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             rrb.Spatial3DView(origin="/space", name="state space", time_ranges=up_to_cursor)
         )
     left.append(rrb.TextDocumentView(origin="/verdict", name="verdict"))
-    cex = ", counterexample red" if content.counterexample is not None else ""
+    cex = ", counterexample black" if content.counterexample is not None else ""
 
     def reference(root: str) -> str:
         return ", reference purple" if any(k.startswith(f"{root}/reference/") for k in e) else ""
 
+    def unit(label: str, name: str) -> str:
+        return label[len(name):] if label != name else ""  # " (m/s)" or ""
+
     time_views = [
         rrb.TimeSeriesView(
             origin=f"/time/{s}",
-            name=f"{s}(t): tube orange, traces grey" + cex + reference(f"/time/{s}"),
+            name=f"{s}(t){unit(content.problem.plant.state_label(k), s)}: tube orange, "
+            "traces grey" + cex + reference(f"/time/{s}")
+            + (", certificate band purple" if f"/time/{s}/certificate/lower" in e else "")
+            + (", unsafe limits red" if any(k.startswith(f"/time/{s}/unsafe/") for k in e)
+               else "")
+            + (", safe limits green" if any(k.startswith(f"/time/{s}/safe/") for k in e)
+               else ""),
             plot_legend=no_legend,
         )
-        for s in states
-        if any(k.startswith(f"/time/{s}/") for k in e)
+        for k, s in enumerate(states)
+        if any(key.startswith(f"/time/{s}/") for key in e)
     ]
     # the outputs y = C x, after the states: their bounds black, the reference if followed
     time_views += [
@@ -93,9 +104,11 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     p_dist = content.problem.plant.disturbances
     series = [
         rrb.TimeSeriesView(
-            origin=f"/scalars/u/{u}", name=f"{u}(t), bounds black", plot_legend=no_legend
+            origin=f"/scalars/u/{u}",
+            name=f"{u}(t){unit(content.problem.plant.input_label(j), u)}, bounds black",
+            plot_legend=no_legend,
         )
-        for u in content.inputs
+        for j, u in enumerate(content.inputs)
         if any(k.startswith(f"/scalars/u/{u}/") for k in e)
     ]
     for kind, names, what in (

@@ -60,11 +60,14 @@ VERDICT_COLOURS: dict[str, str] = {
     "unknown": "#e69500",
 }
 _TUBE_FACE = "#6baed6"
-_TRACE = "#c62828"
+#: the counterexample: a colour of its own (the unsafe sets are red), drawn on top
+_TRACE = "#000000"
 _UNSAFE = "#e53935"
 _SAFE = "#2e7d32"
-_INITIAL = "#111111"
+_INITIAL = "#1e63d6"  # blue, as in the recordings
 _REFERENCE = "#8e24aa"
+#: the certificate band after an all-time certificate closed (hatched: a bound, not a tube)
+_CERTIFICATE = "#6a1b9a"
 #: resolution of the notebook pictures (dots per inch)
 _DPI = 80
 
@@ -166,7 +169,9 @@ def section_polygons(
 def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.ndarray:
     """The point whose other coordinates fix a 2-D section of a law of ``n > 2`` parameters.
 
-    The states (and, without a verified spec, every parameter): the centre of the bounding
+    The states: with a ``problem`` that has a ``[verify]`` section, the centre of its initial
+    set (where the tube starts: the one section rule of recordings, reports, notebook
+    figures); else (and every parameter without a verified spec) the centre of the bounding
     box of the law's domain (the MPC's feasible set; two LPs per coordinate) -- for the usual
     designs around an operating point with symmetric bounds, that operating point. Without
     a stored domain: the centre of the regions' bounding boxes.
@@ -201,9 +206,12 @@ def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.
         else:
             lo, hi = law.boxes
             point = 0.5 * (lo.min(axis=0) + hi.max(axis=0))
+    point = np.array(point, dtype=float)
+    vs = problem.verify if problem is not None else None
+    if vs is not None and len(law.states) == problem.plant.n <= law.n:
+        point[: problem.plant.n] = 0.5 * (vs.initial_lower + vs.initial_upper)
     extra = verified_parameters(law, problem)
     if extra is not None:
-        point = np.array(point, dtype=float)
         point[law.n - extra.size :] = extra
     return point
 
@@ -415,9 +423,12 @@ def plot_partition(
     ax.set_xlabel(names[i])
     ax.set_ylabel(names[j])
     title = f"{label}: {_regions_text(law, law.num_regions)}"
-    if at_full is not None:
-        fixed = ", ".join(f"{names[k]} = {at_full[k]:.3g}" for k in range(law.n) if k not in (i, j))
-        title += f"\nsection at {fixed} ({len(polys)} regions meet it)"
+    # every value the picture fixes: the states off the plane, a theta law's u_prev and r
+    fixed_at = [f"{names[k]} = {at_full[k]:.3g}" for k in range(law.n) if k not in (i, j)
+                ] if at_full is not None else []
+    fixed_at += [f"{k} = {v:.3g}" for k, v in dict(law.meta.get("section", {})).items()]
+    if fixed_at:
+        title += f"\nsection at {', '.join(fixed_at)} ({len(polys)} regions meet it)"
     ax.set_title(title, fontsize="medium")
     return ax
 
@@ -551,8 +562,9 @@ def plot_tube(
         raise ValueError(f"state must be in [0, {n}), got {state}")
     names = _state_names(n, problem.plant.states if problem is not None else None)
     row = np.eye(n)[state]
+    label = problem.plant.state_label(state) if problem is not None else names[state]
     return _plot_signal(result, ax, row, tube.lower[:, state], tube.upper[:, state],
-                        names[state], problem, state=state)
+                        label, problem, state=state)
 
 
 def plot_output(
@@ -616,17 +628,33 @@ def _plot_signal(
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
+    from codev_engine.reach.claim import certificate_band
     from codev_engine.view.signals import output_bounds, reference_band
 
     ax = _new_axes(ax, (6.0, 3.0))
     tube = result.tube
-    bands = merge_bands(tube.t_start, tube.t_end, lower, upper)
+    cert = certificate_band(result)
+    t_start, t_end = np.asarray(tube.t_start, float), np.asarray(tube.t_end, float)
+    drawn_boxes = np.ones(t_start.shape[0], dtype=bool)
+    if cert is not None:  # after the certificate the band, not the tube repeated
+        drawn_boxes = t_start < cert.t_closed - 1e-9 * max(1.0, cert.t_closed)
+    bands = merge_bands(t_start[drawn_boxes], t_end[drawn_boxes], lower[drawn_boxes],
+                        upper[drawn_boxes])
     handles: list[Any] = []
     ylo, yhi, tmax = np.inf, -np.inf, 0.0
     if bands.shape[0]:
         ylo, yhi = float(bands[:, 2].min()), float(bands[:, 3].max())
         tmax = float(bands[:, 1].max())
         handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
+    cert_span = None
+    if cert is not None:
+        # the signal row @ x over the band's box (an interval per term)
+        terms = np.stack([row * cert.lower, row * cert.upper])
+        cert_span = (float(terms.min(axis=0).sum()), float(terms.max(axis=0).sum()))
+        ylo, yhi = min(ylo, cert_span[0]), max(yhi, cert_span[1])
+        tmax = max(tmax, float(t_end.max(initial=0.0)))
+        handles.append(Patch(facecolor="none", edgecolor=_CERTIFICATE, hatch="///",
+                             label=f"certificate band (every state, t >= {cert.t_closed:.3g})"))
     ce = result.counterexample
     if ce is not None:
         n = tube.lower.shape[1]
@@ -659,6 +687,10 @@ def _plot_signal(
     for v in near:
         if not np.isfinite(ylo) or abs(v - np.clip(v, ylo, yhi)) <= max(span, 1e-9):
             ylo, yhi = min(ylo, v), max(yhi, v)
+    if state is not None and problem is not None and problem.verify is not None:
+        # the properties on this state are always in view: a reader sees the margin
+        for v in _property_edges(problem, state):
+            ylo, yhi = min(ylo, v), max(yhi, v)
     ylim = _padded(ylo, yhi)
     if bands.shape[0]:
         # at least 1 % of the axis high, so a thin tube does not read as a line (the
@@ -667,6 +699,12 @@ def _plot_signal(
             bands[:, [0, 2]], bands[:, [1, 3]], np.array([0.0, 0.01 * (ylim[1] - ylim[0])])
         )
         _add_boxes(ax, lo_b, hi_b, fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.8)
+    if cert_span is not None:
+        t_band_end = tmax if tmax > cert.t_closed else cert.t_closed + 4 * (
+            cert.t_closed - cert.t_anchor)
+        ax.add_patch(_rectangle(cert.t_closed, cert_span[0], t_band_end - cert.t_closed,
+                                cert_span[1] - cert_span[0]))
+        tmax = max(tmax, t_band_end)
     ax.set_ylim(*ylim)
     ax.set_xlim(0.0, tmax if tmax > 0 else 1.0)
     if problem is not None and problem.verify is not None and state is not None:
@@ -690,11 +728,19 @@ def _plot_signal(
                 ax.axhline(v, color=_REFERENCE, lw=1.0)
             handles.append(Patch(facecolor=_REFERENCE, alpha=0.3,
                                  label=f"reference in [{lo_r:.4g}, {hi_r:.4g}]"))
-    ax.set_xlabel("t")
+    ax.set_xlabel("t (s)")
     ax.set_ylabel(ylabel)
     if handles:
         ax.legend(handles=handles, fontsize="small", loc="upper right")
     return ax
+
+
+def _rectangle(x: float, y: float, w: float, h: float) -> Any:
+    """The certificate band's patch: hatched, outlined, not filled (a bound, not a tube)."""
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((x, y), w, h, facecolor="none", edgecolor=_CERTIFICATE, hatch="///",
+                     lw=1.0, zorder=1.5)
 
 
 def _bounds_on(s: SetSpec, state: int, *, alone: bool) -> tuple[float, float] | None:
@@ -712,6 +758,19 @@ def _bounds_on(s: SetSpec, state: int, *, alone: bool) -> tuple[float, float] | 
     lo = np.max(c[a < 0] / a[a < 0], initial=-np.inf)
     hi = np.min(c[a > 0] / a[a > 0], initial=np.inf)
     return float(lo), float(hi)
+
+
+def _property_edges(problem: Problem, state: int) -> list[float]:
+    """The finite edges the verify sets put on one state (unsafe sets on it alone, every
+    safe set's bounds on it), which its time plot must show."""
+    vs = problem.verify
+    edges: list[float] = []
+    for sets, alone in ((vs.unsafe, True), (vs.safe, False)):
+        for s in sets:
+            ext = _bounds_on(s, state, alone=alone)
+            if ext is not None:
+                edges += [float(v) for v in ext if np.isfinite(v)]
+    return edges
 
 
 def _state_bounds(ax: Axes, problem: Problem, state: int, ylim: tuple[float, float]) -> list:
@@ -861,8 +920,7 @@ def plot_plane(
     if law is not None:
         at = None
         if law.n > 2:
-            at = 0.5 * (vs.initial_lower + vs.initial_upper) if vs is not None else None
-            at = default_slice_point(law) if at is None else at
+            at = default_slice_point(law, problem)  # the one section rule
         dom = _domain_polygon(law, (i, j), at, view)
         if dom is not None:
             ax.add_patch(Polygon(dom, fill=False, ec="#555555", ls=":", lw=1.2))
@@ -872,8 +930,12 @@ def plot_plane(
         _mark_if_small(ax, initial_box, xlim, ylim, _INITIAL)
     ax.set_xlim(*xlim)
     ax.set_ylim(*ylim)
-    ax.set_xlabel(names[i])
-    ax.set_ylabel(names[j])
+    if problem is not None:
+        ax.set_xlabel(problem.plant.state_label(i))
+        ax.set_ylabel(problem.plant.state_label(j))
+    else:
+        ax.set_xlabel(names[i])
+        ax.set_ylabel(names[j])
     if handles:  # where it covers least (the tube is one patch: one box to avoid)
         ax.legend(handles=handles, fontsize="small", loc="best", framealpha=0.85)
     return ax
@@ -1102,15 +1164,20 @@ def law_html(law: ExplicitLaw, png: bytes | None = None) -> str:
     return f"<div>{head}{_table(rows)}{_img(png)}</div>"
 
 
-def result_html(result: VerificationResult, png: bytes | None = None) -> str:
-    """HTML summary of a verification result: a coloured verdict banner, the counterexample,
-    timings and sizes, and the tube picture.
+def result_html(
+    result: VerificationResult, png: bytes | None = None, *, problem: Problem | None = None
+) -> str:
+    """HTML summary of a verification result: a coloured verdict banner, the claim (with
+    the spec), the counterexample, timings and sizes, and the tube picture.
 
     Parameters
     ----------
     result : VerificationResult
     png : bytes, optional
         The picture (:func:`figure_result` rendered by :func:`png_bytes`); drawn if None.
+    problem : Problem, optional
+        The spec verified: the claim (:func:`codev_engine.reach.claim.build_claim`) is
+        listed under the banner.
     """
     if png is None:
         png = png_bytes(figure_result(result))
@@ -1131,7 +1198,13 @@ def result_html(result: VerificationResult, png: bytes | None = None) -> str:
             ("counterexample x0", np.array2string(np.asarray(ce.x0), precision=6)),
             ("violation", f"{ce.kind} (index {ce.index}) at t = {ce.t:.4f}"),
         ]
-    return f"<div>{banner}{_table(rows)}{_img(png)}</div>"
+    claim = ""
+    if problem is not None and problem.verify is not None:
+        from codev_engine.reach.claim import build_claim
+
+        items = build_claim(problem, result).lines()
+        claim = "<ul>" + "".join(f"<li>{html.escape(i[2:])}</li>" for i in items) + "</ul>"
+    return f"<div>{banner}{claim}{_table(rows)}{_img(png)}</div>"
 
 
 # --------------------------------------------------------------------------------------------

@@ -46,6 +46,12 @@ def _views(obj: Any) -> tuple[Any, Any]:
     raise TypeError(f"no notebook display for {type(obj).__name__}")
 
 
+def _claim_context(obj: Any) -> dict[str, Any]:
+    """The spec a result was verified for, so its summary states the claim."""
+    problem = context(obj).get("problem")
+    return {"problem": problem} if isinstance(obj, VerificationResult) and problem else {}
+
+
 def png(obj: Any) -> bytes:
     """The picture of a law or a result as PNG bytes.
 
@@ -73,7 +79,7 @@ def html(obj: Any) -> str:
     str
     """
     figure, summary = _views(obj)
-    return summary(obj, figures.png_bytes(figure(obj, **context(obj))))
+    return summary(obj, figures.png_bytes(figure(obj, **context(obj))), **_claim_context(obj))
 
 
 def mimebundle(obj: Any) -> dict[str, str]:
@@ -94,6 +100,6 @@ def mimebundle(obj: Any) -> dict[str, str]:
     picture = figures.png_bytes(figure(obj, **context(obj)))
     return {
         "text/plain": obj.summary(),
-        "text/html": summary(obj, picture),
+        "text/html": summary(obj, picture, **_claim_context(obj)),
         "image/png": base64.b64encode(picture).decode("ascii"),
     }

@@ -46,6 +46,8 @@ TIMELINE = "time"
 
 # colours (RGB / RGBA, 0-255)
 _RED = (220, 40, 40)
+#: the counterexample: a colour of its own (not the unsafe sets' red), drawn over everything
+_CEX = (0, 0, 0)
 _GREEN = (40, 170, 60)
 _BLUE = (40, 110, 230)
 _PURPLE = (150, 60, 200)
@@ -414,17 +416,26 @@ class RecordingContent:
         ax = list(self.axes)
         return self.view_lo[ax].copy(), self.view_hi[ax].copy()
 
+    def section_words(self) -> str | None:
+        """The values the partition's section fixes, in words (``x3 = 0.025, prev_V = 0``):
+        the states off the plane (n > 2) and a theta law's ``u_prev`` and ``r``; None when
+        the partition drawn is not a section."""
+        fixed = []
+        s0 = self.slice_point()
+        if s0 is not None and self.axes is not None:
+            fixed += [f"{self.states[k]} = {s0[k]:.3g}" for k in range(self.n)
+                      if k not in self.axes]
+        fixed += [f"{k} = {v:.3g}" for k, v in dict(self.law.meta.get("section", {})).items()]
+        return ", ".join(fixed) if fixed else None
+
     def slice_point(self) -> np.ndarray | None:
         """The values of the states off the plane (n > 2): the centre of the initial set
         (else the centre of the law's domain); None when n <= 2."""
         if self.n <= 2:
             return None
-        vs = self.problem.verify
-        if vs is not None:
-            return 0.5 * (np.asarray(vs.initial_lower) + np.asarray(vs.initial_upper))
         from codev_engine.view.figures import default_slice_point
 
-        return default_slice_point(self.law)
+        return default_slice_point(self.law, self.problem)  # the rule every picture uses
 
     def region_polygons(self) -> tuple[list[np.ndarray], np.ndarray]:
         """The regions in the plane, clipped to the window -> (polygons, region index).
@@ -472,6 +483,7 @@ class RecordingContent:
         self._log_traces(w)
         self._log_counterexample(w)
         self._log_bounds(w)
+        self._log_state_limits(w)
         self._log_uncertainty(w)
         self._log_outputs(w)
         self._log_reference(w)
@@ -628,7 +640,10 @@ class RecordingContent:
                 out.append((name, None, None))
             elif self.axes is None:
                 a, b = float(v.min()), float(v.max())
-                band = np.array([[plo[0], a], [phi[0], a], [phi[0], b], [plo[0], b]])
+                # the initial set holds at t = 0 only: a thin bar there, not a band in time
+                t0 = min(plo[0], 0.0)
+                t1 = 0.01 * (phi[0] - plo[0]) if name == "initial" else phi[0]
+                band = np.array([[t0, a], [t1, a], [t1, b], [t0, b]])
                 out.append((name, v, band if b > a else None))
             else:
                 poly = outline(v, self.axes)
@@ -792,8 +807,15 @@ class RecordingContent:
                 *rr.Boxes3D.columns(colors=color),
             ]
             w.columns("/space/tube", times, cols, K)
-        # per state: the hull of the boxes over time, lower and upper bound as step series
-        t_env, lo_env, hi_env = tube_envelope(ts, te, lo, hi)
+        # per state: the hull of the boxes over time, lower and upper bound as step series;
+        # after an all-time certificate, up to its closing sample, then the band (below)
+        from codev_engine.reach.claim import certificate_band
+
+        cert = certificate_band(self.result) if self.result is not None else None
+        mine = np.ones(K, dtype=bool)
+        if cert is not None:
+            mine = ts < cert.t_closed - 1e-9 * max(1.0, cert.t_closed)
+        t_env, lo_env, hi_env = tube_envelope(ts[mine], te[mine], lo[mine], hi[mine])
         tt = np.repeat(t_env, 2)[1:-1]  # each interval's value at its start and its end
         for i, s in enumerate(self.states):
             for side, val in (("lower", lo_env[:, i]), ("upper", hi_env[:, i])):
@@ -806,6 +828,41 @@ class RecordingContent:
                 v = np.repeat(val, 2)
                 keep = np.isfinite(v)
                 w.columns(entity, tt[keep], [*rr.Scalars.columns(scalars=v[keep])], int(keep.sum()))
+        if cert is None:
+            return
+        t_band = np.array([cert.t_closed, max(self.horizon, cert.t_closed)])
+        for i, s in enumerate(self.states):
+            for side, val in (("lower", cert.lower[i]), ("upper", cert.upper[i])):
+                entity = f"/time/{s}/certificate/{side}"
+                w.static(entity, rr.SeriesLines(colors=[_PURPLE], widths=[2.0],
+                                                names=[f"certificate band {side}"]), 0)
+                w.columns(entity, t_band, [*rr.Scalars.columns(scalars=np.full(2, val))], 2)
+
+    def _log_state_limits(self, w: EntityWriter) -> None:
+        """Each state's limits from the verify sets in its time view (unsafe red, safe
+        green), over the whole horizon, so the view's range includes them."""
+        import rerun as rr
+
+        from codev_engine.view.figures import _bounds_on
+
+        vs = self.problem.verify
+        if vs is None:
+            return
+        T = np.array([0.0, self.horizon])
+        for i, s in enumerate(self.states):
+            for kind, sets, alone, color in (("unsafe", vs.unsafe, True, _RED),
+                                              ("safe", vs.safe, False, _GREEN)):
+                for k, spec in enumerate(sets):
+                    ext = _bounds_on(spec, i, alone=alone)
+                    if ext is None:
+                        continue
+                    for side, v in zip(("lower", "upper"), ext, strict=True):
+                        if not np.isfinite(v):
+                            continue
+                        entity = f"/time/{s}/{kind}/{k}/{side}"
+                        w.static(entity, rr.SeriesLines(colors=[color], widths=[1.5],
+                                                        names=[f"{kind} {k} {side}"]), 0)
+                        w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, v))], 2)
 
     def _log_traces(self, w: EntityWriter) -> None:
         import rerun as rr
@@ -936,7 +993,7 @@ class RecordingContent:
             ts = np.column_stack([t0, t0 + float(sig.piece) * (1 - 1e-9)]).ravel()
             for j, nm in enumerate(box.names):
                 entity = f"/scalars/disturbance/{nm}/counterexample"
-                w.static(entity, rr.SeriesLines(colors=[_RED], widths=[2.0],
+                w.static(entity, rr.SeriesLines(colors=[_CEX], widths=[2.0],
                                                 names=["counterexample"]), 0)
                 w.columns(entity, ts, [*rr.Scalars.columns(scalars=np.repeat(vals[:, j], 2))],
                           2 * K)
@@ -946,7 +1003,7 @@ class RecordingContent:
             tk = np.arange(noise.shape[0]) * float(p.model.sample_time)
             for j, nm in enumerate(p.plant.states):
                 entity = f"/scalars/noise/{nm}/counterexample"
-                w.static(entity, rr.SeriesPoints(colors=[_RED], markers=["circle"],
+                w.static(entity, rr.SeriesPoints(colors=[_CEX], markers=["circle"],
                                                  marker_sizes=[3.0], names=["counterexample"]),
                          0)
                 w.columns(entity, tk, [*rr.Scalars.columns(scalars=noise[:, j])], tk.size)
@@ -985,7 +1042,7 @@ class RecordingContent:
             Y = X[keep] @ C.T
             for k, y in enumerate(names):
                 entity = f"/output/{y}/counterexample"
-                w.static(entity, rr.SeriesLines(colors=[_RED], widths=[2.5],
+                w.static(entity, rr.SeriesLines(colors=[_CEX], widths=[2.5],
                                                 names=["counterexample"]), 0)
                 w.columns(entity, t[keep], [*rr.Scalars.columns(scalars=Y[:, k])],
                           int(keep.sum()))
@@ -1048,7 +1105,7 @@ class RecordingContent:
         P = np.column_stack([t[ok], X[ok, 0]]) if self.axes is None else X[ok][:, list(self.axes)]
         w.static(
             "/plane/counterexample",
-            rr.LineStrips2D([P], colors=[_RED], radii=radius, draw_order=40.0),
+            rr.LineStrips2D([P], colors=[_CEX], radii=radius, draw_order=40.0),
             1,
         )
         # the violation, marked where it happens
@@ -1058,7 +1115,7 @@ class RecordingContent:
             "/plane/counterexample/violation",
             rr.Points2D(
                 [pv],
-                colors=[_RED],
+                colors=[_CEX],
                 radii=rr.components.Radius.ui_points(6.0),
                 labels=[f"{cex.kind} at t = {cex.t:.4g} s"],
                 draw_order=41.0,
@@ -1068,17 +1125,17 @@ class RecordingContent:
         if self.n == 3:
             w.static(
                 "/space/counterexample",
-                rr.LineStrips3D([X[ok]], colors=[_RED], radii=radius),
+                rr.LineStrips3D([X[ok]], colors=[_CEX], radii=radius),
                 1,
             )
         for i, s in enumerate(self.states):
             entity = f"/time/{s}/counterexample"
             w.static(
-                entity, rr.SeriesLines(colors=[_RED], widths=[2.5], names=["counterexample"]), 0
+                entity, rr.SeriesLines(colors=[_CEX], widths=[2.5], names=["counterexample"]), 0
             )
             w.columns(entity, t[ok], [*rr.Scalars.columns(scalars=X[ok, i])], int(ok.sum()))
         alive = np.asarray(trace.region) >= 0
-        self._log_scalars(w, t, U, X, alive, "counterexample", _RED, 2.5)
+        self._log_scalars(w, t, U, X, alive, "counterexample", _CEX, 2.5)
 
     def verdict_text(self, *, views: bool = True) -> str:
         """The verdict document: it tells the story without the other views.
@@ -1107,6 +1164,11 @@ class RecordingContent:
         else:
             lines += [f"## {_VERDICT_WORDS.get(r.verdict, r.verdict)}", ""]
             lines += [_verdict_sentence(self), ""]
+        if p.verify is not None:
+            from codev_engine.reach.claim import build_claim
+
+            # what was proved (or asked), and what was not: first, before any detail
+            lines += ["### the claim", "", *build_claim(p, r).lines(bold=True), ""]
         cex = self.counterexample
         if cex is not None:
             pairs = zip(self.states, np.asarray(cex.x0), strict=True)
@@ -1118,7 +1180,7 @@ class RecordingContent:
                 f"- what: {describe} (`{cex.kind}`, index {cex.index})",
                 f"- when: t = {cex.t:.6g} s",
                 f"- from: x0 = ({x0})",
-                "- drawn thick red in every view; its end is marked in the plane",
+                "- drawn thick black in every view, on top; its end is marked in the plane",
             ]
             sig = cex.disturbance
             if sig is not None:
@@ -1152,10 +1214,14 @@ class RecordingContent:
                 f"| branches | {branches} |",
                 f"| tube boxes | {r.tube.num_boxes} |",
             ]
-            if r.tube.num_boxes:
-                width = r.width_at(float(np.max(r.tube.t_end)))
+            if r.tube.num_boxes and p.verify is not None:
+                from codev_engine.reach.claim import width_at_end
+
+                t_end, width, which = width_at_end(p, r)
                 text = ", ".join(f"{s} {x:.3g}" for s, x in zip(self.states, width, strict=True))
-                lines.append(f"| tube width at t = {float(np.max(r.tube.t_end)):.4g} s | {text} |")
+                if not np.any(np.isfinite(width)):  # an unsafe verdict's tube stops early
+                    text = f"none: the tube stops at t = {float(np.max(r.tube.t_end)):.4g} s"
+                lines.append(f"| width at t = {t_end:.4g} s ({which}) | {text} |")
             lines.append(f"| verification time | {r.seconds:.3f} s |")
         if "seconds" in law.meta:
             lines.append(f"| synthesis time | {float(law.meta['seconds']):.3f} s |")
@@ -1176,20 +1242,16 @@ class RecordingContent:
             return "\n".join(lines) + "\n"
         xname, yname = self.plane_names
         where = f"{xname} → right, {yname} ↑ up"
-        if self.n > 2:
-            s0 = self.slice_point()
-            assert s0 is not None and self.axes is not None
-            rest = ", ".join(
-                f"{self.states[k]} = {s0[k]:.3g}" for k in range(self.n) if k not in self.axes
-            )
-            where += f"; regions: the section at {rest}; sets, tube and traces: projections"
+        section = self.section_words()
+        if section is not None:
+            where += f"; regions: the section at {section}; sets, tube and traces: projections"
         lines += [
             "",
             "### how to read the views",
             "",
             f"- **plane** ({where}), scaled to a square: regions filled (hover for the id "
             "`R<i>`), unsafe sets red, the tube orange (at least two pixels wide), the "
-            "initial set blue, traces grey, the counterexample red"
+            "initial set blue, traces grey, the counterexample black"
             + (", the invariance certificate's set purple (every reach set at the closing "
                "sample lies in it)" if self.result is not None
                and self.result.certificate is not None
@@ -1199,7 +1261,7 @@ class RecordingContent:
                and self.result.certificate is not None
                and "P" in self.result.certificate else ""),
             "- **state views**: each state against time, the tube's lower and upper bound "
-            "orange, traces grey, the counterexample red",
+            "orange, traces grey, the counterexample black",
             "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "
             "nearest unsafe set, 0 marked red (below 0 is inside)",
         ]
@@ -1283,14 +1345,14 @@ def _verdict_sentence(content: RecordingContent) -> str:
     T = content.horizon
     if r.verdict == "robustly_safe" and r.reason == "invariant":
         return (
-            "Every closed-loop trajectory from the initial set stays out of the unsafe sets "
-            "(and inside the law's domain) for all time: an invariance certificate closes "
+            "Every closed-loop trajectory from the initial set has every property checked "
+            "(the claim below) for all time: an invariance certificate closes "
             f"the induction; the views show the first {T:.4g} s."
         )
     if r.verdict == "robustly_safe":
         return (
-            f"Every closed-loop trajectory from the initial set stays out of the unsafe sets "
-            f"(and inside the law's domain) up to t = {T:.4g} s: the tube of "
+            f"Every closed-loop trajectory from the initial set has every property checked "
+            f"(the claim below) up to t = {T:.4g} s: the tube of "
             f"{r.tube.num_boxes} boxes contains them all."
         )
     cex = r.counterexample

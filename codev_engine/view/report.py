@@ -88,8 +88,13 @@ def report_html(
             caption += f" of {problem.plant.states[plane[0]]} and {problem.plant.states[plane[1]]}"
         parts.append((_svg(fig), caption + ", with the sets and the counterexample (if any)."))
     law_axes = plane if plane is not None else (0, 1)
-    fig = figures.figure_law(law, axes=law_axes) if law.n >= 2 else figures.figure_law(law)
-    parts.append((_svg(fig), f"The partition of the explicit law: {law.num_regions} regions."))
+    # the partition's section: the recording's (figures.default_slice_point with the spec)
+    at = figures.default_slice_point(law, problem) if law.n > 2 else None
+    fig = figures.figure_law(law, axes=law_axes, at=at) if law.n >= 2 else figures.figure_law(law)
+    section = content.section_words()
+    at_words = f", section at {section}" if section is not None else ""
+    parts.append((_svg(fig), f"The partition of the explicit law{at_words}: "
+                  f"{law.num_regions} regions."))
     if content.traces is not None and problem.plant.m:
         fig = figure_inputs(problem, content.traces, result)
         parts.append((_svg(fig), "The inputs of the simulated traces, with their bounds."))
@@ -182,9 +187,11 @@ def figure_inputs(
             if np.isfinite(v):
                 ax.axhline(float(v), color="k", lw=1.0, ls="--")
         ax.autoscale_view()
-        ax.set_ylabel(problem.plant.inputs[j])
-        ax.set_xlabel("t")
-        ax.set_xlim(0.0, float(problem.verify.time_horizon) if problem.verify else None)
+        ax.set_ylabel(problem.plant.input_label(j))
+        ax.set_xlabel("t (s)")
+        # the traces' own end: for time_horizon = "inf" that is the shown horizon, not inf
+        t_end = float(traces.t[-1]) if traces.t.size else None
+        ax.set_xlim(0.0, t_end if t_end and np.isfinite(t_end) and t_end > 0 else None)
     axs[0].set_title("inputs of the simulated traces (bounds dashed)", fontsize="medium")
     return fig
 

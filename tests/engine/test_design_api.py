@@ -200,6 +200,7 @@ def designs(draw) -> dict:
                   max_depth=draw(st.integers(0, 8)))  # fmt: skip
         if draw(st.booleans()):
             kw["time_budget"] = draw(st.floats(0.5, 1e4))
+        kw["verify_constraints"] = draw(st.booleans())
     return {"system": (np.array(A), np.array(B)), **kw}
 
 

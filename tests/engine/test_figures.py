@@ -370,8 +370,9 @@ def test_law_repr_png_and_html(di):
 @pytest.mark.parametrize(
     ("key", "words"),
     [
-        ("safe", ["robustly safe"]),
-        ("unsafe", ["unsafe: enters unsafe set 0", "counterexample x0", "[ 8.99"]),
+        ("safe", ["robustly safe", "initial set: x1 in", "NOT checked: "]),
+        ("unsafe", ["unsafe: enters unsafe set 0", "checked: never enters unsafe set 0",
+                    "counterexample x0", "[ 8.99"]),
         ("unknown", ["unknown (max_depth)"]),
     ],
 )
@@ -531,3 +532,17 @@ def test_output_panel_draws_the_counterexample_through_c(example_law):
     p_at = np.interp(cex.t, np.asarray(cex.trace.t), np.asarray(cex.trace.x)[:, 0])
     assert mark.get_xdata()[0] == pytest.approx(cex.t)
     assert mark.get_ydata()[0] == pytest.approx(p_at)
+
+
+def test_all_time_tube_ends_in_the_certificate_band_and_shows_the_unsafe_limits():
+    # cruise_grade ("inf"): the tube stops at the closing sample (1 s); the band covers the
+    # rest of the 25 s view, hatched; the unsafe limits v = 7 and v = 11 are in view
+    from matplotlib.patches import Rectangle
+
+    problem = ce.load_spec(ROOT / "examples" / "cruise_grade.toml")
+    result = ce.verify(problem, ce.synthesize(problem))
+    ax = figures.figure_result(result, problem).axes[0]
+    (band,) = [p for p in ax.patches if isinstance(p, Rectangle) and p.get_hatch() == "///"]
+    assert band.get_x() == pytest.approx(1.0) and band.get_x() + band.get_width() == 25.0
+    lo, hi = ax.get_ylim()
+    assert lo <= 7.0 and hi >= 11.0 and ax.get_xlim() == (0.0, 25.0)

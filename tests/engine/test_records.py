@@ -330,8 +330,14 @@ def test_verdict_and_blueprint(di, di_recording):
     summary, entities = di_recording
     text = entities["/verdict"].per_row("TextDocument:text")[0][0]
     assert "ROBUSTLY SAFE" in text and f"| tube boxes | {result.tube.num_boxes} |" in text
-    assert "tube width at t = 9 s" in text and "codev 0." in text and "sha256" in text
-    assert "| branches |" in text and "stays out of the unsafe sets" in text
+    assert "| width at t = 9 s (tube) |" in text and "codev 0." in text and "sha256" in text
+    assert "| branches |" in text and "has every property checked" in text
+    # the claim, before the sizes: the initial set, each property, the time, the hold
+    claim = text[text.index("### the claim"):text.index("### sizes")]
+    assert "x1 in [8.99, 9.01], x2 in [-5.01, -4.99]" in claim
+    assert "stays inside safe set 0: -10 <= x1 <= 10" in claim
+    assert "for all t in [0, 9] s" in claim and "**hold**: continuous" in claim
+    assert "**NOT checked**" in claim
     reader = RrdReader(summary.path)
     assert len(reader.recordings()) == 1 and len(reader.blueprints()) == 1
     kinds = view_kinds(summary.path)
@@ -411,6 +417,8 @@ def test_counterexample(unsafe_case):
         assert k in entities, k
     series = entities["/time/x1/counterexample"]
     assert series.instances("Scalars:scalars") == len(series.time) > 1
+    # a colour of its own: black (0xRRGGBBAA), not the unsafe sets' red
+    assert series.values("SeriesLines:colors").tolist() == [0x000000FF]
     margin = entities["/scalars/unsafe_distance/counterexample"]
     m = margin.values("Scalars:scalars")
     t = margin.time
@@ -425,7 +433,7 @@ def test_counterexample(unsafe_case):
     rows, cols = np.nonzero(np.isin(image, (1, 3)))
     xy = shift[:2] + (np.column_stack([cols, rows]) + 0.5) * scale[:2]
     assert rows.size and np.all(np.abs(xy) <= 1.0 + 1e-9)  # the box [-1, 1]^2
-    assert "counterexample red" in " ".join(view_kinds(summary.path))
+    assert "counterexample black" in " ".join(view_kinds(summary.path))
 
 
 def test_without_result(di, tmp_path):
@@ -785,5 +793,69 @@ def test_counterexample_output_is_c_of_its_states(tmp_path):
     t, y = _series(entities["/output/y0/counterexample"])
     t2, x = _series(entities["/time/p/counterexample"])
     assert len(y) > 2 and np.array_equal(t, t2) and np.allclose(y, x, atol=1e-6)
-    assert any(n.startswith("y0(t) = C x") and "counterexample red" in n
+    assert any(n.startswith("y0(t) = C x") and "counterexample black" in n
                for n in view_kinds(summary.path))
+
+
+def test_all_time_recording_draws_the_certificate_band_to_the_view_s_end(tmp_path):
+    # cruise_grade ("inf"): the tube's series stop at the closing sample (1 s), the band's
+    # run from there to the shown horizon (25 s); the verdict names the set of the width
+    from codev_engine.reach.claim import certificate_band
+
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    write_recording(tmp_path / "cg.rrd", problem, law, result,
+                    options=RecordingOptions(traces=2))
+    entities = read(tmp_path / "cg.rrd")
+    band = certificate_band(result)
+    lo, hi = entities["/time/v/certificate/lower"], entities["/time/v/certificate/upper"]
+    assert np.allclose(lo.time / 1e9, [1.0, 25.0]) and np.allclose(hi.time, lo.time)
+    assert np.allclose(lo.values("Scalars:scalars"), band.lower[0], atol=1e-5)
+    assert np.allclose(hi.values("Scalars:scalars"), band.upper[0], atol=1e-5)
+    assert entities["/time/v/tube/lower"].time.max() / 1e9 == pytest.approx(1.0)
+    text = entities["/verdict"].per_row("TextDocument:text")[0][0]
+    assert "| width at t = 25 s (certificate band) |" in text
+    assert "**time**: for all t >= 0 (invariance certificate" in text
+    assert any("certificate band purple" in n for n in view_names(tmp_path / "cg.rrd"))
+
+
+def test_recording_and_report_name_the_same_section(magnetic, tmp_path):
+    # one rule (figures.default_slice_point with the spec): the plane view's title, the
+    # report's partition caption and its figure title say the same "section at x3 = ..."
+    from codev_engine.view.report import report_html
+
+    problem, law = magnetic
+    summary = write_recording(tmp_path / "s.rrd", problem, law, None,
+                              options=RecordingOptions(traces=0))
+    x3 = 0.5 * (problem.verify.initial_lower[2] + problem.verify.initial_upper[2])
+    words = f"section at x3 = {x3:.3g}"
+    (plane,) = [n for n in view_names(summary.path) if n.startswith("plane")]
+    assert words in plane
+    text = report_html(problem, law, None, traces=0)
+    assert f"The partition of the explicit law, {words}: " in text
+    assert text.count(words) >= 2  # the caption and the figure's own title
+
+
+def test_one_state_initial_set_is_drawn_at_t0_only(tmp_path):
+    # n == 1: the plane is (t, v); the initial set holds at t = 0, not across the horizon
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    summary = write_recording(tmp_path / "i.rrd", problem, law, None,
+                              options=RecordingOptions(traces=0))
+    strip = np.array(read(summary.path)["/plane/initial"].per_row("LineStrips2D:strips")[0][0])
+    assert strip[:, 0].min() <= 0.0 and 0.0 < strip[:, 0].max() <= 0.02 * 25.0 + 1e-6
+    assert np.allclose([strip[:, 1].min(), strip[:, 1].max()], [8.0, 9.0], atol=1e-5)
+
+
+def test_each_state_view_draws_its_unsafe_limits(tmp_path):
+    # cruise_grade: v >= 11 and v <= 7 are unsafe; the v(t) view draws 11 and 7 (red)
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    summary = write_recording(tmp_path / "l.rrd", problem, law, None,
+                              options=RecordingOptions(traces=0))
+    e = read(summary.path)
+    assert np.allclose(e["/time/v/unsafe/0/lower"].values("Scalars:scalars"), 11.0)
+    assert np.allclose(e["/time/v/unsafe/1/upper"].values("Scalars:scalars"), 7.0)
+    assert "/time/v/unsafe/0/upper" not in e  # an infinite side is not drawn
+    assert any("unsafe limits red" in n for n in view_names(summary.path))

@@ -130,3 +130,26 @@ def test_report_of_a_soft_output_design_shows_the_output_and_its_bound():
     law = ce.synthesize(problem)
     page = report_html(problem, law, ce.verify(problem, law), traces=2)
     assert "y0 = C x" in page and "y_max (soft)" in page
+
+
+def test_report_of_an_all_time_spec_ends_the_time_axes_at_the_shown_horizon():
+    # time_horizon = "inf": the inputs' figure once set its x limit to inf (a ValueError)
+    from codev_engine.reach.simulate import shown_horizon
+
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    text = report_html(problem, law, result, traces=3)
+    assert parse(text).tags["figure"] == 3
+    assert np.isfinite(shown_horizon(problem)) and shown_horizon(problem) > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spec", sorted(p.name for p in EXAMPLES.glob("*.toml")))
+def test_report_of_every_bundled_example(spec, tmp_path):
+    problem = ce.load_spec(EXAMPLES / spec)
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law) if problem.verify is not None else None
+    path = write_report(tmp_path / "r.html", problem, law, result, traces=4)
+    page = parse(path.read_text())
+    assert page.tags["figure"] >= 2 and "nan" not in " ".join(page.text).lower().split()

@@ -692,6 +692,12 @@ BAD = [
         "expected true or false",
     ),
     (
+        "constraints",
+        [("step = 0.01", 'step = 0.01\nconstraints = 1')],
+        "verify.constraints",
+        "expected true or false",
+    ),
+    (
         "simplify",
         [("horizon = 2", "horizon = 2\nsimplify = 1")],
         "mpc.simplify",

@@ -368,3 +368,14 @@ def test_plane_text_draws_the_invariant_ellipsoid_of_a_nonlinear_certificate():
     assert "invariant set" in drawn.plain.split("\n")[-1]
     bare = plane_text(replace(result, certificate=None), 80, 24, problem=p)
     assert _count(_pixels(bare, 24), COLOURS["certificate"]) == 0
+
+
+def test_tube_time_text_after_a_certificate_shows_the_band_to_the_view_s_end():
+    # cruise_grade ("inf"): the tube stops at 1 s; the band runs to the shown 25 s
+    from codev_engine.reach.claim import certificate_band
+
+    problem = ce.load_spec(ROOT / "examples" / "cruise_grade.toml")
+    result = ce.verify(problem, ce.synthesize(problem))
+    assert certificate_band(result) is not None
+    plain = tube_time_text(result, 70, 12, problem=problem).plain
+    assert "certificate band" in plain and plain.splitlines()[-2].rstrip().endswith("25")

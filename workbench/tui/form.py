@@ -109,6 +109,7 @@ G_SOFT = "Soft constraints"
 G_TERMINAL = "Terminal cost and set"
 G_LAW = "The law's u_prev and r (rates, reference box)"
 G_NOISE = "Measurement noise"
+G_UNITS = "Units (labels on the axes)"
 
 #: Every spec field the workbench edits, in screen order (docs/spec.md is the reference).
 FIELDS: tuple[FieldDef, ...] = (
@@ -184,6 +185,22 @@ FIELDS: tuple[FieldDef, ...] = (
         "n×d, with A and B: dx/dt = A x + B u + E w",
         default="none",
         group=G_UNCERTAIN,
+    ),
+    _f(
+        "plant.state_units",
+        "expressions",
+        "State units",
+        "one per line, in the order of the states (m/s); labels only",
+        default="none",
+        group=G_UNITS,
+    ),
+    _f(
+        "plant.input_units",
+        "expressions",
+        "Input units",
+        "one per line, in the order of the inputs (N); labels only",
+        default="none",
+        group=G_UNITS,
     ),
     _f("mpc.horizon", "integer", "Horizon N", "prediction steps ≥ 1", default="5"),
     _f(
@@ -375,6 +392,12 @@ FIELDS: tuple[FieldDef, ...] = (
         "bool",
         "Check input bounds",
         "u(t) within [u_min, u_max] (default off)",
+    ),
+    _f(
+        "verify.constraints",
+        "bool",
+        "Check the design's bounds",
+        "the MPC's hard x/y/u bounds checked for all t (default off: at samples only)",
     ),
     _f(
         "verify.unsafe",

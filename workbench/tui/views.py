@@ -143,8 +143,23 @@ def tube_time_text(
     if tube.num_boxes == 0:
         return Text("(empty reachtube)")
     t1 = float(tube.t_end.max())
+    ts, te = np.asarray(tube.t_start, float), np.asarray(tube.t_end, float)
     lo, hi = tube.lower[:, state], tube.upper[:, state]
+    # after an all-time certificate: the tube to its closing sample, then the band that
+    # holds every later state, to the view's end (as the figures and the recording)
+    from codev_engine.reach.claim import certificate_band
+
+    cert = certificate_band(result)
+    if cert is not None:
+        mine = ts < cert.t_closed - 1e-9 * max(1.0, cert.t_closed)
+        ts, te, lo, hi = ts[mine], te[mine], lo[mine], hi[mine]
+        if problem is not None and problem.verify is not None:
+            from codev_engine.reach.simulate import shown_horizon
+
+            t1 = max(t1, shown_horizon(problem))
     ymin, ymax = float(np.min(lo)), float(np.max(hi))
+    if cert is not None:
+        ymin, ymax = min(ymin, float(cert.lower[state])), max(ymax, float(cert.upper[state]))
     cex = result.counterexample
     trace = getattr(cex, "trace", None) if cex is not None else None
     if trace is not None:
@@ -168,7 +183,11 @@ def tube_time_text(
                 r.boxes([0.0], [t1], [s.lower[state]], [s.upper[state]], COLOURS["unsafe"])
         if problem.verify.unsafe:
             legend.append(("unsafe (boxes)", COLOURS["unsafe"]))
-    r.boxes(tube.t_start, tube.t_end, lo, hi, COLOURS["tube"])
+    r.boxes(ts, te, lo, hi, COLOURS["tube"])
+    if cert is not None and t1 > cert.t_closed:
+        r.boxes([cert.t_closed], [t1], [cert.lower[state]], [cert.upper[state]],
+                COLOURS["certificate"])
+        legend.append(("certificate band", COLOURS["certificate"]))
     if trace is not None:
         r.polyline(trace.t, trace.x[:, state], COLOURS["cex"])
         legend.append(("counterexample", COLOURS["cex"]))

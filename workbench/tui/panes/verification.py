@@ -26,7 +26,7 @@ VERDICT_TEXT = {
     "robustly_safe": (
         "ROBUSTLY SAFE",
         "-safe",
-        "every trajectory from the initial set stays safe up to the horizon",
+        "every trajectory from the initial set has every property checked",
     ),
     "unsafe": ("UNSAFE", "-unsafe", "a concrete trajectory violates the specification"),
     "unknown": ("UNKNOWN", "-unknown", "nothing proved"),
@@ -37,6 +37,20 @@ REASONS = {
     "infeasible_region": "the reach set leaves the MPC's feasible region (the law is "
     "undefined there)",
 }
+
+
+def _claim_lines(problem: Problem, result: VerificationResult) -> list[str]:
+    """The claim (codev_engine.reach.claim) in four banner lines: from, over, checked, not."""
+    from rich.markup import escape
+
+    from codev_engine.reach.claim import build_claim
+
+    c = build_claim(problem, result)
+    lines = [escape(f"from {'; '.join(c.initial + c.uncertainty)} · {c.time} · {c.hold}"),
+             escape("checked: " + "; ".join(c.checked))]
+    if c.not_checked:
+        lines.append("[b]NOT checked[/b]: " + escape("; ".join(c.not_checked)))
+    return lines
 
 
 class VerificationPane(Horizontal):
@@ -275,12 +289,14 @@ class VerificationPane(Horizontal):
             f"hold {result.hold} · {result.tube.num_boxes} boxes · "
             f"{result.stats.get('branches', '?')} branches · verified in {result.seconds:.2f} s"
         )
+        problem = self._problem
+        if problem is not None and problem.verify is not None:
+            lines += _claim_lines(problem, result)
         if not self._current:
             lines.append("⟳ stale: the spec changed since this verdict; ctrl+g re-verifies")
             banner.add_class("-stale")
         banner.add_class(cls)
         banner.update("\n".join(lines))
-        problem = self._problem
         if result is self._result_shown and not force:
             return  # the pictures depend on the result only (a form check must not redraw)
         self._result_shown = result
@@ -303,7 +319,7 @@ class VerificationPane(Horizontal):
             cex_out.update(
                 f"[red]counterexample[/red]: from x0 = ({x0}), {cex.describe()} "
                 f"at t = {cex.t:.4g} s — "
-                "drawn in red; replay it with `codev verify --json`"
+                "drawn in its own colour; replay it with `codev verify --json`"
             )
         else:
             cex_out.update("")
