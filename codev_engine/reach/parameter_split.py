@@ -176,9 +176,11 @@ def split_run(
                 stats[key] = stats.get(key, 0) + val
             else:
                 stats.setdefault(key, val)
-        plo = pp.lower if lo is None else lo
-        phi = pp.upper if hi is None else hi
-        share = float(np.prod(np.maximum(phi - plo, 1e-300))) / total if pp is not None else 1.0
+        share = 1.0
+        if pp is not None:
+            plo = pp.lower if lo is None else lo
+            phi = pp.upper if hi is None else hi
+            share = float(np.prod(np.maximum(phi - plo, 1e-300))) / total
         if "proved_share" in eng.stats:
             stats["proved_share"] = stats.get("proved_share", 0.0) + share * float(
                 eng.stats["proved_share"]
