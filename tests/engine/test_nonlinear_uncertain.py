@@ -199,3 +199,20 @@ def test_a_piece_of_the_parameter_box_is_a_problem_with_its_midpoint_as_nominal(
     assert sub.plant.parameters.upper == pytest.approx([0.45])
     assert problem.plant.parameters.upper == pytest.approx([0.6])  # (a new problem)
     assert split_axis(problem, np.array([0.4]), np.array([0.6])) == 0
+
+
+def test_the_split_parameter_is_the_one_whose_forcing_dominates():
+    # -c*w with |w| <= 0.1 on the initial set against k*T with |T| <= 6: the gain's box,
+    # though narrower, forces far more, so it is cut
+    text = (EXAMPLES / "pendulum.toml").read_text()
+    text = text.replace('"9.81*sin(th) - 0.5*w + T"', '"9.81*sin(th) - c*w + k*T"')
+    text = text.replace("[model]", "parameters = { c = [0.4, 0.6], k = [0.95, 1.05] }\n\n"
+                        "[model]", 1)
+    problem = loads_spec(text)
+    from codev_engine.reach.parameter_split import split_axis
+
+    pp = problem.plant.parameters
+    assert pp.names == ("c", "k")
+    assert split_axis(problem, pp.lower, pp.upper) == 1
+    # on a piece where c's box is wide and k's a sliver, c is cut
+    assert split_axis(problem, np.array([0.0, 1.0]), np.array([10.0, 1.0001])) == 0
