@@ -32,7 +32,7 @@ from codev_engine.spec.problem import Problem
 __all__ = ["FACTOR", "MAX_PIECES", "split_axis", "split_run"]
 
 #: pieces a failed piece is cut into along one parameter
-FACTOR = 4
+FACTOR = 8
 #: at most this many pieces of the parameter box (each a full run of the engine)
 MAX_PIECES = 16
 # findings that a narrower parameter box may clear (a possible violation, no concrete state)

@@ -179,7 +179,7 @@ def test_quadruple_tank_tube_holds_every_run():
 
 def test_quadruple_tank_is_proved_over_pieces_of_the_valve_split():
     # the whole box of g1 fails its enclosure (the bilinear g1 x v1 term in the remainder
-    # ball); on quarters of it, each about its own midpoint, the proof holds over the 60 s
+    # ball); on eighths of it, each about its own midpoint, the proof holds over the 60 s
     # horizon, and the pieces' tubes together hold every run (g1 fixed per run: exact)
     problem = loads_spec(QUADRUPLE_TANK.read_text())
     law = synthesize(problem)
