@@ -216,3 +216,16 @@ def test_the_split_parameter_is_the_one_whose_forcing_dominates():
     assert split_axis(problem, pp.lower, pp.upper) == 1
     # on a piece where c's box is wide and k's a sliver, c is cut
     assert split_axis(problem, np.array([0.0, 1.0]), np.array([10.0, 1.0001])) == 0
+
+
+def test_quadruple_tank_under_continuous_hold_fails_its_enclosure_cleanly_then_splits():
+    # the whole box's Picard candidate became NaN under the continuous hold (a ValueError
+    # from the interval function, a traceback): now that substep fails like any enclosure,
+    # the box is split, and the pieces prove the 60 s
+    problem = loads_spec(QUADRUPLE_TANK.read_text())
+    problem = replace(problem, verify=replace(problem.verify, hold="continuous"))
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert result.verdict == "robustly_safe", result.summary()
+    assert result.stats["parameter_runs"] > 1
+    _assert_sound(problem, law, result, P=60, seed=9)
