@@ -134,7 +134,9 @@ def split_run(
     depth : int
         The engine's refinement budget (per piece).
     progress : callable or None
-        The engine's progress callback (its counters restart on each piece).
+        The engine's progress callback; from the second run on, the earlier runs'
+        counters (``branches``, ``boxes``, ...: explored, failed pieces included) are
+        added, so they never go back, and ``parameter_run`` says which run (from 1).
     executor : Executor or None
     cells : int
         As for :func:`codev_engine.reach.verification.verify`.
@@ -158,16 +160,20 @@ def split_run(
     queue: list[tuple[np.ndarray, np.ndarray]] = [(None, None)]  # the whole box first
     kept: list[tuple[list, Tube | list[Tube], float]] = []
     stats: dict = {}
-    runs = 0
+    runs = boxes = 0
     c0 = V0 = None
     total = float(np.prod(np.maximum(pp.upper - pp.lower, 1e-300))) if pp is not None else 1.0
     while queue:
         lo, hi = queue.pop(0)
         sub = problem if lo is None else sub_problem(problem, lo, hi)
-        eng = NonlinearReach(sub, law, hold, depth, progress=progress)
+        report = progress
+        if progress is not None and runs:
+            report = _cumulative(progress, {**stats, "boxes": boxes}, runs + 1)
+        eng = NonlinearReach(sub, law, hold, depth, progress=report)
         with np.errstate(all="ignore"):  # an overflow is checked on the tube by the caller
             eng.run(executor, cells=cells)
         runs += 1
+        boxes += int(getattr(eng, "boxes", 0))
         c0, V0 = eng.c0, eng.V0
         for key, val in eng.stats.items():
             if key == "proved_share":
@@ -219,3 +225,21 @@ def split_run(
         stats["parameter_pieces"] = len(kept)
         stats["parameter_runs"] = runs
     return out_findings, out_tubes, stats, c0, V0
+
+
+def _cumulative(progress: Callable[[dict], None], done: dict, run: int) -> Callable[[dict], None]:
+    """``progress`` with the earlier pieces' counters added (so they never go back) and
+    ``parameter_run``, the engine run counting from 1."""
+
+    def report(counters: dict) -> None:
+        out = dict(counters)
+        for key, val in done.items():
+            cur = out.get(key)
+            if (isinstance(val, (int, float)) and not isinstance(val, bool)
+                    and isinstance(cur, (int, float)) and not isinstance(cur, bool)
+                    and key not in ("samples", "proved_share")):
+                out[key] = cur + val
+        out["parameter_run"] = run
+        progress(out)
+
+    return report

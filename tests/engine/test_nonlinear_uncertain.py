@@ -183,9 +183,14 @@ def test_quadruple_tank_is_proved_over_pieces_of_the_valve_split():
     # horizon, and the pieces' tubes together hold every run (g1 fixed per run: exact)
     problem = loads_spec(QUADRUPLE_TANK.read_text())
     law = synthesize(problem)
-    result = verify(problem, law)
+    seen = []
+    result = verify(problem, law, progress=seen.append)
     assert result.verdict == "robustly_safe", result.summary()
     assert result.stats["parameter_pieces"] > 1
+    # progress over the pieces: counters that never go back, the run named
+    branches = [d["branches"] for d in seen if "branches" in d]
+    assert branches == sorted(branches)
+    assert max(d.get("parameter_run", 1) for d in seen) == result.stats["parameter_runs"]
     assert float(result.tube.t_end.max()) == pytest.approx(60.0)
     _assert_sound(problem, law, result, P=100, seed=8)
 
