@@ -491,8 +491,12 @@ class NonlinearReach(ClosedLoopSetup):
         Flo = np.full((N, self.n), -np.inf)
         Fhi = np.full((N, self.n), np.inf)
         ok = np.zeros(N, dtype=bool)
-        todo = np.arange(N)
+        # a first candidate that is not finite (f unbounded or NaN on the set: a
+        # singularity) cannot become an enclosure: that row fails, as in the loop below
+        todo = np.flatnonzero(np.all(np.isfinite(lo), axis=1) & np.all(np.isfinite(hi), axis=1))
         for _ in range(20):
+            if todo.size == 0:
+                break
             ul = uh = None
             if ulo is not None:
                 ul = ulo if ulo.ndim == 1 else ulo[todo]

@@ -609,7 +609,7 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
         stats["partitions"] = 1
         stats["method"] = "exact-flow star sets"
     else:
-        from codev_engine.reach.nonlinear import NonlinearReach
+        from codev_engine.reach.parameter_split import split_run
 
         if _uncertain(problem):
             # refute first: under disturbances, parameters or noise the nonlinear engine's
@@ -626,11 +626,10 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
                                             hold, cex, stats)
                 result.attach_display(problem=problem, law=law)
                 return result
-        eng = NonlinearReach(problem, law, hold, depth, progress=progress)
-        with np.errstate(all="ignore"):  # an overflow is checked on the tube below
-            eng.run(executor, cells=cells)
-        findings, tubes, stats = eng.findings, eng.tubes, dict(eng.stats)
-        c0, V0 = eng.c0, eng.V0
+        # uncertain parameters: a piece of their box whose proof fails is split (exact: a
+        # parameter is constant during a run); without parameters one run, as before
+        findings, tubes, stats, c0, V0 = split_run(problem, law, hold, depth, progress,
+                                                   executor, cells)
     tube = Tube.concatenate(tubes, problem.plant.n)
     stats["boxes"] = tube.num_boxes
     verdict, reason, cex = "robustly_safe", None, None
