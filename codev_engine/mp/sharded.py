@@ -260,9 +260,11 @@ def _round(shared, directory: str, j: int, n: int, r: int, budget: int, seed) ->
     (counters, stats, the worker's address, CPU seconds)."""
     t0 = time.process_time()
     cached = _CACHE.pop((directory, j), None)
+    restored = 0
     if cached is not None and cached[0] == r - 1:
         shard = cached[1]
     else:
+        restored = int(r > 0)
         shard = _Shard(shared, j, n, directory)
         if r == 0:
             shard.seed(*seed)
@@ -275,6 +277,7 @@ def _round(shared, directory: str, j: int, n: int, r: int, budget: int, seed) ->
             inbox.append((flow[f"keys_{j}"], flow[f"points_{j}"]))
     shard.stats.clear()
     counts = shard.round(r, inbox, budget)
+    counts["restored"] = restored
     _CACHE[(directory, j)] = (r, shard)
     try:
         from distributed import get_worker
@@ -348,7 +351,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         The regions found so far (kept here: a few hundred).
     stats : dict
         Updated with the search's counters (summed over the shards) and ``shards``,
-        ``rounds``, ``client_cpu_seconds``.
+        ``rounds``, ``client_cpu_seconds``, ``worker_cpu_seconds``, ``shards_restored``
+        (rounds whose shard was rebuilt from its files: its worker was lost).
     executor : Executor
         A Dask one (local or remote).
     max_regions : int
@@ -397,6 +401,7 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     found = len(regions)
     totals: dict = {}
     r = 0
+    walk0, walked = time.thread_time(), None
     try:
         while True:
             futures = [
@@ -417,6 +422,7 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
                 for key, v in st.items():
                     totals[key] = totals.get(key, 0) + v
                 totals["explored"] = totals.get("explored", 0) + counts["explored"]
+                totals["shards_restored"] = totals.get("shards_restored", 0) + counts["restored"]
                 totals["worker_cpu_seconds"] = totals.get("worker_cpu_seconds", 0.0) + cpu
             r += 1
             if progress is not None:
@@ -425,19 +431,26 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
                 raise TooManyRegionsError(too_many_regions(max_regions))
             if not busy:
                 break
+        # the walk is done: what follows is the merge on demand, its cost apart
+        walked = time.thread_time() - walk0
+        cpu1 = time.process_time()
         theirs = read_shards(directory)
         parts = [RegionArrays.from_regions(regions, kernel.nz, kernel.d)]
         if theirs is not None:
             parts.append(theirs)
         out = RegionArrays.concat(parts)
         out = out.take(out.active_order())
+        stats["merge_cpu_seconds"] = time.process_time() - cpu1
     finally:
         client.run(_forget, directory)
         client.cancel([shared])
         if own_dir:
             shutil.rmtree(directory, ignore_errors=True)
-    for key, v in totals.items():
-        stats[key] = stats.get(key, 0) + v
-    stats.update(shards=n, rounds=r, workers=n,
-                 client_cpu_seconds=time.process_time() - cpu0)
+        for key, v in totals.items():
+            stats[key] = stats.get(key, 0) + v
+        # (the coordinator's own thread; a LocalCluster's scheduler runs in this process
+        # too, in other threads: client_cpu_seconds counts them, with the merge)
+        stats.update(shards=n, rounds=r, workers=n, client_cpu_seconds=time.process_time() - cpu0,
+                     coordinator_cpu_seconds=walked if walked is not None
+                     else time.thread_time() - walk0)
     return out
