@@ -13,8 +13,9 @@ in its outbox (keys and start points only). The client submits one task per shar
 round and gets back a few counters; it never sees a region or a key. It stops when no
 shard has a frontier and none sent a key.
 
-Each round a shard writes one *checked* file of what it added (its new regions, its new
-explored keys) and one of its flow (its stack and outboxes): atomic (``os.replace`` of a
+Each round a shard writes one *checked* file of what it changed (its new regions, its new
+explored keys, the top of its stack above the lowest point the round reached) and one of
+its outboxes: atomic (``os.replace`` of a
 fsynced temporary file) with a SHA-256 of the arrays in the file, so a torn or corrupted
 shard is refused on reading (``SolverError``), never merged. A worker caches its shards in
 memory; a shard's round that runs elsewhere (its worker was killed, the scheduler moved the
@@ -168,22 +169,26 @@ class _Shard:
         self.seeded = [done, keys]
 
     def restore(self, r: int) -> None:
-        """The shard as it was after round ``r`` (from its files)."""
+        """The shard as it was after round ``r`` (from its files: the explored keys, and
+        the stack replayed from each round's change to it)."""
         g = self.graph
+        top = 0
         for q in range(r + 1):
             part = _read(self.dir / f"{self.j}" / f"part-{q}.npz")
-            g.reserve(part["explored"].shape[0])
+            g.reserve(part["explored"].shape[0] + part["stack"].shape[0])
             _insert_all(g.table, g.used, part["explored"])
             g.meta[0] += part["explored"].shape[0]
             self.found += int(part["K"].shape[0])
             if part["shared_A"].shape[0] and self.walk.shared is None:
                 self.walk.shared = (part["shared_A"], part["shared_b"])
-        flow = _read(self.dir / f"{self.j}" / f"flow-{r}.npz")
-        keys, points = flow["stack"], flow["points"]
-        g.reserve(keys.shape[0])
-        g.stack[: keys.shape[0]] = keys
-        g.points[: keys.shape[0]] = points
-        g.meta[1] = keys.shape[0]
+            # the round kept its stack up to ``stack_low`` and put these on it
+            low, keys = int(part["stack_low"]), part["stack"]
+            if low > top:
+                raise SolverError(f"{self.dir / str(self.j)}: shard files out of order")
+            g.stack[low : low + keys.shape[0]] = keys
+            g.points[low : low + keys.shape[0]] = part["points"]
+            top = low + keys.shape[0]
+            g.meta[1] = top
 
     def round(self, r: int, inbox: list[tuple[np.ndarray, np.ndarray]], budget: int) -> dict:
         """Take the keys sent to this shard, evaluate up to ``budget`` candidates, write
@@ -193,6 +198,7 @@ class _Shard:
         g, walk = self.graph, self.walk
         new_keys, self.seeded = self.seeded, []
         explored0 = g.explored
+        low0 = len(g) if r else 0  # (round 0: its seeds are on the stack)
         for keys, points in inbox:
             if keys.shape[0]:
                 g.reserve(keys.shape[0])
@@ -202,8 +208,12 @@ class _Shard:
         received = g.explored - explored0
         outbox = [[] for _ in range(self.n)]
         evaluated = 0
+        # the stack below ``low`` is not touched this round: only the rest is written (a
+        # frontier of a million sets is not rewritten for each 4096 candidates)
+        low = low0
         while len(g) and evaluated < budget:
             keys, starts = g.pop(_CHUNK)
+            low = min(low, len(g))
             evaluated += keys.shape[0]
             result = mpqp_kernel.evaluate_batch(keys, starts, self.args)
             top = len(g)
@@ -236,9 +246,10 @@ class _Shard:
             "A": regions.A, "b": regions.b, "offsets": regions.offsets, "K": regions.K,
             "k": regions.k, "active": regions.active, "active_offsets": regions.active_offsets,
             "implied": regions.implied, "shared_A": shared[0], "shared_b": shared[1],
-            "explored": explored,
+            "explored": explored, "stack_low": np.array(low), "stack": g.stack[low : len(g)],
+            "points": g.points[low : len(g)],
         })
-        flow = {"stack": g.stack[: len(g)].copy(), "points": g.points[: len(g)].copy()}
+        flow = {}
         sent = 0
         for i in range(self.n):
             ks = [k for k, _ in outbox[i]]
@@ -442,7 +453,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         out = out.take(out.active_order())
         stats["merge_cpu_seconds"] = time.process_time() - cpu1
     finally:
-        client.run(_forget, directory)
+        # (a worker lost just now must not turn a finished search into an error)
+        client.run(_forget, directory, on_error="ignore")
         client.cancel([shared])
         if own_dir:
             shutil.rmtree(directory, ignore_errors=True)
