@@ -390,7 +390,9 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     budget = BUDGET if budget is None else int(budget)
     client = executor.client
     workers = sorted(client.scheduler_info()["workers"])
-    n = max(1, len(workers))
+    if not workers:
+        raise SolverError("the sharded search found no Dask worker on its cluster")
+    n = len(workers)
     own_dir = directory is None
     directory = tempfile.mkdtemp(prefix="codev-shards-") if own_dir else str(directory)
     numpy_kernel = copy.copy(kernel)
