@@ -189,6 +189,7 @@ def main(argv: list[str] | None = None) -> int:
                     "coordinator_cpu_seconds": st.get("coordinator_cpu_seconds"),
                     "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
                     "worker_cpu_seconds": st.get("worker_cpu_seconds"),
+                    "rounds_client_cpu_seconds": st.get("rounds_client_cpu_seconds"),
                 }
                 d = out["mp"][w]
                 print(f"mp {args.mp}, {w} workers: {wall:.1f} s, {d['regions']} regions "
@@ -202,7 +203,8 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"  sharded: {d['rounds']} rounds, coordinator thread "
                           f"{d['coordinator_cpu_seconds']:.2f} s "
                           f"({per * d['coordinator_cpu_seconds']:.1f} us/region), client "
-                          f"process {per * d['client_cpu_seconds']:.1f} us/region, merge "
+                          f"process {per * d['client_cpu_seconds']:.1f} us/region (during "
+                          f"the rounds {per * (d['rounds_client_cpu_seconds'] or 0):.1f}), merge "
                           f"{d['merge_cpu_seconds'] or 0:.2f} s, workers' CPU "
                           f"{d['worker_cpu_seconds'] or 0:.1f} s", flush=True)
             if w == max(counts):

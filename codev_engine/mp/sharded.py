@@ -362,7 +362,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         The regions found so far (kept here: a few hundred).
     stats : dict
         Updated with the search's counters (summed over the shards) and ``shards``,
-        ``rounds``, ``client_cpu_seconds``, ``worker_cpu_seconds``, ``shards_restored``
+        ``rounds``, ``client_cpu_seconds``, ``rounds_client_cpu_seconds`` (this process
+        during the rounds), ``worker_cpu_seconds``, ``shards_restored``
         (rounds whose shard was rebuilt from its files: its worker was lost).
     executor : Executor
         A Dask one (local or remote).
@@ -414,7 +415,7 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     found = len(regions)
     totals: dict = {}
     r = 0
-    walk0, walked = time.thread_time(), None
+    walk0, walked, rounds0 = time.thread_time(), None, time.process_time()
     try:
         while True:
             futures = [
@@ -441,11 +442,13 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
             if progress is not None:
                 progress(found)
             if found > max_regions:
+                stats["rounds_client_cpu_seconds"] = time.process_time() - rounds0
                 raise TooManyRegionsError(too_many_regions(max_regions))
             if not busy:
                 break
         # the walk is done: what follows is the merge on demand, its cost apart
         walked = time.thread_time() - walk0
+        stats["rounds_client_cpu_seconds"] = time.process_time() - rounds0
         cpu1 = time.process_time()
         theirs = read_shards(directory)
         parts = [RegionArrays.from_regions(regions, kernel.nz, kernel.d)]
