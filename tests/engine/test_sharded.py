@@ -40,7 +40,9 @@ def serial():
         return ce.mpsolve(_program(), options=ce.SolveOptions(workers=1))
 
 
-@pytest.mark.parametrize("workers", [1, 2, 3])
+@pytest.mark.parametrize(
+    "workers", [1, 2, pytest.param(3, marks=pytest.mark.slow)]  # (a cluster each: ~5 s)
+)
 def test_sharded_search_gives_the_serial_regions(workers, serial, monkeypatch):
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)  # (sharded from the first region)
     monkeypatch.setattr(sharded, "BUDGET", 128)  # (many rounds, keys crossing shards)
@@ -54,6 +56,7 @@ def test_sharded_search_gives_the_serial_regions(workers, serial, monkeypatch):
     _same_regions(serial, got)
 
 
+@pytest.mark.slow  # (~40 s: the nanny starts a new worker on a loaded machine)
 def test_a_worker_killed_mid_sharded_search_loses_nothing(serial, monkeypatch, tmp_path):
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
     monkeypatch.setattr(sharded, "BUDGET", 64)
