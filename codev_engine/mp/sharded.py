@@ -299,6 +299,11 @@ def _round(shared, directory: str, j: int, n: int, r: int, budget: int, seed) ->
     return counts, dict(shard.stats), where, time.process_time() - t0
 
 
+def cached_shards() -> int:
+    """Worker side: how many shards this process holds in memory (any search)."""
+    return len(_CACHE)
+
+
 def _forget(directory: str) -> int:
     """Worker side: drop the cached shards of a search."""
     gone = [key for key in _CACHE if key[0] == directory]
@@ -418,6 +423,15 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     walk0, walked, rounds0 = time.thread_time(), None, time.process_time()
     try:
         while True:
+            # a shard whose worker is gone, or shares it while a worker idles, moves to an
+            # idle one (where it is rebuilt from its files)
+            live = set(client.scheduler_info()["workers"])
+            idle = sorted(live - set(where.values()))
+            held: set = set()
+            for j in range(n):
+                if (where[j] not in live or where[j] in held) and idle:
+                    where[j] = idle.pop()
+                held.add(where[j])
             futures = [
                 client.submit(_round, shared, directory, j, n, r, budget,
                               (keys[own == j], points[own == j], done[own_done == j])
@@ -427,6 +441,9 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
                 for j in range(n)
             ]
             results = client.gather(futures)
+            # (released: a worker lost later must not make the scheduler run an old round
+            # again, which would leave a stale shard in a worker's memory)
+            del futures
             busy = False
             for j, (counts, st, addr, cpu) in enumerate(results):
                 if addr is not None:
