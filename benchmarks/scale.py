@@ -106,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-regions", type=int, metavar="N",
                     help="time the search up to N regions only (it stops there: the walk is "
                     "the same for every worker count, so is that prefix)")
+    ap.add_argument("--sharded", action="store_true",
+                    help="the sharded search (mpsolve(sharded=True): regions stay on workers)")
     ap.add_argument("--skip-mp", action="store_true")
     ap.add_argument("--skip-verify", action="store_true")
     ap.add_argument("--json", metavar="OUT", help="write the numbers as JSON")
@@ -165,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
                 opts = ce.SolveOptions(max_regions=args.max_regions or 10**8)
                 try:
                     sol = ce.mpsolve(program, executor=executor, options=opts,
-                                     progress=lambda r, f=found: f.__setitem__(0, r))
+                                     progress=lambda r, f=found: f.__setitem__(0, r),
+                                     sharded=args.sharded)
                     st, regions, digest = sol.stats, sol.num_regions, _digest(sol)
                 except ce.SolverError:  # (--max-regions: the prefix)
                     regions, digest = found[0], f"prefix of {found[0]}"
@@ -182,6 +185,11 @@ def main(argv: list[str] | None = None) -> int:
                     "worker_warmup_seconds": st.get("worker_warmup_seconds") or 0.0,
                     "candidates": st.get("candidates"),
                     "load": os.getloadavg()[0],
+                    # (sharded: the coordinator's thread, the rounds, the merge at the end)
+                    "coordinator_cpu_seconds": st.get("coordinator_cpu_seconds"),
+                    "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
+                    "worker_cpu_seconds": st.get("worker_cpu_seconds"),
+                    "rounds_client_cpu_seconds": st.get("rounds_client_cpu_seconds"),
                 }
                 d = out["mp"][w]
                 print(f"mp {args.mp}, {w} workers: {wall:.1f} s, {d['regions']} regions "
@@ -190,6 +198,15 @@ def main(argv: list[str] | None = None) -> int:
                       f"{d['client_main_cpu_seconds']:.1f} s), warm-up "
                       f"{d['worker_warmup_seconds']:.2f} s, cpu share {d['cpu_share']:.2f}",
                       flush=True)
+                if args.sharded:
+                    per = 1e6 / max(d["regions"], 1)
+                    print(f"  sharded: {d['rounds']} rounds, coordinator thread "
+                          f"{d['coordinator_cpu_seconds']:.2f} s "
+                          f"({per * d['coordinator_cpu_seconds']:.1f} us/region), client "
+                          f"process {per * d['client_cpu_seconds']:.1f} us/region (during "
+                          f"the rounds {per * (d['rounds_client_cpu_seconds'] or 0):.1f}), merge "
+                          f"{d['merge_cpu_seconds'] or 0:.2f} s, workers' CPU "
+                          f"{d['worker_cpu_seconds'] or 0:.1f} s", flush=True)
             if w == max(counts):
                 n = 2000
                 t1 = time.perf_counter()

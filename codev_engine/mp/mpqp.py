@@ -617,6 +617,7 @@ def explore_active_sets(
     semidefinite: bool = False,
     progress: Callable[[int], None] | None = None,
     stats: dict | None = None,
+    sharded: bool = False,
 ) -> RegionArrays:
     """All full-dimensional critical regions of ``min 0.5 z'Hz + (c + C theta)'z s.t.
     G z <= w + S theta, At theta <= bt`` (H positive definite, rows of G unit norm).
@@ -667,6 +668,10 @@ def explore_active_sets(
     stats : dict, optional
         Updated in place with the search's counters (``candidates``, ``lps``,
         ``explored``, ``candidates_<status>``, ``jit``, ``workers``, ``merged``, ...).
+    sharded : bool
+        With a Dask ``executor``, once the compiled kernel runs: the walk's state sharded
+        across the workers, the regions kept there until the end (``sharded.py``); the
+        regions are then sorted by active set whatever their number.
 
     Returns
     -------
@@ -787,7 +792,13 @@ def explore_active_sets(
             elif stack:
                 act = stack.pop()
                 visit(act, kernel.evaluate(act))
-        if compiled:
+        if compiled and sharded and remote_ok:
+            from codev_engine.mp.sharded import sharded_walk
+
+            compiled = False  # (its regions come back sorted: below, as the numpy walk's)
+            regions = sharded_walk(kernel, opposite, explored, stack, regions, stats,
+                                   executor, max_regions, progress)
+        elif compiled:
             walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
             walk.run(nworkers, max_regions, progress, executor if remote_ok else None)
     finally:
@@ -795,7 +806,9 @@ def explore_active_sets(
             client.cancel([f for _, f in inflight])
         if remote is not None:
             client.cancel([remote[0]])
-    if not compiled:
+    if isinstance(regions, RegionArrays):  # (sharded: sorted, counted)
+        packed = regions
+    elif not compiled:
         stats["explored"] = len(explored)
     if compiled:
         # the compiled walk's order depends on neither timing nor the worker count; not
@@ -804,7 +817,7 @@ def explore_active_sets(
         walk = None  # (the walk's hash table and stack)
         if len(packed) <= SORTED_UP_TO:
             packed = packed.take(packed.active_order())
-    else:
+    elif not isinstance(regions, RegionArrays):
         regions.sort(key=lambda r: r.active)  # the same order however they were found
         packed = RegionArrays.from_regions(regions, nz, kernel.d)
     return _merge_equal_laws(packed, scale, stats)

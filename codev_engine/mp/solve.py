@@ -91,6 +91,7 @@ def mpsolve(
     options: SolveOptions | None = None,
     progress: Callable[[int], None] | None = None,
     executor: Executor | None = None,
+    sharded: bool = False,
 ) -> MpSolution:
     """Solve an mp-LP / mp-QP exactly.
 
@@ -104,6 +105,10 @@ def mpsolve(
         Evaluate the mp-QP search's candidates as tasks on this executor's workers (a Dask
         cluster) instead of threads of this process; the regions are the same, in the same
         order (see ``mpqp.explore_active_sets``). The mp-LP search does not use it.
+    sharded : bool
+        With a Dask ``executor``: the mp-QP search's state sharded across its workers, the
+        regions kept there until the end (``mp/sharded.py``, docs/scale.md); the same
+        regions and laws, sorted by active set.
 
     Returns
     -------
@@ -124,7 +129,9 @@ def mpsolve(
     # measured both programs: the reports keep their keys)
     stats = dict.fromkeys(COUNTERS, 0)
     with _search_failures(red):
-        regions = _explore(red, size, region_tol, opts, progress, stats, semidefinite, executor)
+        regions = _explore(
+            red, size, region_tol, opts, progress, stats, semidefinite, executor, sharded
+        )
         domain = (
             _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
             else _empty_domain(red)
@@ -191,7 +198,7 @@ def _search_failures(red: Reduced) -> Iterator[None]:
 
 
 def _explore(
-    red, size, region_tol, opts, progress, stats, semidefinite, executor=None
+    red, size, region_tol, opts, progress, stats, semidefinite, executor=None, sharded=False
 ) -> RegionArrays:
     """The critical regions of the reduced program (mp-LP or mp-QP search)."""
     nz, d = red.G.shape[1], red.At.shape[1]
@@ -219,6 +226,7 @@ def _explore(
                 max_regions=opts.max_regions,
                 workers=opts.workers,
                 executor=executor,
+                sharded=sharded,
                 semidefinite=semidefinite,
                 progress=progress,
                 stats=stats,

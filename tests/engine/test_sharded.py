@@ -1,0 +1,100 @@
+"""The sharded mp-QP search (``mp/sharded.py``) on a real Dask ``LocalCluster``.
+
+Its regions and laws must be the serial search's, whatever the number of workers (1, 2 and
+3 shards here), and a worker killed with SIGKILL mid-search must lose nothing: the shard is
+rebuilt from its checked files on another worker. A torn shard file is refused.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import numpy as np
+import pytest
+
+import codev_engine as ce
+from codev_engine.errors import SolverError
+from codev_engine.mp import mpqp, sharded
+from tests.engine.test_mpqp_graph import _program
+from tests.engine.test_scale import _wait_for_workers
+
+
+def _same_regions(a: ce.MpSolution, b: ce.MpSolution) -> None:
+    """The same regions (active sets, rows, laws) in the same (canonical) order."""
+    assert a.num_regions == b.num_regions > 1
+    for r, s in zip(a.regions, b.regions, strict=True):
+        assert r.active == s.active
+        np.testing.assert_array_equal(r.A, s.A)
+        np.testing.assert_array_equal(r.b, s.b)
+        np.testing.assert_array_equal(r.K, s.K)
+        np.testing.assert_array_equal(r.k, s.k)
+
+
+@pytest.fixture(scope="module")
+def serial():
+    """The serial search, the compiled kernel from the first region (as the sharded runs
+    below: the numpy kernel's rows differ from it in the last bits)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mpqp, "JIT_AFTER", 0)
+        return ce.mpsolve(_program(), options=ce.SolveOptions(workers=1))
+
+
+@pytest.mark.parametrize(
+    "workers", [1, 2, pytest.param(3, marks=pytest.mark.slow)]  # (a cluster each: ~5 s)
+)
+def test_sharded_search_gives_the_serial_regions(workers, serial, monkeypatch):
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)  # (sharded from the first region)
+    monkeypatch.setattr(sharded, "BUDGET", 128)  # (many rounds, keys crossing shards)
+    with ce.Executor(workers=workers) as ex:
+        got = ce.mpsolve(_program(), executor=ex, sharded=True)
+    assert got.stats["shards"] == workers and got.stats["rounds"] > 3
+    # (the candidates and active sets explored are not: a lower-dimensional candidate's
+    # neighbours are the constraints tight at the point its LP found, which depends on
+    # where the LP started; the regions do not)
+    assert got.stats["explored"] > got.num_regions
+    _same_regions(serial, got)
+
+
+@pytest.mark.slow  # (~40 s: the nanny starts a new worker on a loaded machine)
+def test_a_worker_killed_mid_sharded_search_loses_nothing(serial, monkeypatch, tmp_path):
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(sharded, "BUDGET", 64)
+    with ce.Executor(workers=2) as ex:
+        client = ex.client
+        pids = client.run(os.getpid)
+        killed: list[int] = []
+
+        def progress(found: int) -> None:
+            if found >= 100 and not killed:  # (between rounds: the shard's files are whole)
+                holding = client.run(sharded.cached_shards)
+                address = max(sorted(holding), key=lambda a: holding[a])  # (holds a shard)
+                os.kill(pids[address], signal.SIGKILL)
+                killed.append(pids[address])
+
+        got = ce.mpsolve(_program(), executor=ex, sharded=True, progress=progress)
+        assert killed and got.stats["shards_restored"] >= 1
+        _same_regions(serial, got)
+        _wait_for_workers(client, killed[0])
+
+
+def test_a_torn_shard_file_is_refused(tmp_path):
+    path = tmp_path / "part-0.npz"
+    sharded._write(path, {"K": np.zeros((2, 1, 1)), "explored": np.ones((2, 1), np.uint64)})
+    assert sharded._read(path)["K"].shape == (2, 1, 1)
+    whole = path.read_bytes()
+    at = whole.index(np.ones(2, np.uint64).tobytes())  # (the keys, stored as they are)
+    altered = bytearray(whole)
+    altered[at] = 2
+    path.write_bytes(bytes(altered))
+    with pytest.raises(SolverError, match="part-0.npz: "):  # (zip's CRC, or the SHA-256)
+        sharded._read(path)
+    path.write_bytes(whole[: len(whole) // 2])  # (torn)
+    with pytest.raises(SolverError, match="part-0.npz: unreadable"):
+        sharded._read(path)
+
+
+def test_owners_spread_the_keys():
+    keys = np.arange(1, 4001, dtype=np.uint64)[:, None]
+    counts = np.bincount(sharded.owners(keys, 4), minlength=4)
+    assert counts.min() > 800
