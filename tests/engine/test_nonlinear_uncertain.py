@@ -163,6 +163,7 @@ def test_near_saturation_from_one_state_is_proved_by_the_carried_zonotope():
 QUADRUPLE_TANK = Path(__file__).resolve().parent / "quadruple_tank.toml"
 
 
+@pytest.mark.slow  # (the 60 s proof over pieces, in the default suite, covers it)
 def test_quadruple_tank_tube_holds_every_run():
     # Johansson's quadruple tank (sqrt outflows) with an uncertain valve split and an
     # inflow disturbance: 4-D sets re-rooted at every sample; whatever the verdict, every
@@ -223,6 +224,7 @@ def test_the_split_parameter_is_the_one_whose_forcing_dominates():
     assert split_axis(problem, np.array([0.0, 1.0]), np.array([10.0, 1.0001])) == 0
 
 
+@pytest.mark.slow
 def test_quadruple_tank_under_continuous_hold_fails_its_enclosure_cleanly_then_splits():
     # the whole box's Picard candidate became NaN under the continuous hold (a ValueError
     # from the interval function, a traceback): now that substep fails like any enclosure,
