@@ -23,22 +23,29 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["GROUP_NAMES", "compile_all", "ready", "prepare"]
+__all__ = ["GROUP_NAMES", "LATER", "compile_all", "ready", "prepare"]
 
-#: the groups of :data:`codev_engine.kernels.GROUPS`, each compiled in its own process
+#: the groups of :data:`codev_engine.kernels.GROUPS` prepared before the first command
+#: that computes, each compiled in its own process
 GROUP_NAMES: tuple[str, ...] = ("mp", "rest")
+#: the groups prepared when first needed (announced the same way): the C export's search
+#: tree (``deploy.bst``), 12 s of CPU that a first synthesis and verification never use
+LATER: tuple[str, ...] = ("export",)
 #: set in the compiling processes: their own stages must not prepare again (they are the
 #: preparation)
 _COMPILING = "CODEV_KERNELS_COMPILING"
 
 
 def compile_all(
-    *, python: str = sys.executable, on_done: Callable[[str, float], None] | None = None
+    *, python: str = sys.executable, on_done: Callable[[str, float], None] | None = None,
+    groups: tuple[str, ...] = GROUP_NAMES,
 ) -> dict[str, float]:
-    """Compile every group's kernels, each group in its own process at the same time.
+    """Compile the groups' kernels, each group in its own process at the same time.
 
     Parameters
     ----------
+    groups : tuple of str
+        Keys of :data:`codev_engine.kernels.GROUPS`; default :data:`GROUP_NAMES`.
     python : str
         The interpreter to run (this one by default).
     on_done : callable, optional
@@ -57,7 +64,7 @@ def compile_all(
     procs = {
         name: subprocess.Popen([python, "-m", "codev_engine.kernels", name], env=env,
                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        for name in GROUP_NAMES
+        for name in groups
     }
     done: dict[str, float] = {}
     tick = t0
@@ -91,8 +98,8 @@ _SOURCES = (
 )  # fmt: skip
 _STAMP = "codev-kernels-ready"
 _ROOT = Path(__file__).parent
-#: this process found the kernels ready, or prepared them (either way not asked again)
-_known_ready = False
+#: the groups this process found ready, or prepared (either way not asked again)
+_known_ready: set[tuple[str, ...]] = set()
 
 
 def _key() -> str:
@@ -111,6 +118,12 @@ def _key() -> str:
                      digest.hexdigest()[:16]))
 
 
+def _stamp_name(groups: tuple[str, ...]) -> str:
+    """The stamp of the first groups keeps its name (the checkouts and installations
+    prepared before the export's kernels were a group of their own)."""
+    return _STAMP if groups == GROUP_NAMES else "-".join((_STAMP, *groups))
+
+
 def _stamp_path() -> Path | None:
     """The stamp's file: in numba's cache folder of the LP kernel (the package's
     ``__pycache__``, ``$NUMBA_CACHE_DIR``'s or numba's user-wide one, as numba chose);
@@ -123,9 +136,15 @@ def _stamp_path() -> Path | None:
         return None
 
 
-def ready() -> bool:
+def ready(groups: tuple[str, ...] = GROUP_NAMES) -> bool:
     """True when this installation's kernels were compiled into numba's cache (a stamp
     written by :func:`prepare` says so).
+
+    Parameters
+    ----------
+    groups : tuple of str
+        Which groups: default those prepared before the first command that computes;
+        :data:`LATER` for the export's.
 
     A few milliseconds where numba caches beside the sources (the usual case: a
     writable installation, no ``$NUMBA_CACHE_DIR``); elsewhere numba is imported to ask
@@ -135,18 +154,19 @@ def ready() -> bool:
     -------
     bool
     """
-    global _known_ready
-    if _known_ready:
+    if groups in _known_ready:
         return True
-    _known_ready = _read_stamp()
-    return _known_ready
+    if _read_stamp(_stamp_name(groups)):
+        _known_ready.add(groups)
+        return True
+    return False
 
 
-def _read_stamp() -> bool:
-    """The stamp beside numba's cache holds this installation's key."""
+def _read_stamp(name: str) -> bool:
+    """The stamp ``name`` beside numba's cache holds this installation's key."""
     key = _key()
     # the usual folder first, read without importing numba
-    usual = _ROOT / "geometry" / "__pycache__" / _STAMP
+    usual = _ROOT / "geometry" / "__pycache__" / name
     candidates = [usual] if not os.environ.get("NUMBA_CACHE_DIR") else []
     for path in candidates:
         try:
@@ -156,16 +176,22 @@ def _read_stamp() -> bool:
             pass
     path = _stamp_path()
     try:
-        return path is not None and path.read_text(encoding="utf-8") == key
+        return path is not None and (path.parent / name).read_text(encoding="utf-8") == key
     except OSError:
         return False
 
 
-def prepare(announce: Callable[[str, bool], None] | None = None) -> float | None:
+def prepare(
+    announce: Callable[[str, bool], None] | None = None, *,
+    groups: tuple[str, ...] = GROUP_NAMES,
+) -> float | None:
     """Compile the kernels now, announced, unless :func:`ready`.
 
     Parameters
     ----------
+    groups : tuple of str
+        Default the groups every synthesis and verification needs; :data:`LATER` for the
+        export's (``deploy.bst`` asks for them when it first builds a tree).
     announce : callable, optional
         ``announce(line, lasting)`` receives the progress: ``"preparing the solver
         kernels, once ...: 0/2 ..."``, a line per group done and a last one with the time
@@ -177,13 +203,15 @@ def prepare(announce: Callable[[str, bool], None] | None = None) -> float | None
     float or None
         The wall seconds it took; None when the kernels were ready (nothing said or done).
     """
-    if os.environ.get(_COMPILING) or ready():  # (a compiling process is the preparation)
+    if os.environ.get(_COMPILING) or ready(groups):  # (a compiling process is the preparation)
         return None
     if announce is None:
         announce = _Announcer()
-    n = len(GROUP_NAMES)
+    n = len(groups)
     count = [0]
-    head = "preparing the solver kernels, once (about a minute, then cached)"
+    head = ("preparing the solver kernels, once (about a minute, then cached)"
+            if groups == GROUP_NAMES else
+            f"preparing the {'/'.join(groups)} kernels, once (about 15 s, then cached)")
     announce(f"{head}: 0/{n} ...", True)
 
     def on_done(name: str, seconds: float) -> None:
@@ -195,19 +223,18 @@ def prepare(announce: Callable[[str, bool], None] | None = None) -> float | None
             announce(f"{head}: {count[0]}/{n} ... {seconds:.0f} s", False)
 
     t0 = time.perf_counter()
-    done = compile_all(on_done=on_done)
+    done = compile_all(on_done=on_done, groups=groups)
     seconds = time.perf_counter() - t0
     if len(done) == n:
         path = _stamp_path()
         if path is not None:
             try:
-                path.write_text(_key(), encoding="utf-8")
+                (path.parent / _stamp_name(groups)).write_text(_key(), encoding="utf-8")
             except OSError:  # a read-only cache folder: numba then compiles in memory anyway
                 pass
     # not again in this process, stamped or not (a read-only cache folder: every later entry
     # point would start the compile again)
-    global _known_ready
-    _known_ready = True
+    _known_ready.add(groups)
     announce(f"solver kernels ready ({seconds:.0f} s; not again on this machine)", True)
     return seconds
 

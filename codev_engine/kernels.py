@@ -41,9 +41,9 @@ import numpy as np
 
 # the stamp, the processes and the announcement live below the pipeline, so that its entry
 # points can prepare too (re-exported here: the CLI's, the workbench's and the tests' name)
-from codev_engine.kernel_cache import GROUP_NAMES, compile_all, prepare, ready
+from codev_engine.kernel_cache import GROUP_NAMES, LATER, compile_all, prepare, ready
 
-__all__ = ["GROUPS", "compile_group", "compile_all", "ready", "prepare"]
+__all__ = ["GROUPS", "LATER", "compile_group", "compile_all", "ready", "prepare"]
 
 #: the bundled double integrator (``examples/double_integrator.toml``) without its
 #: verification (and a symmetric Q for norm 2): solved in a second
@@ -88,9 +88,7 @@ def _mp() -> None:
 
 
 def _rest() -> None:
-    """The mp-LP basis graph's kernel, the region boxes, the point locator and the export
-    tree's kernel."""
-    from codev_engine.deploy.export import export_c
+    """The mp-LP basis graph's kernel, the region boxes and the point locator."""
     from codev_engine.mp import mplp_graph
     from codev_engine.synthesis import synthesize
 
@@ -103,7 +101,23 @@ def _rest() -> None:
     lo, hi = law.boxes  # one compiled call (from geometry.locate.COMPILED_BOXES regions)
     rng = np.random.default_rng(0)
     law.evaluate(rng.uniform(lo.min(axis=0), hi.max(axis=0), size=(4096, law.n)))
+
+
+def _export() -> None:
+    """The C export's search tree kernels (``deploy/prune_kernel.py``): prepared when an
+    export first needs them, not with the others (12 s of CPU few newcomers use)."""
     import tempfile
+
+    from codev_engine.deploy.export import export_c
+    from codev_engine.mp import mplp_graph
+    from codev_engine.synthesis import synthesize
+
+    saved = mplp_graph.JIT_AFTER
+    mplp_graph.JIT_AFTER = 10**9  # the numpy path: this group compiles no mp-LP kernel
+    try:
+        law = synthesize(_design("inf", 8))  # 122 regions
+    finally:
+        mplp_graph.JIT_AFTER = saved
 
     with tempfile.TemporaryDirectory() as out:
         export_c(law, out, method="bst")
@@ -120,8 +134,8 @@ def _rest() -> None:
 
 
 #: group name -> what compiles it (each runs in its own process in ``compile_all``)
-GROUPS: dict[str, Callable[[], None]] = {"mp": _mp, "rest": _rest}
-assert tuple(GROUPS) == GROUP_NAMES  # kernel_cache starts a process per name
+GROUPS: dict[str, Callable[[], None]] = {"mp": _mp, "rest": _rest, "export": _export}
+assert tuple(GROUPS) == GROUP_NAMES + LATER  # kernel_cache starts a process per name
 
 
 def compile_group(name: str) -> float:
@@ -146,6 +160,10 @@ def _main(argv: list[str]) -> int:
     if argv == ["--prepare"]:  # make's set-up: announced, and nothing when ready
         prepare()
         return 0
+    if argv == ["--prepare-all"]:  # the export's kernels too (a Docker build, say)
+        prepare()
+        prepare(groups=LATER)
+        return 0
     names = argv or list(GROUPS)
     unknown = [n for n in names if n not in GROUPS]
     if unknown:
@@ -155,7 +173,7 @@ def _main(argv: list[str]) -> int:
     if len(names) == 1:
         print(f"{names[0]}: {compile_group(names[0]):.1f} s CPU")
         return 0
-    done = compile_all()
+    done = compile_all(groups=tuple(names))
     for name in names:
         print(f"{name}: " + (f"{done[name]:.1f} s" if name in done else "failed"))
     return 0 if len(done) == len(names) else 1
