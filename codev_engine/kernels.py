@@ -7,7 +7,7 @@ search tree of the C export (``deploy/prune_kernel.py``) are numba functions cac
 package's ``__pycache__``. A fresh install compiles each on first use: about a minute of CPU
 in all on a 2-core machine, paid by the first synthesis or verification that needs it. ::
 
-    python -m codev_engine.kernels            # every kernel, in two processes
+    python -m codev_engine.kernels            # every group, a process each
     python -m codev_engine.kernels mp         # one group
 
 compiles them ahead, by running each group's real code path once on a small design (the
@@ -26,7 +26,10 @@ were never compiled into numba's cache, says so and compiles them with its progr
 ("preparing the solver kernels, once: 1/2 ...") before any stage starts, so that no stage's
 time (a sweep's row included) is charged with it. A stamp beside numba's cache records the
 compile (:func:`ready`); it names the kernels' sources, numba and Python, so an upgrade or an
-edit prepares again. The engine's own entry points (``ce.sweep``, ``ce.synthesize``,
+edit prepares again. The C export's kernels (the group ``export``, 17 s of CPU) are not
+among them: they are prepared, announced the same way, when a search tree is first built
+(``deploy.bst``; ``codev export``), so the step before a first synthesis is shorter
+(``python -m codev_engine.kernels --prepare-all`` takes both steps). The engine's own entry points (``ce.sweep``, ``ce.synthesize``,
 ``ce.verify``, ``Session.run``) prepare the same way, so a notebook or a script meets the
 same announcement (:mod:`codev_engine.kernel_cache`, where ``ready`` and ``prepare`` live).
 """
