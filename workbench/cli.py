@@ -764,6 +764,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
     "long_horizon", "formulations", "sweep", "startup", "scale", "first_run", "on_demand",
+    "newcomer",
 )
 
 
