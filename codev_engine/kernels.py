@@ -29,9 +29,10 @@ compile (:func:`ready`); it names the kernels' sources, numba and Python, so an 
 edit prepares again. The C export's kernels (the group ``export``, 17 s of CPU) are not
 among them: they are prepared, announced the same way, when a search tree is first built
 (``deploy.bst``; ``codev export``), so the step before a first synthesis is shorter
-(``python -m codev_engine.kernels --prepare-all`` takes both steps). The engine's own entry points (``ce.sweep``, ``ce.synthesize``,
-``ce.verify``, ``Session.run``) prepare the same way, so a notebook or a script meets the
-same announcement (:mod:`codev_engine.kernel_cache`, where ``ready`` and ``prepare`` live).
+(``python -m codev_engine.kernels --prepare-all`` takes both steps). The engine's own entry
+points (``ce.sweep``, ``ce.synthesize``, ``ce.verify``, ``Session.run``) prepare the same
+way, so a notebook or a script meets the same announcement
+(:mod:`codev_engine.kernel_cache`, where ``ready`` and ``prepare`` live).
 """
 
 from __future__ import annotations
