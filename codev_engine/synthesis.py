@@ -11,6 +11,7 @@ import numpy as np
 from codev_engine.errors import SolverError
 from codev_engine.executor import Executor
 from codev_engine.formulation import parameter_names
+from codev_engine.kernel_cache import prepare
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
 from codev_engine.limits import check_time, limits, stage_deadline
 from codev_engine.mp.merge import merge_regions
@@ -234,6 +235,7 @@ def synthesize(
         weights span more than ``WEIGHT_SPREAD_LIMIT`` (:func:`weight_spread`; a failure
         with weights spanning more than 1e6 names them too).
     """
+    prepare()  # a fresh installation's kernels, announced, outside the law's seconds
     with stage_deadline():
         return _synthesize(problem, model, simplify, options, progress, executor)
 

@@ -56,13 +56,16 @@ def _progress(label: str, enabled: bool, unit: str = "regions") -> Iterator[Call
         on_event(label, "done", {"status": "done"})
 
 
-def _prepare_kernels() -> None:
+def _prepare_kernels(*, export: bool = False) -> None:
     """Compile the solver kernels now, announced on stderr, if this installation never did
     (once per machine: ``codev_engine.kernels.prepare``); called by the commands that
-    compute, once their input is read (a bad file is reported first)."""
-    from codev_engine.kernels import prepare
+    compute, once their input is read (a bad file is reported first). ``export``: the C
+    export's kernels too (prepared only when first needed)."""
+    from codev_engine.kernels import LATER, prepare
 
     prepare()
+    if export:
+        prepare(groups=LATER)
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:
@@ -762,6 +765,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 BENCHMARKS = (
     "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
     "long_horizon", "formulations", "sweep", "startup", "scale", "first_run", "on_demand",
+    "newcomer",
 )
 
 
@@ -991,7 +995,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
             raise SpecError(exc.reason, field="--name") from None
     note = None
     if Path(args.file).is_dir():
-        _prepare_kernels()  # (the region cache may grow: the mp-QP kernel)
+        _prepare_kernels(export=True)  # (the region cache may grow: the mp-QP kernel)
         obj, note = _operation_of(Path(args.file))
         tag = None
     else:
@@ -1000,7 +1004,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
             tag = text(data, "format") if "format" in data else ""
         except SpecError as exc:
             raise exc.with_file(str(args.file)) from None
-        _prepare_kernels()
+        _prepare_kernels(export=True)
     if tag is None:
         pass
     elif tag.startswith("codev-mp-solution/"):

@@ -541,6 +541,7 @@ def build_tree(
                 np.ascontiguousarray(H_b[hs] * sg + wid),
                 np.ascontiguousarray(H_b[hs] * sg - shrink))
 
+    _prepare_kernels()
     from codev_engine.deploy.prune_kernel import (
         both_counts,
         cell_points,
@@ -786,6 +787,7 @@ def _prune_members(leaves, An, be, off, H_A, H_b, box_lo, box_hi, xmax) -> None:
     duality (``lp_kernel.chebyshev``) is negative: the two are apart, whatever the LP's
     accuracy. On any doubt (an LP not solved) the member stays.
     """
+    _prepare_kernels()
     from codev_engine.deploy.prune_kernel import apart
 
     d = An.shape[1]
@@ -851,3 +853,11 @@ def sequential_tree(
         box_hi=None if box_hi is None else np.asarray(box_hi, dtype=float),
         row_off=np.asarray(off, dtype=np.int64),
     )
+
+
+def _prepare_kernels() -> None:
+    """The tree's compiled kernels, prepared (announced, once per installation) when a tree
+    first needs them: they are not among those prepared before the first command."""
+    from codev_engine.kernel_cache import LATER, prepare
+
+    prepare(groups=LATER)

@@ -44,6 +44,7 @@ from codev_engine.display import Displayable
 from codev_engine.errors import SolverError, SpecError
 from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
+from codev_engine.kernel_cache import prepare
 from codev_engine.law import ExplicitLaw
 from codev_engine.limits import DeadlineReached, heartbeat, stage_deadline, stoppable, time_over
 from codev_engine.limits import budget as time_budget
@@ -522,6 +523,7 @@ def verify(
     if budget is None and problem.verify is not None:
         budget = problem.verify.time_budget
     # CODEV_LIMITS=time=... and the budget: checked at each branch period
+    prepare()  # a fresh installation's kernels, announced, before the stage's clocks start
     with stage_deadline(), time_budget(budget), heartbeat(progress) as beating:
         return _verify(problem, law, hold, max_depth, beating, executor, cells)
 

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 from codev_engine.errors import CodevError
 from codev_engine.io.atomic import atomic_path
+from codev_engine.kernel_cache import prepare
 from codev_engine.session import store
 from codev_engine.session.keys import stage_keys
 from codev_engine.session.options import DEFAULT_OPTIONS, RunOptions
@@ -306,6 +307,7 @@ class Session:
             (the spec's plant not linearisable, its MPC infeasible) for a stage not cached.
         """
         options.check(stages=self.table.names)
+        prepare()  # a fresh installation's kernels, announced, before any stage's clock
         t_run = time.perf_counter()
         emit = on_event or (lambda _s, _e, _d: None)
         say = warn or (lambda _m: None)

@@ -27,6 +27,7 @@ from typing import Any
 
 from codev_engine.executor import Executor
 from codev_engine.io.toml import dumps_toml
+from codev_engine.kernel_cache import prepare
 from codev_engine.sweeps.grid import (
     _value_rows,
     design_cost,
@@ -137,6 +138,9 @@ def sweep(
         # in this process: the current design itself polls (a callable cannot travel to a
         # worker; there the executor polls while it waits)
         calls = [(*call, interrupt) for call in calls]
+    # a fresh installation's kernels, announced, before the first design: no row's time
+    # holds the compile (nor do the workers each compile them)
+    prepare()
     started, t0 = _now(), time.perf_counter()
     done = dict(zip(unique, executor.map(
         design_row, calls, on_result=on_result, cost=[cost_of[text] for text in unique],

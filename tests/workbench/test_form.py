@@ -99,6 +99,24 @@ def test_empty_optional_entries_take_the_engine_defaults():
     assert p.mpc.domain_bound == 100.0
 
 
+def test_a_blank_form_with_only_the_required_entries_is_a_valid_spec():
+    """A newcomer's form (issue 41): the plant, the sample time and the verification's
+    required entries typed, every MPC entry left at its default. The loader requires the
+    [mpc] section, so the form writes it even empty (before, the status said "fix mpc"
+    with no entry to fix)."""
+    values = {fd.name: "" for fd in FIELDS}
+    values.update({
+        "name": "msd", "plant.states": "p, v", "plant.inputs": "u",
+        "plant.dynamics": "v\n-2*p - 0.5*v + u", "model.sample_time": "0.2",
+        "verify.time_horizon": "3", "verify.initial_set.lower": "-0.5, -0.5",
+        "verify.initial_set.upper": "0.5, 0.5",
+    })
+    chk = check_form(values, with_verify=True)
+    assert chk.ok, (chk.errors, chk.general)
+    assert "[mpc]" in chk.text
+    assert chk.problem.mpc.horizon == 5 and chk.problem.mpc.norm == "2"
+
+
 # --------------------------------------------------------------------------------------------
 # Matlab-style entries
 # --------------------------------------------------------------------------------------------

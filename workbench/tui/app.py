@@ -989,6 +989,11 @@ class CodevApp(App):
         # named after the design, made a prefix export_c accepts (no keyword, header...)
         name = prefix_for(str(law.meta.get("problem", "")))
         pane = self.query_one(SynthesisPane)
+        from codev_engine.kernel_cache import LATER, ready
+
+        if not ready(LATER):  # the tree's kernels, once: said here (stderr is not seen)
+            self.call_from_thread(
+                self.notify, "preparing the C export's kernels, once (about 15 s, then cached)")
         try:
             h, c = export_c(law, dest, name=name)
         except (CodevError, OSError, ValueError) as exc:

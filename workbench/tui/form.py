@@ -705,8 +705,10 @@ def compose(values: dict[str, str], *, with_verify: bool = True) -> tuple[str, d
         lines.append(f"name = {tree.pop('name')}")
     for section in SECTIONS:
         if section not in tree:
-            if section == "verify" and with_verify:
-                lines += ["", "[verify]"]
+            # an MPC left at its defaults is still a section the loader requires (a
+            # newcomer's blank form otherwise stopped at "fix mpc" with no field marked)
+            if section == "mpc" or (section == "verify" and with_verify):
+                lines += ["", f"[{section}]"]
             continue
         lines += ["", f"[{section}]"]
         for k, v in tree[section].items():
