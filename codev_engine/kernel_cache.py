@@ -140,15 +140,15 @@ def ready(groups: tuple[str, ...] = GROUP_NAMES) -> bool:
     """True when this installation's kernels were compiled into numba's cache (a stamp
     written by :func:`prepare` says so).
 
+    A few milliseconds where numba caches beside the sources (the usual case: a
+    writable installation, no ``$NUMBA_CACHE_DIR``); elsewhere numba is imported to ask
+    where its cache is (about a second).
+
     Parameters
     ----------
     groups : tuple of str
         Which groups: default those prepared before the first command that computes;
         :data:`LATER` for the export's.
-
-    A few milliseconds where numba caches beside the sources (the usual case: a
-    writable installation, no ``$NUMBA_CACHE_DIR``); elsewhere numba is imported to ask
-    where its cache is (about a second).
 
     Returns
     -------

@@ -797,7 +797,8 @@ def explore_active_sets(
 
             compiled = False  # (its regions come back sorted: below, as the numpy walk's)
             regions = sharded_walk(kernel, opposite, explored, stack, regions, stats,
-                                   executor, max_regions, progress)
+                                   executor, max_regions, progress,
+                                   walk_class=_CompiledWalk, warm=_warm_worker)
         elif compiled:
             walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
             walk.run(nworkers, max_regions, progress, executor if remote_ok else None)

@@ -148,12 +148,11 @@ class _Shard:
     active sets (and, as a cache, the others' keys it has sent) and its frontier."""
 
     def __init__(self, shared: tuple, j: int, n: int, directory: str):
-        from codev_engine.mp.mpqp import _CompiledWalk
-
-        self.args, opposite, kernel = shared
+        # (the walk's class comes with the shared data: mpqp imports this module)
+        self.args, opposite, kernel, walk_class = shared
         self.j, self.n, self.dir = j, n, Path(directory)
         self.stats: dict = {}
-        self.walk = _CompiledWalk(kernel, opposite, set(), [], [], self.stats)
+        self.walk = walk_class(kernel, opposite, set(), [], [], self.stats)
         self.graph = self.walk.graph
         self.found = 0  # regions written so far
         self.seeded: list[np.ndarray] = []  # keys given at the start, written in round 0
@@ -349,7 +348,8 @@ def read_shards(directory: str | os.PathLike) -> RegionArrays:
 
 def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: list,
                  stats: dict, executor, max_regions: int, progress=None,
-                 directory: str | None = None, budget: int | None = None) -> RegionArrays:
+                 directory: str | None = None, budget: int | None = None, *,
+                 walk_class: type, warm) -> RegionArrays:
     """The rest of an mp-QP search (``mpqp.explore_active_sets`` once the compiled kernel
     runs), sharded across the executor's workers.
 
@@ -381,6 +381,11 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         directory, removed at the end.
     budget : int, optional
         Candidates a shard evaluates per round at most (default ``BUDGET``).
+    walk_class : type
+        ``mpqp._CompiledWalk``, the walk each shard runs (given, not imported: mpqp
+        imports this module, and the import graph has no circles).
+    warm : callable
+        ``mpqp._warm_worker``, run once on every worker before the first round.
 
     Returns
     -------
@@ -390,7 +395,6 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     import copy
 
     from codev_engine.mp.active_sets import ActiveSetGraph
-    from codev_engine.mp.mpqp import _warm_worker
 
     cpu0 = time.process_time()
     budget = BUDGET if budget is None else int(budget)
@@ -403,9 +407,9 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     directory = tempfile.mkdtemp(prefix="codev-shards-") if own_dir else str(directory)
     numpy_kernel = copy.copy(kernel)
     numpy_kernel._jit = None
-    shared = client.scatter([(kernel._jit_args, opposite, numpy_kernel)], broadcast=True,
-                            hash=False)[0]
-    client.run(_warm_worker, kernel._jit_args)
+    shared = client.scatter([(kernel._jit_args, opposite, numpy_kernel, walk_class)],
+                            broadcast=True, hash=False)[0]
+    client.run(warm, kernel._jit_args)
     # the seeds, each to its shard
     g = ActiveSetGraph(kernel.m, kernel.nz, np.zeros((kernel.m, kernel.m), bool), kernel.box[0])
     def keyed(sets: list) -> np.ndarray:
