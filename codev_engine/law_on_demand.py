@@ -24,6 +24,7 @@ from codev_engine.geometry.locate import PointLocator
 from codev_engine.geometry.polytope import box_halfspaces
 from codev_engine.io.npz import NpzFormat, array, load_npz, save_npz, text
 from codev_engine.mp.on_demand import OnDemandRegions
+from codev_engine.mp.on_demand_lp import OnDemandBases
 from codev_engine.mp.solve import SolveOptions
 from codev_engine.mpc import build_program
 from codev_engine.plant import LinearModel, discretize
@@ -93,15 +94,10 @@ class OnDemandLaw:
     ):
         model = model if model is not None else discretize(problem)
         mp = build_program(problem.mpc, model)
-        if mp.spec.norm != "2":
-            raise SpecError(
-                f"regions = \"reached\" computes the regions of a 2-norm MPC (an mp-QP) "
-                f"only; this design has norm = \"{mp.spec.norm}\" (an mp-LP): use "
-                "regions = \"all\"",
-                field="synthesis.regions",
-            )
         try:
-            self._solver = OnDemandRegions(mp.program, options)
+            # norms 1 and inf: the basis graph of the mp-LP (mp.on_demand_lp)
+            walk = OnDemandRegions if mp.spec.norm == "2" else OnDemandBases
+            self._solver = walk(mp.program, options)
         except SolverError as exc:
             raise SpecError(str(exc), field="synthesis.regions") from None
         self._mp = mp
