@@ -402,7 +402,7 @@ class OnDemandBases(OnDemandRegions):
                     raise SpecError("a region's law is not its basis's", field="reg_K")
         except _NotExactError:
             raise SpecError("a basis without a region", field="acts") from None
-        self.stats["candidates"] = k
+        self.stats["candidates"] = 0  # (checks of the cache, not the walk's)
         self._numpy_bases = numpy_bases
         self._replayed = bool(flags[0])
         if flags[1] and s.jit is None:
