@@ -7,7 +7,8 @@ regions computed so far: asked for the regions meeting a box, it computes the mi
 by the restricted walk of ``mp.on_demand`` (the full search's graph and kernel, so each
 region has the full law's rows and law). Regions are appended, never reordered: an index
 once returned stays valid while the law grows. In plant coordinates, as ``ExplicitLaw``
-(``law_from_solution``'s mapping). Norm 2 only (an mp-QP); see issue 39.
+(``law_from_solution``'s mapping). Norm 2 (an mp-QP, ``mp.on_demand``) and norms 1 and inf
+(an mp-LP, ``mp.on_demand_lp``); see issue 39.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ class OnDemandLaw:
     Parameters
     ----------
     problem : Problem
-        A design with ``norm = "2"`` (a strictly convex mp-QP).
+        A design (norm 2: a strictly convex mp-QP; norms 1 and inf: an mp-LP).
     model : LinearModel, optional
         A discrete model to use instead of discretising ``problem``.
     options : SolveOptions, optional
@@ -61,8 +62,8 @@ class OnDemandLaw:
     Raises
     ------
     SpecError
-        For norms 1 and inf, or an mp-QP with a singular Hessian (field
-        ``synthesis.regions``): their regions are not computed on demand yet.
+        For an mp-QP with a singular Hessian, or an mp-LP whose cost depends on the
+        parameter (field ``synthesis.regions``): not computed on demand.
 
     Attributes
     ----------
