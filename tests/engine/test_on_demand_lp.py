@@ -32,14 +32,14 @@ from tests.engine.test_on_demand import _meets, _random_spec
 FAST = ["double_integrator.toml", "cruise_control.toml", "cruise_grade.toml",
         "magnetic_pointer_a.toml"]
 SLOW = ["cruise_loaded.toml", "magnetic_pointer_b.toml", "magnetic_pointer_c.toml",
-        "navigation.toml"]
+        "navigation.toml", "vanderpol.toml"]  # (vanderpol: a nonlinear plant)
 
 
-def _same_verification(problem) -> None:
+def _same_verification(problem, hold: str | None = None) -> None:
     law = ce.synthesize(problem, simplify=False)  # (merged regions are no basis's region)
-    full = ce.verify(problem, law)
+    full = ce.verify(problem, law, hold=hold)
     od = OnDemandLaw(problem)
-    mine = ce.verify(problem, od)
+    mine = ce.verify(problem, od, hold=hold)
     assert law.meta["stats"]["mplp"] == "bases"
     assert mine.verdict == full.verdict and mine.reason == full.reason
     assert np.array_equal(mine.tube.t_start, full.tube.t_start)
@@ -93,6 +93,12 @@ def test_bundled_mplp_examples_verify_the_same_on_demand(name):
 @pytest.mark.parametrize("name", SLOW)
 def test_bundled_mplp_examples_verify_the_same_on_demand_slow(name):
     _same_verification(load_spec(EXAMPLES / name))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["double_integrator.toml", "vanderpol.toml"])
+def test_bundled_mplp_examples_verify_the_same_on_demand_continuous_hold(name):
+    _same_verification(load_spec(EXAMPLES / name), hold="continuous")
 
 
 @pytest.mark.parametrize("seed,norm,unsafe", [(0, "inf", False), (1, "1", True)])
