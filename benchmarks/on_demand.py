@@ -7,6 +7,8 @@ Usage::
 
 Cases: ``examples`` (the bundled 2-norm linear examples ``double_integrator_lqr``,
 ``mass_spring_soft``, ``two_carts_mixed``, ``dc_motor_servo``, full law and on demand),
+``examples-lp`` (the bundled norm-1 and norm-inf examples, the same; their full laws
+unmerged, whatever ``mpc.simplify`` says, so that the tubes compare),
 ``chain6``, ``chain8``, ``chain10`` (chains of integrators: ``tests/engine/test_mpqp_chain.py``'s
 spec, N = 4, from a box of 1 % of the state range over ``--horizon`` seconds, 2.5 by
 default: over 5 s the loop leaves the MPC's feasible set at 3 s, the design's verdict),
@@ -40,6 +42,9 @@ from codev_engine.law_on_demand import OnDemandLaw
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # (the chain's spec is the test suite's)
 EXAMPLES = ["double_integrator_lqr", "mass_spring_soft", "two_carts_mixed", "dc_motor_servo"]
+#: the bundled norm-1 / norm-inf examples (mp-LPs: the basis walk, ``mp/on_demand_lp.py``)
+EXAMPLES_LP = ["double_integrator", "cruise_control", "cruise_grade", "cruise_loaded",
+               "magnetic_pointer_a", "magnetic_pointer_b", "magnetic_pointer_c", "navigation"]
 
 
 def _vec(v) -> str:
@@ -178,7 +183,8 @@ def run(problem: ce.Problem, how: str, cache: Path | None = None) -> dict:
     CPU seconds of this process; ``peak_mb`` the process's peak resident memory so far)."""
     t0, c0 = time.perf_counter(), time.process_time()
     if how == "all":
-        law = ce.synthesize(problem)
+        # (an mp-LP's merged regions are no basis's: unmerged, the tubes compare)
+        law = ce.synthesize(problem, simplify=None if problem.mpc.norm == "2" else False)
     elif how == "cached":
         law = OnDemandLaw.load(cache, problem)
     else:
@@ -211,20 +217,21 @@ def _same(a: dict, b: dict) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="*", default=["examples", "chain8"],
-                    help=f"examples, or any of {', '.join(CASES)} (default: examples chain8)")
+                    help=f"examples, examples-lp, or any of {', '.join(CASES)} "
+                    "(default: examples chain8)")
     ap.add_argument("--full", action="store_true",
                     help="also synthesise the cases' whole laws (minutes to hours)")
     ap.add_argument("--horizon", type=float, default=2.5,
                     help="the chains' verification horizon in seconds (default 2.5)")
     args = ap.parse_args()
     for c in args.cases:
-        if c != "examples" and c not in CASES:
+        if c not in ("examples", "examples-lp") and c not in CASES:
             ap.error(f"unknown case {c!r}")
     print(f"{'case':<24} {'regions':<8} {'computed':>8} {'law s':>9} {'verify s':>9} "
           f"{'wall s':>9} {'cpu s':>9} {'peak MB':>8}  {'verdict':<28} tube")
     for c in args.cases:
-        if c == "examples":
-            for name in EXAMPLES:
+        if c in ("examples", "examples-lp"):
+            for name in EXAMPLES if c == "examples" else EXAMPLES_LP:
                 problem = ce.load_spec(ROOT / "examples" / f"{name}.toml")
                 full, mine = run(problem, "all"), run(problem, "reached")
                 _row(name, "all", full)

@@ -7,7 +7,8 @@ regions computed so far: asked for the regions meeting a box, it computes the mi
 by the restricted walk of ``mp.on_demand`` (the full search's graph and kernel, so each
 region has the full law's rows and law). Regions are appended, never reordered: an index
 once returned stays valid while the law grows. In plant coordinates, as ``ExplicitLaw``
-(``law_from_solution``'s mapping). Norm 2 only (an mp-QP); see issue 39.
+(``law_from_solution``'s mapping). Norm 2 (an mp-QP, ``mp.on_demand``) and norms 1 and inf
+(an mp-LP, ``mp.on_demand_lp``); see issue 39.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from codev_engine.geometry.locate import PointLocator
 from codev_engine.geometry.polytope import box_halfspaces
 from codev_engine.io.npz import NpzFormat, array, load_npz, save_npz, text
 from codev_engine.mp.on_demand import OnDemandRegions
+from codev_engine.mp.on_demand_lp import OnDemandBases
 from codev_engine.mp.solve import SolveOptions
 from codev_engine.mpc import build_program
 from codev_engine.plant import LinearModel, discretize
@@ -51,7 +53,7 @@ class OnDemandLaw:
     Parameters
     ----------
     problem : Problem
-        A design with ``norm = "2"`` (a strictly convex mp-QP).
+        A design (norm 2: a strictly convex mp-QP; norms 1 and inf: an mp-LP).
     model : LinearModel, optional
         A discrete model to use instead of discretising ``problem``.
     options : SolveOptions, optional
@@ -60,8 +62,8 @@ class OnDemandLaw:
     Raises
     ------
     SpecError
-        For norms 1 and inf, or an mp-QP with a singular Hessian (field
-        ``synthesis.regions``): their regions are not computed on demand yet.
+        For an mp-QP with a singular Hessian, or an mp-LP whose cost depends on the
+        parameter (field ``synthesis.regions``): not computed on demand.
 
     Attributes
     ----------
@@ -93,15 +95,10 @@ class OnDemandLaw:
     ):
         model = model if model is not None else discretize(problem)
         mp = build_program(problem.mpc, model)
-        if mp.spec.norm != "2":
-            raise SpecError(
-                f"regions = \"reached\" computes the regions of a 2-norm MPC (an mp-QP) "
-                f"only; this design has norm = \"{mp.spec.norm}\" (an mp-LP): use "
-                "regions = \"all\"",
-                field="synthesis.regions",
-            )
         try:
-            self._solver = OnDemandRegions(mp.program, options)
+            # norms 1 and inf: the basis graph of the mp-LP (mp.on_demand_lp)
+            walk = OnDemandRegions if mp.spec.norm == "2" else OnDemandBases
+            self._solver = walk(mp.program, options)
         except SolverError as exc:
             raise SpecError(str(exc), field="synthesis.regions") from None
         self._mp = mp

@@ -248,8 +248,9 @@ REACHED_HINT = ("a verification can run on the critical regions its reach sets m
 
 
 def _walked_on_demand(mp: MpcProgram) -> bool:
-    """The regions of this MPC can be computed on demand (``mp.on_demand``: an mp-QP)."""
-    return mp.spec.norm == "2"
+    """The regions of this MPC can be computed on demand: an mp-QP (``mp.on_demand``) or
+    an mp-LP (norms 1 and inf, ``mp.on_demand_lp``)."""
+    return mp.spec.norm in ("1", "2", "inf")
 
 
 def _synthesize(problem, model, simplify, options, progress, executor) -> ExplicitLaw:

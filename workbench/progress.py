@@ -42,7 +42,8 @@ def describe(data: dict, unit: str) -> str:
     ----------
     data : dict
         The event's data: ``count`` and, for verification, ``samples`` (the sample reached),
-        ``boxes`` (reachtube boxes so far) and ``doing`` (what a long step is doing).
+        ``boxes`` (reachtube boxes so far), ``regions`` (the regions a law on demand has
+        computed so far) and ``doing`` (what a long step is doing).
     unit : str
         What ``count`` counts.
 
@@ -55,6 +56,8 @@ def describe(data: dict, unit: str) -> str:
         words.append(f"sample {data['samples']:,}")
     if data.get("boxes") is not None:
         words.append(f"{data['boxes']:,} boxes")
+    if data.get("regions") is not None:  # (a law on demand: regions computed so far)
+        words.append(f"{data['regions']:,} regions computed")
     if data.get("doing"):  # the engine's heartbeat in a long step (limits.beat)
         words.append(str(data["doing"]))
     return ", ".join(words)

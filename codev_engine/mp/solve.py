@@ -263,7 +263,11 @@ def _solve_mplp(
             )
             if found is not None:
                 stats["mplp"] = "bases"
-                return found
+                # ascending by basis, as the mp-QP's regions by active set: the order of the
+                # regions a set meets does not depend on where the search started, so the
+                # walk on demand (mp.on_demand_lp) hands a reach set's children over in the
+                # full law's order (the tube under disturbances depends on it)
+                return sorted(found, key=lambda reg: reg.active)
             if opts.mplp == "bases":
                 raise SolverError(f"the basis graph is not exact here: {stats['graph_fallback']}")
     stats["mplp"] = "facets"

@@ -45,7 +45,8 @@ __all__ = ["EventCallback", "Session"]
 
 #: ``on_event(stage, event, data)``: ``event`` is "start", "progress" (``data["count"]``:
 #: regions found / branches explored; for verification also ``samples``, the sample
-#: reached, and ``boxes``, the reachtube's boxes so far, when known) or "done" (``data``:
+#: reached, ``boxes``, the reachtube's boxes so far, when known, and ``regions``, the
+#: critical regions computed so far by a law on demand, else None) or "done" (``data``:
 #: the StageReport as a dict).
 EventCallback = Callable[[str, str, dict], None]
 

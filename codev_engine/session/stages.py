@@ -364,14 +364,18 @@ def _verification_inputs(
 def _verification_compute(run: StageRun) -> Any:
     from codev_engine.reach.verification import verify
 
+    law = run.upstream["synthesis"]
+    # a law on demand grows during the verification: its regions computed so far go with
+    # each progress event (the TUI shows them live), None for a full law
+    on_demand = getattr(law, "on_demand", False)
     result = verify(
         run.problem,
-        run.upstream["synthesis"],
+        law,
         hold=run.options.hold,
         max_depth=run.options.max_depth,
         progress=lambda st: run.progress(
             st.get("branches", 0), samples=st.get("samples"), boxes=st.get("boxes"),
-            doing=st.get("doing"),
+            doing=st.get("doing"), regions=law.num_regions if on_demand else None,
         ),
         executor=run.executor,
     )

@@ -7,7 +7,7 @@ set asked about, and a verification on it gives the full law's verdict and tube.
 - random boxes and polytopes in the parameter space: every region of the full solution that
   meets the set is returned (by active set), and random points of the set are located in
   the returned regions with the online optimum's input;
-- what is refused, and how (norms 1 and inf);
+- norms 1 and inf are walked too (their tests: ``test_on_demand_lp.py``);
 - the spec field ``[synthesis] regions`` and the CLI's ``--regions``.
 """
 
@@ -270,9 +270,10 @@ def test_locate_and_evaluate_agree_with_the_full_law():
     assert np.allclose(U, V, equal_nan=True, atol=1e-9)
 
 
-def test_what_is_refused_says_so():
-    with pytest.raises(SpecError, match="norm = \"inf\""):
-        OnDemandLaw(load_spec(EXAMPLES / "double_integrator.toml"))
+def test_norms_1_and_inf_are_walked_too():
+    # (norm inf: an mp-LP, walked on its basis graph; tests/engine/test_on_demand_lp.py)
+    od = OnDemandLaw(load_spec(EXAMPLES / "double_integrator.toml"))
+    assert od.meta["norm"] == "inf" and od.num_regions == 0
 
 
 def test_spec_field_and_cli_flag(tmp_path, capsys):

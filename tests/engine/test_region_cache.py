@@ -132,14 +132,20 @@ def test_cli_session_with_regions_reached(tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1
 
 
-def test_a_session_refuses_what_is_not_verified_on_demand_before_writing(tmp_path):
+@pytest.mark.slow
+def test_a_session_of_an_mplp_reuses_its_cache(tmp_path):
+    from codev_engine.session import RunOptions
+
     text = (EXAMPLES / "double_integrator.toml").read_text()  # (norm inf: an mp-LP)
     spec = tmp_path / "di.toml"
     spec.write_text(text + '\n[synthesis]\nregions = "reached"\n')
+    problem = load_spec(spec)
     session = Session.create(tmp_path / "s")
-    with pytest.raises(SpecError, match="synthesis.regions: .*norm = \"inf\""):
-        session.run(load_spec(spec))
-    assert session.journal() == [] and not (tmp_path / "s" / "spec.toml").exists()
+    first = session.run(problem, RunOptions(upto="verification"))
+    again = session.run(problem, RunOptions(upto="verification", max_depth=3))
+    assert [s.status for s in again.stages] == ["cached", "cached", "computed"]
+    assert again.law.stats["candidates"] == 0
+    assert again.law.num_regions >= first.law.num_regions > 0
 
 
 def test_a_law_past_its_region_limit_suggests_regions_reached():
@@ -148,11 +154,10 @@ def test_a_law_past_its_region_limit_suggests_regions_reached():
 
     with pytest.raises(SolverError, match=r"stopped past 5 critical.*--regions reached"):
         ce.synthesize(load_spec(LQR), options=SolveOptions(max_regions=5))
-    # (norm inf: an mp-LP, not computed on demand, so not suggested)
-    with pytest.raises(SolverError) as info:
+    # (norm inf: an mp-LP, computed on demand too)
+    with pytest.raises(SolverError, match=r"stopped past 5 critical.*--regions reached"):
         ce.synthesize(load_spec(EXAMPLES / "double_integrator.toml"),
                       options=SolveOptions(max_regions=5))
-    assert "reached" not in str(info.value)
 
 
 def test_a_long_full_synthesis_suggests_regions_reached_once(monkeypatch, capsys):
@@ -163,9 +168,9 @@ def test_a_long_full_synthesis_suggests_regions_reached_once(monkeypatch, capsys
     assert cli.main(["verify", str(LQR)]) == 0
     err = capsys.readouterr().err
     assert err.count("--regions reached") == 1 and "critical regions after" in err
-    # (norm inf: not suggested)
+    # (norm inf: suggested too)
     cli.main(["verify", str(EXAMPLES / "double_integrator.toml")])
-    assert "--regions reached" not in capsys.readouterr().err
+    assert capsys.readouterr().err.count("--regions reached") == 1
 
 
 def test_pictures_say_the_regions_are_those_reached(grown):

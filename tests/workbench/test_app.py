@@ -365,3 +365,35 @@ def test_synthesis_tab_exports_the_law_as_c(di_session, tmp_path):
             capture_output=True, text=True,
         )
         assert run.returncode == 0, run.stderr
+
+
+def test_regions_computed_so_far_are_shown_live(di_session):
+    """Issue 39: while a verification runs on a law on demand (regions = "reached"), both
+    the synthesis and the verification tabs show the regions computed so far (the
+    verification's progress events carry them; the 10 Hz tick shows the last)."""
+    import time
+
+    from workbench.tui.panes.synthesis import SynthesisPane
+    from workbench.tui.panes.verification import VerificationPane
+
+    app = CodevApp(di_session)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            app.busy = "verification"
+            app.query_one(SynthesisPane).show_busy("verification")
+            app.query_one(VerificationPane).show_busy("verification")
+            app.progress = ("verification", 7, time.perf_counter())
+            app.regions_known = 1234
+            app._tick()
+            await pilot.pause()
+            assert "1234 regions computed so far" in text_of(app, "#verify-status")
+            assert "1234 regions computed so far" in text_of(app, "#synth-status")
+            app.regions_known = None  # (a full law: no such words)
+            app._tick()
+            await pilot.pause()
+            assert "regions computed" not in text_of(app, "#verify-status")
+            app.busy = None
+
+    run(scenario())

@@ -57,3 +57,22 @@ def test_describe_names_counts_samples_and_boxes():
     assert progress.describe({"count": 1234}, "regions") == "1,234 regions"
     text = progress.describe({"count": 8, "samples": 12, "boxes": 4000}, "branches")
     assert text == "8 branches, sample 12, 4,000 boxes"
+    text = progress.describe({"count": 8, "samples": 2, "regions": 1500}, "branches")
+    assert text == "8 branches, sample 2, 1,500 regions computed"
+
+
+def test_verification_on_demand_reports_the_regions_computed_so_far(tmp_path):
+    # (issue 39: the TUI's and the command line's progress show them live)
+    from codev_engine.pipeline import loads_spec
+    from codev_engine.session import RunOptions, Session
+    from tests.engine.test_on_demand import _random_spec
+
+    problem = loads_spec(_random_spec(0) + '\n[synthesis]\nregions = "reached"\n',
+                         check_mpc=False)
+    seen: list[dict] = []
+    Session.create(tmp_path / "s").run(
+        problem, RunOptions(upto="verification"),
+        on_event=lambda stage, event, data: seen.append(data)
+        if (stage, event) == ("verification", "progress") else None)
+    regions = [d["regions"] for d in seen]
+    assert regions and regions == sorted(regions) and regions[-1] > 0

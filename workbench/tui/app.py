@@ -238,6 +238,9 @@ class CodevApp(App):
         self.busy: str | None = None
         self.progress: tuple[str, int, float] | None = None  # (stage, count, started)
         self.doing: str | None = None  # what the running stage's long step is doing
+        #: the critical regions a law on demand has computed so far (regions = "reached"),
+        #: from the verification's progress events; None otherwise
+        self.regions_known: int | None = None
         self._cancel = threading.Event()
         self._check_timer: Any = None
         # the model key of the plant report shown or being derived
@@ -579,6 +582,7 @@ class CodevApp(App):
                 raise RunCancelledError
             if event == "start":
                 self.progress, self.doing = (stage, 0, time.perf_counter()), None
+                self.regions_known = None
             elif event == "progress":
                 p = self.progress
                 self.progress = (
@@ -587,6 +591,7 @@ class CodevApp(App):
                     p[2] if p else time.perf_counter(),
                 )
                 self.doing = data.get("doing")  # a long step's heartbeat (limits.beat)
+                self.regions_known = data.get("regions")
 
         warnings: list[str] = []
         try:
@@ -817,6 +822,8 @@ class CodevApp(App):
         elapsed = time.perf_counter() - started
         unit = {"synthesis": "regions", "verification": "branches"}.get(stage, "")
         doing = f" · {self.doing}" if self.doing else ""
+        if self.regions_known is not None:  # (regions = "reached": the law grows as it runs)
+            doing = f" · {self.regions_known} regions computed so far{doing}"
         text = (f"{stage}: {count} {unit}{doing} · {elapsed:.1f} s · Esc cancels"
                 .replace("  ", " "))
         self.query_one(SynthesisPane).show_progress(stage, text)
