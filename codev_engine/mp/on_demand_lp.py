@@ -348,7 +348,13 @@ class OnDemandBases(OnDemandRegions):
         """Take over the regions written by :meth:`state` (checked; ``SpecError`` names the
         array that does not fit). The facet data of each region (its parameter-set rows,
         facet centres) are recomputed from its basis, and its rows must come out the same:
-        a cache is never half trusted."""
+        a cache is never half trusted.
+
+        Parameters
+        ----------
+        st : dict of str to numpy.ndarray
+            The arrays :meth:`state` wrote (read back from the region cache).
+        """
         red = self._red
         d, nz, ncons, nw = red.At.shape[1], red.Z1.shape[0], red.G.shape[0], red.G.shape[1]
         k = st["reg_len"].shape[0]
