@@ -38,11 +38,11 @@ from codev_engine.geometry.polytope import (
 )
 from codev_engine.mp.mpqp import JIT_AFTER, _active_set_at, _Kernel, dependent_rows
 from codev_engine.mp.program import MpProgram
-from codev_engine.mp.reduce import lifted, parameter_box, reduce_program, start_point
+from codev_engine.mp.reduce import Reduced, lifted, parameter_box, reduce_program, start_point
 from codev_engine.mp.solution import CriticalRegion
 from codev_engine.mp.solve import SolveOptions
 
-__all__ = ["OnDemandRegions"]
+__all__ = ["OnDemandRegions", "lifted_centre"]
 
 #: the kinds of a candidate in the walk's cache, as :meth:`OnDemandRegions.state` numbers them
 _KINDS = ("full", "lower", "empty", "licq")
@@ -57,6 +57,44 @@ MEET_TOL = 1e-6
 REPLAY_CANDIDATES = 2500
 #: the same for a lower-dimensional optimal set (its rows as the kernel writes them)
 LOWER_TOL = 1e-6
+
+
+def lifted_centre(red: Reduced, lifted_rows: tuple[np.ndarray, np.ndarray], A: np.ndarray,
+                  b: np.ndarray, scale: float) -> tuple[np.ndarray, float] | None:
+    """The Chebyshev centre of the set ``{theta : A theta <= b}`` inside the feasible set,
+    found in the lifted space ``(w, theta)`` of the reduced program (its radius at most
+    ``scale``): where a walk on demand starts (the mp-QP's and the mp-LP's alike).
+
+    Parameters
+    ----------
+    red : Reduced
+        The reduced program (``G``, ``S``, ``At``).
+    lifted_rows : tuple of ndarray
+        ``reduce.lifted(red)``: the feasible set's rows over ``(w, theta)``.
+    A : (p, d) ndarray
+    b : (p,) ndarray
+    scale : float
+
+    Returns
+    -------
+    tuple of ((d,) ndarray, float) or None
+        The centre in ``theta`` and its radius (>= 0); None when the set misses the
+        feasible set.
+    """
+    nw, d = red.G.shape[1], A.shape[1]
+    LA, Lb = lifted_rows
+    rows = np.vstack([LA, np.hstack([np.zeros((A.shape[0], nw)), A])])
+    rhs = np.concatenate([Lb, b])
+    norms = np.concatenate([np.linalg.norm(red.S, axis=1), np.linalg.norm(red.At, axis=1),
+                            np.ones(A.shape[0])])
+    f = np.zeros(nw + d + 1)
+    f[-1] = -1.0
+    ub = np.full(nw + d + 1, np.inf)
+    ub[-1] = scale
+    x, st, _ = solve_lp(f, np.hstack([rows, norms[:, None]]), rhs, ub=ub)
+    if st != "optimal" or x is None or x[-1] < -1e-9 * scale:
+        return None
+    return x[nw : nw + d], max(float(x[-1]), 0.0)
 
 
 class OnDemandRegions:
@@ -196,20 +234,11 @@ class OnDemandRegions:
         Chebyshev centre moved off it (as ``reduce.start_point``), and the centre itself;
         none when the set misses the feasible set."""
         red = self._red
-        nw, d = red.G.shape[1], A.shape[1]
-        LA, Lb = self._lifted
-        rows = np.vstack([LA, np.hstack([np.zeros((A.shape[0], nw)), A])])
-        rhs = np.concatenate([Lb, b])
-        norms = np.concatenate([np.linalg.norm(red.S, axis=1), np.linalg.norm(red.At, axis=1),
-                                np.ones(A.shape[0])])
-        f = np.zeros(nw + d + 1)
-        f[-1] = -1.0
-        ub = np.full(nw + d + 1, np.inf)
-        ub[-1] = self.scale
-        x, st, _ = solve_lp(f, np.hstack([rows, norms[:, None]]), rhs, ub=ub)
-        if st != "optimal" or x is None or x[-1] < -1e-9 * self.scale:
+        d = A.shape[1]
+        ball = lifted_centre(red, self._lifted, A, b, self.scale)
+        if ball is None:
             return []
-        centre, rho = x[nw : nw + d], max(float(x[-1]), 0.0)
+        centre, rho = ball
         points = [centre]
         if rho > 0:
             u = np.random.default_rng(0).normal(size=d)

@@ -34,9 +34,15 @@ from __future__ import annotations
 import numpy as np
 
 from codev_engine.errors import SolverError, SpecError
-from codev_engine.geometry.polytope import chebyshev_ball, normalize_rows, solve_lp
+from codev_engine.geometry.polytope import chebyshev_ball, normalize_rows
 from codev_engine.mp.mplp_graph import JIT_AFTER, _NotExactError, _Search
-from codev_engine.mp.on_demand import MEET_TOL, OnDemandRegions, _rows, _split
+from codev_engine.mp.on_demand import (
+    MEET_TOL,
+    OnDemandRegions,
+    _rows,
+    _split,
+    lifted_centre,
+)
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.reduce import lifted, parameter_box, reduce_program
 from codev_engine.mp.solution import CriticalRegion
@@ -259,21 +265,12 @@ class OnDemandBases(OnDemandRegions):
     def _start_in(self, A: np.ndarray, b: np.ndarray) -> int | None:
         """The region of the lexicographically optimal basis at a point of the set inside
         the feasible set (its lifted Chebyshev centre), or None when the set misses it."""
-        red, s = self._red, self._search
-        nw, d = red.G.shape[1], A.shape[1]
-        LA, Lb = self._lifted
-        rows = np.vstack([LA, np.hstack([np.zeros((A.shape[0], nw)), A])])
-        rhs = np.concatenate([Lb, b])
-        norms = np.concatenate([np.linalg.norm(red.S, axis=1), np.linalg.norm(red.At, axis=1),
-                                np.ones(A.shape[0])])
-        f = np.zeros(nw + d + 1)
-        f[-1] = -1.0
-        ub = np.full(nw + d + 1, np.inf)
-        ub[-1] = self.scale
-        x, st, _ = solve_lp(f, np.hstack([rows, norms[:, None]]), rhs, ub=ub)
-        if st != "optimal" or x is None or x[-1] < -1e-9 * self.scale:
+        s = self._search
+        d = A.shape[1]
+        ball = lifted_centre(self._red, self._lifted, A, b, self.scale)
+        if ball is None:
             return None
-        q, rho = x[nw : nw + d], max(float(x[-1]), 0.0)
+        q, rho = ball
         for_point = [q]
         rng = np.random.default_rng(0)
         for _ in range(7):
