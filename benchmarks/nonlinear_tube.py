@@ -56,15 +56,38 @@ def ratios(problem: ce.Problem, law, tube, samples: int) -> list[tuple[float, np
     corners = np.array(list(itertools.product(*zip(lo, hi, strict=True))))
     X0 = np.vstack([corners, np.random.default_rng(0).uniform(lo, hi, (samples, lo.size))])
     t, X, _, _ = simulate_many(problem, law, X0, hold=vs.hold, dt=vs.step / 10, dt_out=vs.step)
+    return hull_ratios(tube, t, X, (0.25, 0.5, 1.0))
+
+
+def hull_ratios(tube, t: np.ndarray, X: np.ndarray,
+                fractions: tuple[float, ...]) -> list[tuple[float, np.ndarray]]:
+    """Tube width over simulated hull width, per state, at fractions of the tube's span.
+
+    Parameters
+    ----------
+    tube : Tube
+    t : (K,) ndarray
+        The simulation's output times.
+    X : (P, K, n) ndarray
+        The simulated states (NaN where a run ended).
+    fractions : tuple of float
+        Of the tube's end time; each is taken at the nearest output time.
+
+    Returns
+    -------
+    list of (float, ndarray)
+        ``(t, ratio (n,))`` per time a box of the tube is active at: the hull of the boxes
+        active then over the hull of the simulated states over those boxes' span.
+    """
     T = float(tube.t_end.max())
     out = []
-    for frac in (0.25, 0.5, 1.0):
+    for frac in fractions:
         tk = float(t[int(np.argmin(np.abs(t - T * frac)))])
         act = (tube.t_start <= tk + 1e-12) & (tube.t_end >= tk - 1e-12)
         if not act.any():
             continue
         a, b = tube.t_start[act].min(), tube.t_end[act].max()
-        xs = X[:, (t >= a - 1e-12) & (t <= b + 1e-12)].reshape(-1, lo.size)
+        xs = X[:, (t >= a - 1e-12) & (t <= b + 1e-12)].reshape(-1, X.shape[-1])
         xs = xs[np.all(np.isfinite(xs), axis=1)]
         width = tube.upper[act].max(axis=0) - tube.lower[act].min(axis=0)
         out.append((tk, width / np.maximum(xs.max(axis=0) - xs.min(axis=0), 1e-300)))

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import sys
 import time
 from pathlib import Path
 
@@ -37,6 +38,9 @@ from codev_engine.reach.simulate import simulate_many
 from codev_engine.reach.verification import _signals
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # (the ratio is nonlinear_tube.py's)
+from benchmarks.nonlinear_tube import hull_ratios  # noqa: E402
+
 CASES = ["pendulum_near_saturation", "quadruple_tank", "cruise_loaded"]
 
 
@@ -69,17 +73,7 @@ def ratios(problem: ce.Problem, law, tube, samples: int):
     piece, W, Q = _signals(problem, X0.shape[0], seed=1)
     t, X, _, _ = simulate_many(problem, law, X0, hold=vs.hold, disturbance=(piece, W, Q))
     T = float(tube.t_end.max())
-    out = []
-    for frac in (0.25, 0.5, 0.75, 1.0):
-        tk = float(t[int(np.argmin(np.abs(t - T * frac)))])
-        act = (tube.t_start <= tk + 1e-12) & (tube.t_end >= tk - 1e-12)
-        if not act.any():
-            continue
-        a, b = tube.t_start[act].min(), tube.t_end[act].max()
-        xs = X[:, (t >= a - 1e-12) & (t <= b + 1e-12)].reshape(-1, lo.size)
-        xs = xs[np.all(np.isfinite(xs), axis=1)]
-        width = tube.upper[act].max(axis=0) - tube.lower[act].min(axis=0)
-        out.append((tk, width / np.maximum(xs.max(axis=0) - xs.min(axis=0), 1e-300)))
+    out = hull_ratios(tube, t, X, (0.25, 0.5, 0.75, 1.0))
     outside = 0
     for k, tk in enumerate(t):
         if tk > T + 1e-9:
