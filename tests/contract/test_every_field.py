@@ -21,7 +21,11 @@ from codev_engine.spec.parse import FIELDS
 
 ROOT = Path(__file__).resolve().parents[2]
 SPECS = sorted(
-    [*ROOT.glob("examples/*.toml"), *ROOT.glob("tests/**/*.toml"), *ROOT.glob("sessions/*/spec.toml")]
+    [
+        *ROOT.glob("examples/*.toml"),
+        *ROOT.glob("tests/**/*.toml"),
+        *ROOT.glob("sessions/*/spec.toml"),
+    ]
 )
 TABLES = {name for name in FIELDS if name}
 
