@@ -366,6 +366,32 @@ class OnDemandLaw:
     def __call__(self, X: np.ndarray) -> np.ndarray:
         return self.evaluate(X)
 
+    def section(self, values: np.ndarray):
+        """The regions computed so far in the state alone, the other parameters fixed at
+        ``values`` (``ExplicitLaw.section`` of them): what a picture of a law over ``theta
+        = (x, u_prev, r)`` draws. Marked ``on_demand`` (the pictures say "regions
+        reached"); the section of a law with ``theta = x`` is the law itself.
+
+        Parameters
+        ----------
+        values : (n - len(states),) array_like
+
+        Returns
+        -------
+        ExplicitLaw or OnDemandLaw
+        """
+        from codev_engine.law import ExplicitLaw
+
+        if not self.parameters or len(self.states) == self.n:
+            return self
+        now = ExplicitLaw(A=list(self.A), b=list(self.b), F=self.F.copy(), G=self.G.copy(),
+                          states=self.states, inputs=self.inputs,
+                          parameters=self.parameters, fingerprint=self.fingerprint,
+                          meta=dict(self.meta))
+        out = now.section(values)
+        out.on_demand = True  # (an instance's flag: it draws the regions reached)
+        return out
+
     def summary(self) -> str:
         """One line: the regions computed so far and the dimensions."""
         return (f"explicit law on demand: {self.num_regions} regions computed, n={self.n}, "

@@ -90,3 +90,27 @@ def test_a_walk_on_demand_stops_at_the_region_bytes_limit(monkeypatch):
     assert f"{od.max_regions} critical regions computed" in result.detail
     assert "CODEV_LIMITS=region_bytes" in result.detail
     assert od.num_regions == od.max_regions
+
+
+def test_pictures_of_a_law_over_theta_on_demand_draw_the_regions_reached(tmp_path):
+    # dc_motor_servo: theta = (x, u_prev, r); the pictures draw a section of the regions
+    # computed (a recording of it had ended in an AttributeError: no OnDemandLaw.section)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from codev_engine.reach.simulate import theta_initial_box
+    from codev_engine.view.figures import plot_partition
+    from codev_engine.view.record_content import RecordingOptions
+    from codev_engine.view.records import drawable
+    from codev_engine.view.report import report_html
+
+    problem = load_spec(EXAMPLES / "dc_motor_servo.toml")
+    od = OnDemandLaw(problem)
+    od.regions_meeting(*theta_initial_box(problem))  # (the first set a verification asks)
+    law, _ = drawable(problem, od, RecordingOptions())
+    assert law.n == problem.plant.n and law.num_regions == od.num_regions
+    assert "regions reached (computed on demand)" in plot_partition(law).get_title()
+    html = report_html(problem, od, None, traces=0)
+    assert "The regions reached by the verification" in html
+    assert "The partition of the explicit law" not in html
+
