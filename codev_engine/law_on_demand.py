@@ -196,7 +196,8 @@ class OnDemandLaw:
         -------
         (q,) ndarray of int
             Region indices, ascending by active set (the full law's order); a superset of
-            the regions the full law's bounding-box test would offer that meet the box.
+            the regions the full law's bounding-box test would offer that meet the box
+            (once the law is :attr:`complete`, exactly the full law's answer).
         """
         whole = self._whole_law()
         if whole is not None:
@@ -219,15 +220,17 @@ class OnDemandLaw:
                 f"the regions computed on demand reached the region limit of the full "
                 f"synthesis ({self.max_regions:,}): {self.num_regions:,} critical regions "
                 f"computed and more are needed; {self._limit_fix}, shrink "
-                "verify.initial_set or shorten "
-                "verify.time_horizon") from None
+                "verify.initial_set or shorten verify.time_horizon") from None
         self._sync()
         self._last = (key, found)
         return found
 
     @property
     def complete(self) -> bool:
-        """The whole partition is known (then the law answers as the full law does)."""
+        """The whole partition is known (then the law answers as the full law does).
+
+        Asking replays the full search's start if no set was asked about yet (the first
+        walk would)."""
         return self._whole_law() is not None
 
     def _whole_law(self) -> dict | None:
