@@ -50,6 +50,8 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         xname, yname = content.plane_names
         section = content.section_words()
         at = f", section at {section}" if section is not None else ""
+        if getattr(content.law, "on_demand", False):  # (issue 39: not the whole law)
+            at += ", the regions reached (computed on demand)"
         left.append(
             rrb.Spatial2DView(
                 origin="/",

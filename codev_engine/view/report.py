@@ -93,8 +93,12 @@ def report_html(
     fig = figures.figure_law(law, axes=law_axes, at=at) if law.n >= 2 else figures.figure_law(law)
     section = content.section_words()
     at_words = f", section at {section}" if section is not None else ""
-    parts.append((_svg(fig), f"The partition of the explicit law{at_words}: "
-                  f"{law.num_regions} regions."))
+    if getattr(law, "on_demand", False):  # (issue 39: the regions computed, not the law)
+        parts.append((_svg(fig), f"The regions reached by the verification{at_words} "
+                      f"(computed on demand, not the whole law): {law.num_regions} regions."))
+    else:
+        parts.append((_svg(fig), f"The partition of the explicit law{at_words}: "
+                      f"{law.num_regions} regions."))
     if content.traces is not None and problem.plant.m:
         fig = figure_inputs(problem, content.traces, result)
         parts.append((_svg(fig), "The inputs of the simulated traces, with their bounds."))
