@@ -16,9 +16,10 @@ __all__ = ["carried_zonotope"]
 
 
 def carried_zonotope(
-    J: np.ndarray, frc: np.ndarray, hs: np.ndarray
+    J: np.ndarray, frc: np.ndarray, hs: np.ndarray, jump: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The response of ``psi' = J_j psi + phi(t)``, ``psi(0) = 0``, ``|phi| <= frc_j``.
+    """The response of ``psi' = J_j psi + phi(t)``, ``psi(0) = 0``, ``|phi| <= frc_j``
+    (and, with ``jump``, a step of at most ``jump_j`` element-wise at each substep's end).
 
     On substep ``j`` (length ``h``) ``psi`` goes to ``exp(J_j h) psi(t_j) + int_0^h exp(J_j
     (h - s)) phi(s) ds`` for any measurable ``phi`` within the bound, and the integral lies
@@ -27,7 +28,9 @@ def carried_zonotope(
     h], [0, 0]]``): one generator per axis and substep, the earlier ones mapped by
     ``exp(J_j h)``. Over the substep ``|psi| <= exp(|J_j| h) |psi(t_j)| + K_j frc_j``.
     Products are padded by ``1e-10`` of their magnitudes (far above the rounding of
-    ``expm`` and of the sums), the pads added as generators.
+    ``expm`` and of the sums), the pads added as generators. A jump ``|v| <= jump_j`` at
+    the end of substep ``j`` is one more generator per axis, ``diag(jump_j)``, and is
+    counted in ``zsub_j`` too (the substep's box then also holds its end after the jump).
 
     Parameters
     ----------
@@ -38,6 +41,8 @@ def carried_zonotope(
         and parameters: ``|df/d(w, p)| xdev`` at the centre, nominal values).
     hs : (N,) ndarray
         Substep lengths.
+    jump : (N, n) ndarray, optional
+        Element-wise bounds of a step added at each substep's end (None: none).
 
     Returns
     -------
@@ -64,5 +69,9 @@ def carried_zonotope(
         zbox[j] = zb
         zsub[j] = (Eabs[j] @ zb + box[j]) * (1 + 1e-10)
         pad = 1e-10 * (np.abs(E[j]) @ zb + box[j])
-        G = np.hstack([E[j] @ G, np.diag(box[j] + pad)])
+        step = box[j] + pad
+        if jump is not None:
+            zsub[j] = zsub[j] + jump[j]
+            step = step + jump[j]  # (two generators' sum along one axis: one generator)
+        G = np.hstack([E[j] @ G, np.diag(step)])
     return zsub, G, zbox

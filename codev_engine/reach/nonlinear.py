@@ -88,6 +88,11 @@ class _Set:
     #: to the set at a sample (``_period``); folded into the star by ``_rerooted`` before
     #: the set is used (None: none)
     Z: np.ndarray | None = None
+    #: with ``Z``: the remainder's two bounds at the sample, for ``_rerooted``'s support
+    #: (``M`` holds ``PM e`` plus the ball): the carried ellipsoid ``PM`` (n, n), the
+    #: ball's W-radius and the generators (n, k) of the remainder's zonotope (``_period``;
+    #: docs/verification.md, "The remainder per axis"). None: ``M`` alone.
+    rem: tuple[np.ndarray, float, np.ndarray] | None = None
 
     @property
     def poly(self) -> tuple:
@@ -250,6 +255,7 @@ class NonlinearReach(ClosedLoopSetup):
         self.wrow = np.linalg.norm(self.Winv, axis=1) * self.winv_pad
         self._u_ok: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._rho_hint = 0.0
+        self._q_hint: np.ndarray | None = None  # (n,) the remainder per axis, last period
         #: the last interval operation outside its domain (names the expression), if any
         self.domain_note: str | None = None
         self._failed: Finding | None = None
@@ -752,11 +758,22 @@ class NonlinearReach(ClosedLoopSetup):
         gpad = 1e-12 * (1.0 + np.abs(y0).max())
         frac = taus[:-1] / max(self.Ts, 1e-300)
         guess = 1.5 * self._rho_hint * frac + gpad
+        # with the disturbances' carried part: a guess of the remainder per axis at the
+        # substep starts too (``qg``, induction like ``guess``: the start boxes assume
+        # both, the pass checks both; inf: none), the remainder's zonotope ``qres``
+        qg = qres = None
+        if zsub is not None:
+            qg = np.full((N, n), np.inf)
+            if self._q_hint is not None:
+                qg = 1.5 * self._q_hint[None, :] * frac[:, None] + gpad
+        qtries = 0
         rho = None
-        for _attempt in range(8):
+        for _attempt in range(14):
             base_lo = Y0 + slo_star[:-1] - Mrows[:-1]
             base_hi = Y0 + shi_star[:-1] + Mrows[:-1]
             ext = self.wrow[None, :] * guess[:, None]
+            if qg is not None:
+                ext = np.minimum(ext, qg)
             if zsub is not None:
                 ext = ext + zbox
             bpad = 1e-12 * (np.abs(Y0) + vmag[:-1] + Mrows[:-1] + ext) + 1e-15
@@ -847,6 +864,9 @@ class NonlinearReach(ClosedLoopSetup):
                     if zoh:
                         b[jfin] = _norm2(self.absW @ Ru) * (1 + 1e-12) * du_norm
                 b[jfin] = (b[jfin] + bw) * (1 + 1e-12)
+            qall = None
+            if jfin.size == N and np.all(np.isfinite(c2)):
+                qall = q  # (the second-order forcing of every substep, element-wise)
             rho = np.zeros(N + 1)
             bad, r, last = -1, 0.0, N
             for j in range(N):
@@ -870,6 +890,31 @@ class NonlinearReach(ClosedLoopSetup):
                     last = j
                     break
                 rho[j + 1] = r
+            qres = None
+            if qg is not None and qall is not None:
+                jump = eps * (1 + 1e-12) + self.wrow[None, :] * fpm[:, None]
+                qres = carried_zonotope(Jxc if zoh else Jc, qall, hs, jump)
+            if qg is not None and np.any(np.isfinite(qg)):
+                # the start boxes assumed the per-axis guess: proved up to its first miss
+                over = 0
+                if qres is not None:
+                    with np.errstate(invalid="ignore"):
+                        okq = np.all(qres[2] <= qg, axis=1)
+                    over = N if okq.all() else int(np.argmin(okq))
+                if over < N and (bad < 0 or over <= bad):
+                    bad = over
+                    qtries += 1
+                    if qres is None or qtries > 4:
+                        qg = np.full((N, n), np.inf)  # give the per-axis guess up
+                    else:
+                        qg = np.maximum(qg, 1.25 * qres[2]) + gpad
+                    qres = None
+                    continue
+            elif qres is not None and bad < 0 and qtries == 0:
+                # no guess yet: one more pass with this one (tighter start boxes)
+                qtries += 1
+                qg = 1.25 * qres[2] + gpad
+                continue
             if bad < 0:
                 break
             if not okb[bad] and rho[bad] <= guess[bad]:
@@ -889,6 +934,14 @@ class NonlinearReach(ClosedLoopSetup):
             )
             return None, tube, [self._failure(t_k + taus[bad])], None
         self._rho_hint = 0.5 * self._rho_hint + 0.5 * float(rho[N])
+        # the remainder per axis (with the disturbances' carried part only): psi' = J_j psi
+        # + w, |w| <= q_j, plus the centre's error and the rounding at each substep's end,
+        # the very recursion the W-ball bounds, carried as a zonotope of the linear flow:
+        # it keeps the thin directions the ball (isotropic in W) fills
+        qsub = qgen = None
+        if zgen is not None and qres is not None:
+            qsub, qgen, _ = qres
+            self._q_hint = np.abs(qgen).sum(axis=1)
         # within a substep the set is also the centre's enclosure plus the star and the
         # ellipsoid carried by Phi(t) plus the remainder ball: far tighter than the sweep
         # S_j + [0, h] f(B_j) once the set is wide across a fast direction of f
@@ -902,7 +955,8 @@ class NonlinearReach(ClosedLoopSetup):
             Ma = np.abs(Jc)
             zeta = np.maximum(np.abs(slo_star[:-1]), np.abs(shi_star[:-1])) + Mrows[:-1]
         Blo, Bhi = self._linear_boxes(
-            Blo, Bhi, Bclo, Bchi, slo_star, shi_star, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub
+            Blo, Bhi, Bclo, Bchi, slo_star, shi_star, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub,
+            qsub,
         )
         tube = _tube(t_k + taus[:-1], t_k + taus[1:], Blo, Bhi, self.stats["branches"])
         swlo = _dn(hc * np.minimum(flo, 0.0))
@@ -911,10 +965,15 @@ class NonlinearReach(ClosedLoopSetup):
                    zsub)
         Mn = self._ell_plus_ball(PM[N], float(rho[N]))
         nxt = _Set(Y[N].copy(), PD[N], Mn, s.k + 1, s.path, s.H, s.h, s.V, s.base, zgen)
+        if qgen is not None and n > 2:
+            # (not in the plane: there the zonotopes' nearly parallel generators make a
+            # sliver polygon whose vertex enumeration falls back to its bounding box)
+            nxt.rem = (PM[N], float(rho[N]), qgen)
         return nxt, tube, [], rec
 
     def _linear_boxes(
-        self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub=None
+        self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub=None,
+        qsub=None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """The substeps' tube boxes ``B_j`` intersected with the linear-part bound.
 
@@ -953,6 +1012,9 @@ class NonlinearReach(ClosedLoopSetup):
             Magnitudes of the star's and the ellipsoid's terms (rounding allowance).
         zsub : (N, n) ndarray, optional
             Half-widths of the disturbances' carried linear part over the substeps.
+        qsub : (N, n) ndarray, optional
+            Half-widths of a box holding the remainder over the substeps, its ends included
+            (the remainder's zonotope): the smaller of it and the W-ball per axis is used.
 
         Returns
         -------
@@ -967,6 +1029,8 @@ class NonlinearReach(ClosedLoopSetup):
         err = (0.125 * hs * hs)[:, None] * g2 * (1 + 1e-10)
         ell = np.maximum(Mrows[:-1], Mrows[1:])
         ball = self.wrow[None, :] * (np.maximum(rho[:-1], rho[1:]) + fpm)[:, None]
+        if qsub is not None:  # two bounds of the same remainder: the smaller per axis
+            ball = np.minimum(ball, qsub + self.wrow[None, :] * fpm[:, None])
         if zsub is not None:
             ball = ball + zsub
         dlo = np.minimum(slo[:-1], slo[1:]) - ell - ball - err
@@ -1116,6 +1180,7 @@ class NonlinearReach(ClosedLoopSetup):
         tubes: list[Tube] = []
         status, first_t = "ok", None
         self._rho_hint = 0.0
+        self._q_hint = None
 
         def flag(kind: str, when: float) -> bool:
             nonlocal status, first_t
@@ -1248,6 +1313,16 @@ class NonlinearReach(ClosedLoopSetup):
             _, up = s.range(A)
             mag = np.abs(A) @ s.mag()
             e = up + s.ell(A)
+            if s.rem is not None:
+                # the remainder lies in the W-ball and in its zonotope: the smaller support
+                PM, rad, Q = s.rem
+                alt = up + _ell_rows(A @ PM) + np.abs(A @ Q).sum(axis=1)
+                # (one of the two whole: a per-direction minimum is no support function,
+                # and in the plane its polygons defeated the vertex enumeration)
+                if alt.sum() < e.sum():
+                    e = alt
+                mag = mag + (np.abs(A) @ np.abs(Q)).sum(axis=1) + np.abs(A) @ np.abs(PM).sum(
+                    axis=1)
             if s.Z is not None:  # the zonotope's support: sum_l |a' z_l|
                 AZ = np.abs(A @ s.Z)
                 e = e + AZ.sum(axis=1)
