@@ -1268,6 +1268,10 @@ class NonlinearReach(ClosedLoopSetup):
                             rows.append(r[None, :] / np.sqrt(2.0))
             U = np.vstack(rows)
         A = U @ self.W  # a' z = u' (W z): the direction u in W-space
+        if carrying and n > 2:
+            # and the state axes and their diagonals themselves: the tube is read per state,
+            # and a thin state's extent must not come from W's tilted rows
+            A = np.vstack([A, U])
         if (not carrying or n > 2) and s.H is not None and np.linalg.cond(s.D) < 1e8:
             A = np.vstack([A, s.H @ np.linalg.inv(s.D)])
         A = A[np.linalg.norm(A, axis=1) > 0]
