@@ -53,7 +53,7 @@ from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.limits import beat
 from codev_engine.plant import linearize, plant_model
-from codev_engine.reach.carried import carried_zonotope
+from codev_engine.reach.carried import carried_zonotope, offset_zonotope
 from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import (
     ClosedLoopSetup,
@@ -90,9 +90,10 @@ class _Set:
     Z: np.ndarray | None = None
     #: with ``Z``: the remainder's two bounds at the sample, for ``_rerooted``'s support
     #: (``M`` holds ``PM e`` plus the ball): the carried ellipsoid ``PM`` (n, n), the
-    #: ball's W-radius and the generators (n, k) of the remainder's zonotope (``_period``;
+    #: ball's W-radius and the remainder's zonotope, offset (n,) and generators (n, k)
+    #: (``_period``;
     #: docs/verification.md, "The remainder per axis"). None: ``M`` alone.
-    rem: tuple[np.ndarray, float, np.ndarray] | None = None
+    rem: tuple[np.ndarray, float, np.ndarray, np.ndarray] | None = None
 
     @property
     def poly(self) -> tuple:
@@ -816,6 +817,18 @@ class NonlinearReach(ClosedLoopSetup):
                 Hm = np.maximum(np.abs(hl), np.abs(hh)).reshape(-1, n, k, k)
                 Hm = np.where(np.isnan(Hm), np.inf, Hm)
                 q = 0.5 * np.einsum("pikl,pk,pl->pi", Hm, Dz, Dz)
+                # (signed: the diagonal terms H_kk dz_k^2 lie in [min(hl_kk, 0), max(hh_kk,
+                # 0)] Dz_k^2, the rest symmetric: q = qsym + qdiag)
+                Dz2 = Dz * Dz
+                hdl = np.diagonal(hl.reshape(-1, n, k, k), axis1=2, axis2=3)
+                hdh = np.diagonal(hh.reshape(-1, n, k, k), axis1=2, axis2=3)
+                hdl = np.where(np.isnan(hdl), -np.inf, np.minimum(hdl, 0.0))
+                hdh = np.where(np.isnan(hdh), np.inf, np.maximum(hdh, 0.0))
+                with np.errstate(invalid="ignore"):
+                    qd_lo = 0.5 * np.einsum("pik,pk->pi", hdl, Dz2)
+                    qd_hi = 0.5 * np.einsum("pik,pk->pi", hdh, Dz2)
+                    qd = 0.5 * np.einsum("pik,pk->pi",
+                                         np.diagonal(Hm, axis1=2, axis2=3), Dz2)
                 if zoh:
                     q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, : n + m])
                 else:
@@ -830,6 +843,13 @@ class NonlinearReach(ClosedLoopSetup):
                     q = q + Jn[jfin] @ nu
                 with np.errstate(invalid="ignore"):
                     c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
+                    # the symmetric part: the off-diagonal terms and the linear ones added
+                    # to q0 (differences of sums: 1e-12 of the magnitudes covers their
+                    # rounding)
+                    qsym = np.maximum(q - qd, 0.0)
+                    slack = 1e-12 * (q + np.abs(qd_lo) + qd_hi) + 1e-300
+                    qlo = qd_lo - qsym - slack
+                    qhi = qd_hi + qsym + slack
                 c2 = np.where(np.isnan(c2), np.inf, c2)
             if jfin.size:
                 if zoh:
@@ -866,7 +886,8 @@ class NonlinearReach(ClosedLoopSetup):
                 b[jfin] = (b[jfin] + bw) * (1 + 1e-12)
             qall = None
             if jfin.size == N and np.all(np.isfinite(c2)):
-                qall = q  # (the second-order forcing of every substep, element-wise)
+                # (the second-order forcing of every substep, element-wise, signed)
+                qall = (qlo, qhi) if np.all(np.isfinite(qlo + qhi)) else None
             rho = np.zeros(N + 1)
             bad, r, last = -1, 0.0, N
             for j in range(N):
@@ -893,13 +914,13 @@ class NonlinearReach(ClosedLoopSetup):
             qres = None
             if qg is not None and qall is not None:
                 jump = eps * (1 + 1e-12) + self.wrow[None, :] * fpm[:, None]
-                qres = carried_zonotope(Jxc if zoh else Jc, qall, hs, jump)
+                qres = offset_zonotope(Jxc if zoh else Jc, qall[0], qall[1], hs, jump)
             if qg is not None and np.any(np.isfinite(qg)):
                 # the start boxes assumed the per-axis guess: proved up to its first miss
                 over = 0
                 if qres is not None:
                     with np.errstate(invalid="ignore"):
-                        okq = np.all(qres[2] <= qg, axis=1)
+                        okq = np.all(qres[3] <= qg, axis=1)
                     over = N if okq.all() else int(np.argmin(okq))
                 if over < N and (bad < 0 or over <= bad):
                     bad = over
@@ -907,13 +928,13 @@ class NonlinearReach(ClosedLoopSetup):
                     if qres is None or qtries > 4:
                         qg = np.full((N, n), np.inf)  # give the per-axis guess up
                     else:
-                        qg = np.maximum(qg, 1.25 * qres[2]) + gpad
+                        qg = np.maximum(qg, 1.25 * qres[3]) + gpad
                     qres = None
                     continue
             elif qres is not None and bad < 0 and qtries == 0:
                 # no guess yet: one more pass with this one (tighter start boxes)
                 qtries += 1
-                qg = 1.25 * qres[2] + gpad
+                qg = 1.25 * qres[3] + gpad
                 continue
             if bad < 0:
                 break
@@ -940,8 +961,8 @@ class NonlinearReach(ClosedLoopSetup):
         # it keeps the thin directions the ball (isotropic in W) fills
         qsub = qgen = None
         if zgen is not None and qres is not None:
-            qsub, qgen, _ = qres
-            self._q_hint = np.abs(qgen).sum(axis=1)
+            qsub, qoff, qgen, _ = qres
+            self._q_hint = np.abs(qoff) + np.abs(qgen).sum(axis=1)
         # within a substep the set is also the centre's enclosure plus the star and the
         # ellipsoid carried by Phi(t) plus the remainder ball: far tighter than the sweep
         # S_j + [0, h] f(B_j) once the set is wide across a fast direction of f
@@ -968,7 +989,7 @@ class NonlinearReach(ClosedLoopSetup):
         if qgen is not None and n > 2:
             # (not in the plane: there the zonotopes' nearly parallel generators make a
             # sliver polygon whose vertex enumeration falls back to its bounding box)
-            nxt.rem = (PM[N], float(rho[N]), qgen)
+            nxt.rem = (PM[N], float(rho[N]), qoff, qgen)
         return nxt, tube, [], rec
 
     def _linear_boxes(
@@ -1319,14 +1340,14 @@ class NonlinearReach(ClosedLoopSetup):
             e = up + s.ell(A)
             if s.rem is not None:
                 # the remainder lies in the W-ball and in its zonotope: the smaller support
-                PM, rad, Q = s.rem
-                alt = up + _ell_rows(A @ PM) + np.abs(A @ Q).sum(axis=1)
+                PM, rad, qc, Q = s.rem
+                alt = up + _ell_rows(A @ PM) + A @ qc + np.abs(A @ Q).sum(axis=1)
                 # (one of the two whole: a per-direction minimum is no support function,
                 # and in the plane its polygons defeated the vertex enumeration)
                 if alt.sum() < e.sum():
                     e = alt
-                mag = mag + (np.abs(A) @ np.abs(Q)).sum(axis=1) + np.abs(A) @ np.abs(PM).sum(
-                    axis=1)
+                mag = mag + (np.abs(A) @ np.abs(Q)).sum(axis=1) + np.abs(A) @ (
+                    np.abs(PM).sum(axis=1) + np.abs(qc))
             if s.Z is not None:  # the zonotope's support: sum_l |a' z_l|
                 AZ = np.abs(A @ s.Z)
                 e = e + AZ.sum(axis=1)
