@@ -103,8 +103,8 @@ def offset_zonotope(
 
     Returns
     -------
-    zsub : (N, n) ndarray
-        Half-widths of a box about 0 holding ``psi`` over each substep (its end included).
+    sublo, subhi : (N, n) ndarray
+        A box holding ``psi`` over each substep (its end included).
     c : (n,) ndarray
         The offset: ``psi`` at the last substep's end lies in ``c + {G t : |t|_inf <= 1}``.
     G : (n, k) ndarray
@@ -122,22 +122,29 @@ def offset_zonotope(
     E, L = Es[:, :n, :n], Es[:, :n, n:]
     c = np.zeros(n)
     cabs = np.empty((N, n))
+    cfull = np.empty((N, n))  # (c(t_{j+1}))
     padc = np.empty((N, n))
     for j in range(N):
         cabs[j] = np.abs(c)
         padc[j] = 1e-10 * (np.abs(E[j]) @ np.abs(c) + np.abs(L[j]) @ np.abs(mid[j])) + 1e-300
         c = E[j] @ c + L[j] @ mid[j]
+        cfull[j] = c
     steps = jump + padc
     _, G, zbox = carried_zonotope(J, rad, hs, steps)
-    # over substep j: |psi| <= exp(|J_j| h) |psi(t_j)| + K_j |phi|_max, K_j as in
-    # carried_zonotope, plus the step at its end
+    # over substep j: psi - c_j = (exp(J t) - I) c_j + exp(J t) (psi(t_j) - c_j) + int
+    # exp(J (t - s)) phi ds, with |exp(J t) - I| <= exp(|J| h) - I and |exp(J t)| <= exp(|J|
+    # h) element-wise (the series), K_j as in carried_zonotope, plus the step at its end
     Aa = np.zeros((N, 2 * n, 2 * n))
     Aa[:, :n, :n] = np.abs(J) * hs[:, None, None]
     Aa[:, :n, n:] = np.eye(n)[None] * hs[:, None, None]
     Ea = np.abs(expm(Aa)) * (1 + 1e-10)
     zabs = (cabs + zbox) * (1 + 1e-12)
     fmax = np.maximum(np.abs(flo), np.abs(fhi))
-    zsub = (
-        np.einsum("jik,jk->ji", Ea[:, :n, :n], zabs) + np.einsum("jik,jk->ji", Ea[:, :n, n:], fmax)
-    ) * (1 + 1e-10) + steps
-    return zsub, c, G, zabs
+    Ea1 = Ea[:, :n, :n] - np.eye(n)[None]  # (exp(|J| h) >= I: rounded up, still above)
+    half = (
+        np.einsum("jik,jk->ji", Ea1, cabs)
+        + np.einsum("jik,jk->ji", Ea[:, :n, :n], zbox)
+        + np.einsum("jik,jk->ji", Ea[:, :n, n:], fmax)
+    ) * (1 + 1e-10) + steps + 1e-12 * cabs
+    cs = np.vstack([np.zeros((1, n)), cfull[:-1]]) if N else cfull
+    return cs - half, cs + half, c, G, zabs

@@ -920,7 +920,7 @@ class NonlinearReach(ClosedLoopSetup):
                 over = 0
                 if qres is not None:
                     with np.errstate(invalid="ignore"):
-                        okq = np.all(qres[3] <= qg, axis=1)
+                        okq = np.all(qres[4] <= qg, axis=1)
                     over = N if okq.all() else int(np.argmin(okq))
                 if over < N and (bad < 0 or over <= bad):
                     bad = over
@@ -928,13 +928,13 @@ class NonlinearReach(ClosedLoopSetup):
                     if qres is None or qtries > 4:
                         qg = np.full((N, n), np.inf)  # give the per-axis guess up
                     else:
-                        qg = np.maximum(qg, 1.25 * qres[3]) + gpad
+                        qg = np.maximum(qg, 1.25 * qres[4]) + gpad
                     qres = None
                     continue
             elif qres is not None and bad < 0 and qtries == 0:
                 # no guess yet: one more pass with this one (tighter start boxes)
                 qtries += 1
-                qg = 1.25 * qres[3] + gpad
+                qg = 1.25 * qres[4] + gpad
                 continue
             if bad < 0:
                 break
@@ -961,7 +961,8 @@ class NonlinearReach(ClosedLoopSetup):
         # it keeps the thin directions the ball (isotropic in W) fills
         qsub = qgen = None
         if zgen is not None and qres is not None:
-            qsub, qoff, qgen, _ = qres
+            qlo_s, qhi_s, qoff, qgen, _ = qres
+            qsub = (qlo_s, qhi_s)
             self._q_hint = np.abs(qoff) + np.abs(qgen).sum(axis=1)
         # within a substep the set is also the centre's enclosure plus the star and the
         # ellipsoid carried by Phi(t) plus the remainder ball: far tighter than the sweep
@@ -1033,9 +1034,9 @@ class NonlinearReach(ClosedLoopSetup):
             Magnitudes of the star's and the ellipsoid's terms (rounding allowance).
         zsub : (N, n) ndarray, optional
             Half-widths of the disturbances' carried linear part over the substeps.
-        qsub : (N, n) ndarray, optional
-            Half-widths of a box holding the remainder over the substeps, its ends included
-            (the remainder's zonotope): the smaller of it and the W-ball per axis is used.
+        qsub : tuple of two (N, n) ndarray, optional
+            A box holding the remainder over the substeps, its ends included (from the
+            remainder's zonotope about its offset): intersected with the W-ball per axis.
 
         Returns
         -------
@@ -1050,14 +1051,18 @@ class NonlinearReach(ClosedLoopSetup):
         err = (0.125 * hs * hs)[:, None] * g2 * (1 + 1e-10)
         ell = np.maximum(Mrows[:-1], Mrows[1:])
         ball = self.wrow[None, :] * (np.maximum(rho[:-1], rho[1:]) + fpm)[:, None]
-        if qsub is not None:  # two bounds of the same remainder: the smaller per axis
-            ball = np.minimum(ball, qsub + self.wrow[None, :] * fpm[:, None])
+        blo = bhi = ball  # the remainder lies in [-blo, bhi]
+        if qsub is not None:  # two bounds of the same remainder: their intersection
+            fp = self.wrow[None, :] * fpm[:, None]
+            blo = np.minimum(ball, fp - qsub[0])
+            bhi = np.minimum(ball, qsub[1] + fp)
         if zsub is not None:
-            ball = ball + zsub
-        dlo = np.minimum(slo[:-1], slo[1:]) - ell - ball - err
-        dhi = np.maximum(shi[:-1], shi[1:]) + ell + ball + err
+            blo, bhi = blo + zsub, bhi + zsub
+        dlo = np.minimum(slo[:-1], slo[1:]) - ell - blo - err
+        dhi = np.maximum(shi[:-1], shi[1:]) + ell + bhi + err
         pad = 1e-12 * (
-            np.abs(Bclo) + np.abs(Bchi) + np.maximum(vmag[:-1], vmag[1:]) + ell + ball + err
+            np.abs(Bclo) + np.abs(Bchi) + np.maximum(vmag[:-1], vmag[1:]) + ell
+            + np.maximum(np.abs(blo), np.abs(bhi)) + err
         ) + 1e-15
         lo = _dn(Bclo + dlo - pad)
         hi = _up(Bchi + dhi + pad)
