@@ -4,7 +4,9 @@ The nonlinear engine (``reach/nonlinear.py``) splits the deviation from its cent
 disturbances and uncertain parameters as ``x - z = Phi (D d + M e) + psi_w + psi``; ``psi_w``
 is the response of the linearisation to the disturbances' and parameters' first-order
 forcing, which this module bounds by a zonotope (docs/verification.md, "The disturbances'
-linear part, carried as a zonotope"). Pure functions of numpy arrays.
+linear part, carried as a zonotope"). ``offset_zonotope`` does the same for the remainder
+``psi``'s second-order forcing, a signed interval per substep, about the response of its
+midpoint (docs/verification.md, "The remainder per axis"). Pure functions of numpy arrays.
 """
 
 from __future__ import annotations

@@ -221,8 +221,9 @@ class NonlinearReach(ClosedLoopSetup):
     #: with disturbances or uncertain parameters: their first-order part ``J_{w,p} (w -
     #: w_n, p - p_n)`` is carried through the linear flow as a zonotope
     #: (``reach/carried.py``) and folded into the star at each sample (docs/verification.md,
-    #: "The disturbances' linear part"); False: it goes into the remainder ball, isotropic
-    #: in ``W``, as before
+    #: "The disturbances' linear part"); with it the remainder is also bounded per axis
+    #: (its second-order forcing carried as a zonotope about an offset, "The remainder per
+    #: axis"); False: both go into the remainder ball, isotropic in ``W``, as before
     carry: bool = True
 
     def __post_init__(self) -> None:
