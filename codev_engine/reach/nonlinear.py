@@ -53,7 +53,7 @@ from codev_engine.geometry.vertices import checked_piece
 from codev_engine.law import ExplicitLaw
 from codev_engine.limits import beat
 from codev_engine.plant import linearize, plant_model
-from codev_engine.reach.carried import carried_zonotope
+from codev_engine.reach.carried import carried_zonotope, offset_zonotope
 from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import (
     ClosedLoopSetup,
@@ -88,6 +88,12 @@ class _Set:
     #: to the set at a sample (``_period``); folded into the star by ``_rerooted`` before
     #: the set is used (None: none)
     Z: np.ndarray | None = None
+    #: with ``Z``: the remainder's two bounds at the sample, for ``_rerooted``'s support
+    #: (``M`` holds ``PM e`` plus the ball): the carried ellipsoid ``PM`` (n, n), the
+    #: ball's W-radius and the remainder's zonotope, offset (n,) and generators (n, k)
+    #: (``_period``;
+    #: docs/verification.md, "The remainder per axis"). None: ``M`` alone.
+    rem: tuple[np.ndarray, float, np.ndarray, np.ndarray] | None = None
 
     @property
     def poly(self) -> tuple:
@@ -215,8 +221,9 @@ class NonlinearReach(ClosedLoopSetup):
     #: with disturbances or uncertain parameters: their first-order part ``J_{w,p} (w -
     #: w_n, p - p_n)`` is carried through the linear flow as a zonotope
     #: (``reach/carried.py``) and folded into the star at each sample (docs/verification.md,
-    #: "The disturbances' linear part"); False: it goes into the remainder ball, isotropic
-    #: in ``W``, as before
+    #: "The disturbances' linear part"); with it the remainder is also bounded per axis
+    #: (its second-order forcing carried as a zonotope about an offset, "The remainder per
+    #: axis"); False: both go into the remainder ball, isotropic in ``W``, as before
     carry: bool = True
 
     def __post_init__(self) -> None:
@@ -250,6 +257,7 @@ class NonlinearReach(ClosedLoopSetup):
         self.wrow = np.linalg.norm(self.Winv, axis=1) * self.winv_pad
         self._u_ok: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._rho_hint = 0.0
+        self._q_hint: np.ndarray | None = None  # (n,) the remainder per axis, last period
         #: the last interval operation outside its domain (names the expression), if any
         self.domain_note: str | None = None
         self._failed: Finding | None = None
@@ -752,11 +760,22 @@ class NonlinearReach(ClosedLoopSetup):
         gpad = 1e-12 * (1.0 + np.abs(y0).max())
         frac = taus[:-1] / max(self.Ts, 1e-300)
         guess = 1.5 * self._rho_hint * frac + gpad
+        # with the disturbances' carried part: a guess of the remainder per axis at the
+        # substep starts too (``qg``, induction like ``guess``: the start boxes assume
+        # both, the pass checks both; inf: none), the remainder's zonotope ``qres``
+        qg = qres = None
+        if zsub is not None:
+            qg = np.full((N, n), np.inf)
+            if self._q_hint is not None:
+                qg = 1.5 * self._q_hint[None, :] * frac[:, None] + gpad
+        qtries = 0
         rho = None
-        for _attempt in range(8):
+        for _attempt in range(14):
             base_lo = Y0 + slo_star[:-1] - Mrows[:-1]
             base_hi = Y0 + shi_star[:-1] + Mrows[:-1]
             ext = self.wrow[None, :] * guess[:, None]
+            if qg is not None:
+                ext = np.minimum(ext, qg)
             if zsub is not None:
                 ext = ext + zbox
             bpad = 1e-12 * (np.abs(Y0) + vmag[:-1] + Mrows[:-1] + ext) + 1e-15
@@ -799,6 +818,18 @@ class NonlinearReach(ClosedLoopSetup):
                 Hm = np.maximum(np.abs(hl), np.abs(hh)).reshape(-1, n, k, k)
                 Hm = np.where(np.isnan(Hm), np.inf, Hm)
                 q = 0.5 * np.einsum("pikl,pk,pl->pi", Hm, Dz, Dz)
+                # (signed: the diagonal terms H_kk dz_k^2 lie in [min(hl_kk, 0), max(hh_kk,
+                # 0)] Dz_k^2, the rest symmetric: q = qsym + qdiag)
+                Dz2 = Dz * Dz
+                hdl = np.diagonal(hl.reshape(-1, n, k, k), axis1=2, axis2=3)
+                hdh = np.diagonal(hh.reshape(-1, n, k, k), axis1=2, axis2=3)
+                hdl = np.where(np.isnan(hdl), -np.inf, np.minimum(hdl, 0.0))
+                hdh = np.where(np.isnan(hdh), np.inf, np.maximum(hdh, 0.0))
+                with np.errstate(invalid="ignore"):
+                    qd_lo = 0.5 * np.einsum("pik,pk->pi", hdl, Dz2)
+                    qd_hi = 0.5 * np.einsum("pik,pk->pi", hdh, Dz2)
+                    qd = 0.5 * np.einsum("pik,pk->pi",
+                                         np.diagonal(Hm, axis1=2, axis2=3), Dz2)
                 if zoh:
                     q = q + np.einsum("pik,pk->pi", Rc[jfin], Dz[:, : n + m])
                 else:
@@ -813,6 +844,13 @@ class NonlinearReach(ClosedLoopSetup):
                     q = q + Jn[jfin] @ nu
                 with np.errstate(invalid="ignore"):
                     c2[jfin] = np.linalg.norm(q @ self.absW.T, axis=1) * (1 + 1e-10) + 1e-300
+                    # the symmetric part: the off-diagonal terms and the linear ones added
+                    # to q0 (differences of sums: 1e-12 of the magnitudes covers their
+                    # rounding)
+                    qsym = np.maximum(q - qd, 0.0)
+                    slack = 1e-12 * (q + np.abs(qd_lo) + qd_hi) + 1e-300
+                    qlo = qd_lo - qsym - slack
+                    qhi = qd_hi + qsym + slack
                 c2 = np.where(np.isnan(c2), np.inf, c2)
             if jfin.size:
                 if zoh:
@@ -847,6 +885,10 @@ class NonlinearReach(ClosedLoopSetup):
                     if zoh:
                         b[jfin] = _norm2(self.absW @ Ru) * (1 + 1e-12) * du_norm
                 b[jfin] = (b[jfin] + bw) * (1 + 1e-12)
+            qall = None
+            if jfin.size == N and np.all(np.isfinite(c2)):
+                # (the second-order forcing of every substep, element-wise, signed)
+                qall = (qlo, qhi) if np.all(np.isfinite(qlo + qhi)) else None
             rho = np.zeros(N + 1)
             bad, r, last = -1, 0.0, N
             for j in range(N):
@@ -870,6 +912,31 @@ class NonlinearReach(ClosedLoopSetup):
                     last = j
                     break
                 rho[j + 1] = r
+            qres = None
+            if qg is not None and qall is not None:
+                jump = eps * (1 + 1e-12) + self.wrow[None, :] * fpm[:, None]
+                qres = offset_zonotope(Jxc if zoh else Jc, qall[0], qall[1], hs, jump)
+            if qg is not None and np.any(np.isfinite(qg)):
+                # the start boxes assumed the per-axis guess: proved up to its first miss
+                over = 0
+                if qres is not None:
+                    with np.errstate(invalid="ignore"):
+                        okq = np.all(qres[4] <= qg, axis=1)
+                    over = N if okq.all() else int(np.argmin(okq))
+                if over < N and (bad < 0 or over <= bad):
+                    bad = over
+                    qtries += 1
+                    if qres is None or qtries > 4:
+                        qg = np.full((N, n), np.inf)  # give the per-axis guess up
+                    else:
+                        qg = np.maximum(qg, 1.25 * qres[4]) + gpad
+                    qres = None
+                    continue
+            elif qres is not None and bad < 0 and qtries == 0:
+                # no guess yet: one more pass with this one (tighter start boxes)
+                qtries += 1
+                qg = 1.25 * qres[4] + gpad
+                continue
             if bad < 0:
                 break
             if not okb[bad] and rho[bad] <= guess[bad]:
@@ -889,6 +956,15 @@ class NonlinearReach(ClosedLoopSetup):
             )
             return None, tube, [self._failure(t_k + taus[bad])], None
         self._rho_hint = 0.5 * self._rho_hint + 0.5 * float(rho[N])
+        # the remainder per axis (with the disturbances' carried part only): psi' = J_j psi
+        # + w, |w| <= q_j, plus the centre's error and the rounding at each substep's end,
+        # the very recursion the W-ball bounds, carried as a zonotope of the linear flow:
+        # it keeps the thin directions the ball (isotropic in W) fills
+        qsub = qgen = None
+        if zgen is not None and qres is not None:
+            qlo_s, qhi_s, qoff, qgen, _ = qres
+            qsub = (qlo_s, qhi_s)
+            self._q_hint = np.abs(qoff) + np.abs(qgen).sum(axis=1)
         # within a substep the set is also the centre's enclosure plus the star and the
         # ellipsoid carried by Phi(t) plus the remainder ball: far tighter than the sweep
         # S_j + [0, h] f(B_j) once the set is wide across a fast direction of f
@@ -902,7 +978,8 @@ class NonlinearReach(ClosedLoopSetup):
             Ma = np.abs(Jc)
             zeta = np.maximum(np.abs(slo_star[:-1]), np.abs(shi_star[:-1])) + Mrows[:-1]
         Blo, Bhi = self._linear_boxes(
-            Blo, Bhi, Bclo, Bchi, slo_star, shi_star, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub
+            Blo, Bhi, Bclo, Bchi, slo_star, shi_star, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub,
+            qsub,
         )
         tube = _tube(t_k + taus[:-1], t_k + taus[1:], Blo, Bhi, self.stats["branches"])
         swlo = _dn(hc * np.minimum(flo, 0.0))
@@ -911,10 +988,15 @@ class NonlinearReach(ClosedLoopSetup):
                    zsub)
         Mn = self._ell_plus_ball(PM[N], float(rho[N]))
         nxt = _Set(Y[N].copy(), PD[N], Mn, s.k + 1, s.path, s.H, s.h, s.V, s.base, zgen)
+        if qgen is not None and n > 2:
+            # (not in the plane: there the zonotopes' nearly parallel generators make a
+            # sliver polygon whose vertex enumeration falls back to its bounding box)
+            nxt.rem = (PM[N], float(rho[N]), qoff, qgen)
         return nxt, tube, [], rec
 
     def _linear_boxes(
-        self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub=None
+        self, Blo, Bhi, Bclo, Bchi, slo, shi, Mrows, rho, fpm, Ma, zeta, hs, vmag, zsub=None,
+        qsub=None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """The substeps' tube boxes ``B_j`` intersected with the linear-part bound.
 
@@ -953,6 +1035,9 @@ class NonlinearReach(ClosedLoopSetup):
             Magnitudes of the star's and the ellipsoid's terms (rounding allowance).
         zsub : (N, n) ndarray, optional
             Half-widths of the disturbances' carried linear part over the substeps.
+        qsub : tuple of two (N, n) ndarray, optional
+            A box holding the remainder over the substeps, its ends included (from the
+            remainder's zonotope about its offset): intersected with the W-ball per axis.
 
         Returns
         -------
@@ -967,12 +1052,18 @@ class NonlinearReach(ClosedLoopSetup):
         err = (0.125 * hs * hs)[:, None] * g2 * (1 + 1e-10)
         ell = np.maximum(Mrows[:-1], Mrows[1:])
         ball = self.wrow[None, :] * (np.maximum(rho[:-1], rho[1:]) + fpm)[:, None]
+        blo = bhi = ball  # the remainder lies in [-blo, bhi]
+        if qsub is not None:  # two bounds of the same remainder: their intersection
+            fp = self.wrow[None, :] * fpm[:, None]
+            blo = np.minimum(ball, fp - qsub[0])
+            bhi = np.minimum(ball, qsub[1] + fp)
         if zsub is not None:
-            ball = ball + zsub
-        dlo = np.minimum(slo[:-1], slo[1:]) - ell - ball - err
-        dhi = np.maximum(shi[:-1], shi[1:]) + ell + ball + err
+            blo, bhi = blo + zsub, bhi + zsub
+        dlo = np.minimum(slo[:-1], slo[1:]) - ell - blo - err
+        dhi = np.maximum(shi[:-1], shi[1:]) + ell + bhi + err
         pad = 1e-12 * (
-            np.abs(Bclo) + np.abs(Bchi) + np.maximum(vmag[:-1], vmag[1:]) + ell + ball + err
+            np.abs(Bclo) + np.abs(Bchi) + np.maximum(vmag[:-1], vmag[1:]) + ell
+            + np.maximum(np.abs(blo), np.abs(bhi)) + err
         ) + 1e-15
         lo = _dn(Bclo + dlo - pad)
         hi = _up(Bchi + dhi + pad)
@@ -1116,6 +1207,7 @@ class NonlinearReach(ClosedLoopSetup):
         tubes: list[Tube] = []
         status, first_t = "ok", None
         self._rho_hint = 0.0
+        self._q_hint = None
 
         def flag(kind: str, when: float) -> bool:
             nonlocal status, first_t
@@ -1203,6 +1295,10 @@ class NonlinearReach(ClosedLoopSetup):
                             rows.append(r[None, :] / np.sqrt(2.0))
             U = np.vstack(rows)
         A = U @ self.W  # a' z = u' (W z): the direction u in W-space
+        if carrying and n > 2:
+            # and the state axes and their diagonals themselves: the tube is read per state,
+            # and a thin state's extent must not come from W's tilted rows
+            A = np.vstack([A, U])
         if (not carrying or n > 2) and s.H is not None and np.linalg.cond(s.D) < 1e8:
             A = np.vstack([A, s.H @ np.linalg.inv(s.D)])
         A = A[np.linalg.norm(A, axis=1) > 0]
@@ -1248,6 +1344,16 @@ class NonlinearReach(ClosedLoopSetup):
             _, up = s.range(A)
             mag = np.abs(A) @ s.mag()
             e = up + s.ell(A)
+            if s.rem is not None:
+                # the remainder lies in the W-ball and in its zonotope: the smaller support
+                PM, rad, qc, Q = s.rem
+                alt = up + _ell_rows(A @ PM) + A @ qc + np.abs(A @ Q).sum(axis=1)
+                # (one of the two whole: a per-direction minimum is no support function,
+                # and in the plane its polygons defeated the vertex enumeration)
+                if alt.sum() < e.sum():
+                    e = alt
+                mag = mag + (np.abs(A) @ np.abs(Q)).sum(axis=1) + np.abs(A) @ (
+                    np.abs(PM).sum(axis=1) + np.abs(qc))
             if s.Z is not None:  # the zonotope's support: sum_l |a' z_l|
                 AZ = np.abs(A @ s.Z)
                 e = e + AZ.sum(axis=1)
