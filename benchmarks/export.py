@@ -17,6 +17,8 @@ compiled C (``gcc -O2``) on ``--states`` states drawn uniformly from the law's d
 the median and the worst over the states. Every state's region is checked against
 ``law.locate`` on the way (a mismatch is printed). ``--solution`` adds an mp problem of the
 mp_testset (its ``.npz``, solved by ``ce.mpsolve``) exported as ``MpSolution``.
+``--problems quadrotor-operation``: the region of operation of issue 39's quadrotor (12
+states, N = 10, verified on demand; ``deploy.operation``), on states of its tube.
 
 The peer: PPOPT 1.6.12's C++ export (``ppopt.upop.linear_code_gen.generate_code_cpp``)
 cannot be imported (the template module ``ppopt.upop.lib_upop`` is missing from the
@@ -103,6 +105,37 @@ def states_inside(law, dep, count: int, seed: int) -> np.ndarray:
         out.append(X)
         have += X.shape[0]
     return np.vstack(out)[:count]
+
+
+#: the region of operation of issue 39's quadrotor (``--problems quadrotor-operation``)
+OPERATION = "quadrotor-operation"
+
+
+def operation_quadrotor(count: int, states: dict) -> object:
+    """The quadrotor at hover, N = 10 (``benchmarks/on_demand.py``), verified over 5 s on
+    demand; its region of operation (``deploy.operation.operation_law``). Its states
+    (``states[OPERATION]``): uniform in the tube's sample sets (the domain's box holds
+    almost none of the regions' volume in 12 dimensions)."""
+    import codev_engine as ce
+    from benchmarks.on_demand import quadrotor
+    from codev_engine.deploy.operation import operation_law
+    from codev_engine.law_on_demand import OnDemandLaw
+
+    problem = quadrotor(10)
+    od = OnDemandLaw(problem)
+    t0 = time.perf_counter()
+    result = ce.verify(problem, od)
+    law, _ = operation_law(problem, od, result)
+    print(f"{OPERATION}: {result.verdict} on {law.num_regions} regions in "
+          f"{time.perf_counter() - t0:.1f} s", flush=True)
+    tube, Ts = result.tube, float(problem.model.sample_time)
+    k = np.ceil(tube.t_start / Ts - 1e-9)
+    hit = k * Ts <= tube.t_end + 1e-12
+    lo, hi = tube.lower[hit], tube.upper[hit]
+    rng = np.random.default_rng(0)
+    pick = rng.integers(0, lo.shape[0], count)
+    states[OPERATION] = lo[pick] + rng.uniform(size=(count, law.n)) * (hi[pick] - lo[pick])
+    return law
 
 
 def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path,
@@ -231,7 +264,11 @@ def main(argv: list[str] | None = None) -> int:
     # warm up the compiled code (numba caches) on a small law
     plan(ce.synthesize(ce.load_spec(ROOT / "examples" / "double_integrator.toml")), "bst")
     objs = []
+    states: dict[str, np.ndarray] = {}
     for name in [p for p in args.problems.split(",") if p]:
+        if name == OPERATION:
+            objs.append((name, operation_quadrotor(args.states, states)))
+            continue
         objs.append((name, ce.synthesize(ce.load_spec(ROOT / "examples" / f"{name}.toml"))))
     keys = ("H", "c", "C", "A", "b", "F", "A_theta", "b_theta", "Aeq", "beq", "Feq")
     for path in args.solution:
@@ -249,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name, obj in objs:
         dep = deployable(obj)
-        X = states_inside(obj, dep, args.states, seed=0)
+        X = states[name] if name in states else states_inside(obj, dep, args.states, seed=0)
         ref = obj.locate(X)
         R, d = dep.num_regions, dep.F.shape[2]
         from codev_engine.deploy.bst import TreeTooLargeError

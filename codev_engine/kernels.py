@@ -135,6 +135,15 @@ def _export() -> None:
         plan.plan(law, "bst")
     finally:
         bst.TABLE_ENTRIES, plan.LARGE_FROM = saved_t, saved_l
+    # and the points inside a region whose vertices are not enumerated (high dimension:
+    # the quadrotor's region of operation), on a region of the small law
+    from codev_engine.deploy.prune_kernel import inner_points
+
+    lo, hi = law.boxes
+    A0, b0 = np.asarray(law.A[0], float), np.asarray(law.b[0], float)
+    nrm = np.linalg.norm(A0, axis=1)
+    inner_points(A0 / nrm[:, None], b0 / nrm, np.array([0, A0.shape[0]]), np.array([0]),
+                 lo[:1].copy(), hi[:1].copy(), float(np.abs(lo).max() + np.abs(hi).max()), 500)
 
 
 #: group name -> what compiles it (each runs in its own process in ``compile_all``)

@@ -50,13 +50,14 @@ The cost of a call is bounded by the tree: :meth:`Tree.cost` walks every leaf.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import unique_rows
-from codev_engine.geometry.vertices import box_corners, packed_vertices
+from codev_engine.geometry.vertices import packed_vertices
 
 __all__ = ["LOCATE_TOL", "Tree", "TreeTooLargeError", "build_tree", "sequential_tree"]
 
@@ -96,6 +97,9 @@ WITNESSES = 6
 #: a region of at most this many d-subsets of rows has its vertices from the subsets,
 #: a larger one from Qhull (``_enlarged_vertices``)
 SUBSET_MAX = 2_000
+#: the most vertices (upper bound theorem) of a region given to Qhull; past it the region
+#: takes its box (Qhull's time follows the vertices)
+HULL_MAX_VERTICES = 200_000
 #: the deepest tree built; a node deeper becomes a leaf that checks all its members
 MAX_DEPTH = 64
 
@@ -259,7 +263,7 @@ def _enlarged_vertices(
     tally: dict | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Points whose convex hull contains each region enlarged by ``LOCATE_TOL``: its
-    vertices when they are proved complete, else the corners of its box (widened).
+    vertices when they are proved complete, else its box (widened).
 
     The vertices come from the row subsets (``packed_vertices``) for a region of at most
     ``SUBSET_MAX`` d-subsets of rows, else from Qhull's halfspace intersection
@@ -274,10 +278,16 @@ def _enlarged_vertices(
     A region that passes neither (a degenerate one: where many facets meet, the
     enlargement splits a vertex into a cluster ~1e-9 wide whose edges the check cannot
     follow; 12 of magnetic pointer A's 1,008 regions; ``tally["unproved"]``) takes its
-    box's corners: sound whatever vertex was lost, at the price of more leaves.
+    box: sound whatever vertex was lost, at the price of more leaves and LPs.
 
-    Returns the points (V, d), the region of each (V,), non-decreasing, and the number of
-    regions that fell back on their box.
+    A region whose vertices could be many (over ``HULL_MAX_VERTICES`` by the upper bound
+    theorem: :func:`max_vertices`) and that the subsets did not settle is not given to
+    Qhull: it takes its box too.
+
+    Returns the points (V, d): the vertices where they are proved, points inside a
+    boxed region else (``prune_kernel.inner_points``: they tell where it is, its box
+    where it is not); the region of each (V,), non-decreasing; and the number of regions
+    that fell back on their box (``tally["box"]``: which).
     """
     from codev_engine.geometry.vertices import _END_TOL, _LEAVE_TOL, DET_TOL, hull_vertices
     from codev_engine.geometry.vertices_kernel import closed_under_edges
@@ -291,8 +301,6 @@ def _enlarged_vertices(
     be = bn + LOCATE_TOL / nrm
     V, owner, done = packed_vertices(An, be, off, 1e-10, rtol=1e-12, max_combos=SUBSET_MAX)
     lo, hi = boxes
-    pad = 1e-7 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
-    wlo, whi = lo - pad, hi + pad
     gap = 1e-6 * (1.0 + np.maximum(np.abs(lo), np.abs(hi)))
     counts = np.bincount(owner, minlength=R)
     parts = np.split(V, np.cumsum(counts)[:-1])
@@ -314,7 +322,12 @@ def _enlarged_vertices(
     ok = np.zeros(R, dtype=bool)
     for i in range(R):
         ok[i] = bool(done[i]) and spans(i, parts[i]) and closed(i, parts[i])
-    redo = np.flatnonzero(~ok)
+    # Qhull only where the vertices can be few: its time follows them, and a region of
+    # the quadrotor's region of operation (50-98 rows in d = 12, up to ~10^7 vertices by
+    # the upper bound theorem) had not ended after 100 s; the others keep their box
+    rows = np.diff(off)
+    few = np.array([max_vertices(int(k), d) <= HULL_MAX_VERTICES for k in rows], dtype=bool)
+    redo = np.flatnonzero(~ok & few)
     unproved = 0
     if redo.size:
         again, _ = hull_vertices(An, be, off, redo, 1e-10)
@@ -325,17 +338,53 @@ def _enlarged_vertices(
                 continue
             # not proved (a degenerate region: vertices where many facets meet split into
             # clusters ~1e-9 apart by the enlargement, whose edges the check cannot
-            # follow): its box, whose corners hold it whatever vertex was lost (a lost
+            # follow): its box, which holds it whatever vertex was lost (a lost
             # vertex beyond a hyperplane would drop the region from a side it reaches)
             unproved += 1
+    unproved += int(np.count_nonzero(~ok & ~few))
+    boxed = np.flatnonzero(~ok)
+    if boxed.size:
+        # a boxed region's points lie inside it (``prune_kernel.inner_points``): where it
+        # is, never where it is not (its box's support, exact, says that; ``build_tree``)
+        from codev_engine.deploy.prune_kernel import inner_points
+
+        lo, hi = (np.asarray(x, dtype=float) for x in boxes)
+        bound = float(np.abs(np.concatenate([lo[boxed], hi[boxed]])).max(initial=0.0)) + 1.0
+        X, got = inner_points(np.ascontiguousarray(An), np.ascontiguousarray(be),
+                              off.astype(np.int64), boxed.astype(np.int64),
+                              np.ascontiguousarray(lo[boxed]), np.ascontiguousarray(hi[boxed]),
+                              bound, 500)
+        for q, i in enumerate(boxed):
+            parts[i] = np.unique(X[q][got[q]], axis=0)
     if tally is not None:
         tally["unproved"] = unproved
-    pts, own = [], []
+        tally["box"] = ~ok
+    pts, own = [np.zeros((0, d))], [np.zeros(0, dtype=np.int64)]
     for i in range(R):
-        P = parts[i] if ok[i] else box_corners(wlo[i], whi[i])
+        P = parts[i] if parts[i] is not None else np.zeros((0, d))
         pts.append(P)
-        own.append(np.full(P.shape[0], i))
-    return np.concatenate(pts), np.concatenate(own), int(np.count_nonzero(~ok))
+        own.append(np.full(P.shape[0], i, dtype=np.int64))
+    return np.concatenate(pts), np.concatenate(own), int(boxed.size)
+
+
+def max_vertices(k: int, d: int) -> int:
+    """The most vertices a polytope of ``k`` facets in ``d`` dimensions can have (the
+    upper bound theorem, McMullen 1970: the cyclic polytope's count).
+
+    Parameters
+    ----------
+    k, d : int
+
+    Returns
+    -------
+    int
+    """
+    if k <= d:
+        return 1 if k == d else 0
+    h = d // 2
+    if d % 2 == 0:
+        return k * math.comb(k - h - 1, h - 1) // h if h else 1
+    return 2 * math.comb(k - h - 1, h)
 
 
 def build_tree(
@@ -422,6 +471,7 @@ def build_tree(
     if sort not in ("cell", "vertices"):
         raise ValueError(f"unknown sort {sort!r}")
     cellwise = sort == "cell"
+    _prepare_kernels()  # (``_enlarged_vertices`` may call one: ``inner_points``)
     vcounts: dict = {}
     V, owner, boxed = _enlarged_vertices(A, b, off, boxes, vcounts)
     if boxed > max(8, R // 4) and not cellwise:
@@ -433,9 +483,19 @@ def build_tree(
             f"rows in {d} dimensions): no search tree (use the sequential search)"
         )
     vcount = np.bincount(owner, minlength=R)
-    pad = 1e-6 * (1.0 + np.abs(V).max(initial=1.0))
-    box_lo = (V.min(axis=0) if V.shape[0] else np.zeros(d)) - pad
-    box_hi = (V.max(axis=0) if V.shape[0] else np.zeros(d)) + pad
+    # the boxed regions (no points): their boxes widened as in ``_enlarged_vertices``,
+    # as centre and radius (the support of a box along a row is exact: c.a +- r.|a|)
+    isbox = np.asarray(vcounts.pop("box"), dtype=bool)
+    blo, bhi = (np.asarray(x, dtype=float) for x in boxes)
+    bpad = 1e-7 * (1.0 + np.maximum(np.abs(blo), np.abs(bhi)))
+    box_c = np.ascontiguousarray(0.5 * ((blo - bpad) + (bhi + bpad)))
+    box_r = np.ascontiguousarray(0.5 * ((bhi + bpad) - (blo - bpad)))
+    box_r[~isbox] = -1.0  # (a region with points: not boxed, radius < 0)
+    ends = [V] + [blo[isbox] - bpad[isbox], bhi[isbox] + bpad[isbox]]
+    P_all = np.vstack(ends)
+    pad = 1e-6 * (1.0 + np.abs(P_all).max(initial=1.0))
+    box_lo = (P_all.min(axis=0) if P_all.shape[0] else np.zeros(d)) - pad
+    box_hi = (P_all.max(axis=0) if P_all.shape[0] else np.zeros(d)) + pad
     xmax = float(np.abs(np.concatenate([box_lo, box_hi])).max(initial=0.0))
 
     # the candidate hyperplanes: the regions' rows, unit, signed canonically, deduplicated
@@ -477,6 +537,11 @@ def build_tree(
         if np.any(has):
             lo[:, has] = np.minimum.reduceat(S, seg[has], axis=1)
             hi[:, has] = np.maximum.reduceat(S, seg[has], axis=1)
+        bx = isbox[regs]
+        if np.any(bx):  # a boxed region: its box's support
+            mid = H_A[hs] @ box_c[regs[bx]].T - H_b[hs][:, None]
+            half = np.abs(H_A[hs]) @ box_r[regs[bx]].T
+            lo[:, bx], hi[:, bx] = mid - half, mid + half
         eps = EPS * (1.0 + np.abs(H_b[hs]))[:, None]
         return lo / eps, hi / eps  # in units of eps: proper beyond -1 / 1, member within
 
@@ -569,7 +634,7 @@ def build_tree(
         if possible is None:
             possible = np.ones((allm.size, 4), dtype=bool)
         got = split_node(
-            Vc, vstart, vcount, allm, inP, CA, Cb, Cbp, in_tol, H_A[h], float(H_b[h]),
+            Vc, vstart, vcount, box_c, box_r, allm, inP, CA, Cb, Cbp, in_tol, H_A[h], float(H_b[h]),
             EPS * (1.0 + abs(H_b[h])), PROPER * (1.0 + abs(H_b[h])), An_c, be_lp, off,
             box_A, box_b, xmax + 1.0, 500, W, Wn, possible,
         )
@@ -651,7 +716,7 @@ def build_tree(
                 if cellwise and table is None:
                     # (with no cell rows: every vertex counts)
                     nl, nr, nlc, nrc = both_counts(
-                        Vc, vstart, vcount, P, CA, Cb, in_tol, H_A, H_b, chunk, eps_c
+                        Vc, vstart, vcount, box_c, box_r, P, CA, Cb, in_tol, H_A, H_b, chunk, eps_c
                     )
                     best_g = merge(best_g, nl, nr, chunk, 1)
                     if local:
@@ -662,7 +727,8 @@ def build_tree(
                                    chunk, 1)
                     if local:
                         nl, nr = local_counts(
-                            Vc, vstart, vcount, P, CA, Cb, in_tol, H_A, H_b, chunk, eps_c
+                            Vc, vstart, vcount, box_c, box_r, P, CA, Cb, in_tol, H_A, H_b,
+                            chunk, eps_c,
                         )
                         best_l = merge(best_l, nl, nr, chunk, keep)
                 spent += chunk.size * nvert

@@ -296,7 +296,9 @@ long {name}_count = 0;
 {chr(10).join(decl)}
 
 /* the largest violation of region i's rows (-1 without rows), summed as
-   -b_j + A_j0 theta_0 + A_j1 theta_1 + ... (the locator's order) */
+   -b_j + A_j0 theta_0 + A_j1 theta_1 + ... (the locator's order); once a row exceeds the
+   tolerance the region neither holds nor is near theta: that row's value is returned
+   (the rule decides the same, the remaining rows are not evaluated) */
 static {real} violation(int32_t i, const {real} theta[{up}_NTHETA])
 {{
     int32_t j;
@@ -310,6 +312,9 @@ static {real} violation(int32_t i, const {real} theta[{up}_NTHETA])
         }}
         if (j == row_start[i] || a > v) {{
             v = a;
+        }}
+        if (v > {tol}) {{
+            return v;
         }}
     }}
     return v;

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from codev_engine.geometry.lp_kernel import OPTIMAL, cache_follows, chebyshev
+from codev_engine.geometry.lp_kernel import OPTIMAL, cache_follows, chebyshev, lp_max
 
 
 @njit(cache=True)
@@ -87,6 +87,18 @@ def _in_cell(V, i, CA, Cb, tol):
         if s > tol:
             return False
     return True
+
+
+@njit(cache=True)
+def _box_range(box_c, box_r, r, HA, Hb, h):
+    """The least and largest ``s = HA[h] x - Hb[h]`` over region ``r``'s box (centre
+    ``box_c[r]``, radius ``box_r[r]``): its support, exact."""
+    mid = -Hb[h]
+    half = 0.0
+    for t in range(HA.shape[1]):
+        mid += HA[h, t] * box_c[r, t]
+        half += abs(HA[h, t]) * box_r[r, t]
+    return mid - half, mid + half
 
 
 @njit(cache=True)
@@ -228,7 +240,7 @@ def cuts(pts, HA, Hb, cand, eps):
 
 
 @njit(cache=True)
-def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
+def local_counts(V, vstart, vcount, box_c, box_r, P, CA, Cb, tol, HA, Hb, cand, eps):
     """Proper regions each side of each candidate hyperplane, by the regions' vertices
     inside the cell (all of a region's vertices where none is): an estimate of the split.
 
@@ -238,6 +250,11 @@ def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
         The regions' (enlarged) vertices, region after region.
     vstart, vcount : (R,) int64 ndarrays
         Region ``i``'s vertices are ``V[vstart[i]:vstart[i] + vcount[i]]``.
+    box_c, box_r : (R, d) float64 ndarrays
+        A region with ``box_r[r, 0] >= 0`` is *boxed*: its points are inside it, not its
+        vertices (``inner_points``); its box (centre, radius) holds it, and the box's
+        support along a row stands for all its vertices' (where no point is in the cell:
+        for those in the cell too).
     P : (p,) int64 ndarray
         The regions counted.
     CA, Cb : (c, d), (c,) float64 ndarrays
@@ -268,7 +285,7 @@ def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
             if _in_cell(V, i, CA, Cb, tol):
                 idx[m] = i
                 m += 1
-        if m == m0:
+        if m == m0 and box_r[r, 0] < 0.0:
             for i in range(vstart[r], vstart[r] + vcount[r]):
                 idx[m] = i
                 m += 1
@@ -288,6 +305,8 @@ def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
                     s += HA[h, t] * V[i, t]
                 lo = min(lo, s)
                 hi = max(hi, s)
+            if seg[q + 1] == seg[q] and box_r[P[q], 0] >= 0.0:
+                lo, hi = _box_range(box_c, box_r, P[q], HA, Hb, h)
             if lo < -eps[c]:
                 nl[c] += 1
             if hi > eps[c]:
@@ -296,7 +315,7 @@ def local_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
 
 
 @njit(cache=True)
-def both_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
+def both_counts(V, vstart, vcount, box_c, box_r, P, CA, Cb, tol, HA, Hb, cand, eps):
     """:func:`local_counts` in the cell and over all vertices (no cell) in one pass.
 
     Parameters
@@ -305,6 +324,11 @@ def both_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
         The regions' (enlarged) vertices, region after region.
     vstart, vcount : (R,) int64 ndarrays
         Region ``i``'s vertices are ``V[vstart[i]:vstart[i] + vcount[i]]``.
+    box_c, box_r : (R, d) float64 ndarrays
+        A region with ``box_r[r, 0] >= 0`` is *boxed*: its points are inside it, not its
+        vertices (``inner_points``); its box (centre, radius) holds it, and the box's
+        support along a row stands for all its vertices' (where no point is in the cell:
+        for those in the cell too).
     P : (p,) int64 ndarray
         The regions counted.
     CA, Cb : (c, d), (c,) float64 ndarrays
@@ -362,6 +386,8 @@ def both_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
                     loc = min(loc, s)
                     hic = max(hic, s)
                 m += 1
+            if box_r[r, 0] >= 0.0:
+                lo, hi = _box_range(box_c, box_r, r, HA, Hb, h)
             if not anyin[q]:
                 loc = lo
                 hic = hi
@@ -377,8 +403,8 @@ def both_counts(V, vstart, vcount, P, CA, Cb, tol, HA, Hb, cand, eps):
 
 
 @njit(cache=True)
-def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An, be, off,
-               box_A, box_b, bound, maxit, W, Wn, possible):
+def split_node(V, vstart, vcount, box_c, box_r, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p,
+               An, be, off, box_A, box_b, bound, maxit, W, Wn, possible):
     """The regions of a node sorted into its children by their part inside the node's
     cell: the vertices decide where they can, a certified LP where they cannot.
 
@@ -386,8 +412,9 @@ def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An,
     (widened) is proved to lie beyond ``ha x > hb + e``, and *proper* (``isP`` only)
     unless its part of the cell shrunk by ``p`` (where the fast path runs) is proved to
     lie within ``ha x > hb - p``; mirrored on the right. Proofs: every
-    (enlarged) vertex beyond (their hull holds the region), or a negative radius bound
-    of the largest ball in (region, cell, box, the side's half-space) (weak duality).
+    (enlarged) vertex beyond (their hull holds the region; a boxed region's box), or a
+    negative radius bound of the largest ball in (region, cell, box, the side's
+    half-space) (weak duality).
     A vertex inside the cell on the side decides the other way; an LP whose ball has
     radius >= 0 too. On any doubt the region stays (member, proper).
 
@@ -396,6 +423,11 @@ def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An,
     V : (K, d) float64 ndarray
         The regions' (enlarged) vertices, region after region.
     vstart, vcount : (R,) int64 ndarrays
+    box_c, box_r : (R, d) float64 ndarrays
+        A region with ``box_r[r, 0] >= 0`` is *boxed*: its points are inside it, not its
+        vertices (``inner_points``); its box (centre, radius) holds it, and the box's
+        support along a row stands for all its vertices' (where no point is in the cell:
+        for those in the cell too).
     regs : (Q,) int64 ndarray
         The node's regions (proper and members).
     isP : (Q,) bool ndarray
@@ -467,6 +499,18 @@ def split_node(V, vstart, vcount, regs, isP, CA, Cb, Cbp, tol, ha, hb, e, p, An,
         if vcount[r] > 0:
             for t in range(d):
                 x0[t] /= vcount[r]
+        if box_r[r, 0] >= 0.0:
+            # boxed: where it is not, by its box's support (its points lie inside it:
+            # lo_in, hi_in hold)
+            mid = -hb
+            half = 0.0
+            for t in range(d):
+                mid += ha[t] * box_c[r, t]
+                half += abs(ha[t]) * box_r[r, t]
+                if vcount[r] == 0:
+                    x0[t] = box_c[r, t]
+            lo_all = mid - half
+            hi_all = mid + half
         # 1 there, 0 not there, -1 undecided: left proper, left member, right ...
         dec = np.empty(4, dtype=np.int64)
         dec[0] = 0 if (lo_all >= -p or not isP[q]) else (1 if lo_in < -p else -1)
@@ -560,6 +604,80 @@ def _witnessed(W, Wn, q, CA, Cb, Cbp, ha, hb, e, p, dec):
             dec[3] = 1
         if dec[0] >= 0 and dec[1] >= 0 and dec[2] >= 0 and dec[3] >= 0:
             return
+
+
+@njit(cache=True)
+def inner_points(An, be, off, which, blo, bhi, bound, maxit):
+    """Points inside regions whose vertices are not enumerated (boxed ones): the centre
+    of the largest ball and the ``2 d`` ends of the region along the axes (LPs started
+    from the centre). They tell where a region is (a point in a cell on a side: it is
+    there), never where it is not: the box does.
+
+    Parameters
+    ----------
+    An : (N, d) float64 ndarray
+        Every region's rows, unit.
+    be : (N,) float64 ndarray
+        Their offsets, enlarged.
+    off : (R + 1,) int64 ndarray
+    which : (w,) int64 ndarray
+        The regions.
+    blo, bhi : (w, d) float64 ndarrays
+        Their boxes (rows added to each LP: bounded whatever the region's rows).
+    bound : float
+        A bound of ``|x|_inf`` over the boxes.
+    maxit : int
+
+    Returns
+    -------
+    X : (w, 2 d + 1, d) float64 ndarray
+    ok : (w, 2 d + 1) bool ndarray
+        Where an LP found the point (optimal, inside the region to 1e-9).
+    """
+    d = An.shape[1]
+    X = np.zeros((which.size, 2 * d + 1, d))
+    ok = np.zeros((which.size, 2 * d + 1), dtype=np.bool_)
+    for q in range(which.size):
+        r = which[q]
+        k = off[r + 1] - off[r]
+        Ar = np.empty((k + 2 * d, d))
+        br = np.empty(k + 2 * d)
+        Ar[:k] = An[off[r] : off[r + 1]]
+        br[:k] = be[off[r] : off[r + 1]]
+        for t in range(d):
+            for j in range(d):
+                Ar[k + t, j] = 0.0
+                Ar[k + d + t, j] = 0.0
+            Ar[k + t, t] = 1.0
+            br[k + t] = bhi[q, t]
+            Ar[k + d + t, t] = -1.0
+            br[k + d + t] = -blo[q, t]
+        x0 = 0.5 * (blo[q] + bhi[q])
+        status, centre, radius, _ = chebyshev(Ar, br, x0, bound, maxit)
+        if status != OPTIMAL or radius < 0.0:
+            continue
+        X[q, 0] = centre
+        ok[q, 0] = True
+        use = np.ones(k + 2 * d, dtype=np.bool_)
+        c = np.zeros(d)
+        for t in range(d):
+            for sg in range(2):
+                c[t] = 1.0 if sg == 0 else -1.0
+                st, x, _, _, _ = lp_max(c, Ar, br, use, centre, np.empty(0, dtype=np.int64),
+                                        0, np.inf, maxit)
+                c[t] = 0.0
+                if st != OPTIMAL:
+                    continue
+                worst = -np.inf
+                for i in range(k + 2 * d):
+                    v = -br[i]
+                    for j in range(d):
+                        v += Ar[i, j] * x[j]
+                    worst = max(worst, v)
+                if worst <= 1e-9:
+                    X[q, 1 + 2 * t + sg] = x
+                    ok[q, 1 + 2 * t + sg] = True
+    return X, ok
 
 
 cache_follows(globals())

@@ -472,6 +472,41 @@ def test_candidates_filtered_by_the_cell_keep_the_tree_exact(monkeypatch, tmp_pa
     assert_agrees(lw, C, X)
 
 
+@needs_cc
+@pytest.mark.parametrize(
+    ("key", "table"),
+    [("voronoi", False), ("magnetic_pointer_c:inf:unmerged", True),
+     ("magnetic_pointer_c:inf:unmerged", False)],
+)
+def test_regions_kept_by_their_boxes_keep_the_tree_exact(key, table, monkeypatch, tmp_path):
+    """A region whose vertices are not enumerated (too many rows in high dimension: the
+    quadrotor's region of operation, d = 12; forced here on every region) is sorted by its
+    box's support and located by points inside it: the tree still returns locate's
+    region on random states and on facets, with or without the table of extents."""
+    import codev_engine.deploy.bst as bst
+
+    monkeypatch.setattr(bst, "SUBSET_MAX", 0)
+    monkeypatch.setattr(bst, "HULL_MAX_VERTICES", 0)
+    if not table:
+        monkeypatch.setattr(bst, "TABLE_ENTRIES", 0)
+    lw = law(key)
+    ex = plan(lw, "bst")
+    assert ex.tree.stats["boxed"] == lw.num_regions and ex.tree.num_nodes > 0
+    assert ex.tests == ex.tree.cost()["tests"]
+    C = Compiled(ex, tmp_path)
+    X = np.vstack([random_points(lw, 5000, seed=61), facet_points(lw, 2, seed=62, cap=5000)])
+    assert_agrees(lw, C, X)
+
+
+def test_most_vertices_by_the_upper_bound_theorem():
+    from codev_engine.deploy.bst import max_vertices
+
+    assert [max_vertices(k, 2) for k in (3, 4, 7)] == [3, 4, 7]  # polygons
+    assert max_vertices(6, 3) == 8 and max_vertices(8, 3) == 12  # 2k - 4
+    assert max_vertices(8, 4) == 20  # the dual of the cyclic polytope C(8, 4)
+    assert max_vertices(12, 12) == 1 and max_vertices(50, 12) > 10**6
+
+
 def _traversal_worst(t) -> tuple[int, int]:
     """The deepest path and the most rows of one call, by walking the node table from
     the root (independent of ``Tree.cost``)."""

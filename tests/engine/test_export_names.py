@@ -297,3 +297,43 @@ def test_a_prefix_is_made_from_any_design_name():
     assert prefix_for("") == prefix_for("--") == "codev_law"
     for text in corpus(seed=5, count=200) + ["a" * 64, "a" * 50 + "-b"]:
         assert c_prefix(prefix_for(text)) == prefix_for(text)
+
+
+@needs_cc
+def test_a_hostile_design_name_stays_a_comment_in_the_region_of_operation(tmp_path):
+    """The header of a region-of-operation export states the design's name, the verdict
+    and its reason (``deploy.operation.operation_note``): free text, escaped like the
+    names. The C header compiles under the strictest flags and holds no code of them; the
+    Python module imports without running anything, and is the plain export's otherwise."""
+    from codev_engine.deploy.operation import operation_law, operation_note
+    from codev_engine.law_on_demand import OnDemandLaw
+    from tests.conftest import EXAMPLES_DIR
+
+    problem = ce.load_spec(EXAMPLES_DIR / "double_integrator_lqr.toml")
+    od = OnDemandLaw(problem)
+    law, cert = operation_law(problem, od, ce.verify(problem, od))
+    hostile = "\n".join(n.replace("{F}", str(tmp_path / "F")) for n in FIXED[:20])
+    bad = dataclasses.replace(problem, name=hostile)
+    note = operation_note(bad, dict(cert, reason=FIXED[0] + FIXED[3]))
+    plain = operation_note(problem, cert)
+    for tag, text in (("hostile", note), ("plain", plain)):
+        ce.export_c(law, tmp_path / tag, name="opn", note=text)
+        ce.export_python(law, tmp_path / tag / "opn.py", note=text)
+    h = (tmp_path / "hostile" / "opn.h").read_text()
+    assert h.isascii() and "REGION OF OPERATION of x \\x2a\\x2f" in h
+    assert "FZ_" not in _no_comments(h)
+    assert _no_comments(h) == _no_comments((tmp_path / "plain" / "opn.h").read_text())
+    run = subprocess.run([CC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-Wtrigraphs",
+                          "-Wcomment", "-pedantic", "-fsyntax-only", "-x", "c",
+                          str(tmp_path / "hostile" / "opn.h")], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    text = (tmp_path / "hostile" / "opn.py").read_text()
+    assert text.isascii()
+    assert _skeleton(text) == _skeleton((tmp_path / "plain" / "opn.py").read_text())
+    run = subprocess.run([sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv[1]); "
+                          "import opn; print(opn.evaluate([0.1, 0.0])[0])",
+                          str(tmp_path / "hostile")], capture_output=True, text=True,
+                         cwd=tmp_path, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert not (tmp_path / "F").exists(), "the design's name ran a command"
+    assert int(run.stdout) == int(law.locate(np.array([[0.1, 0.0]]))[0])

@@ -24,6 +24,7 @@ import pytest
 import codev_engine as ce
 from codev_engine.deploy.export import export_c, export_python
 from codev_engine.deploy.operation import operation_law, operation_note
+from codev_engine.deploy.plan import plan
 from codev_engine.errors import SpecError
 from codev_engine.law_on_demand import OnDemandLaw
 from codev_engine.pipeline import load_spec, loads_spec
@@ -52,10 +53,11 @@ def _compiled(law, note, tmp, method: str = "auto"):
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     lib = ctypes.CDLL(str(so))
+    nu = law.m if hasattr(law, "m") else law.dep.F.shape[1]  # (a law or a planned export)
 
     def call(X):
         X = np.ascontiguousarray(X, dtype=np.float64)
-        U = np.full((X.shape[0], law.m), SENTINEL)
+        U = np.full((X.shape[0], nu), SENTINEL)
         idx = np.empty(X.shape[0], dtype=np.intc)
         ptr = np.ctypeslib.ndpointer
         lib.opc_batch.argtypes = [ctypes.c_int, ptr(np.float64), ptr(np.float64),
@@ -189,10 +191,12 @@ def test_region_of_operation_of_the_quadrotor_agrees_with_the_online_mpc(tmp_pat
     assert result.verdict == "robustly_safe", result.summary()
     law, cert = operation_law(problem, od, result)
     assert cert["sets"] > 0 and law.num_regions == od.num_regions
-    # (the sequential search: planning the tree of 156 regions in 12 dimensions ("auto" and
-    # "bst") had not ended after 5 minutes at load 8-10)
-    header, call = _compiled(law, operation_note(problem, cert), tmp_path, method="sequential")
-    assert "REGION OF OPERATION" in header
+    # the default search: the tree (its regions of 49-98 rows in 12 dimensions are kept by
+    # their boxes, their vertices are not enumerated; ``bst._enlarged_vertices``)
+    ex = plan(law)
+    assert ex.method == "bst" and ex.tree.num_nodes > 0
+    header, call = _compiled(ex, operation_note(problem, cert), tmp_path)
+    assert "REGION OF OPERATION" in header and "binary search tree" in header
     tube = result.tube
     Ts = problem.model.sample_time
     k = np.ceil(tube.t_start / Ts - 1e-9)
@@ -211,3 +215,15 @@ def test_region_of_operation_of_the_quadrotor_agrees_with_the_online_mpc(tmp_pat
         assert sol.feasible
         worst = max(worst, float(np.max(np.abs(u - sol.u0))))
     assert worst <= 1e-5, f"the exported law and the online MPC differ by {worst:g}"
+    # the tree returns the locator's region (the sequential search's) on the tube's states
+    # and around them; outside the regions of operation -1, u untouched
+    assert np.all(idx == law.locate(X))
+    blo, bhi = law.boxes
+    Y = np.vstack([blo.min(axis=0) + rng.uniform(size=(1500, law.n))
+                   * (bhi.max(axis=0) - blo.min(axis=0)),
+                   lo[pick] + rng.uniform(-20.0, 20.0, size=(120, law.n)) * (hi[pick] - lo[pick])])
+    idy, V = call(Y)
+    assert np.all(idy == law.locate(Y))
+    out = ~_inside_any(law, Y)
+    assert out.sum() > 100 and (~out).sum() > 10
+    assert np.all(idy[out] == -1) and np.all(V[out] == SENTINEL)
