@@ -377,8 +377,9 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     progress : callable, optional
         Called with the regions found so far after each round.
     directory : str, optional
-        Where the shards' files go (every worker must reach it); default a temporary
-        directory, removed at the end.
+        The folder in which the shards' files go (in a fresh folder, removed at the end):
+        every worker must reach it (a remote cluster: a shared file system); default the
+        system's temporary folder.
     budget : int, optional
         Candidates a shard evaluates per round at most (default ``BUDGET``).
     walk_class : type
@@ -403,8 +404,10 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     if not workers:
         raise SolverError("the sharded search found no Dask worker on its cluster")
     n = len(workers)
-    own_dir = directory is None
-    directory = tempfile.mkdtemp(prefix="codev-shards-") if own_dir else str(directory)
+    if directory is not None:
+        Path(directory).mkdir(parents=True, exist_ok=True)
+    # (a fresh folder: files of an earlier search in the same place are never read)
+    directory = tempfile.mkdtemp(prefix="codev-shards-", dir=directory)
     numpy_kernel = copy.copy(kernel)
     numpy_kernel._jit = None
     shared = client.scatter([(kernel._jit_args, opposite, numpy_kernel, walk_class)],
@@ -482,8 +485,7 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         # (a worker lost just now must not turn a finished search into an error)
         client.run(_forget, directory, on_error="ignore")
         client.cancel([shared])
-        if own_dir:
-            shutil.rmtree(directory, ignore_errors=True)
+        shutil.rmtree(directory, ignore_errors=True)
         for key, v in totals.items():
             stats[key] = stats.get(key, 0) + v
         # (the coordinator's own thread; a LocalCluster's scheduler runs in this process
