@@ -93,6 +93,15 @@ def _cpu(client) -> float:
     return sum(client.run(time.process_time).values())
 
 
+def _wait_for(client, n: int, timeout: float = 120.0) -> None:
+    """Wait until ``n`` workers have joined the scheduler."""
+    t0 = time.perf_counter()
+    while len(client.scheduler_info()["workers"]) < n:
+        if time.perf_counter() - t0 > timeout:
+            raise RuntimeError(f"{n} workers did not join in {timeout:.0f} s")
+        time.sleep(0.2)
+
+
 def main(argv: list[str] | None = None) -> int:
     import codev_engine as ce
 
@@ -108,6 +117,10 @@ def main(argv: list[str] | None = None) -> int:
                     "the same for every worker count, so is that prefix)")
     ap.add_argument("--sharded", action="store_true",
                     help="the sharded search (mpsolve(sharded=True): regions stay on workers)")
+    ap.add_argument("--scheduler-process", action="store_true",
+                    help="the scheduler and the workers in processes of their own (a "
+                         "SubprocessCluster): this process is only the client, as with a "
+                         "remote cluster")
     ap.add_argument("--skip-mp", action="store_true")
     ap.add_argument("--skip-verify", action="store_true")
     ap.add_argument("--json", metavar="OUT", help="write the numbers as JSON")
@@ -137,7 +150,17 @@ def main(argv: list[str] | None = None) -> int:
     overhead = None
     for w in counts:
         t0 = time.perf_counter()
-        executor = ce.Executor(workers=w)
+        cluster = None
+        if args.scheduler_process:
+            # (the scheduler out of this process: its CPU is not the client's)
+            from distributed.deploy.subprocess import SubprocessCluster
+
+            cluster = SubprocessCluster(n_workers=w, threads_per_worker=1,
+                                        dashboard_address=None, silence_logs=40)
+            executor = ce.Executor(scheduler=cluster.scheduler_address)
+            _wait_for(executor.client, w)
+        else:
+            executor = ce.Executor(workers=w)
         try:
             client = executor.client
             if problem is not None:
@@ -221,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
                             "round_trip_seconds": statistics.median(trips)}
         finally:
             executor.close()
+            if cluster is not None:
+                cluster.close()
     for kind in ("verify", "mp"):
         base = out[kind].get(1, {}).get("seconds")
         for w in counts:
