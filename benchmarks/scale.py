@@ -213,6 +213,11 @@ def main(argv: list[str] | None = None) -> int:
                     "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
                     "worker_cpu_seconds": st.get("worker_cpu_seconds"),
                     "rounds_client_cpu_seconds": st.get("rounds_client_cpu_seconds"),
+                    "setup_client_cpu_seconds": st.get("setup_client_cpu_seconds"),
+                    # (this process before the sharded walk: the program reduced, the
+                    # first regions found serially, the compiled kernel loaded)
+                    "before_walk_client_cpu_seconds": time.process_time() - me0
+                    - (st.get("client_cpu_seconds") or 0.0),
                 }
                 d = out["mp"][w]
                 print(f"mp {args.mp}, {w} workers: {wall:.1f} s, {d['regions']} regions "
@@ -230,6 +235,14 @@ def main(argv: list[str] | None = None) -> int:
                           f"the rounds {per * (d['rounds_client_cpu_seconds'] or 0):.1f}), merge "
                           f"{d['merge_cpu_seconds'] or 0:.2f} s, workers' CPU "
                           f"{d['worker_cpu_seconds'] or 0:.1f} s", flush=True)
+                    after = (d["client_cpu_seconds"] - d["before_walk_client_cpu_seconds"]
+                             - (d["setup_client_cpu_seconds"] or 0)
+                             - (d["rounds_client_cpu_seconds"] or 0))
+                    print(f"  client process CPU: {d['before_walk_client_cpu_seconds']:.2f} s "
+                          f"before the walk (the serial start), "
+                          f"{d['setup_client_cpu_seconds'] or 0:.2f} s its set-up, "
+                          f"{d['rounds_client_cpu_seconds'] or 0:.2f} s the rounds, "
+                          f"{after:.2f} s after (merge, clean-up)", flush=True)
             if w == max(counts):
                 n = 2000
                 t1 = time.perf_counter()

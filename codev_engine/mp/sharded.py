@@ -367,8 +367,9 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         The regions found so far (kept here: a few hundred).
     stats : dict
         Updated with the search's counters (summed over the shards) and ``shards``,
-        ``rounds``, ``client_cpu_seconds``, ``rounds_client_cpu_seconds`` (this process
-        during the rounds), ``worker_cpu_seconds``, ``shards_restored``
+        ``rounds``, ``client_cpu_seconds``, ``setup_client_cpu_seconds`` (this process
+        before the first round), ``rounds_client_cpu_seconds`` (during the rounds),
+        ``worker_cpu_seconds``, ``shards_restored``
         (rounds whose shard was rebuilt from its files: its worker was lost).
     executor : Executor
         A Dask one (local or remote).
@@ -428,6 +429,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     totals: dict = {}
     r = 0
     walk0, walked, rounds0 = time.thread_time(), None, time.process_time()
+    # (the set-up: the kernel's arrays scattered, the workers warmed, the seeds keyed)
+    stats["setup_client_cpu_seconds"] = rounds0 - cpu0
     try:
         while True:
             # a shard whose worker is gone, or shares it while a worker idles, moves to an
