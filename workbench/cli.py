@@ -1011,7 +1011,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
         except SpecError as exc:
             raise SpecError(exc.reason, field="--name") from None
     note = None
-    if Path(args.file).is_dir():
+    if (Path(args.file) / "shards.json").is_file():  # a law as shards (codev synth --out-shards)
+        from codev_engine.law_shards import ShardedLaw
+
+        _prepare_kernels(export=True)
+        obj, tag = ShardedLaw(args.file).merged(), None  # (one table: merged on demand)
+    elif Path(args.file).is_dir():
         _prepare_kernels(export=True)  # (the region cache may grow: the mp-QP kernel)
         obj, note = _operation_of(Path(args.file))
         tag = None

@@ -3,7 +3,7 @@
 The shards of a synthesised law answer ``locate``, ``evaluate``, ``regions_meeting`` and
 ``law.F[i]`` as the law does, reading only the shards a question meets; a verification on
 them gives the law's result; a shard file damaged, edited or swapped is refused with one
-line naming it (the CLI: exit 2). The sharded search on a real Dask ``LocalCluster`` writes
+line naming it (the CLI: exit 2); ``codev export`` takes the folder. The sharded search on a real Dask ``LocalCluster`` writes
 a law whose shards equal the serial law (slow: a cluster).
 """
 
@@ -137,6 +137,9 @@ def test_a_damaged_or_swapped_shard_is_refused(law, tmp_path):
 
 def test_the_cli_refuses_a_damaged_shard_in_one_line(spec, law, tmp_path, capsys):
     write_law_shards(tmp_path, split_law(law, 2))
+    # the exporter takes the folder (the law merged on demand: one table)
+    assert main(["export", str(tmp_path), "--python", str(tmp_path / "law.py")]) == 0
+    assert f"{law.num_regions} regions" in capsys.readouterr().out
     path = tmp_path / "shard-0.npz"
     data = bytearray(path.read_bytes())
     data[-40] ^= 1
