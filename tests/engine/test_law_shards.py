@@ -3,8 +3,9 @@
 The shards of a synthesised law answer ``locate``, ``evaluate``, ``regions_meeting`` and
 ``law.F[i]`` as the law does, reading only the shards a question meets; a verification on
 them gives the law's result; a shard file damaged, edited or swapped is refused with one
-line naming it (the CLI: exit 2); ``codev export`` takes the folder. The sharded search on a real Dask ``LocalCluster`` writes
-a law whose shards equal the serial law (slow: a cluster).
+line naming it (the CLI: exit 2); ``codev export`` takes the folder. The sharded search on
+a real Dask ``LocalCluster`` writes a law whose shards equal the serial law (slow: a
+cluster).
 """
 
 from __future__ import annotations
