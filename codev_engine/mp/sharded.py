@@ -41,6 +41,7 @@ import shutil
 import tempfile
 import time
 import zipfile
+from concurrent.futures import CancelledError
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +56,8 @@ __all__ = ["owners", "read_shards", "sharded_walk"]
 #: candidates a shard evaluates in one round at most (~0.3 s of work: a round costs the
 #: client one task per shard, a few ms)
 BUDGET = 4096
+#: times a round is submitted before the search gives up (its tasks cancelled each time)
+_ATTEMPTS = 3
 #: candidates per call of the compiled kernel (as ``mpqp._CHUNK``)
 _CHUNK = 64
 
@@ -370,7 +373,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         ``rounds``, ``client_cpu_seconds``, ``setup_client_cpu_seconds`` (this process
         before the first round), ``rounds_client_cpu_seconds`` (during the rounds),
         ``worker_cpu_seconds``, ``shards_restored``
-        (rounds whose shard was rebuilt from its files: its worker was lost).
+        (rounds whose shard was rebuilt from its files: its worker was lost),
+        ``rounds_retried`` (rounds whose tasks the scheduler cancelled, submitted again).
     executor : Executor
         A Dask one (local or remote).
     max_regions : int
@@ -442,18 +446,36 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
                 if (where[j] not in live or where[j] in held) and idle:
                     where[j] = idle.pop()
                 held.add(where[j])
-            futures = [
-                client.submit(_round, shared, directory, j, n, r, budget,
-                              (keys[own == j], points[own == j], done[own_done == j])
-                              if r == 0 else None,
-                              workers=[where[j]], allow_other_workers=True, pure=False,
-                              key=f"codev-shard-{os.path.basename(directory)}-{j}-{r}")
-                for j in range(n)
-            ]
-            results = client.gather(futures)
-            # (released: a worker lost later must not make the scheduler run an old round
-            # again, which would leave a stale shard in a worker's memory)
-            del futures
+            for attempt in range(_ATTEMPTS):
+                futures = [
+                    client.submit(_round, shared, directory, j, n, r, budget,
+                                  (keys[own == j], points[own == j], done[own_done == j])
+                                  if r == 0 else None,
+                                  workers=[where[j]], allow_other_workers=True, pure=False,
+                                  key=f"codev-shard-{os.path.basename(directory)}-{j}-{r}"
+                                  f"-{attempt}")
+                    for j in range(n)
+                ]
+                try:
+                    results = client.gather(futures)
+                    break
+                except CancelledError:
+                    # a worker killed between rounds can leave the scheduler without the
+                    # round's tasks ("already forgotten"; seen on a loaded machine): the
+                    # round is run again, which gives the same files (a shard whose round
+                    # ran already is rebuilt from its files up to the round before)
+                    if attempt == _ATTEMPTS - 1:
+                        raise SolverError(f"the sharded search's round {r} was cancelled "
+                                          f"{_ATTEMPTS} times (workers lost?)") from None
+                    totals["rounds_retried"] = totals.get("rounds_retried", 0) + 1
+                    client.cancel([shared])
+                    shared = client.scatter(
+                        [(kernel._jit_args, opposite, numpy_kernel, walk_class)],
+                        broadcast=True, hash=False)[0]
+                finally:
+                    # (released: a worker lost later must not make the scheduler run an old
+                    # round again, which would leave a stale shard in a worker's memory)
+                    del futures
             busy = False
             for j, (counts, st, addr, cpu) in enumerate(results):
                 if addr is not None:
