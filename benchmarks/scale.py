@@ -93,6 +93,15 @@ def _cpu(client) -> float:
     return sum(client.run(time.process_time).values())
 
 
+def _wait_for(client, n: int, timeout: float = 120.0) -> None:
+    """Wait until ``n`` workers have joined the scheduler."""
+    t0 = time.perf_counter()
+    while len(client.scheduler_info()["workers"]) < n:
+        if time.perf_counter() - t0 > timeout:
+            raise RuntimeError(f"{n} workers did not join in {timeout:.0f} s")
+        time.sleep(0.2)
+
+
 def main(argv: list[str] | None = None) -> int:
     import codev_engine as ce
 
@@ -108,6 +117,10 @@ def main(argv: list[str] | None = None) -> int:
                     "the same for every worker count, so is that prefix)")
     ap.add_argument("--sharded", action="store_true",
                     help="the sharded search (mpsolve(sharded=True): regions stay on workers)")
+    ap.add_argument("--scheduler-process", action="store_true",
+                    help="the scheduler and the workers in processes of their own (a "
+                         "SubprocessCluster): this process is only the client, as with a "
+                         "remote cluster")
     ap.add_argument("--skip-mp", action="store_true")
     ap.add_argument("--skip-verify", action="store_true")
     ap.add_argument("--json", metavar="OUT", help="write the numbers as JSON")
@@ -137,7 +150,17 @@ def main(argv: list[str] | None = None) -> int:
     overhead = None
     for w in counts:
         t0 = time.perf_counter()
-        executor = ce.Executor(workers=w)
+        cluster = None
+        if args.scheduler_process:
+            # (the scheduler out of this process: its CPU is not the client's)
+            from distributed.deploy.subprocess import SubprocessCluster
+
+            cluster = SubprocessCluster(n_workers=w, threads_per_worker=1,
+                                        dashboard_address=None, silence_logs=40)
+            executor = ce.Executor(scheduler=cluster.scheduler_address)
+            _wait_for(executor.client, w)
+        else:
+            executor = ce.Executor(workers=w)
         try:
             client = executor.client
             if problem is not None:
@@ -190,6 +213,11 @@ def main(argv: list[str] | None = None) -> int:
                     "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
                     "worker_cpu_seconds": st.get("worker_cpu_seconds"),
                     "rounds_client_cpu_seconds": st.get("rounds_client_cpu_seconds"),
+                    "setup_client_cpu_seconds": st.get("setup_client_cpu_seconds"),
+                    # (this process before the sharded walk: the program reduced, the
+                    # first regions found serially, the compiled kernel loaded)
+                    "before_walk_client_cpu_seconds": time.process_time() - me0
+                    - (st.get("client_cpu_seconds") or 0.0),
                 }
                 d = out["mp"][w]
                 print(f"mp {args.mp}, {w} workers: {wall:.1f} s, {d['regions']} regions "
@@ -207,6 +235,14 @@ def main(argv: list[str] | None = None) -> int:
                           f"the rounds {per * (d['rounds_client_cpu_seconds'] or 0):.1f}), merge "
                           f"{d['merge_cpu_seconds'] or 0:.2f} s, workers' CPU "
                           f"{d['worker_cpu_seconds'] or 0:.1f} s", flush=True)
+                    after = (d["client_cpu_seconds"] - d["before_walk_client_cpu_seconds"]
+                             - (d["setup_client_cpu_seconds"] or 0)
+                             - (d["rounds_client_cpu_seconds"] or 0))
+                    print(f"  client process CPU: {d['before_walk_client_cpu_seconds']:.2f} s "
+                          f"before the walk (the serial start), "
+                          f"{d['setup_client_cpu_seconds'] or 0:.2f} s its set-up, "
+                          f"{d['rounds_client_cpu_seconds'] or 0:.2f} s the rounds, "
+                          f"{after:.2f} s after (merge, clean-up)", flush=True)
             if w == max(counts):
                 n = 2000
                 t1 = time.perf_counter()
@@ -221,6 +257,8 @@ def main(argv: list[str] | None = None) -> int:
                             "round_trip_seconds": statistics.median(trips)}
         finally:
             executor.close()
+            if cluster is not None:
+                cluster.close()
     for kind in ("verify", "mp"):
         base = out[kind].get(1, {}).get("seconds")
         for w in counts:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -199,6 +200,8 @@ def synthesize(
     options: SolveOptions | None = None,
     progress: Callable[[int], None] | None = None,
     executor: Executor | None = None,
+    sharded: bool = False,
+    shard_dir: str | os.PathLike | None = None,
 ) -> ExplicitLaw:
     """Compute the explicit MPC law of a problem.
 
@@ -216,6 +219,9 @@ def synthesize(
         Called with the number of regions found so far.
     executor : Executor, optional
         Where the mp-QP search evaluates its candidates (``mpsolve``); the law is the same.
+    sharded, shard_dir
+        With a Dask ``executor``: the mp-QP search sharded across its workers, its files in
+        ``shard_dir`` (``mpsolve``; docs/scale.md); the same law.
 
     Returns
     -------
@@ -237,7 +243,8 @@ def synthesize(
     """
     prepare()  # a fresh installation's kernels, announced, outside the law's seconds
     with stage_deadline():
-        return _synthesize(problem, model, simplify, options, progress, executor)
+        return _synthesize(problem, model, simplify, options, progress, executor,
+                           {"sharded": sharded, "shard_dir": shard_dir})
 
 
 _TIME_FIX = "shorten mpc.horizon or bound fewer states and inputs in [mpc]"
@@ -253,7 +260,7 @@ def _walked_on_demand(mp: MpcProgram) -> bool:
     return mp.spec.norm in ("1", "2", "inf")
 
 
-def _synthesize(problem, model, simplify, options, progress, executor) -> ExplicitLaw:
+def _synthesize(problem, model, simplify, options, progress, executor, how=None) -> ExplicitLaw:
     t0 = time.perf_counter()
     spread, which = weight_spread(problem.mpc)
     if spread > WEIGHT_SPREAD_LIMIT:
@@ -277,7 +284,8 @@ def _synthesize(problem, model, simplify, options, progress, executor) -> Explic
     if capped:
         options = replace(options, max_regions=most)
     try:
-        sol = mpsolve(mp.program, options=options, progress=checked, executor=executor)
+        sol = mpsolve(mp.program, options=options, progress=checked, executor=executor,
+                      **(how or {}))
     except TooManyRegionsError:
         raise SolverError(
             f"synthesis stopped past {options.max_regions:,} critical regions "

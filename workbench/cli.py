@@ -73,12 +73,24 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     from codev_engine.synthesis import synthesize
 
     problem = load_spec(args.spec)
+    if (args.sharded or args.shard_dir) and args.workers is None and args.scheduler is None:
+        raise SpecError("needs --workers N or --scheduler ADDR (a Dask cluster to shard the "
+                        "search across)", field="--sharded" if args.sharded else "--shard-dir")
     _prepare_kernels()
-    with _progress(f"synthesising {problem.name}", True) as update:  # stderr, --json too
-        law = synthesize(problem, progress=update)
+    with _executor(args) as executor, _progress(f"synthesising {problem.name}", True) as update:
+        law = synthesize(problem, progress=update, executor=executor,
+                         sharded=args.sharded or bool(args.shard_dir), shard_dir=args.shard_dir)
+        shards = executor.workers  # (1 when serial)
     out = None
     if args.out:
         out = str(law.save(args.out))
+    if args.out_shards:
+        from codev_engine.law_shards import spatial_order, split_law, write_law_shards
+
+        # (one checked law file per worker, in slabs of space, and the manifest:
+        # codev_engine/law_shards.py)
+        write_law_shards(args.out_shards, split_law(law, shards, spatial_order(law)))
+        out = out or args.out_shards
     if args.json:
         print(
             json.dumps(
@@ -262,7 +274,12 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
     if (getattr(args, "regions", None) or problem.regions) == "reached":
         return _verify_reached(args, problem, executor)
     if args.law:
-        law = ExplicitLaw.load(args.law)
+        if Path(args.law).is_dir():  # (a law written as shards: read lazily)
+            from codev_engine.law_shards import ShardedLaw
+
+            law = ShardedLaw.load(args.law)
+        else:
+            law = ExplicitLaw.load(args.law)
         check_law_matches(problem, law, file=args.law)
         synth_seconds = law.meta.get("seconds")
     else:
@@ -1001,7 +1018,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
         except SpecError as exc:
             raise SpecError(exc.reason, field="--name") from None
     note = None
-    if Path(args.file).is_dir():
+    if (Path(args.file) / "shards.json").is_file():  # a law as shards (codev synth --out-shards)
+        from codev_engine.law_shards import ShardedLaw
+
+        _prepare_kernels(export=True)
+        obj, tag = ShardedLaw(args.file).merged(), None  # (one table: merged on demand)
+    elif Path(args.file).is_dir():
         _prepare_kernels(export=True)  # (the region cache may grow: the mp-QP kernel)
         obj, note = _operation_of(Path(args.file))
         tag = None
@@ -1077,7 +1099,17 @@ def _build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("synth", help="synthesise the explicit MPC law of a spec")
     p.add_argument("spec", help="problem spec (TOML)")
     p.add_argument("--out", help="write the law to this .npz file")
+    p.add_argument("--out-shards", metavar="DIR",
+                   help="write the law as shards: a checked law file per worker and a "
+                   "manifest in DIR (read lazily: codev_engine.law_shards.ShardedLaw)")
     p.add_argument("--json", action="store_true", help="print a JSON summary only")
+    _add_executor_options(p, "the mp-QP search")
+    p.add_argument("--sharded", action="store_true",
+                   help="with --workers/--scheduler: the mp-QP search's state sharded across "
+                   "the workers (docs/scale.md)")
+    p.add_argument("--shard-dir", metavar="DIR",
+                   help="where the sharded search's files go (implies --sharded; default the "
+                   "temporary folder): a remote cluster needs one its workers all reach")
     p.set_defaults(func=_cmd_synth)
 
     for name, helptext in (
@@ -1087,7 +1119,8 @@ def _build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=helptext)
         p.add_argument("spec", help="problem spec (TOML) with a [verify] section")
         if name == "verify":
-            p.add_argument("--law", help="use this law file (from codev synth --out)")
+            p.add_argument("--law", help="use this law file (from codev synth --out), or folder "
+                           "of shards (--out-shards)")
         p.add_argument("--hold", choices=["zoh", "continuous"], help="override verify.hold")
         p.add_argument("--max-depth", type=int, help="override verify.max_depth")
         p.add_argument("--regions", choices=["all", "reached"],

@@ -618,6 +618,7 @@ def explore_active_sets(
     progress: Callable[[int], None] | None = None,
     stats: dict | None = None,
     sharded: bool = False,
+    shard_dir: str | os.PathLike | None = None,
 ) -> RegionArrays:
     """All full-dimensional critical regions of ``min 0.5 z'Hz + (c + C theta)'z s.t.
     G z <= w + S theta, At theta <= bt`` (H positive definite, rows of G unit norm).
@@ -672,6 +673,10 @@ def explore_active_sets(
         With a Dask ``executor``, once the compiled kernel runs: the walk's state sharded
         across the workers, the regions kept there until the end (``sharded.py``); the
         regions are then sorted by active set whatever their number.
+    shard_dir : path-like, optional
+        With ``sharded``: the folder in which the search's shard files go (a fresh folder in
+        it, removed at the end; every worker must reach it); default the system's
+        temporary folder.
 
     Returns
     -------
@@ -797,7 +802,7 @@ def explore_active_sets(
 
             compiled = False  # (its regions come back sorted: below, as the numpy walk's)
             regions = sharded_walk(kernel, opposite, explored, stack, regions, stats,
-                                   executor, max_regions, progress,
+                                   executor, max_regions, progress, directory=shard_dir,
                                    walk_class=_CompiledWalk, warm=_warm_worker)
         elif compiled:
             walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)

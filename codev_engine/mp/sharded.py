@@ -41,6 +41,7 @@ import shutil
 import tempfile
 import time
 import zipfile
+from concurrent.futures import CancelledError
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +56,8 @@ __all__ = ["owners", "read_shards", "sharded_walk"]
 #: candidates a shard evaluates in one round at most (~0.3 s of work: a round costs the
 #: client one task per shard, a few ms)
 BUDGET = 4096
+#: times a round is submitted before the search gives up (its tasks cancelled each time)
+_ATTEMPTS = 3
 #: candidates per call of the compiled kernel (as ``mpqp._CHUNK``)
 _CHUNK = 64
 
@@ -367,9 +370,11 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         The regions found so far (kept here: a few hundred).
     stats : dict
         Updated with the search's counters (summed over the shards) and ``shards``,
-        ``rounds``, ``client_cpu_seconds``, ``rounds_client_cpu_seconds`` (this process
-        during the rounds), ``worker_cpu_seconds``, ``shards_restored``
-        (rounds whose shard was rebuilt from its files: its worker was lost).
+        ``rounds``, ``client_cpu_seconds``, ``setup_client_cpu_seconds`` (this process
+        before the first round), ``rounds_client_cpu_seconds`` (during the rounds),
+        ``worker_cpu_seconds``, ``shards_restored``
+        (rounds whose shard was rebuilt from its files: its worker was lost),
+        ``rounds_retried`` (rounds whose tasks the scheduler cancelled, submitted again).
     executor : Executor
         A Dask one (local or remote).
     max_regions : int
@@ -377,8 +382,9 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     progress : callable, optional
         Called with the regions found so far after each round.
     directory : str, optional
-        Where the shards' files go (every worker must reach it); default a temporary
-        directory, removed at the end.
+        The folder in which the shards' files go (in a fresh folder, removed at the end):
+        every worker must reach it (a remote cluster: a shared file system); default the
+        system's temporary folder.
     budget : int, optional
         Candidates a shard evaluates per round at most (default ``BUDGET``).
     walk_class : type
@@ -403,8 +409,10 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     if not workers:
         raise SolverError("the sharded search found no Dask worker on its cluster")
     n = len(workers)
-    own_dir = directory is None
-    directory = tempfile.mkdtemp(prefix="codev-shards-") if own_dir else str(directory)
+    if directory is not None:
+        Path(directory).mkdir(parents=True, exist_ok=True)
+    # (a fresh folder: files of an earlier search in the same place are never read)
+    directory = tempfile.mkdtemp(prefix="codev-shards-", dir=directory)
     numpy_kernel = copy.copy(kernel)
     numpy_kernel._jit = None
     shared = client.scatter([(kernel._jit_args, opposite, numpy_kernel, walk_class)],
@@ -425,6 +433,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     totals: dict = {}
     r = 0
     walk0, walked, rounds0 = time.thread_time(), None, time.process_time()
+    # (the set-up: the kernel's arrays scattered, the workers warmed, the seeds keyed)
+    stats["setup_client_cpu_seconds"] = rounds0 - cpu0
     try:
         while True:
             # a shard whose worker is gone, or shares it while a worker idles, moves to an
@@ -436,18 +446,36 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
                 if (where[j] not in live or where[j] in held) and idle:
                     where[j] = idle.pop()
                 held.add(where[j])
-            futures = [
-                client.submit(_round, shared, directory, j, n, r, budget,
-                              (keys[own == j], points[own == j], done[own_done == j])
-                              if r == 0 else None,
-                              workers=[where[j]], allow_other_workers=True, pure=False,
-                              key=f"codev-shard-{os.path.basename(directory)}-{j}-{r}")
-                for j in range(n)
-            ]
-            results = client.gather(futures)
-            # (released: a worker lost later must not make the scheduler run an old round
-            # again, which would leave a stale shard in a worker's memory)
-            del futures
+            for attempt in range(_ATTEMPTS):
+                futures = [
+                    client.submit(_round, shared, directory, j, n, r, budget,
+                                  (keys[own == j], points[own == j], done[own_done == j])
+                                  if r == 0 else None,
+                                  workers=[where[j]], allow_other_workers=True, pure=False,
+                                  key=f"codev-shard-{os.path.basename(directory)}-{j}-{r}"
+                                  f"-{attempt}")
+                    for j in range(n)
+                ]
+                try:
+                    results = client.gather(futures)
+                    break
+                except CancelledError:
+                    # a worker killed between rounds can leave the scheduler without the
+                    # round's tasks ("already forgotten"; seen on a loaded machine): the
+                    # round is run again, which gives the same files (a shard whose round
+                    # ran already is rebuilt from its files up to the round before)
+                    if attempt == _ATTEMPTS - 1:
+                        raise SolverError(f"the sharded search's round {r} was cancelled "
+                                          f"{_ATTEMPTS} times (workers lost?)") from None
+                    totals["rounds_retried"] = totals.get("rounds_retried", 0) + 1
+                    client.cancel([shared])
+                    shared = client.scatter(
+                        [(kernel._jit_args, opposite, numpy_kernel, walk_class)],
+                        broadcast=True, hash=False)[0]
+                finally:
+                    # (released: a worker lost later must not make the scheduler run an old
+                    # round again, which would leave a stale shard in a worker's memory)
+                    del futures
             busy = False
             for j, (counts, st, addr, cpu) in enumerate(results):
                 if addr is not None:
@@ -482,8 +510,7 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         # (a worker lost just now must not turn a finished search into an error)
         client.run(_forget, directory, on_error="ignore")
         client.cancel([shared])
-        if own_dir:
-            shutil.rmtree(directory, ignore_errors=True)
+        shutil.rmtree(directory, ignore_errors=True)
         for key, v in totals.items():
             stats[key] = stats.get(key, 0) + v
         # (the coordinator's own thread; a LocalCluster's scheduler runs in this process

@@ -19,6 +19,7 @@ back to the original variables. See ``docs/algorithm.md`` for the algorithms.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -92,6 +93,7 @@ def mpsolve(
     progress: Callable[[int], None] | None = None,
     executor: Executor | None = None,
     sharded: bool = False,
+    shard_dir: str | os.PathLike | None = None,
 ) -> MpSolution:
     """Solve an mp-LP / mp-QP exactly.
 
@@ -109,6 +111,10 @@ def mpsolve(
         With a Dask ``executor``: the mp-QP search's state sharded across its workers, the
         regions kept there until the end (``mp/sharded.py``, docs/scale.md); the same
         regions and laws, sorted by active set.
+    shard_dir : path-like, optional
+        With ``sharded``: the folder in which the search's shard files go (a fresh folder
+        in it, removed at the end; default the system's temporary folder). Every worker
+        must reach it: on a remote cluster, a shared file system.
 
     Returns
     -------
@@ -130,7 +136,8 @@ def mpsolve(
     stats = dict.fromkeys(COUNTERS, 0)
     with _search_failures(red):
         regions = _explore(
-            red, size, region_tol, opts, progress, stats, semidefinite, executor, sharded
+            red, size, region_tol, opts, progress, stats, semidefinite, executor, sharded,
+            shard_dir,
         )
         domain = (
             _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
@@ -198,7 +205,8 @@ def _search_failures(red: Reduced) -> Iterator[None]:
 
 
 def _explore(
-    red, size, region_tol, opts, progress, stats, semidefinite, executor=None, sharded=False
+    red, size, region_tol, opts, progress, stats, semidefinite, executor=None, sharded=False,
+    shard_dir=None,
 ) -> RegionArrays:
     """The critical regions of the reduced program (mp-LP or mp-QP search)."""
     nz, d = red.G.shape[1], red.At.shape[1]
@@ -227,6 +235,7 @@ def _explore(
                 workers=opts.workers,
                 executor=executor,
                 sharded=sharded,
+                shard_dir=shard_dir,
                 semidefinite=semidefinite,
                 progress=progress,
                 stats=stats,

@@ -98,3 +98,39 @@ def test_owners_spread_the_keys():
     keys = np.arange(1, 4001, dtype=np.uint64)[:, None]
     counts = np.bincount(sharded.owners(keys, 4), minlength=4)
     assert counts.min() > 800
+
+
+@pytest.mark.slow  # (a cluster: ~10 s on a loaded machine)
+def test_a_round_whose_tasks_are_cancelled_is_run_again(serial, monkeypatch):
+    """The scheduler may drop a round's tasks when a worker dies ("already forgotten"):
+    here a round's tasks are cancelled from another thread while the client waits for
+    them; the round is submitted again and the regions are the serial ones."""
+    import threading
+    import time
+
+    from distributed import Future
+
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(sharded, "BUDGET", 64)
+    with ce.Executor(workers=2) as ex:
+        client = ex.client
+        cancelled: list[str] = []
+
+        def cancel_next_round() -> None:
+            for _ in range(2000):  # (the next round's first attempt, once submitted)
+                keys = [k for ks in client.processing().values() for k in ks
+                        if str(k).startswith("codev-shard-") and str(k).endswith("-0")]
+                if keys:
+                    client.cancel([Future(k, client) for k in keys])
+                    cancelled.extend(keys)
+                    return
+                time.sleep(0.005)
+
+        def progress(found: int) -> None:
+            if found >= 100 and not cancelled and not getattr(progress, "started", False):
+                progress.started = True
+                threading.Thread(target=cancel_next_round, daemon=True).start()
+
+        got = ce.mpsolve(_program(), executor=ex, sharded=True, progress=progress)
+    assert cancelled and got.stats["rounds_retried"] >= 1
+    _same_regions(serial, got)

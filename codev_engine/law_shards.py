@@ -1,0 +1,493 @@
+"""An explicit MPC law held as shards: one checked law file per shard, read when asked.
+
+A law of millions of regions made by the sharded search (``mp/sharded.py``) need not be
+whole in one process: :func:`write_law_shards` writes it as a folder of law files (each in
+``ExplicitLaw``'s own format, ``law.LAW_FORMAT``, written atomically, with its regions'
+bounding boxes) and a manifest, ``shards.json``, written last, that records each file's
+SHA-256, its number of regions and the bounding box of its regions. :class:`ShardedLaw`
+reads the manifest alone; a shard is read, and checked against its SHA-256 and the
+manifest, the first time a question needs it:
+
+- :meth:`ShardedLaw.regions_meeting` reads only the shards whose box meets the box asked;
+- :meth:`ShardedLaw.locate` / :meth:`ShardedLaw.evaluate` only the shards whose box holds
+  one of the points;
+- ``law.A[i]``, ``law.F[i]`` (and ``law.F[idx]`` for an index array) the shards of those
+  regions.
+
+Region ``i`` is the ``i - offset[j]``-th region of shard ``j`` (the shards in the
+manifest's order). :meth:`ShardedLaw.merged` builds the whole ``ExplicitLaw`` (on demand:
+what an exporter of one C table needs). The interface is the one ``ExplicitLaw`` and
+``law_on_demand.OnDemandLaw`` give the reach engines. At most ``cache`` shards are held at
+once (the least recently used one is dropped).
+
+A damaged or edited shard is refused (``SpecError`` naming the file): its SHA-256 is not
+the manifest's. A manifest torn by a crash is not there at all (it is renamed into place
+after every shard), so a folder either is a whole law or is refused.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections import OrderedDict
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from codev_engine.errors import SpecError
+from codev_engine.io.atomic import write_text
+from codev_engine.law import ExplicitLaw
+
+__all__ = ["SHARDS_FORMAT", "ShardedLaw", "spatial_order", "split_law", "write_law_shards"]
+
+#: format tag of a sharded law's manifest
+SHARDS_FORMAT = "codev-law-shards/1"
+#: the manifest's name in the folder
+MANIFEST = "shards.json"
+#: shards held in memory at once by default
+CACHE = 4
+#: the bounding-box tolerance of ``ExplicitLaw.regions_meeting``
+_BOX_TOL = 1e-9
+
+
+def _file_sha(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def spatial_order(law: ExplicitLaw) -> np.ndarray:
+    """The regions ordered by the centre of their bounding box along the axis the centres
+    spread most on: consecutive regions then lie in slabs, and a shard of them has a small
+    box (a question about a small set reads few shards).
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+
+    Returns
+    -------
+    (k,) ndarray of int
+        A permutation of the regions.
+    """
+    lo, hi = law.boxes
+    if not lo.shape[0]:
+        return np.zeros(0, dtype=np.int64)
+    centre = 0.5 * (lo + hi)
+    axis = int(np.argmax(np.ptp(centre, axis=0)))
+    return np.argsort(centre[:, axis], kind="stable")
+
+
+def split_law(law: ExplicitLaw, shards: int, order: np.ndarray | None = None
+              ) -> list[ExplicitLaw]:
+    """Cut a law into ``shards`` laws of consecutive regions (for :func:`write_law_shards`).
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    shards : int
+        At least 1; fewer laws when the law has fewer regions.
+    order : (k,) ndarray of int, optional
+        The regions in this order first (:func:`spatial_order`): the sharded law's region
+        ``i`` is then the law's ``order[i]``.
+
+    Returns
+    -------
+    list of ExplicitLaw
+        Each with the law's names, fingerprint, meta and domain.
+    """
+    k = law.num_regions
+    order = np.arange(k) if order is None else np.asarray(order, dtype=np.int64)
+    cuts = np.linspace(0, k, max(1, min(int(shards), max(k, 1))) + 1).astype(int)
+    boxes = law._boxes
+    out = []
+    for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
+        take = order[lo:hi]
+        part = ExplicitLaw(
+            A=[law.A[i] for i in take], b=[law.b[i] for i in take], F=law.F[take],
+            G=law.G[take],
+            states=law.states, inputs=law.inputs, fingerprint=law.fingerprint,
+            meta=law.meta, domain_A=law.domain_A, domain_b=law.domain_b,
+            parameters=law.parameters,
+        )
+        if boxes is not None:
+            part._boxes = (boxes[0][take], boxes[1][take])
+        out.append(part)
+    return out
+
+
+def write_law_shards(directory: str | os.PathLike, shards: Iterable[ExplicitLaw]) -> Path:
+    """Write a law as shards: ``shard-<j>.npz`` for each, then the manifest.
+
+    The shards are taken one at a time (an iterator may make each when it is asked for:
+    only one is in memory here). They must share the names, the fingerprint and ``n``,
+    ``m``; the first one's ``meta`` and domain are the law's.
+
+    Parameters
+    ----------
+    directory : path-like
+        Made when missing; its manifest, and shard files of the same names, are replaced.
+    shards : iterable of ExplicitLaw
+
+    Returns
+    -------
+    Path
+        The manifest.
+
+    Raises
+    ------
+    ValueError
+        Shards of different problems (fingerprint, names or dimensions), or none.
+    """
+    folder = Path(directory)
+    folder.mkdir(parents=True, exist_ok=True)
+    entries: list[dict] = []
+    head: dict | None = None
+    for j, part in enumerate(shards):
+        mine = {"fingerprint": part.fingerprint, "states": list(part.states),
+                "inputs": list(part.inputs), "parameters": list(part.parameters),
+                "n": part.n, "m": part.m}
+        if head is None:
+            head = dict(mine, meta=part.meta, domain=part.domain_A is not None)
+        elif any(head[key] != mine[key] for key in mine):
+            raise ValueError(f"shard {j} is not of the first shard's law (fingerprint, "
+                             "names or dimensions differ)")
+        lo, hi = part.boxes  # (saved with the shard: its regions' LPs are not solved again)
+        path = part.save(folder / f"shard-{j}.npz")
+        entries.append({
+            "file": path.name, "sha256": _file_sha(path), "regions": part.num_regions,
+            "lo": lo.min(axis=0).tolist() if lo.shape[0] else None,
+            "hi": hi.max(axis=0).tolist() if hi.shape[0] else None,
+        })
+    if head is None:
+        raise ValueError("a sharded law needs at least one shard")
+    manifest = {"format": SHARDS_FORMAT, **head, "shards": entries}
+    return write_text(folder / MANIFEST, json.dumps(manifest, indent=1, default=_json))
+
+
+def _json(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(type(obj).__name__)
+
+
+class _Rows:
+    """``law.A`` (``law.b``, ``law.F``, ``law.G``) of a sharded law: item ``i`` read from
+    its shard; ``F`` and ``G`` also take an index array (``law.F[idx]``)."""
+
+    def __init__(self, law: ShardedLaw, name: str):
+        self.law, self.name = law, name
+
+    def __len__(self) -> int:
+        return self.law.num_regions
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[q] for q in range(*i.indices(len(self)))]
+        idx = np.asarray(i)
+        if idx.ndim == 0:
+            j, q = self.law._where(int(idx))
+            return getattr(self.law.shard(j), self.name)[q]
+        if idx.dtype == bool:
+            idx = np.flatnonzero(idx)
+        parts = [getattr(self.law.shard(j), self.name)[q] for j, q in map(self.law._where, idx)]
+        if self.name in ("F", "G"):
+            F = self.law.shard(0).F if self.name == "F" else self.law.shard(0).G
+            return np.array(parts).reshape((len(parts),) + F.shape[1:])
+        return parts
+
+    def __iter__(self):
+        for j in range(len(self.law.offsets) - 1):
+            yield from getattr(self.law.shard(j), self.name)
+
+    def __array__(self, dtype=None, copy=None):
+        # (the whole table: what ``np.asarray(law.F)`` asks for)
+        parts = [getattr(self.law.shard(j), self.name) for j in range(len(self.law.offsets) - 1)]
+        return np.concatenate(parts).astype(dtype) if dtype else np.concatenate(parts)
+
+
+class ShardedLaw:
+    """A piecewise-affine MPC law whose regions live in shard files, read when asked.
+
+    Parameters
+    ----------
+    directory : path-like
+        A folder of :func:`write_law_shards`.
+    cache : int
+        Shards held in memory at once (at least 1).
+
+    Raises
+    ------
+    SpecError
+        The manifest is missing or malformed (naming it and the field).
+
+    Attributes
+    ----------
+    A, b, F, G
+        Sequences of the regions' rows and laws (``law.A[i]``), each read from its shard.
+    states, inputs, parameters : tuple of str
+    fingerprint : str
+    meta : dict
+    offsets : (S + 1,) ndarray of int
+        Shard ``j`` holds the regions ``offsets[j]:offsets[j + 1]``.
+    """
+
+    def __init__(self, directory: str | os.PathLike, *, cache: int = CACHE):
+        self.dir = Path(directory)
+        where = str(self.dir / MANIFEST)
+        try:
+            data = json.loads((self.dir / MANIFEST).read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise SpecError("no sharded law here (missing)", file=where) from None
+        except (OSError, ValueError, RecursionError, UnicodeDecodeError) as exc:
+            raise SpecError(f"unreadable ({type(exc).__name__})", file=where) from None
+        if not isinstance(data, dict) or data.get("format") != SHARDS_FORMAT:
+            raise SpecError(f"not a sharded law (format must be {SHARDS_FORMAT!r})",
+                            file=where, field="format")
+        shards = data.get("shards")
+        if not isinstance(shards, list) or not shards:
+            raise SpecError("must list at least one shard", file=where, field="shards")
+        counts = []
+        for j, e in enumerate(shards):
+            ok = (isinstance(e, dict) and isinstance(e.get("file"), str)
+                  and Path(e["file"]).name == e["file"] and isinstance(e.get("sha256"), str)
+                  and isinstance(e.get("regions"), int) and e["regions"] >= 0)
+            if not ok:
+                raise SpecError("must name a file in the folder, its sha256 and its regions",
+                                file=where, field=f"shards[{j}]")
+            counts.append(e["regions"])
+        self._entries = shards
+        self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        self.fingerprint = str(data.get("fingerprint", ""))
+        self.states = tuple(data.get("states", ()))
+        self.inputs = tuple(data.get("inputs", ()))
+        self.parameters = tuple(data.get("parameters", ()))
+        self.meta = data.get("meta") if isinstance(data.get("meta"), dict) else {}
+        self._n, self._m = int(data.get("n", 0)), int(data.get("m", 0))
+        # each shard's box (None: no region), to skip the shards a question does not meet
+        self._lo = [None if e.get("lo") is None else np.asarray(e["lo"], float) for e in shards]
+        self._hi = [None if e.get("hi") is None else np.asarray(e["hi"], float) for e in shards]
+        self._cache: OrderedDict[int, ExplicitLaw] = OrderedDict()
+        self._most = max(1, int(cache))
+        self.loads = 0  # shard files read (and checked) so far
+        self.A, self.b = _Rows(self, "A"), _Rows(self, "b")
+        self.F, self.G = _Rows(self, "F"), _Rows(self, "G")
+
+    @classmethod
+    def load(cls, directory: str | os.PathLike, **kwargs) -> ShardedLaw:
+        """The sharded law in ``directory`` (see the class)."""
+        return cls(directory, **kwargs)
+
+    # ---- shape -----------------------------------------------------------------------
+
+    @property
+    def num_regions(self) -> int:
+        """The number of critical regions (over all shards)."""
+        return int(self.offsets[-1])
+
+    @property
+    def shards(self) -> int:
+        """The number of shard files."""
+        return len(self.offsets) - 1
+
+    @property
+    def n(self) -> int:
+        """The length of ``theta``."""
+        return self._n
+
+    @property
+    def m(self) -> int:
+        """The input dimension."""
+        return self._m
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the law's parameter ``theta`` (as ``ExplicitLaw.parameter_names``)."""
+        return self.parameters or self.states
+
+    @property
+    def domain_A(self) -> np.ndarray | None:
+        """The law's domain rows (every shard holds them; read from the first)."""
+        return self.shard(0).domain_A
+
+    @property
+    def domain_b(self) -> np.ndarray | None:
+        """The right-hand side of :attr:`domain_A`."""
+        return self.shard(0).domain_b
+
+    @property
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding boxes of every region, (k, n) each (reads every shard)."""
+        parts = [self.shard(j).boxes for j in range(self.shards)]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+    # ---- the shards ------------------------------------------------------------------
+
+    def shard(self, j: int) -> ExplicitLaw:
+        """Shard ``j`` as an ``ExplicitLaw`` (its regions ``offsets[j]:offsets[j + 1]``),
+        read and checked on first use.
+
+        Raises
+        ------
+        SpecError
+            The file is missing, is not the one the manifest records (its SHA-256), or
+            is not a law of this problem.
+        """
+        got = self._cache.get(j)
+        if got is not None:
+            self._cache.move_to_end(j)
+            return got
+        entry = self._entries[j]
+        path = self.dir / entry["file"]
+        if not path.is_file():
+            raise SpecError("missing (a shard of the law)", file=str(path))
+        if _file_sha(path) != entry["sha256"]:
+            raise SpecError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
+                            "edited): refused", file=str(path))
+        law = ExplicitLaw.load(path)
+        if law.num_regions != entry["regions"] or law.fingerprint != self.fingerprint:
+            raise SpecError(f"not the shard {MANIFEST} records (regions or fingerprint)",
+                            file=str(path))
+        self.loads += 1
+        self._cache[j] = law
+        while len(self._cache) > self._most:
+            self._cache.popitem(last=False)
+        return law
+
+    def _where(self, i: int) -> tuple[int, int]:
+        """(shard, index in it) of region ``i``."""
+        if not 0 <= i < self.num_regions:
+            raise IndexError(f"region {i} of a law of {self.num_regions}")
+        j = int(np.searchsorted(self.offsets, i, side="right")) - 1
+        return j, i - int(self.offsets[j])
+
+    def _meets(self, j: int, lo: np.ndarray, hi: np.ndarray) -> bool:
+        return self._lo[j] is not None and bool(
+            np.all(self._lo[j] <= hi + _BOX_TOL) and np.all(self._hi[j] >= lo - _BOX_TOL))
+
+    # ---- the interface of the reach engines ------------------------------------------
+
+    def regions_meeting(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """The regions whose bounding box meets ``[lo, hi]`` (``ExplicitLaw``'s answer),
+        from the shards whose box meets it alone.
+
+        Parameters
+        ----------
+        lo, hi : (n,) ndarray
+
+        Returns
+        -------
+        (q,) ndarray of int
+            Ascending.
+        """
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        found = [self.shard(j).regions_meeting(lo, hi) + self.offsets[j]
+                 for j in range(self.shards) if self._meets(j, lo, hi)]
+        return np.concatenate(found) if found else np.zeros(0, dtype=np.int64)
+
+    def domain_rows(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The domain's rows (as ``ExplicitLaw.domain_rows``: the same whatever the box).
+
+        Parameters
+        ----------
+        lo, hi : (n,) ndarray
+
+        Returns
+        -------
+        (A, b) or None
+        """
+        return None if self.domain_A is None else (self.domain_A, self.domain_b)
+
+    def locate(self, X: np.ndarray) -> np.ndarray:
+        """Region index of each point (-1 outside the domain): the first shard, in the
+        manifest's order, whose regions hold it.
+
+        Parameters
+        ----------
+        X : (P, n) or (n,) array_like
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        if X.shape[1] != self.n:
+            raise ValueError(f"expected theta of dimension {self.n}, got {X.shape[1]}")
+        out = np.full(X.shape[0], -1, dtype=np.int64)
+        for j in range(self.shards):
+            if self._lo[j] is None:
+                continue
+            todo = np.flatnonzero(out < 0)
+            near = todo[np.all(X[todo] >= self._lo[j] - _BOX_TOL, axis=1)
+                        & np.all(X[todo] <= self._hi[j] + _BOX_TOL, axis=1)]
+            if near.size:
+                idx = self.shard(j).locate(X[near])
+                hit = idx >= 0
+                out[near[hit]] = idx[hit] + self.offsets[j]
+        return out
+
+    def evaluate(self, X: np.ndarray) -> np.ndarray:
+        """The control ``u = F_i x + G_i`` (NaN rows outside the domain).
+
+        Parameters
+        ----------
+        X : (P, n) or (n,) array_like
+
+        Returns
+        -------
+        (P, m) ndarray
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        idx = self.locate(X)
+        U = np.full((X.shape[0], self.m), np.nan)
+        for j in range(self.shards):
+            sel = np.flatnonzero((idx >= self.offsets[j]) & (idx < self.offsets[j + 1]))
+            if sel.size:
+                law = self.shard(j)
+                q = idx[sel] - self.offsets[j]
+                U[sel] = np.einsum("pij,pj->pi", law.F[q], X[sel]) + law.G[q]
+        return U
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        return self.evaluate(X)
+
+    # ---- the whole law, on demand ----------------------------------------------------
+
+    def merged(self) -> ExplicitLaw:
+        """Every shard in one ``ExplicitLaw`` (the regions in the shards' order).
+
+        Returns
+        -------
+        ExplicitLaw
+            With the shards' boxes; what a consumer of the whole table (an exporter of
+            one C array) reads.
+        """
+        parts = [self.shard(j) for j in range(self.shards)]
+        law = ExplicitLaw(
+            A=[a for p in parts for a in p.A], b=[b for p in parts for b in p.b],
+            F=np.concatenate([p.F for p in parts]), G=np.concatenate([p.G for p in parts]),
+            states=self.states, inputs=self.inputs, fingerprint=self.fingerprint,
+            meta=dict(self.meta, shards=self.shards), domain_A=parts[0].domain_A,
+            domain_b=parts[0].domain_b, parameters=self.parameters,
+        )
+        law._boxes = (np.concatenate([p.boxes[0] for p in parts]),
+                      np.concatenate([p.boxes[1] for p in parts]))
+        return law
+
+    def summary(self) -> str:
+        """A few lines of text: the regions, the shards and the problem's metadata."""
+        rows = [f"explicit law: {self.num_regions} regions in {self.shards} shards, "
+                f"n={self.n}, m={self.m}"]
+        for key in ("problem", "norm", "horizon", "seconds"):
+            if key in self.meta:
+                rows.append(f"  {key}: {self.meta[key]}")
+        return "\n".join(rows)
+
+    def __repr__(self) -> str:
+        return f"ShardedLaw(num_regions={self.num_regions}, shards={self.shards}, n={self.n})"

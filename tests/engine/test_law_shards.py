@@ -1,0 +1,170 @@
+"""A law written as shards (``law_shards.py``): read lazily, it is the whole law.
+
+The shards of a synthesised law answer ``locate``, ``evaluate``, ``regions_meeting`` and
+``law.F[i]`` as the law does, reading only the shards a question meets; a verification on
+them gives the law's result; a shard file damaged, edited or swapped is refused with one
+line naming it (the CLI: exit 2); ``codev export`` takes the folder. The sharded search on
+a real Dask ``LocalCluster`` writes a law whose shards equal the serial law (slow: a
+cluster).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import codev_engine as ce
+from codev_engine.errors import SpecError
+from codev_engine.law_shards import (
+    MANIFEST,
+    ShardedLaw,
+    spatial_order,
+    split_law,
+    write_law_shards,
+)
+from workbench.cli import main
+
+SPEC = """
+name = "t"
+[plant]
+states = ["p", "v"]
+inputs = ["u"]
+A = [[0.0, 1.0], [0.0, 0.0]]
+B = [[0.0], [1.0]]
+[model]
+sample_time = 0.2
+[mpc]
+horizon = 6
+Q = [[1.0, 0.0], [0.0, 1.0]]
+R = [[0.5]]
+x_min = [-5.0, -2.0]
+x_max = [5.0, 2.0]
+u_min = [-1.0]
+u_max = [1.0]
+[verify]
+time_horizon = 3.0
+initial_set = { lower = [-0.5, -0.2], upper = [0.5, 0.2] }
+"""
+
+
+@pytest.fixture(scope="module")
+def spec(tmp_path_factory):
+    path = tmp_path_factory.mktemp("shards") / "t.toml"
+    path.write_text(SPEC)
+    return path
+
+
+@pytest.fixture(scope="module")
+def law(spec):
+    out = ce.synthesize(ce.load_spec(spec))
+    assert out.num_regions > 20
+    return out
+
+
+def _equal_laws(a, b) -> None:
+    assert a.num_regions == b.num_regions
+    for i in range(a.num_regions):
+        np.testing.assert_array_equal(a.A[i], b.A[i])
+        np.testing.assert_array_equal(a.b[i], b.b[i])
+    np.testing.assert_array_equal(np.asarray(a.F), np.asarray(b.F))
+    np.testing.assert_array_equal(np.asarray(a.G), np.asarray(b.G))
+
+
+def test_shards_read_lazily_answer_as_the_law(law, tmp_path):
+    # in slabs (spatial_order): a small box meets a few shards, only those are read
+    order = spatial_order(law)
+    write_law_shards(tmp_path / "slabs", split_law(law, 4, order))
+    slabs = ShardedLaw.load(tmp_path / "slabs")
+    lo, hi = np.array([4.6, -0.4]), np.array([4.7, -0.3])
+    assert len(law.regions_meeting(lo, hi))
+    np.testing.assert_array_equal(np.sort(order[slabs.regions_meeting(lo, hi)]),
+                                  law.regions_meeting(lo, hi))
+    assert 0 < slabs.loads < 4
+    X = np.random.default_rng(1).uniform([-6, -3], [6, 3], size=(3000, 2))
+    np.testing.assert_array_equal(slabs.evaluate(X), law.evaluate(X))
+    # in the law's order: the same numbering
+    write_law_shards(tmp_path, split_law(law, 4))
+    shards = ShardedLaw.load(tmp_path, cache=2)
+    assert shards.shards == 4 and shards.num_regions == law.num_regions and shards.loads == 0
+    np.testing.assert_array_equal(shards.regions_meeting(lo, hi), law.regions_meeting(lo, hi))
+    np.testing.assert_array_equal(shards.locate(X), law.locate(X))
+    np.testing.assert_array_equal(shards.evaluate(X), law.evaluate(X))
+    idx = np.array([0, law.num_regions - 1, 7, 7])
+    np.testing.assert_array_equal(shards.F[idx], law.F[idx])
+    np.testing.assert_array_equal(shards.A[5], law.A[5])
+    assert len(shards._cache) <= 2  # (the rest were dropped, read again when asked)
+    merged = shards.merged()
+    _equal_laws(merged, law)
+    np.testing.assert_array_equal(merged.boxes[0], law.boxes[0])
+
+
+def test_a_verification_on_the_shards_is_the_laws(spec, law, tmp_path):
+    problem = ce.load_spec(spec)
+    write_law_shards(tmp_path, split_law(law, 3))
+    whole, sharded = ce.verify(problem, law), ce.verify(problem, ShardedLaw(tmp_path))
+    assert sharded.verdict == whole.verdict == "robustly_safe"
+    assert sharded.stats["partitions"] == whole.stats["partitions"]
+
+
+def test_a_damaged_or_swapped_shard_is_refused(law, tmp_path):
+    write_law_shards(tmp_path, split_law(law, 3))
+    one = tmp_path / "shard-1.npz"
+    good = one.read_bytes()
+    damaged = bytearray(good)
+    damaged[len(good) // 2] ^= 1
+    one.write_bytes(bytes(damaged))
+    shards = ShardedLaw(tmp_path)
+    with pytest.raises(SpecError, match=r"shard-1\.npz: its SHA-256 is not the one"):
+        shards.regions_meeting(np.array([-6.0, -3.0]), np.array([6.0, 3.0]))
+    # a whole law file, but not the one the manifest records (shard 2 in its place)
+    one.write_bytes((tmp_path / "shard-2.npz").read_bytes())
+    with pytest.raises(SpecError, match="shard-1.npz"):
+        ShardedLaw(tmp_path).merged()
+    one.unlink()
+    with pytest.raises(SpecError, match="shard-1.npz: missing"):
+        ShardedLaw(tmp_path).merged()
+    manifest = tmp_path / MANIFEST
+    data = json.loads(manifest.read_text())
+    data["shards"][0]["file"] = "../elsewhere.npz"
+    manifest.write_text(json.dumps(data))
+    with pytest.raises(SpecError, match=r"shards\.json: shards\[0\]"):
+        ShardedLaw(tmp_path)
+    manifest.write_text("{")
+    with pytest.raises(SpecError, match="shards.json: unreadable"):
+        ShardedLaw(tmp_path)
+
+
+def test_the_cli_refuses_a_damaged_shard_in_one_line(spec, law, tmp_path, capsys):
+    write_law_shards(tmp_path, split_law(law, 2))
+    # the exporter takes the folder (the law merged on demand: one table)
+    assert main(["export", str(tmp_path), "--python", str(tmp_path / "law.py")]) == 0
+    assert f"{law.num_regions} regions" in capsys.readouterr().out
+    path = tmp_path / "shard-0.npz"
+    data = bytearray(path.read_bytes())
+    data[-40] ^= 1
+    path.write_bytes(bytes(data))
+    assert main(["verify", str(spec), "--law", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("codev: error: ") and "shard-0.npz" in err[-1]
+    assert main(["synth", str(spec), "--sharded"]) == 2
+    assert "--sharded: needs --workers" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # (a LocalCluster: ~10 s on a loaded machine)
+def test_the_sharded_search_writes_the_serial_law_as_shards(spec, tmp_path, monkeypatch, capsys):
+    from codev_engine.mp import mpqp, sharded
+
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)  # (sharded from the first region)
+    monkeypatch.setattr(sharded, "BUDGET", 16)  # (rounds, keys crossing shards)
+    serial = ce.synthesize(ce.load_spec(spec), options=ce.SolveOptions(workers=1))
+    out = tmp_path / "law"
+    code = main(["synth", str(spec), "--workers", "2", "--shard-dir", str(tmp_path / "work"),
+                 "--out-shards", str(out), "--json"])
+    assert code == 0 and json.loads(capsys.readouterr().out)["out"] == str(out)
+    shards = ShardedLaw(out)
+    assert shards.shards == 2 and shards.meta["stats"]["shards"] == 2
+    assert not any((tmp_path / "work").iterdir())  # (the search's own files removed)
+    # (the CLI writes the regions in slabs of space: the serial law in that order)
+    _equal_laws(shards.merged(), split_law(serial, 1, spatial_order(serial))[0])
