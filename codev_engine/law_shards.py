@@ -281,7 +281,19 @@ class ShardedLaw:
 
     @classmethod
     def load(cls, directory: str | os.PathLike, **kwargs) -> ShardedLaw:
-        """The sharded law in ``directory`` (see the class)."""
+        """The sharded law in ``directory`` (see the class).
+
+        Parameters
+        ----------
+        directory : str or PathLike
+            The folder holding ``shards.json`` and the shard files.
+        **kwargs
+            Passed on to the class (the number of shards kept in memory).
+
+        Returns
+        -------
+        ShardedLaw
+        """
         return cls(directory, **kwargs)
 
     # ---- shape -----------------------------------------------------------------------
@@ -332,6 +344,15 @@ class ShardedLaw:
     def shard(self, j: int) -> ExplicitLaw:
         """Shard ``j`` as an ``ExplicitLaw`` (its regions ``offsets[j]:offsets[j + 1]``),
         read and checked on first use.
+
+        Parameters
+        ----------
+        j : int
+            The shard's index, ``0 <= j < shards``.
+
+        Returns
+        -------
+        ExplicitLaw
 
         Raises
         ------
