@@ -48,8 +48,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     left: list = []
     if any(k.startswith("/plane/") for k in e):
         xname, yname = content.plane_names
-        section = content.section_words()
-        at = f", section at {section}" if section is not None else ""
+        # the scene's title: "section at ..." when it is one, "the regions reached" on demand
+        title = content.scene.partition_title
+        at = f", {title}" if content.law.num_regions else ""
         left.append(
             rrb.Spatial2DView(
                 origin="/",

@@ -80,21 +80,17 @@ def report_html(
     law, options = drawable(problem, law, RecordingOptions(axes=axes, traces=traces))
     plane = _check_options(options, problem.plant.n)
     content = RecordingContent.build(problem, law, result, options, plane, trace_law=full_law)
+    scene = content.scene  # one scene: the report's figures show the recording's numbers
     parts: list[tuple[str, str]] = []
     if result is not None:
-        fig = figures.figure_result(result, problem, law=law, max_states=min(problem.plant.n, 8))
+        fig = figures.figure_result(result, problem, law=law, max_states=min(problem.plant.n, 8),
+                                    scene=scene)
         caption = "The reachtube of each state against time, and projected on the plane"
         if plane is not None:
             caption += f" of {problem.plant.states[plane[0]]} and {problem.plant.states[plane[1]]}"
         parts.append((_svg(fig), caption + ", with the sets and the counterexample (if any)."))
-    law_axes = plane if plane is not None else (0, 1)
-    # the partition's section: the recording's (figures.default_slice_point with the spec)
-    at = figures.default_slice_point(law, problem) if law.n > 2 else None
-    fig = figures.figure_law(law, axes=law_axes, at=at) if law.n >= 2 else figures.figure_law(law)
-    section = content.section_words()
-    at_words = f", section at {section}" if section is not None else ""
-    parts.append((_svg(fig), f"The partition of the explicit law{at_words}: "
-                  f"{law.num_regions} regions."))
+    fig = figures.figure_law(law, scene=scene)
+    parts.append((_svg(fig), f"The partition of the explicit law: {scene.partition_title}."))
     if content.traces is not None and problem.plant.m:
         fig = figure_inputs(problem, content.traces, result)
         parts.append((_svg(fig), "The inputs of the simulated traces, with their bounds."))
