@@ -45,6 +45,12 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         end=rrb.TimeRangeBoundary.cursor_relative(seconds=0.0),
     )
     no_legend = rrb.PlotLegend(visible=False)
+    # every time plot shows [0, T] with a margin each side: the first and the last time
+    # label are not clipped at the view's edges
+    T = content.scene.t_end
+    time_axis = rrb.TimeAxis(view_range=rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seconds=-0.04 * T),
+        end=rrb.TimeRangeBoundary.absolute(seconds=1.06 * T)))
     left: list = []
     if any(k.startswith("/plane/") for k in e):
         xname, yname = content.plane_names
@@ -60,6 +66,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                 + ")",
                 time_ranges=up_to_cursor,
                 background=(255, 255, 255),
+                # the window (a unit square, y down in the view) with its labels: the plane
+                # fills its view instead of floating in the bounds of everything logged
+                visual_bounds=rrb.VisualBounds2D(x_range=(-0.66, 0.56), y_range=(-0.58, 0.7)),
             )
         )
     if any(k.startswith("/space/") for k in e):
@@ -86,6 +95,10 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             + (", safe limits green" if any(k.startswith(f"/time/{s}/safe/") for k in e)
                else ""),
             plot_legend=no_legend,
+            # the scene's y range: the limits, the initial set, the tube, the certificate
+            # band and the traces in view (the report's figure shows the same)
+            axis_y=rrb.ScalarAxis(range=content.scene.plots[k].y_range),
+            axis_x=time_axis,
         )
         for k, s in enumerate(states)
         if any(key.startswith(f"/time/{s}/") for key in e)
@@ -98,6 +111,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             + (", bounds black" if any(k.startswith(f"/output/{y}/bounds/") for k in e) else "")
             + cex + reference(f"/output/{y}"),
             plot_legend=no_legend,
+            axis_x=time_axis,
         )
         for y in content.outputs
         if any(k.startswith(f"/output/{y}/") for k in e)
@@ -108,6 +122,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             origin=f"/scalars/u/{u}",
             name=f"{u}(t){unit(content.problem.plant.input_label(j), u)}, bounds black",
             plot_legend=no_legend,
+            axis_x=time_axis,
         )
         for j, u in enumerate(content.inputs)
         if any(k.startswith(f"/scalars/u/{u}/") for k in e)
@@ -120,8 +135,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             if any(k.startswith(f"/scalars/{kind}/{nm}/") for k in e):
                 series.append(rrb.TimeSeriesView(
                     origin=f"/scalars/{kind}/{nm}",
-                    name=f"{what} {nm}: its interval black, the counterexample's red",
+                    name=f"{what} {nm}: its interval black, the counterexample's black",
                     plot_legend=no_legend,
+                    axis_x=time_axis,
                 ))
     if any(k.startswith("/scalars/unsafe_distance/") for k in e):
         series.append(
@@ -129,6 +145,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                 origin="/scalars/unsafe_distance",
                 name="margin to the unsafe sets (< 0: inside)",
                 plot_legend=no_legend,
+                axis_x=time_axis,
             )
         )
     right: list = []

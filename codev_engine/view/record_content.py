@@ -23,6 +23,7 @@ from codev_engine.geometry.polytope import normalize_rows
 from codev_engine.geometry.vertices import vertices_in_boxes, vertices_many
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem, SetSpec
+from codev_engine.view.glyphs import text_strips
 from codev_engine.view.scene import Scene, build_scene
 from codev_engine.view.shapes import meshes, outline, raster_boxes, raster_polygons
 from codev_engine.view.signals import output_bounds, output_boxes, output_names, reference_band
@@ -58,6 +59,8 @@ _TRACE = (120, 120, 120)
 _REFERENCE = (150, 40, 200)
 _AXIS = (30, 30, 30)
 _EDGE = (60, 60, 60, 90)
+#: the height of the plane's tick labels, as a fraction of the window's side
+_LABEL = 0.04
 #: pixels of a side of the plane's rasters (the partition, the filled sets and tube)
 _RASTER = 480
 #: the regions' edges are drawn as lines up to this many regions (the fill alone beyond)
@@ -442,11 +445,24 @@ class RecordingContent:
             rr.LineStrips2D(strips, colors=[_AXIS], radii=rr.components.Radius.ui_points(0.75)),
             len(strips),
         )
+        # the ticks' values as strokes in data coordinates (a labelled point's text sits a
+        # dozen pixels under the point): each y label centred on its tick, at every zoom
+        height = _LABEL * span
+        for entity, parts in (
+            ("/plane/axes/x_labels",
+             [text_strips(_fmt(x), (x, lo[1] - 2.5 * tick[1]), height, align="top")
+              for x in xs]),
+            ("/plane/axes/y_labels",
+             [text_strips(_fmt(y), (lo[0] - 2.5 * tick[0], y), height, align="right")
+              for y in ys]),
+        ):
+            segs = [seg for part in parts for seg in part]
+            if segs:
+                w.static(entity, rr.LineStrips2D(
+                    segs, colors=[_AXIS], radii=rr.components.Radius.ui_points(0.6)), len(segs))
         xname, yname = self.plane_names
-        pos = [[x, lo[1] - 3.5 * tick[1]] for x in xs] + [[lo[0] - 4.5 * tick[0], y] for y in ys]
-        labels = [_fmt(x) for x in xs] + [_fmt(y) for y in ys]
-        pos += [[c[0], lo[1] - 9 * tick[1]], [lo[0], hi[1] + 6 * tick[1]]]
-        labels += [f"{xname} →", f"{yname} ↑"]
+        pos = [[c[0], lo[1] - 9 * tick[1]], [lo[0], hi[1] + 6 * tick[1]]]
+        labels = [f"{xname} →", f"{yname} ↑"]
         w.static(
             "/plane/axes/ticks",
             rr.Points2D(

@@ -30,6 +30,7 @@ __all__ = [
     "StatePlot",
     "bounds_on",
     "build_scene",
+    "decade_range",
     "default_slice_point",
     "law_section",
     "nice_ticks",
@@ -190,6 +191,34 @@ def nice_ticks(lo: float, hi: float, k: int = 5) -> np.ndarray:
     return np.where(np.abs(ticks) < 1e-9 * step, 0.0, ticks)
 
 
+def decade_range(lo: float, hi: float) -> tuple[float, float]:
+    """A plot's range around ``[lo, hi]`` that holds at least three multiples of the power of
+    ten below its span, plus a 4 % margin.
+
+    A viewer that labels its grid at powers of ten (the Rerun viewer's time plots) then
+    shows at least three y tick labels, none at the very edge.
+
+    Parameters
+    ----------
+    lo, hi : float
+
+    Returns
+    -------
+    (float, float)
+        ``(-1, 1)`` when a side is not finite.
+    """
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return -1.0, 1.0
+    if hi <= lo:
+        lo, hi = padded(lo, hi)
+    step = 10.0 ** np.floor(np.log10(hi - lo))
+    a, b = np.floor(lo / step) * step, np.ceil(hi / step) * step
+    if round((b - a) / step) < 2:  # two steps: three labelled values
+        a, b = (a - step, b) if lo - a < b - hi else (a, b + step)
+    margin = 0.04 * (b - a)
+    return float(a - margin), float(b + margin)
+
+
 def bounds_on(s: SetSpec, state: int, *, alone: bool) -> tuple[float, float] | None:
     """Bounds ``(lo, hi)`` (+-inf allowed) that a verify set puts on one state.
 
@@ -274,7 +303,7 @@ class StatePlot:
     label : str
         The name with its unit (``v (m/s)``).
     y_range : (float, float)
-        Includes the tube shown, the certificate band, the traces, the counterexample up to
+        :func:`decade_range` of the values shown: includes the tube shown, the certificate band, the traces, the counterexample up to
         its violation, every limit and the initial interval.
     y_ticks : (k,) ndarray
         At least three round values inside ``y_range``.
@@ -622,7 +651,7 @@ def _state_plot(
             values += [float(ref.lower[i]), float(ref.upper[i])]
     vals = np.array([v for v in values if np.isfinite(v)], dtype=float)
     ylo, yhi = (float(vals.min()), float(vals.max())) if vals.size else (np.nan, np.nan)
-    y_range = padded(ylo, yhi, 0.08)
+    y_range = decade_range(ylo, yhi)
     ticks = nice_ticks(*y_range, k=5)
     label = problem.plant.state_label(i) if problem is not None else name
     return StatePlot(name, label, y_range, ticks, tuple(limits), tuple(bands), initial)
