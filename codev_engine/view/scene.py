@@ -303,8 +303,9 @@ class StatePlot:
     label : str
         The name with its unit (``v (m/s)``).
     y_range : (float, float)
-        :func:`decade_range` of the values shown: includes the tube shown, the certificate band, the traces, the counterexample up to
-        its violation, every limit and the initial interval.
+        :func:`decade_range` of the values shown: the tube shown, the certificate band,
+        the traces, the counterexample up to its violation, every limit, the initial
+        interval.
     y_ticks : (k,) ndarray
         At least three round values inside ``y_range``.
     limits : tuple of Limit
