@@ -457,6 +457,8 @@ def test_without_verify_section(tmp_path):
         "/plane/edges",
         "/plane/axes/frame",
         "/plane/axes/ticks",
+        "/plane/axes/x_labels",
+        "/plane/axes/y_labels",
         "/verdict",
     }
     assert summary.traces == 0
