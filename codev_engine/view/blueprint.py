@@ -111,9 +111,11 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             + (", bounds black" if any(k.startswith(f"/output/{y}/bounds/") for k in e) else "")
             + cex + reference(f"/output/{y}"),
             plot_legend=no_legend,
+            axis_y=(rrb.ScalarAxis(range=content.scene.outputs[k].y_range)
+                    if k < len(content.scene.outputs) else None),
             axis_x=time_axis,
         )
-        for y in content.outputs
+        for k, y in enumerate(content.outputs)
         if any(k.startswith(f"/output/{y}/") for k in e)
     ]
     p_dist = content.problem.plant.disturbances

@@ -502,6 +502,8 @@ def _plot_signal(
             band = (float(ref.lower[k]), float(ref.upper[k]), ref.fixed)
     if plot is not None:
         ylim = plot.y_range  # the scene's: the recording's state view shows the same
+    elif output is not None and output < len(scene.outputs):
+        ylim = scene.outputs[output].y_range
     else:
         near = [v for _, v in lines] + ([band[0], band[1]] if band is not None else [])
         span = yhi - ylo if np.isfinite(yhi - ylo) else 0.0
@@ -524,6 +526,8 @@ def _plot_signal(
     if plot is not None:
         ax.set_yticks(plot.y_ticks)  # at least three labels
         handles += _state_bounds(ax, plot, ylim)
+    elif output is not None and output < len(scene.outputs):
+        ax.set_yticks(scene.outputs[output].y_ticks)
     drawn = [(label, v) for label, v in lines if ylim[0] <= v <= ylim[1]]
     for label, v in drawn:
         ax.axhline(v, color="k", lw=1.0, ls=":" if "soft" in label else "--")

@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
 __all__ = [
     "Limit",
+    "OutputPlot",
     "Scene",
     "Section",
     "StatePlot",
@@ -326,6 +327,26 @@ class StatePlot:
 
 
 @dataclass(frozen=True)
+class OutputPlot:
+    """One output ``y = C x`` against time.
+
+    Attributes
+    ----------
+    name : str
+        ``y<i>``.
+    y_range : (float, float)
+        :func:`decade_range` of the tube's outputs shown (``C`` applied interval-wise),
+        the certificate band's, the traces', the counterexample's up to its violation, the
+        reference followed, and the MPC's bounds on it that are near those.
+    y_ticks : (k,) ndarray
+    """
+
+    name: str
+    y_range: tuple[float, float]
+    y_ticks: np.ndarray
+
+
+@dataclass(frozen=True)
 class Scene:
     """What every picture of one design shows (see the module's docstring).
 
@@ -350,6 +371,8 @@ class Scene:
         The time axis' end (``[0, t_end]``): the horizon, the shown horizon for ``"inf"``.
     plots : tuple of StatePlot
         One per state.
+    outputs : tuple of OutputPlot
+        One per row of ``mpc.C`` (none without outputs).
     certificate : CertificateBand or None
         The band after an all-time certificate closed (drawn from ``t_closed`` to
         ``band_end``); the tube's boxes from ``t_closed`` on are not drawn.
@@ -376,6 +399,7 @@ class Scene:
     plane_y_ticks: np.ndarray
     t_end: float
     plots: tuple[StatePlot, ...]
+    outputs: tuple[OutputPlot, ...]
     certificate: CertificateBand | None
     band_end: float
     tube_shown: np.ndarray
@@ -543,6 +567,7 @@ def build_scene(
 
     plots = tuple(_state_plot(problem, k, states[k], result, shown, cert, finite_traces, cex_x)
                   for k in range(n))
+    outputs = _output_plots(problem, result, shown, cert, finite_traces, cex_x)
     section = None if law is None else _section(law, problem, axes, at)
     polys, index = _regions(law, axes, section, plane_lo, plane_hi)
     name = problem.name if problem is not None else (
@@ -561,6 +586,7 @@ def build_scene(
         plane_y_ticks=nice_ticks(plane_lo[1], plane_hi[1]),
         t_end=float(t_end),
         plots=plots,
+        outputs=outputs,
         certificate=cert,
         band_end=float(band_end),
         tube_shown=shown,
@@ -656,3 +682,55 @@ def _state_plot(
     ticks = nice_ticks(*y_range, k=5)
     label = problem.plant.state_label(i) if problem is not None else name
     return StatePlot(name, label, y_range, ticks, tuple(limits), tuple(bands), initial)
+
+
+def _output_plots(
+    problem: Problem | None,
+    result: VerificationResult | None,
+    shown: np.ndarray,
+    cert: CertificateBand | None,
+    traces: np.ndarray | None,
+    cex_x: np.ndarray | None,
+) -> tuple[OutputPlot, ...]:
+    """The outputs' time plots: their y ranges and ticks (none without ``mpc.C``)."""
+    if problem is None or problem.mpc.C is None:
+        return ()
+    from codev_engine.view.signals import (
+        output_bounds,
+        output_boxes,
+        output_names,
+        reference_band,
+    )
+
+    C = np.asarray(problem.mpc.C, dtype=float)
+    if C.shape[1] != problem.plant.n:
+        return ()
+    ref = reference_band(problem)
+    out = []
+    for k, name in enumerate(output_names(problem)):
+        row = C[k : k + 1]
+        values: list[float] = []
+        if result is not None and result.tube.num_boxes and np.any(shown):
+            ylo, yhi = output_boxes(row, result.tube.lower[shown], result.tube.upper[shown])
+            values += [float(ylo.min()), float(yhi.max())]
+        if cert is not None:
+            ylo, yhi = output_boxes(row, cert.lower[None], cert.upper[None])
+            values += [float(ylo[0, 0]), float(yhi[0, 0])]
+        if traces is not None:
+            y = traces @ row[0]
+            if np.any(np.isfinite(y)):
+                values += [float(np.nanmin(y)), float(np.nanmax(y))]
+        if cex_x is not None:
+            y = cex_x @ row[0]
+            values += [float(y.min()), float(y.max())]
+        if ref is not None and ref.signal == "y":
+            values += [float(ref.lower[k]), float(ref.upper[k])]
+        vals = np.array([v for v in values if np.isfinite(v)], dtype=float)
+        lo, hi = (float(vals.min()), float(vals.max())) if vals.size else (np.nan, np.nan)
+        span = hi - lo if np.isfinite(hi - lo) else 0.0
+        for _, v in output_bounds(problem, k):  # a bound near what is drawn is in view
+            if not np.isfinite(lo) or abs(v - np.clip(v, lo, hi)) <= max(span, 1e-9):
+                lo, hi = min(lo, v), max(hi, v)
+        y_range = decade_range(lo, hi)
+        out.append(OutputPlot(name, y_range, nice_ticks(*y_range)))
+    return tuple(out)

@@ -130,6 +130,13 @@ def _same_numbers(name: str, tmp_path: Path) -> None:
         assert np.allclose(sorted(initial), [problem.verify.initial_lower[k],
                                              problem.verify.initial_upper[k]], atol=1e-6)
 
+    # each output y = C x: its y range
+    for k, out in enumerate(scene.outputs):
+        (view,) = [p for v, p in views.items() if v.startswith(f"{out.name}(t) = C x")]
+        ax = tube_fig.axes[n + k]
+        assert ax.get_ylabel() == f"{out.name} = C x"
+        assert np.allclose(view["ScalarAxis:range"], ax.get_ylim(), atol=1e-9)
+
 
 def test_cruise_grade_recording_and_report_show_the_same_numbers(tmp_path):
     _same_numbers("cruise_grade", tmp_path)
