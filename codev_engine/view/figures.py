@@ -45,7 +45,7 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
 
     from codev_engine.law import ExplicitLaw
     from codev_engine.reach.verification import Counterexample, VerificationResult
-    from codev_engine.spec.problem import Problem, SetSpec
+    from codev_engine.spec.problem import Problem
 
 __all__ = [
     "VERDICT_COLOURS",
@@ -609,10 +609,9 @@ def plot_plane(
     axes : (2,) tuple of int
         The states on the horizontal and vertical axes.
     problem : Problem, optional
-        Adds the initial set (black outline), the unsafe sets (red) and the safe sets (green
-        outline), clipped to the view. Boxes are drawn as their projections; polytope sets
-        whose rows only involve the two plotted states are drawn exactly, other polytope sets
-        are listed as not drawn.
+        Adds the initial set (blue outline), the unsafe sets (red) and the safe sets (green
+        outline): the scene's (:class:`~codev_engine.view.scene.SetShape`), each clipped to
+        the view box and projected on the plane, as in the recording.
     law : ExplicitLaw, optional
         Adds the outline of the law's domain (for ``n > 2``, its section through the centre
         of the initial set, or :func:`default_slice_point` without a problem).
@@ -632,7 +631,7 @@ def plot_plane(
     i, j = _check_axes(axes, n)
     names = _state_names(n, problem.plant.states if problem is not None else None)
     handles: list[Any] = []
-    if scene is None:
+    if scene is None or scene.axes != (i, j):
         scene = build_scene(problem, law, result, axes=(i, j))
     lo2 = np.unique(np.hstack([tube.lower[:, [i, j]], tube.upper[:, [i, j]]]), axis=0)
     if lo2.shape[0]:
@@ -665,29 +664,26 @@ def plot_plane(
     # sets are clipped to a box a little larger than the view: no clipped edge shows
     margin = 0.1 * np.array([xlim[1] - xlim[0], ylim[1] - ylim[0]])
     view = (np.array([xlim[0], ylim[0]]) - margin, np.array([xlim[1], ylim[1]]) + margin)
-    if vs is not None:
-        skipped = 0
-        for sets, style in ((vs.unsafe, "unsafe"), (vs.safe, "safe")):
-            drawn = False
-            for s in sets:
-                poly = _set_in_view(s, i, j, view)
-                if poly is None:
-                    skipped += 1
-                elif poly.shape[0] >= 3:
-                    if style == "safe" and _fills_view(poly, view):
-                        continue  # the safe set contains the whole view: nothing to see
-                    if style == "unsafe":
-                        ax.add_patch(Polygon(poly, fc=_UNSAFE, alpha=0.35, lw=0, zorder=0.5))
-                        _mark_if_small(ax, poly, xlim, ylim, _UNSAFE)
-                    else:
-                        ax.add_patch(Polygon(poly, fill=False, ec=_SAFE, ls="--", lw=1))
-                    drawn = True
-            if drawn and style == "unsafe":
-                handles.append(Patch(facecolor=_UNSAFE, alpha=0.35, label="unsafe"))
-            elif drawn:
-                handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe"))
-        if skipped:
-            handles.append(Patch(fill=False, lw=0, label=f"({skipped} polytope set(s) not drawn)"))
+    # the scene's sets: each clipped to the view box and projected on the plane (the
+    # recording draws the same polygons)
+    window = (scene.plane_lo, scene.plane_hi)
+    drawn = set()
+    for shape in scene.sets:
+        kind, poly = shape.name.split("/")[0], shape.polygon
+        if kind not in ("unsafe", "safe") or poly is None or poly.shape[0] < 3:
+            continue
+        if kind == "safe" and _fills_view(poly, window):
+            continue  # the safe set contains the whole view: nothing to see
+        if kind == "unsafe":
+            ax.add_patch(Polygon(poly, fc=_UNSAFE, alpha=0.35, lw=0, zorder=0.5))
+            _mark_if_small(ax, poly, xlim, ylim, _UNSAFE)
+        else:
+            ax.add_patch(Polygon(poly, fill=False, ec=_SAFE, ls="--", lw=1))
+        drawn.add(kind)
+    if "unsafe" in drawn:
+        handles.append(Patch(facecolor=_UNSAFE, alpha=0.35, label="unsafe"))
+    if "safe" in drawn:
+        handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe"))
     if law is not None:
         at = scene.section.point if scene.section is not None and law.n > 2 else None
         dom = _domain_polygon(law, (i, j), at, view)
@@ -741,27 +737,6 @@ def _split_trace(
     head = (np.append(t[before], ce.t), np.vstack([X[before], v]))
     tail = (np.insert(t[~before], 0, ce.t), np.vstack([v, X[~before]]))
     return head, tail, v
-
-
-def _set_in_view(
-    s: SetSpec, i: int, j: int, view: tuple[np.ndarray, np.ndarray]
-) -> np.ndarray | None:
-    """A verify set's projection on states (i, j), clipped to the view box -> (v, 2).
-
-    None when it cannot be drawn exactly (a polytope with rows on other states); an empty
-    array when it misses the view.
-    """
-    from codev_engine.geometry.polytope import box_halfspaces
-
-    if s.kind == "box":
-        A, b = box_halfspaces(s.lower[[i, j]], s.upper[[i, j]])
-    elif np.any(np.delete(s.A, [i, j], axis=1) != 0):
-        return None
-    else:
-        A, b = s.A[:, [i, j]], s.b
-    Av, bv = box_halfspaces(*view)
-    polys, _ = section_polygons([np.vstack([A, Av])], [np.concatenate([b, bv])])
-    return polys[0] if polys else np.zeros((0, 2))
 
 
 def _domain_polygon(

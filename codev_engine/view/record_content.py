@@ -19,13 +19,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from codev_engine.errors import SolverError
-from codev_engine.geometry.polytope import normalize_rows
-from codev_engine.geometry.vertices import vertices_in_boxes, vertices_many
+from codev_engine.geometry.vertices import vertices_in_boxes
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem, SetSpec
 from codev_engine.view.glyphs import text_strips
-from codev_engine.view.scene import Scene, build_scene
-from codev_engine.view.shapes import meshes, outline, raster_boxes, raster_polygons
+from codev_engine.view.scene import Scene, build_scene, set_rows
+from codev_engine.view.shapes import meshes, raster_boxes, raster_polygons
 from codev_engine.view.signals import output_bounds, output_boxes, output_names, reference_band
 
 if TYPE_CHECKING:
@@ -251,10 +250,6 @@ class RecordingContent:
         What could not be drawn (shown in the verdict document).
     tube_boxes : int
         Tube boxes logged.
-    set_shapes : list or None
-        :meth:`set_polygons`, once computed.
-    set_rows : (list of ndarray, list of ndarray)
-        The rows of each set with the view box's, which its vertices came from.
     """
 
     problem: Problem
@@ -270,8 +265,6 @@ class RecordingContent:
     traces: Traces | None
     notes: list[str]
     tube_boxes: int = 0
-    set_shapes: list | None = None
-    set_rows: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
 
     @property
     def n(self) -> int:
@@ -538,59 +531,19 @@ class RecordingContent:
                 )
 
     def _sets(self) -> list[tuple[str, SetSpec, tuple[int, ...]]]:
-        vs = self.problem.verify
-        if vs is None:
-            return []
-        out = [("initial", SetSpec("box", lower=vs.initial_lower, upper=vs.initial_upper), _BLUE)]
-        out += [(f"unsafe/{k}", s, _RED) for k, s in enumerate(vs.unsafe)]
-        out += [(f"safe/{k}", s, _GREEN) for k, s in enumerate(vs.safe)]
-        cert = None if self.result is None else self.result.certificate
-        if cert is not None and "H" in cert and np.shape(cert["H"])[1] == self.n:
-            # the invariant set that closes the induction (time_horizon = "inf")
-            out.append(("certificate", SetSpec("polytope", A=np.asarray(cert["H"], float),
-                                               b=np.asarray(cert["h"], float)), _PURPLE))
-        return out
+        """The scene's sets with their colours: ``(name, spec, rgb)``."""
+        colour = {"initial": _BLUE, "unsafe": _RED, "safe": _GREEN, "certificate": _PURPLE}
+        return [(sh.name, sh.spec, colour[sh.name.split("/")[0]]) for sh in self.scene.sets]
 
     def set_polygons(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
-        """Each set of ``[verify]`` clipped to the view box: ``(name, vertices, plane polygon)``.
+        """Each set of ``[verify]`` clipped to the view box: ``(name, vertices, plane
+        polygon)`` (the scene's :class:`~codev_engine.view.scene.SetShape`)."""
+        return [(sh.name, sh.vertices, sh.polygon) for sh in self.scene.sets]
 
-        The vertices are (v, n) (None: empty in the view box); the polygon (p, 2) is the
-        projection on the plane (n == 1: the interval as a band over ``[0, horizon]``;
-        None: flat or empty). Computed once (the rows they came from are kept in
-        ``set_rows``).
-        """
-        if self.set_shapes is None:
-            self.set_shapes = self._set_shapes()
-        return self.set_shapes
-
-    def _set_shapes(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
-        sets = self._sets()
-        if not sets:
-            return []
-        n = self.n
-        lo, hi = self.view_lo, self.view_hi
-        rows = [_set_rows(s) for _, s, _ in sets]
-        eye = np.vstack([np.eye(n), -np.eye(n)])
-        As = [np.vstack([A, eye]) for A, _ in rows]
-        bs = [np.concatenate([b, hi, -lo]) for _, b in rows]
-        V = vertices_many(As, bs, _TOL, rtol=_TOL, max_combos=_MAX_COMBOS)
-        self.set_rows = (As, bs)
-        out = []
-        plo, phi = self.plane_window
-        for (name, _, _), v in zip(sets, V, strict=True):
-            if v is None or v.shape[0] == 0:
-                out.append((name, None, None))
-            elif self.axes is None:
-                a, b = float(v.min()), float(v.max())
-                # the initial set holds at t = 0 only: a thin bar there, not a band in time
-                t0 = min(plo[0], 0.0)
-                t1 = 0.01 * (phi[0] - plo[0]) if name == "initial" else phi[0]
-                band = np.array([[t0, a], [t1, a], [t1, b], [t0, b]])
-                out.append((name, v, band if b > a else None))
-            else:
-                poly = outline(v, self.axes)
-                out.append((name, v, None if poly is None else poly[:-1]))
-        return out
+    @property
+    def set_rows(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """The rows of each set with the view box's, which its vertices came from."""
+        return [sh.A for sh in self.scene.sets], [sh.b for sh in self.scene.sets]
 
     def certificate_ellipse(self) -> np.ndarray | None:
         """The invariant ellipsoid of a nonlinear certificate (time_horizon = "inf"),
@@ -1346,20 +1299,6 @@ def _fmt(v: float) -> str:
     return f"{v:.4g}"
 
 
-def _set_rows(s: SetSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Unit-norm H-representation of a set (infinite box sides dropped)."""
-    A, b = s.halfspaces()
-    A = np.asarray(A, dtype=float)
-    b = np.asarray(b, dtype=float)
-    if A.shape[0] == 0:
-        return A, b
-    A, b, feasible = normalize_rows(A, b)
-    if not feasible:  # 0 <= b < 0: an empty set; an impossible row keeps it empty
-        A = np.vstack([A, np.eye(A.shape[1])[:1], -np.eye(A.shape[1])[:1]])
-        b = np.concatenate([b, [-1.0, -1.0]])
-    return A, b
-
-
 def unsafe_margin(sets: Sequence[SetSpec], X: np.ndarray) -> np.ndarray:
     """Signed margin of states to the nearest unsafe set.
 
@@ -1381,7 +1320,7 @@ def unsafe_margin(sets: Sequence[SetSpec], X: np.ndarray) -> np.ndarray:
     X = np.asarray(X, dtype=float)
     out = np.full(X.shape[:-1], np.inf)
     for s in sets:
-        A, b = _set_rows(s)
+        A, b = set_rows(s)
         if A.shape[0] == 0:
             out = np.full_like(out, -np.inf)
             continue

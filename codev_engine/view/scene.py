@@ -28,6 +28,7 @@ __all__ = [
     "OutputPlot",
     "Scene",
     "Section",
+    "SetShape",
     "StatePlot",
     "bounds_on",
     "build_scene",
@@ -37,6 +38,7 @@ __all__ = [
     "nice_ticks",
     "padded",
     "regions_words",
+    "set_rows",
     "verified_parameters",
 ]
 
@@ -327,6 +329,33 @@ class StatePlot:
 
 
 @dataclass(frozen=True)
+class SetShape:
+    """A set of ``[verify]`` (or the certificate's invariant set) as drawn.
+
+    Attributes
+    ----------
+    name : str
+        ``initial``, ``unsafe/<k>``, ``safe/<k>`` or ``certificate``.
+    spec : SetSpec
+        The set.
+    vertices : (v, n) ndarray or None
+        Its vertices clipped to the view box (None: empty there, or not enumerable).
+    polygon : (p, 2) ndarray or None
+        Its projection on the plane, counter-clockwise (n == 1: the interval as a band over
+        the time window; the initial set a thin bar at t = 0); None: flat or empty.
+    A, b : (r, n) and (r,) ndarray
+        Its unit rows with the view box's, which the vertices came from.
+    """
+
+    name: str
+    spec: SetSpec
+    vertices: np.ndarray | None
+    polygon: np.ndarray | None
+    A: np.ndarray
+    b: np.ndarray
+
+
+@dataclass(frozen=True)
 class OutputPlot:
     """One output ``y = C x`` against time.
 
@@ -373,6 +402,9 @@ class Scene:
         One per state.
     outputs : tuple of OutputPlot
         One per row of ``mpc.C`` (none without outputs).
+    sets : tuple of SetShape
+        The initial set, the unsafe sets, the safe sets, the certificate's invariant set,
+        clipped to the view box (none without ``[verify]``).
     certificate : CertificateBand or None
         The band after an all-time certificate closed (drawn from ``t_closed`` to
         ``band_end``); the tube's boxes from ``t_closed`` on are not drawn.
@@ -400,6 +432,7 @@ class Scene:
     t_end: float
     plots: tuple[StatePlot, ...]
     outputs: tuple[OutputPlot, ...]
+    sets: tuple[SetShape, ...]
     certificate: CertificateBand | None
     band_end: float
     tube_shown: np.ndarray
@@ -587,6 +620,7 @@ def build_scene(
         t_end=float(t_end),
         plots=plots,
         outputs=outputs,
+        sets=_set_shapes(problem, result, view_lo, view_hi, axes, plane_lo, plane_hi),
         certificate=cert,
         band_end=float(band_end),
         tube_shown=shown,
@@ -733,4 +767,87 @@ def _output_plots(
                 lo, hi = min(lo, v), max(hi, v)
         y_range = decade_range(lo, hi)
         out.append(OutputPlot(name, y_range, nice_ticks(*y_range)))
+    return tuple(out)
+
+
+#: feasibility tolerance of the drawn sets' vertices, ``_TOL * (1 + |b|)``
+_TOL = 1e-9
+#: a set with more d-subsets of rows than this is not enumerated (no LP fallback here)
+_MAX_COMBOS = 50_000
+
+
+def set_rows(s: SetSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Unit-norm H-representation of a set (infinite box sides dropped).
+
+    Parameters
+    ----------
+    s : SetSpec
+
+    Returns
+    -------
+    A : (r, n) ndarray
+    b : (r,) ndarray
+        An empty set keeps an impossible pair of rows.
+    """
+    from codev_engine.geometry.polytope import normalize_rows
+
+    A, b = s.halfspaces()
+    A = np.asarray(A, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if A.shape[0] == 0:
+        return A, b
+    A, b, feasible = normalize_rows(A, b)
+    if not feasible:  # 0 <= b < 0: an empty set; an impossible row keeps it empty
+        A = np.vstack([A, np.eye(A.shape[1])[:1], -np.eye(A.shape[1])[:1]])
+        b = np.concatenate([b, [-1.0, -1.0]])
+    return A, b
+
+
+def _set_shapes(
+    problem: Problem | None,
+    result: VerificationResult | None,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    axes: tuple[int, int] | None,
+    plo: np.ndarray,
+    phi: np.ndarray,
+) -> tuple[SetShape, ...]:
+    """The verify sets (and a certificate's invariant set) clipped to the view box
+    ``[lo, hi]`` and projected on the plane (window ``[plo, phi]``)."""
+    vs = problem.verify if problem is not None else None
+    if vs is None:
+        return ()
+    from codev_engine.geometry.vertices import vertices_many
+    from codev_engine.spec.problem import SetSpec
+    from codev_engine.view.shapes import outline
+
+    n = problem.plant.n
+    sets = [("initial", SetSpec("box", lower=vs.initial_lower, upper=vs.initial_upper))]
+    sets += [(f"unsafe/{k}", s) for k, s in enumerate(vs.unsafe)]
+    sets += [(f"safe/{k}", s) for k, s in enumerate(vs.safe)]
+    cert = None if result is None else result.certificate
+    if cert is not None and "H" in cert and np.shape(cert["H"])[1] == n:
+        # the invariant set that closes the induction (time_horizon = "inf")
+        sets.append(("certificate", SetSpec("polytope", A=np.asarray(cert["H"], float),
+                                            b=np.asarray(cert["h"], float))))
+    rows = [set_rows(s) for _, s in sets]
+    eye = np.vstack([np.eye(n), -np.eye(n)])
+    As = [np.vstack([A, eye]) for A, _ in rows]
+    bs = [np.concatenate([b, hi, -lo]) for _, b in rows]
+    V = vertices_many(As, bs, _TOL, rtol=_TOL, max_combos=_MAX_COMBOS)
+    out = []
+    for (name, spec), v, A, b in zip(sets, V, As, bs, strict=True):
+        poly = None
+        if v is None or v.shape[0] == 0:
+            v = None
+        elif axes is None:
+            a, c = float(v.min()), float(v.max())
+            # the initial set holds at t = 0 only: a thin bar there, not a band in time
+            t0 = min(plo[0], 0.0)
+            t1 = 0.01 * (phi[0] - plo[0]) if name == "initial" else phi[0]
+            poly = np.array([[t0, a], [t1, a], [t1, c], [t0, c]]) if c > a else None
+        else:
+            ring = outline(v, axes)
+            poly = None if ring is None else ring[:-1]
+        out.append(SetShape(name, spec, v, poly, A, b))
     return tuple(out)

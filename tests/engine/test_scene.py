@@ -105,6 +105,16 @@ def _same_numbers(name: str, tmp_path: Path) -> None:
                            np.c_[lo, hi], atol=1e-9)
         if scene.section is not None:
             assert plane_ax.get_title() == f"section at {scene.section.words}"
+        # the sets in the plane: each unsafe set's outline in the recording is a patch of
+        # the figure's plane, vertex for vertex
+        from matplotlib.patches import Polygon
+
+        patches = [p.get_xy() for p in plane_ax.patches if isinstance(p, Polygon)]
+        for e in [e for e in entities if e.startswith("/plane/unsafe/")]:
+            ring = np.array(entities[e]["LineStrips2D:strips"][0][0], dtype=float)[:-1]
+            assert any(xy.shape[0] - 1 == ring.shape[0] and np.allclose(xy[:-1], ring,
+                                                                         atol=1e-5)
+                       for xy in patches), e
     else:  # (time, state): the time axis is the figures'
         assert lo[0] == pytest.approx(0.0) and hi[0] == pytest.approx(scene.t_end)
 
