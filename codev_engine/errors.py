@@ -6,7 +6,7 @@ for bad input (``SpecError``) and for solver breakdowns (``SolverError``).
 
 from __future__ import annotations
 
-__all__ = ["CodevError", "SpecError", "SolverError"]
+__all__ = ["CodevError", "SpecError", "SolverError", "RegionLimitError"]
 
 
 class CodevError(Exception):
@@ -58,6 +58,13 @@ class SpecError(CodevError, ValueError):
 
 class SolverError(CodevError, RuntimeError):
     """A numerical solver failed in a way the engine could not recover from."""
+
+
+class RegionLimitError(CodevError):
+    """A law computed on demand (``law_on_demand.OnDemandLaw``) reached the region limit
+    the full synthesis honours: the reach engines end in an ``unknown`` (``limit``) finding
+    with its message (how many regions were computed, the field to raise), never a hang
+    or a MemoryError."""
 
 
 def _spec_error(cls: type, reason: str, file: str | None, field: str | None) -> SpecError:

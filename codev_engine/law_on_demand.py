@@ -19,18 +19,20 @@ from pathlib import Path
 
 import numpy as np
 
-from codev_engine.errors import SolverError, SpecError
+from codev_engine.errors import RegionLimitError, SolverError, SpecError
 from codev_engine.formulation import parameter_names
-from codev_engine.geometry.locate import PointLocator
+from codev_engine.geometry.locate import PointLocator, bounding_boxes
 from codev_engine.geometry.polytope import box_halfspaces
 from codev_engine.io.npz import NpzFormat, array, load_npz, save_npz, text
 from codev_engine.mp.on_demand import OnDemandRegions
 from codev_engine.mp.on_demand_lp import OnDemandBases
+from codev_engine.mp.reduce import parameter_box
+from codev_engine.mp.solution import RegionArrays, TooManyRegionsError
 from codev_engine.mp.solve import SolveOptions
 from codev_engine.mpc import build_program
 from codev_engine.plant import LinearModel, discretize
 from codev_engine.spec.problem import Problem
-from codev_engine.synthesis import problem_fingerprint
+from codev_engine.synthesis import problem_fingerprint, region_limit
 from codev_engine.version import __version__
 
 __all__ = ["OnDemandLaw", "law_for"]
@@ -78,6 +80,13 @@ class OnDemandLaw:
         The problem's fingerprint (``synthesis.problem_fingerprint``).
     meta : dict
         ``on_demand``, ``norm``, ``horizon``, ``problem``; ``regions`` the regions computed.
+    max_regions : int
+        The region limit the full synthesis honours (``options.max_regions`` or what fits
+        in the ``region_bytes`` limit, whichever is fewer): a walk that needs more ends in
+        a ``RegionLimitError`` (the reach engines' ``unknown``, reason ``limit``).
+    complete : bool
+        The whole partition is known (a small law, after the replay of the full search's
+        start): the law then answers as the full law does, vectorised and without LPs.
     """
 
     #: the reach engines and the front ends tell this law from a full one by it
@@ -110,6 +119,14 @@ class OnDemandLaw:
             self.parameters = parameter_names(problem.mpc, self.states, self.inputs)
         self.fingerprint = problem_fingerprint(mp)
         opts = options or SolveOptions()
+        # the full synthesis' limit (synthesis.synthesize): the solver's, or the regions
+        # that fit in limits' region_bytes, whichever is fewer
+        most, per = region_limit(mp.program)
+        self.max_regions = min(opts.max_regions, most)
+        self._limit_fix = (
+            f"raise CODEV_LIMITS=region_bytes (about {per / 1024:.0f} KB a region)"
+            if most < opts.max_regions else "raise SolveOptions.max_regions")
+        self._solver.max_regions = self.max_regions
         # what the cached regions depend on besides the program: the kernel's tolerance and
         # seed (the replay's start), and the engine (its rounding)
         self._cache_key = (f"{self.fingerprint} region_tol={opts.region_tol!r} "
@@ -126,6 +143,9 @@ class OnDemandLaw:
         self._boxes: tuple[np.ndarray, np.ndarray] | None = (np.zeros((0, d)), np.zeros((0, d)))
         self._last: tuple[bytes, np.ndarray] | None = None  # the last box asked, its answer
         self._stacked: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        #: once the whole partition is known (:attr:`complete`): the regions in the full
+        #: law's order (by active set / basis), their boxes, locator and domain
+        self._whole: dict | None = None
 
     # ---- shape -------------------------------------------------------------------------
 
@@ -176,18 +196,79 @@ class OnDemandLaw:
         -------
         (q,) ndarray of int
             Region indices, ascending by active set (the full law's order); a superset of
-            the regions the full law's bounding-box test would offer that meet the box.
+            the regions the full law's bounding-box test would offer that meet the box
+            (once the law is :attr:`complete`, exactly the full law's answer).
         """
+        whole = self._whole_law()
+        if whole is not None:
+            # the full law's answer (ExplicitLaw.regions_meeting), in its order
+            blo, bhi = whole["boxes"]
+            lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+            hit = np.all(blo <= hi + 1e-9, axis=1) & np.all(bhi >= lo - 1e-9, axis=1)
+            return whole["order"][hit]
         lo = np.asarray(lo, float) - _BOX_TOL
         hi = np.asarray(hi, float) + _BOX_TOL
         key = np.concatenate([lo, hi]).tobytes()
         if self._last is not None and self._last[0] == key:
             return self._last[1]
         A, b = box_halfspaces(lo - self._op, hi - self._op)
-        found = np.array(self._solver.meeting(A, b), dtype=int)
+        try:
+            found = np.array(self._solver.meeting(A, b), dtype=int)
+        except TooManyRegionsError:
+            self._sync()
+            raise RegionLimitError(
+                f"the regions computed on demand reached the region limit of the full "
+                f"synthesis ({self.max_regions:,}): {self.num_regions:,} critical regions "
+                f"computed and more are needed; {self._limit_fix}, shrink "
+                "verify.initial_set or shorten verify.time_horizon") from None
         self._sync()
         self._last = (key, found)
         return found
+
+    @property
+    def complete(self) -> bool:
+        """The whole partition is known (then the law answers as the full law does).
+
+        Asking replays the full search's start if no set was asked about yet (the first
+        walk would)."""
+        return self._whole_law() is not None
+
+    def _whole_law(self) -> dict | None:
+        """The full law's data once the walk knows the whole partition, else None.
+
+        A walk that has found every region (a small law: the replay of the full search's
+        start went to its end) needs no more LPs: the regions meeting a box are those
+        whose bounding box meets it, a point is located among all regions, and the domain
+        is the full law's (``solve._domain_from_regions``) -- the full law's answers, in
+        its order, so the verification is the full law's."""
+        if self._whole is not None:
+            return self._whole
+        solver = self._solver
+        try:
+            solver.start()
+        except TooManyRegionsError:
+            return None  # (a limit below the replay: the walk's error comes with a set)
+        if not solver.complete:
+            return None
+        from codev_engine.mp.solve import _domain_from_regions
+
+        self._sync()
+        regs = solver.regions
+        order = np.array(sorted(range(len(regs)), key=lambda i: regs[i].active), dtype=int)
+        red, op = solver._red, self._op
+        packed = RegionArrays.from_regions([regs[i] for i in order])
+        dA, db = _domain_from_regions(red, packed, solver.scale, parameter_box(red).box)
+        domain = (dA, db + dA @ op)
+        A = [self.A[i] for i in order]
+        b = [self.b[i] for i in order]
+        boxes = bounding_boxes(A, b, domain=domain)
+        self._whole = {"order": order, "boxes": boxes, "domain": domain,
+                       "locator": PointLocator(A, b, boxes=boxes)}
+        lo, hi = boxes
+        inv = np.empty_like(order)
+        inv[order] = np.arange(order.size)
+        self._boxes = (lo[inv], hi[inv])
+        return self._whole
 
     def domain_rows(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows of the law's domain (the MPC's feasible set) that describe it inside the
@@ -208,6 +289,9 @@ class OnDemandLaw:
         A : (q, d) ndarray
         b : (q,) ndarray
         """
+        whole = self._whole_law()
+        if whole is not None:
+            return whole["domain"]
         idx = self.regions_meeting(lo, hi)
         op = self._op
         if idx.size:
@@ -242,6 +326,10 @@ class OnDemandLaw:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         if X.shape[1] != self.n:
             raise ValueError(f"expected theta of dimension {self.n}, got {X.shape[1]}")
+        whole = self._whole_law()
+        if whole is not None:  # (the full law's locator, in its order)
+            j = whole["locator"].locate(X)
+            return np.where(j >= 0, whole["order"][np.maximum(j, 0)], -1)
         out = np.full(X.shape[0], -1, dtype=int)
         margin = 1e-8 * self._solver.scale
         pad = 1e-7 * self._solver.scale
@@ -280,6 +368,32 @@ class OnDemandLaw:
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         return self.evaluate(X)
+
+    def section(self, values: np.ndarray):
+        """The regions computed so far in the state alone, the other parameters fixed at
+        ``values`` (``ExplicitLaw.section`` of them): what a picture of a law over ``theta
+        = (x, u_prev, r)`` draws. Marked ``on_demand`` (the pictures say "regions
+        reached"); the section of a law with ``theta = x`` is the law itself.
+
+        Parameters
+        ----------
+        values : (n - len(states),) array_like
+
+        Returns
+        -------
+        ExplicitLaw or OnDemandLaw
+        """
+        from codev_engine.law import ExplicitLaw
+
+        if not self.parameters or len(self.states) == self.n:
+            return self
+        now = ExplicitLaw(A=list(self.A), b=list(self.b), F=self.F.copy(), G=self.G.copy(),
+                          states=self.states, inputs=self.inputs,
+                          parameters=self.parameters, fingerprint=self.fingerprint,
+                          meta=dict(self.meta))
+        out = now.section(values)
+        out.on_demand = True  # (an instance's flag: it draws the regions reached)
+        return out
 
     def summary(self) -> str:
         """One line: the regions computed so far and the dimensions."""
@@ -371,6 +485,7 @@ class OnDemandLaw:
         self._solver.restore(arrays)
         self._sync()
         self._last = None
+        self._whole = None
         self._saved_candidates = self._solver.stats["candidates"]
 
     # ---- growth --------------------------------------------------------------------------

@@ -706,8 +706,15 @@ def _cmd_report(args: argparse.Namespace) -> int:
         from codev_engine.synthesis import synthesize
 
         problem = load_spec(target)
-        with _progress(f"synthesising {problem.name}", True) as update:
-            law = synthesize(problem, progress=update)
+        if problem.regions == "reached":
+            # the regions the verification reaches, computed on demand: the report's
+            # partition draws those (and says so), never the whole law
+            from codev_engine.law_on_demand import OnDemandLaw
+
+            law = OnDemandLaw(problem)
+        else:
+            with _progress(f"synthesising {problem.name}", True) as update:
+                law = synthesize(problem, progress=update)
         result = None
         if problem.verify is not None:
             from codev_engine.reach.verification import verify
@@ -1085,7 +1092,8 @@ def _build_parser() -> argparse.ArgumentParser:
         p.add_argument("--max-depth", type=int, help="override verify.max_depth")
         p.add_argument("--regions", choices=["all", "reached"],
                        help="override synthesis.regions: the whole law, or only the regions "
-                       "the reach sets meet, computed on demand (norm 2, linear plants)")
+                       "the reach sets meet, computed on demand (linear MPCs of norm 1, 2 "
+                       "or inf)")
         p.add_argument("--export-tube", metavar="FILE", help="write the reachtube (.npz)")
         p.add_argument(
             "--budget", type=float, metavar="SECONDS",

@@ -39,7 +39,7 @@ from codev_engine.geometry.polytope import (
 from codev_engine.mp.mpqp import JIT_AFTER, _active_set_at, _Kernel, dependent_rows
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.reduce import Reduced, lifted, parameter_box, reduce_program, start_point
-from codev_engine.mp.solution import CriticalRegion
+from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 from codev_engine.mp.solve import SolveOptions
 
 __all__ = ["OnDemandRegions", "lifted_centre"]
@@ -121,6 +121,9 @@ class OnDemandRegions:
     stats : dict
         ``candidates`` (active sets evaluated), ``walks`` (sets asked about), ``lps``
         (meeting tests solved as LPs).
+    max_regions : int
+        The walk raises ``TooManyRegionsError`` rather than compute one region more
+        (``options.max_regions`` at first; the caller may lower it).
     """
 
     def __init__(self, program: MpProgram, options: SolveOptions | None = None):
@@ -164,8 +167,25 @@ class OnDemandRegions:
         self._numpy_acts: set[tuple[int, ...]] = set()
         self._replayed = False
         self._bound = size.bound  # max |theta| over the set asked about (_rows_meet)
+        self.max_regions = opts.max_regions
+        #: active sets a non-empty candidate leads to (its neighbours) not evaluated yet:
+        #: empty once the whole partition is known (:attr:`complete`)
+        self._frontier: set[tuple[int, ...]] = set()
 
     # ---- the walk ----------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Replay the full search's start (:meth:`_replay`) if not done yet: a small law is
+        then known whole (:attr:`complete`) before the first set is asked about."""
+        if not self._replayed:
+            self._replay()
+
+    @property
+    def complete(self) -> bool:
+        """Every region of the partition is known: every neighbour of every candidate
+        evaluated has been evaluated too (the closure the full search enumerates from its
+        start, which the replay evaluated), so no set can meet a region not found yet."""
+        return self._replayed and bool(self.regions) and not self._frontier
 
     def meeting(self, A: np.ndarray, b: np.ndarray) -> list[int]:
         """The regions that meet the polytope ``{theta : A theta <= b}`` (up to a relative
@@ -290,13 +310,16 @@ class OnDemandRegions:
         hit = self._cache.get(act)
         if hit is not None:
             return hit
-        self.stats["candidates"] += 1
         kernel = self._kernel
         if kernel._jit is not None and act not in self._numpy_acts:
-            self.stats["compiled"] += 1
             status, rows, law, moves, _ = kernel.evaluate(act)
+            self.stats["compiled"] += 1
         else:
             status, rows, law, moves, _ = kernel.evaluate_numpy(act)
+        if status == "full" and len(self.regions) >= self.max_regions:
+            # (before the region is kept: the cache stays consistent for a save)
+            raise TooManyRegionsError(too_many_regions(self.max_regions))
+        self.stats["candidates"] += 1
         if status == "full":
             red = self._red
             K = red.Z1 + red.Nz @ law[0]
@@ -308,7 +331,18 @@ class OnDemandRegions:
         else:
             entry = (status,)
         self._cache[act] = entry
+        self._discovered(act, entry)
         return entry
+
+    def _discovered(self, act: tuple[int, ...], entry: tuple) -> None:
+        """Keep :attr:`_frontier` up to date once ``act`` is evaluated (``entry``)."""
+        self._frontier.discard(act)
+        if entry[0] == "empty":
+            return
+        moves = entry[2] if entry[0] in ("full", "lower") else None
+        for nxt in self._neighbours(act, entry[0], moves):
+            if nxt not in self._cache:
+                self._frontier.add(nxt)
 
     def _candidate_rows(self, act: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
         """The (unit) rows of the polyhedron where ``act`` is optimal (multipliers and
@@ -606,6 +640,9 @@ class OnDemandRegions:
                 cache[act] = (name,)
         self._cache = cache
         self.regions = regions
+        self._frontier = set()
+        for act, entry in cache.items():
+            self._discovered(act, entry)
         lo, hi = st["box_lo"], st["box_hi"]
         if lo.ndim != 2 or lo.shape[1] != d or lo.shape[0] > k or hi.shape != lo.shape \
                 or np.any(np.isnan(lo)) or np.any(np.isnan(hi)):

@@ -45,7 +45,7 @@ from codev_engine.mp.on_demand import (
 )
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.reduce import lifted, parameter_box, reduce_program
-from codev_engine.mp.solution import CriticalRegion
+from codev_engine.mp.solution import CriticalRegion, TooManyRegionsError, too_many_regions
 from codev_engine.mp.solve import SolveOptions
 
 __all__ = ["OnDemandBases"]
@@ -76,6 +76,8 @@ class OnDemandBases(OnDemandRegions):
     stats : dict
         ``candidates`` (regions computed), ``walks`` (sets asked about), ``lps`` (meeting
         tests), ``crossings`` (facets crossed).
+    max_regions : int
+        As for ``OnDemandRegions``.
     """
 
     def __init__(self, program: MpProgram, options: SolveOptions | None = None):
@@ -111,10 +113,34 @@ class OnDemandBases(OnDemandRegions):
         self._numpy_bases: set[tuple[int, ...]] = set()
         self._replayed = False
         self._bound = size.bound
+        self.max_regions = opts.max_regions
+        #: (region, row) of the facets not crossed yet: empty once the whole partition is
+        #: known (:attr:`complete`)
+        self._pending: set[tuple[int, int]] = set()
+
+    @property
+    def complete(self) -> bool:
+        """Every region of the partition is known: every facet of every region found has
+        been crossed (the closure the full search enumerates from its start).
+
+        A region cache does not keep the facets crossed: when the replay had found the
+        whole partition (it ended before ``JIT_AFTER`` regions), they are crossed again
+        here (a dual simplex each, no new region)."""
+        if not self._replayed or not self.regions:
+            return False
+        if self._pending and not self._search.jit_tried:
+            try:
+                for i, j in sorted(self._pending):
+                    self._neighbour(i, j)
+            except (_NotExactError, TooManyRegionsError):  # (a replay the limit cut short)
+                return False
+        return not self._pending
 
     # ---- regions by basis ----------------------------------------------------------------
 
     def _add(self, B: np.ndarray, out: tuple) -> int:
+        if len(self.regions) >= self.max_regions:
+            raise TooManyRegionsError(too_many_regions(self.max_regions))
         reg, mark, fac = out[:3]
         red = self._red
         key = np.sort(B).tobytes()
@@ -125,6 +151,7 @@ class OnDemandBases(OnDemandRegions):
         self._facets.append(fac)
         self._tols.append(out[3] if len(out) > 3 else self._region_tol)
         self._known[key] = len(self.regions) - 1
+        self._pending.update((len(self.regions) - 1, int(j)) for j in np.flatnonzero(~mark))
         self.stats["candidates"] += 1
         if self._search.jit is None:
             self._numpy_bases.add(tuple(int(i) for i in np.sort(B)))
@@ -162,6 +189,7 @@ class OnDemandBases(OnDemandRegions):
         if hit is not None:
             return hit
         self._cross[(i, j)] = out = self._cross_facet(i, j)
+        self._pending.discard((i, j))
         return out
 
     def _cross_facet(self, i: int, j: int) -> int:
@@ -383,6 +411,8 @@ class OnDemandBases(OnDemandRegions):
         self.regions, self._marks, self._facets, self._tols = [], [], [], []
         self._known.clear()
         self._cross = {}
+        self._pending = set()
+        most, self.max_regions = self.max_regions, max(self.max_regions, k)
         try:
             for i, act in enumerate(acts):
                 B = np.array(act, dtype=np.intp)
@@ -405,6 +435,8 @@ class OnDemandBases(OnDemandRegions):
                     raise SpecError("a region's law is not its basis's", field="reg_K")
         except _NotExactError:
             raise SpecError("a basis without a region", field="acts") from None
+        finally:
+            self.max_regions = most
         self.stats["candidates"] = 0  # (checks of the cache, not the walk's)
         self._numpy_bases = numpy_bases
         self._replayed = bool(flags[0])

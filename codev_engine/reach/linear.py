@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg import expm
 
+from codev_engine.errors import RegionLimitError
 from codev_engine.geometry.polytope import (
     normalize_rows,
     solve_lp,
@@ -482,6 +483,11 @@ class ClosedLoopSetup:
         except ExplorationLimitError as exc:
             self.findings.append(Finding(exc.kind, -1, exc.t, None, str(exc)))
             self.stats["complete_until"] = self._complete_until(exc.t)
+        except RegionLimitError as exc:
+            # a law computed on demand needs more regions than the full synthesis may hold
+            t = getattr(self, "_t_now", 0.0)
+            self.findings.append(Finding("limit", -1, t, None, f"at t = {t:.4g} {exc}"))
+            self.stats["complete_until"] = self._complete_until(t)
 
     def _complete_until(self, t: float) -> float:
         """After a stop at time ``t``: every trajectory is in the tube up to the earliest

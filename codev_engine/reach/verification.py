@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.display import Displayable
-from codev_engine.errors import SolverError, SpecError
+from codev_engine.errors import RegionLimitError, SolverError, SpecError
 from codev_engine.executor import Executor
 from codev_engine.io.npz import NpzFormat, array, load_npz, real, save_npz, text
 from codev_engine.kernel_cache import prepare
@@ -525,7 +525,16 @@ def verify(
     # CODEV_LIMITS=time=... and the budget: checked at each branch period
     prepare()  # a fresh installation's kernels, announced, before the stage's clocks start
     with stage_deadline(), time_budget(budget), heartbeat(progress) as beating:
-        return _verify(problem, law, hold, max_depth, beating, executor, cells)
+        try:
+            return _verify(problem, law, hold, max_depth, beating, executor, cells)
+        except RegionLimitError as exc:
+            # (a law on demand past the region limit outside the reach engines, which end
+            # in a "limit" finding with their tube: a search, a certificate's simulation)
+            result = VerificationResult("unknown", "limit", Tube.empty(problem.plant.n),
+                                        hold or problem.verify.hold, None,
+                                        {"branches": 0, "boxes": 0}, str(exc))
+            result.attach_display(problem=problem, law=law)
+            return result
 
 
 def _verify(problem, law, hold, max_depth, progress, executor, cells) -> VerificationResult:
@@ -772,7 +781,7 @@ def _stoppable_search(search: Callable[[], Counterexample | None]) -> Counterexa
     try:
         with stoppable():
             return search()
-    except DeadlineReached:
+    except (DeadlineReached, RegionLimitError):  # (a law on demand at its region limit)
         return None
 
 
@@ -1015,11 +1024,14 @@ def _confirm(
         signals = _signal_list(problem) if problem.plant.uncertain else [None]
     for sig in signals:
         try:
-            trace = simulate(problem, law, x0, hold=hold, extra0=extra0 if extra0.size else None,
-                             disturbance=sig)
-        except SolverError:  # not finite (a singularity): no confirmed counterexample
-            continue
-        v = first_violation(problem, law, trace)
+            try:
+                trace = simulate(problem, law, x0, hold=hold,
+                                 extra0=extra0 if extra0.size else None, disturbance=sig)
+            except SolverError:  # not finite (a singularity): no confirmed counterexample
+                continue
+            v = first_violation(problem, law, trace)
+        except RegionLimitError:  # (a law on demand at its region limit: none confirmed)
+            return None
         if v is None:
             continue
         return Counterexample(x0=x0, t=float(v.t), kind=v.kind, index=int(v.index),

@@ -498,7 +498,10 @@ class RecordingContent:
             # class id = region index + 1 (0: no region); class ids are 16-bit in rerun
             ids = np.minimum(index + 1, 65535)
             image = raster_polygons(polys, lo, hi, shape, ids).astype(np.uint16)
-            infos = [rr.AnnotationInfo(id=0, label="outside the law's domain", color=(0, 0, 0, 0))]
+            # (a law computed on demand knows the regions reached alone: elsewhere nothing)
+            empty = ("no region reached (computed on demand)"
+                     if getattr(self.law, "on_demand", False) else "outside the law's domain")
+            infos = [rr.AnnotationInfo(id=0, label=empty, color=(0, 0, 0, 0))]
             infos += [
                 rr.AnnotationInfo(id=int(k), label=f"R{int(r)}", color=tuple(int(c) for c in col))
                 for k, r, col in zip(ids, index, self.colors[index], strict=True)
@@ -1139,7 +1142,10 @@ class RecordingContent:
             "",
             "### how to read the views",
             "",
-            f"- **plane** ({where}), scaled to a square: regions filled (hover for the id "
+            f"- **plane** ({where}), scaled to a square: "
+            + ("the regions reached (computed on demand, not the whole law) filled"
+               if getattr(law, "on_demand", False) else "regions filled")
+            + " (hover for the id "
             "`R<i>`), unsafe sets red, the tube orange (at least two pixels wide), the "
             "initial set blue, traces grey, the counterexample black"
             + (", the invariance certificate's set purple (every reach set at the closing "

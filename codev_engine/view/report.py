@@ -142,7 +142,11 @@ def report_figures(
             caption += f" of {problem.plant.states[plane[0]]} and {problem.plant.states[plane[1]]}"
         parts.append((fig, caption + ", with the sets and the counterexample (if any)."))
     fig = figures.figure_law(law, scene=scene)
-    parts.append((fig, f"The partition of the explicit law: {scene.partition_title}."))
+    if getattr(law, "on_demand", False):  # (issue 39: the regions computed, not the law)
+        parts.append((fig, "The regions reached by the verification (not the whole law): "
+                      f"{scene.partition_title}."))
+    else:
+        parts.append((fig, f"The partition of the explicit law: {scene.partition_title}."))
     if content.traces is not None and problem.plant.m:
         fig = figure_inputs(problem, content.traces, result, t_end=scene.t_end)
         parts.append((fig, "The inputs of the simulated traces, with their bounds."))

@@ -466,7 +466,7 @@ def _section(law: ExplicitLaw, problem: Problem | None, axes: tuple[int, int] | 
 def regions_words(law: ExplicitLaw, section: Section | None, meet: int) -> str:
     """A partition view's title: ``"101 regions"``, ``"section at v1 = 0.025: 101 regions
     (37 meet it)"``; for a law computed on demand ``"the regions reached (computed on
-    demand, not the whole law): 12"`` (issue 39).
+    demand): 12"``, not the whole law (issue 39).
 
     Parameters
     ----------
@@ -481,7 +481,7 @@ def regions_words(law: ExplicitLaw, section: Section | None, meet: int) -> str:
     """
     k = law.num_regions
     if getattr(law, "on_demand", False):
-        text = f"the regions reached (computed on demand, not the whole law): {k}"
+        text = f"the regions reached (computed on demand): {k}"  # (short: a title)
     else:
         text = f"{k} regions"
     if section is not None:
