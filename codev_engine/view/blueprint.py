@@ -45,13 +45,18 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         end=rrb.TimeRangeBoundary.cursor_relative(seconds=0.0),
     )
     no_legend = rrb.PlotLegend(visible=False)
+    # every time plot shows [0, T] with a margin each side: the first and the last time
+    # label are not clipped at the view's edges
+    T = content.scene.t_end
+    time_axis = rrb.TimeAxis(view_range=rrb.TimeRange(
+        start=rrb.TimeRangeBoundary.absolute(seconds=-0.04 * T),
+        end=rrb.TimeRangeBoundary.absolute(seconds=1.06 * T)))
     left: list = []
     if any(k.startswith("/plane/") for k in e):
         xname, yname = content.plane_names
-        section = content.section_words()
-        at = f", section at {section}" if section is not None else ""
-        if getattr(content.law, "on_demand", False):  # (issue 39: not the whole law)
-            at += ", the regions reached (computed on demand)"
+        # the scene's title: "section at ..." when it is one, "the regions reached" on demand
+        title = content.scene.partition_title
+        at = f", {title}" if content.law.num_regions else ""
         left.append(
             rrb.Spatial2DView(
                 origin="/",
@@ -61,6 +66,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                 + ")",
                 time_ranges=up_to_cursor,
                 background=(255, 255, 255),
+                # the window (a unit square, y down in the view) with its labels: the plane
+                # fills its view instead of floating in the bounds of everything logged
+                visual_bounds=rrb.VisualBounds2D(x_range=(-0.66, 0.56), y_range=(-0.58, 0.7)),
             )
         )
     if any(k.startswith("/space/") for k in e):
@@ -87,6 +95,10 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             + (", safe limits green" if any(k.startswith(f"/time/{s}/safe/") for k in e)
                else ""),
             plot_legend=no_legend,
+            # the scene's y range: the limits, the initial set, the tube, the certificate
+            # band and the traces in view (the report's figure shows the same)
+            axis_y=rrb.ScalarAxis(range=content.scene.plots[k].y_range),
+            axis_x=time_axis,
         )
         for k, s in enumerate(states)
         if any(key.startswith(f"/time/{s}/") for key in e)
@@ -99,8 +111,11 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             + (", bounds black" if any(k.startswith(f"/output/{y}/bounds/") for k in e) else "")
             + cex + reference(f"/output/{y}"),
             plot_legend=no_legend,
+            axis_y=(rrb.ScalarAxis(range=content.scene.outputs[k].y_range)
+                    if k < len(content.scene.outputs) else None),
+            axis_x=time_axis,
         )
-        for y in content.outputs
+        for k, y in enumerate(content.outputs)
         if any(k.startswith(f"/output/{y}/") for k in e)
     ]
     p_dist = content.problem.plant.disturbances
@@ -109,6 +124,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             origin=f"/scalars/u/{u}",
             name=f"{u}(t){unit(content.problem.plant.input_label(j), u)}, bounds black",
             plot_legend=no_legend,
+            axis_x=time_axis,
         )
         for j, u in enumerate(content.inputs)
         if any(k.startswith(f"/scalars/u/{u}/") for k in e)
@@ -121,8 +137,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             if any(k.startswith(f"/scalars/{kind}/{nm}/") for k in e):
                 series.append(rrb.TimeSeriesView(
                     origin=f"/scalars/{kind}/{nm}",
-                    name=f"{what} {nm}: its interval black, the counterexample's red",
+                    name=f"{what} {nm}: its interval black, the counterexample's black",
                     plot_legend=no_legend,
+                    axis_x=time_axis,
                 ))
     if any(k.startswith("/scalars/unsafe_distance/") for k in e):
         series.append(
@@ -130,6 +147,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                 origin="/scalars/unsafe_distance",
                 name="margin to the unsafe sets (< 0: inside)",
                 plot_legend=no_legend,
+                axis_x=time_axis,
             )
         )
     right: list = []

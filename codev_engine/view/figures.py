@@ -26,13 +26,26 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from codev_engine.view.scene import (
+    Scene,
+    StatePlot,
+    build_scene,
+    default_slice_point,
+    law_section,
+    padded,
+    regions_words,
+    verified_parameters,
+)
+from codev_engine.view.shapes import check_axes as _check_axes
+from codev_engine.view.shapes import section_polygons
+
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
     from codev_engine.law import ExplicitLaw
     from codev_engine.reach.verification import Counterexample, VerificationResult
-    from codev_engine.spec.problem import Problem, SetSpec
+    from codev_engine.spec.problem import Problem
 
 __all__ = [
     "VERDICT_COLOURS",
@@ -75,199 +88,6 @@ _DPI = 80
 # --------------------------------------------------------------------------------------------
 # geometry
 # --------------------------------------------------------------------------------------------
-
-
-def section_polygons(
-    A: list[np.ndarray],
-    b: list[np.ndarray],
-    *,
-    axes: tuple[int, int] = (0, 1),
-    at: np.ndarray | None = None,
-    tol: float = 1e-9,
-) -> tuple[list[np.ndarray], np.ndarray]:
-    """The 2-D sections of polytopes ``{x : A_i x <= b_i}`` as ordered polygons.
-
-    The section of region ``i`` is ``{(x[axes[0]], x[axes[1]]) : A_i x <= b_i}`` with every
-    other coordinate fixed at ``at``. Its rows are normalised in the plane and its vertices
-    found for all regions at once by :func:`~codev_engine.geometry.vertices.packed_vertices`
-    (every pair of rows intersected, the points that satisfy all the region's rows kept),
-    then sorted by angle around their mean.
-
-    Parameters
-    ----------
-    A : list of (r_i, n) ndarray
-        Region rows.
-    b : list of (r_i,) ndarray
-    axes : (2,) tuple of int
-        The two coordinates spanning the plane (distinct, ``< n``).
-    at : (n,) array_like, optional
-        Values of the other coordinates (ignored for ``n == 2``); zeros by default.
-    tol : float
-        Feasibility tolerance of a candidate vertex, ``tol * (1 + |b_j|)`` for row ``j``
-        (absolute and relative parts of :func:`~codev_engine.geometry.vertices.packed_vertices`).
-
-    Returns
-    -------
-    polygons : list of (v_k, 2) ndarray
-        Counter-clockwise vertices of each non-degenerate section (positive area).
-    index : (p,) ndarray of int
-        The region of each polygon, increasing.
-    """
-    R = len(A)
-    if R == 0:
-        return [], np.zeros(0, dtype=int)
-    n = A[0].shape[1]
-    i, j = _check_axes(axes, n)
-    counts = np.array([a.shape[0] for a in A])
-    rows = np.vstack(A).astype(float)
-    rhs = np.concatenate(b).astype(float)
-    region = np.repeat(np.arange(R), counts)
-    others = [k for k in range(n) if k not in (i, j)]
-    if others:
-        at = np.zeros(n) if at is None else np.asarray(at, dtype=float).reshape(n)
-        rhs = rhs - rows[:, others] @ at[others]
-    plane = rows[:, [i, j]]
-    scale = np.maximum(np.linalg.norm(rows, axis=1), 1e-300)
-    norm = np.hypot(plane[:, 0], plane[:, 1])
-    flat = norm <= 1e-12 * scale
-    # a row without a component in the plane is a constant test: all or nothing
-    empty = np.bincount(region[flat & (rhs < -tol * (1.0 + np.abs(rhs)))], minlength=R) > 0
-    keep = ~flat & ~empty[region]
-    plane = plane[keep] / norm[keep, None]
-    rhs = rhs[keep] / norm[keep]
-    region = region[keep]
-    offsets = np.concatenate([[0], np.cumsum(np.bincount(region, minlength=R))])
-    # all regions in one enumeration (the section rows have unit norm in the plane)
-    # imported here: geometry's LPs load scipy.optimize (~0.3 s), which the workbench's first
-    # screen must not wait for
-    from codev_engine.geometry.vertices import packed_vertices
-
-    P, own, _ = packed_vertices(plane, rhs, offsets, tol, rtol=tol, max_combos=None)
-    if own.size == 0:
-        return [], np.zeros(0, dtype=int)
-    # order the vertices of each region by angle around their mean
-    num = np.bincount(own, minlength=R)
-    centre = (
-        np.stack([np.bincount(own, P[:, 0], R), np.bincount(own, P[:, 1], R)], axis=1)
-        / np.maximum(num, 1)[:, None]
-    )
-    d = P - centre[own]
-    order = np.lexsort((np.arctan2(d[:, 1], d[:, 0]), own))
-    P, own = P[order], own[order]
-    regs, first = np.unique(own, return_index=True)
-    # shoelace area per region (cyclic successor inside each region's run)
-    nxt = np.arange(1, own.size + 1)
-    nxt[np.append(first[1:], own.size) - 1] = first
-    cross = P[:, 0] * P[nxt, 1] - P[nxt, 0] * P[:, 1]
-    area = 0.5 * np.add.reduceat(cross, first)
-    span = float(np.ptp(P, axis=0).max()) if P.size else 0.0
-    good = (np.diff(np.append(first, own.size)) >= 3) & (area > 1e-12 * max(span, 1.0) ** 2)
-    polys = np.split(P, first[1:])
-    return [polys[k] for k in np.flatnonzero(good)], regs[good]
-
-
-def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.ndarray:
-    """The point whose other coordinates fix a 2-D section of a law of ``n > 2`` parameters.
-
-    The states: with a ``problem`` that has a ``[verify]`` section, the centre of its initial
-    set (where the tube starts: the one section rule of recordings, reports, notebook
-    figures); else (and every parameter without a verified spec) the centre of the bounding
-    box of the law's domain (the MPC's feasible set; two LPs per coordinate) -- for the usual
-    designs around an operating point with symmetric bounds, that operating point. Without
-    a stored domain: the centre of the regions' bounding boxes.
-
-    For a law over ``theta = (x, u_prev, r)`` and a ``problem`` with a ``[verify]`` section,
-    ``u_prev`` and ``r`` are the middle of the boxes the closed loop starts from
-    (``[verify] initial_input``, else the operating input; ``[verify] reference``, else the
-    ``[mpc.reference]`` box; :func:`codev_engine.reach.simulate.theta_initial_box`): the
-    values recordings, reports, notebook figures and the workbench's slice all use.
-
-    Parameters
-    ----------
-    law : ExplicitLaw
-        The law, with ``n > 2`` parameters.
-    problem : Problem, optional
-        The spec the law was synthesised from; ignored when it does not fit the law.
-
-    Returns
-    -------
-    (n,) ndarray
-    """
-    from codev_engine.geometry.polytope import bounding_box
-
-    point = None
-    if law.domain_A is not None and law.domain_A.shape[0]:
-        lo, hi = bounding_box(law.domain_A, law.domain_b)
-        if np.all(np.isfinite(lo) & np.isfinite(hi)):
-            point = 0.5 * (lo + hi)
-    if point is None:
-        if law.num_regions == 0:
-            point = np.zeros(law.n)
-        else:
-            lo, hi = law.boxes
-            point = 0.5 * (lo.min(axis=0) + hi.max(axis=0))
-    point = np.array(point, dtype=float)
-    vs = problem.verify if problem is not None else None
-    if vs is not None and len(law.states) == problem.plant.n <= law.n:
-        point[: problem.plant.n] = 0.5 * (vs.initial_lower + vs.initial_upper)
-    extra = verified_parameters(law, problem)
-    if extra is not None:
-        point[law.n - extra.size :] = extra
-    return point
-
-
-def verified_parameters(law: ExplicitLaw, problem: Problem | None) -> np.ndarray | None:
-    """The middle of the initial ``(u_prev, r)`` box of ``problem``'s verification, for a
-    law over ``theta = (x, u_prev, r)`` that fits it.
-
-    Parameters
-    ----------
-    law : ExplicitLaw
-    problem : Problem or None
-
-    Returns
-    -------
-    (n - len(states),) ndarray or None
-        None without ``problem``, without ``[verify]``, or for a law over the states.
-    """
-    if problem is None or problem.verify is None or not law.parameters:
-        return None
-    nx = problem.plant.n
-    if len(law.states) != nx or law.n <= nx:
-        return None
-    from codev_engine.reach.simulate import theta_initial_box
-
-    lo, hi = theta_initial_box(problem)
-    if lo.shape[0] != law.n:
-        return None
-    return 0.5 * (lo[nx:] + hi[nx:])
-
-
-def law_section(law: ExplicitLaw, problem: Problem | None = None) -> ExplicitLaw:
-    """The law in the states alone: for a law over ``theta = (x, u_prev, r)``, its section
-    (:meth:`ExplicitLaw.section`) at :func:`default_slice_point`'s ``u_prev`` and ``r``; any
-    other law as it is.
-
-    Parameters
-    ----------
-    law : ExplicitLaw
-    problem : Problem, optional
-
-    Returns
-    -------
-    ExplicitLaw
-    """
-    nx = len(law.states)
-    if not law.parameters or law.n == nx:
-        return law
-    return law.section(default_slice_point(law, problem)[nx:])
-
-
-def _check_axes(axes: tuple[int, int], n: int) -> tuple[int, int]:
-    i, j = (int(a) for a in axes)
-    if i == j or not (0 <= i < n and 0 <= j < n):
-        raise ValueError(f"axes must be two distinct state indices below {n}, got {axes}")
-    return i, j
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -361,14 +181,6 @@ def _new_axes(ax: Axes | None, figsize: tuple[float, float] = (6.0, 4.5)) -> Axe
     return Figure(figsize=figsize, layout="constrained").add_subplot()
 
 
-def _padded(lo: float, hi: float, frac: float = 0.15) -> tuple[float, float]:
-    """An interval around ``[lo, hi]`` with a margin (a unit margin when it is a point)."""
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        return -1.0, 1.0
-    pad = frac * (hi - lo) if hi > lo else max(1.0, abs(lo)) * 0.1
-    return lo - pad, hi + pad
-
-
 # --------------------------------------------------------------------------------------------
 # laws
 # --------------------------------------------------------------------------------------------
@@ -381,6 +193,7 @@ def plot_partition(
     axes: tuple[int, int] = (0, 1),
     at: np.ndarray | None = None,
     linewidth: float = 0.4,
+    scene: Scene | None = None,
 ) -> Axes:
     """Draw the law's critical regions, one colour each.
 
@@ -397,6 +210,10 @@ def plot_partition(
         domain's bounding box). Ignored for ``n <= 2``.
     linewidth : float
         Width of the region edges.
+    scene : Scene, optional
+        The design's scene (:func:`~codev_engine.view.scene.build_scene`): its regions,
+        window, section and title are drawn (``axes`` and ``at`` are then ignored);
+        built from the law alone by default.
 
     Returns
     -------
@@ -412,23 +229,21 @@ def plot_partition(
     names = _state_names(law.n, law.parameter_names)
     # free text of the law file's metadata: its '$' drawn as such, never as mathtext
     label = str(law.meta.get("problem", "explicit law")).replace("$", r"\$")
-    if law.n == 1:
+    if scene is None:
+        if law.n == 1:
+            return _plot_intervals(law, ax, names[0], label, linewidth)
+        scene = build_scene(None, law, axes=_check_axes(axes, law.n), at=at)
+    if scene.axes is None:
         return _plot_intervals(law, ax, names[0], label, linewidth)
-    i, j = _check_axes(axes, law.n)
-    at_full = None
-    if law.n > 2:
-        at_full = default_slice_point(law) if at is None else np.asarray(at, dtype=float)
-    polys, index = section_polygons(law.A, law.b, axes=(i, j), at=at_full)
+    i, j = scene.axes
+    polys, index = list(scene.region_polygons), scene.region_index
     _add_polygons(ax, polys, _region_colours(index), linewidth)
+    ax.set_xlim(scene.plane_lo[0], scene.plane_hi[0])
+    ax.set_ylim(scene.plane_lo[1], scene.plane_hi[1])
     ax.set_xlabel(names[i])
     ax.set_ylabel(names[j])
-    title = f"{label}: {_regions_text(law, law.num_regions)}"
-    # every value the picture fixes: the states off the plane, a theta law's u_prev and r
-    fixed_at = [f"{names[k]} = {at_full[k]:.3g}" for k in range(law.n) if k not in (i, j)
-                ] if at_full is not None else []
-    fixed_at += [f"{k} = {v:.3g}" for k, v in dict(law.meta.get("section", {})).items()]
-    if fixed_at:
-        title += f"\nsection at {', '.join(fixed_at)} ({len(polys)} regions meet it)"
+    # the scene's title: "section at ..." when it is one, "the regions reached" on demand
+    title = f"{label}: {scene.partition_title}".replace(": section at", "\nsection at")
     ax.set_title(title, fontsize="medium")
     return ax
 
@@ -452,7 +267,7 @@ def _plot_intervals(law: ExplicitLaw, ax: Axes, name: str, label: str, lw: float
 
     k = law.num_regions
     if k == 0:
-        ax.set_title(f"{label}: 0 regions", fontsize="medium")
+        ax.set_title(f"{label}: {regions_words(law, None, 0)}", fontsize="medium")
         return ax
     rows = np.concatenate([a[:, 0] for a in law.A])
     rhs = np.concatenate(law.b)
@@ -467,7 +282,7 @@ def _plot_intervals(law: ExplicitLaw, ax: Axes, name: str, label: str, lw: float
     lo, hi, idx = lo[ok], hi[ok], np.flatnonzero(ok)
     x = np.stack([lo, hi], axis=1)  # (k, 2)
     u = law.F[idx, 0, 0][:, None] * x + law.G[idx, 0][:, None]
-    umin, umax = _padded(float(np.min(u)), float(np.max(u)), 0.1) if u.size else (-1, 1)
+    umin, umax = padded(float(np.min(u)), float(np.max(u)), 0.1) if u.size else (-1, 1)
     colours = _region_colours(idx)
     bands = _box_corners(
         np.stack([lo, np.full_like(lo, umin)], axis=1),
@@ -481,20 +296,16 @@ def _plot_intervals(law: ExplicitLaw, ax: Axes, name: str, label: str, lw: float
     ax.set_ylim(umin, umax)
     ax.set_xlabel(name)
     ax.set_ylabel(law.inputs[0] if law.inputs else "u[0]")
-    ax.set_title(f"{label}: {_regions_text(law, k)}", fontsize="medium")
+    ax.set_title(f"{label}: {regions_words(law, None, k)}", fontsize="medium")
     return ax
 
 
-def _regions_text(law, k: int) -> str:
-    """``"k regions"``, or for a law computed on demand ``"k regions reached"``: the regions
-    its verification reached, not the whole law (issue 39)."""
-    if getattr(law, "on_demand", False):
-        return f"{k} regions reached (computed on demand)"  # (short: the title's width)
-    return f"{k} regions"
-
-
 def figure_law(
-    law: ExplicitLaw, *, axes: tuple[int, int] = (0, 1), at: np.ndarray | None = None
+    law: ExplicitLaw,
+    *,
+    axes: tuple[int, int] = (0, 1),
+    at: np.ndarray | None = None,
+    scene: Scene | None = None,
 ) -> Figure:
     """A figure of the law's partition (see :func:`plot_partition`).
 
@@ -507,6 +318,8 @@ def figure_law(
     at : (n,) ndarray, optional
         For ``n > 2``: the point whose other coordinates fix the section (default
         :func:`default_slice_point`).
+    scene : Scene, optional
+        The design's scene (:func:`plot_partition`).
 
     Returns
     -------
@@ -515,7 +328,7 @@ def figure_law(
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.0, 4.5), layout="constrained")
-    plot_partition(law, fig.add_subplot(), axes=axes, at=at)
+    plot_partition(law, fig.add_subplot(), axes=axes, at=at, scene=scene)
     return fig
 
 
@@ -530,13 +343,15 @@ def plot_tube(
     *,
     state: int = 0,
     problem: Problem | None = None,
+    scene: Scene | None = None,
 ) -> Axes:
     """Draw one state's reachtube against time.
 
     Each box ``k`` of the tube is the band ``[t_start[k], t_end[k]] x [lower[k, state],
     upper[k, state]]``; the bands are merged where they overlap (:func:`merge_bands`) and
-    drawn as one compound path. The counterexample trace, if any, is drawn over them, solid
-    up to its violation (marked) and faint after it.
+    drawn as one compound path; after an all-time certificate closed, the certificate band
+    (hatched) instead. The counterexample trace, if any, is drawn over them, solid up to
+    its violation (marked) and faint after it.
 
     Parameters
     ----------
@@ -547,10 +362,13 @@ def plot_tube(
     problem : Problem, optional
         Adds the states' names, the time horizon and the verify sets on that state: unsafe
         sets that constrain this state alone as red bands (a set that also constrains other
-        states is not a band in this picture; see :func:`plot_plane`), and the bounds that
-        safe sets put on this state alone as green dashed lines; and, for a design that
-        tracks the states (``[mpc.reference] signal = "x"``), the reference (purple: a
-        line, or the box of an unknown constant reference).
+        states is not a band in this picture; see :func:`plot_plane`), the bounds that
+        safe sets put on this state alone as green dashed lines, the initial interval at
+        ``t = 0``; and, for a design that tracks the states (``[mpc.reference] signal =
+        "x"``), the reference (purple: a line, or the box of an unknown constant reference).
+    scene : Scene, optional
+        The design's scene (default: built from ``result`` and ``problem``): the y range,
+        the ticks, the limits and the time axis drawn.
 
     Returns
     -------
@@ -560,11 +378,11 @@ def plot_tube(
     n = tube.lower.shape[1]
     if not 0 <= state < n:
         raise ValueError(f"state must be in [0, {n}), got {state}")
-    names = _state_names(n, problem.plant.states if problem is not None else None)
-    row = np.eye(n)[state]
-    label = problem.plant.state_label(state) if problem is not None else names[state]
-    return _plot_signal(result, ax, row, tube.lower[:, state], tube.upper[:, state],
-                        label, problem, state=state)
+    if scene is None:
+        scene = build_scene(problem, None, result, axes=None)
+    plot = scene.plots[state]
+    return _plot_signal(result, ax, np.eye(n)[state], tube.lower[:, state],
+                        tube.upper[:, state], plot.label, problem, scene, plot=plot)
 
 
 def plot_output(
@@ -573,6 +391,7 @@ def plot_output(
     ax: Axes | None = None,
     *,
     output: int = 0,
+    scene: Scene | None = None,
 ) -> Axes:
     """Draw one output ``y = C x`` of the reachtube against time, with its MPC bounds.
 
@@ -590,6 +409,8 @@ def plot_output(
     ax : matplotlib Axes, optional
     output : int
         Index of the output (row of ``C``).
+    scene : Scene, optional
+        The design's scene: its time axis.
 
     Returns
     -------
@@ -606,8 +427,10 @@ def plot_output(
     tube = result.tube
     ylo, yhi = output_boxes(C[output : output + 1], tube.lower, tube.upper)
     name = output_names(problem)[output]
+    if scene is None:
+        scene = build_scene(problem, None, result, axes=None)
     return _plot_signal(result, ax, C[output], ylo[:, 0], yhi[:, 0], f"{name} = C x",
-                        problem, output=output)
+                        problem, scene, output=output)
 
 
 def _plot_signal(
@@ -618,33 +441,30 @@ def _plot_signal(
     upper: np.ndarray,
     ylabel: str,
     problem: Problem | None,
+    scene: Scene,
     *,
-    state: int | None = None,
+    plot: StatePlot | None = None,
     output: int | None = None,
 ) -> Axes:
     """One signal ``row @ x`` against time: the tube's bands (``lower``, ``upper``, (K,)),
-    the counterexample, and (with ``problem``) the sets on a state, the bounds on an output
-    and the reference of the signal followed."""
+    the certificate band, the counterexample, and a state's ``plot`` (its y range, ticks,
+    limits and initial interval) or an output's bounds and reference."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    from codev_engine.reach.claim import certificate_band
     from codev_engine.view.signals import output_bounds, reference_band
 
     ax = _new_axes(ax, (6.0, 3.0))
     tube = result.tube
-    cert = certificate_band(result)
+    cert = scene.certificate
     t_start, t_end = np.asarray(tube.t_start, float), np.asarray(tube.t_end, float)
-    drawn_boxes = np.ones(t_start.shape[0], dtype=bool)
-    if cert is not None:  # after the certificate the band, not the tube repeated
-        drawn_boxes = t_start < cert.t_closed - 1e-9 * max(1.0, cert.t_closed)
+    drawn_boxes = scene.tube_shown
     bands = merge_bands(t_start[drawn_boxes], t_end[drawn_boxes], lower[drawn_boxes],
                         upper[drawn_boxes])
     handles: list[Any] = []
-    ylo, yhi, tmax = np.inf, -np.inf, 0.0
+    ylo, yhi = np.inf, -np.inf
     if bands.shape[0]:
         ylo, yhi = float(bands[:, 2].min()), float(bands[:, 3].max())
-        tmax = float(bands[:, 1].max())
         handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
     cert_span = None
     if cert is not None:
@@ -652,7 +472,6 @@ def _plot_signal(
         terms = np.stack([row * cert.lower, row * cert.upper])
         cert_span = (float(terms.min(axis=0).sum()), float(terms.max(axis=0).sum()))
         ylo, yhi = min(ylo, cert_span[0]), max(yhi, cert_span[1])
-        tmax = max(tmax, float(t_end.max(initial=0.0)))
         handles.append(Patch(facecolor="none", edgecolor=_CERTIFICATE, hatch="///",
                              label=f"certificate band (every state, t >= {cert.t_closed:.3g})"))
     ce = result.counterexample
@@ -660,38 +479,38 @@ def _plot_signal(
         n = tube.lower.shape[1]
         (th, xh), (tt, xt), v = _split_trace(ce, list(range(n)))
         yh, yt, yv = xh @ row, xt @ row, float(v @ row)
-        ax.plot(th, yh, color=_TRACE, lw=1.2)
-        ax.plot(tt, yt, color=_TRACE, lw=1.0, alpha=0.35)
-        ax.plot([ce.t], [yv], marker="X", color=_TRACE, ms=8, ls="none")
+        # on top of everything else (zorder), in the counterexample's own colour
+        ax.plot(th, yh, color=_TRACE, lw=1.2, zorder=6)
+        ax.plot(tt, yt, color=_TRACE, lw=1.0, alpha=0.35, zorder=6)
+        ax.plot([ce.t], [yv], marker="X", color=_TRACE, ms=8, ls="none", zorder=7)
         handles.append(
             Line2D([], [], color=_TRACE, marker="X", label=f"counterexample ({ce.kind})")
         )
         ylo, yhi = min(ylo, float(yh.min())), max(yhi, float(yh.max()))
-        tmax = max(tmax, float(tt[-1]))
-    # what the design asks of this signal: drawn, and in view when near the tube
+    # an output: what the design asks of it, in view when near the tube
     lines: list[tuple[str, float]] = []
     band = None
-    if problem is not None:
-        if output is not None:
-            lines = output_bounds(problem, output)
+    if problem is not None and output is not None:
+        lines = output_bounds(problem, output)
         ref = reference_band(problem)
-        k = state if ref is not None and ref.signal == "x" else output
-        if ref is not None and k is not None and (ref.signal == "x") == (state is not None):
+        if ref is not None and ref.signal == "y":
+            band = (float(ref.lower[output]), float(ref.upper[output]), ref.fixed)
+    elif problem is not None and plot is not None:
+        ref = reference_band(problem)
+        k = scene.states.index(plot.name)
+        if ref is not None and ref.signal == "x":
             band = (float(ref.lower[k]), float(ref.upper[k]), ref.fixed)
-        if problem.verify is not None:
-            from codev_engine.reach.simulate import shown_horizon
-
-            tmax = max(tmax, shown_horizon(problem))
-    near = [v for _, v in lines] + ([band[0], band[1]] if band is not None else [])
-    span = yhi - ylo if np.isfinite(yhi - ylo) else 0.0
-    for v in near:
-        if not np.isfinite(ylo) or abs(v - np.clip(v, ylo, yhi)) <= max(span, 1e-9):
-            ylo, yhi = min(ylo, v), max(yhi, v)
-    if state is not None and problem is not None and problem.verify is not None:
-        # the properties on this state are always in view: a reader sees the margin
-        for v in _property_edges(problem, state):
-            ylo, yhi = min(ylo, v), max(yhi, v)
-    ylim = _padded(ylo, yhi)
+    if plot is not None:
+        ylim = plot.y_range  # the scene's: the recording's state view shows the same
+    elif output is not None and output < len(scene.outputs):
+        ylim = scene.outputs[output].y_range
+    else:
+        near = [v for _, v in lines] + ([band[0], band[1]] if band is not None else [])
+        span = yhi - ylo if np.isfinite(yhi - ylo) else 0.0
+        for v in near:
+            if not np.isfinite(ylo) or abs(v - np.clip(v, ylo, yhi)) <= max(span, 1e-9):
+                ylo, yhi = min(ylo, v), max(yhi, v)
+        ylim = padded(ylo, yhi)
     if bands.shape[0]:
         # at least 1 % of the axis high, so a thin tube does not read as a line (the
         # picture only; edges in the face colour keep boxes narrower than a pixel visible)
@@ -700,15 +519,15 @@ def _plot_signal(
         )
         _add_boxes(ax, lo_b, hi_b, fc=_TUBE_FACE, ec=_TUBE_FACE, lw=0.8)
     if cert_span is not None:
-        t_band_end = tmax if tmax > cert.t_closed else cert.t_closed + 4 * (
-            cert.t_closed - cert.t_anchor)
-        ax.add_patch(_rectangle(cert.t_closed, cert_span[0], t_band_end - cert.t_closed,
+        ax.add_patch(_rectangle(cert.t_closed, cert_span[0], scene.band_end - cert.t_closed,
                                 cert_span[1] - cert_span[0]))
-        tmax = max(tmax, t_band_end)
     ax.set_ylim(*ylim)
-    ax.set_xlim(0.0, tmax if tmax > 0 else 1.0)
-    if problem is not None and problem.verify is not None and state is not None:
-        handles += _state_bounds(ax, problem, state, ylim)
+    ax.set_xlim(0.0, scene.t_end)
+    if plot is not None:
+        ax.set_yticks(plot.y_ticks)  # at least three labels
+        handles += _state_bounds(ax, plot, ylim)
+    elif output is not None and output < len(scene.outputs):
+        ax.set_yticks(scene.outputs[output].y_ticks)
     drawn = [(label, v) for label, v in lines if ylim[0] <= v <= ylim[1]]
     for label, v in drawn:
         ax.axhline(v, color="k", lw=1.0, ls=":" if "soft" in label else "--")
@@ -743,64 +562,32 @@ def _rectangle(x: float, y: float, w: float, h: float) -> Any:
                      lw=1.0, zorder=1.5)
 
 
-def _bounds_on(s: SetSpec, state: int, *, alone: bool) -> tuple[float, float] | None:
-    """Bounds ``(lo, hi)`` (+-inf allowed) that a verify set puts on one state.
-
-    With ``alone`` only when the set constrains no other state (then ``x`` is in the set
-    exactly when ``x[state]`` is within the bounds; None otherwise). Without: the bounds
-    implied by the set's rows on this state only -- necessary conditions of membership.
-    """
-    A, b = s.halfspaces()
-    on = np.all(np.delete(A, state, axis=1) == 0, axis=1)
-    if alone and not np.all(on):
-        return None
-    a, c = A[on, state], b[on]
-    lo = np.max(c[a < 0] / a[a < 0], initial=-np.inf)
-    hi = np.min(c[a > 0] / a[a > 0], initial=np.inf)
-    return float(lo), float(hi)
-
-
-def _property_edges(problem: Problem, state: int) -> list[float]:
-    """The finite edges the verify sets put on one state (unsafe sets on it alone, every
-    safe set's bounds on it), which its time plot must show."""
-    vs = problem.verify
-    edges: list[float] = []
-    for sets, alone in ((vs.unsafe, True), (vs.safe, False)):
-        for s in sets:
-            ext = _bounds_on(s, state, alone=alone)
-            if ext is not None:
-                edges += [float(v) for v in ext if np.isfinite(v)]
-    return edges
-
-
-def _state_bounds(ax: Axes, problem: Problem, state: int, ylim: tuple[float, float]) -> list:
-    """Draw the verify sets' bounds on one state; returns legend handles."""
+def _state_bounds(ax: Axes, plot: StatePlot, ylim: tuple[float, float]) -> list:
+    """Draw a state plot's limits (unsafe bands red, safe bounds green dashed) and its
+    initial interval (a bar at ``t = 0``); returns legend handles."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    vs = problem.verify
     handles: list[Any] = []
-    drawn_unsafe = drawn_safe = False
-    for s in vs.unsafe:  # only sets on this state alone: others are not bands in time
-        ext = _bounds_on(s, state, alone=True)
-        if ext is None:
-            continue
-        lo, hi = max(ext[0], ylim[0]), min(ext[1], ylim[1])
+    drawn_unsafe = False
+    for _, a, b in plot.unsafe_bands:
+        lo, hi = max(a, ylim[0]), min(b, ylim[1])
         if lo < hi:
             ax.axhspan(lo, hi, color=_UNSAFE, alpha=0.2, lw=0)
             drawn_unsafe = True
-    for s in vs.safe:  # every bound of a safe set must hold on its own
-        ext = _bounds_on(s, state, alone=False)
-        if ext is None:
-            continue
-        for y in ext:
-            if ylim[0] <= y <= ylim[1]:
-                ax.axhline(y, color=_SAFE, ls="--", lw=1)
-                drawn_safe = True
+    safe = [lim.value for lim in plot.limits if lim.kind == "safe"]
+    for y in safe:
+        ax.axhline(y, color=_SAFE, ls="--", lw=1)
     if drawn_unsafe:
         handles.append(Patch(facecolor=_UNSAFE, alpha=0.2, label="unsafe"))
-    if drawn_safe:
+    if safe:
         handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe bound"))
+    if plot.initial is not None:
+        # the initial set holds at t = 0 only: a bar there, not a band in time
+        a, b = plot.initial
+        ax.plot([0.0, 0.0], [a, b], color=_INITIAL, lw=4, solid_capstyle="butt", zorder=5,
+                clip_on=False)
+        handles.append(Line2D([], [], color=_INITIAL, lw=4, label="initial set (t = 0)"))
     return handles
 
 
@@ -811,6 +598,7 @@ def plot_plane(
     axes: tuple[int, int] = (0, 1),
     problem: Problem | None = None,
     law: ExplicitLaw | None = None,
+    scene: Scene | None = None,
 ) -> Axes:
     """Draw the tube's boxes projected on a plane of two states.
 
@@ -821,13 +609,14 @@ def plot_plane(
     axes : (2,) tuple of int
         The states on the horizontal and vertical axes.
     problem : Problem, optional
-        Adds the initial set (black outline), the unsafe sets (red) and the safe sets (green
-        outline), clipped to the view. Boxes are drawn as their projections; polytope sets
-        whose rows only involve the two plotted states are drawn exactly, other polytope sets
-        are listed as not drawn.
+        Adds the initial set (blue outline), the unsafe sets (red) and the safe sets (green
+        outline): the scene's (:class:`~codev_engine.view.scene.SetShape`), each clipped to
+        the view box and projected on the plane, as in the recording.
     law : ExplicitLaw, optional
         Adds the outline of the law's domain (for ``n > 2``, its section through the centre
         of the initial set, or :func:`default_slice_point` without a problem).
+    scene : Scene, optional
+        The design's scene (default: built from the arguments): its window.
 
     Returns
     -------
@@ -842,49 +631,30 @@ def plot_plane(
     i, j = _check_axes(axes, n)
     names = _state_names(n, problem.plant.states if problem is not None else None)
     handles: list[Any] = []
+    if scene is None or scene.axes != (i, j):
+        scene = build_scene(problem, law, result, axes=(i, j))
     lo2 = np.unique(np.hstack([tube.lower[:, [i, j]], tube.upper[:, [i, j]]]), axis=0)
-    pts = [lo2[:, :2], lo2[:, 2:]]
     if lo2.shape[0]:
         handles.append(Patch(facecolor=_TUBE_FACE, label=f"tube ({tube.num_boxes} boxes)"))
     ce = result.counterexample
     if ce is not None:
         (_, head), (_, tail), v = _split_trace(ce, [i, j])
-        ax.plot(head[:, 0], head[:, 1], color=_TRACE, lw=1.2)
-        ax.plot(tail[:, 0], tail[:, 1], color=_TRACE, lw=1.0, alpha=0.35)
-        ax.plot(v[:1], v[1:], marker="X", color=_TRACE, ms=8, ls="none")
+        # on top of the tube and the sets (zorder), in the counterexample's own colour
+        ax.plot(head[:, 0], head[:, 1], color=_TRACE, lw=1.2, zorder=6)
+        ax.plot(tail[:, 0], tail[:, 1], color=_TRACE, lw=1.0, alpha=0.35, zorder=6)
+        ax.plot(v[:1], v[1:], marker="X", color=_TRACE, ms=8, ls="none", zorder=7)
         handles.append(
             Line2D([], [], color=_TRACE, marker="X", label=f"counterexample ({ce.kind})")
         )
-        pts.append(head)
     vs = problem.verify if problem is not None else None
     if vs is not None:
         ilo, ihi = vs.initial_lower[[i, j]], vs.initial_upper[[i, j]]
         ax.add_patch(Rectangle(ilo, *(ihi - ilo), fill=False, ec=_INITIAL, lw=1.2, zorder=3))
         initial_box = np.array([ilo, [ihi[0], ilo[1]], ihi, [ilo[0], ihi[1]]])
         handles.append(Patch(fill=False, ec=_INITIAL, label="initial set"))
-        pts += [ilo[None], ihi[None]]
-    if vs is not None and vs.unsafe:
-        # the obstacles near what is drawn are in the picture too, the one the
-        # counterexample enters always (bounded ones: their bounds on the two states)
-        base = np.vstack(pts)
-        blo, bhi = np.nanmin(base, axis=0), np.nanmax(base, axis=0)
-        reach = 0.5 * np.maximum(bhi - blo, 1e-9)
-        for k, s in enumerate(vs.unsafe):
-            bx, by = _bounds_on(s, i, alone=False), _bounds_on(s, j, alone=False)
-            box = np.array([[bx[0], by[0]], [bx[1], by[1]]])
-            # an unbounded side: a sliver past the finite one (the edge comes into view),
-            # or what is drawn already when both sides are unbounded
-            lo_inf, hi_inf = ~np.isfinite(box[0]), ~np.isfinite(box[1])
-            both = lo_inf & hi_inf
-            box[0] = np.where(both, blo, np.where(lo_inf, box[1] - 0.1 * reach, box[0]))
-            box[1] = np.where(both, bhi, np.where(hi_inf, box[0] + 0.1 * reach, box[1]))
-            hit = ce is not None and ce.kind == "unsafe" and ce.index == k
-            near = np.all(box[0] <= bhi + reach) and np.all(box[1] >= blo - reach)
-            if hit or near:
-                pts.append(box)
-    allpts = np.vstack(pts) if pts else np.zeros((0, 2))
-    xlim = _padded(*_range(allpts[:, 0]))
-    ylim = _padded(*_range(allpts[:, 1]))
+    # the scene's window: the recording's plane shows the same
+    xlim = (float(scene.plane_lo[0]), float(scene.plane_hi[0]))
+    ylim = (float(scene.plane_lo[1]), float(scene.plane_hi[1]))
     if lo2.shape[0]:
         # at least 0.6 % of the view wide and high, so a thin tube does not read as a line
         # (the picture only: the boxes are widened about their centres)
@@ -894,33 +664,28 @@ def plot_plane(
     # sets are clipped to a box a little larger than the view: no clipped edge shows
     margin = 0.1 * np.array([xlim[1] - xlim[0], ylim[1] - ylim[0]])
     view = (np.array([xlim[0], ylim[0]]) - margin, np.array([xlim[1], ylim[1]]) + margin)
-    if vs is not None:
-        skipped = 0
-        for sets, style in ((vs.unsafe, "unsafe"), (vs.safe, "safe")):
-            drawn = False
-            for s in sets:
-                poly = _set_in_view(s, i, j, view)
-                if poly is None:
-                    skipped += 1
-                elif poly.shape[0] >= 3:
-                    if style == "safe" and _fills_view(poly, view):
-                        continue  # the safe set contains the whole view: nothing to see
-                    if style == "unsafe":
-                        ax.add_patch(Polygon(poly, fc=_UNSAFE, alpha=0.35, lw=0, zorder=0.5))
-                        _mark_if_small(ax, poly, xlim, ylim, _UNSAFE)
-                    else:
-                        ax.add_patch(Polygon(poly, fill=False, ec=_SAFE, ls="--", lw=1))
-                    drawn = True
-            if drawn and style == "unsafe":
-                handles.append(Patch(facecolor=_UNSAFE, alpha=0.35, label="unsafe"))
-            elif drawn:
-                handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe"))
-        if skipped:
-            handles.append(Patch(fill=False, lw=0, label=f"({skipped} polytope set(s) not drawn)"))
+    # the scene's sets: each clipped to the view box and projected on the plane (the
+    # recording draws the same polygons)
+    window = (scene.plane_lo, scene.plane_hi)
+    drawn = set()
+    for shape in scene.sets:
+        kind, poly = shape.name.split("/")[0], shape.polygon
+        if kind not in ("unsafe", "safe") or poly is None or poly.shape[0] < 3:
+            continue
+        if kind == "safe" and _fills_view(poly, window):
+            continue  # the safe set contains the whole view: nothing to see
+        if kind == "unsafe":
+            ax.add_patch(Polygon(poly, fc=_UNSAFE, alpha=0.35, lw=0, zorder=0.5))
+            _mark_if_small(ax, poly, xlim, ylim, _UNSAFE)
+        else:
+            ax.add_patch(Polygon(poly, fill=False, ec=_SAFE, ls="--", lw=1))
+        drawn.add(kind)
+    if "unsafe" in drawn:
+        handles.append(Patch(facecolor=_UNSAFE, alpha=0.35, label="unsafe"))
+    if "safe" in drawn:
+        handles.append(Line2D([], [], color=_SAFE, ls="--", label="safe"))
     if law is not None:
-        at = None
-        if law.n > 2:
-            at = default_slice_point(law, problem)  # the one section rule
+        at = scene.section.point if scene.section is not None and law.n > 2 else None
         dom = _domain_polygon(law, (i, j), at, view)
         if dom is not None:
             ax.add_patch(Polygon(dom, fill=False, ec="#555555", ls=":", lw=1.2))
@@ -974,32 +739,6 @@ def _split_trace(
     return head, tail, v
 
 
-def _range(v: np.ndarray) -> tuple[float, float]:
-    v = v[np.isfinite(v)]
-    return (float(v.min()), float(v.max())) if v.size else (np.nan, np.nan)
-
-
-def _set_in_view(
-    s: SetSpec, i: int, j: int, view: tuple[np.ndarray, np.ndarray]
-) -> np.ndarray | None:
-    """A verify set's projection on states (i, j), clipped to the view box -> (v, 2).
-
-    None when it cannot be drawn exactly (a polytope with rows on other states); an empty
-    array when it misses the view.
-    """
-    from codev_engine.geometry.polytope import box_halfspaces
-
-    if s.kind == "box":
-        A, b = box_halfspaces(s.lower[[i, j]], s.upper[[i, j]])
-    elif np.any(np.delete(s.A, [i, j], axis=1) != 0):
-        return None
-    else:
-        A, b = s.A[:, [i, j]], s.b
-    Av, bv = box_halfspaces(*view)
-    polys, _ = section_polygons([np.vstack([A, Av])], [np.concatenate([b, bv])])
-    return polys[0] if polys else np.zeros((0, 2))
-
-
 def _domain_polygon(
     law: ExplicitLaw,
     axes: tuple[int, int],
@@ -1046,6 +785,7 @@ def figure_result(
     *,
     law: ExplicitLaw | None = None,
     max_states: int = 4,
+    scene: Scene | None = None,
 ) -> Figure:
     """A figure of a verification result: verdict title, tubes against time, plane view.
 
@@ -1058,6 +798,10 @@ def figure_result(
         Adds the law's domain to the plane view.
     max_states : int
         Tubes against time are drawn for the first ``max_states`` states (and outputs).
+    scene : Scene, optional
+        The design's scene (:func:`~codev_engine.view.scene.build_scene`; the HTML report
+        passes the recording's): windows, ranges, limits, the plane's axes and section.
+        Built from the arguments by default.
 
     Returns
     -------
@@ -1075,20 +819,26 @@ def figure_result(
     shown = max(1, min(n, max_states))
     rows = shown + p
     plane = n >= 2
+    drawn = None if law is None else law_section(law, problem)  # a theta law: its section
+    if scene is None:
+        scene = build_scene(problem, drawn, result, axes=(0, 1) if plane else None)
     fig = Figure(figsize=(11.0 if plane else 6.5, 1.2 + 2.0 * rows), layout="constrained")
     grid = fig.add_gridspec(rows, 2 if plane else 1, width_ratios=[1.2, 1] if plane else None)
     for k in range(rows):
         ax = fig.add_subplot(grid[k, 0])
         if k < shown:
-            plot_tube(result, ax, state=k, problem=problem)
+            plot_tube(result, ax, state=k, problem=problem, scene=scene)
         else:
             assert problem is not None
-            plot_output(result, problem, ax, output=k - shown)
+            plot_output(result, problem, ax, output=k - shown, scene=scene)
         if k < rows - 1:
             ax.set_xlabel("")
     if plane:
-        drawn = None if law is None else law_section(law, problem)  # a theta law: its section
-        plot_plane(result, fig.add_subplot(grid[:, 1]), problem=problem, law=drawn)
+        ax = fig.add_subplot(grid[:, 1])
+        plot_plane(result, ax, axes=scene.axes or (0, 1), problem=problem, law=drawn,
+                   scene=scene)
+        if scene.section is not None:
+            ax.set_title(f"section at {scene.section.words}", fontsize="medium")
     name = f"{problem.name}: " if problem is not None else ""
     stats = f"{result.tube.num_boxes} boxes, {result.seconds:.3g} s, hold {result.hold}"
     fig.suptitle(

@@ -19,11 +19,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from codev_engine.errors import SolverError
-from codev_engine.geometry.polytope import normalize_rows
-from codev_engine.geometry.vertices import vertices_in_boxes, vertices_many
+from codev_engine.geometry.vertices import vertices_in_boxes
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem, SetSpec
-from codev_engine.view.shapes import meshes, outline, raster_boxes, raster_polygons
+from codev_engine.view.glyphs import text_strips
+from codev_engine.view.scene import Scene, build_scene, set_rows
+from codev_engine.view.shapes import meshes, raster_boxes, raster_polygons
 from codev_engine.view.signals import output_bounds, output_boxes, output_names, reference_band
 
 if TYPE_CHECKING:
@@ -57,6 +58,8 @@ _TRACE = (120, 120, 120)
 _REFERENCE = (150, 40, 200)
 _AXIS = (30, 30, 30)
 _EDGE = (60, 60, 60, 90)
+#: the height of the plane's tick labels, as a fraction of the window's side
+_LABEL = 0.04
 #: pixels of a side of the plane's rasters (the partition, the filled sets and tube)
 _RASTER = 480
 #: the regions' edges are drawn as lines up to this many regions (the fill alone beyond)
@@ -231,8 +234,11 @@ class RecordingContent:
     result : VerificationResult or None
     axes : (int, int) or None
         The plane view's state indices (None when n == 1).
+    scene : Scene
+        What every picture of the design shows (:mod:`codev_engine.view.scene`): the
+        figures of the HTML report render the same one.
     view_lo, view_hi : (n,) ndarray
-        The view box (infinite sets are clipped to it).
+        The scene's view box (infinite sets are clipped to it).
     region_vertices : list of (v_i, n) ndarray or None
         The vertices of each region clipped to its bounding box (None: too many rows).
     region_rows : (list of ndarray, list of ndarray)
@@ -244,16 +250,13 @@ class RecordingContent:
         What could not be drawn (shown in the verdict document).
     tube_boxes : int
         Tube boxes logged.
-    set_shapes : list or None
-        :meth:`set_polygons`, once computed.
-    set_rows : (list of ndarray, list of ndarray)
-        The rows of each set with the view box's, which its vertices came from.
     """
 
     problem: Problem
     law: ExplicitLaw
     result: VerificationResult | None
     axes: tuple[int, int] | None
+    scene: Scene
     view_lo: np.ndarray
     view_hi: np.ndarray
     region_vertices: list[np.ndarray | None]
@@ -262,8 +265,6 @@ class RecordingContent:
     traces: Traces | None
     notes: list[str]
     tube_boxes: int = 0
-    set_shapes: list | None = None
-    set_rows: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
 
     @property
     def n(self) -> int:
@@ -297,13 +298,9 @@ class RecordingContent:
 
     @property
     def horizon(self) -> float:
-        """The time axis' extent: ``verify.time_horizon``, else ten sample times."""
-        vs = self.problem.verify
-        if vs is not None:
-            from codev_engine.reach.simulate import shown_horizon
-
-            return shown_horizon(self.problem)  # finite, also for time_horizon = "inf"
-        return 10.0 * float(self.problem.model.sample_time)
+        """The time axis' extent (the scene's): ``verify.time_horizon`` (the shown horizon
+        for ``"inf"``), else ten sample times."""
+        return self.scene.t_end
 
     @classmethod
     def build(
@@ -335,43 +332,15 @@ class RecordingContent:
         RecordingContent
         """
         notes: list[str] = []
-        n = problem.plant.n
         vs = problem.verify
         # the traces first: their extent is part of the view box
         traces = None
         if vs is not None and options.traces > 0:
             hold = result.hold if result is not None else vs.hold
             traces = simulate_traces(problem, trace_law or law, options, hold, notes)
-        # the law's domain box, widened to what else is shown
-        if law.num_regions:
-            blo, bhi = law.boxes
-            dlo, dhi = blo.min(axis=0), bhi.max(axis=0)
-        else:
-            mpc = problem.mpc
-            x_op = np.asarray(problem.model.x_op, dtype=float)
-            x_op = x_op if x_op.shape == (n,) else np.zeros(n)
-            D = float(mpc.domain_bound)
-            dlo = np.where(np.isfinite(mpc.x_min), mpc.x_min, x_op - D)
-            dhi = np.where(np.isfinite(mpc.x_max), mpc.x_max, x_op + D)
-        lo, hi = np.array(dlo, dtype=float), np.array(dhi, dtype=float)
-        extra = []
-        if vs is not None:
-            extra += [vs.initial_lower, vs.initial_upper]
-        if result is not None and result.tube.num_boxes:
-            extra += [result.tube.lower.min(axis=0), result.tube.upper.max(axis=0)]
-        if traces is not None:
-            with np.errstate(all="ignore"):
-                finite = np.where(np.isfinite(traces.X), traces.X, np.nan).reshape(-1, n)
-            if np.any(np.isfinite(finite)):
-                extra += [np.nanmin(finite, axis=0), np.nanmax(finite, axis=0)]
-        for e in extra:
-            e = np.asarray(e, dtype=float)
-            ok = np.isfinite(e)
-            lo[ok] = np.minimum(lo[ok], e[ok])
-            hi[ok] = np.maximum(hi[ok], e[ok])
-        pad = 0.05 * np.maximum(hi - lo, 1e-9) + 1e-9
-        view_lo, view_hi = lo - pad, hi + pad
-
+        # the scene: what every picture shows (windows, section, ranges, limits)
+        scene = build_scene(problem, law, result, axes=axes,
+                            traces=None if traces is None else traces.X)
         regions: list[np.ndarray | None] = []
         rows: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])
         if law.num_regions:
@@ -385,8 +354,9 @@ class RecordingContent:
             law=law,
             result=result,
             axes=axes,
-            view_lo=view_lo,
-            view_hi=view_hi,
+            scene=scene,
+            view_lo=scene.view_lo,
+            view_hi=scene.view_hi,
             region_vertices=regions,
             region_rows=rows,
             colors=_palette(law.num_regions),
@@ -401,70 +371,22 @@ class RecordingContent:
     @property
     def plane_names(self) -> tuple[str, str]:
         """The plane's horizontal and vertical quantities (``time`` and the state for n == 1)."""
-        if self.axes is None:
-            return "time", self.states[0]
-        return self.states[self.axes[0]], self.states[self.axes[1]]
+        return self.scene.plane_names
 
     @property
     def plane_window(self) -> tuple[np.ndarray, np.ndarray]:
-        """The plane's window ``(lo, hi)``, each (2,): the view box on the plane's axes."""
-        if self.axes is None:
-            return (
-                np.array([0.0, self.view_lo[0]]),
-                np.array([self.horizon, self.view_hi[0]]),
-            )
-        ax = list(self.axes)
-        return self.view_lo[ax].copy(), self.view_hi[ax].copy()
+        """The plane's window ``(lo, hi)``, each (2,) (the scene's)."""
+        return self.scene.plane_lo.copy(), self.scene.plane_hi.copy()
 
     def section_words(self) -> str | None:
-        """The values the partition's section fixes, in words (``x3 = 0.025, prev_V = 0``):
-        the states off the plane (n > 2) and a theta law's ``u_prev`` and ``r``; None when
-        the partition drawn is not a section."""
-        fixed = []
-        s0 = self.slice_point()
-        if s0 is not None and self.axes is not None:
-            fixed += [f"{self.states[k]} = {s0[k]:.3g}" for k in range(self.n)
-                      if k not in self.axes]
-        fixed += [f"{k} = {v:.3g}" for k, v in dict(self.law.meta.get("section", {})).items()]
-        return ", ".join(fixed) if fixed else None
-
-    def slice_point(self) -> np.ndarray | None:
-        """The values of the states off the plane (n > 2): the centre of the initial set
-        (else the centre of the law's domain); None when n <= 2."""
-        if self.n <= 2:
-            return None
-        from codev_engine.view.figures import default_slice_point
-
-        return default_slice_point(self.law, self.problem)  # the rule every picture uses
+        """The values the partition's section fixes, in words (``x3 = 0.025, prev_V = 0``;
+        the scene's); None when the partition drawn is not a section."""
+        return None if self.scene.section is None else self.scene.section.words
 
     def region_polygons(self) -> tuple[list[np.ndarray], np.ndarray]:
-        """The regions in the plane, clipped to the window -> (polygons, region index).
-
-        n == 2: the regions; n > 2: their sections through :meth:`slice_point`; n == 1:
-        each interval as a band over ``[0, horizon]``.
-        """
-        lo, hi = self.plane_window
-        if self.axes is None:
-            polys, idx = [], []
-            for i, v in enumerate(self.region_vertices):
-                if v is None or v.shape[0] == 0:
-                    continue
-                a, b = float(v.min()), float(v.max())
-                if b > a:
-                    polys.append(np.array([[lo[0], a], [hi[0], a], [hi[0], b], [lo[0], b]]))
-                    idx.append(i)
-            return polys, np.array(idx, dtype=int)
-        from codev_engine.view.figures import section_polygons
-
-        i, j = self.axes
-        n = self.n
-        box = np.zeros((4, n))
-        box[[0, 2], i] = 1.0, -1.0
-        box[[1, 3], j] = 1.0, -1.0
-        rhs = np.array([hi[0], hi[1], -lo[0], -lo[1]])
-        A = [np.vstack([a, box]) for a in self.law.A]
-        b = [np.concatenate([bb, rhs]) for bb in self.law.b]
-        return section_polygons(A, b, axes=(i, j), at=self.slice_point())
+        """The regions in the plane, clipped to the window -> (polygons, region index) (the
+        scene's: n > 2 their sections, n == 1 each interval as a band over time)."""
+        return list(self.scene.region_polygons), self.scene.region_index
 
     # ---- logging ---------------------------------------------------------------------
 
@@ -507,7 +429,7 @@ class RecordingContent:
         )
         frame = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
         tick = 0.012 * span
-        xs, ys = _ticks(lo[0], hi[0]), _ticks(lo[1], hi[1])
+        xs, ys = self.scene.plane_x_ticks, self.scene.plane_y_ticks
         strips = [np.vstack([frame, frame[:1]])]
         strips += [np.array([[x, lo[1]], [x, lo[1] - tick[1]]]) for x in xs]
         strips += [np.array([[lo[0], y], [lo[0] - tick[0], y]]) for y in ys]
@@ -516,11 +438,24 @@ class RecordingContent:
             rr.LineStrips2D(strips, colors=[_AXIS], radii=rr.components.Radius.ui_points(0.75)),
             len(strips),
         )
+        # the ticks' values as strokes in data coordinates (a labelled point's text sits a
+        # dozen pixels under the point): each y label centred on its tick, at every zoom
+        height = _LABEL * span
+        for entity, parts in (
+            ("/plane/axes/x_labels",
+             [text_strips(_fmt(x), (x, lo[1] - 2.5 * tick[1]), height, align="top")
+              for x in xs]),
+            ("/plane/axes/y_labels",
+             [text_strips(_fmt(y), (lo[0] - 2.5 * tick[0], y), height, align="right")
+              for y in ys]),
+        ):
+            segs = [seg for part in parts for seg in part]
+            if segs:
+                w.static(entity, rr.LineStrips2D(
+                    segs, colors=[_AXIS], radii=rr.components.Radius.ui_points(0.6)), len(segs))
         xname, yname = self.plane_names
-        pos = [[x, lo[1] - 3.5 * tick[1]] for x in xs] + [[lo[0] - 4.5 * tick[0], y] for y in ys]
-        labels = [_fmt(x) for x in xs] + [_fmt(y) for y in ys]
-        pos += [[c[0], lo[1] - 9 * tick[1]], [lo[0], hi[1] + 6 * tick[1]]]
-        labels += [f"{xname} →", f"{yname} ↑"]
+        pos = [[c[0], lo[1] - 9 * tick[1]], [lo[0], hi[1] + 6 * tick[1]]]
+        labels = [f"{xname} →", f"{yname} ↑"]
         w.static(
             "/plane/axes/ticks",
             rr.Points2D(
@@ -599,59 +534,19 @@ class RecordingContent:
                 )
 
     def _sets(self) -> list[tuple[str, SetSpec, tuple[int, ...]]]:
-        vs = self.problem.verify
-        if vs is None:
-            return []
-        out = [("initial", SetSpec("box", lower=vs.initial_lower, upper=vs.initial_upper), _BLUE)]
-        out += [(f"unsafe/{k}", s, _RED) for k, s in enumerate(vs.unsafe)]
-        out += [(f"safe/{k}", s, _GREEN) for k, s in enumerate(vs.safe)]
-        cert = None if self.result is None else self.result.certificate
-        if cert is not None and "H" in cert and np.shape(cert["H"])[1] == self.n:
-            # the invariant set that closes the induction (time_horizon = "inf")
-            out.append(("certificate", SetSpec("polytope", A=np.asarray(cert["H"], float),
-                                               b=np.asarray(cert["h"], float)), _PURPLE))
-        return out
+        """The scene's sets with their colours: ``(name, spec, rgb)``."""
+        colour = {"initial": _BLUE, "unsafe": _RED, "safe": _GREEN, "certificate": _PURPLE}
+        return [(sh.name, sh.spec, colour[sh.name.split("/")[0]]) for sh in self.scene.sets]
 
     def set_polygons(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
-        """Each set of ``[verify]`` clipped to the view box: ``(name, vertices, plane polygon)``.
+        """Each set of ``[verify]`` clipped to the view box: ``(name, vertices, plane
+        polygon)`` (the scene's :class:`~codev_engine.view.scene.SetShape`)."""
+        return [(sh.name, sh.vertices, sh.polygon) for sh in self.scene.sets]
 
-        The vertices are (v, n) (None: empty in the view box); the polygon (p, 2) is the
-        projection on the plane (n == 1: the interval as a band over ``[0, horizon]``;
-        None: flat or empty). Computed once (the rows they came from are kept in
-        ``set_rows``).
-        """
-        if self.set_shapes is None:
-            self.set_shapes = self._set_shapes()
-        return self.set_shapes
-
-    def _set_shapes(self) -> list[tuple[str, np.ndarray | None, np.ndarray | None]]:
-        sets = self._sets()
-        if not sets:
-            return []
-        n = self.n
-        lo, hi = self.view_lo, self.view_hi
-        rows = [_set_rows(s) for _, s, _ in sets]
-        eye = np.vstack([np.eye(n), -np.eye(n)])
-        As = [np.vstack([A, eye]) for A, _ in rows]
-        bs = [np.concatenate([b, hi, -lo]) for _, b in rows]
-        V = vertices_many(As, bs, _TOL, rtol=_TOL, max_combos=_MAX_COMBOS)
-        self.set_rows = (As, bs)
-        out = []
-        plo, phi = self.plane_window
-        for (name, _, _), v in zip(sets, V, strict=True):
-            if v is None or v.shape[0] == 0:
-                out.append((name, None, None))
-            elif self.axes is None:
-                a, b = float(v.min()), float(v.max())
-                # the initial set holds at t = 0 only: a thin bar there, not a band in time
-                t0 = min(plo[0], 0.0)
-                t1 = 0.01 * (phi[0] - plo[0]) if name == "initial" else phi[0]
-                band = np.array([[t0, a], [t1, a], [t1, b], [t0, b]])
-                out.append((name, v, band if b > a else None))
-            else:
-                poly = outline(v, self.axes)
-                out.append((name, v, None if poly is None else poly[:-1]))
-        return out
+    @property
+    def set_rows(self) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """The rows of each set with the view box's, which its vertices came from."""
+        return [sh.A for sh in self.scene.sets], [sh.b for sh in self.scene.sets]
 
     def certificate_ellipse(self) -> np.ndarray | None:
         """The invariant ellipsoid of a nonlinear certificate (time_horizon = "inf"),
@@ -843,29 +738,24 @@ class RecordingContent:
 
     def _log_state_limits(self, w: EntityWriter) -> None:
         """Each state's limits from the verify sets in its time view (unsafe red, safe
-        green), over the whole horizon, so the view's range includes them."""
+        green, over the whole horizon; the scene's) and its initial interval at t = 0."""
         import rerun as rr
 
-        from codev_engine.view.figures import _bounds_on
-
-        vs = self.problem.verify
-        if vs is None:
-            return
         T = np.array([0.0, self.horizon])
-        for i, s in enumerate(self.states):
-            for kind, sets, alone, color in (("unsafe", vs.unsafe, True, _RED),
-                                              ("safe", vs.safe, False, _GREEN)):
-                for k, spec in enumerate(sets):
-                    ext = _bounds_on(spec, i, alone=alone)
-                    if ext is None:
-                        continue
-                    for side, v in zip(("lower", "upper"), ext, strict=True):
-                        if not np.isfinite(v):
-                            continue
-                        entity = f"/time/{s}/{kind}/{k}/{side}"
-                        w.static(entity, rr.SeriesLines(colors=[color], widths=[1.5],
-                                                        names=[f"{kind} {k} {side}"]), 0)
-                        w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, v))], 2)
+        for s, plot in zip(self.states, self.scene.plots, strict=True):
+            for lim in plot.limits:
+                color = _RED if lim.kind == "unsafe" else _GREEN
+                entity = f"/time/{s}/{lim.kind}/{lim.index}/{lim.side}"
+                w.static(entity, rr.SeriesLines(colors=[color], widths=[1.5],
+                                                names=[f"{lim.kind} {lim.index} {lim.side}"]), 0)
+                w.columns(entity, T, [*rr.Scalars.columns(scalars=np.full(2, lim.value))], 2)
+            if plot.initial is not None:
+                # the initial set holds at t = 0 only: two points there, not a band in time
+                entity = f"/time/{s}/initial"
+                w.static(entity, rr.SeriesPoints(colors=[_BLUE], markers=["square"],
+                                                 marker_sizes=[4.0], names=["initial set"]), 0)
+                w.columns(entity, np.zeros(2),
+                          [*rr.Scalars.columns(scalars=np.array(plot.initial))], 2)
 
     def _log_traces(self, w: EntityWriter) -> None:
         import rerun as rr
@@ -1411,35 +1301,8 @@ def tube_envelope(
     return t, lo, hi
 
 
-def _ticks(lo: float, hi: float, k: int = 5) -> np.ndarray:
-    """About ``k`` round values in ``[lo, hi]``."""
-    span = hi - lo
-    if not (np.isfinite(span) and span > 0):
-        return np.array([lo])
-    raw = span / k
-    mag = 10.0 ** np.floor(np.log10(raw))
-    step = mag * min((s for s in (1.0, 2.0, 2.5, 5.0, 10.0) if s * mag >= raw), default=10.0)
-    first = np.ceil(lo / step) * step
-    ticks = np.arange(first, hi + 1e-9 * step, step)
-    return np.where(np.abs(ticks) < 1e-9 * step, 0.0, ticks)
-
-
 def _fmt(v: float) -> str:
     return f"{v:.4g}"
-
-
-def _set_rows(s: SetSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Unit-norm H-representation of a set (infinite box sides dropped)."""
-    A, b = s.halfspaces()
-    A = np.asarray(A, dtype=float)
-    b = np.asarray(b, dtype=float)
-    if A.shape[0] == 0:
-        return A, b
-    A, b, feasible = normalize_rows(A, b)
-    if not feasible:  # 0 <= b < 0: an empty set; an impossible row keeps it empty
-        A = np.vstack([A, np.eye(A.shape[1])[:1], -np.eye(A.shape[1])[:1]])
-        b = np.concatenate([b, [-1.0, -1.0]])
-    return A, b
 
 
 def unsafe_margin(sets: Sequence[SetSpec], X: np.ndarray) -> np.ndarray:
@@ -1463,7 +1326,7 @@ def unsafe_margin(sets: Sequence[SetSpec], X: np.ndarray) -> np.ndarray:
     X = np.asarray(X, dtype=float)
     out = np.full(X.shape[:-1], np.inf)
     for s in sets:
-        A, b = _set_rows(s)
+        A, b = set_rows(s)
         if A.shape[0] == 0:
             out = np.full_like(out, -np.inf)
             continue

@@ -250,7 +250,7 @@ def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
 
     For a law over ``theta = (x, u_prev, r)``: its section (:meth:`ExplicitLaw.section`) at
     the middle of the initial ``u_prev`` and ``r`` boxes of ``[verify]``, the centre of the
-    law's domain without one (``figures.default_slice_point``, the slice every picture
+    law's domain without one (``scene.default_slice_point``, the slice every picture
     uses); the traces are simulated with
     the whole law (``RecordingContent.build``'s ``trace_law``), over its own ``u_prev``.
 
@@ -273,8 +273,8 @@ def drawable(problem: Problem, law: ExplicitLaw, options: RecordingOptions
 
 def _section_point(problem: Problem, law: ExplicitLaw) -> np.ndarray:
     """The default values of the parameters after the states
-    (:func:`codev_engine.view.figures.default_slice_point`): the middle of the initial
+    (:func:`codev_engine.view.scene.default_slice_point`): the middle of the initial
     ``u_prev`` and ``r`` boxes of ``[verify]``, the centre of the law's domain without one."""
-    from codev_engine.view.figures import default_slice_point
+    from codev_engine.view.scene import default_slice_point
 
     return default_slice_point(law, problem)[problem.plant.n :]

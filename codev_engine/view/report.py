@@ -28,9 +28,9 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from codev_engine.reach.verification import VerificationResult
-    from codev_engine.view.record_content import Traces
+    from codev_engine.view.record_content import RecordingContent, Traces
 
-__all__ = ["figure_inputs", "markdown_html", "report_html", "write_report"]
+__all__ = ["figure_inputs", "markdown_html", "report_figures", "report_html", "write_report"]
 
 _STYLE = """
 body { font-family: system-ui, -apple-system, "Segoe UI", Helvetica, Arial, sans-serif;
@@ -73,35 +73,8 @@ def report_html(
     str
         One HTML document: figures as inline SVG, no external reference.
     """
-    from codev_engine.view.record_content import RecordingContent, RecordingOptions
-    from codev_engine.view.records import _check_options, drawable
-
-    full_law = law
-    law, options = drawable(problem, law, RecordingOptions(axes=axes, traces=traces))
-    plane = _check_options(options, problem.plant.n)
-    content = RecordingContent.build(problem, law, result, options, plane, trace_law=full_law)
-    parts: list[tuple[str, str]] = []
-    if result is not None:
-        fig = figures.figure_result(result, problem, law=law, max_states=min(problem.plant.n, 8))
-        caption = "The reachtube of each state against time, and projected on the plane"
-        if plane is not None:
-            caption += f" of {problem.plant.states[plane[0]]} and {problem.plant.states[plane[1]]}"
-        parts.append((_svg(fig), caption + ", with the sets and the counterexample (if any)."))
-    law_axes = plane if plane is not None else (0, 1)
-    # the partition's section: the recording's (figures.default_slice_point with the spec)
-    at = figures.default_slice_point(law, problem) if law.n > 2 else None
-    fig = figures.figure_law(law, axes=law_axes, at=at) if law.n >= 2 else figures.figure_law(law)
-    section = content.section_words()
-    at_words = f", section at {section}" if section is not None else ""
-    if getattr(law, "on_demand", False):  # (issue 39: the regions computed, not the law)
-        parts.append((_svg(fig), f"The regions reached by the verification{at_words} "
-                      f"(computed on demand, not the whole law): {law.num_regions} regions."))
-    else:
-        parts.append((_svg(fig), f"The partition of the explicit law{at_words}: "
-                      f"{law.num_regions} regions."))
-    if content.traces is not None and problem.plant.m:
-        fig = figure_inputs(problem, content.traces, result)
-        parts.append((_svg(fig), "The inputs of the simulated traces, with their bounds."))
+    content, figs = report_figures(problem, law, result, traces=traces, axes=axes)
+    parts = [(_svg(fig), caption) for fig, caption in figs]
     colour = figures.VERDICT_COLOURS.get(result.verdict if result else "", "#555555")
     word = result.verdict.replace("_", " ") if result else "not verified"
     body = [
@@ -122,6 +95,62 @@ def report_html(
         f"<meta name='viewport' content='width=device-width, initial-scale=1'><title>{title}"
         f"</title><style>{_STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n"
     )
+
+
+def report_figures(
+    problem: Problem,
+    law: ExplicitLaw,
+    result: VerificationResult | None = None,
+    *,
+    traces: int = 16,
+    axes: tuple[int, int] = (0, 1),
+) -> tuple[RecordingContent, list[tuple[Figure, str]]]:
+    """The report's figures with their captions, drawn from the recording's scene.
+
+    Parameters
+    ----------
+    problem : Problem
+    law : ExplicitLaw
+    result : VerificationResult, optional
+    traces : int
+        Closed-loop traces simulated (0: none).
+    axes : (int, int)
+        The plane's state indices.
+
+    Returns
+    -------
+    content : RecordingContent
+        What a recording of the design holds (its ``scene`` is the figures').
+    figures : list of (matplotlib Figure, str)
+        The tubes against time and in the plane (with a result), the partition, the
+        inputs of the traces.
+    """
+    from codev_engine.view.record_content import RecordingContent, RecordingOptions
+    from codev_engine.view.records import _check_options, drawable
+
+    full_law = law
+    law, options = drawable(problem, law, RecordingOptions(axes=axes, traces=traces))
+    plane = _check_options(options, problem.plant.n)
+    content = RecordingContent.build(problem, law, result, options, plane, trace_law=full_law)
+    scene = content.scene  # one scene: the report's figures show the recording's numbers
+    parts: list[tuple[Figure, str]] = []
+    if result is not None:
+        fig = figures.figure_result(result, problem, law=law, max_states=min(problem.plant.n, 8),
+                                    scene=scene)
+        caption = "The reachtube of each state against time, and projected on the plane"
+        if plane is not None:
+            caption += f" of {problem.plant.states[plane[0]]} and {problem.plant.states[plane[1]]}"
+        parts.append((fig, caption + ", with the sets and the counterexample (if any)."))
+    fig = figures.figure_law(law, scene=scene)
+    if getattr(law, "on_demand", False):  # (issue 39: the regions computed, not the law)
+        parts.append((fig, "The regions reached by the verification (not the whole law): "
+                      f"{scene.partition_title}."))
+    else:
+        parts.append((fig, f"The partition of the explicit law: {scene.partition_title}."))
+    if content.traces is not None and problem.plant.m:
+        fig = figure_inputs(problem, content.traces, result, t_end=scene.t_end)
+        parts.append((fig, "The inputs of the simulated traces, with their bounds."))
+    return content, parts
 
 
 def write_report(
@@ -151,7 +180,11 @@ def write_report(
 
 
 def figure_inputs(
-    problem: Problem, traces: Traces, result: VerificationResult | None = None
+    problem: Problem,
+    traces: Traces,
+    result: VerificationResult | None = None,
+    *,
+    t_end: float | None = None,
 ) -> Figure:
     """Each input of the simulated traces against time, with its bounds (and the
     counterexample's input, if any).
@@ -162,6 +195,8 @@ def figure_inputs(
     traces : Traces
         ``record_content.simulate_traces`` output: ``t`` (K,), ``U`` (P, K, m), ``alive``.
     result : VerificationResult, optional
+    t_end : float, optional
+        The time axis' end (the scene's); the traces' end by default.
 
     Returns
     -------
@@ -184,9 +219,9 @@ def figure_inputs(
         if cex is not None:
             u = np.asarray(cex.trace.u, dtype=float)[:, j]
             ok = (np.asarray(cex.trace.region) >= 0) & np.isfinite(u)
-            ax.plot(
-                np.asarray(cex.trace.t)[ok], u[ok], color="#c62828", lw=1.5, label="counterexample"
-            )
+            # the counterexample in its own colour (black; red is the unsafe sets'), on top
+            ax.plot(np.asarray(cex.trace.t)[ok], u[ok], color="#000000", lw=1.5,
+                    label="counterexample", zorder=5)
         for v in (problem.mpc.u_min[j], problem.mpc.u_max[j]):
             if np.isfinite(v):
                 ax.axhline(float(v), color="k", lw=1.0, ls="--")
@@ -194,8 +229,8 @@ def figure_inputs(
         ax.set_ylabel(problem.plant.input_label(j))
         ax.set_xlabel("t (s)")
         # the traces' own end: for time_horizon = "inf" that is the shown horizon, not inf
-        t_end = float(traces.t[-1]) if traces.t.size else None
-        ax.set_xlim(0.0, t_end if t_end and np.isfinite(t_end) and t_end > 0 else None)
+        end = t_end if t_end is not None else (float(traces.t[-1]) if traces.t.size else None)
+        ax.set_xlim(0.0, end if end and np.isfinite(end) and end > 0 else None)
     axs[0].set_title("inputs of the simulated traces (bounds dashed)", fontsize="medium")
     return fig
 

@@ -18,7 +18,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["meshes", "outline", "raster_boxes", "raster_polygons"]
+__all__ = [
+    "check_axes",
+    "meshes",
+    "outline",
+    "raster_boxes",
+    "raster_polygons",
+    "section_polygons",
+]
 
 
 def outline(V: np.ndarray, axes: tuple[int, int]) -> np.ndarray | None:
@@ -267,3 +274,100 @@ def raster_boxes(
     np.add.at(diff, (i1[:, 1], i0[:, 0]), -1)
     np.add.at(diff, (i1[:, 1], i1[:, 0]), 1)
     return np.cumsum(np.cumsum(diff, axis=0), axis=1)[:H, :W] > 0
+
+
+def section_polygons(
+    A: list[np.ndarray],
+    b: list[np.ndarray],
+    *,
+    axes: tuple[int, int] = (0, 1),
+    at: np.ndarray | None = None,
+    tol: float = 1e-9,
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """The 2-D sections of polytopes ``{x : A_i x <= b_i}`` as ordered polygons.
+
+    The section of region ``i`` is ``{(x[axes[0]], x[axes[1]]) : A_i x <= b_i}`` with every
+    other coordinate fixed at ``at``. Its rows are normalised in the plane and its vertices
+    found for all regions at once by :func:`~codev_engine.geometry.vertices.packed_vertices`
+    (every pair of rows intersected, the points that satisfy all the region's rows kept),
+    then sorted by angle around their mean.
+
+    Parameters
+    ----------
+    A : list of (r_i, n) ndarray
+        Region rows.
+    b : list of (r_i,) ndarray
+    axes : (2,) tuple of int
+        The two coordinates spanning the plane (distinct, ``< n``).
+    at : (n,) array_like, optional
+        Values of the other coordinates (ignored for ``n == 2``); zeros by default.
+    tol : float
+        Feasibility tolerance of a candidate vertex, ``tol * (1 + |b_j|)`` for row ``j``
+        (absolute and relative parts of :func:`~codev_engine.geometry.vertices.packed_vertices`).
+
+    Returns
+    -------
+    polygons : list of (v_k, 2) ndarray
+        Counter-clockwise vertices of each non-degenerate section (positive area).
+    index : (p,) ndarray of int
+        The region of each polygon, increasing.
+    """
+    R = len(A)
+    if R == 0:
+        return [], np.zeros(0, dtype=int)
+    n = A[0].shape[1]
+    i, j = check_axes(axes, n)
+    counts = np.array([a.shape[0] for a in A])
+    rows = np.vstack(A).astype(float)
+    rhs = np.concatenate(b).astype(float)
+    region = np.repeat(np.arange(R), counts)
+    others = [k for k in range(n) if k not in (i, j)]
+    if others:
+        at = np.zeros(n) if at is None else np.asarray(at, dtype=float).reshape(n)
+        rhs = rhs - rows[:, others] @ at[others]
+    plane = rows[:, [i, j]]
+    scale = np.maximum(np.linalg.norm(rows, axis=1), 1e-300)
+    norm = np.hypot(plane[:, 0], plane[:, 1])
+    flat = norm <= 1e-12 * scale
+    # a row without a component in the plane is a constant test: all or nothing
+    empty = np.bincount(region[flat & (rhs < -tol * (1.0 + np.abs(rhs)))], minlength=R) > 0
+    keep = ~flat & ~empty[region]
+    plane = plane[keep] / norm[keep, None]
+    rhs = rhs[keep] / norm[keep]
+    region = region[keep]
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(region, minlength=R))])
+    # all regions in one enumeration (the section rows have unit norm in the plane)
+    # imported here: geometry's LPs load scipy.optimize (~0.3 s), which the workbench's first
+    # screen must not wait for
+    from codev_engine.geometry.vertices import packed_vertices
+
+    P, own, _ = packed_vertices(plane, rhs, offsets, tol, rtol=tol, max_combos=None)
+    if own.size == 0:
+        return [], np.zeros(0, dtype=int)
+    # order the vertices of each region by angle around their mean
+    num = np.bincount(own, minlength=R)
+    centre = (
+        np.stack([np.bincount(own, P[:, 0], R), np.bincount(own, P[:, 1], R)], axis=1)
+        / np.maximum(num, 1)[:, None]
+    )
+    d = P - centre[own]
+    order = np.lexsort((np.arctan2(d[:, 1], d[:, 0]), own))
+    P, own = P[order], own[order]
+    regs, first = np.unique(own, return_index=True)
+    # shoelace area per region (cyclic successor inside each region's run)
+    nxt = np.arange(1, own.size + 1)
+    nxt[np.append(first[1:], own.size) - 1] = first
+    cross = P[:, 0] * P[nxt, 1] - P[nxt, 0] * P[:, 1]
+    area = 0.5 * np.add.reduceat(cross, first)
+    span = float(np.ptp(P, axis=0).max()) if P.size else 0.0
+    good = (np.diff(np.append(first, own.size)) >= 3) & (area > 1e-12 * max(span, 1.0) ** 2)
+    polys = np.split(P, first[1:])
+    return [polys[k] for k in np.flatnonzero(good)], regs[good]
+
+
+def check_axes(axes: tuple[int, int], n: int) -> tuple[int, int]:
+    """Two distinct coordinate indices below ``n`` (ValueError otherwise)."""
+    i, j = (int(a) for a in axes)
+    if i == j or not (0 <= i < n and 0 <= j < n):
+        raise ValueError(f"axes must be two distinct state indices below {n}, got {axes}")
+    return i, j

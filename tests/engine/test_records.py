@@ -457,6 +457,8 @@ def test_without_verify_section(tmp_path):
         "/plane/edges",
         "/plane/axes/frame",
         "/plane/axes/ticks",
+        "/plane/axes/x_labels",
+        "/plane/axes/y_labels",
         "/verdict",
     }
     assert summary.traces == 0
@@ -821,7 +823,7 @@ def test_all_time_recording_draws_the_certificate_band_to_the_view_s_end(tmp_pat
 
 
 def test_recording_and_report_name_the_same_section(magnetic, tmp_path):
-    # one rule (figures.default_slice_point with the spec): the plane view's title, the
+    # one rule (scene.default_slice_point with the spec): the plane view's title, the
     # report's partition caption and its figure title say the same "section at x3 = ..."
     from codev_engine.view.report import report_html
 
@@ -833,7 +835,7 @@ def test_recording_and_report_name_the_same_section(magnetic, tmp_path):
     (plane,) = [n for n in view_names(summary.path) if n.startswith("plane")]
     assert words in plane
     text = report_html(problem, law, None, traces=0)
-    assert f"The partition of the explicit law, {words}: " in text
+    assert f"The partition of the explicit law: {words}: " in text
     assert text.count(words) >= 2  # the caption and the figure's own title
 
 
