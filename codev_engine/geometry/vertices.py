@@ -483,7 +483,8 @@ def _complete_vertices(A: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray |
 _BLOAT = 1e-7
 #: an interior radius below which a piece is decided again (HiGHS) and relaxed if kept
 _THIN = 1e-9
-#: a piece whose Chebyshev radius is below ``-_EMPTY`` is empty (dropped)
+#: a piece whose Chebyshev radius is below ``-_EMPTY`` (DAQP's: ``-_EMPTY (1 + max |b|)``)
+#: is empty (dropped)
 _EMPTY = 1e-6
 
 
@@ -644,11 +645,12 @@ def checked_piece(
     Dropping is sound only for a set that is truly empty. The reach engines cut sets by a
     region's rows relaxed by 1e-9 (and the rounding bound), so a set that holds a state of
     the region yields a piece with an interior ball of radius ~1e-10 or more, which an LP
-    can misjudge within its tolerances. So a piece is dropped only when its Chebyshev
-    radius is below ``-_EMPTY`` (every point violates some row by more than 1e-6: empty
-    far beyond any LP's tolerance); a radius in ``[-_EMPTY, _THIN]`` (thin, flat, or empty
-    within tolerance) is decided again by HiGHS, and unless HiGHS too finds it empty by
-    more than ``_EMPTY`` the piece is kept with its rows relaxed by ``_BLOAT (1 + |b|)``
+    can misjudge within its tolerances. So a piece is dropped only when DAQP's Chebyshev
+    radius is below ``-_EMPTY (1 + max |b|)`` (every point violates some row by more than
+    1e-6 of the offsets: empty far beyond DAQP's accuracy, which is relative on badly
+    scaled rows); a radius in ``[-_EMPTY (1 + max |b|), _THIN]`` (thin, flat, or empty
+    within tolerance) is decided again by HiGHS, and unless HiGHS finds it empty by more
+    than ``_EMPTY`` the piece is kept with its rows relaxed by ``_BLOAT (1 + |b|)``
     (plus twice a negative radius):
     a superset with an interior, which over-approximates (never an exception, never a
     state lost).
@@ -670,30 +672,34 @@ def checked_piece(
     if not ok:
         return None
     _, radius = chebyshev_ball(A, b)
-    if radius < -_EMPTY:
+    # DAQP's radius is off by up to ~1e-9 of the offsets on badly scaled rows (AFTI-16,
+    # offsets 1000: -1.2e-6 for a piece HiGHS gives +1.5e-7): its "empty" is relative
+    if radius < -_EMPTY * (1.0 + float(np.abs(b).max())):
         return None
     if not radius > _THIN:
         # thin, flat or empty within the LP's tolerance: HiGHS decides, else a superset
         _, radius = chebyshev_ball(A, b, solver="highs")
-        if radius < -_EMPTY:
+        if radius < -_EMPTY and np.isfinite(radius):
             return None
-        if not radius > _THIN:
+        if not radius > _THIN:  # (or HiGHS failed: kept, relaxed)
+            radius = radius if np.isfinite(radius) else 0.0
             b = b + _BLOAT * (1.0 + np.abs(b)) + 2.0 * max(-float(radius), 0.0)
-            return _thin_piece(A, b)
+        return _highs_piece(A, b)  # (DAQP misjudged it: HiGHS decides the rest too)
     keep = minimal_rows(A, b)
     A, b = A[keep], b[keep]
     return A, b, checked_vertices(A, b)
 
 
-def _thin_piece(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`checked_piece` of a thin piece whose rows were relaxed (an interior ball of
-    radius ~``_BLOAT (1 + |b|)``), decided by HiGHS alone.
+def _highs_piece(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`checked_piece` of a piece whose Chebyshev radius DAQP misjudged (thin by
+    DAQP's LP, HiGHS decided; a thin one's rows already relaxed), decided by HiGHS alone.
 
-    DAQP misjudges such sets when they are long as well as thin (AFTI-16 with
-    ``domain_bound = 1000``: a piece 3e-7 thick and 50 long, its states ~500): its box
-    LPs call the set infeasible, or return a side 4e-5 short of HiGHS's (whose optimum
-    satisfies every row to 1e-15), and its ``minrep`` drops rows that are not redundant
-    (the kept rows stretched the piece to the law's domain, 10x longer). So the box is
+    DAQP misjudges sets that are long as well as thin (AFTI-16 with ``domain_bound =
+    1000``: a piece 3e-7 thick and 50 long, its states ~500): its box LPs call the set
+    infeasible, or return a side 4e-5 short of HiGHS's (whose optimum satisfies every row
+    to 1e-15), its ``minrep`` drops rows that are not redundant (the kept rows stretched
+    the piece to the law's domain, 10x longer), and its Chebyshev radius was -3e-5 for a
+    piece of radius 2e-5. So the box is
     HiGHS's over all the rows, widened by ``_BLOAT (1 + |b| + |box|)`` (far above HiGHS's
     tolerances, 1e-7 relative); minrep's rows are kept only when their own HiGHS box is
     that box (else all the rows: sound, only slower); the vertices are the enumeration's
@@ -704,7 +710,7 @@ def _thin_piece(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     A : (k, d) ndarray
         Unit rows.
     b : (k,) ndarray
-        Relaxed offsets.
+        Offsets (relaxed, for a thin piece).
 
     Returns
     -------
@@ -716,7 +722,7 @@ def _thin_piece(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     ValueError
         HiGHS finds no box (the relaxed rows unbounded, or its LPs fail).
     """
-    beat("a thin piece")
+    beat("a piece decided by HiGHS")
     lo, hi = _highs_box(A, b)
     widen = _BLOAT * (1.0 + np.abs(b).max() + np.maximum(np.abs(lo), np.abs(hi)))
     keep = minimal_rows(A, b)
@@ -745,6 +751,6 @@ def _highs_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         for sign, side in ((1.0, lo), (-1.0, hi)):
             x, _ = _highs_lp(sign * e, A, b)
             if x is None:
-                raise ValueError("no bounding box for a thin polytope (HiGHS finds no optimum)")
+                raise ValueError("no bounding box for a degenerate polytope (HiGHS finds no optimum)")
             side[j] = x[j]
     return lo, hi

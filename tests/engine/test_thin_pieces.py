@@ -1,12 +1,12 @@
 """Long, thin pieces that DAQP misjudges (issue 38, "no numerical dead end is an error").
 
-Both polytopes come from AFTI-16 (``benchmarks/on_demand.py``) with ``domain_bound = 1000``
-at N = 3: a reach set with its attack angle pinned to 0.5 (1e-11 wide, 50 long in speed)
-cut by a critical region, where the states are ~500 and the law's domain 1000. DAQP called
-them infeasible (its box LPs) or gave a box side 4e-5 short of the minimum, and its minrep
-dropped rows that cut the piece; ``checked_piece`` ended the verification in a ValueError.
-Each must now give points whose hull contains the polytope (checked by SciPy's HiGHS in
-many directions).
+The polytopes come from AFTI-16 (``benchmarks/on_demand.py``) with ``domain_bound = 1000``
+at N = 3 and 5: a reach set with its attack angle pinned to 0.5 (1e-11 wide, 50 long in
+speed) cut by a critical region, where the states are ~500 and the law's domain 1000. DAQP
+called them infeasible (its box LPs) or gave a box side 4e-5 short of the minimum, its
+minrep dropped rows that cut the piece (``checked_piece`` ended the verification in a
+ValueError), and its Chebyshev radius called one empty (dropped: states lost). Each must now
+give points whose hull contains the polytope (checked by SciPy's HiGHS in many directions).
 """
 
 from __future__ import annotations
@@ -94,3 +94,30 @@ def test_a_needle_daqp_calls_infeasible_is_bounded_by_highs():
     assert piece is not None
     _, _, V = piece
     _assert_encloses(NEEDLE_A, NEEDLE_B, V)
+
+
+# a piece DAQP calls empty (Chebyshev radius -3.2e-5; HiGHS: +2.4e-5) within the law's
+# domain box |x| <= 1000: it was dropped, and the states in it were lost (AFTI-16, N = 5:
+# 4 of 216 simulated trajectories left the robustly_safe verdict's tube at t = 1.25)
+DROPPED_A = np.vstack([np.array([
+    [0.0, -1.0, 0.0, 0.0],
+    [-4.7632323166793792e-06, 9.9882636667213265e-01, 4.8434380378541184e-02,
+     3.8993356040068941e-06],
+    [4.8767285115419520e-06, 9.9887854119856212e-01, -4.7346170857692979e-02,
+     3.7900010036961260e-06],
+    [-2.0975774856023682e-05, 1.2432424392266346e+00, -5.2593529769998952e-03,
+     -9.8012300267964236e-01],
+    [-1.4379739399589947e-04, 2.7293854512385419e+01, 4.1561845977299394e-01,
+     1.1904754270670090e-04],
+]), np.eye(4), -np.eye(4)])
+DROPPED_B = np.concatenate([np.array([
+    -4.9999984999489300e-01, 8.2737481617613529e-01, 1.7878520695203115e-01,
+    -7.7822053177759303e+00, 1.0232319285506062e+03,
+]), np.full(8, 1000.0)])
+
+
+def test_a_piece_daqp_calls_empty_is_kept_when_highs_finds_it():
+    piece = checked_piece(DROPPED_A, DROPPED_B)
+    assert piece is not None
+    _, _, V = piece
+    _assert_encloses(DROPPED_A, DROPPED_B, V)
