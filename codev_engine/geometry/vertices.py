@@ -751,6 +751,7 @@ def _highs_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         for sign, side in ((1.0, lo), (-1.0, hi)):
             x, _ = _highs_lp(sign * e, A, b)
             if x is None:
-                raise ValueError("no bounding box for a degenerate polytope (HiGHS finds no optimum)")
+                raise ValueError("no bounding box for a degenerate polytope (HiGHS finds no "
+                                 "optimum)")
             side[j] = x[j]
     return lo, hi
