@@ -81,9 +81,9 @@ def afti16(horizon: int, seconds: float = 2.0) -> ce.Problem:
     level flight: the pitch stays within [-5, 15] and the attack angle within [-5, 5]. The
     speed (unweighted and unbounded, ft/s) falls by about 400 a second while the pitch rises:
     it leaves the law's domain (``domain_bound``, 100 around level flight) at 0.3 s, so the
-    verdict is ``unsafe`` (``undefined``), the design's. (With ``domain_bound = 1000`` the
-    linear engine ends in an internal ValueError from ``checked_piece`` at N >= 3, with the
-    full law as on demand: not this benchmark's to fix.)"""
+    verdict is ``unsafe`` (``undefined``), the design's. (With ``domain_bound = 1000`` it is
+    ``robustly_safe`` at N = 3: tests/engine/test_thin_pieces.py holds the thin pieces that
+    once ended it in a ValueError.)"""
     A = [[-0.0151, -60.5651, 0.0, -32.174], [-0.0001, -1.3411, 0.9929, 0.0],
          [0.00018, 43.2541, -0.86939, 0.0], [0.0, 0.0, 1.0, 0.0]]
     B = [[-2.516, -13.136], [-0.1689, -0.2514], [-17.251, -1.5766], [0.0, 0.0]]

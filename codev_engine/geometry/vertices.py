@@ -61,7 +61,13 @@ from math import comb
 import numpy as np
 
 from codev_engine.errors import SolverError
-from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+from codev_engine.geometry.polytope import (
+    _highs_lp,
+    chebyshev_ball,
+    minimal_rows,
+    normalize_rows,
+    solve_lp,
+)
 from codev_engine.limits import beat
 
 __all__ = [
@@ -439,20 +445,20 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
         The polytope is unbounded (a bounding box LP is unbounded), or even the relaxed
         rows' box LPs fail: no enclosing points (the caller keeps a superset it knows).
     """
-    d = A.shape[1]
-    V = vertices(A, b, tol)
-    if V is not None and V.shape[0] > d:
-        on = np.abs(V @ A.T - b[None, :]) <= FACET_TOL
-        if np.all(on.sum(axis=0) >= d) and _closed_under_edges(V, A, b, tol):
-            return V
+    V = _complete_vertices(A, b, tol)
+    if V is not None:
+        return V
     try:
-        lo, hi = _bounding_box(A, b)
+        lo, hi, certified = _bounding_box(A, b)
+        if not certified:  # a side from HiGHS: its tolerances (~1e-7 relative) covered
+            widen = _BLOAT * (1.0 + np.abs(b).max() + np.maximum(np.abs(lo), np.abs(hi)))
+            lo, hi = lo - widen, hi + widen
     except SolverError:
         # a thin polytope the LPs call infeasible within their tolerances: the box of the
         # relaxed rows (a superset), widened by the relaxation (module docstring)
         pad = _BLOAT * (1.0 + np.abs(b))
         try:
-            lo, hi = _bounding_box(A, b + pad)
+            lo, hi, _ = _bounding_box(A, b + pad)
         except SolverError as exc:
             raise ValueError(f"no bounding box for a degenerate polytope: {exc}") from exc
         widen = _BLOAT * (1.0 + np.abs(b).max() + np.maximum(np.abs(lo), np.abs(hi)))
@@ -460,26 +466,43 @@ def checked_vertices(A: np.ndarray, b: np.ndarray, tol: float = 1e-10) -> np.nda
     return box_corners(lo, hi)
 
 
+def _complete_vertices(A: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray | None:
+    """The vertices of ``{A x <= b}`` (v, d) when their enumeration passes the completeness
+    checks of :func:`checked_vertices`, else None."""
+    d = A.shape[1]
+    V = vertices(A, b, tol)
+    if V is not None and V.shape[0] > d:
+        on = np.abs(V @ A.T - b[None, :]) <= FACET_TOL
+        if np.all(on.sum(axis=0) >= d) and _closed_under_edges(V, A, b, tol):
+            return V
+    return None
+
+
 #: relative relaxation of a thin polytope's rows (its bounding box LPs failed, or its
 #: interior ball is below ``_THIN``): a superset with an interior
 _BLOAT = 1e-7
 #: an interior radius below which a piece is decided again (HiGHS) and relaxed if kept
 _THIN = 1e-9
-#: a piece whose Chebyshev radius is below ``-_EMPTY`` is empty (dropped)
+#: a piece whose Chebyshev radius is below ``-_EMPTY`` (DAQP's: ``-_EMPTY (1 + max |b|)``)
+#: is empty (dropped)
 _EMPTY = 1e-6
 
 
-def _bounding_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The bounding box of ``{A x <= b}`` by 2d LPs (SolverError when one has no
-    solution, ValueError when unbounded)."""
+def _bounding_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The bounding box ``(lo, hi)`` of ``{A x <= b}`` by 2d LPs, and whether every side is
+    DAQP's with a certificate (else some come from HiGHS: :func:`_box_side`). SolverError
+    when one has no solution, ValueError when unbounded."""
     d = A.shape[1]
     lo, hi = np.empty(d), np.empty(d)
+    certified = True
     for j in range(d):
         e = np.zeros(d)
         e[j] = 1.0
-        lo[j] = _box_side(e, A, b)[j]
-        hi[j] = _box_side(-e, A, b)[j]
-    return lo, hi
+        lo[j], ok_lo = _box_side(e, A, b)
+        v, ok_hi = _box_side(-e, A, b)
+        hi[j] = -v
+        certified = certified and ok_lo and ok_hi
+    return lo, hi, certified
 
 
 def _closed_under_edges(V: np.ndarray, A: np.ndarray, b: np.ndarray, tol: float) -> bool:
@@ -522,14 +545,35 @@ def _closed_under_edges(V: np.ndarray, A: np.ndarray, b: np.ndarray, tol: float)
     return bool(np.all(gap <= _END_TOL * (1.0 + np.abs(W).max(axis=1))))
 
 
-def _box_side(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The minimiser of ``f x`` over ``A x <= b`` (bounding box LP)."""
-    x, status, _ = solve_lp(f, A, b)
+def _box_side(f: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[float, bool]:
+    """The minimum of ``f x`` over ``A x <= b`` (a bounding box LP), and whether it is
+    DAQP's with a certificate.
+
+    DAQP's answer is taken when its multipliers ``lam`` (``f + A' lam = 0``) prove it:
+    ``f x`` within ``_GAP (1 + |f x|)`` of the dual bound ``-b' lam`` and a dual residual
+    below ``_GAP``. On a long, thin piece (AFTI-16 with ``domain_bound = 1000``: 3e-7 thick,
+    500 long) DAQP called the set infeasible, or stopped 4e-5 short of the minimum (gap
+    1.2e-4, residual 5e-7): a box side inside the set, which would lose states. Then HiGHS
+    answers (its optimum satisfied the rows to 1e-15 there; the caller widens its box).
+    """
+    x, status, lam = solve_lp(f, A, b)
     if status == "unbounded":
         raise ValueError("an unbounded polytope has no enclosing vertices")
-    if x is None:  # solve_lp reports its failures as infeasible
+    if x is not None and lam is not None:
+        lam = lam[: b.shape[0]]
+        value = float(f @ x)
+        gap = abs(value + float(b @ lam))
+        if gap <= _GAP * (1.0 + abs(value)) and np.abs(f + A.T @ lam).sum() <= _GAP:
+            return value, True
+    x, _ = _highs_lp(f, A, b)
+    if x is None:  # DAQP's failure confirmed (infeasible, or no optimum)
         raise SolverError(f"the bounding box LP of a polytope is {status} (empty, or failed)")
-    return x
+    return float(f @ x), False
+
+
+#: a bounding box LP's duality gap (relative) and dual residual within which DAQP's
+#: optimum is taken (its tolerances are 1e-11 and 1e-12: a larger gap is a failure)
+_GAP = 1e-9
 
 
 def vertices_in_boxes(
@@ -601,11 +645,12 @@ def checked_piece(
     Dropping is sound only for a set that is truly empty. The reach engines cut sets by a
     region's rows relaxed by 1e-9 (and the rounding bound), so a set that holds a state of
     the region yields a piece with an interior ball of radius ~1e-10 or more, which an LP
-    can misjudge within its tolerances. So a piece is dropped only when its Chebyshev
-    radius is below ``-_EMPTY`` (every point violates some row by more than 1e-6: empty
-    far beyond any LP's tolerance); a radius in ``[-_EMPTY, _THIN]`` (thin, flat, or empty
-    within tolerance) is decided again by HiGHS, and unless HiGHS too finds it empty by
-    more than ``_EMPTY`` the piece is kept with its rows relaxed by ``_BLOAT (1 + |b|)``
+    can misjudge within its tolerances. So a piece is dropped only when DAQP's Chebyshev
+    radius is below ``-_EMPTY (1 + max |b|)`` (every point violates some row by more than
+    1e-6 of the offsets: empty far beyond DAQP's accuracy, which is relative on badly
+    scaled rows); a radius in ``[-_EMPTY (1 + max |b|), _THIN]`` (thin, flat, or empty
+    within tolerance) is decided again by HiGHS, and unless HiGHS finds it empty by more
+    than ``_EMPTY`` the piece is kept with its rows relaxed by ``_BLOAT (1 + |b|)``
     (plus twice a negative radius):
     a superset with an interior, which over-approximates (never an exception, never a
     state lost).
@@ -627,15 +672,86 @@ def checked_piece(
     if not ok:
         return None
     _, radius = chebyshev_ball(A, b)
-    if radius < -_EMPTY:
+    # DAQP's radius is off by up to ~1e-9 of the offsets on badly scaled rows (AFTI-16,
+    # offsets 1000: -1.2e-6 for a piece HiGHS gives +1.5e-7): its "empty" is relative
+    if radius < -_EMPTY * (1.0 + float(np.abs(b).max())):
         return None
     if not radius > _THIN:
         # thin, flat or empty within the LP's tolerance: HiGHS decides, else a superset
         _, radius = chebyshev_ball(A, b, solver="highs")
-        if radius < -_EMPTY:
+        if radius < -_EMPTY and np.isfinite(radius):
             return None
-        if not radius > _THIN:
+        if not radius > _THIN:  # (or HiGHS failed: kept, relaxed)
+            radius = radius if np.isfinite(radius) else 0.0
             b = b + _BLOAT * (1.0 + np.abs(b)) + 2.0 * max(-float(radius), 0.0)
+        return _highs_piece(A, b)  # (DAQP misjudged it: HiGHS decides the rest too)
     keep = minimal_rows(A, b)
     A, b = A[keep], b[keep]
     return A, b, checked_vertices(A, b)
+
+
+def _highs_piece(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`checked_piece` of a piece whose Chebyshev radius DAQP misjudged (thin by
+    DAQP's LP, HiGHS decided; a thin one's rows already relaxed), decided by HiGHS alone.
+
+    DAQP misjudges sets that are long as well as thin (AFTI-16 with ``domain_bound =
+    1000``: a piece 3e-7 thick and 50 long, its states ~500): its box LPs call the set
+    infeasible, or return a side 4e-5 short of HiGHS's (whose optimum satisfies every row
+    to 1e-15), its ``minrep`` drops rows that are not redundant (the kept rows stretched
+    the piece to the law's domain, 10x longer), and its Chebyshev radius was -3e-5 for a
+    piece of radius 2e-5. So the box is
+    HiGHS's over all the rows, widened by ``_BLOAT (1 + |b| + |box|)`` (far above HiGHS's
+    tolerances, 1e-7 relative); minrep's rows are kept only when their own HiGHS box is
+    that box (else all the rows: sound, only slower); the vertices are the enumeration's
+    when it passes its completeness checks, else the widened box's corners.
+
+    Parameters
+    ----------
+    A : (k, d) ndarray
+        Unit rows.
+    b : (k,) ndarray
+        Offsets (relaxed, for a thin piece).
+
+    Returns
+    -------
+    tuple of ((k', d) ndarray, (k',) ndarray, (v, d) ndarray)
+        As :func:`checked_piece`.
+
+    Raises
+    ------
+    ValueError
+        HiGHS finds no box (the relaxed rows unbounded, or its LPs fail).
+    """
+    beat("a piece decided by HiGHS")
+    lo, hi = _highs_box(A, b)
+    widen = _BLOAT * (1.0 + np.abs(b).max() + np.maximum(np.abs(lo), np.abs(hi)))
+    keep = minimal_rows(A, b)
+    if keep.size < A.shape[0]:
+        try:
+            lo_k, hi_k = _highs_box(A[keep], b[keep])
+        except ValueError:
+            lo_k, hi_k = lo - 2 * widen, hi + 2 * widen
+        if np.any(lo_k < lo - widen) or np.any(hi_k > hi + widen):
+            keep = np.arange(A.shape[0])  # minrep dropped a row that cuts the piece
+    A, b = A[keep], b[keep]
+    V = _complete_vertices(A, b, 1e-10)
+    if V is None:
+        V = box_corners(lo - widen, hi + widen)
+    return A, b, V
+
+
+def _highs_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding box (lo, hi) of ``{A x <= b}`` by 2d HiGHS LPs (ValueError when one
+    has no optimum)."""
+    d = A.shape[1]
+    lo, hi = np.empty(d), np.empty(d)
+    for j in range(d):
+        e = np.zeros(d)
+        e[j] = 1.0
+        for sign, side in ((1.0, lo), (-1.0, hi)):
+            x, _ = _highs_lp(sign * e, A, b)
+            if x is None:
+                raise ValueError("no bounding box for a degenerate polytope (HiGHS finds no "
+                                 "optimum)")
+            side[j] = x[j]
+    return lo, hi

@@ -80,7 +80,9 @@ def budget_detail(problem: Problem, tube: Tube, stats: dict, stopped: str) -> st
     stats : dict
         The engine's counters: ``complete_until`` (every trajectory is in the tube up to
         this time), ``proved_share`` (the nonlinear engine: the share of the initial set
-        proved for the whole horizon), ``margins`` (:func:`property_margins`).
+        proved for the whole horizon), ``stopped_cell`` (the nonlinear engine: the share
+        of the initial set of the cell it stopped in, and the time its tube reached),
+        ``margins`` (:func:`property_margins`).
     stopped : str
         The engine's words for where it stopped (time, sample period, region).
 
@@ -99,6 +101,10 @@ def budget_detail(problem: Problem, tube: Tube, stats: dict, stopped: str) -> st
     share = stats.get("proved_share")
     if share is not None:
         words.append(f"{100 * min(share, 1.0):.1f} % of the initial set proved")
+    cell = stats.get("stopped_cell")
+    if cell is not None:
+        words.append(f"the cell in progress ({100 * min(cell['share'], 1.0):.1f} % of the "
+                     f"initial set) reached t = {cell['t']:.6g}, its tube kept")
     shown = [f"{m['property']} {m['margin']:+.3g} at t = {m['t']:.4g}"
              for m in stats.get("margins", []) if m["margin"] is not None]
     if shown:

@@ -1205,6 +1205,7 @@ class NonlinearReach(ClosedLoopSetup):
         root_poly = root.poly  # holds every set's deviation polytope (for merges)
         frontier = [root]
         tubes: list[Tube] = []
+        self._in_progress = (lo, hi, tubes)  # (what a budget stop keeps: _complete_until)
         status, first_t = "ok", None
         self._rho_hint = 0.0
         self._q_hint = None
@@ -1631,6 +1632,7 @@ class NonlinearReach(ClosedLoopSetup):
             lo, hi, complete=depth >= self.max_depth,
             split=depth < min(self.bloat_depth, self.max_depth),
         )
+        self._in_progress = None
         v = None
         if status == "bloat":
             # bisected for tightness: nothing was found, the halves are reached afresh
@@ -1707,11 +1709,35 @@ class NonlinearReach(ClosedLoopSetup):
         return False
 
     def _complete_until(self, t: float) -> float:
-        """After a stop: 0 -- a cell's tube joins the run's when the cell is proved whole,
-        so the stopped cell's initial states have no tube (``stats["proved_share"]``
-        says how much of the initial set the proved cells cover)."""
+        """After a stop: the tube so far of the cell in progress joins the run's, and the
+        time up to which the tube holds every trajectory.
+
+        The cell's sets advance sample by sample, so its tube holds each of its trajectories
+        up to the sample of the period in progress (``_t_now``). The proved cells' tubes
+        hold theirs for the whole horizon (``stats["proved_share"]`` of the initial set).
+        Together they cover the initial set only when no cell is left unexplored: then
+        every trajectory is in the tube up to ``_t_now``; else 0 (the partial tube still
+        gives the margins reached). ``stats["stopped_cell"]``: the cell's share of the
+        initial set, the time its tube reached and its box (``lower``, ``upper``). Without
+        a cell in progress (between cells, or the cells on a cluster's workers): 0, the
+        proved cells' tubes alone.
+        """
         self.stats.setdefault("proved_share", 0.0)
-        return 0.0
+        cell = getattr(self, "_in_progress", None)
+        self._in_progress = None
+        if cell is None or not cell[2]:
+            return 0.0
+        lo, hi, tubes = cell
+        self.tubes.extend(tubes)
+        vs = self.problem.verify
+        w0 = vs.initial_upper - vs.initial_lower
+        share = float(np.prod(np.where(w0 > 0, (hi - lo) / np.where(w0 > 0, w0, 1.0), 1.0)))
+        reached = float(min(t, getattr(self, "_t_now", 0.0)))
+        self.stats["stopped_cell"] = {"share": share, "t": reached, "lower": lo.tolist(),
+                                      "upper": hi.tolist()}
+        # (sets absorbed by an invariant ellipsoid have no tube past it)
+        whole = self.stats["proved_share"] + share >= 1.0 - 1e-9 and not self.absorbed
+        return reached if whole else 0.0
 
     def run(self, executor: Executor | None = None, cells: int = 1) -> None:
         """Refine the initial set until every cell is proved or the depth runs out (or

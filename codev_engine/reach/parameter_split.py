@@ -209,6 +209,8 @@ def split_run(
             # a concrete violation, a limit or the budget: the verdict is the caller's now
             # (the pieces not yet run have no tube; the tube's contract says so: an
             # unknown verdict names where it stopped)
+            if lo is not None:  # (a piece of the box: its tube holds its parameters only)
+                stats["complete_until"] = 0.0
             break
     out_findings: list = []
     out_tubes: list[Tube] = []

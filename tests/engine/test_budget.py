@@ -259,8 +259,9 @@ def test_headbox_inf_norm_with_a_disturbance_is_decided_and_its_tube_holds():
 
 def test_nonlinear_budget_says_how_much_of_the_initial_set_it_proved():
     """The nonlinear engine's cells join the tube when proved whole: a budget that stops
-    one says the share of the initial set proved, and a tube complete up to t = 0 (also
-    under time_horizon = "inf", where the run looks for an invariant ellipsoid)."""
+    one says the share of the initial set proved (also under time_horizon = "inf", where
+    the run looks for an invariant ellipsoid), and the tube is complete up to t = 0 unless
+    the cell it stopped in is all that is left (then up to the time that cell reached)."""
     for text in (PENDULUM_SAT, PENDULUM_SAT.replace("time_horizon = 0.5",
                                                     'time_horizon = "inf"')):
         problem = loads_spec(text)
@@ -268,7 +269,59 @@ def test_nonlinear_budget_says_how_much_of_the_initial_set_it_proved():
         result = verify(problem, law, budget=0.02)
         assert (result.verdict, result.reason) == ("unknown", "budget"), result.summary()
         assert "% of the initial set proved" in result.detail
-        assert result.stats["complete_until"] == 0.0
+        done = result.stats["complete_until"]
+        cell = result.stats.get("stopped_cell")
+        assert done == 0.0 or (cell is not None and done == cell["t"]
+                               and cell["share"] + result.stats["proved_share"] >= 1 - 1e-9)
+
+
+def _cell_runs(problem, law, cell: dict, t_end: float):
+    """Dense simulations from the corners of a stopped cell and 40 random points in it."""
+    lo, hi = np.array(cell["lower"]), np.array(cell["upper"])
+    n = lo.size
+    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)], indexing="ij"))
+    X0 = np.vstack([corners.reshape(n, -1).T,
+                    np.random.default_rng(4).uniform(lo, hi, (40, n))])
+    return simulate_many(problem, law, X0, t_end=t_end)
+
+
+def test_nonlinear_stop_keeps_the_stopped_cell_s_tube(monkeypatch):
+    """A nonlinear run stopped inside a cell (here by the branch limit: deterministic)
+    keeps that cell's tube so far: it holds every simulated trajectory from the cell up to
+    the sample its sets reached (``stats["stopped_cell"]``), and when the cell is the whole
+    initial set the tube is complete up to that time."""
+    problem = loads_spec(PENDULUM_SAT.replace("time_horizon = 0.5", "time_horizon = 3.0"))
+    law = synthesize(problem)
+    monkeypatch.setenv("CODEV_LIMITS", "branches=30")
+    result = verify(problem, law)
+    assert (result.verdict, result.reason) == ("unknown", "limit"), result.summary()
+    cell = result.stats["stopped_cell"]
+    assert cell["t"] > 0.1 and result.tube.num_boxes > 0
+    assert result.tube.t_end.max() >= cell["t"]
+    t, X, _, _ = _cell_runs(problem, law, cell, cell["t"])
+    assert _outside(result.tube, t, X, cell["t"]) == 0
+    if cell["share"] == 1.0:
+        assert result.stats["complete_until"] == cell["t"]
+
+
+def test_nonlinear_budget_reports_the_margins_of_the_tube_so_far():
+    """examples/pendulum.toml's loop over 3 s under a budget of 0.5 s: unknown / budget with
+    the best margins reached over the stopped cell's tube (none before, the tube was empty),
+    and the cell's tube holds its simulated trajectories."""
+    problem = loads_spec(PENDULUM_SAT.replace("time_horizon = 0.5", "time_horizon = 3.0"))
+    law = synthesize(problem)
+    result = verify(problem, law, budget=0.5)
+    assert (result.verdict, result.reason) == ("unknown", "budget"), result.summary()
+    cell = result.stats.get("stopped_cell")
+    if cell is None or result.tube.num_boxes == 0:  # (a loaded machine: no period ended)
+        assert "no stretch of the horizon is proved" in result.detail
+        return
+    assert "the cell in progress" in result.detail
+    assert "best margins so far" in result.detail and "unsafe set 0" in result.detail
+    (margin,) = result.stats["margins"]
+    assert margin["property"] == "unsafe set 0" and margin["margin"] > 0
+    t, X, _, _ = _cell_runs(problem, law, cell, max(cell["t"], 0.05))
+    assert _outside(result.tube, t, X, cell["t"]) == 0
 
 
 def test_budget_partial_tube_of_merged_exploration_holds_up_to_its_time():
