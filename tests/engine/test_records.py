@@ -330,7 +330,8 @@ def test_verdict_and_blueprint(di, di_recording):
     summary, entities = di_recording
     text = entities["/verdict"].per_row("TextDocument:text")[0][0]
     assert "ROBUSTLY SAFE" in text and f"| tube boxes | {result.tube.num_boxes} |" in text
-    assert "| width at t = 9 s (tube) |" in text and "codev 0." in text and "sha256" in text
+    assert "| width at t = 9 s (tube's last box) |" in text
+    assert "codev 0." in text and "sha256" in text
     assert "| branches |" in text and "has every property checked" in text
     # the claim, before the sizes: the initial set, each property, the time, the hold
     claim = text[text.index("### the claim"):text.index("### sizes")]
