@@ -92,6 +92,7 @@ def report_html(
     at = figures.default_slice_point(law, problem) if law.n > 2 else None
     fig = figures.figure_law(law, axes=law_axes, at=at) if law.n >= 2 else figures.figure_law(law)
     section = content.section_words()
+    law_figure = len(parts) + 1
     at_words = f", section at {section}" if section is not None else ""
     parts.append((_svg(fig), f"The partition of the explicit law{at_words}: "
                   f"{law.num_regions} regions."))
@@ -105,6 +106,11 @@ def report_html(
         f"{html.escape(word)}</div>",
         markdown_html(content.verdict_text(views=False)),
     ]
+    if section is not None:
+        # on the first screen, as the recording's plane title says it (the partition's
+        # figure is below the fold)
+        body.insert(1, f"<p class='section'>The partition (Figure {law_figure}) is the "
+                    f"section at {html.escape(section)}.</p>")
     for k, (svg, caption) in enumerate(parts):
         body.append(
             f"<figure id='figure-{k}'>{svg}<figcaption>Figure {k + 1}. "

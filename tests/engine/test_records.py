@@ -835,7 +835,9 @@ def test_recording_and_report_name_the_same_section(magnetic, tmp_path):
     assert words in plane
     text = report_html(problem, law, None, traces=0)
     assert f"The partition of the explicit law, {words}: " in text
-    assert text.count(words) >= 2  # the caption and the figure's own title
+    assert text.count(words) >= 3  # the caption, the figure's own title, the first screen
+    # the first screen (above the figures) says it, as the recording's plane title does
+    assert f"The partition (Figure 1) is the {words}." in text[: text.index("<figure")]
 
 
 def test_one_state_initial_set_is_drawn_at_t0_only(tmp_path):
