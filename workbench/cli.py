@@ -183,7 +183,10 @@ def _print_result(problem, law, result, tube_path) -> None:
     how = " computed on demand" if getattr(law, "on_demand", False) else ""
     print(f"{problem.name}: {law.num_regions} regions{how}; " + result.summary())
     t_end, width, which = width_at_end(problem, result)
-    print(f"  width at t = {t_end:.4g} s ({which}): " + np.array2string(width, precision=4))
+    if np.any(np.isfinite(width)):
+        print(f"  width at t = {t_end:.4g} s ({which}): " + np.array2string(width, precision=4))
+    else:  # a violation, a limit or an ellipsoid certificate stopped the tube before t
+        print(f"  width at t = {t_end:.4g} s: none (no box of the tube reaches it)")
     print("the claim:")  # what the verdict says, and what it does not
     for line in build_claim(problem, result).lines():
         print("  " + line)
@@ -853,9 +856,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         table = Table(title=f"{problem.name}: {count} designs in {seconds:.2f} s "
                       f"({executor.kind})")
         cols = ("regions", "synthesis_seconds", "verdict", "reason", "verification_seconds",
-                "tube_width_at_horizon", "closed_loop_cost")
-        heads = ("regions", "synth s", "verdict", "reason", "verify s", "tube width at T",
-                 "cost")
+                "tube_width_at_horizon", "width_at_horizon_of", "closed_loop_cost")
+        heads = ("regions", "synth s", "verdict", "reason", "verify s", "width at T",
+                 "width of", "cost")
         for name in grid:
             table.add_column(name)
         for head in heads:

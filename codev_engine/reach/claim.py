@@ -316,6 +316,14 @@ def certificate_band(result: VerificationResult) -> CertificateBand | None:
                            np.max(tube.upper[keep], axis=0))
 
 
+#: what :func:`width_at_end` measured, in words (CLI, ``--json``'s ``width_at.of``, the
+#: sweep's ``width_at_horizon_of``, the recording's and the report's summary)
+WIDTH_OF_LAST_BOX = "tube's last box"
+WIDTH_OF_REPEAT = "tube's last box, a repeat of the certificate's period"
+WIDTH_OF_BAND = "certificate band"
+WIDTH_OF_NONE = "none"
+
+
 def width_at_end(problem: Problem, result: VerificationResult) -> tuple[float, np.ndarray, str]:
     """The width, per state, of the set known to hold the state at the end of the view.
 
@@ -331,9 +339,13 @@ def width_at_end(problem: Problem, result: VerificationResult) -> tuple[float, n
     width : (n,) ndarray
         NaN where nothing is known (no box active at ``t``).
     which : str
-        ``"tube"`` (the tube's boxes active at ``t``, when the tube reaches ``t``) or
-        ``"certificate band"`` (a tube that stops at the closing sample of a certificate,
-        ``time_horizon = "inf"``: :func:`certificate_band`).
+        The set measured: :data:`WIDTH_OF_LAST_BOX` (the hull of the tube's boxes active
+        at ``t``, the last of each branch), :data:`WIDTH_OF_REPEAT` (the same, when a
+        certificate closed before ``t`` and the tube after it repeats its period: sound,
+        but not the reach set of ``t`` -- designs compare only on the same kind),
+        :data:`WIDTH_OF_BAND` (a tube that stops at the closing sample of a certificate,
+        ``time_horizon = "inf"``: :func:`certificate_band`) or :data:`WIDTH_OF_NONE` (no box
+        at ``t``: a tube stopped by a violation, a limit, or an ellipsoid certificate).
     """
     from codev_engine.reach.simulate import shown_horizon
 
@@ -343,7 +355,12 @@ def width_at_end(problem: Problem, result: VerificationResult) -> tuple[float, n
     band = certificate_band(result)
     if not covered and band is not None and T >= band.t_closed:
         # "inf": the tube stops at the closing sample; the band holds every later state
-        return T, band.upper - band.lower, "certificate band"
+        return T, band.upper - band.lower, WIDTH_OF_BAND
     # the tube's boxes at T (a finite horizon's tube, repeated after a certificate, is sound
     # and tighter pointwise than the band)
-    return T, result.width_at(T), "tube"
+    width = result.width_at(T)
+    if not np.any(np.isfinite(width)):
+        return T, width, WIDTH_OF_NONE
+    if band is not None and T > band.t_closed * (1 + 1e-12):
+        return T, width, WIDTH_OF_REPEAT
+    return T, width, WIDTH_OF_LAST_BOX

@@ -93,9 +93,9 @@ def sweep(
         One row per design, in the product's order: ``values`` (field -> value set),
         ``regions``, ``synthesis_seconds``, ``verdict``, ``reason``,
         ``verification_seconds``, ``tube_width_at_horizon`` ((n,) list, None where
-        undefined), ``closed_loop_cost`` (see :func:`design_row`) and ``error`` (None, or
-        the solver's message when synthesis or verification broke down: the fields not
-        computed are then None).
+        undefined), ``width_at_horizon_of`` (the set it is of), ``closed_loop_cost`` (see
+        :func:`design_row`) and ``error`` (None, or the solver's message when synthesis
+        or verification broke down: the fields not computed are then None).
 
     Raises
     ------

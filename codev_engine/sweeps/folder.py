@@ -55,6 +55,8 @@ _FOLDER = re.compile(r"^[0-9a-f]{16}$")
 _SHA = re.compile(r"^[0-9a-f]{64}$")
 _ROW_FIELDS = ("regions", "synthesis_seconds", "verdict", "reason", "verification_seconds",
                "tube_width_at_horizon", "closed_loop_cost", "error")
+#: row fields a folder written before them lacks (compared on replay when stored)
+_OPTIONAL_ROW_FIELDS = ("width_at_horizon_of",)
 
 
 @dataclass(frozen=True)
@@ -442,13 +444,14 @@ def replay_sweep(
         rep = session.replay(on_event=on_event, warn=warn, on_run=keep)
         problem = loads_spec(sweep.design_text(i), path=sweep.spec, check_mpc=False)
         row = report_row(problem, last[0]) if last else {}
-        exact = {k: v for k, v in row.items() if k not in TIMING_FIELDS}
         want = [j for j, e in enumerate(sweep.designs) if e["folder"] == d["folder"]]
-        row_match = all(
-            _same(exact, {k: v for k, v in sweep.rows[j].items()
-                          if k in _ROW_FIELDS and k not in TIMING_FIELDS})
-            for j in want
-        )
+
+        def fields(r: dict, stored: dict) -> dict:
+            return {k: v for k, v in r.items() if k not in TIMING_FIELDS
+                    and (k in _ROW_FIELDS or k in _OPTIONAL_ROW_FIELDS and k in stored)}
+
+        row_match = all(_same(fields(row, sweep.rows[j]), fields(sweep.rows[j], sweep.rows[j]))
+                        for j in want)
         entry = {"folder": d["folder"], "values": d["values"], "runs": rep.runs,
                  "match": rep.ok and row_match, "mismatches": len(rep.mismatches),
                  "row_match": row_match, "seconds": round(rep.seconds, 6)}

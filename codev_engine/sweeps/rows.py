@@ -41,8 +41,9 @@ def design_row(text: str, path: str, session: str | None = None,
     dict
         ``regions``, ``synthesis_seconds``, ``verdict``, ``reason``,
         ``verification_seconds``, ``tube_width_at_horizon`` ((n,) list of float or None),
-        ``closed_loop_cost`` and ``error`` (a solver's message, see :func:`sweep`). The
-        closed-loop cost is that of the nominal
+        ``width_at_horizon_of`` (the set measured, ``reach.claim.width_at_end``'s ``which``;
+        absent without a verification), ``closed_loop_cost`` and ``error`` (a solver's
+        message, see :func:`sweep`). The closed-loop cost is that of the nominal
         trajectory from the centre of ``verify.initial_set``, simulated with the spec's
         hold over the verified horizon: the sum over the sample times ``k Ts < T`` of the
         MPC's stage cost in deviation from the operating point (``x'Qx + u'Ru`` for norm
@@ -140,9 +141,11 @@ def _verified_row(problem, law, result, row: dict) -> dict:
     row["reason"] = result.reason
     row["verification_seconds"] = round(result.seconds, 6)
     # the set that holds the state at the view's end: the tube's boxes, or for "inf" the
-    # certificate band (the same rule as codev verify), so designs compare
-    _, width, _ = width_at_end(problem, result)
+    # certificate band (the same rule as codev verify), named: widths compare between
+    # designs only when they are of the same kind of set
+    _, width, which = width_at_end(problem, result)
     row["tube_width_at_horizon"] = [float(w) if math.isfinite(w) else None for w in width]
+    row["width_at_horizon_of"] = which
     row["closed_loop_cost"] = closed_loop_cost(problem, law)
     return row
 

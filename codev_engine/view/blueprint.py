@@ -156,7 +156,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
     if series:
         right.append(rrb.Horizontal(*series))
     if len(left) == 3:
-        shares = [4, 3, 2]
+        # the verdict (the claim: initial set, sets checked) keeps a third of the column,
+        # not two ninths: with the 3-D view it showed only the name and the verdict
+        shares = [4, 2, 3]
     else:
         shares = [5, 3]
     layout_left = rrb.Vertical(*left, row_shares=shares)

@@ -1112,9 +1112,11 @@ class RecordingContent:
 
                 t_end, width, which = width_at_end(p, r)
                 text = ", ".join(f"{s} {x:.3g}" for s, x in zip(self.states, width, strict=True))
+                of = f" ({which})"
                 if not np.any(np.isfinite(width)):  # an unsafe verdict's tube stops early
                     text = f"none: the tube stops at t = {float(np.max(r.tube.t_end)):.4g} s"
-                lines.append(f"| width at t = {t_end:.4g} s ({which}) | {text} |")
+                    of = ""
+                lines.append(f"| width at t = {t_end:.4g} s{of} | {text} |")
             lines.append(f"| verification time | {r.seconds:.3f} s |")
         if "seconds" in law.meta:
             lines.append(f"| synthesis time | {float(law.meta['seconds']):.3f} s |")

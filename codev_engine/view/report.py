@@ -75,6 +75,8 @@ def report_html(
     """
     content, figs = report_figures(problem, law, result, traces=traces, axes=axes)
     parts = [(_svg(fig), caption) for fig, caption in figs]
+    section = content.section_words()
+    law_figure = 2 if result is not None else 1  # the partition's (report_figures' order)
     colour = figures.VERDICT_COLOURS.get(result.verdict if result else "", "#555555")
     word = result.verdict.replace("_", " ") if result else "not verified"
     body = [
@@ -82,6 +84,11 @@ def report_html(
         f"{html.escape(word)}</div>",
         markdown_html(content.verdict_text(views=False)),
     ]
+    if section is not None:
+        # on the first screen, as the recording's plane title says it (the partition's
+        # figure is below the fold)
+        body.insert(1, f"<p class='section'>The partition (Figure {law_figure}) is the "
+                    f"section at {html.escape(section)}.</p>")
     for k, (svg, caption) in enumerate(parts):
         body.append(
             f"<figure id='figure-{k}'>{svg}<figcaption>Figure {k + 1}. "

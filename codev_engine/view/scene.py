@@ -48,7 +48,9 @@ __all__ = [
 # --------------------------------------------------------------------------------------------
 
 
-def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.ndarray:
+def default_slice_point(
+    law: ExplicitLaw, problem: Problem | None = None, *, centre: np.ndarray | None = None
+) -> np.ndarray:
     """The point whose other coordinates fix a 2-D section of a law of ``n > 2`` parameters.
 
     The states: with a ``problem`` that has a ``[verify]`` section, the centre of its initial
@@ -70,6 +72,9 @@ def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.
         The law, with ``n > 2`` parameters.
     problem : Problem, optional
         The spec the law was synthesised from; ignored when it does not fit the law.
+    centre : (n,) array_like, optional
+        ``default_slice_point(law)`` computed before (the domain's centre, LPs): a caller
+        that moves only ``problem`` (the workbench, at every form check) passes it.
 
     Returns
     -------
@@ -77,8 +82,8 @@ def default_slice_point(law: ExplicitLaw, problem: Problem | None = None) -> np.
     """
     from codev_engine.geometry.polytope import bounding_box
 
-    point = None
-    if law.domain_A is not None and law.domain_A.shape[0]:
+    point = None if centre is None else np.array(centre, dtype=float).reshape(law.n)
+    if point is None and law.domain_A is not None and law.domain_A.shape[0]:
         lo, hi = bounding_box(law.domain_A, law.domain_b)
         if np.all(np.isfinite(lo) & np.isfinite(hi)):
             point = 0.5 * (lo + hi)

@@ -366,7 +366,24 @@ def section_polygons(
 
 
 def check_axes(axes: tuple[int, int], n: int) -> tuple[int, int]:
-    """Two distinct coordinate indices below ``n`` (ValueError otherwise)."""
+    """Two distinct coordinate indices below ``n``.
+
+    Parameters
+    ----------
+    axes : (2,) tuple of int
+        The plane's coordinates.
+    n : int
+        The dimension.
+
+    Returns
+    -------
+    (int, int)
+
+    Raises
+    ------
+    ValueError
+        The indices are equal or out of range.
+    """
     i, j = (int(a) for a in axes)
     if i == j or not (0 <= i < n and 0 <= j < n):
         raise ValueError(f"axes must be two distinct state indices below {n}, got {axes}")

@@ -74,7 +74,7 @@ def sweep_markdown(rows: Sequence[dict], fields: Sequence[str], *, title: str = 
     for r in rows:
         counts[_verdict(r)] = counts.get(_verdict(r), 0) + 1
     head = ["#", *fields, "regions", "verdict", "reason", "synth s", "verify s",
-            "tube width at T", "cost"]
+            "width at T", "width of", "cost"]
     lines = [
         f"# {title}: {len(rows)} designs",
         "",
@@ -87,7 +87,8 @@ def sweep_markdown(rows: Sequence[dict], fields: Sequence[str], *, title: str = 
         cells = [str(i), *(_cell(r["values"].get(f)) for f in fields), _cell(r.get("regions")),
                  _verdict(r), (r.get("error") or r.get("reason") or "").replace("|", "/"),
                  _cell(r.get("synthesis_seconds")), _cell(r.get("verification_seconds")),
-                 _cell(r.get("tube_width_at_horizon")), _cell(r.get("closed_loop_cost"))]
+                 _cell(r.get("tube_width_at_horizon")), _cell(r.get("width_at_horizon_of")),
+                 _cell(r.get("closed_loop_cost"))]
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "The plots' horizontal axis is the design's row (#) on the *design* "
               "timeline; points are coloured by verdict (green robustly safe, red unsafe, "
@@ -157,7 +158,7 @@ def write_sweep_recording(
                             f"- **{k}**: {_cell(r.get(k))}" for k in (
                                 "regions", "verdict", "reason", "error", "synthesis_seconds",
                                 "verification_seconds", "tube_width_at_horizon",
-                                "closed_loop_cost")),
+                                "width_at_horizon_of", "closed_loop_cost")),
                         media_type=rr.MediaType.MARKDOWN))
                     if r.get("regions") is not None:
                         rec.log(f"/sweep/regions/{_verdict(r)}", rr.Scalars(float(r["regions"])))

@@ -330,7 +330,8 @@ def test_verdict_and_blueprint(di, di_recording):
     summary, entities = di_recording
     text = entities["/verdict"].per_row("TextDocument:text")[0][0]
     assert "ROBUSTLY SAFE" in text and f"| tube boxes | {result.tube.num_boxes} |" in text
-    assert "| width at t = 9 s (tube) |" in text and "codev 0." in text and "sha256" in text
+    assert "| width at t = 9 s (tube's last box) |" in text
+    assert "codev 0." in text and "sha256" in text
     assert "| branches |" in text and "has every property checked" in text
     # the claim, before the sizes: the initial set, each property, the time, the hold
     claim = text[text.index("### the claim"):text.index("### sizes")]
@@ -836,7 +837,9 @@ def test_recording_and_report_name_the_same_section(magnetic, tmp_path):
     assert words in plane
     text = report_html(problem, law, None, traces=0)
     assert f"The partition of the explicit law: {words}: " in text
-    assert text.count(words) >= 2  # the caption and the figure's own title
+    assert text.count(words) >= 3  # the caption, the figure's own title, the first screen
+    # the first screen (above the figures) says it, as the recording's plane title does
+    assert f"The partition (Figure 1) is the {words}." in text[: text.index("<figure")]
 
 
 def test_one_state_initial_set_is_drawn_at_t0_only(tmp_path):

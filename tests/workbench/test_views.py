@@ -103,8 +103,8 @@ def test_partition_of_the_double_integrator(di):
     width, height = 90, 28
     text = partition_text(law, width, height)
     lines = text.plain.split("\n")
-    assert len(lines) == height + 2
-    assert "10 regions (10 in view)" in lines[-1]
+    assert len(lines) == height + 3  # the title, the raster, the x-axis, the caption
+    assert lines[0] == "the partition, 10 regions (10 in view)"  # two states: no section
     assert "x: x1" in lines[-1] and "y: x2" in lines[-1]
     assert len(PALETTE) >= law.num_regions  # colours identify regions here
     lo, hi = law.boxes
@@ -121,12 +121,12 @@ def test_partition_marker_and_limits(di):
     # the marker sits at column (0.05 + 2) / 4 * 40 = 20.5, row (1 - 0.05) / 2 * 24 = 11.4
     assert pix[11, 20] == COLOURS["marker"]
     assert sum(v == COLOURS["marker"] for v in pix.ravel()) == 1
-    lines = text.plain.split("\n")
+    lines = text.plain.split("\n")[1:]  # below the title
     assert lines[0].split("│")[0].strip() == "1"
     assert lines[height].split()[0] == "-2"
-    # the legend counts the regions actually on screen
+    # the title counts the regions actually on screen
     shown = {v for v in pix.ravel() if v is not None and v != COLOURS["marker"]}
-    assert f"10 regions ({len(shown)} in view)" in lines[-1]
+    assert f"10 regions ({len(shown)} in view)" in text.plain.split("\n")[0]
 
 
 def test_partition_slice_of_a_three_state_law(triple):
@@ -135,16 +135,16 @@ def test_partition_slice_of_a_three_state_law(triple):
     width, height = 50, 16
     at = np.array([0.0, 0.3, -0.4])
     text = partition_text(law, width, height, axes=(0, 2), at=at)
-    last = text.plain.split("\n")[-1]
-    assert f"{law.num_regions} regions" in last
-    assert "slice at v=0.3" in last
+    first, last = text.plain.split("\n")[0], text.plain.split("\n")[-1]
+    assert f"{law.num_regions} regions" in first
+    assert first.endswith("section at v = 0.3")  # the title names the section
     assert "x: p" in last and "y: a" in last
     _check_partition(law, text, width, height, (0, 2), at)
     # the default slice is the centre of the domain box
     text = partition_text(law, width, height, axes=(1, 2))
     lo, hi = law.boxes
     centre = 0.5 * (lo.min(0) + hi.max(0))
-    assert f"slice at p={centre[0]:.3g}" in text.plain
+    assert f"section at p = {centre[0]:.3g}" in text.plain
     _check_partition(law, text, width, height, (1, 2), centre)
 
 

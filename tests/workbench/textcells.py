@@ -47,8 +47,11 @@ def decode_pixels(lines: list[Text]) -> list[list[str | None]]:
 
 
 def plot_body(text: Text, height: int) -> list[Text]:
-    """The H raster lines of a ``plot_text`` picture, without the y-axis margin."""
+    """The H raster lines of a ``plot_text`` picture, without the y-axis margin (and
+    without a title line above it, as the partition's)."""
     lines = text.split("\n")
+    while lines and "│" not in lines[0].plain:
+        lines = lines[1:]  # the title
     assert len(lines) >= height, (len(lines), height)
     body = []
     for line in lines[:height]:

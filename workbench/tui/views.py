@@ -59,7 +59,8 @@ def partition_text(
     marker: np.ndarray | None = None,
     limits: tuple[tuple[float, float], tuple[float, float]] | None = None,
 ) -> Text:
-    """The critical regions coloured on a pixel grid (a 2-D slice for n > 2).
+    """The critical regions coloured on a pixel grid (a 2-D section for n > 2), under a title
+    that names the section.
 
     Parameters
     ----------
@@ -69,8 +70,9 @@ def partition_text(
     axes : (2,) tuple of int
         The state axes shown.
     at : (n,) array_like, optional
-        The other states' values on the slice (default: ``figures.default_slice_point``, the
-        centre of the domain's bounding box).
+        The other parameters' values on the section (default: ``figures.default_slice_point``
+        without a spec, the centre of the domain's bounding box; the workbench passes the
+        spec's, the one section rule of recordings and reports).
     marker : (n,) array_like, optional
         A state to mark (the located state).
     limits : tuple of ((float, float), (float, float)), optional
@@ -79,7 +81,7 @@ def partition_text(
     Returns
     -------
     rich.text.Text
-        The picture, its axes and a legend (the number of regions, the slice).
+        The title (the number of regions, the section), the picture and its axes.
     """
     n = law.n
     i, j = axes
@@ -100,11 +102,13 @@ def partition_text(
         r.points([mk[i]], [mk[j]], COLOURS["marker"])
     names = law.parameter_names or tuple(f"x{k}" for k in range(n))
     found = len(np.unique(idx[idx >= 0]))
-    legend = [(f"{law.num_regions} regions ({found} in view)", COLOURS["axis"])]
+    # the title names the section as recordings and reports do (record_content.section_words)
+    title = f"the partition, {law.num_regions} regions ({found} in view)"
     if n > 2:
-        others = ", ".join(f"{names[k]}={base[k]:.3g}" for k in range(n) if k not in axes)
-        legend.append((f"slice at {others}", COLOURS["axis"]))
-    return plot_text(r, xlabel=names[i], ylabel=names[j], legend=legend)
+        fixed = ", ".join(f"{names[k]} = {base[k]:.3g}" for k in range(n) if k not in axes)
+        title += f", section at {fixed}"
+    out = Text(title + "\n", style=COLOURS["axis"], no_wrap=True, overflow="crop")
+    return out + plot_text(r, xlabel=names[i], ylabel=names[j])
 
 
 def tube_time_text(

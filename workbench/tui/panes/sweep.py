@@ -26,7 +26,8 @@ COLUMNS = (
     ("reason", "reason"),
     ("synthesis_seconds", "synth s"),
     ("verification_seconds", "verify s"),
-    ("tube_width_at_horizon", "tube width at T"),
+    ("tube_width_at_horizon", "width at T"),
+    ("width_at_horizon_of", "width of"),
     ("closed_loop_cost", "cost"),
 )
 

@@ -59,8 +59,8 @@ class SynthesisPane(Vertical):
                 yield Static("", id="locate-out", classes="small")
                 yield Label("axes (2 states)")
                 yield EntryInput(id="synth-axes", placeholder="default: the first two states")
-                yield Label("slice: other states at (n > 2)")
-                yield EntryInput(id="synth-at", placeholder="default: the domain's centre")
+                yield Label("section: other states at (n > 2)")
+                yield EntryInput(id="synth-at", placeholder="default: as recordings and reports")
                 yield Label("export the law as C99 into a folder")
                 yield EntryInput(id="law-export-dir", placeholder="e.g. law_c  (Enter: .h and .c)")
                 yield Static("", id="law-export-out", classes="small")
@@ -184,7 +184,7 @@ class SynthesisPane(Vertical):
             The form's valid spec (None while it is not valid: the domain's centre).
         """
         law = self._law
-        if law is None or not law.parameters or law is not self._law_shown:
+        if law is None or law.n <= 2 or law is not self._law_shown:
             self._problem = problem
             return
         before = self._default_at(law)
@@ -193,18 +193,16 @@ class SynthesisPane(Vertical):
             self._draw(law)
 
     def _default_at(self, law: ExplicitLaw) -> np.ndarray:
-        """``figures.default_slice_point(law, problem)``; the domain's centre (LPs) is
-        computed once per law, the form's check only moves ``u_prev`` and ``r``."""
-        from codev_engine.view.figures import default_slice_point, verified_parameters
+        """``figures.default_slice_point(law, problem)``, the one section rule of recordings
+        and reports (the states at the centre of ``[verify]``'s initial set, ``u_prev`` and
+        ``r`` at the middle of their boxes); the domain's centre (LPs) it falls back to is
+        computed once per law, a form check only moves the spec's boxes."""
+        from codev_engine.view.figures import default_slice_point
 
         if self._centre_for is not law:
             self._centre = np.array(default_slice_point(law), dtype=float)
             self._centre_for = law
-        at = self._centre.copy()
-        extra = verified_parameters(law, self._problem)
-        if extra is not None:
-            at[law.n - extra.size :] = extra
-        return at
+        return default_slice_point(law, self._problem, centre=self._centre)
 
     def show_law(self, law: ExplicitLaw | None, *, current: bool) -> None:
         """Show a law, and whether it is the current spec's.
@@ -312,7 +310,7 @@ class SynthesisPane(Vertical):
             f"{', '.join(extra)} (or all {law.n}); default: the middle of [verify] "
             "initial_input and reference"
             if extra
-            else "default: the domain's centre"
+            else "default: the initial set's centre"
         )
 
     @work(thread=True, exclusive=True, group="regions")
@@ -352,15 +350,16 @@ class SynthesisPane(Vertical):
         return parse_axes(text, names)
 
     def _at(self, law: ExplicitLaw) -> np.ndarray | None:
-        """The slice typed: every parameter, or (a law over θ = (x, u_prev, r)) only those
-        after the states, the states then at the domain's centre. Nothing typed: the
-        default of recordings and reports (``figures.default_slice_point``: ``u_prev`` and
-        ``r`` at the middle of ``[verify] initial_input`` and ``reference``); None for a
-        law over the states (``partition_text``'s own default, the same point)."""
+        """The section typed: every parameter, or (a law over θ = (x, u_prev, r)) only
+        those after the states, the states then at the default. Nothing typed: the one
+        section rule of recordings and reports (``figures.default_slice_point``: the states
+        at the centre of ``[verify] initial_set``, ``u_prev`` and ``r`` at the middle of
+        ``[verify] initial_input`` and ``reference``); None for a law of two parameters
+        (no section)."""
         text = self.query_one("#synth-at", Input).value
         extra = law.n - len(law.states) if law.parameters else 0
         if not text.strip():
-            return self._default_at(law) if extra else None
+            return self._default_at(law) if law.n > 2 else None
         if extra and len(text.replace(",", " ").replace(";", " ").split()) == extra:
             at = self._default_at(law)
             at[law.n - extra :] = parse_state(text, extra)
