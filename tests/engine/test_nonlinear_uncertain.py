@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from codev_engine.pipeline import loads_spec
+from codev_engine.reach.adversary import sensitivity_signals
 from codev_engine.reach.simulate import first_violation, simulate, simulate_many, violations_many
 from codev_engine.reach.verification import _signals, verify
 from codev_engine.synthesis import synthesize
@@ -158,6 +159,36 @@ def test_near_saturation_from_one_state_is_proved_by_the_carried_zonotope():
     assert result.verdict == "robustly_safe", result.summary()
     assert float(result.tube.t_end.max()) >= 3.0 - 1e-9
     _assert_sound(problem, law, result, P=150, seed=6)
+
+
+def test_near_saturation_from_one_state_holds_the_worst_case_signals():
+    # the runs under random and bang-bang signals stay well inside the tube (3-4.6x in w
+    # on the full design); the first-order worst-case signals (sensitivity_signals: each
+    # piece at the bound that pushes +-x_i(t) up) reach near its edges, so they test the
+    # tube where it is thinnest relative to the reach set -- and each is a real run
+    problem = _near_saturation(0.2, T=1.5, point=True)
+    law = synthesize(problem)
+    result = verify(problem, law, max_depth=0)
+    assert result.verdict == "robustly_safe", result.summary()
+    x0 = np.asarray(problem.verify.initial_lower, float)
+    dirs = np.vstack([np.eye(2), -np.eye(2)])
+    rows = [(tf, l, q) for tf in (0.5, 1.0, 1.5) for l in dirs for q in (0.4, 0.6)]
+    L = np.array([r[1] for r in rows])
+    tt = np.array([r[0] for r in rows])
+    Q = np.array([[r[2]] for r in rows])
+    X0 = np.repeat(x0[None], len(rows), axis=0)
+    piece, W, Q = sensitivity_signals(problem, law, X0, L, tt, Q=Q)
+    assert np.all((W >= -0.2) & (W <= 0.2)) and np.all(np.isin(np.abs(W[:, :50]), (0.2,)))
+    t, X, _, _ = simulate_many(problem, law, X0, hold=result.hold, disturbance=(piece, W, Q))
+    count, worst = _outside(result.tube, t, X)
+    assert count == 0, f"{count} worst-case states outside the tube (worst {worst:g})"
+    # they push w farther than 100 random and bang-bang runs do (at 1.5 s)
+    P0, W0, Q0 = _signals(problem, 100, seed=7)
+    t0, Xr, _, _ = simulate_many(problem, law, np.repeat(x0[None], 100, axis=0),
+                                 hold=result.hold, disturbance=(P0, W0, Q0))
+    k = int(np.argmin(np.abs(t - 1.5)))
+    span = np.ptp(X[:, k, 1])
+    assert span > 1.5 * np.ptp(Xr[:, int(np.argmin(np.abs(t0 - 1.5))), 1])
 
 
 QUADRUPLE_TANK = Path(__file__).resolve().parent / "quadruple_tank.toml"
