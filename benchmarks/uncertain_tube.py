@@ -3,6 +3,7 @@
 Usage::
 
     python benchmarks/uncertain_tube.py [CASE ...] [--samples 400] [--no-carry]
+        [--no-adversarial] [--hold zoh|continuous]
 
 Cases: ``pendulum_near_saturation`` (examples/pendulum.toml with ``-c*w + T + d``, ``c`` in
 [0.4, 0.6], ``|d| <= 0.2``, 3 s: the design of issue 38), ``quadruple_tank``
@@ -13,10 +14,13 @@ of the tube's boxes active at 1/4, 1/2, 3/4 and all of the tube's span over the 
 hull of ``--samples`` dense simulations over the same time span (the initial set's corners
 and random states, each under one of the verifier's own concrete signals: the boxes' centre,
 their corners held constant, bang-bang and random pieces, and the parameter box's centre,
-corners and random values), and how many simulated states lie outside the tube (must be 0).
-``--no-carry`` measures the engine without the carried zonotope (``NonlinearReach.carry =
-False``: the disturbances' first-order part in the remainder ball, as before issue 38's
-change). Target: a ratio of at most 2.
+corners and random values), then the same over the hull with the worst-case runs added
+(``adversarial_runs``: first-order worst-case signals per state direction and measured time,
+from the initial corners and centre and the parameter corners; ``--no-adversarial`` skips
+them), and how many simulated states of both lie outside the tube (must be 0). ``--hold``
+replaces the spec's hold. ``--no-carry`` measures the engine without the carried zonotope
+(``NonlinearReach.carry = False``: the disturbances' first-order part in the remainder
+ball, as before issue 38's change). Target: a ratio of at most 2.
 
 A benchmark, not a test: it asserts nothing and exits 0.
 """
