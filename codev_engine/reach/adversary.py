@@ -11,6 +11,11 @@ simulated states are reachable states: the hull of such simulations is a lower b
 reach set, much closer to it than random or held-corner signals (the benchmarks and tests
 compare the reachtube with it).
 
+A nonlinear plant (or one with uncertain parameters) has no such adjoint at hand:
+:func:`sensitivity_signals` takes the same signs from finite differences of the simulated
+final state, one run per piece of the signal pushed to the box's bound (the first-order
+worst case along the centre signal's run).
+
 This module is for tests, benchmarks and searches: it claims nothing about safety.
 """
 
@@ -22,7 +27,7 @@ from scipy.linalg import expm
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem
 
-__all__ = ["adjoint_signals"]
+__all__ = ["adjoint_signals", "sensitivity_signals"]
 
 
 def adjoint_signals(
@@ -169,3 +174,99 @@ def adjoint_signals(
         out_W.append(W.copy())
     return (h, np.concatenate(out_W, axis=0), np.tile(Q, (iterations, 1)),
             np.tile(X0, (iterations, 1)))
+
+
+def sensitivity_signals(
+    problem: Problem,
+    law: ExplicitLaw,
+    X0: np.ndarray,
+    directions: np.ndarray,
+    t_target: float | np.ndarray,
+    *,
+    Q: np.ndarray | None = None,
+    hold: str | None = None,
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """Bang-bang disturbance signals pushing ``directions' x(t_target)`` up, any plant.
+
+    For each distinct ``(x0, q)`` one run under the box's centre and one per piece and
+    disturbance component with that piece at the box's upper bound (the rest at the centre)
+    give the sensitivities ``g_j`` of ``x(t)`` to piece ``j``; the signal for a direction
+    ``l`` is ``d_j = upper`` where ``l' g_j > 0``, ``lower`` where ``< 0`` (the centre past
+    the target). Exact for a linear closed loop; for a nonlinear one, or one whose regions
+    change with the signal, the first-order worst case along the centre's run. Every signal
+    lies in the box, so every run under it is a reachable trajectory.
+
+    Parameters
+    ----------
+    problem : Problem
+        A plant with disturbances and a ``[verify]`` section.
+    law : ExplicitLaw
+    X0 : (P, n) ndarray
+        Initial states.
+    directions : (P, n) ndarray
+        One direction ``l`` per trajectory.
+    t_target : float or (P,) ndarray
+        The time at which ``l' x`` is pushed up.
+    Q : (P, q) ndarray, optional
+        The uncertain parameters' values (default their nominal values).
+    hold : {"zoh", "continuous"}, optional
+        Default ``problem.verify.hold``.
+
+    Returns
+    -------
+    piece : float
+        The pieces' length (s; ``simulate_many``'s ``disturbance``).
+    W : (P, K, d) ndarray
+        The signals.
+    Q : (P, q) ndarray
+        The parameters (as given).
+    """
+    from codev_engine.reach.simulate import simulate_many
+
+    pl, vs = problem.plant, problem.verify
+    if pl.disturbances is None:
+        raise ValueError("sensitivity signals need a plant with disturbances")
+    hold = hold or vs.hold
+    X0 = np.atleast_2d(np.asarray(X0, float))
+    L = np.atleast_2d(np.asarray(directions, float))
+    P, n = X0.shape
+    tt = np.broadcast_to(np.asarray(t_target, float), (P,))
+    if Q is None:
+        q0 = np.asarray(pl.parameters.nominal, float) if pl.parameters is not None else (
+            np.zeros(0))
+        Q = np.repeat(q0[None, :], P, axis=0)
+    Q = np.atleast_2d(np.asarray(Q, float)).reshape(P, -1)
+    # pieces as the verifier's own search takes them (verification._signals)
+    Ts = float(problem.model.sample_time)
+    S = max(1, int(np.ceil(Ts / (vs.step / 10.0) - 1e-9)))
+    h = Ts / S
+    piece = h * max(1, round(vs.step / h))
+    K = int(np.ceil(vs.time_horizon / piece)) + 1
+    lo = np.asarray(pl.disturbances.lower, float)
+    hi = np.asarray(pl.disturbances.upper, float)
+    mid = 0.5 * (lo + hi)
+    d = lo.size
+    t_end = float(tt.max())
+    J = min(K, int(np.ceil(t_end / piece - 1e-9)))  # the pieces before the last target
+    W = np.repeat(np.repeat(mid[None, None, :], K, axis=1), P, axis=0)
+    sens: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+    for p in range(P):
+        key = np.concatenate([X0[p], Q[p]]).tobytes()
+        if key not in sens:
+            # the centre run, then one run per (piece, component) pushed to the upper bound
+            Wp = np.repeat(np.repeat(mid[None, None, :], K, axis=1), 1 + J * d, axis=0)
+            for j in range(J):
+                for i in range(d):
+                    Wp[1 + j * d + i, j, i] = hi[i]
+            R = Wp.shape[0]
+            runs = simulate_many(problem, law, np.repeat(X0[p][None], R, axis=0), hold=hold,
+                                 t_end=t_end, disturbance=(piece, Wp, np.repeat(Q[p][None],
+                                                                                R, axis=0)))
+            sens[key] = (runs.t, runs.X)
+        t, X = sens[key]
+        k = int(np.argmin(np.abs(t - tt[p])))
+        g = ((X[1:, k] - X[0, k]) @ L[p]).reshape(J, d)  # l' dx(t) per piece's push
+        g[~np.isfinite(g)] = 0.0
+        jt = min(J, int(np.ceil(tt[p] / piece - 1e-9)))
+        W[p, :jt] = np.where(g[:jt] > 0, hi, np.where(g[:jt] < 0, lo, mid))
+    return piece, W, Q
