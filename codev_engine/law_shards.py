@@ -43,7 +43,7 @@ from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
 
 __all__ = ["SHARDS_FORMAT", "ShardWriter", "ShardedLaw", "spatial_order", "split_law",
-           "write_law_shards"]
+           "update_meta", "write_law_shards"]
 
 #: format tag of a sharded law's manifest
 SHARDS_FORMAT = "codev-law-shards/1"
@@ -199,6 +199,26 @@ def write_manifest(directory: str | os.PathLike, head: dict, entries: list[dict]
     manifest = {"format": SHARDS_FORMAT, **head, "shards": entries}
     return write_text(Path(directory) / MANIFEST,
                       json.dumps(manifest, indent=1, default=_json))
+
+
+def update_meta(directory: str | os.PathLike, extra: dict) -> ShardedLaw:
+    """Add ``extra`` to a sharded law's metadata (its manifest rewritten atomically; the
+    shards untouched) and open it.
+
+    Parameters
+    ----------
+    directory : path-like
+    extra : dict
+
+    Returns
+    -------
+    ShardedLaw
+    """
+    law = ShardedLaw(directory)  # (checks the manifest)
+    data = json.loads((Path(directory) / MANIFEST).read_text(encoding="utf-8"))
+    data["meta"] = dict(law.meta, **extra)
+    write_text(Path(directory) / MANIFEST, json.dumps(data, indent=1, default=_json))
+    return ShardedLaw(directory)
 
 
 @dataclass(frozen=True)
