@@ -58,6 +58,10 @@ __all__ = ["owners", "read_shards", "sharded_walk"]
 BUDGET = 4096
 #: times a round is submitted before the search gives up (its tasks cancelled each time)
 _ATTEMPTS = 3
+#: a benchmark's prefix (``benchmarks/scale.py --stop-at``): the rounds end once this many
+#: regions are found and the end (the merge, or the workers' law shards) runs on them; not
+#: a law of the program (part of the parameter set is not covered). None: the whole search
+STOP_AT: int | None = None
 #: candidates per call of the compiled kernel (as ``mpqp._CHUNK``)
 _CHUNK = 64
 
@@ -564,7 +568,7 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
             if found > max_regions:
                 stats["rounds_client_cpu_seconds"] = time.process_time() - rounds0
                 raise TooManyRegionsError(too_many_regions(max_regions))
-            if not busy:
+            if not busy or (STOP_AT is not None and found >= STOP_AT):
                 break
         # the walk is done: what follows is the merge on demand, its cost apart
         walked = time.thread_time() - walk0

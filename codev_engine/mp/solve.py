@@ -226,6 +226,7 @@ def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, 
     else:
         domain = _empty_domain(red)
     stats["domain_facets"] = int(facets.shape[0])
+    stats["regions_before_merge"] = found
     law = writer.open([entry for (entry, _), _, _ in shards], domain[0], domain[1],
                       {"stats": stats, "regions_before_merge": found})
     stats.update(check_coverage(
