@@ -252,6 +252,8 @@ def main(argv: list[str] | None = None) -> int:
                     "client_peak_rss_mb": _peak_mb(),
                     "regions_before_merge": st.get("regions_before_merge") or regions,
                     "finish_client_cpu_seconds": st.get("finish_client_cpu_seconds"),
+                    # (from the walk's last round to the solution: merge, domain, coverage)
+                    "end_client_cpu_seconds": st.get("end_client_cpu_seconds"),
                     # (sharded: the coordinator's thread, the rounds, the merge at the end)
                     "coordinator_cpu_seconds": st.get("coordinator_cpu_seconds"),
                     "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
@@ -287,7 +289,8 @@ def main(argv: list[str] | None = None) -> int:
                           f"{d['setup_client_cpu_seconds'] or 0:.2f} s its set-up, "
                           f"{d['rounds_client_cpu_seconds'] or 0:.2f} s the rounds, "
                           f"{after:.2f} s after (merge, clean-up)", flush=True)
-                    print(f"  client peak memory (VmHWM) {d['client_peak_rss_mb']:.0f} MB"
+                    print(f"  client peak memory (VmHWM) {d['client_peak_rss_mb']:.0f} MB, "
+                          f"its CPU from the last round on {d['end_client_cpu_seconds'] or 0:.2f} s"
                           + (f"; the end on the client: {d['finish_client_cpu_seconds']:.2f} s"
                              " (domain from the shards' facets, manifest, coverage)"
                              if d["finish_client_cpu_seconds"] is not None else ""),

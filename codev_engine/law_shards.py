@@ -313,6 +313,22 @@ class ShardWriter:
         folder.mkdir(parents=True, exist_ok=True)
         return _save_shard(self.law(regions), folder / f"shard-{j}.npz")
 
+    def locate(self, j: int, X: np.ndarray) -> np.ndarray:
+        """Worker side: region index of each point in shard ``j`` alone (-1 outside its
+        regions): the coverage check asks the workers, so no shard is read by the client.
+
+        Parameters
+        ----------
+        j : int
+        X : (P, n) ndarray
+            In the law's variables.
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
+        return ExplicitLaw.load(Path(self.directory) / f"shard-{j}.npz").locate(X)
+
     def open(self, entries: list[dict], domain_A: np.ndarray, domain_b: np.ndarray,
              meta: dict | None = None) -> ShardedLaw:
         """Client side: write the manifest of the shards written (the domain, in the

@@ -595,6 +595,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
             stats[key] = stats.get(key, 0) + v
         # (the coordinator's own thread; a LocalCluster's scheduler runs in this process
         # too, in other threads: client_cpu_seconds counts them, with the merge)
+        # (when the walk ended, for mpsolve's end_client_cpu_seconds)
+        stats["_walk_end_cpu"] = time.process_time()
         stats.update(shards=n, rounds=r, workers=n, client_cpu_seconds=time.process_time() - cpu0,
                      coordinator_cpu_seconds=walked if walked is not None
                      else time.thread_time() - walk0)

@@ -153,7 +153,7 @@ def mpsolve(
         )
         if isinstance(regions, list):  # (the workers wrote the law's shards)
             return _sharded_result(program, red, size, region_tol, opts, regions,
-                                   shard_writer, stats, t0)
+                                   shard_writer, stats, t0, executor.client)
         domain = (
             _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
             else _empty_domain(red)
@@ -179,11 +179,22 @@ def mpsolve(
         samples=max(0, int(opts.coverage_samples)),
     ))
     sol.seconds = time.perf_counter() - t0
+    _end_cpu(stats)
     if shard_writer is not None:  # (no sharded walk: the regions are here, one shard)
         entry = shard_writer.write(regions, 0)
         law = shard_writer.open([entry], domain[0], domain[1], {"stats": stats})
         return ShardedSolution(program, law, domain[0], domain[1], sol.seconds, stats)
     return sol
+
+
+def _end_cpu(stats: dict) -> None:
+    """``end_client_cpu_seconds``: this process's CPU from the end of a sharded walk to the
+    solution (the merge, the domain, the coverage check; or, with the workers writing the
+    law, waiting for them and the client's end)."""
+    end = stats.pop("_walk_end_cpu", None)
+    if end is not None:
+        stats["end_client_cpu_seconds"] = (time.process_time() - end
+                                           + stats.get("merge_cpu_seconds", 0.0))
 
 
 class _ShardFinish:
@@ -211,7 +222,7 @@ def _to_original(red: Reduced, regions: RegionArrays, nz: int) -> None:
 
 
 def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, stats: dict,
-                    t0: float) -> ShardedSolution:
+                    t0: float, client) -> ShardedSolution:
     """The client's end of a search whose workers wrote the law's shards: the domain from
     the shards' facets (one row per facet of the feasible set: its boundary, not its
     regions), the manifest, and the coverage check on the sharded law."""
@@ -229,9 +240,22 @@ def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, 
     stats["regions_before_merge"] = found
     law = writer.open([entry for (entry, _), _, _ in shards], domain[0], domain[1],
                       {"stats": stats, "regions_before_merge": found})
+    offsets = law.offsets
+
+    def locate(X: np.ndarray) -> np.ndarray:
+        # each shard's worker locates the points in its own file: the client reads none
+        X = np.atleast_2d(X) + writer.op
+        found = client.gather([client.submit(writer.locate, j, X, pure=False)
+                               for j in range(law.shards)])
+        out = np.full(X.shape[0], -1, dtype=np.int64)
+        for j, idx in enumerate(found):
+            hit = (out < 0) & (idx >= 0)
+            out[hit] = idx[hit] + offsets[j]
+        return out
+
     stats.update(check_coverage(
         feasibility_rows(red.G, red.S, red.w, red.At, red.bt),
-        lambda X: law.locate(np.atleast_2d(X) + writer.op),
+        locate,
         law.num_regions,
         scale=size.scale,
         region_tol=region_tol,
@@ -240,6 +264,7 @@ def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, 
         samples=max(0, int(opts.coverage_samples)),
     ))
     stats["finish_client_cpu_seconds"] = time.process_time() - cpu0
+    _end_cpu(stats)
     return ShardedSolution(program, law, domain[0], domain[1], time.perf_counter() - t0, stats)
 
 
