@@ -89,6 +89,25 @@ def _capture_stats() -> None:
     solve.explore_active_sets = explore
 
 
+def _reset_peak() -> None:
+    """Reset this process's peak resident memory (``VmHWM``; Linux: clear_refs 5)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+
+
+def _peak_mb() -> float:
+    """This process's peak resident memory since :func:`_reset_peak`, in MB (VmHWM)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return float("nan")
+
+
 def _cpu(client) -> float:
     return sum(client.run(time.process_time).values())
 
@@ -117,6 +136,13 @@ def main(argv: list[str] | None = None) -> int:
                     "the same for every worker count, so is that prefix)")
     ap.add_argument("--sharded", action="store_true",
                     help="the sharded search (mpsolve(sharded=True): regions stay on workers)")
+    ap.add_argument("--stop-at", type=int, metavar="N",
+                    help="with --sharded: end the rounds at N regions and run the search's "
+                    "end on them (the merge, or the workers' law shards): a prefix, not a "
+                    "law of the program (no coverage check)")
+    ap.add_argument("--out-shards", metavar="DIR",
+                    help="with --sharded: the workers write the law's shards into DIR/<W> "
+                    "(mpsolve(shard_writer=...)); no region comes back to this process")
     ap.add_argument("--scheduler-process", action="store_true",
                     help="the scheduler and the workers in processes of their own (a "
                          "SubprocessCluster): this process is only the client, as with a "
@@ -188,11 +214,25 @@ def main(argv: list[str] | None = None) -> int:
                 st: dict = {}
                 found = [0]
                 opts = ce.SolveOptions(max_regions=args.max_regions or 10**8)
+                writer = None
+                if args.stop_at:
+                    from codev_engine.mp import sharded
+
+                    sharded.STOP_AT = args.stop_at
+                    opts = ce.SolveOptions(max_regions=opts.max_regions, coverage_samples=0)
+                if args.out_shards:
+                    from codev_engine.law_shards import ShardWriter
+
+                    writer = ShardWriter(str(Path(args.out_shards) / str(w)),
+                                         np.zeros(program.d), rows=(0, program.nz))
+                _reset_peak()
                 try:
                     sol = ce.mpsolve(program, executor=executor, options=opts,
                                      progress=lambda r, f=found: f.__setitem__(0, r),
-                                     sharded=args.sharded)
-                    st, regions, digest = sol.stats, sol.num_regions, _digest(sol)
+                                     sharded=args.sharded, shard_writer=writer)
+                    st, regions = sol.stats, sol.num_regions
+                    digest = (_digest(sol) if writer is None
+                              else f"{sol.law.shards} shards written by the workers")
                 except ce.SolverError:  # (--max-regions: the prefix)
                     regions, digest = found[0], f"prefix of {found[0]}"
                     st = _LAST_STATS
@@ -208,6 +248,12 @@ def main(argv: list[str] | None = None) -> int:
                     "worker_warmup_seconds": st.get("worker_warmup_seconds") or 0.0,
                     "candidates": st.get("candidates"),
                     "load": os.getloadavg()[0],
+                    # (this process's peak resident memory during the solve, VmHWM)
+                    "client_peak_rss_mb": _peak_mb(),
+                    "regions_before_merge": st.get("regions_before_merge") or regions,
+                    "finish_client_cpu_seconds": st.get("finish_client_cpu_seconds"),
+                    # (from the walk's last round to the solution: merge, domain, coverage)
+                    "end_client_cpu_seconds": st.get("end_client_cpu_seconds"),
                     # (sharded: the coordinator's thread, the rounds, the merge at the end)
                     "coordinator_cpu_seconds": st.get("coordinator_cpu_seconds"),
                     "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
@@ -243,6 +289,12 @@ def main(argv: list[str] | None = None) -> int:
                           f"{d['setup_client_cpu_seconds'] or 0:.2f} s its set-up, "
                           f"{d['rounds_client_cpu_seconds'] or 0:.2f} s the rounds, "
                           f"{after:.2f} s after (merge, clean-up)", flush=True)
+                    print(f"  client peak memory (VmHWM) {d['client_peak_rss_mb']:.0f} MB, "
+                          f"its CPU from the last round on {d['end_client_cpu_seconds'] or 0:.2f} s"
+                          + (f"; the end on the client: {d['finish_client_cpu_seconds']:.2f} s"
+                             " (domain from the shards' facets, manifest, coverage)"
+                             if d["finish_client_cpu_seconds"] is not None else ""),
+                          flush=True)
             if w == max(counts):
                 n = 2000
                 t1 = time.perf_counter()

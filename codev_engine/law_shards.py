@@ -32,6 +32,7 @@ import json
 import os
 from collections import OrderedDict
 from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -39,8 +40,10 @@ import numpy as np
 from codev_engine.errors import SpecError
 from codev_engine.io.atomic import write_text
 from codev_engine.law import ExplicitLaw
+from codev_engine.mp.solution import RegionArrays
 
-__all__ = ["SHARDS_FORMAT", "ShardedLaw", "spatial_order", "split_law", "write_law_shards"]
+__all__ = ["SHARDS_FORMAT", "ShardWriter", "ShardedLaw", "spatial_order", "split_law",
+           "update_meta", "write_law_shards"]
 
 #: format tag of a sharded law's manifest
 SHARDS_FORMAT = "codev-law-shards/1"
@@ -156,17 +159,201 @@ def write_law_shards(directory: str | os.PathLike, shards: Iterable[ExplicitLaw]
         elif any(head[key] != mine[key] for key in mine):
             raise ValueError(f"shard {j} is not of the first shard's law (fingerprint, "
                              "names or dimensions differ)")
-        lo, hi = part.boxes  # (saved with the shard: its regions' LPs are not solved again)
-        path = part.save(folder / f"shard-{j}.npz")
-        entries.append({
-            "file": path.name, "sha256": _file_sha(path), "regions": part.num_regions,
-            "lo": lo.min(axis=0).tolist() if lo.shape[0] else None,
-            "hi": hi.max(axis=0).tolist() if hi.shape[0] else None,
-        })
+        entries.append(_save_shard(part, folder / f"shard-{j}.npz"))
     if head is None:
         raise ValueError("a sharded law needs at least one shard")
+    return write_manifest(folder, head, entries)
+
+
+def _save_shard(part: ExplicitLaw, path: Path) -> dict:
+    """Save one shard (atomically, with its boxes) and return its manifest entry."""
+    lo, hi = part.boxes  # (saved with the shard: its regions' LPs are not solved again)
+    path = part.save(path)
+    return {
+        "file": path.name, "sha256": _file_sha(path), "regions": part.num_regions,
+        "lo": lo.min(axis=0).tolist() if lo.shape[0] else None,
+        "hi": hi.max(axis=0).tolist() if hi.shape[0] else None,
+    }
+
+
+def write_manifest(directory: str | os.PathLike, head: dict, entries: list[dict]) -> Path:
+    """Write (atomically, last) the manifest of shards already written.
+
+    Parameters
+    ----------
+    directory : path-like
+        The folder of the shard files.
+    head : dict
+        ``fingerprint``, ``states``, ``inputs``, ``parameters``, ``n``, ``m``, ``meta``,
+        ``domain`` (bool) and, optionally, ``domain_A`` / ``domain_b`` (the law's domain,
+        when the shard files do not hold it: the sharded search's workers write theirs
+        before the domain is known).
+    entries : list of dict
+        One per shard file, in order (``file``, ``sha256``, ``regions``, ``lo``, ``hi``).
+
+    Returns
+    -------
+    Path
+        The manifest.
+    """
     manifest = {"format": SHARDS_FORMAT, **head, "shards": entries}
-    return write_text(folder / MANIFEST, json.dumps(manifest, indent=1, default=_json))
+    return write_text(Path(directory) / MANIFEST,
+                      json.dumps(manifest, indent=1, default=_json))
+
+
+def update_meta(directory: str | os.PathLike, extra: dict) -> ShardedLaw:
+    """Add ``extra`` to a sharded law's metadata (its manifest rewritten atomically; the
+    shards untouched) and open it.
+
+    Parameters
+    ----------
+    directory : path-like
+    extra : dict
+
+    Returns
+    -------
+    ShardedLaw
+    """
+    law = ShardedLaw(directory)  # (checks the manifest)
+    data = json.loads((Path(directory) / MANIFEST).read_text(encoding="utf-8"))
+    data["meta"] = dict(law.meta, **extra)
+    write_text(Path(directory) / MANIFEST, json.dumps(data, indent=1, default=_json))
+    return ShardedLaw(directory)
+
+
+@dataclass(frozen=True)
+class ShardWriter:
+    """Turns the regions of one shard of the sharded search into a law file, on the worker
+    that holds them (``mpsolve(..., shard_writer=...)``): the law ``u = F theta + G`` of
+    the optimiser's rows ``sl`` about the operating point ``op`` (as
+    ``synthesis.law_from_solution``), regions of equal laws merged where their union is
+    convex (``simplify``, within the shard: the law is the same function).
+
+    Attributes
+    ----------
+    directory : str
+        The law's folder (every worker must reach it).
+    op : (d,) ndarray
+        ``theta_op``: the law's ``theta`` is the program's plus ``op``.
+    rows : (int, int)
+        The optimiser's rows that are the input (``(0, nz)``: the law of an ``MpProgram``
+        as it is, ``u = z``).
+    u_op : (m,) ndarray or None
+        Added to the input (None: zero).
+    simplify : bool
+    fingerprint : str
+    states, inputs, parameters : tuple of str
+    meta : dict
+        The law's metadata (the manifest's).
+    """
+
+    directory: str
+    op: np.ndarray
+    rows: tuple[int, int] = (0, 0)
+    u_op: np.ndarray | None = None
+    simplify: bool = False
+    fingerprint: str = ""
+    states: tuple[str, ...] = ()
+    inputs: tuple[str, ...] = ()
+    parameters: tuple[str, ...] = ()
+    meta: dict = field(default_factory=dict)
+
+    def law(self, regions: RegionArrays) -> ExplicitLaw:
+        """The shard's law (no domain: the manifest holds it).
+
+        Parameters
+        ----------
+        regions : RegionArrays
+            In the program's variables (``theta - op``), merged (``mpqp._merge_equal_laws``).
+
+        Returns
+        -------
+        ExplicitLaw
+        """
+        from codev_engine.mp.merge import merge_regions
+
+        k, d = len(regions), self.op.size
+        sl = slice(*self.rows)
+        K, kk = regions.K[:, sl], regions.k[:, sl]
+        m = K.shape[1]
+        As, bs = [], []
+        for i in range(k):
+            A, b = regions.rows(i)
+            As.append(A)
+            bs.append(b + A @ self.op)
+        F = K.reshape(k, m, d)
+        G = kk - np.einsum("rij,j->ri", K, self.op) + (0.0 if self.u_op is None else self.u_op)
+        G = G.reshape(k, m)
+        if self.simplify and k:
+            # equal laws up to round-off share a key (as synthesis.law_from_solution)
+            scale = max(1.0, float(np.max(np.abs(F), initial=0)),
+                        float(np.max(np.abs(G), initial=0)))
+            keys = [np.round(np.concatenate([f.ravel(), g]) / scale, 9).tobytes()
+                    for f, g in zip(F, G, strict=True)]
+            As, bs, src = merge_regions(As, bs, keys)
+            F, G = F[src], G[src]
+        return ExplicitLaw(A=As, b=bs, F=F, G=G, states=self.states, inputs=self.inputs,
+                           fingerprint=self.fingerprint, meta={"shard": True},
+                           parameters=self.parameters)
+
+    def write(self, regions: RegionArrays, j: int) -> dict:
+        """Worker side: write shard ``j`` (``shard-<j>.npz``, atomic) and return its
+        manifest entry (its SHA-256, regions and box).
+
+        Parameters
+        ----------
+        regions : RegionArrays
+        j : int
+
+        Returns
+        -------
+        dict
+        """
+        folder = Path(self.directory)
+        folder.mkdir(parents=True, exist_ok=True)
+        return _save_shard(self.law(regions), folder / f"shard-{j}.npz")
+
+    def locate(self, j: int, X: np.ndarray) -> np.ndarray:
+        """Worker side: region index of each point in shard ``j`` alone (-1 outside its
+        regions): the coverage check asks the workers, so no shard is read by the client.
+
+        Parameters
+        ----------
+        j : int
+        X : (P, n) ndarray
+            In the law's variables.
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
+        return ExplicitLaw.load(Path(self.directory) / f"shard-{j}.npz").locate(X)
+
+    def open(self, entries: list[dict], domain_A: np.ndarray, domain_b: np.ndarray,
+             meta: dict | None = None) -> ShardedLaw:
+        """Client side: write the manifest of the shards written (the domain, in the
+        program's variables, shifted to the law's) and open the law.
+
+        Parameters
+        ----------
+        entries : list of dict
+            :meth:`write`'s answers, in shard order.
+        domain_A, domain_b : (p, d), (p,) ndarrays
+        meta : dict, optional
+            Added to :attr:`meta`.
+
+        Returns
+        -------
+        ShardedLaw
+        """
+        m = self.rows[1] - self.rows[0]
+        dA = np.asarray(domain_A, float).reshape(-1, self.op.size)
+        head = {"fingerprint": self.fingerprint, "states": list(self.states),
+                "inputs": list(self.inputs), "parameters": list(self.parameters),
+                "n": int(self.op.size), "m": int(m), "meta": dict(self.meta, **(meta or {})),
+                "domain": True, "domain_A": dA, "domain_b": np.asarray(domain_b) + dA @ self.op}
+        write_manifest(self.directory, head, entries)
+        return ShardedLaw(self.directory)
 
 
 def _json(obj):
@@ -273,6 +460,17 @@ class ShardedLaw:
         # each shard's box (None: no region), to skip the shards a question does not meet
         self._lo = [None if e.get("lo") is None else np.asarray(e["lo"], float) for e in shards]
         self._hi = [None if e.get("hi") is None else np.asarray(e["hi"], float) for e in shards]
+        # the domain, when the manifest holds it (the sharded search's workers write their
+        # shards before it is known); else the shards' own
+        self._domain = None
+        if data.get("domain_A") is not None:
+            try:
+                dA = np.asarray(data["domain_A"], dtype=float).reshape(-1, self._n)
+                db = np.asarray(data["domain_b"], dtype=float).reshape(dA.shape[0])
+            except (TypeError, ValueError, KeyError):
+                raise SpecError(f"must be a ({self._n}-column) matrix and its offsets",
+                                file=where, field="domain_A") from None
+            self._domain = (dA, db)
         self._cache: OrderedDict[int, ExplicitLaw] = OrderedDict()
         self._most = max(1, int(cache))
         self.loads = 0  # shard files read (and checked) so far
@@ -325,13 +523,14 @@ class ShardedLaw:
 
     @property
     def domain_A(self) -> np.ndarray | None:
-        """The law's domain rows (every shard holds them; read from the first)."""
-        return self.shard(0).domain_A
+        """The law's domain rows (the manifest's, else every shard holds them: read from
+        the first)."""
+        return self._domain[0] if self._domain is not None else self.shard(0).domain_A
 
     @property
     def domain_b(self) -> np.ndarray | None:
         """The right-hand side of :attr:`domain_A`."""
-        return self.shard(0).domain_b
+        return self._domain[1] if self._domain is not None else self.shard(0).domain_b
 
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -441,10 +640,18 @@ class ShardedLaw:
         if X.shape[1] != self.n:
             raise ValueError(f"expected theta of dimension {self.n}, got {X.shape[1]}")
         out = np.full(X.shape[0], -1, dtype=np.int64)
+        # a point clearly outside the domain is in no region: no shard is read for it
+        # (the margin is far above the locator's tolerance, 1e-9 on unit rows)
+        outside = np.zeros(X.shape[0], dtype=bool)
+        if self._domain is not None and self._domain[0].shape[0]:
+            dA, db = self._domain
+            norm = np.maximum(np.linalg.norm(dA, axis=1), 1e-300)
+            outside = np.any((X @ dA.T - db) / norm > 1e-6 * (1.0 + np.abs(db) / norm),
+                             axis=1)
         for j in range(self.shards):
             if self._lo[j] is None:
                 continue
-            todo = np.flatnonzero(out < 0)
+            todo = np.flatnonzero((out < 0) & ~outside)
             near = todo[np.all(X[todo] >= self._lo[j] - _BOX_TOL, axis=1)
                         & np.all(X[todo] <= self._hi[j] + _BOX_TOL, axis=1)]
             if near.size:
@@ -494,8 +701,8 @@ class ShardedLaw:
             A=[a for p in parts for a in p.A], b=[b for p in parts for b in p.b],
             F=np.concatenate([p.F for p in parts]), G=np.concatenate([p.G for p in parts]),
             states=self.states, inputs=self.inputs, fingerprint=self.fingerprint,
-            meta=dict(self.meta, shards=self.shards), domain_A=parts[0].domain_A,
-            domain_b=parts[0].domain_b, parameters=self.parameters,
+            meta=dict(self.meta, shards=self.shards), domain_A=self.domain_A,
+            domain_b=self.domain_b, parameters=self.parameters,
         )
         law._boxes = (np.concatenate([p.boxes[0] for p in parts]),
                       np.concatenate([p.boxes[1] for p in parts]))

@@ -14,10 +14,11 @@ from codev_engine.executor import Executor
 from codev_engine.formulation import parameter_names
 from codev_engine.kernel_cache import prepare
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
+from codev_engine.law_shards import ShardedLaw, ShardWriter, update_meta
 from codev_engine.limits import check_time, limits, stage_deadline
 from codev_engine.mp.merge import merge_regions
 from codev_engine.mp.program import MpProgram
-from codev_engine.mp.solution import TooManyRegionsError
+from codev_engine.mp.solution import ShardedSolution, TooManyRegionsError
 from codev_engine.mp.solve import MpSolution, SolveOptions, mpsolve
 from codev_engine.mpc import MpcProgram, build_program
 from codev_engine.plant import LinearModel, discretize
@@ -202,7 +203,8 @@ def synthesize(
     executor: Executor | None = None,
     sharded: bool = False,
     shard_dir: str | os.PathLike | None = None,
-) -> ExplicitLaw:
+    out_shards: str | os.PathLike | None = None,
+) -> ExplicitLaw | ShardedLaw:
     """Compute the explicit MPC law of a problem.
 
     Parameters
@@ -222,11 +224,16 @@ def synthesize(
     sharded, shard_dir
         With a Dask ``executor``: the mp-QP search sharded across its workers, its files in
         ``shard_dir`` (``mpsolve``; docs/scale.md); the same law.
+    out_shards : path-like, optional
+        With ``sharded``: the law's folder of shards, each written by the worker that
+        found its regions (``law_shards.ShardWriter``; every worker must reach the
+        folder); the law returned is read from it, lazily.
 
     Returns
     -------
-    ExplicitLaw
-        In plant coordinates; ``law.meta['seconds']`` is the total wall time.
+    ExplicitLaw or ShardedLaw
+        In plant coordinates; ``law.meta['seconds']`` is the total wall time. A
+        ``ShardedLaw`` with ``sharded`` and ``out_shards``.
 
     Raises
     ------
@@ -244,7 +251,23 @@ def synthesize(
     prepare()  # a fresh installation's kernels, announced, outside the law's seconds
     with stage_deadline():
         return _synthesize(problem, model, simplify, options, progress, executor,
-                           {"sharded": sharded, "shard_dir": shard_dir})
+                           {"sharded": sharded, "shard_dir": shard_dir},
+                           out_shards if sharded else None)
+
+
+def _shard_writer(problem: Problem, mp: MpcProgram, simplify: bool, folder) -> ShardWriter:
+    """What the sharded search's workers write the law's shards with: the law of
+    :func:`law_from_solution`, named as :func:`_synthesize` names it."""
+    states, inputs = tuple(problem.plant.states), tuple(problem.plant.inputs)
+    sl = mp.u0_slice
+    return ShardWriter(
+        directory=str(folder), op=np.asarray(mp.theta_op, float),
+        rows=(int(sl.start or 0), int(sl.stop)), u_op=np.asarray(mp.u_op, float),
+        simplify=bool(simplify), fingerprint=problem_fingerprint(mp), states=states,
+        inputs=inputs,
+        parameters=parameter_names(problem.mpc, states, inputs) if mp.d > mp.n else (),
+        meta={"norm": mp.spec.norm, "horizon": mp.N, "problem": problem.name},
+    )
 
 
 _TIME_FIX = "shorten mpc.horizon or bound fewer states and inputs in [mpc]"
@@ -260,7 +283,8 @@ def _walked_on_demand(mp: MpcProgram) -> bool:
     return mp.spec.norm in ("1", "2", "inf")
 
 
-def _synthesize(problem, model, simplify, options, progress, executor, how=None) -> ExplicitLaw:
+def _synthesize(problem, model, simplify, options, progress, executor, how=None,
+                out_shards=None) -> ExplicitLaw | ShardedLaw:
     t0 = time.perf_counter()
     spread, which = weight_spread(problem.mpc)
     if spread > WEIGHT_SPREAD_LIMIT:
@@ -283,9 +307,11 @@ def _synthesize(problem, model, simplify, options, progress, executor, how=None)
     capped = most < options.max_regions
     if capped:
         options = replace(options, max_regions=most)
+    simplify = problem.mpc.simplify if simplify is None else simplify
+    writer = None if out_shards is None else _shard_writer(problem, mp, simplify, out_shards)
     try:
         sol = mpsolve(mp.program, options=options, progress=checked, executor=executor,
-                      **(how or {}))
+                      shard_writer=writer, **(how or {}))
     except TooManyRegionsError:
         raise SolverError(
             f"synthesis stopped past {options.max_regions:,} critical regions "
@@ -302,9 +328,11 @@ def _synthesize(problem, model, simplify, options, progress, executor, how=None)
             f"{exc}; the cost's weights span {spread:.1e} ({which}): weights closer in "
             "magnitude may solve"
         ) from exc
-    law = law_from_solution(
-        mp, sol, simplify=problem.mpc.simplify if simplify is None else simplify
-    )
+    if isinstance(sol, ShardedSolution):  # (the workers wrote the law's shards)
+        return update_meta(out_shards, {
+            "regions": sol.num_regions, "solve_seconds": round(sol.seconds, 6),
+            "seconds": round(time.perf_counter() - t0, 6)})
+    law = law_from_solution(mp, sol, simplify=simplify)
     law.states = tuple(problem.plant.states)
     law.inputs = tuple(problem.plant.inputs)
     if mp.d > mp.n:

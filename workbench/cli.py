@@ -78,13 +78,18 @@ def _cmd_synth(args: argparse.Namespace) -> int:
                         "search across)", field="--sharded" if args.sharded else "--shard-dir")
     _prepare_kernels()
     with _executor(args) as executor, _progress(f"synthesising {problem.name}", True) as update:
-        law = synthesize(problem, progress=update, executor=executor,
-                         sharded=args.sharded or bool(args.shard_dir), shard_dir=args.shard_dir)
+        sharded = args.sharded or bool(args.shard_dir)
+        # (sharded: each worker writes its shard of the law; none comes back here)
+        law = synthesize(problem, progress=update, executor=executor, sharded=sharded,
+                         shard_dir=args.shard_dir, out_shards=args.out_shards if sharded else None)
         shards = executor.workers  # (1 when serial)
     out = None
     if args.out:
-        out = str(law.save(args.out))
-    if args.out_shards:
+        # (a single law file from the shards: merged here, on demand)
+        out = str((law.merged() if hasattr(law, "merged") else law).save(args.out))
+    if args.out_shards and hasattr(law, "merged"):
+        out = out or args.out_shards
+    elif args.out_shards:
         from codev_engine.law_shards import spatial_order, split_law, write_law_shards
 
         # (one checked law file per worker, in slabs of space, and the manifest:
@@ -127,8 +132,9 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     for i in range(shown):
         terms = []
         for r in range(law.m):
-            coef = " ".join(f"{v:+.4g}*{s}" for v, s in zip(law.F[i, r], theta, strict=True))
-            terms.append(f"{inputs[r]} = {coef} {law.G[i, r]:+.4g}")
+            # (law.F[i][r]: a sharded law's F takes one index at a time)
+            coef = " ".join(f"{v:+.4g}*{s}" for v, s in zip(law.F[i][r], theta, strict=True))
+            terms.append(f"{inputs[r]} = {coef} {law.G[i][r]:+.4g}")
         print(f"  region {i}: {law.A[i].shape[0]} facets; " + "; ".join(terms))
     if law.num_regions > shown:
         print(f"  ... {law.num_regions - shown} more regions")

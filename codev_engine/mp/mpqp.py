@@ -21,6 +21,7 @@ one Chebyshev-ball LP per candidate active set.
 from __future__ import annotations
 
 import copy
+import functools
 import os
 import time
 from collections import deque
@@ -619,6 +620,7 @@ def explore_active_sets(
     stats: dict | None = None,
     sharded: bool = False,
     shard_dir: str | os.PathLike | None = None,
+    finish: Callable | None = None,
 ) -> RegionArrays:
     """All full-dimensional critical regions of ``min 0.5 z'Hz + (c + C theta)'z s.t.
     G z <= w + S theta, At theta <= bt`` (H positive definite, rows of G unit norm).
@@ -677,13 +679,19 @@ def explore_active_sets(
         With ``sharded``: the folder in which the search's shard files go (a fresh folder in
         it, removed at the end; every worker must reach it); default the system's
         temporary folder.
+    finish : callable, optional
+        With ``sharded``: ``finish(regions, j)``, run on the worker of each shard at the
+        end with the shard's regions, merged (``sharded.sharded_walk``): then no region
+        comes back here.
 
     Returns
     -------
-    RegionArrays
+    RegionArrays or list of tuple
         In the variables z; ``active`` holds the active set. Sorted by active set, but for
         more than ``SORTED_UP_TO`` regions found by the compiled walk, which stay in the
         order it found them (neither timing nor the worker count changes that order).
+        With ``finish``, once the walk was sharded: each shard's ``(answer, merge stats,
+        regions before the merge)``.
 
     Raises
     ------
@@ -803,7 +811,12 @@ def explore_active_sets(
             compiled = False  # (its regions come back sorted: below, as the numpy walk's)
             regions = sharded_walk(kernel, opposite, explored, stack, regions, stats,
                                    executor, max_regions, progress, directory=shard_dir,
-                                   walk_class=_CompiledWalk, warm=_warm_worker)
+                                   walk_class=_CompiledWalk, warm=_warm_worker,
+                                   finish=finish,
+                                   merge=None if finish is None
+                                   else functools.partial(_merge_shard, scale))
+            if finish is not None:
+                return regions  # (each shard's law written where it was made)
         elif compiled:
             walk = _CompiledWalk(kernel, opposite, explored, stack, regions, stats)
             walk.run(nworkers, max_regions, progress, executor if remote_ok else None)
@@ -1082,6 +1095,11 @@ def _count_class(stats: dict, status: str, n: int = 1) -> None:
     if n:
         key = f"candidates_{status}"
         stats[key] = stats.get(key, 0) + n
+
+
+def _merge_shard(scale: float, regions: RegionArrays, stats: dict) -> RegionArrays:
+    """``_merge_equal_laws`` on one shard (a worker of the sharded search)."""
+    return _merge_equal_laws(regions, scale, stats)
 
 
 def _merge_equal_laws(regions: RegionArrays, scale: float, stats: dict) -> RegionArrays:

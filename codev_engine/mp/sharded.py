@@ -58,6 +58,10 @@ __all__ = ["owners", "read_shards", "sharded_walk"]
 BUDGET = 4096
 #: times a round is submitted before the search gives up (its tasks cancelled each time)
 _ATTEMPTS = 3
+#: a benchmark's prefix (``benchmarks/scale.py --stop-at``): the rounds end once this many
+#: regions are found and the end (the merge, or the workers' law shards) runs on them; not
+#: a law of the program (part of the parameter set is not covered). None: the whole search
+STOP_AT: int | None = None
 #: candidates per call of the compiled kernel (as ``mpqp._CHUNK``)
 _CHUNK = 64
 
@@ -334,25 +338,85 @@ def read_shards(directory: str | os.PathLike) -> RegionArrays:
     """
     parts = []
     for folder in sorted(Path(directory).iterdir(), key=lambda p: p.name):
-        if not folder.is_dir():
-            continue
-        files = sorted(folder.glob("part-*.npz"), key=lambda p: int(p.stem.split("-")[1]))
-        for path in files:
-            a = _read(path)
-            if a["K"].shape[0]:
-                parts.append(RegionArrays(
-                    a["A"], a["b"], a["offsets"], a["K"], a["k"], a["active"],
-                    a["active_offsets"], a["implied"], a["shared_A"], a["shared_b"]))
+        if folder.is_dir():
+            parts += _read_parts(folder)
     if not parts:
         return None
     out = RegionArrays.concat(parts)
     return out.take(out.active_order())
 
 
+def _read_parts(folder: Path) -> list[RegionArrays]:
+    """The regions of one shard's checked ``part-<round>.npz`` files, round by round."""
+    parts = []
+    files = sorted(folder.glob("part-*.npz"), key=lambda p: int(p.stem.split("-")[1]))
+    for path in files:
+        a = _read(path)
+        if a["K"].shape[0]:
+            parts.append(RegionArrays(
+                a["A"], a["b"], a["offsets"], a["K"], a["k"], a["active"],
+                a["active_offsets"], a["implied"], a["shared_A"], a["shared_b"]))
+    return parts
+
+
+def _finish(directory: str, j: int, seeds: RegionArrays, merge, finish) -> tuple:
+    """Worker side: shard ``j``'s regions (its part files and the seeds it owns), sorted
+    by active set, equal laws merged (``merge``), handed to ``finish`` (which writes the
+    shard's law file); (``finish``'s answer, stats, regions, CPU seconds). A pure function
+    of the files: run twice (a worker lost), it writes the same file."""
+    t0 = time.process_time()
+    parts = _read_parts(Path(directory) / f"{j}")
+    if len(seeds):
+        parts.append(seeds)
+    regions = RegionArrays.concat(parts) if parts else seeds
+    regions = regions.take(regions.active_order())
+    stats: dict = {}
+    found = len(regions)
+    regions = merge(regions, stats)
+    answer = finish(regions, j)
+    return answer, stats, found, time.process_time() - t0
+
+
+def _finish_on_workers(client, directory: str, n: int, regions: list, g, kernel,
+                       where: dict, merge, finish, totals: dict) -> list[tuple]:
+    """Each shard's law written by the worker that holds it (``_finish``); the given
+    regions (the few hundred found before the walk was sharded) each to its owner."""
+    seeds = RegionArrays.from_regions(regions, kernel.nz, kernel.d)
+    keys = (np.stack([g.key(a) for a in (r.active for r in regions)]) if regions
+            else np.zeros((0, g.W), np.uint64))
+    own = owners(keys, n)
+    for attempt in range(_ATTEMPTS):
+        futures = [
+            client.submit(_finish, directory, j, seeds.take(np.flatnonzero(own == j)), merge,
+                          finish, workers=[where[j]], allow_other_workers=True, pure=False,
+                          key=f"codev-shard-{os.path.basename(directory)}-{j}-end-{attempt}")
+            for j in range(n)
+        ]
+        try:
+            results = client.gather(futures)
+            break
+        except CancelledError:
+            # (as a round's: run again, the same files)
+            if attempt == _ATTEMPTS - 1:
+                raise SolverError(f"the sharded search's last step was cancelled "
+                                  f"{_ATTEMPTS} times (workers lost?)") from None
+            totals["rounds_retried"] = totals.get("rounds_retried", 0) + 1
+        finally:
+            del futures
+    out = []
+    for answer, st, found, cpu in results:
+        for key, v in st.items():
+            totals[key] = totals.get(key, 0) + v
+        totals["worker_cpu_seconds"] = totals.get("worker_cpu_seconds", 0.0) + cpu
+        out.append((answer, st, found))
+    return out
+
+
 def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: list,
                  stats: dict, executor, max_regions: int, progress=None,
                  directory: str | None = None, budget: int | None = None, *,
-                 walk_class: type, warm) -> RegionArrays:
+                 walk_class: type, warm, finish=None, merge=None
+                 ) -> RegionArrays | list[tuple]:
     """The rest of an mp-QP search (``mpqp.explore_active_sets`` once the compiled kernel
     runs), sharded across the executor's workers.
 
@@ -392,11 +456,22 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
         imports this module, and the import graph has no circles).
     warm : callable
         ``mpqp._warm_worker``, run once on every worker before the first round.
+    finish : callable, optional
+        ``finish(regions, j) -> answer``, run on the workers at the end, once per shard,
+        with the shard's regions (its own and the given ones it owns, sorted by active set,
+        equal laws merged by ``merge``): it writes the shard's law where the regions are.
+        Then no region comes back to this process.
+    merge : callable, optional
+        ``merge(regions, stats) -> regions`` (with ``finish``): ``mpqp._merge_equal_laws``
+        on one shard (regions of equal laws in different shards stay apart: the law is the
+        same function).
 
     Returns
     -------
-    RegionArrays
-        Every region (the ones given and the shards'), sorted by active set.
+    RegionArrays or list of tuple
+        Every region (the ones given and the shards'), sorted by active set; with
+        ``finish``, its answer for each shard with the shard's merge stats and its number
+        of regions before the merge: ``(answer, stats, regions)``.
     """
     import copy
 
@@ -493,12 +568,17 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
             if found > max_regions:
                 stats["rounds_client_cpu_seconds"] = time.process_time() - rounds0
                 raise TooManyRegionsError(too_many_regions(max_regions))
-            if not busy:
+            if not busy or (STOP_AT is not None and found >= STOP_AT):
                 break
         # the walk is done: what follows is the merge on demand, its cost apart
         walked = time.thread_time() - walk0
         stats["rounds_client_cpu_seconds"] = time.process_time() - rounds0
         cpu1 = time.process_time()
+        if finish is not None:
+            out = _finish_on_workers(client, directory, n, regions, g, kernel, where,
+                                     merge, finish, totals)
+            stats["merge_cpu_seconds"] = time.process_time() - cpu1
+            return out
         theirs = read_shards(directory)
         parts = [RegionArrays.from_regions(regions, kernel.nz, kernel.d)]
         if theirs is not None:
@@ -515,6 +595,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
             stats[key] = stats.get(key, 0) + v
         # (the coordinator's own thread; a LocalCluster's scheduler runs in this process
         # too, in other threads: client_cpu_seconds counts them, with the merge)
+        # (when the walk ended, for mpsolve's end_client_cpu_seconds)
+        stats["_walk_end_cpu"] = time.process_time()
         stats.update(shards=n, rounds=r, workers=n, client_cpu_seconds=time.process_time() - cpu0,
                      coordinator_cpu_seconds=walked if walked is not None
                      else time.thread_time() - walk0)

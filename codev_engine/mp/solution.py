@@ -595,3 +595,38 @@ class MpSolution:
             domain_b=db,
             seconds=float(meta.get("seconds", 0.0)),
         )
+
+
+@dataclass
+class ShardedSolution:
+    """The explicit solution as a law held in shard files, each written by the worker that
+    found its regions (``mpsolve(..., sharded=True, shard_writer=...)``): no region was in
+    this process.
+
+    Attributes
+    ----------
+    program : MpProgram
+    law : object
+        The sharded law (``law_shards.ShardedLaw``): ``locate``, ``evaluate``,
+        ``regions_meeting``, ``merged()``, in the law's variables (``shard_writer.op``
+        added to the program's ``theta``).
+    domain_A, domain_b : ndarray
+        The feasible parameter set, in the program's ``theta`` (as ``MpSolution``'s).
+    seconds : float
+    stats : dict
+        ``MpSolution``'s, and ``domain_facets`` (the feasible set's facets the shards
+        found), ``finish_client_cpu_seconds`` (this process's end: the domain, the
+        manifest, the coverage check).
+    """
+
+    program: MpProgram
+    law: object
+    domain_A: np.ndarray
+    domain_b: np.ndarray
+    seconds: float = 0.0
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def num_regions(self) -> int:
+        """The number of regions in the law's shards (equal laws merged within a shard)."""
+        return int(self.law.num_regions)

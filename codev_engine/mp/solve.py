@@ -36,9 +36,9 @@ from codev_engine.mp.mplp_graph import explore_bases
 from codev_engine.mp.mpqp import explore_active_sets
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.reduce import Reduced, lifted, parameter_box, reduce_program, start_point
-from codev_engine.mp.solution import CriticalRegion, MpSolution, RegionArrays
+from codev_engine.mp.solution import CriticalRegion, MpSolution, RegionArrays, ShardedSolution
 
-__all__ = ["CriticalRegion", "MpSolution", "mpsolve", "SolveOptions"]
+__all__ = ["CriticalRegion", "MpSolution", "ShardedSolution", "mpsolve", "SolveOptions"]
 
 
 @dataclass(frozen=True)
@@ -94,7 +94,8 @@ def mpsolve(
     executor: Executor | None = None,
     sharded: bool = False,
     shard_dir: str | os.PathLike | None = None,
-) -> MpSolution:
+    shard_writer=None,
+) -> MpSolution | ShardedSolution:
     """Solve an mp-LP / mp-QP exactly.
 
     Parameters
@@ -115,11 +116,20 @@ def mpsolve(
         With ``sharded``: the folder in which the search's shard files go (a fresh folder
         in it, removed at the end; default the system's temporary folder). Every worker
         must reach it: on a remote cluster, a shared file system.
+    shard_writer : law_shards.ShardWriter, optional
+        With ``sharded``: each worker writes its shard's law (``shard_writer.write``, on
+        the worker, with the shard's regions: equal laws merged within the shard, the
+        feasible set's facets among its rows found there too) and this process only
+        collects the manifest's entries and the facets, computes the domain from them and
+        opens the law (``shard_writer.open``): no region comes back. Without a sharded
+        walk (a small program, or no compiled kernel) the regions are here anyway and are
+        written as one shard.
 
     Returns
     -------
-    MpSolution
-        Empty (no regions) when the program is infeasible for every parameter.
+    MpSolution or ShardedSolution
+        Empty (no regions) when the program is infeasible for every parameter; a
+        ``ShardedSolution`` (the law's shards) with ``shard_writer``.
     """
     opts = options or SolveOptions()
     t0 = time.perf_counter()
@@ -134,19 +144,22 @@ def mpsolve(
     # the mp-LP's counters are in an mp-QP's stats too, at zero (as when one object
     # measured both programs: the reports keep their keys)
     stats = dict.fromkeys(COUNTERS, 0)
+    finish = (_ShardFinish(red, size.scale, shard_writer, program.nz)
+              if shard_writer is not None and sharded else None)
     with _search_failures(red):
         regions = _explore(
             red, size, region_tol, opts, progress, stats, semidefinite, executor, sharded,
-            shard_dir,
+            shard_dir, finish,
         )
+        if isinstance(regions, list):  # (the workers wrote the law's shards)
+            return _sharded_result(program, red, size, region_tol, opts, regions,
+                                   shard_writer, stats, t0, executor.client)
         domain = (
             _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
             else _empty_domain(red)
         )
     # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
-    if not (np.array_equal(red.Nz, np.eye(program.nz)) and not red.Z0.any() and not red.Z1.any()):
-        regions.K = red.Z1 + np.einsum("ij,rjk->rik", red.Nz, regions.K)
-        regions.k = red.Z0 + regions.k @ red.Nz.T
+    _to_original(red, regions, program.nz)
     sol = MpSolution(
         program=program,
         regions=regions,
@@ -166,7 +179,93 @@ def mpsolve(
         samples=max(0, int(opts.coverage_samples)),
     ))
     sol.seconds = time.perf_counter() - t0
+    _end_cpu(stats)
+    if shard_writer is not None:  # (no sharded walk: the regions are here, one shard)
+        entry = shard_writer.write(regions, 0)
+        law = shard_writer.open([entry], domain[0], domain[1], {"stats": stats})
+        return ShardedSolution(program, law, domain[0], domain[1], sol.seconds, stats)
     return sol
+
+
+def _end_cpu(stats: dict) -> None:
+    """``end_client_cpu_seconds``: this process's CPU from the end of a sharded walk to the
+    solution (the merge, the domain, the coverage check; or, with the workers writing the
+    law, waiting for them and the client's end)."""
+    end = stats.pop("_walk_end_cpu", None)
+    if end is not None:
+        stats["end_client_cpu_seconds"] = (time.process_time() - end
+                                           + stats.get("merge_cpu_seconds", 0.0))
+
+
+class _ShardFinish:
+    """Worker side, at the end of a sharded search: a shard's regions (reduced variables,
+    merged) to its law file. The feasible set's facets among the shard's rows are found
+    here (LPs over the lifted set: the expensive half of the domain), the regions mapped
+    back to the original variables, and ``writer.write`` saves the shard."""
+
+    def __init__(self, red: Reduced, scale: float, writer, nz: int):
+        self.red, self.scale, self.writer, self.nz = red, scale, writer, nz
+
+    def __call__(self, regions: RegionArrays, j: int) -> tuple[dict, np.ndarray]:
+        facets = (_boundary_facets(self.red, regions, self.scale) if len(regions)
+                  else np.zeros((0, self.red.At.shape[1] + 1)))
+        _to_original(self.red, regions, self.nz)
+        return self.writer.write(regions, j), facets
+
+
+def _to_original(red: Reduced, regions: RegionArrays, nz: int) -> None:
+    """The laws back in the original variables: ``z = Z0 + Z1 theta + Nz w`` (in place;
+    nothing to do without equalities)."""
+    if not (np.array_equal(red.Nz, np.eye(nz)) and not red.Z0.any() and not red.Z1.any()):
+        regions.K = red.Z1 + np.einsum("ij,rjk->rik", red.Nz, regions.K)
+        regions.k = red.Z0 + regions.k @ red.Nz.T
+
+
+def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, stats: dict,
+                    t0: float, client) -> ShardedSolution:
+    """The client's end of a search whose workers wrote the law's shards: the domain from
+    the shards' facets (one row per facet of the feasible set: its boundary, not its
+    regions), the manifest, and the coverage check on the sharded law."""
+    cpu0 = time.process_time()
+    d = red.At.shape[1]
+    facets = np.vstack([f for (_, f), _, _ in shards] + [np.zeros((0, d + 1))])
+    # (a facet of the feasible set split between regions is in each of them)
+    facets = facets[unique_rows(facets, 7)] if facets.shape[0] else facets
+    found = sum(k for _, _, k in shards)
+    if found:
+        domain = _domain_rows(red, facets, size.scale, size.box)
+    else:
+        domain = _empty_domain(red)
+    stats["domain_facets"] = int(facets.shape[0])
+    stats["regions_before_merge"] = found
+    law = writer.open([entry for (entry, _), _, _ in shards], domain[0], domain[1],
+                      {"stats": stats, "regions_before_merge": found})
+    offsets = law.offsets
+
+    def locate(X: np.ndarray) -> np.ndarray:
+        # each shard's worker locates the points in its own file: the client reads none
+        X = np.atleast_2d(X) + writer.op
+        found = client.gather([client.submit(writer.locate, j, X, pure=False)
+                               for j in range(law.shards)])
+        out = np.full(X.shape[0], -1, dtype=np.int64)
+        for j, idx in enumerate(found):
+            hit = (out < 0) & (idx >= 0)
+            out[hit] = idx[hit] + offsets[j]
+        return out
+
+    stats.update(check_coverage(
+        feasibility_rows(red.G, red.S, red.w, red.At, red.bt),
+        locate,
+        law.num_regions,
+        scale=size.scale,
+        region_tol=region_tol,
+        kind="mp-QP",
+        seed=opts.seed,
+        samples=max(0, int(opts.coverage_samples)),
+    ))
+    stats["finish_client_cpu_seconds"] = time.process_time() - cpu0
+    _end_cpu(stats)
+    return ShardedSolution(program, law, domain[0], domain[1], time.perf_counter() - t0, stats)
 
 
 #: the failures of a search that are breakdowns of its arithmetic or of a library it calls
@@ -206,8 +305,8 @@ def _search_failures(red: Reduced) -> Iterator[None]:
 
 def _explore(
     red, size, region_tol, opts, progress, stats, semidefinite, executor=None, sharded=False,
-    shard_dir=None,
-) -> RegionArrays:
+    shard_dir=None, finish=None,
+) -> RegionArrays | list:
     """The critical regions of the reduced program (mp-LP or mp-QP search)."""
     nz, d = red.G.shape[1], red.At.shape[1]
     if not np.any(red.H):
@@ -236,6 +335,7 @@ def _explore(
                 executor=executor,
                 sharded=sharded,
                 shard_dir=shard_dir,
+                finish=finish,
                 semidefinite=semidefinite,
                 progress=progress,
                 stats=stats,
@@ -376,7 +476,20 @@ def _domain_from_regions(
     they bound it or not (and region rows equal to one are not told apart from it): each
     is kept unless the other rows imply it (an LP).
     """
-    # (the rows the regions share are the parameter set's, dealt with below)
+    facets = _boundary_facets(red, regions, scale)
+    return _domain_rows(red, facets, scale, box)
+
+
+def _boundary_facets(red: Reduced, regions: RegionArrays, scale: float) -> np.ndarray:
+    """The regions' own rows that are valid for the whole feasible set (its facets):
+    ``(q, d + 1)`` rows ``[a, beta]`` (``_domain_from_regions``' first step).
+
+    Run on a part of the regions (a shard of the sharded search), it gives the facets of
+    the feasible set among that part's rows: a facet between two regions of different
+    parts is unpaired in each part, but no LP finds it valid (the region across it is in
+    the feasible set), so the union of the parts' answers is the whole's.
+    """
+    # (the rows the regions share are the parameter set's, dealt with in _domain_rows)
     A, b = regions.A, regions.b
     # a facet between two regions appears with both signs: not on the boundary
     if len(regions) > _COMPILED_DOMAIN_AFTER:
@@ -417,7 +530,16 @@ def _domain_from_regions(
                 valid[s0 + j] = a @ x[nw:] <= beta + tol
                 seen[nseen % _SEEN] = x[nw:]
                 nseen += 1
-    facets = cand[valid].reshape(-1, d + 1)
+    return cand[valid].reshape(-1, d + 1)
+
+
+def _domain_rows(red: Reduced, facets: np.ndarray, scale: float,
+                 box: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The domain from its facets (:func:`_boundary_facets`): the parameter set's rows the
+    facets do not imply, and the redundant rows dropped (up to ``_MINREP_ROWS``)."""
+    p = red.At.shape[0]
+    theta_rows = np.hstack([red.At, red.bt[:, None]])
+    tol = 1e-9 * scale
     # a parameter-set row goes if the other rows imply it: one at a time, each without
     # the ones dropped before (of two equal rows one stays). The LPs run inside the
     # parameter box grown by its size: the set without row i goes past row i, if at all,

@@ -152,8 +152,20 @@ def test_the_cli_refuses_a_damaged_shard_in_one_line(spec, law, tmp_path, capsys
     assert "--sharded: needs --workers" in capsys.readouterr().err
 
 
+def _same_function(serial, shards, lo, hi, points: int = 3000, seed: int = 0) -> None:
+    """``shards`` locates and evaluates as ``serial`` at random points of the box
+    ``[lo, hi]`` (which reaches past the domain): the same points inside, the same law."""
+    X = np.random.default_rng(seed).uniform(lo, hi, size=(points, len(lo)))
+    inside, got = serial.locate(X) >= 0, shards.locate(X) >= 0
+    assert 0 < inside.sum() < points  # (points inside and outside the domain)
+    np.testing.assert_array_equal(inside, got)
+    np.testing.assert_allclose(shards.evaluate(X), serial.evaluate(X), rtol=1e-9, atol=1e-9)
+
+
 @pytest.mark.slow  # (a LocalCluster: ~10 s on a loaded machine)
-def test_the_sharded_search_writes_the_serial_law_as_shards(spec, tmp_path, monkeypatch, capsys):
+def test_the_sharded_search_s_workers_write_the_law(spec, tmp_path, monkeypatch, capsys):
+    """``codev synth --sharded --out-shards``: each worker writes its shard's law (equal
+    laws merged within the shard), the client the manifest: the serial law's function."""
     from codev_engine.mp import mpqp, sharded
 
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)  # (sharded from the first region)
@@ -165,6 +177,7 @@ def test_the_sharded_search_writes_the_serial_law_as_shards(spec, tmp_path, monk
     assert code == 0 and json.loads(capsys.readouterr().out)["out"] == str(out)
     shards = ShardedLaw(out)
     assert shards.shards == 2 and shards.meta["stats"]["shards"] == 2
+    assert shards.meta["regions_before_merge"] == serial.meta["regions_before_merge"]
     assert not any((tmp_path / "work").iterdir())  # (the search's own files removed)
-    # (the CLI writes the regions in slabs of space: the serial law in that order)
-    _equal_laws(shards.merged(), split_law(serial, 1, spatial_order(serial))[0])
+    assert shards.domain_A.shape == serial.domain_A.shape
+    _same_function(serial, shards, [-6.0, -2.5], [6.0, 2.5])

@@ -134,3 +134,76 @@ def test_a_round_whose_tasks_are_cancelled_is_run_again(serial, monkeypatch):
         got = ce.mpsolve(_program(), executor=ex, sharded=True, progress=progress)
     assert cancelled and got.stats["rounds_retried"] >= 1
     _same_regions(serial, got)
+
+
+def _same_function(serial: ce.MpSolution, law, points: int = 2000) -> None:
+    """The sharded law (``u = z``) locates and evaluates as the serial solution at random
+    points of a box past the parameter set ``[-1, 1]^4`` (outside the domain too)."""
+    X = np.random.default_rng(3).uniform(-1.3, 1.3, size=(points, 4))
+    inside = serial.locate(X) >= 0
+    assert 0 < inside.sum() < points
+    np.testing.assert_array_equal(law.locate(X) >= 0, inside)
+    U = law.evaluate(X)
+    assert np.all(np.isnan(U[~inside]))
+    np.testing.assert_allclose(U[inside], serial.primal(X[inside]), rtol=1e-9, atol=1e-9)
+
+
+def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
+    """``mpsolve(shard_writer=...)``: each worker writes its shard of the law, the client
+    collects the manifest's entries and the domain's facets alone; a damaged shard is
+    refused."""
+    from codev_engine.errors import SpecError
+    from codev_engine.law_shards import ShardedLaw, ShardWriter
+
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(sharded, "BUDGET", 128)
+    p = _program()
+    writer = ShardWriter(str(tmp_path / "law"), np.zeros(p.d), rows=(0, p.nz))
+    with ce.Executor(workers=2) as ex:
+        got = ce.mpsolve(p, executor=ex, sharded=True, shard_writer=writer)
+    assert isinstance(got, ce.ShardedSolution) and got.stats["shards"] == 2
+    law = ShardedLaw(tmp_path / "law")
+    assert law.shards == 2 and law.num_regions == got.num_regions
+    # (equal laws merged within a shard: at most the serial count before its merge)
+    assert serial.num_regions <= law.num_regions <= serial.num_regions + serial.stats.get(
+        "merged", 0)
+    # the domain from the shards' facets: the serial one's rows
+    np.testing.assert_allclose(np.sort(np.hstack([got.domain_A, got.domain_b[:, None]]), 0),
+                               np.sort(np.hstack([serial.domain_A, serial.domain_b[:, None]]),
+                                       0), atol=1e-9)
+    _same_function(serial, law)
+    # a shard damaged after the fact is refused, naming it
+    path = tmp_path / "law" / "shard-1.npz"
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 1
+    path.write_bytes(bytes(data))
+    with pytest.raises(SpecError, match="shard-1.npz"):
+        ShardedLaw(tmp_path / "law").merged()
+
+
+@pytest.mark.slow  # (~40 s: the nanny starts a new worker on a loaded machine)
+def test_a_worker_killed_while_the_workers_write_the_law_loses_nothing(
+        serial, monkeypatch, tmp_path):
+    from codev_engine.law_shards import ShardWriter
+
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(sharded, "BUDGET", 64)
+    p = _program()
+    writer = ShardWriter(str(tmp_path / "law"), np.zeros(p.d), rows=(0, p.nz))
+    with ce.Executor(workers=2) as ex:
+        client = ex.client
+        pids = client.run(os.getpid)
+        killed: list[int] = []
+
+        def progress(found: int) -> None:
+            if found >= 100 and not killed:
+                holding = client.run(sharded.cached_shards)
+                address = max(sorted(holding), key=lambda a: holding[a])
+                os.kill(pids[address], signal.SIGKILL)
+                killed.append(pids[address])
+
+        got = ce.mpsolve(p, executor=ex, sharded=True, progress=progress,
+                         shard_writer=writer)
+        assert killed and got.stats["shards_restored"] >= 1
+        _same_function(serial, got.law)
+        _wait_for_workers(client, killed[0])
