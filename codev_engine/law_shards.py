@@ -270,7 +270,7 @@ class ShardWriter:
         -------
         ExplicitLaw
         """
-        from codev_engine.mp.merge import merge_regions
+        from codev_engine.mp.merge import merge_equal_laws
 
         k, d = len(regions), self.op.size
         sl = slice(*self.rows)
@@ -284,14 +284,8 @@ class ShardWriter:
         F = K.reshape(k, m, d)
         G = kk - np.einsum("rij,j->ri", K, self.op) + (0.0 if self.u_op is None else self.u_op)
         G = G.reshape(k, m)
-        if self.simplify and k:
-            # equal laws up to round-off share a key (as synthesis.law_from_solution)
-            scale = max(1.0, float(np.max(np.abs(F), initial=0)),
-                        float(np.max(np.abs(G), initial=0)))
-            keys = [np.round(np.concatenate([f.ravel(), g]) / scale, 9).tobytes()
-                    for f, g in zip(F, G, strict=True)]
-            As, bs, src = merge_regions(As, bs, keys)
-            F, G = F[src], G[src]
+        if self.simplify and k:  # the same rule as synthesis.law_from_solution
+            As, bs, F, G = merge_equal_laws(As, bs, F, G)
         return ExplicitLaw(A=As, b=bs, F=F, G=G, states=self.states, inputs=self.inputs,
                            fingerprint=self.fingerprint, meta={"shard": True},
                            parameters=self.parameters)

@@ -16,7 +16,7 @@ from codev_engine.kernel_cache import prepare
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
 from codev_engine.law_shards import ShardedLaw, ShardWriter, update_meta
 from codev_engine.limits import check_time, limits, stage_deadline
-from codev_engine.mp.merge import merge_regions
+from codev_engine.mp.merge import merge_equal_laws
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.solution import ShardedSolution, TooManyRegionsError
 from codev_engine.mp.solve import MpSolution, SolveOptions, mpsolve
@@ -163,14 +163,7 @@ def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> Exp
     )
     merged = len(As)
     if simplify and As:
-        # equal laws up to round-off share a key
-        scale = max(1.0, float(np.max(np.abs(F), initial=0)), float(np.max(np.abs(G), initial=0)))
-        keys = [
-            np.round(np.concatenate([f.ravel(), g]) / scale, 9).tobytes()
-            for f, g in zip(F, G, strict=True)
-        ]
-        As, bs, src = merge_regions(As, bs, keys)
-        F, G = F[src], G[src]
+        As, bs, F, G = merge_equal_laws(As, bs, F, G)
         merged = len(As)
     return ExplicitLaw(
         domain_A=sol.domain_A,

@@ -13,7 +13,7 @@ import numpy as np
 from codev_engine.geometry.locate import bounding_boxes
 from codev_engine.geometry.polytope import certified_minimal_rows, chebyshev_ball, solve_lp
 
-__all__ = ["merge_regions"]
+__all__ = ["merge_equal_laws", "merge_regions"]
 
 
 def _valid_on(
@@ -109,3 +109,37 @@ def merge_regions(
 def _box(A, b):
     lo, hi = bounding_boxes([A], [b])
     return lo[0], hi[0]
+
+
+def merge_equal_laws(
+    As: list[np.ndarray], bs: list[np.ndarray], F: np.ndarray, G: np.ndarray
+) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray, np.ndarray]:
+    """Regions whose affine laws are equal up to round-off merged where their union is
+    convex (:func:`merge_regions` with the law as the key).
+
+    Two laws share a key when ``(F_i, G_i)`` agree to 9 decimals relative to the largest
+    entry of all of them (at least 1): the same function up to the solver's round-off.
+
+    Parameters
+    ----------
+    As, bs : list of (r_i, d) and (r_i,) ndarray
+        The regions ``A_i theta <= b_i``.
+    F : (k, m, d) ndarray
+    G : (k, m) ndarray
+
+    Returns
+    -------
+    As, bs : lists
+        The merged regions.
+    F : (k', m, d) ndarray
+    G : (k', m) ndarray
+    """
+    if not As:
+        return As, bs, F, G
+    scale = max(1.0, float(np.max(np.abs(F), initial=0)), float(np.max(np.abs(G), initial=0)))
+    keys = [
+        np.round(np.concatenate([f.ravel(), g]) / scale, 9).tobytes()
+        for f, g in zip(F, G, strict=True)
+    ]
+    As, bs, src = merge_regions(As, bs, keys)
+    return As, bs, F[src], G[src]

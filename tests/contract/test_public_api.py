@@ -22,6 +22,7 @@ PINNED = {
     "LinearModel": "codev_engine.plant",
     "MpProgram": "codev_engine.mp.program",
     "MpSolution": "codev_engine.mp.solution",
+    "ShardedSolution": "codev_engine.mp.solution",
     "MpcProgram": "codev_engine.mpc",
     "OnlineMpc": "codev_engine.mpc",
     "Problem": "codev_engine.spec.problem",
