@@ -762,10 +762,18 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     elif "undefined" in kinds:
         reason, f = "infeasible_region", first("undefined")
         detail = f.detail or f"at t = {f.t:.6g} the reach set may leave the law's domain"
-    else:
+    elif "max_depth" in kinds:
         reason, f = "max_depth", first("max_depth")
         detail = f.detail or (f"a possible violation at t = {f.t:.6g} was not decided "
                               "within max_depth refinements")
+    else:
+        # a property's violation on an over-approximated set (a hull under disturbances:
+        # no initial state to replay) that no concrete search reproduced
+        f = min(findings, key=lambda f: f.t)
+        reason = "max_depth"
+        detail = f.detail or (f"a possible {f.kind} violation at t = {f.t:.6g} on an "
+                              "over-approximated reach set was not decided: no concrete "
+                              "search reproduced it; the tube of that branch ends there")
     if concrete:
         c = min(concrete, key=lambda f: f.t)
         detail += (f"; a {c.kind} violation found on the reach set at t = {c.t:.6g} was not "
