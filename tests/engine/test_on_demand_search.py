@@ -12,6 +12,7 @@ the full law.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import codev_engine as ce
 from codev_engine.law_on_demand import OnDemandLaw
@@ -44,3 +45,29 @@ def test_an_incomplete_law_on_demand_finds_the_full_laws_counterexample():
     hold = problem.verify.hold
     # (each replays on the other law: the same run)
     assert _replays(problem, law, b, hold) and _replays(problem, od, a, hold)
+
+
+@pytest.mark.slow
+def test_the_input_search_takes_the_same_rows_from_both_laws():
+    # (the navigation example, 0.85 % disturbance, its input bounds checked under the
+    # continuous hold: 89 of 224 regions on demand; the search's rows are those of the
+    # regions located at the tube's points, the same for both laws, and so is what it
+    # finds: the loop leaving the law's domain at t = 2; 40 s at load 15)
+    from dataclasses import replace
+
+    from codev_engine.reach.verification import _input_search
+
+    base, problem = _paper_disturbed("navigation", 0.0085)
+    problem = replace(problem, verify=replace(problem.verify, input_bounds=True,
+                                              hold="continuous", unsafe=()))
+    law = ce.synthesize(base, simplify=False)
+    od = OnDemandLaw(base)
+    full = ce.verify(problem, law)
+    mine = ce.verify(problem, od)
+    assert not od.complete
+    assert full.verdict == mine.verdict == "unsafe"
+    a = _input_search(problem, law, "continuous", tube=full.tube)
+    b = _input_search(problem, od, "continuous", tube=full.tube)
+    assert a is not None and b is not None
+    assert a.kind == b.kind and a.t == b.t and np.array_equal(a.x0, b.x0)
+    assert _replays(problem, law, b, "continuous")
