@@ -6,7 +6,12 @@ the full law.
   of 1 % of the state range on every state derivative: 47 of its 1,008 regions computed on
   demand, ``unsafe`` (safe set) both ways with the same counterexample; before, a
   possible violation of the safe set on a hull (no initial state) with no ``max_depth``
-  finding beside it ended the verification in a ``ValueError`` for both laws.
+  finding beside it ended the verification in a ``ValueError`` for both laws;
+- the navigation example, its input bounds under the continuous hold: the input bounds'
+  search takes the same rows from both laws (the regions at the tube's points) and finds
+  the same run (``-m slow``);
+- a chain of 5 integrators with a disturbance and a safe box it leaves: 225 of 1,398
+  regions on demand, the same counterexample (``-m slow``).
 """
 
 from __future__ import annotations
@@ -71,3 +76,36 @@ def test_the_input_search_takes_the_same_rows_from_both_laws():
     assert a is not None and b is not None
     assert a.kind == b.kind and a.t == b.t and np.array_equal(a.x0, b.x0)
     assert _replays(problem, law, b, "continuous")
+
+
+@pytest.mark.slow
+def test_a_chain_left_incomplete_finds_the_full_laws_counterexample():
+    # a chain of 5 integrators (N = 4, 1,398 regions), a disturbance of +-0.3 on its input
+    # and a safe box of +-0.3 the loop leaves at t = 2.165: 225 regions on demand, the
+    # same counterexample, replayed on the full law (~10 s)
+    from benchmarks.on_demand import _vec
+    from tests.engine.test_mpqp_chain import chain_spec
+
+    n = 5
+    text = chain_spec(n).replace('"u"]\n[model]',
+                                 '"u + w"]\ndisturbances = { w = [-0.3, 0.3] }\n[model]')
+    text += f"""
+[verify]
+time_horizon = 2.5
+hold = "zoh"
+initial_set = {{ lower = {_vec([-0.02] * n)}, upper = {_vec([0.02] * n)} }}
+input_bounds = true
+[[verify.safe]]
+lower = {_vec([-0.3] * n)}
+upper = {_vec([0.3] * n)}
+"""
+    problem = ce.loads_spec(text, path="chain5", check_mpc=False)
+    law = ce.synthesize(problem)
+    od = OnDemandLaw(problem)
+    full = ce.verify(problem, law)
+    mine = ce.verify(problem, od)
+    assert not od.complete and od.num_regions < law.num_regions
+    assert full.verdict == mine.verdict == "unsafe" and full.reason == mine.reason == "safe"
+    a, b = full.counterexample, mine.counterexample
+    assert a.t == b.t and np.array_equal(a.x0, b.x0)
+    assert _replays(problem, law, b, "zoh")
