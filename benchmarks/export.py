@@ -140,6 +140,7 @@ def operation_quadrotor(count: int, states: dict) -> object:
 
 def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path,
           leaf_size: int | None = None, reps: int = 8, rounds: int = 3) -> dict:
+    from codev_engine.deploy.expected import expected_rows
     from codev_engine.deploy.export import export_c
     from codev_engine.deploy.plan import plan
 
@@ -182,6 +183,10 @@ def run_c(obj, method: str, X: np.ndarray, ref: np.ndarray, tmp: Path,
         "worst_ns": float(ns.max()),
         "p99_ns": float(np.percentile(ns, 99)),
         "mismatches": int(np.count_nonzero(idx != ref)),
+        # the rows the code evaluates on the first 2,000 states, at the mean
+        # (deploy.expected: what plan's auto compares on a region of operation)
+        "mean_rows": float(expected_rows(ex.tree, ex.dep.A, ex.dep.b, ex.dep.off,
+                                         X[:2000]).mean()),
         "leaves": int(ex.tree.num_leaves),
         "nodes": int(ex.tree.num_nodes),
         "leaf_size": max([1] + [int(g.size) for g in ex.tree.leaf_group]),
@@ -299,6 +304,10 @@ def main(argv: list[str] | None = None) -> int:
             except TreeTooLargeError as exc:
                 b = None
                 print(f"{name}: no tree: {exc}", flush=True)
+        if name == OPERATION:  # (the tree is built again: auto's choice on the tube)
+            from codev_engine.deploy.plan import plan
+
+            print(f"{name}: auto chooses {plan(obj, 'auto').method}", flush=True)
         peer = None if args.no_peer else run_ppopt(dep, X, ref)
         rows.append({"problem": name, "regions": R, "n": d, "target_tests":
                      2 * ceil_log2(R) + d, "c": [r for r in (b, s) if r], "ppopt": peer})
@@ -315,8 +324,10 @@ def main(argv: list[str] | None = None) -> int:
             f"worst fast path {b['worst_fast_rows']} rows, certified worst "
             f"{b['worst_tests']} rows / "
             f"{b['worst_macs']} MACs, ROM {b['rom_bytes']} B, median {b['median_ns']:.0f} ns, "
-            f"worst {b['worst_ns']:.0f} ns, mismatches {b['mismatches']} | sequential: worst "
+            f"worst {b['worst_ns']:.0f} ns, mean rows {b['mean_rows']:.0f}, mismatches "
+            f"{b['mismatches']} | sequential: worst "
             f"{s['worst_tests']} rows, ROM {s['rom_bytes']} B, median {s['median_ns']:.0f} ns, "
+            f"mean rows {s['mean_rows']:.0f}, "
             f"worst {s['worst_ns']:.0f} ns, mismatches {s['mismatches']}"
             + ("" if peer is None else f" | PPOPT PointLocation: median "
                f"{peer['median_ns']:.0f} ns, worst {peer['worst_ns']:.0f} ns "

@@ -55,7 +55,9 @@ def operation_law(problem, law, result) -> tuple[ExplicitLaw, dict]:
     -------
     ExplicitLaw
         The regions computed (those reached), ordered as in the full law (by active set),
-        with the law's names and fingerprint; ``meta["operation"]`` holds the certificate.
+        with the law's names and fingerprint; ``meta["operation"]`` holds the certificate,
+        ``meta["operation_states"]`` (k, n) the sample sets' centres (``plan``'s ``auto``
+        chooses the search by its mean cost on them).
     certificate : dict
         ``sets`` (sample sets checked), ``regions``, ``verdict``, ``reason``, ``horizon``,
         ``initial_lower``, ``initial_upper``.
@@ -107,8 +109,10 @@ def operation_law(problem, law, result) -> tuple[ExplicitLaw, dict]:
         "initial_lower": [float(v) for v in problem.verify.initial_lower],
         "initial_upper": [float(v) for v in problem.verify.initial_upper],
     }
+    # the sample sets' centres: the states the loop visits, by which ``plan``'s ``auto``
+    # chooses the search of lower expected cost (the header keeps the worst case)
     meta = {"problem": problem.name, "operation": cert, "norm": law.meta.get("norm"),
-            "horizon": law.meta.get("horizon")}
+            "horizon": law.meta.get("horizon"), "operation_states": 0.5 * (lo + hi)}
     out = ExplicitLaw(
         A=[law.A[i] for i in order], b=[law.b[i] for i in order],
         F=np.asarray(law.F)[order], G=np.asarray(law.G)[order],

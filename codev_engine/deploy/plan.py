@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from codev_engine.deploy.bst import Tree, TreeTooLargeError, build_tree, sequential_tree
+from codev_engine.deploy.expected import expected_rows
 from codev_engine.errors import SpecError
 
 __all__ = [
@@ -154,6 +155,9 @@ class Export:
     macs : int
         Most multiply-adds of one call: ``d`` per hyperplane evaluation plus ``m d`` for the
         law.
+    expected : float or None
+        The mean hyperplane and row evaluations on the states ``plan`` was given
+        (``deploy.expected``), None without them.
     """
 
     dep: Deployable
@@ -162,6 +166,7 @@ class Export:
     depth: int
     tests: int
     macs: int
+    expected: float | None = None
 
 
 def law_labels(dep: Deployable, decimals: int = 9) -> np.ndarray:
@@ -189,7 +194,8 @@ def law_labels(dep: Deployable, decimals: int = 9) -> np.ndarray:
 
 
 def plan(
-    obj, method: str = "auto", merge_equal_laws: bool = False, leaf_size: int | None = None
+    obj, method: str = "auto", merge_equal_laws: bool = False, leaf_size: int | None = None,
+    states: np.ndarray | None = None,
 ) -> Export:
     """Build the search of an export.
 
@@ -197,7 +203,9 @@ def plan(
     ----------
     obj : ExplicitLaw, MpSolution or Deployable
     method : {"auto", "bst", "sequential"}
-        ``auto``: the one of fewer worst-case multiply-adds.
+        ``auto``: the one of fewer worst-case multiply-adds, or with ``states`` the one of
+        fewer evaluations on them at the mean (the worst case is still certified and
+        stated).
     merge_equal_laws : bool
         Regions with equal affine laws (:func:`law_labels`) share a tree leaf: the tree
         stops splitting where the regions left all have one law, and that leaf runs the
@@ -208,6 +216,9 @@ def plan(
         ``BUCKET_FROM`` regions, ``BUCKET`` beyond (a large partition's tree stays small),
         ``LARGE["leaf_size"]`` beyond ``LARGE_FROM`` (where the tree also stops at nodes
         no split makes much smaller: ``LARGE``).
+    states : (P, d) ndarray, optional
+        Parameter vectors the code will mostly see; default ``meta["operation_states"]``
+        of a region of operation (``deploy.operation``: its tube's sample sets' centres).
 
     Returns
     -------
@@ -246,12 +257,22 @@ def plan(
         lo = choices[0][1].box_lo if choices else None
         hi = choices[0][1].box_hi if choices else None
         choices.append(("sequential", sequential_tree(dep.A, dep.b, dep.off, lo, hi)))
-    best = None
+    if states is None:
+        states = (getattr(obj, "meta", None) or {}).get("operation_states")
+    if states is not None:
+        states = np.atleast_2d(np.asarray(states, float))
+        states = states[np.all(np.isfinite(states), axis=1)] if states.shape[1] == d else None
+    best, best_key = None, ()
     for name, tree in choices:
         c = tree.cost()
-        e = Export(dep, tree, name, c["depth"], c["tests"], c["tests"] * d + m * d)
-        if best is None or e.macs < best.macs:
-            best = e
+        mean = None
+        if states is not None and states.shape[0]:
+            mean = float(expected_rows(tree, dep.A, dep.b, dep.off, states).mean())
+        e = Export(dep, tree, name, c["depth"], c["tests"], c["tests"] * d + m * d, mean)
+        # (by the mean on the states when known, the worst case breaking ties)
+        key = (e.macs,) if mean is None else (mean, e.macs)
+        if best is None or key < best_key:
+            best, best_key = e, key
     return best
 
 

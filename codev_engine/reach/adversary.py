@@ -152,9 +152,12 @@ def adjoint_signals(
                 continue
             xk = X[:, idx[-1]]
             ok = np.all(np.isfinite(xk), axis=1)
-            r = np.zeros(P, dtype=int)
-            r[ok] = np.maximum(law.locate(xk[ok]), 0)
-            reg[:, k] = r
+            r = np.full(P, -1, dtype=int)
+            r[ok] = law.locate(xk[ok])
+            # outside the law's domain: the last sample's region (a law on demand numbers
+            # its regions as it finds them, so a fixed index would be another region there
+            # than the full law's); region 0 only for a start outside the domain
+            reg[:, k] = np.where(r >= 0, r, reg[:, k - 1] if k else 0)
         # the adjoint backwards over the steps; lam (P, n [+ m]) at the step's end
         lam = np.zeros((P, width))
         grad = np.zeros((P, K, E.shape[1]))

@@ -664,7 +664,7 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
         searches = [] if searched else [lambda: _search(problem, law, hold)]
         if plant is not None:
             searches += [lambda: _adjoint_search(problem, law, hold, [f.t for f in findings]),
-                         lambda: _input_search(problem, law, hold)]
+                         lambda: _input_search(problem, law, hold, tube=tube)]
             if _inputs_only(problem, tube, findings):
                 searches = [searches[2], searches[0], searches[1]]
         cex = None
@@ -762,10 +762,18 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     elif "undefined" in kinds:
         reason, f = "infeasible_region", first("undefined")
         detail = f.detail or f"at t = {f.t:.6g} the reach set may leave the law's domain"
-    else:
+    elif "max_depth" in kinds:
         reason, f = "max_depth", first("max_depth")
         detail = f.detail or (f"a possible violation at t = {f.t:.6g} was not decided "
                               "within max_depth refinements")
+    else:
+        # a property's violation on an over-approximated set (a hull under disturbances:
+        # no initial state to replay) that no concrete search reproduced
+        f = min(findings, key=lambda f: f.t)
+        reason = "max_depth"
+        detail = f.detail or (f"a possible {f.kind} violation at t = {f.t:.6g} on an "
+                              "over-approximated reach set was not decided: no concrete "
+                              "search reproduced it; the tube of that branch ends there")
     if concrete:
         c = min(concrete, key=lambda f: f.t)
         detail += (f"; a {c.kind} violation found on the reach set at t = {c.t:.6g} was not "
@@ -1341,7 +1349,7 @@ def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[f
 
 
 def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int = 5,
-                  max_periods: int = 40) -> Counterexample | None:
+                  max_periods: int = 40, tube: Tube | None = None) -> Counterexample | None:
     """Counterexamples of ``input_bounds`` under the adjoint's bang-bang signals.
 
     The input of region ``i`` is ``F_i x + G_i``: a signal that pushes ``±F_i[j]' x`` to
@@ -1364,6 +1372,11 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
         Target times per sample period (at ``(j + 1) / (per_period + 1)`` of it).
     max_periods : int
         At most this many periods from ``t = 0`` get targets.
+    tube : Tube, optional
+        The verification's tube: the rows are those of the regions holding its boxes'
+        centres and corners and the initial states (located, so a law computed on demand
+        and the full law give the same rows and the same counterexample); without it,
+        every region's rows.
 
     Returns
     -------
@@ -1382,9 +1395,31 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
     n = pl.n
     Ts = float(problem.model.sample_time)
     T = float(vs.time_horizon)
-    rows = np.asarray(law.F, float).reshape(-1, n)
+    if not np.isfinite(T):
+        return None
+    lo, hi = np.asarray(vs.initial_lower, float), np.asarray(vs.initial_upper, float)
+    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
+                                   indexing="ij")).reshape(n, -1).T
+    if corners.shape[0] > 16:
+        corners = corners[np.random.default_rng(0).choice(corners.shape[0], 16, replace=False)]
+    X0 = np.vstack([0.5 * (lo + hi), corners])
+    if tube is None:
+        F = np.asarray(law.F, float)
+    else:
+        # the regions where the loop goes, by the points of the tube (located: a law on
+        # demand holds only the regions computed so far, which its rows alone would miss,
+        # and the full law's every row would make a batch of its size)
+        pts = [X0]
+        if tube.num_boxes:
+            blo, bhi = np.asarray(tube.lower, float), np.asarray(tube.upper, float)
+            pts += [0.5 * (blo + bhi), blo, bhi]
+        P = np.unique(np.vstack(pts), axis=0)
+        P = P[np.all(np.isfinite(P), axis=1)]
+        reg = np.unique(law.locate(P)) if P.shape[0] else np.zeros(0, int)
+        F = np.asarray(law.F, float)[reg[reg >= 0]]
+    rows = F.reshape(-1, n)
     rows = rows[np.linalg.norm(rows, axis=1) > 1e-12]
-    if rows.shape[0] == 0 or not np.isfinite(T):
+    if rows.shape[0] == 0:
         return None
     rows = np.unique(np.round(rows, 12), axis=0)
     D = np.vstack([rows, -rows])
@@ -1394,12 +1429,6 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
     times = times[times <= T]
     if times.size == 0:
         return None
-    lo, hi = np.asarray(vs.initial_lower, float), np.asarray(vs.initial_upper, float)
-    corners = np.array(np.meshgrid(*[[lo[i], hi[i]] for i in range(n)],
-                                   indexing="ij")).reshape(n, -1).T
-    if corners.shape[0] > 16:
-        corners = corners[np.random.default_rng(0).choice(corners.shape[0], 16, replace=False)]
-    X0 = np.vstack([0.5 * (lo + hi), corners])
     a, b, c = np.meshgrid(np.arange(X0.shape[0]), np.arange(D.shape[0]),
                           np.arange(times.size), indexing="ij")
     a, b, c = a.ravel(), b.ravel(), c.ravel()
