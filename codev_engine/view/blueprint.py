@@ -108,6 +108,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         rrb.TimeSeriesView(
             origin=f"/output/{y}",
             name=f"{y}(t) = C x: tube orange, traces grey"
+            + (", certificate band purple" if f"/output/{y}/certificate/lower" in e else "")
             + (", bounds black" if any(k.startswith(f"/output/{y}/bounds/") for k in e) else "")
             + cex + reference(f"/output/{y}"),
             plot_legend=no_legend,
@@ -163,7 +164,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         shares = [5, 3]
     layout_left = rrb.Vertical(*left, row_shares=shares)
     if right:
-        right_col = rrb.Vertical(*right, row_shares=[2, 1] if len(right) == 2 else None)
+        # the time views three quarters: three stacked keep 190 px plots, room for the
+        # viewer's y labels at eight steps of a power of ten (the scene's decade_range)
+        right_col = rrb.Vertical(*right, row_shares=[3, 1] if len(right) == 2 else None)
         layout = rrb.Horizontal(layout_left, right_col, column_shares=[1, 1])
     else:
         layout = layout_left

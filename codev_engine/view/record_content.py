@@ -940,11 +940,18 @@ class RecordingContent:
                 w.columns(entity, t[keep], [*rr.Scalars.columns(scalars=Y[:, k])],
                           int(keep.sum()))
         tube = self.tube
+        cert = self.scene.certificate
         if tube is not None and tube.num_boxes:
-            ylo, yhi = output_boxes(C, tube.lower, tube.upper)
+            # as the states: after an all-time certificate closed, the band, not the tube
+            # repeated with the certificate's period
+            mine = np.ones(tube.num_boxes, dtype=bool)
+            if cert is not None:
+                ts = np.asarray(tube.t_start, dtype=float)
+                mine = ts < cert.t_closed - 1e-9 * max(1.0, cert.t_closed)
+            ylo, yhi = output_boxes(C, tube.lower[mine], tube.upper[mine])
             t_env, lo_env, hi_env = tube_envelope(
-                np.asarray(tube.t_start, dtype=float), np.asarray(tube.t_end, dtype=float),
-                ylo, yhi)
+                np.asarray(tube.t_start, dtype=float)[mine],
+                np.asarray(tube.t_end, dtype=float)[mine], ylo, yhi)
             tt = np.repeat(t_env, 2)[1:-1]
             for k, y in enumerate(names):
                 for side, val in (("lower", lo_env[:, k]), ("upper", hi_env[:, k])):
@@ -955,6 +962,17 @@ class RecordingContent:
                     keep = np.isfinite(v)
                     w.columns(entity, tt[keep], [*rr.Scalars.columns(scalars=v[keep])],
                               int(keep.sum()))
+        if tube is not None and tube.num_boxes and cert is not None:
+            # C over the band's box, interval-wise: every state after t_closed is in it
+            blo, bhi = output_boxes(C, cert.lower[None], cert.upper[None])
+            t_band = np.array([cert.t_closed, max(self.horizon, cert.t_closed)])
+            for k, y in enumerate(names):
+                for side, val in (("lower", blo[0, k]), ("upper", bhi[0, k])):
+                    entity = f"/output/{y}/certificate/{side}"
+                    w.static(entity, rr.SeriesLines(colors=[_PURPLE], widths=[2.0],
+                                                    names=[f"certificate band {side}"]), 0)
+                    w.columns(entity, t_band, [*rr.Scalars.columns(scalars=np.full(2, val))],
+                              2)
         T = np.array([0.0, self.horizon])
         for k, y in enumerate(names):
             for label, v in output_bounds(self.problem, k):
