@@ -63,6 +63,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                 contents=["/plane/**"],
                 name=f"plane: {xname} → , {yname} ↑{at}  (orange tube, red unsafe, blue initial, "
                 "grey traces" + (", purple certificate" if "/plane/certificate" in e else "")
+                + (", magenta counterexample" if content.counterexample is not None else "")
                 + ")",
                 time_ranges=up_to_cursor,
                 background=(255, 255, 255),
@@ -76,7 +77,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             rrb.Spatial3DView(origin="/space", name="state space", time_ranges=up_to_cursor)
         )
     left.append(rrb.TextDocumentView(origin="/verdict", name="verdict"))
-    cex = ", counterexample black" if content.counterexample is not None else ""
+    cex = ", counterexample magenta" if content.counterexample is not None else ""
 
     def reference(root: str) -> str:
         return ", reference purple" if any(k.startswith(f"{root}/reference/") for k in e) else ""
@@ -138,7 +139,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             if any(k.startswith(f"/scalars/{kind}/{nm}/") for k in e):
                 series.append(rrb.TimeSeriesView(
                     origin=f"/scalars/{kind}/{nm}",
-                    name=f"{what} {nm}: its interval black, the counterexample's black",
+                    name=f"{what} {nm}: its interval black, the counterexample magenta",
                     plot_legend=no_legend,
                     axis_x=time_axis,
                 ))

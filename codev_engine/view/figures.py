@@ -74,7 +74,8 @@ VERDICT_COLOURS: dict[str, str] = {
 }
 _TUBE_FACE = "#6baed6"
 #: the counterexample: a colour of its own (the unsafe sets are red), drawn on top
-_TRACE = "#000000"
+_TRACE = "#dc00aa"  # magenta, as in the recordings
+CEX_COLOUR = _TRACE
 _UNSAFE = "#e53935"
 _SAFE = "#2e7d32"
 _INITIAL = "#1e63d6"  # blue, as in the recordings

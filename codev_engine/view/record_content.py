@@ -48,7 +48,13 @@ TIMELINE = "time"
 # colours (RGB / RGBA, 0-255)
 _RED = (220, 40, 40)
 #: the counterexample: a colour of its own (not the unsafe sets' red), drawn over everything
-_CEX = (0, 0, 0)
+#: the counterexample: a colour no other mark uses (red: unsafe sets; black: bounds; grey:
+#: traces), so that it reads, and a pixel check finds it, in every view
+_CEX = (220, 0, 170)
+#: the counterexample's child in a time-series view: the viewer draws a view's series in
+#: the order of their entity paths, the last on top -- "counterexample" sorted before
+#: "traces", "tube" and "unsafe" and was hidden under them (navigation)
+CEX_SERIES = "violating_trace"
 _GREEN = (40, 170, 60)
 _BLUE = (40, 110, 230)
 _PURPLE = (150, 60, 200)
@@ -807,7 +813,7 @@ class RecordingContent:
         """
         import rerun as rr
 
-        label = name.replace("traces/", "trace_")
+        label = "counterexample" if name == CEX_SERIES else name.replace("traces/", "trace_")
         for j, u_name in enumerate(self.inputs):
             keep = alive & np.isfinite(U[:, j])
             if not np.any(keep):
@@ -885,7 +891,7 @@ class RecordingContent:
             t0 = np.arange(K) * float(sig.piece)
             ts = np.column_stack([t0, t0 + float(sig.piece) * (1 - 1e-9)]).ravel()
             for j, nm in enumerate(box.names):
-                entity = f"/scalars/disturbance/{nm}/counterexample"
+                entity = f"/scalars/disturbance/{nm}/{CEX_SERIES}"
                 w.static(entity, rr.SeriesLines(colors=[_CEX], widths=[2.0],
                                                 names=["counterexample"]), 0)
                 w.columns(entity, ts, [*rr.Scalars.columns(scalars=np.repeat(vals[:, j], 2))],
@@ -895,7 +901,7 @@ class RecordingContent:
                 and noise.ndim == 2 and noise.shape[0] and noise.shape[1] == self.n):
             tk = np.arange(noise.shape[0]) * float(p.model.sample_time)
             for j, nm in enumerate(p.plant.states):
-                entity = f"/scalars/noise/{nm}/counterexample"
+                entity = f"/scalars/noise/{nm}/{CEX_SERIES}"
                 w.static(entity, rr.SeriesPoints(colors=[_CEX], markers=["circle"],
                                                  marker_sizes=[3.0], names=["counterexample"]),
                          0)
@@ -934,7 +940,7 @@ class RecordingContent:
             keep = np.all(np.isfinite(X), axis=1)
             Y = X[keep] @ C.T
             for k, y in enumerate(names):
-                entity = f"/output/{y}/counterexample"
+                entity = f"/output/{y}/{CEX_SERIES}"
                 w.static(entity, rr.SeriesLines(colors=[_CEX], widths=[2.5],
                                                 names=["counterexample"]), 0)
                 w.columns(entity, t[keep], [*rr.Scalars.columns(scalars=Y[:, k])],
@@ -1040,13 +1046,13 @@ class RecordingContent:
                 1,
             )
         for i, s in enumerate(self.states):
-            entity = f"/time/{s}/counterexample"
+            entity = f"/time/{s}/{CEX_SERIES}"
             w.static(
                 entity, rr.SeriesLines(colors=[_CEX], widths=[2.5], names=["counterexample"]), 0
             )
             w.columns(entity, t[ok], [*rr.Scalars.columns(scalars=X[ok, i])], int(ok.sum()))
         alive = np.asarray(trace.region) >= 0
-        self._log_scalars(w, t, U, X, alive, "counterexample", _CEX, 2.5)
+        self._log_scalars(w, t, U, X, alive, CEX_SERIES, _CEX, 2.5)
 
     def verdict_text(self, *, views: bool = True) -> str:
         """The verdict document: it tells the story without the other views.
@@ -1091,7 +1097,7 @@ class RecordingContent:
                 f"- what: {describe} (`{cex.kind}`, index {cex.index})",
                 f"- when: t = {cex.t:.6g} s",
                 f"- from: x0 = ({x0})",
-                "- drawn thick black in every view, on top; its end is marked in the plane",
+                "- drawn thick magenta in every view, on top; its end is marked in the plane",
             ]
             sig = cex.disturbance
             if sig is not None:
@@ -1167,7 +1173,7 @@ class RecordingContent:
                if getattr(law, "on_demand", False) else "regions filled")
             + " (hover for the id "
             "`R<i>`), unsafe sets red, the tube orange (at least two pixels wide), the "
-            "initial set blue, traces grey, the counterexample black"
+            "initial set blue, traces grey, the counterexample magenta"
             + (", the invariance certificate's set purple (every reach set at the closing "
                "sample lies in it)" if self.result is not None
                and self.result.certificate is not None
@@ -1177,7 +1183,7 @@ class RecordingContent:
                and self.result.certificate is not None
                and "P" in self.result.certificate else ""),
             "- **state views**: each state against time, the tube's lower and upper bound "
-            "orange, traces grey, the counterexample black",
+            "orange, traces grey, the counterexample magenta",
             "- **u(t)**: the inputs, their bounds black; **margin**: the signed margin to the "
             "nearest unsafe set, 0 marked red (below 0 is inside)",
         ]
