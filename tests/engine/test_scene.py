@@ -246,3 +246,19 @@ def test_outputs_after_the_certificate_show_its_band_not_the_tube_repeated(tmp_p
             assert times.max() <= cert.t_closed + 1e-6
             assert _times(tmp_path / "r.rrd", f"/output/y{k}/certificate/{side}").max() \
                 == pytest.approx(5.0)
+
+
+def test_the_figure_title_fits_a_one_state_figure():
+    """cruise_control's report lost the title's first letter (":ruise-control"): on one
+    line it was wider than the one-state figure."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from codev_engine.view import figures
+
+    problem = ce.load_spec(EXAMPLES / "cruise_control.toml")
+    law = ce.synthesize(problem)
+    fig = figures.figure_result(ce.verify(problem, law), problem, law=law)
+    FigureCanvasAgg(fig).draw()
+    box = fig._suptitle.get_window_extent()
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1
+    assert fig._suptitle.get_text().startswith("cruise-control: ")
