@@ -262,3 +262,22 @@ def test_the_figure_title_fits_a_one_state_figure():
     box = fig._suptitle.get_window_extent()
     assert 0 <= box.x0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1
     assert fig._suptitle.get_text().startswith("cruise-control: ")
+
+
+def test_the_verdict_document_puts_the_claim_on_the_first_screen():
+    """cruise_grade's recording showed its sets below the fold (name, verdict and sentence
+    as three blocks, the uncertainty and the hold before the sets): the system and the
+    verdict share the first line, then the initial set, the horizon and every property
+    checked, within the first 12 lines the viewer shows at 1600x1000."""
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    content, _ = report_figures(problem, law, result, traces=0)
+    lines = [ln for ln in content.verdict_text().splitlines() if ln.strip()]
+    assert lines[0] == "## cruise-grade · verdict: ROBUSTLY SAFE"
+    labels = [ln.split("**")[1] for ln in lines[:12] if ln.startswith("- **")]
+    assert labels[:3] == ["system", "initial set", "time"]
+    assert labels.count("checked") >= 3  # unsafe sets 0 and 1, the law's domain, ...
+    assert labels.index("for every") > max(i for i, x in enumerate(labels) if x == "checked")
+    first = "\n".join(lines[:12])
+    assert "v >= 11" in first and "v <= 7" in first and "for all t >= 0" in first
