@@ -1286,13 +1286,13 @@ def _verdict_sentence(content: RecordingContent) -> str:
     if r.verdict == "robustly_safe" and r.reason == "invariant":
         return (
             "Every closed-loop trajectory from the initial set has every property checked "
-            "(the claim below) for all time: an invariance certificate closes "
+            "(the claim above) for all time: an invariance certificate closes "
             f"the induction; the views show the first {T:.4g} s."
         )
     if r.verdict == "robustly_safe":
         return (
             f"Every closed-loop trajectory from the initial set has every property checked "
-            f"(the claim below) up to t = {T:.4g} s: the tube of "
+            f"(the claim above) up to t = {T:.4g} s: the tube of "
             f"{r.tube.num_boxes} boxes contains them all."
         )
     cex = r.counterexample
