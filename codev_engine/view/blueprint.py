@@ -63,6 +63,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
                 contents=["/plane/**"],
                 name=f"plane: {xname} → , {yname} ↑{at}  (orange tube, red unsafe, blue initial, "
                 "grey traces" + (", purple certificate" if "/plane/certificate" in e else "")
+                + (", magenta counterexample" if content.counterexample is not None else "")
                 + ")",
                 time_ranges=up_to_cursor,
                 background=(255, 255, 255),
@@ -76,7 +77,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             rrb.Spatial3DView(origin="/space", name="state space", time_ranges=up_to_cursor)
         )
     left.append(rrb.TextDocumentView(origin="/verdict", name="verdict"))
-    cex = ", counterexample black" if content.counterexample is not None else ""
+    cex = ", counterexample magenta" if content.counterexample is not None else ""
 
     def reference(root: str) -> str:
         return ", reference purple" if any(k.startswith(f"{root}/reference/") for k in e) else ""
@@ -108,6 +109,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         rrb.TimeSeriesView(
             origin=f"/output/{y}",
             name=f"{y}(t) = C x: tube orange, traces grey"
+            + (", certificate band purple" if f"/output/{y}/certificate/lower" in e else "")
             + (", bounds black" if any(k.startswith(f"/output/{y}/bounds/") for k in e) else "")
             + cex + reference(f"/output/{y}"),
             plot_legend=no_legend,
@@ -137,7 +139,7 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
             if any(k.startswith(f"/scalars/{kind}/{nm}/") for k in e):
                 series.append(rrb.TimeSeriesView(
                     origin=f"/scalars/{kind}/{nm}",
-                    name=f"{what} {nm}: its interval black, the counterexample's black",
+                    name=f"{what} {nm}: its interval black, the counterexample magenta",
                     plot_legend=no_legend,
                     axis_x=time_axis,
                 ))
@@ -163,7 +165,9 @@ def blueprint(entities: dict[str, int], content: RecordingContent):
         shares = [5, 3]
     layout_left = rrb.Vertical(*left, row_shares=shares)
     if right:
-        right_col = rrb.Vertical(*right, row_shares=[2, 1] if len(right) == 2 else None)
+        # the time views three quarters: three stacked keep 190 px plots, room for the
+        # viewer's y labels at eight steps of a power of ten (the scene's decade_range)
+        right_col = rrb.Vertical(*right, row_shares=[3, 1] if len(right) == 2 else None)
         layout = rrb.Horizontal(layout_left, right_col, column_shares=[1, 1])
     else:
         layout = layout_left

@@ -74,7 +74,8 @@ VERDICT_COLOURS: dict[str, str] = {
 }
 _TUBE_FACE = "#6baed6"
 #: the counterexample: a colour of its own (the unsafe sets are red), drawn on top
-_TRACE = "#000000"
+_TRACE = "#dc00aa"  # magenta, as in the recordings
+CEX_COLOUR = _TRACE
 _UNSAFE = "#e53935"
 _SAFE = "#2e7d32"
 _INITIAL = "#1e63d6"  # blue, as in the recordings
@@ -841,8 +842,11 @@ def figure_result(
             ax.set_title(f"section at {scene.section.words}", fontsize="medium")
     name = f"{problem.name}: " if problem is not None else ""
     stats = f"{result.tube.num_boxes} boxes, {result.seconds:.3g} s, hold {result.hold}"
+    # the numbers on a line of their own: on one line the title of a one-state figure
+    # (6.5 in wide) was wider than the figure, and lost its first and last letters
+    # (":ruise-control", cruise_control's report)
     fig.suptitle(
-        f"{name}{_verdict_text(result)}   [{stats}]",
+        f"{name}{_verdict_text(result)}\n[{stats}]",
         color=VERDICT_COLOURS.get(result.verdict, "k"),
         fontweight="bold",
     )

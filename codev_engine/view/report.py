@@ -226,8 +226,8 @@ def figure_inputs(
         if cex is not None:
             u = np.asarray(cex.trace.u, dtype=float)[:, j]
             ok = (np.asarray(cex.trace.region) >= 0) & np.isfinite(u)
-            # the counterexample in its own colour (black; red is the unsafe sets'), on top
-            ax.plot(np.asarray(cex.trace.t)[ok], u[ok], color="#000000", lw=1.5,
+            # the counterexample in its own colour (magenta, as in every view), on top
+            ax.plot(np.asarray(cex.trace.t)[ok], u[ok], color=figures.CEX_COLOUR, lw=1.5,
                     label="counterexample", zorder=5)
         for v in (problem.mpc.u_min[j], problem.mpc.u_max[j]):
             if np.isfinite(v):

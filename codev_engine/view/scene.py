@@ -199,12 +199,17 @@ def nice_ticks(lo: float, hi: float, k: int = 5) -> np.ndarray:
     return np.where(np.abs(ticks) < 1e-9 * step, 0.0, ticks)
 
 
-def decade_range(lo: float, hi: float) -> tuple[float, float]:
-    """A plot's range around ``[lo, hi]`` that holds at least three multiples of the power of
-    ten below its span, plus a 4 % margin.
+#: at most this many steps of the labelled power of ten in a :func:`decade_range`
+MAX_STEPS = 8
 
-    A viewer that labels its grid at powers of ten (the Rerun viewer's time plots) then
-    shows at least three y tick labels, none at the very edge.
+
+def decade_range(lo: float, hi: float) -> tuple[float, float]:
+    """A plot's range around ``[lo, hi]`` that holds at least three and at most
+    ``MAX_STEPS + 1`` multiples of a power of ten, plus a 4 % margin.
+
+    A viewer that labels its grid at powers of ten, a step only when it is at least 20 px
+    high (the Rerun viewer's time plots, 190 px high when three are stacked), then shows
+    at least three y tick labels, none at the very edge.
 
     Parameters
     ----------
@@ -221,6 +226,12 @@ def decade_range(lo: float, hi: float) -> tuple[float, float]:
         lo, hi = padded(lo, hi)
     step = 10.0 ** np.floor(np.log10(hi - lo))
     a, b = np.floor(lo / step) * step, np.ceil(hi / step) * step
+    if round((b - a) / step) > MAX_STEPS:
+        # the viewer labels a step only when it is >= 20 px high: ten steps in a 190 px
+        # plot (three time views stacked) would show the single label "0"; the next power
+        # of ten labels the plot
+        step *= 10.0
+        a, b = np.floor(lo / step) * step, np.ceil(hi / step) * step
     if round((b - a) / step) < 2:  # two steps: three labelled values
         a, b = (a - step, b) if lo - a < b - hi else (a, b + step)
     margin = 0.04 * (b - a)

@@ -478,7 +478,7 @@ def test_the_recording_plots_the_disturbance_box_and_the_counterexample_signal(t
         vals = np.concatenate([np.asarray(c.to_pylist(), dtype=object).ravel()
                                for c in e.columns["Scalars:scalars"]])
         assert np.allclose(np.array([np.ravel(x)[0] for x in vals], float), v)
-    e = entities["/scalars/disturbance/w/counterexample"]
+    e = entities["/scalars/disturbance/w/violating_trace"]
     vals = np.concatenate([np.asarray(c.to_pylist(), dtype=object).ravel()
                            for c in e.columns["Scalars:scalars"]])
     got = np.array([np.ravel(x)[0] for x in vals], float)

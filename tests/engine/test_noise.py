@@ -360,6 +360,6 @@ def test_the_recording_plots_the_noise_box_and_the_counterexample_noise(tmp_path
                                            strict=True)):
         assert np.allclose(values(f"/scalars/noise/{name}/bounds/min"), lo)
         assert np.allclose(values(f"/scalars/noise/{name}/bounds/max"), hi)
-        got = values(f"/scalars/noise/{name}/counterexample")
+        got = values(f"/scalars/noise/{name}/violating_trace")
         np.testing.assert_allclose(got, sig.noise[:, j])
         assert np.all(got >= lo - 1e-12) and np.all(got <= hi + 1e-12)

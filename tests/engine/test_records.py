@@ -227,7 +227,7 @@ def test_entity_layout(di_recording):
     }
     assert expected <= set(entities)
     assert not any(k.startswith("/space/") for k in entities)  # n == 2: no 3-D view
-    assert not any("counterexample" in k for k in entities)
+    assert not any("counterexample" in k or "violating_trace" in k for k in entities)
     # no unsafe sets: no margin series
     assert not any(k.startswith("/scalars/unsafe_distance") for k in entities)
     for k in ("/plane/regions", "/plane/traces", "/verdict"):
@@ -406,21 +406,29 @@ def test_counterexample(unsafe_case):
     x = np.asarray(cex.trace.x)
     assert np.allclose(strip, x[np.all(np.isfinite(x), axis=1)], atol=1e-5)
     for k in (
-        "/time/x1/counterexample",
-        "/time/x2/counterexample",
+        "/time/x1/violating_trace",
+        "/time/x2/violating_trace",
         "/plane/counterexample/violation",
-        "/scalars/u/u/counterexample",
-        "/scalars/unsafe_distance/counterexample",
+        "/scalars/u/u/violating_trace",
+        "/scalars/unsafe_distance/violating_trace",
         "/scalars/unsafe_distance/traces/0",
         "/scalars/unsafe_distance/zero",
         "/plane/unsafe/0",
     ):
         assert k in entities, k
-    series = entities["/time/x1/counterexample"]
+    series = entities["/time/x1/violating_trace"]
     assert series.instances("Scalars:scalars") == len(series.time) > 1
-    # a colour of its own: black (0xRRGGBBAA), not the unsafe sets' red
-    assert series.values("SeriesLines:colors").tolist() == [0x000000FF]
-    margin = entities["/scalars/unsafe_distance/counterexample"]
+    # a colour of its own (0xRRGGBBAA): magenta, not the unsafe sets' red, the bounds'
+    # black or the traces' grey
+    assert series.values("SeriesLines:colors").tolist() == [0xDC00AAFF]
+    # on top: the viewer draws a view's series in the order of their paths, the last on
+    # top; "counterexample" sorted before "traces" and "tube" (hidden in navigation)
+    for k in [k for k in entities if k.endswith("/violating_trace")]:
+        view = k.rsplit("/", 1)[0]
+        siblings = sorted(e for e in entities if e.startswith(view + "/")
+                          and e.count("/") >= k.count("/") and not e.endswith("/zero"))
+        assert siblings[-1] == k, (k, siblings[-1])
+    margin = entities["/scalars/unsafe_distance/violating_trace"]
     m = margin.values("Scalars:scalars")
     t = margin.time
     assert m[0] > 0 and np.min(m) <= 0  # starts outside, enters the unsafe box
@@ -434,7 +442,7 @@ def test_counterexample(unsafe_case):
     rows, cols = np.nonzero(np.isin(image, (1, 3)))
     xy = shift[:2] + (np.column_stack([cols, rows]) + 0.5) * scale[:2]
     assert rows.size and np.all(np.abs(xy) <= 1.0 + 1e-9)  # the box [-1, 1]^2
-    assert "counterexample black" in " ".join(view_kinds(summary.path))
+    assert "counterexample magenta" in " ".join(view_kinds(summary.path))
 
 
 def test_without_result(di, tmp_path):
@@ -793,10 +801,10 @@ def test_counterexample_output_is_c_of_its_states(tmp_path):
     text = SOFT_TEXT.replace("lower = [1.3, -inf]", "lower = [0.75, -inf]")
     problem, result, summary, entities = _written(text, tmp_path, traces=0)
     assert result.verdict == "unsafe" and result.counterexample is not None
-    t, y = _series(entities["/output/y0/counterexample"])
-    t2, x = _series(entities["/time/p/counterexample"])
+    t, y = _series(entities["/output/y0/violating_trace"])
+    t2, x = _series(entities["/time/p/violating_trace"])
     assert len(y) > 2 and np.array_equal(t, t2) and np.allclose(y, x, atol=1e-6)
-    assert any(n.startswith("y0(t) = C x") and "counterexample black" in n
+    assert any(n.startswith("y0(t) = C x") and "counterexample magenta" in n
                for n in view_kinds(summary.path))
 
 

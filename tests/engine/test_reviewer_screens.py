@@ -89,12 +89,15 @@ def test_recording_first_screen(name, tmp_path):
         ink = np.mean(np.abs(q - q.mean(axis=(0, 1))).sum(axis=2) > 0.3)
         assert ink > 0.002, f"{name}: an empty time view"
     if CASES[name] == "unsafe":
-        # the counterexample (black) is visible in every state view
+        # the counterexample (magenta, a colour no other mark uses: black pixels were
+        # found in views where grey traces hid it, from the labels and the cursor) is
+        # visible in every state view
         blocks = [b for half in np.array_split(right, 2, axis=0)
                   for b in np.array_split(half, 2, axis=1)]
         for b in blocks:
-            black = np.mean(b.max(axis=2) < 0.06)
-            assert black > 1e-4, f"{name}: no counterexample pixels in a state view"
+            r, g, bl = b[..., 0], b[..., 1], b[..., 2]
+            magenta = np.mean((r > 0.7) & (g < 0.25) & (bl > 0.5))
+            assert magenta > 1e-4, f"{name}: no counterexample pixels in a state view"
 
 
 @pytest.mark.parametrize("name", ["navigation", "cruise_grade"])

@@ -20,7 +20,7 @@ import codev_engine as ce
 from codev_engine.view.glyphs import text_strips
 from codev_engine.view.records import RecordingOptions, write_recording
 from codev_engine.view.report import report_figures
-from codev_engine.view.scene import decade_range
+from codev_engine.view.scene import MAX_STEPS, decade_range
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -34,6 +34,14 @@ def _entities(path: Path) -> dict[str, dict[str, list]]:
             if ":" in name:
                 out[chunk.entity_path][name] += rb.column(name).to_pylist()
     return out
+
+
+def _times(path: Path, entity: str) -> np.ndarray:
+    """The ``time`` timeline of one entity's rows, in seconds."""
+    parts = [chunk.to_record_batch().column("time").cast("int64").to_numpy()
+             for chunk in RrdReader(path).stream().to_chunks()
+             if chunk.entity_path == entity and "time" in chunk.timeline_names]
+    return np.concatenate(parts) / 1e9
 
 
 def _views(path: Path) -> dict[str, dict[str, object]]:
@@ -190,12 +198,86 @@ def test_text_strips_centre_every_digit():
 
 
 @pytest.mark.parametrize("lo, hi", [(-14.6, -1.9), (7.0, 11.0), (0.55, 0.7), (-0.1, 0.0),
-                                    (8.0, 10.1), (3.0, 3.0), (-1e-3, 2e-4)])
+                                    (8.0, 10.1), (3.0, 3.0), (-1e-3, 2e-4), (-4.0, 4.0),
+                                    (-4.6, 4.5), (0.0, 9.5)])
 def test_decade_range_holds_three_multiples_of_its_decade(lo, hi):
     a, b = decade_range(lo, hi)
     assert a < lo and b > hi
+    # the viewer labels the smallest power of ten at least 20 px high: in a 190 px plot
+    # (three stacked) some power of ten has between three and MAX_STEPS + 1 multiples in
+    # view ([-4.6, 4.5] had ten steps of 1, the label "0" only)
+    counts = [int(np.floor(b / s) - np.ceil(a / s)) + 1
+              for s in 10.0 ** np.arange(-6, 4, dtype=float)]
+    assert any(3 <= c <= MAX_STEPS + 1 for c in counts), (lo, hi, counts)
     for step in (10.0 ** np.floor(np.log10(b - a)), 10.0 ** np.floor(np.log10(b - a) - 1)):
         first = np.ceil(a / step)
         count = int(np.floor(b / step) - first) + 1
         if step <= (b - a) / 2:
             assert count >= 3, (lo, hi, step)
+
+
+def test_outputs_after_the_certificate_show_its_band_not_the_tube_repeated(tmp_path):
+    """mass_spring_soft's y0(t) repeated the certificate's period (the tube jumping back
+    every 1.8 s) where its state plots show the certificate band: the outputs are drawn
+    like the states."""
+    text = (EXAMPLES / "mass_spring_soft.toml").read_text().replace(
+        "time_horizon = 8.0", "time_horizon = 5.0")
+    problem = ce.loads_spec(text)
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    write_recording(tmp_path / "r.rrd", problem, law, result,
+                    options=RecordingOptions(traces=2))
+    entities = _entities(tmp_path / "r.rrd")
+    from codev_engine.reach.claim import certificate_band
+
+    cert = certificate_band(result)
+    assert cert is not None and cert.t_closed < 5.0
+    C = np.asarray(problem.mpc.C, dtype=float)
+    lo = (np.minimum(C * cert.lower, C * cert.upper)).sum(axis=1)
+    hi = (np.maximum(C * cert.lower, C * cert.upper)).sum(axis=1)
+    for k in range(C.shape[0]):
+        for side, want in (("lower", lo[k]), ("upper", hi[k])):
+            band = np.concatenate(entities[f"/output/y{k}/certificate/{side}"]
+                                  ["Scalars:scalars"])
+            assert np.allclose(band, want, atol=1e-5)
+        # the tube's hull stops at the closing sample: its last value is no repeat
+        for side in ("lower", "upper"):
+            times = _times(tmp_path / "r.rrd", f"/output/y{k}/tube/{side}")
+            assert times.max() <= cert.t_closed + 1e-6
+            assert _times(tmp_path / "r.rrd", f"/output/y{k}/certificate/{side}").max() \
+                == pytest.approx(5.0)
+
+
+def test_the_figure_title_fits_a_one_state_figure():
+    """cruise_control's report lost the title's first letter (":ruise-control"): on one
+    line it was wider than the one-state figure."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from codev_engine.view import figures
+
+    problem = ce.load_spec(EXAMPLES / "cruise_control.toml")
+    law = ce.synthesize(problem)
+    fig = figures.figure_result(ce.verify(problem, law), problem, law=law)
+    FigureCanvasAgg(fig).draw()
+    box = fig._suptitle.get_window_extent()
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.x1 and box.y1 <= fig.bbox.y1
+    assert fig._suptitle.get_text().startswith("cruise-control: ")
+
+
+def test_the_verdict_document_puts_the_claim_on_the_first_screen():
+    """cruise_grade's recording showed its sets below the fold (name, verdict and sentence
+    as three blocks, the uncertainty and the hold before the sets): the system and the
+    verdict share the first line, then the initial set, the horizon and every property
+    checked, within the first 12 lines the viewer shows at 1600x1000."""
+    problem = ce.load_spec(EXAMPLES / "cruise_grade.toml")
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    content, _ = report_figures(problem, law, result, traces=0)
+    lines = [ln for ln in content.verdict_text().splitlines() if ln.strip()]
+    assert lines[0] == "## cruise-grade · verdict: ROBUSTLY SAFE"
+    labels = [ln.split("**")[1] for ln in lines[:12] if ln.startswith("- **")]
+    assert labels[:3] == ["system", "initial set", "time"]
+    assert labels.count("checked") >= 3  # unsafe sets 0 and 1, the law's domain, ...
+    assert labels.index("for every") > max(i for i, x in enumerate(labels) if x == "checked")
+    first = "\n".join(lines[:12])
+    assert "v >= 11" in first and "v <= 7" in first and "for all t >= 0" in first
