@@ -72,7 +72,8 @@ VERDICT_COLOURS: dict[str, str] = {
     "unsafe": "#c62828",
     "unknown": "#e69500",
 }
-_TUBE_FACE = "#6baed6"
+#: the tube: orange, as in the recordings (blue is the initial set)
+_TUBE_FACE = "#f5a028"
 #: the counterexample: a colour of its own (the unsafe sets are red), drawn on top
 _TRACE = "#dc00aa"  # magenta, as in the recordings
 CEX_COLOUR = _TRACE
