@@ -203,17 +203,10 @@ class OnDemandRegions:
             Indices into :attr:`regions`, ascending by active set (the full partition's
             order).
         """
-        if not self._replayed:
-            self._replay()
-        self.stats["walks"] += 1
-        A, b, ok = normalize_rows(np.asarray(A, float), np.asarray(b, float))
-        if not ok:
+        asked = self._set_asked(A, b)
+        if asked is None:
             return []
-        b = b + MEET_TOL * self.scale
-        lo, hi = self._box_of(A, b)
-        if lo is None:
-            return []
-        self._bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+        A, b, lo, hi = asked
         starts = self._starts(A, b)
         if not starts:
             return []
@@ -375,6 +368,24 @@ class OnDemandRegions:
         return out
 
     # ---- meeting tests -----------------------------------------------------------------
+
+    def _set_asked(self, A: np.ndarray, b: np.ndarray):
+        """A set a walk is asked about, made ready (both walks, :meth:`meeting`): the full
+        search's start replayed if not yet, the rows normalised and relaxed by
+        ``MEET_TOL``, its bounding box (which also bounds the meeting tests' scale,
+        ``_bound``); None when the set is empty."""
+        if not self._replayed:
+            self._replay()
+        self.stats["walks"] += 1
+        A, b, ok = normalize_rows(np.asarray(A, float), np.asarray(b, float))
+        if not ok:
+            return None
+        b = b + MEET_TOL * self.scale
+        lo, hi = self._box_of(A, b)
+        if lo is None:
+            return None
+        self._bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+        return A, b, lo, hi
 
     def _box_of(self, A: np.ndarray, b: np.ndarray):
         """The bounding box of ``A theta <= b`` (None, None when it is empty)."""

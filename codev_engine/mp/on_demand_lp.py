@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from codev_engine.errors import SolverError, SpecError
-from codev_engine.geometry.polytope import chebyshev_ball, normalize_rows
+from codev_engine.geometry.polytope import chebyshev_ball
 from codev_engine.mp.mplp_graph import JIT_AFTER, _NotExactError, _Search
 from codev_engine.mp.on_demand import (
     MEET_TOL,
@@ -252,17 +252,10 @@ class OnDemandBases(OnDemandRegions):
             When a step of the walk cannot be made exact (the full search would fall back
             to the geometric explorer, whose regions differ).
         """
-        if not self._replayed:
-            self._replay()
-        self.stats["walks"] += 1
-        A, b, ok = normalize_rows(np.asarray(A, float), np.asarray(b, float))
-        if not ok:
+        asked = self._set_asked(A, b)
+        if asked is None:
             return []
-        b = b + MEET_TOL * self.scale
-        lo, hi = self._box_of(A, b)
-        if lo is None:
-            return []
-        self._bound = float(max(np.max(np.abs(lo)), np.max(np.abs(hi))))
+        A, b, lo, hi = asked
         mid, rad = 0.5 * (lo + hi), 0.5 * (hi - lo)
         try:
             start = self._start_in(A, b)
