@@ -41,6 +41,7 @@ import shutil
 import tempfile
 import time
 import zipfile
+from collections.abc import Callable
 from concurrent.futures import CancelledError
 from pathlib import Path
 
@@ -385,24 +386,13 @@ def _finish_on_workers(client, directory: str, n: int, regions: list, g, kernel,
     keys = (np.stack([g.key(a) for a in (r.active for r in regions)]) if regions
             else np.zeros((0, g.W), np.uint64))
     own = owners(keys, n)
-    for attempt in range(_ATTEMPTS):
-        futures = [
-            client.submit(_finish, directory, j, seeds.take(np.flatnonzero(own == j)), merge,
-                          finish, workers=[where[j]], allow_other_workers=True, pure=False,
-                          key=f"codev-shard-{os.path.basename(directory)}-{j}-end-{attempt}")
-            for j in range(n)
-        ]
-        try:
-            results = client.gather(futures)
-            break
-        except CancelledError:
-            # (as a round's: run again, the same files)
-            if attempt == _ATTEMPTS - 1:
-                raise SolverError(f"the sharded search's last step was cancelled "
-                                  f"{_ATTEMPTS} times (workers lost?)") from None
-            totals["rounds_retried"] = totals.get("rounds_retried", 0) + 1
-        finally:
-            del futures
+    # (cancelled: run again, as a round is; the same files)
+    results = _gather_retrying(client, lambda attempt: [
+        client.submit(_finish, directory, j, seeds.take(np.flatnonzero(own == j)), merge,
+                      finish, workers=[where[j]], allow_other_workers=True, pure=False,
+                      key=f"codev-shard-{os.path.basename(directory)}-{j}-end-{attempt}")
+        for j in range(n)
+    ], "last step", totals)
     out = []
     for answer, st, found, cpu in results:
         for key, v in st.items():
@@ -410,6 +400,31 @@ def _finish_on_workers(client, directory: str, n: int, regions: list, g, kernel,
         totals["worker_cpu_seconds"] = totals.get("worker_cpu_seconds", 0.0) + cpu
         out.append((answer, st, found))
     return out
+
+
+def _gather_retrying(client, submit: Callable[[int], list], what: str, totals: dict,
+                     on_retry: Callable[[], None] | None = None) -> list:
+    """The results of the tasks ``submit(attempt)`` gives, submitted again (at most
+    ``_ATTEMPTS`` times in all) when the scheduler cancels them: a worker killed between
+    rounds can leave the scheduler without a round's tasks ("already forgotten"; seen on a
+    loaded machine). A task run again gives the same files (a shard whose round ran
+    already is rebuilt from its files up to the round before)."""
+    for attempt in range(_ATTEMPTS):
+        futures = submit(attempt)
+        try:
+            return client.gather(futures)
+        except CancelledError:
+            if attempt == _ATTEMPTS - 1:
+                raise SolverError(f"the sharded search's {what} was cancelled "
+                                  f"{_ATTEMPTS} times (workers lost?)") from None
+            totals["rounds_retried"] = totals.get("rounds_retried", 0) + 1
+            if on_retry is not None:
+                on_retry()
+        finally:
+            # (released: a worker lost later must not make the scheduler run an old round
+            # again, which would leave a stale shard in a worker's memory)
+            del futures
+    raise AssertionError("unreachable")
 
 
 def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: list,
@@ -510,6 +525,24 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     walk0, walked, rounds0 = time.thread_time(), None, time.process_time()
     # (the set-up: the kernel's arrays scattered, the workers warmed, the seeds keyed)
     stats["setup_client_cpu_seconds"] = rounds0 - cpu0
+
+    def submit_round(attempt: int) -> list:
+        return [
+            client.submit(_round, shared, directory, j, n, r, budget,
+                          (keys[own == j], points[own == j], done[own_done == j])
+                          if r == 0 else None,
+                          workers=[where[j]], allow_other_workers=True, pure=False,
+                          key=f"codev-shard-{os.path.basename(directory)}-{j}-{r}-{attempt}")
+            for j in range(n)
+        ]
+
+    def rescatter() -> None:
+        # (the kernel's arrays may have gone with the cancelled round's worker)
+        nonlocal shared
+        client.cancel([shared])
+        shared = client.scatter([(kernel._jit_args, opposite, numpy_kernel, walk_class)],
+                                broadcast=True, hash=False)[0]
+
     try:
         while True:
             # a shard whose worker is gone, or shares it while a worker idles, moves to an
@@ -521,36 +554,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
                 if (where[j] not in live or where[j] in held) and idle:
                     where[j] = idle.pop()
                 held.add(where[j])
-            for attempt in range(_ATTEMPTS):
-                futures = [
-                    client.submit(_round, shared, directory, j, n, r, budget,
-                                  (keys[own == j], points[own == j], done[own_done == j])
-                                  if r == 0 else None,
-                                  workers=[where[j]], allow_other_workers=True, pure=False,
-                                  key=f"codev-shard-{os.path.basename(directory)}-{j}-{r}"
-                                  f"-{attempt}")
-                    for j in range(n)
-                ]
-                try:
-                    results = client.gather(futures)
-                    break
-                except CancelledError:
-                    # a worker killed between rounds can leave the scheduler without the
-                    # round's tasks ("already forgotten"; seen on a loaded machine): the
-                    # round is run again, which gives the same files (a shard whose round
-                    # ran already is rebuilt from its files up to the round before)
-                    if attempt == _ATTEMPTS - 1:
-                        raise SolverError(f"the sharded search's round {r} was cancelled "
-                                          f"{_ATTEMPTS} times (workers lost?)") from None
-                    totals["rounds_retried"] = totals.get("rounds_retried", 0) + 1
-                    client.cancel([shared])
-                    shared = client.scatter(
-                        [(kernel._jit_args, opposite, numpy_kernel, walk_class)],
-                        broadcast=True, hash=False)[0]
-                finally:
-                    # (released: a worker lost later must not make the scheduler run an old
-                    # round again, which would leave a stale shard in a worker's memory)
-                    del futures
+            results = _gather_retrying(client, submit_round, f"round {r}", totals,
+                                       rescatter)
             busy = False
             for j, (counts, st, addr, cpu) in enumerate(results):
                 if addr is not None:
