@@ -537,7 +537,8 @@ def verify(
             # in a "limit" finding with their tube: a search, a certificate's simulation)
             result = VerificationResult("unknown", "limit", Tube.empty(problem.plant.n),
                                         hold or problem.verify.hold, None,
-                                        {"branches": 0, "boxes": 0}, str(exc))
+                                        {"branches": 0, "boxes": 0},
+                                        f"{exc}; no reachtube is kept (the tube is empty)")
             result.attach_display(problem=problem, law=law)
             return result
 
@@ -575,8 +576,13 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
         # limitation of the verifier, so a verdict and not an error (and no certificate
         # on x alone, which would be unsound for a law that depends on u_prev)
         stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
-        result = VerificationResult("unknown", "law_parameters", Tube.empty(problem.plant.n),
-                                    hold, None, stats)
+        why = ("the hold is continuous" if hold != "zoh" else "time_horizon is inf"
+               if not np.isfinite(vs.time_horizon) else "the plant is not affine")
+        result = VerificationResult(
+            "unknown", "law_parameters", Tube.empty(problem.plant.n), hold, None, stats,
+            f"the law takes theta = (x, u_prev, r) ({law.n} dimensions, the plant's "
+            f"{problem.plant.n}), which is followed under zoh over a bounded horizon on an "
+            f"affine plant only, and {why}; no reachtube is computed (the tube is empty)")
         result.attach_display(problem=problem, law=law)
         return result
     unbounded = not np.isfinite(vs.time_horizon)
@@ -611,7 +617,7 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
             hold,
             None,
             stats,
-            f"no invariance certificate: {why}",
+            f"no invariance certificate: {why}; no reachtube is kept (the tube is empty)",
         )
     if plant is not None:
         eng = LinearReach(
@@ -701,7 +707,9 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
         c = stats.get("certificate")
         if c is None or certificate is None or not check_certificate(certificate):
             verdict, reason, certificate = "unknown", "no_invariant", None
-            detail = f"no invariance certificate within max_samples = {vs.max_samples} samples"
+            detail = (f"no invariance certificate within max_samples = {vs.max_samples} "
+                      "samples; the tube holds every trajectory up to t = "
+                      f"{vs.time_horizon:.6g} (those samples), not after")
             cex = _search(problem, law, hold)
             if cex is not None:
                 verdict, reason, detail = "unsafe", cex.kind, None
@@ -1022,7 +1030,8 @@ def _limited(problem: Problem, law: ExplicitLaw, hold: str, t0: float, reason: s
     if cex is not None:
         result = VerificationResult("unsafe", cex.kind, tube, hold, cex, stats)
     else:
-        result = VerificationResult("unknown", reason, tube, hold, None, stats, detail)
+        result = VerificationResult("unknown", reason, tube, hold, None, stats,
+                                    f"{detail}; no reachtube is computed (the tube is empty)")
     result.attach_display(problem=problem, law=law)
     return result
 
