@@ -11,15 +11,24 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 import codev_engine as ce
 from codev_engine.pipeline import loads_spec
 from codev_engine.reach.linear import Finding
 from codev_engine.reach.simulate import simulate_many, violations_many
-from codev_engine.reach.verification import UNKNOWN_WORDS, _signals, _unknown_reason, verify
+from codev_engine.reach.verification import (
+    UNKNOWN_WORDS,
+    VerificationResult,
+    _signals,
+    _unknown_reason,
+    verify,
+)
 from codev_engine.synthesis import synthesize
+from codev_engine.view.record_content import _verdict_sentence
 from tests.conftest import EXAMPLES_DIR
 from tests.di_variants import HULL_CORNER, di_spec
 from tests.engine.test_examples_tube import _complete_until, _outside
@@ -66,10 +75,15 @@ CRUISE_TIGHT = (
 )
 
 
-def test_a_disturbed_hull_that_meets_an_unsafe_set_is_over_approximation_not_max_depth():
+@pytest.fixture(scope="module")
+def cruise():
     problem = loads_spec(CRUISE_TIGHT)
     law = synthesize(problem)
-    result = verify(problem, law)
+    return problem, law, verify(problem, law)
+
+
+def test_a_disturbed_hull_that_meets_an_unsafe_set_is_over_approximation_not_max_depth(cruise):
+    problem, law, result = cruise
     assert (result.verdict, result.reason) == ("unknown", "over_approximation"), \
         result.summary()
     d = result.detail
@@ -85,6 +99,16 @@ def test_a_disturbed_hull_that_meets_an_unsafe_set_is_over_approximation_not_max
     outside, violated = _dense_inside(problem, law, result, t_stop)
     assert outside == 0
     assert not violated  # (no concrete trajectory does: why it is not unsafe)
+
+
+def test_the_recording_and_the_json_say_the_reason_and_its_detail(cruise, tmp_path):
+    problem, law, result = cruise
+    sentence = _verdict_sentence(SimpleNamespace(result=result, horizon=5.0))
+    assert "(over_approximation)" in sentence and result.detail in sentence
+    # a saved result keeps reason and detail (the --json and the session's file)
+    result.save(tmp_path / "r.npz")
+    again = VerificationResult.load(tmp_path / "r.npz")
+    assert (again.reason, again.detail) == (result.reason, result.detail)
 
 
 def test_a_noisy_loop_s_merged_set_meeting_an_unsafe_set_is_over_approximation():
