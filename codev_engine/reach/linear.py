@@ -1207,8 +1207,8 @@ class LinearReach(ClosedLoopSetup):
             self.findings.append(Finding(
                 "undefined", -1, t, None,
                 f"at t = {t:.6g} the reach set's over-approximation meets no region of the "
-                "law (no state of it is shown to leave its domain); the tube of that branch "
-                "ends there"))
+                "law (no piece of it is left after the regions' cuts); the tube of that "
+                "branch ends there"))
         return children
 
     def _exit(self, s: _Star, A: np.ndarray, b: np.ndarray, viol: np.ndarray
@@ -1217,7 +1217,8 @@ class LinearReach(ClosedLoopSetup):
 
         For each row some point of the star's over-approximation violates (largest first):
         the largest ``A_r (c + V a) - b_r`` over ``H a <= h``. An exit is exact when it
-        exceeds ten times the star's error at a point ``a`` of the polytope (checked):
+        exceeds ten times the star's error plus the locator's tolerance (``1e-9 |A_r|``)
+        at a point ``a`` of the polytope (checked):
         returns that ``a`` and the LP's largest violation; ``(None, None)`` when every such
         row's maximum, widened by the star's error and the LP's accuracy (1e-9 of the
         terms), is within its bound: no state leaves (the points were loose, e.g. the
@@ -1237,7 +1238,9 @@ class LinearReach(ClosedLoopSetup):
             AV = A[r] @ s.V
             gap = float(A[r] @ (s.c + s.V @ a) - b[r])
             worst = max(worst, gap)
-            if gap > margin:
+            # (within the locator's 1e-9 of the row a state still gets a region, so the
+            # simulation would not reproduce that exit: a possible one at most)
+            if gap > margin + 1e-9 * float(np.linalg.norm(A[r])):
                 return a, gap
             # the LP's accuracy (1e-9 of the terms) and the star's error
             pad = (float(np.abs(A[r]) @ s.err)

@@ -137,6 +137,25 @@ def test_max_depth_names_the_field_to_raise_and_keeps_the_tube_whole(example_law
     assert _dense_inside(problem, law, result, T)[0] == 0
 
 
+def test_a_set_past_the_domain_by_less_than_the_locator_s_tolerance_is_a_possible_exit():
+    # the double integrator's initial set 1e-10 past its domain's face p <= 5: the law is
+    # defined there (the locator's 1e-9), so no exit is exact and the tube goes on whole
+    problem = _di(noise=False, T=1.0, edge=-3.0)
+    vs = replace(problem.verify, initial_lower=np.array([4.5, -0.1]),
+                 initial_upper=np.array([5.0 + 1e-10, 0.0]))
+    problem = replace(problem, verify=vs)
+    law = synthesize(problem)
+    result = verify(problem, law)
+    assert (result.verdict, result.reason) == ("unknown", "infeasible_region"), \
+        result.summary()
+    d = result.detail
+    assert "at t = 0" in d and "may leave the law's domain" in d and "tube goes on" in d
+    assert "partial" not in d
+    assert result.tube.t_end.max() >= 1.0 - 1e-9
+    outside, violated = _dense_inside(problem, law, result, 1.0)
+    assert outside == 0 and not violated
+
+
 def test_law_parameters_says_why_and_that_there_is_no_tube():
     text = BASE.format(N=3, norm="2").replace(
         'A = [[0.0, 1.0], [0.0, 0.0]]\nB = [[0.0], [1.0]]', 'dynamics = ["v", "u - 0.1*sin(p)"]'
