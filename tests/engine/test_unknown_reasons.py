@@ -156,6 +156,18 @@ def test_a_set_past_the_domain_by_less_than_the_locator_s_tolerance_is_a_possibl
     assert outside == 0 and not violated
 
 
+def test_a_nonlinear_max_depth_names_the_field_and_keeps_the_tube_whole(example_law):
+    # the pendulum over 0.7 s without bisections of its initial set: undecided at 0.6 s,
+    # the last refinement level goes on, so the tube holds every trajectory to the end
+    problem, law = example_law("pendulum.toml")
+    problem = replace(problem, verify=replace(problem.verify, time_horizon=0.7))
+    result = verify(problem, law, max_depth=0)
+    assert (result.verdict, result.reason) == ("unknown", "max_depth"), result.summary()
+    assert "at t = 0.6" in result.detail and "verify.max_depth = 0" in result.detail
+    assert result.tube.t_end.max() >= 0.7 - 1e-9
+    assert _dense_inside(problem, law, result, 0.7, P=30)[0] == 0
+
+
 def test_law_parameters_says_why_and_that_there_is_no_tube():
     text = BASE.format(N=3, norm="2").replace(
         'A = [[0.0, 1.0], [0.0, 0.0]]\nB = [[0.0], [1.0]]', 'dynamics = ["v", "u - 0.1*sin(p)"]'
