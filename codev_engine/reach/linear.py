@@ -240,9 +240,11 @@ class Finding:
     ----------
     kind : str
         ``"unsafe"``, ``"safe"``, ``"input_bounds"`` (a property violated), ``"undefined"``
-        (the set leaves the law's domain), ``"max_depth"`` (the refinement budget ran out)
-        or ``"limit"`` (the exploration grew past ``codev_engine.limits``; ``detail`` says
-        which limit and what to change).
+        (the set leaves the law's domain), ``"max_depth"`` (the refinement budget ran out),
+        ``"over_approximation"`` (a merged or disturbed set still meets a property after
+        the time refinements such a set gets), ``"enclosure"`` (the uncertain parameters'
+        effect over a period could not be bounded) or ``"limit"`` (the exploration grew
+        past ``codev_engine.limits``; ``detail`` says which limit and what to change).
     index : int
         The unsafe or safe set, or the input, violated; -1 for the other kinds.
     t : float
@@ -789,6 +791,16 @@ class LinearReach(ClosedLoopSetup):
             bad |= np.any(u_lo < umin, axis=1) | np.any(u_hi > umax, axis=1)
         return bad
 
+    def _meets(self, lo: np.ndarray, hi: np.ndarray) -> str:
+        """Which property the box ``[lo, hi]`` may violate, in words (for a ``detail``)."""
+        for idx, (A, b) in enumerate(self.unsafe):
+            if _box_meets(A, b, lo, hi):
+                return f"meets unsafe set {idx}"
+        for idx, (A, b) in enumerate(self.safe):
+            if np.any(np.where(A > 0, A, 0) @ hi + np.where(A < 0, A, 0) @ lo > b):
+                return f"leaves safe set {idx}"
+        return "may take an input past its bounds"
+
     def _exact_violation(self, s: _Star, i: int, tau: float, t: float) -> Finding | None:
         """Is there alpha in P whose exact trajectory violates a property at tau?"""
         X, W, _, err = self._images(s, i, np.array([tau]))
@@ -841,7 +853,7 @@ class LinearReach(ClosedLoopSetup):
         ``F_i (c + V a) + G_i``; beyond the region's bound by more than ten times the
         star's error it is a concrete violation (``alpha`` set, the initial state). Else
         it is a possible violation that no time refinement can decide (the input is held):
-        a ``"max_depth"`` finding whose ``detail`` says which input, the range and the
+        an ``"over_approximation"`` finding whose ``detail`` says which input, the range and the
         tolerance.
         """
         F, G = self.law.F[i], self.Gn[i]
@@ -859,8 +871,10 @@ class LinearReach(ClosedLoopSetup):
         r = int(np.argmax(np.maximum(u_hi - umax, umin - u_lo)))
         tol_hi = umax[r] - float(self.problem.mpc.u_max[r])
         tol_lo = float(self.problem.mpc.u_min[r]) - umin[r]
+        # (an over-approximation's range, not a refinement budget: no time refinement is
+        # tried, and raising max_depth would change nothing)
         return Finding(
-            "max_depth", -1, t, None,
+            "over_approximation", -1, t, None,
             f"at t = {t:.6g} the input {r} held by region {i} lies in [{u_lo[r]:.10g}, "
             f"{u_hi[r]:.10g}] (bounds [{self.problem.mpc.u_min[r]:g}, "
             f"{self.problem.mpc.u_max[r]:g}], tolerance {max(tol_lo, tol_hi):.3g}); "
@@ -912,9 +926,14 @@ class LinearReach(ClosedLoopSetup):
         tau_end = min(self.Ts, self.T - t_k)
         taus = _grid(tau_end, self.step)
         if self.param and not self._param_bound(s, i, taus):
-            # the parameters' effect could not be bounded over this period: a possible
-            # violation the engine cannot decide (the tube stops holding this branch)
-            self.findings.append(Finding("max_depth", -1, t_k, None))
+            # the parameters' effect could not be bounded over this period: an a-priori
+            # enclosure that did not close (the tube stops holding this branch)
+            self.findings.append(Finding(
+                "enclosure", -1, t_k, None,
+                f"at t = {t_k:.6g} the uncertain parameters' effect over the sample period "
+                "could not be bounded (no box around the period's tube closed in 8 rounds); "
+                "the tube of that branch ends there: narrow plant.parameters or "
+                "verify.initial_set"))
             return None
         self._held_ok, self._ubounds = False, (self.u_min, self.u_max)
         if self.check_u and self.hold == "zoh":
@@ -1065,7 +1084,17 @@ class LinearReach(ClosedLoopSetup):
         exact = s.exact and not self.uncertain
         limit = self.max_depth if exact else min(self.max_depth, _MERGED_DEPTH)
         if depth >= limit:
-            self.findings.append(Finding("max_depth", -1, t_k + ta, None))
+            if exact:
+                self.findings.append(Finding("max_depth", -1, t_k + ta, None))
+            else:
+                # (refining a merged or disturbed set in time cannot remove what the merge
+                # or the disturbance adds: max_depth is not what stopped it)
+                self.findings.append(Finding(
+                    "over_approximation", -1, t_k + ta, None,
+                    f"at t = {t_k + ta:.6g} the over-approximation (a merged or disturbed "
+                    f"reach set) {self._meets(blo, bhi)} on [{t_k + ta:.6g}, {t_k + tb:.6g}] after "
+                    f"{limit} time refinements (at most {_MERGED_DEPTH} for such a set: "
+                    "they cannot remove the merge's or the disturbance's part)"))
             self.tubes.append(
                 Tube(
                     np.array([t_k + ta]),
@@ -1175,7 +1204,11 @@ class LinearReach(ClosedLoopSetup):
                                s.Gw, s.eround))
             )
         if not children:
-            self.findings.append(Finding("undefined", -1, t, None))
+            self.findings.append(Finding(
+                "undefined", -1, t, None,
+                f"at t = {t:.6g} the reach set's over-approximation meets no region of the "
+                "law (no piece of it is left after the regions' cuts); the tube of that "
+                "branch ends there"))
         return children
 
     def _exit(self, s: _Star, A: np.ndarray, b: np.ndarray, viol: np.ndarray
@@ -1184,7 +1217,8 @@ class LinearReach(ClosedLoopSetup):
 
         For each row some point of the star's over-approximation violates (largest first):
         the largest ``A_r (c + V a) - b_r`` over ``H a <= h``. An exit is exact when it
-        exceeds ten times the star's error at a point ``a`` of the polytope (checked):
+        exceeds ten times the star's error plus the locator's tolerance (``1e-9 |A_r|``)
+        at a point ``a`` of the polytope (checked):
         returns that ``a`` and the LP's largest violation; ``(None, None)`` when every such
         row's maximum, widened by the star's error and the LP's accuracy (1e-9 of the
         terms), is within its bound: no state leaves (the points were loose, e.g. the
@@ -1204,7 +1238,9 @@ class LinearReach(ClosedLoopSetup):
             AV = A[r] @ s.V
             gap = float(A[r] @ (s.c + s.V @ a) - b[r])
             worst = max(worst, gap)
-            if gap > margin:
+            # (within the locator's 1e-9 of the row a state still gets a region, so the
+            # simulation would not reproduce that exit: a possible one at most)
+            if gap > margin + 1e-9 * float(np.linalg.norm(A[r])):
                 return a, gap
             # the LP's accuracy (1e-9 of the terms) and the star's error
             pad = (float(np.abs(A[r]) @ s.err)
@@ -1232,8 +1268,15 @@ class LinearReach(ClosedLoopSetup):
                     # (with a disturbance the exact exploration is no more exact than the
                     # merged one -- its sets carry the disturbance's box -- and its branches
                     # multiply: a possible violation stays possible, the verdict unknown)
+                    t = getattr(self, "_t_now", 0.0)
                     if not self.findings:
-                        self.findings.append(Finding("max_depth", -1, 0.0, None))
+                        self.findings.append(Finding(
+                            "max_depth", -1, t, None,
+                            f"at t = {t:.6g} a merged set could not be formed; the tube "
+                            "ends there"))
+                    # the merged run stopped at this sample: every trajectory is in the
+                    # tube up to it, not after (the verdict's detail says so)
+                    self.stats["complete_until"] = self._complete_until(t)
                     return
                 self.stats["merged_attempt"] = {
                     k: self.stats[k] for k in ("branches", "refinements")

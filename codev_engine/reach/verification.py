@@ -11,7 +11,9 @@ Verdicts
     simulation (scipy ``solve_ivp``, tight tolerances) from the reported initial state.
 ``unknown``
     With ``reason`` ``"max_depth"`` (refinement budget exhausted while the
-    over-approximation still meets a property boundary), ``"infeasible_region"`` (only the
+    over-approximation still meets a property boundary), ``"over_approximation"`` (a
+    merged or disturbed set meets a property, which refining it in time cannot decide, and
+    no concrete search found a trajectory that does), ``"infeasible_region"`` (only the
     over-approximation leaves the law's domain) or ``"enclosure"`` (refinement budget
     exhausted on an interval enclosure that meets a singularity: ``detail`` names the
     operation, the expression and the time), or ``"no_invariant"`` (``time_horizon =
@@ -67,6 +69,8 @@ VIOLATION_WORDS = {
 #: Why a verdict is unknown, in words
 UNKNOWN_WORDS = {
     "max_depth": "max_depth reached",
+    "over_approximation": "the over-approximation meets a property; no concrete trajectory "
+    "found does",
     "infeasible_region": "the reach set leaves the law's domain",
     "law_parameters": "the law also takes the previous input or a reference, which the "
     "reach engines do not track yet",
@@ -136,8 +140,9 @@ class VerificationResult(Displayable):
     verdict : str
         ``"robustly_safe"``, ``"unsafe"`` or ``"unknown"`` (``VERDICTS``).
     reason : str or None
-        None when robustly safe; the counterexample's kind when unsafe; ``"max_depth"``
-        or ``"infeasible_region"`` when unknown.
+        None when robustly safe (``"invariant"`` for all time); the counterexample's kind
+        when unsafe; when unknown, one of ``UNKNOWN_WORDS`` (``"max_depth"``,
+        ``"over_approximation"``, ``"infeasible_region"``, ``"enclosure"``, ...).
     tube : Tube
         The reachtube (when unsafe, only its boxes that start by the violation's time).
     hold : {"zoh", "continuous"}
@@ -532,7 +537,8 @@ def verify(
             # in a "limit" finding with their tube: a search, a certificate's simulation)
             result = VerificationResult("unknown", "limit", Tube.empty(problem.plant.n),
                                         hold or problem.verify.hold, None,
-                                        {"branches": 0, "boxes": 0}, str(exc))
+                                        {"branches": 0, "boxes": 0},
+                                        f"{exc}; no reachtube is kept (the tube is empty)")
             result.attach_display(problem=problem, law=law)
             return result
 
@@ -570,8 +576,13 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
         # limitation of the verifier, so a verdict and not an error (and no certificate
         # on x alone, which would be unsound for a law that depends on u_prev)
         stats = {"seconds": time.perf_counter() - t0, "branches": 0, "boxes": 0}
-        result = VerificationResult("unknown", "law_parameters", Tube.empty(problem.plant.n),
-                                    hold, None, stats)
+        why = ("the hold is continuous" if hold != "zoh" else "time_horizon is inf"
+               if not np.isfinite(vs.time_horizon) else "the plant is not affine")
+        result = VerificationResult(
+            "unknown", "law_parameters", Tube.empty(problem.plant.n), hold, None, stats,
+            f"the law takes theta = (x, u_prev, r) ({law.n} dimensions, the plant's "
+            f"{problem.plant.n}), which is followed under zoh over a bounded horizon on an "
+            f"affine plant only, and {why}; no reachtube is computed (the tube is empty)")
         result.attach_display(problem=problem, law=law)
         return result
     unbounded = not np.isfinite(vs.time_horizon)
@@ -606,7 +617,7 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
             hold,
             None,
             stats,
-            f"no invariance certificate: {why}",
+            f"no invariance certificate: {why}; no reachtube is kept (the tube is empty)",
         )
     if plant is not None:
         eng = LinearReach(
@@ -654,7 +665,13 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
     detail = None
     if verdict != "unsafe" and findings:
         verdict = "unknown"
-        reason, detail = _unknown_reason(findings, concrete)
+        reason, detail = _unknown_reason(findings, concrete, depth)
+        if "complete_until" in stats and reason not in ("budget", "limit"):
+            # the linear engine's merged run stops at its first undecided finding (under
+            # disturbances, or for all time), a parameter split at a concrete finding:
+            # past that time the tube is partial
+            detail += ("; the exploration stopped there: the tube is partial after "
+                       f"t = {stats['complete_until']:.6g}")
         # a possible violation is worth a few concrete simulations (under disturbances,
         # also the adjoint's extreme signals towards the properties at the findings' times)
         # (the searches in turn, the first replayed counterexample ends them; the input
@@ -690,7 +707,9 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
         c = stats.get("certificate")
         if c is None or certificate is None or not check_certificate(certificate):
             verdict, reason, certificate = "unknown", "no_invariant", None
-            detail = f"no invariance certificate within max_samples = {vs.max_samples} samples"
+            detail = (f"no invariance certificate within max_samples = {vs.max_samples} "
+                      "samples; the tube holds every trajectory up to t = "
+                      f"{vs.time_horizon:.6g} (those samples), not after")
             cex = _search(problem, law, hold)
             if cex is not None:
                 verdict, reason, detail = "unsafe", cex.kind, None
@@ -721,15 +740,17 @@ def _verify(problem, law, hold, max_depth, progress, executor, cells) -> Verific
     return result
 
 
-def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
+def _unknown_reason(findings: list, concrete: list, depth: int | None = None
+                    ) -> tuple[str, str]:
     """The reason and ``detail`` of an ``unknown`` from the engine's findings.
 
     The reasons in order: ``limit`` (the run stopped: partial tube), ``enclosure`` (an
     a-priori enclosure failed: that piece's tube ends there), ``infeasible_region`` (the
     over-approximation may leave the law's domain; the tube goes on, or, when a state of
     the reach set was shown to leave it but no simulation reproduced the exit, ends
-    there), ``max_depth``. ``detail`` names the time and the cause, and says where the
-    tube ends when it is partial (docs/verification.md, "The tube file").
+    there), ``max_depth``, ``over_approximation`` (a merged or disturbed set meets a
+    property, no concrete trajectory found does). ``detail`` names the time and the
+    cause, and says where the tube ends when it is partial (docs/verification.md, "The tube file").
 
     Parameters
     ----------
@@ -738,6 +759,8 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     concrete : list of Finding
         The findings with a concrete initial state that no simulation confirmed: the run
         stopped at the first of them.
+    depth : int, optional
+        The refinement depth the run had (``verify.max_depth``), named by a ``max_depth``.
 
     Returns
     -------
@@ -765,15 +788,23 @@ def _unknown_reason(findings: list, concrete: list) -> tuple[str, str]:
     elif "max_depth" in kinds:
         reason, f = "max_depth", first("max_depth")
         detail = f.detail or (f"a possible violation at t = {f.t:.6g} was not decided "
-                              "within max_depth refinements")
+                              f"within verify.max_depth = {depth} refinements: raise "
+                              "verify.max_depth or shrink verify.initial_set")
+    elif "over_approximation" in kinds:
+        # a merged or disturbed set still meets a property after the time refinements such
+        # a set gets (they cannot remove what the merge or the disturbance adds)
+        reason, f = "over_approximation", first("over_approximation")
+        detail = f"{f.detail}; no concrete search found a trajectory that does"
     else:
         # a property's violation on an over-approximated set (a hull under disturbances:
         # no initial state to replay) that no concrete search reproduced
         f = min(findings, key=lambda f: f.t)
-        reason = "max_depth"
-        detail = f.detail or (f"a possible {f.kind} violation at t = {f.t:.6g} on an "
-                              "over-approximated reach set was not decided: no concrete "
-                              "search reproduced it; the tube of that branch ends there")
+        reason = "over_approximation"
+        what = VIOLATION_WORDS.get(f.kind, f.kind).format(index=f.index)
+        detail = (f"at t = {f.t:.6g} the over-approximation (a merged or disturbed reach set: "
+                  f"no initial state to replay) {what.replace('enters', 'meets')}, and no "
+                  "concrete search found a trajectory that does; the tube of that branch "
+                  "ends there")
     if concrete:
         c = min(concrete, key=lambda f: f.t)
         detail += (f"; a {c.kind} violation found on the reach set at t = {c.t:.6g} was not "
@@ -999,7 +1030,8 @@ def _limited(problem: Problem, law: ExplicitLaw, hold: str, t0: float, reason: s
     if cex is not None:
         result = VerificationResult("unsafe", cex.kind, tube, hold, cex, stats)
     else:
-        result = VerificationResult("unknown", reason, tube, hold, None, stats, detail)
+        result = VerificationResult("unknown", reason, tube, hold, None, stats,
+                                    f"{detail}; no reachtube is computed (the tube is empty)")
     result.attach_display(problem=problem, law=law)
     return result
 
@@ -1453,7 +1485,8 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
 
 
 def _inputs_only(problem: Problem, tube: Tube, findings: list) -> bool:
-    """Do the tube's boxes at the undecided findings (``max_depth``) all satisfy the state
+    """Do the tube's boxes at the undecided findings (``max_depth``, ``over_approximation``:
+    a held input's range, a merged set's box) all satisfy the state
     properties, so that only the input bounds can have kept them undecided? (It orders the
     concrete searches; it claims nothing.)
 
@@ -1468,10 +1501,12 @@ def _inputs_only(problem: Problem, tube: Tube, findings: list) -> bool:
     -------
     bool
         False without ``verify.input_bounds``, with findings of other kinds than
-        ``max_depth`` or without a box at some finding's time.
+        ``max_depth`` and ``over_approximation`` or without a box at some finding's time.
     """
     vs = problem.verify
-    if not vs.input_bounds or not findings or any(f.kind != "max_depth" for f in findings):
+    if not vs.input_bounds or not findings or any(
+        f.kind not in ("max_depth", "over_approximation") for f in findings
+    ):
         return False
     if tube.num_boxes == 0:
         return False

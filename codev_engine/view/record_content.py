@@ -1302,7 +1302,14 @@ def _verdict_sentence(content: RecordingContent) -> str:
             f"A trajectory from the initial set {describe} at t = {cex.t:.4g} s; it is "
             "replayable (x0 below)."
         )
-    return f"The verifier could not decide: {r.reason or 'no reason given'}."
+    # the reason in words and its detail: what happened, where, where the tube ends
+    from codev_engine.reach.verification import UNKNOWN_WORDS
+
+    code = r.reason or "no reason given"
+    words = UNKNOWN_WORDS.get(code)
+    said = f"{words} ({code})" if words else code
+    detail = getattr(r, "detail", None)
+    return f"The verifier could not decide: {said}" + (f"; {detail}." if detail else ".")
 
 
 def tube_envelope(

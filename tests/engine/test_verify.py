@@ -245,7 +245,8 @@ def _assert_sound(problem, law, result: VerificationResult, label: str, sims=Non
             f"{label}: {result.verdict} but the tube ends at {tube.t_end.max()}"
         )
         if result.verdict == "unknown":
-            assert result.reason in ("max_depth", "infeasible_region", "enclosure"), label
+            assert result.reason in ("max_depth", "over_approximation", "infeasible_region",
+                                     "enclosure"), label
         else:
             assert result.reason is None
 
