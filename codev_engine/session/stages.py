@@ -18,6 +18,7 @@ record, status line and replay comparison all follow from it.
     verification  synthesis key + plant + verify section     -> VerificationResult .npz
                   + hold/max_depth overrides (only with [verify])
     recording     verification (or synthesis) key + options  -> Rerun recording   .rrd
+                  + the drawing code's hash (view_code_sha)
 
 The engine modules each stage runs are imported when it runs: the session's bookkeeping (keys,
 the status of a cached folder, the journal) needs none of them, and the workbench draws its
@@ -26,6 +27,8 @@ first screen before sympy and scipy are loaded.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, fields, replace
@@ -40,7 +43,7 @@ if TYPE_CHECKING:
     from codev_engine.executor import Executor
     from codev_engine.spec.problem import Problem, VerifySpec
 
-__all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable"]
+__all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable", "view_code_sha"]
 
 
 class StageOptions(Protocol):
@@ -479,6 +482,43 @@ def _verification_describe(result: Any, upstream: Mapping[str, Any]) -> tuple[di
 # --------------------------------------------------------------------------------------------
 
 
+#: the code that draws a recording: ``codev_engine/view``
+VIEW_DIR = Path(__file__).resolve().parents[1] / "view"
+
+
+@functools.cache
+def view_code_sha(root: Path = VIEW_DIR) -> str:
+    """SHA-256 of the sources of the code that draws the recordings, read once.
+
+    The recording's key holds it, so that a change to the pictures is not served from the
+    cache (a fix needed ``--fresh``). The sources' hash, rather than a format constant
+    bumped by hand: a constant is forgotten exactly when a picture is fixed, while the hash
+    follows every change, in a checkout (whose version does not change between commits)
+    and an installation alike (a wheel installs the ``.py`` files: they are read by path,
+    ~12 files, well under a millisecond, without importing Rerun). Where they are not (an
+    application frozen to bytecode) it is ``"no sources"``: the engine version, in every key,
+    is then the drawing code's version.
+
+    Parameters
+    ----------
+    root : Path
+        The folder of the drawing code (default ``codev_engine/view``).
+
+    Returns
+    -------
+    str
+        64 hex digits, or ``"no sources"``.
+    """
+    files = sorted(root.rglob("*.py"))
+    if not files:
+        return "no sources"
+    h = hashlib.sha256()
+    for f in files:  # (each file's name and content: a file renamed changes it too)
+        h.update(f.relative_to(root).as_posix().encode() + b"\0")
+        h.update(hashlib.sha256(f.read_bytes()).digest())
+    return h.hexdigest()
+
+
 def _recording_inputs(problem: Problem, options: StageOptions, keys: Mapping[str, str]) -> dict:
     upstream = (
         {"verification": keys["verification"]}
@@ -490,6 +530,7 @@ def _recording_inputs(problem: Problem, options: StageOptions, keys: Mapping[str
         "axes": list(options.axes),
         "traces": options.traces,
         "name": problem.name,
+        "view": view_code_sha(),
     }
 
 
