@@ -183,6 +183,27 @@ class Session:
         path = store.snapshot_path(self.path, spec_sha)
         return loads_spec(text, path=str(path), check_mpc=False)
 
+    def last_options(self, journal: list[dict[str, Any]] | None = None) -> RunOptions:
+        """The options of the session's latest run (``RunOptions()`` before the first).
+
+        The front ends that run stages themselves (the workbench, the notebook) keep its
+        ``sharded``: a session whose law is stored as shards is opened with them, not given
+        a serial law beside them.
+
+        Parameters
+        ----------
+        journal : list of dict, optional
+            The journal, when already read.
+
+        Returns
+        -------
+        RunOptions
+        """
+        journal = self.journal() if journal is None else journal
+        if not journal:
+            return RunOptions()
+        return RunOptions.from_json(journal[-1]["options"], stages=self.table.names)
+
     # ---- artifacts -------------------------------------------------------------------
 
     def artifact_path(
@@ -232,11 +253,7 @@ class Session:
         problem = problem if problem is not None else self.problem()
         journal = self.journal()
         if options is None:
-            options = (
-                RunOptions.from_json(journal[-1]["options"], stages=self.table.names)
-                if journal
-                else RunOptions()
-            )
+            options = self.last_options(journal)
         keys = stage_keys(problem, options, self.table)
         out = []
         for stage in self.table:

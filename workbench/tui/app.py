@@ -224,7 +224,8 @@ class CodevApp(App):
         self.has_verify: bool = opened.has_verify
         self.start_note = opened.note
         self._dirty = opened.save_now  # the form differs from the session's spec.toml
-        self.options = RunOptions(traces=traces)
+        # (a session whose law is stored as shards keeps them: codev run --sharded)
+        self.options = RunOptions(traces=traces, sharded=_stores_shards(self.session))
         self.check: FormCheck | None = None
         self.statuses: dict[str, StageStatus] = {}
         self.keys: dict[str, str] = {}
@@ -1106,3 +1107,11 @@ def _lower_priority(niceness: int = 10) -> None:
         os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
     except (AttributeError, OSError):
         pass
+
+
+def _stores_shards(session: Session) -> bool:
+    """The session's latest run stored its law as shards (``Session.last_options``)."""
+    try:
+        return session.last_options().sharded
+    except CodevError:  # (a malformed journal: reported where the stages read it)
+        return False
