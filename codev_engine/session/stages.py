@@ -566,7 +566,8 @@ def _recording_load(path: Path, problem: Problem) -> Path:
 def _recording_describe(path: Path, upstream: Mapping[str, Any]) -> tuple[dict, dict]:
     result = upstream.get("verification")
     boxes = result.tube.num_boxes if result is not None else 0
-    return ({"boxes": boxes}, {"bytes": Path(path).stat().st_size})
+    # (the drawing code's hash is in the key: the journal says which code drew it)
+    return ({"boxes": boxes}, {"bytes": Path(path).stat().st_size, "view": view_code_sha()})
 
 
 # --------------------------------------------------------------------------------------------

@@ -25,6 +25,7 @@ import pytest
 from codev_engine.law_shards import ShardedLaw
 from codev_engine.pipeline import load_spec, loads_spec
 from codev_engine.session import RunOptions, Session, SessionError, stage_keys
+from codev_engine.session.stages import view_code_sha
 from codev_engine.session.store import check_artifact
 from tests.engine.test_law_shards import SPEC
 from workbench.cli import main
@@ -55,6 +56,7 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     assert sorted(p.name for p in folder.iterdir()) == ["shard-0.npz", "shards.json"]
     assert isinstance(rep.law, ShardedLaw) and rep.law.shards == syn.details["shards"] == 1
     assert not _leftovers(session.path)
+    assert rep.stage("recording").details["view"] == view_code_sha()  # (which code drew it)
     # the serial law beside it, under another key: the same function, the same verdict
     serial = session.run(problem, RunOptions(traces=1))
     assert serial.stage("synthesis").key != syn.key
