@@ -74,7 +74,11 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     assert {s.stage: s.status for s in session.status(problem)}["synthesis"] == "cached"
 
 
-def test_a_damaged_shard_is_named_and_recomputed(spec, tmp_path):
+def test_a_damaged_shard_is_named_and_recomputed(spec, tmp_path, capsys):
+    """The store's rule for a damaged artifact: ``codev session`` names the shard,
+    a run (here ``codev replay``, which recomputes without a cluster: one shard) says so on
+    one warning line and recomputes it; the verification downstream, whose key holds the
+    law's, stays cached."""
     problem = load_spec(spec)
     session = Session.create(tmp_path / "s")
     rep = session.run(problem, SHARDED)
@@ -85,11 +89,16 @@ def test_a_damaged_shard_is_named_and_recomputed(spec, tmp_path):
     shard.write_bytes(bytes(data))
     status = {s.stage: s for s in session.status(problem)}["synthesis"]
     assert status.status == "corrupt" and "shard-0.npz" in status.reason
-    said: list[str] = []
-    again = session.run(problem, SHARDED, warn=said.append)
-    assert again.stage("synthesis").status == "computed"
-    assert len(said) == 1 and "shard-0.npz" in said[0] and "recomputed" in said[0]
-    assert check_artifact(session.path, folder, again.stage("synthesis").key) is None
+    assert main(["session", str(session.path)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "synthesis" in ln)
+    assert "corrupt" in line and "shard-0.npz" in line
+    assert main(["replay", str(session.path), "--json"]) == 0
+    out, err = capsys.readouterr()
+    got = json.loads(out)
+    assert got["match"] and got["cached"] == 3  # (all but the law)
+    warned = [ln for ln in err.splitlines() if "warning" in ln]
+    assert len(warned) == 1 and "shard-0.npz" in warned[0] and "recomputed" in warned[0]
+    assert check_artifact(session.path, folder, rep.stage("synthesis").key) is None
     assert not _leftovers(session.path)  # (the damaged folder removed once replaced)
 
 
@@ -144,6 +153,9 @@ def test_a_law_on_demand_is_not_sharded(tmp_path):
     with pytest.raises(SessionError, match="sharded"):
         session.run(problem, SHARDED)
     assert not session.journal()
+    # a journal's options are checked field by field: no junk in ``sharded``
+    with pytest.raises(SessionError, match="options.sharded: must be true or false"):
+        RunOptions.from_json({"sharded": "yes"})
 
 
 def test_the_cli_refuses_sharded_without_a_session_or_a_cluster(spec, tmp_path, capsys):
