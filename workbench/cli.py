@@ -441,7 +441,9 @@ def _stage_text(outcome: dict, details: dict) -> str:
     """A stage's outcome, and a law's shards: "regions=N in S shards"."""
     text = _outcome_text(outcome)
     shards = details.get("shards") if isinstance(details, dict) else None
-    return f"{text} in {shards} shards" if shards is not None else text
+    if shards is None:
+        return text
+    return f"{text} in {shards} shard{'s' if shards != 1 else ''}"
 
 
 def _warn(msg: str) -> None:

@@ -57,6 +57,9 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     assert isinstance(rep.law, ShardedLaw) and rep.law.shards == syn.details["shards"] == 1
     assert not _leftovers(session.path)
     assert rep.stage("recording").details["view"] == view_code_sha()  # (which code drew it)
+    from codev_engine.view.figures import law_html
+
+    assert f"{rep.law.num_regions} in 1 shard<" in law_html(rep.law)  # (the notebook's)
     # the serial law beside it, under another key: the same function, the same verdict
     serial = session.run(problem, RunOptions(traces=1))
     assert serial.stage("synthesis").key != syn.key
