@@ -237,3 +237,26 @@ def test_codev_run_sharded_on_a_cluster_stores_the_workers_shards(spec, tmp_path
     assert main(["export", str(s), "--python", str(tmp_path / "law.py")]) == 2
     assert str(folder) in capsys.readouterr().err
     assert main(["export", str(folder), "--python", str(tmp_path / "law.py")]) == 0
+
+
+def test_atomic_folder_is_renamed_whole_or_not_at_all(tmp_path):
+    """``io.atomic.atomic_folder``: the folder takes its name only when the body returns
+    (replacing the one there, moved aside first); a body that raises, Ctrl-C included,
+    leaves the old folder as it was and no temporary folder."""
+    from codev_engine.io.atomic import atomic_folder
+
+    target = tmp_path / "law.shards"
+    with atomic_folder(target) as tmp:
+        assert tmp.parent == tmp_path and tmp.name.startswith(".tmp-") and not target.exists()
+        (tmp / "a").write_text("1")
+    assert (target / "a").read_text() == "1"
+    for exc in (RuntimeError, KeyboardInterrupt):
+        with pytest.raises(exc), atomic_folder(target) as tmp:
+            (tmp / "b").write_text("2")
+            raise exc
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["law.shards"]
+        assert sorted(p.name for p in target.iterdir()) == ["a"]
+    with atomic_folder(target) as tmp:
+        (tmp / "c").write_text("3")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["law.shards"]
+    assert sorted(p.name for p in target.iterdir()) == ["c"]
