@@ -271,7 +271,7 @@ def _synthesis_inputs(problem: Problem, options: StageOptions, keys: Mapping[str
         # partition (its reachtube's boxes, and in edge cases its verdict: an
         # over-approximation), so the verification cached downstream, keyed by this key,
         # must name the partition it was computed on. The number of workers is left out:
-        # the regions are the same set whatever it is (without simplify; with it, the
+        # the search's regions do not depend on it (mp/sharded.py; with simplify the
         # merges within shards may differ: a cached law is any shard count's, the same
         # function).
         inputs["sharded"] = True
