@@ -363,20 +363,17 @@ class CodevApp(App):
     ) -> dict[str, Any]:
         """Cached results for the current spec that the screens do not show yet (e.g. the
         user put Q back to a value synthesised before)."""
-        from codev_engine import ExplicitLaw, VerificationResult
-
         out: dict[str, Any] = {}
-        for stage, cls, shown in (
-            ("synthesis", ExplicitLaw, self.law_key),
-            ("verification", VerificationResult, self.result_key),
-        ):
+        for stage, shown in (("synthesis", self.law_key), ("verification", self.result_key)):
             st = statuses.get(stage)
             if st is None or st.status != "cached" or st.artifact is None:
                 continue
             if shown == keys.get(stage):
                 continue
             try:
-                out[stage] = cls.load(self.session.path / st.artifact)
+                # (the stage's loader: a law file, or the folder of a law stored as shards)
+                out[stage] = self.session.table[stage].load(
+                    self.session.path / st.artifact, chk.problem)
             except (CodevError, OSError):
                 continue
         return out
@@ -1003,6 +1000,8 @@ class CodevApp(App):
             self.call_from_thread(
                 self.notify, "preparing the C export's kernels, once (about 15 s, then cached)")
         try:
+            if hasattr(law, "merged"):  # (a law stored as shards: one C table, merged here)
+                law = law.merged()
             h, c = export_c(law, dest, name=name)
         except (CodevError, OSError, ValueError) as exc:
             self.call_from_thread(pane.show_law_export, typed, error=str(exc))
