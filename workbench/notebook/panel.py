@@ -90,7 +90,11 @@ class Workbench:
             base = load_spec(design)
         self.session = Session.open_or_create(session or Path("sessions") / base.name)
         # (a session whose law is stored as shards keeps them: codev run --sharded)
-        self._options = RunOptions(sharded=self.session.last_options().sharded)
+        try:
+            sharded = self.session.last_options().sharded
+        except CodevError:  # (a malformed journal: reported where the stages read it)
+            sharded = False
+        self._options = RunOptions(sharded=sharded)
         self._base = base
         self.problem: Problem | None = base
         self.law: Any = None
