@@ -348,7 +348,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
             raise SpecError(
                 "--fresh needs --session (there is no cache without one)", field="--fresh"
             )
+        if args.sharded:
+            raise SpecError("--sharded needs --session (the session stores the law's shards; "
+                            "without one: codev synth --sharded --out-shards DIR, then codev "
+                            "verify --law DIR)", field="--sharded")
         return _cmd_verify(args)
+    if args.sharded and args.workers is None and args.scheduler is None:
+        raise SpecError("needs --workers N or --scheduler ADDR (a Dask cluster to shard the "
+                        "search across)", field="--sharded")
     if args.budget is not None:  # (a session records the spec, where the budget belongs)
         raise SpecError("--budget is not recorded by a session: write [verify] time_budget "
                         "in the spec instead", field="--budget")
@@ -365,7 +372,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     session = Session.open_or_create(args.session)
     _prepare_kernels()
     options = RunOptions(
-        hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces
+        hold=args.hold, max_depth=args.max_depth, axes=args.axes, traces=args.traces,
+        sharded=args.sharded,
     )
     with _executor(args) as executor, _stage_progress(True) as on_event:
         hint = _hint_reached(problem, lambda count, **extra: None)
@@ -414,7 +422,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     else:
         print(f"session {session.path} (run {report.run})")
         for s in report.stages:
-            print(f"  {s.stage:<13} {s.status:<9} {s.seconds:8.3f} s  {_outcome_text(s.outcome)}")
+            print(f"  {s.stage:<13} {s.status:<9} {s.seconds:8.3f} s  "
+                  f"{_stage_text(s.outcome, s.details)}")
         if result is not None:
             _print_result(problem, law, result, tube_path)
         if record:
@@ -426,6 +435,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _outcome_text(outcome: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in outcome.items() if v is not None)
+
+
+def _stage_text(outcome: dict, details: dict) -> str:
+    """A stage's outcome, and a law's shards: "regions=N in S shards"."""
+    text = _outcome_text(outcome)
+    shards = details.get("shards") if isinstance(details, dict) else None
+    if shards is None:
+        return text
+    return f"{text} in {shards} shard{'s' if shards != 1 else ''}"
 
 
 def _warn(msg: str) -> None:
@@ -1079,8 +1097,10 @@ def _operation_of(folder: Path):
 
     problem, law, result = _from_session(folder)
     if not getattr(law, "on_demand", False):
+        # (a law the session stores as shards: its folder, merged there on demand)
+        where = f": codev export {law.dir}" if hasattr(law, "shards") else ""
         raise SpecError('a session exports its region of operation with regions = "reached" '
-                        "(export a full law from its law file)", file=str(folder))
+                        f"(export a full law from its law file{where})", file=str(folder))
     if result is None:
         raise SpecError("the session has no verification cached for its spec; run: codev run "
                         f"{folder / 'spec.toml'} --session {folder}", file=str(folder))
@@ -1169,6 +1189,11 @@ def _build_parser() -> argparse.ArgumentParser:
             p.add_argument(
                 "--fresh", action="store_true", help="recompute every stage (with --session)"
             )
+            p.add_argument(
+                "--sharded", action="store_true",
+                help="with --session and --workers/--scheduler: the mp-QP search sharded "
+                "across the workers, each writing its shard of the law into the session "
+                "(a folder of shards, read lazily; docs/sessions.md)")
             p.set_defaults(func=_cmd_run, law=None)
         else:
             p.set_defaults(func=_cmd_verify, law=None, session=None)

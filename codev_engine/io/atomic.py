@@ -1,20 +1,22 @@
 """Atomic artifact writes: a temporary file in the same folder, then a rename.
 
 A reader never sees a half-written file: either the old artifact or the new one. A writer
-killed midway leaves at most a ``.tmp-*`` file, which no reader looks at.
+killed midway leaves at most a ``.tmp-*`` file (or folder: :func:`atomic_folder`), which no
+reader looks at.
 """
 
 from __future__ import annotations
 
 import os
 import secrets
+import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_path", "write_npz", "write_text"]
+__all__ = ["atomic_folder", "atomic_path", "write_npz", "write_text"]
 
 
 @contextmanager
@@ -60,6 +62,57 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+@contextmanager
+def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a new temporary folder next to ``path``; on success it is renamed onto ``path``.
+
+    What a folder artifact (a law written as shards by the workers) needs: the files are
+    written in ``.tmp-<random hex><suffix of path>`` and the folder takes its name only once
+    the ``with`` body returns, so a folder of that name is never a half-written one. A
+    folder (or file) already at ``path`` (a damaged artifact being recomputed) is moved
+    aside first and removed after the rename. On any exception (``KeyboardInterrupt``
+    included) the temporary folder is removed, ``path`` is untouched and the exception
+    propagates.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The folder to write; its missing parent folders are created.
+
+    Yields
+    ------
+    Path
+        The temporary folder, empty, in the folder of ``path`` (the rename of a folder is
+        atomic within one file system only).
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        tmp = path.parent / f".tmp-{secrets.token_hex(6)}{path.suffix}"
+        try:
+            tmp.mkdir()
+            break
+        except FileExistsError:  # pragma: no cover - 48 random bits
+            continue
+    try:
+        yield tmp
+        old = None
+        if path.exists() or path.is_symlink():
+            # (a folder cannot be renamed onto a folder that holds files: the old one goes
+            # aside, under a name no reader looks at, and is removed once the new one is in)
+            old = path.parent / f".tmp-{secrets.token_hex(6)}-old{path.suffix}"
+            os.replace(path, old)
+        os.replace(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if old is not None:
+        if old.is_dir() and not old.is_symlink():
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            old.unlink(missing_ok=True)
 
 
 def write_npz(

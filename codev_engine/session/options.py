@@ -36,6 +36,10 @@ class RunOptions:
         State indices of the recording's plane view.
     traces : int
         Simulated traces in the recording.
+    sharded : bool
+        The law is computed by the sharded search (with a Dask executor: each worker keeps
+        and writes its shard; without one, one shard) and stored as a folder of shards,
+        read lazily (``law_shards.ShardedLaw``). Part of the synthesis's key.
     """
 
     upto: str = STAGES[-1]
@@ -43,16 +47,21 @@ class RunOptions:
     max_depth: int | None = None
     axes: tuple[int, int] = (0, 1)
     traces: int = 16
+    sharded: bool = False
 
     def to_json(self) -> dict[str, Any]:
-        """The options as a journal record holds them (``axes`` as a list)."""
-        return {
+        """The options as a journal record holds them (``axes`` as a list; ``sharded``
+        only when set, so the records of other runs are as before)."""
+        out = {
             "upto": self.upto,
             "hold": self.hold,
             "max_depth": self.max_depth,
             "axes": list(self.axes),
             "traces": self.traces,
         }
+        if self.sharded:
+            out["sharded"] = True
+        return out
 
     @classmethod
     def from_json(
@@ -87,6 +96,7 @@ class RunOptions:
                 max_depth=d.get("max_depth"),
                 axes=tuple(d.get("axes", (0, 1))),  # type: ignore[arg-type]
                 traces=d.get("traces", 16),
+                sharded=d.get("sharded", False),
             )
         except TypeError:
             raise SessionError("malformed run options", field=where) from None
@@ -132,6 +142,8 @@ class RunOptions:
             raise SessionError("must be two distinct state indices", field=f"{field_prefix}.axes")
         if not isinstance(self.traces, int) or isinstance(self.traces, bool) or self.traces < 0:
             raise SessionError("must be a non-negative integer", field=f"{field_prefix}.traces")
+        if not isinstance(self.sharded, bool):
+            raise SessionError("must be true or false", field=f"{field_prefix}.sharded")
         if self.traces > MAX_TRACES:
             raise SessionError(
                 f"must be at most {MAX_TRACES:,} simulated traces, got {self.traces:,}",

@@ -183,25 +183,52 @@ class Session:
         path = store.snapshot_path(self.path, spec_sha)
         return loads_spec(text, path=str(path), check_mpc=False)
 
+    def last_options(self, journal: list[dict[str, Any]] | None = None) -> RunOptions:
+        """The options of the session's latest run (``RunOptions()`` before the first).
+
+        The front ends that run stages themselves (the workbench, the notebook) keep its
+        ``sharded``: a session whose law is stored as shards is opened with them, not given
+        a serial law beside them.
+
+        Parameters
+        ----------
+        journal : list of dict, optional
+            The journal, when already read.
+
+        Returns
+        -------
+        RunOptions
+        """
+        journal = self.journal() if journal is None else journal
+        if not journal:
+            return RunOptions()
+        return RunOptions.from_json(journal[-1]["options"], stages=self.table.names)
+
     # ---- artifacts -------------------------------------------------------------------
 
-    def artifact_path(self, stage: str, key: str) -> Path:
+    def artifact_path(
+        self, stage: str, key: str, options: RunOptions = DEFAULT_OPTIONS
+    ) -> Path:
         """Where stage ``stage``'s artifact for ``key`` is (extension from the table).
 
         Parameters
         ----------
         stage : str
         key : str
+        options : RunOptions
+            The run's (a sharded synthesis is a folder, ``.shards``).
 
         Returns
         -------
         Path
         """
-        return store.artifact_path(self.path, stage, key, self.table[stage].ext)
+        return store.artifact_path(self.path, stage, key, self.table[stage].extension(options))
 
-    def _check_artifact(self, stage: Stage, key: str) -> tuple[Path, str | None]:
+    def _check_artifact(
+        self, stage: Stage, key: str, options: RunOptions
+    ) -> tuple[Path, str | None]:
         """The artifact path and why it cannot be used (None: it can)."""
-        path = store.artifact_path(self.path, stage.name, key, stage.ext)
+        path = store.artifact_path(self.path, stage.name, key, stage.extension(options))
         return path, store.check_artifact(self.path, path, key)
 
     # ---- status ----------------------------------------------------------------------
@@ -226,18 +253,14 @@ class Session:
         problem = problem if problem is not None else self.problem()
         journal = self.journal()
         if options is None:
-            options = (
-                RunOptions.from_json(journal[-1]["options"], stages=self.table.names)
-                if journal
-                else RunOptions()
-            )
+            options = self.last_options(journal)
         keys = stage_keys(problem, options, self.table)
         out = []
         for stage in self.table:
             if stage.name not in keys:
                 continue
             name, key = stage.name, keys[stage.name]
-            path, why = self._check_artifact(stage, key)
+            path, why = self._check_artifact(stage, key, options)
             rel = str(path.relative_to(self.path))
             if why is None:
                 try:
@@ -318,7 +341,7 @@ class Session:
             if stage.check_options is not None:
                 stage.check_options(problem, options)
         self.journal()  # a malformed journal fails here, before anything is written
-        self._check_stages(problem, keys, fresh)
+        self._check_stages(problem, options, keys, fresh)
         spec_sha = self.save_spec(problem) if journal else store.sha(problem.source.encode())
         # run 0 until the records are appended: numbered then, under the lock
         report = RunReport(run=0, stages=[], problem=problem)
@@ -331,7 +354,7 @@ class Session:
                 started = store.now()
                 t0 = time.perf_counter()
                 value, status, note = None, "computed", None
-                path, why = self._check_artifact(stage, key)
+                path, why = self._check_artifact(stage, key, options)
                 if not fresh and why is None:
                     try:
                         value = stage.load(path, problem)
@@ -383,7 +406,9 @@ class Session:
         law.save(path)
         store.register_artifact(self.path, path, "synthesis", keys["synthesis"])
 
-    def _check_stages(self, problem: Problem, keys: dict[str, str], fresh: bool) -> None:
+    def _check_stages(
+        self, problem: Problem, options: RunOptions, keys: dict[str, str], fresh: bool
+    ) -> None:
         """Run the check of every stage of the spec whose artifact is not usable.
 
         Every stage with a key, not only those up to ``upto``: the spec becomes the session's
@@ -393,7 +418,7 @@ class Session:
         for stage in self.table:
             if stage.check is None or stage.name not in keys:
                 continue
-            if fresh or self._check_artifact(stage, keys[stage.name])[1] is not None:
+            if fresh or self._check_artifact(stage, keys[stage.name], options)[1] is not None:
                 stage.check(problem)
 
     # ---- replay ----------------------------------------------------------------------

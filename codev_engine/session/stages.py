@@ -14,9 +14,11 @@ record, status line and replay comparison all follow from it.
     model         plant + model sections                     -> LinearModel       .npz
     synthesis     model key + mpc section + names            -> ExplicitLaw       .npz
                   (+ regions = "reached": an OnDemandLaw, its region cache .npz)
+                  (+ sharded: a ShardedLaw, a folder of shards  .shards/)
     verification  synthesis key + plant + verify section     -> VerificationResult .npz
                   + hold/max_depth overrides (only with [verify])
     recording     verification (or synthesis) key + options  -> Rerun recording   .rrd
+                  + the drawing code's hash (view_code_sha)
 
 The engine modules each stage runs are imported when it runs: the session's bookkeeping (keys,
 the status of a cached folder, the journal) needs none of them, and the workbench draws its
@@ -25,6 +27,8 @@ first screen before sympy and scipy are loaded.
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import math
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, fields, replace
@@ -39,7 +43,7 @@ if TYPE_CHECKING:
     from codev_engine.executor import Executor
     from codev_engine.spec.problem import Problem, VerifySpec
 
-__all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable"]
+__all__ = ["STAGES", "TABLE", "Stage", "StageRun", "StageTable", "view_code_sha"]
 
 
 class StageOptions(Protocol):
@@ -58,12 +62,15 @@ class StageOptions(Protocol):
         State indices of the recording's plane view.
     traces : int
         Simulated traces in the recording.
+    sharded : bool
+        The law is computed by the sharded search and stored as shards.
     """
 
     hold: str | None
     max_depth: int | None
     axes: tuple[int, int]
     traces: int
+    sharded: bool
 
 
 @dataclass(frozen=True)
@@ -125,6 +132,9 @@ class Stage:
     check_options : callable or None
         ``check_options(problem, options)``: the run options fit the spec; run when the stage
         is part of the run, before anything is written.
+    ext_for : callable or None
+        ``ext_for(options) -> str``: the extension for these options when it depends on
+        them (the synthesis's folder of shards, ``shards``); None: always ``ext``.
     """
 
     name: str
@@ -136,6 +146,11 @@ class Stage:
     describe: Callable[[Any, Mapping[str, Any]], tuple[dict[str, Any], dict[str, Any]]]
     check: Callable[[Problem], None] | None = None
     check_options: Callable[[Problem, StageOptions], None] | None = None
+    ext_for: Callable[[StageOptions], str] | None = None
+
+    def extension(self, options: StageOptions) -> str:
+        """The artifact's extension for a run's options (``ext`` unless ``ext_for``)."""
+        return self.ext if self.ext_for is None else self.ext_for(options)
 
 
 @dataclass(frozen=True)
@@ -246,6 +261,20 @@ def _synthesis_inputs(problem: Problem, options: StageOptions, keys: Mapping[str
     }
     if problem.regions == "reached":  # (left out for "all": the keys stay as they were)
         inputs["regions"] = "reached"
+    if getattr(options, "sharded", False):
+        # Sharding is in the key (left out when not sharded: the serial keys stay as they
+        # were), though the sharded law is the same function as the serial one: the
+        # artifact is another object, a folder read lazily that a serial run must not be
+        # handed to merge, nor a sharded run a single file its user asked to keep off one
+        # process; and its partition is numbered otherwise (by active set, shard by shard)
+        # and, with mpc.simplify, merged within each shard only. A verification follows the
+        # partition (its reachtube's boxes, and in edge cases its verdict: an
+        # over-approximation), so the verification cached downstream, keyed by this key,
+        # must name the partition it was computed on. The number of workers is left out:
+        # the search's regions do not depend on it (mp/sharded.py; with simplify the
+        # merges within shards may differ: a cached law is any shard count's, the same
+        # function).
+        inputs["sharded"] = True
     return inputs
 
 
@@ -262,6 +291,16 @@ def _synthesis_check(problem: Problem) -> None:
         OnDemandLaw(problem)
 
 
+def _synthesis_check_options(problem: Problem, options: StageOptions) -> None:
+    if getattr(options, "sharded", False) and problem.regions == "reached":
+        raise SessionError('the whole law is sharded, not its regions computed on demand '
+                           '(regions = "reached")', field="sharded")
+
+
+def _synthesis_ext(options: StageOptions) -> str:
+    return "shards" if getattr(options, "sharded", False) else "npz"
+
+
 def _synthesis_compute(run: StageRun) -> Any:
     from codev_engine.synthesis import synthesize
 
@@ -273,6 +312,8 @@ def _synthesis_compute(run: StageRun) -> Any:
         law = OnDemandLaw(run.problem, model=run.upstream["model"])
         law.save(run.path)
         return law
+    if getattr(run.options, "sharded", False):
+        return _sharded_compute(run)
 
     law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress,
                      executor=run.executor)
@@ -280,8 +321,31 @@ def _synthesis_compute(run: StageRun) -> Any:
     return law
 
 
+def _sharded_compute(run: StageRun) -> Any:
+    """The law written as shards by the workers that found its regions, in a temporary
+    folder beside the artifact (the session's ``artifacts/``: a remote cluster's workers
+    need it on a shared file system) renamed into place once its manifest is written, so a
+    folder of that name is never a torn law (``io.atomic.atomic_folder``)."""
+    from codev_engine.io.atomic import atomic_folder
+    from codev_engine.law_shards import ShardedLaw, split_law, write_law_shards
+    from codev_engine.synthesis import synthesize
+
+    with atomic_folder(run.path) as tmp:
+        # (the search's own files in the same folder: removed by the search at its end)
+        law = synthesize(run.problem, model=run.upstream["model"], progress=run.progress,
+                         executor=run.executor, sharded=True, shard_dir=tmp, out_shards=tmp)
+        if not isinstance(law, ShardedLaw):  # (a search that wrote no shards: one here)
+            write_law_shards(tmp, split_law(law, 1))
+    return ShardedLaw(run.path)
+
+
 def _synthesis_load(path: Path, problem: Problem) -> Any:
     from codev_engine.law import ExplicitLaw
+
+    if path.is_dir():  # (a law as shards: opened, read lazily, never merged here)
+        from codev_engine.law_shards import ShardedLaw
+
+        return ShardedLaw(path)
 
     if problem.regions == "reached":
         from codev_engine.law_on_demand import OnDemandLaw
@@ -296,6 +360,14 @@ def _synthesis_describe(law: Any, upstream: Mapping[str, Any]) -> tuple[dict, di
     if getattr(law, "on_demand", False):
         # (the regions computed grow from run to run: not an outcome a replay compares)
         return {"regions": "reached"}, {"regions_computed": law.num_regions}
+    if hasattr(law, "shards"):
+        # (the shards are details: their number is the workers', not part of the key, and
+        # a replay without a cluster writes one)
+        return (
+            {"regions": law.num_regions},
+            {"shards": law.shards, "regions_before_merge": law.meta.get("regions_before_merge"),
+             "synthesis_seconds": law.meta.get("seconds")},
+        )
     return (
         {"regions": law.num_regions},
         {
@@ -410,6 +482,43 @@ def _verification_describe(result: Any, upstream: Mapping[str, Any]) -> tuple[di
 # --------------------------------------------------------------------------------------------
 
 
+#: the code that draws a recording: ``codev_engine/view``
+VIEW_DIR = Path(__file__).resolve().parents[1] / "view"
+
+
+@functools.cache
+def view_code_sha(root: Path = VIEW_DIR) -> str:
+    """SHA-256 of the sources of the code that draws the recordings, read once.
+
+    The recording's key holds it, so that a change to the pictures is not served from the
+    cache (a fix needed ``--fresh``). The sources' hash, rather than a format constant
+    bumped by hand: a constant is forgotten exactly when a picture is fixed, while the hash
+    follows every change, in a checkout (whose version does not change between commits)
+    and an installation alike (a wheel installs the ``.py`` files: they are read by path,
+    ~12 files, well under a millisecond, without importing Rerun). Where they are not (an
+    application frozen to bytecode) it is ``"no sources"``: the engine version, in every key,
+    is then the drawing code's version.
+
+    Parameters
+    ----------
+    root : Path
+        The folder of the drawing code (default ``codev_engine/view``).
+
+    Returns
+    -------
+    str
+        64 hex digits, or ``"no sources"``.
+    """
+    files = sorted(root.rglob("*.py"))
+    if not files:
+        return "no sources"
+    h = hashlib.sha256()
+    for f in files:  # (each file's name and content: a file renamed changes it too)
+        h.update(f.relative_to(root).as_posix().encode() + b"\0")
+        h.update(hashlib.sha256(f.read_bytes()).digest())
+    return h.hexdigest()
+
+
 def _recording_inputs(problem: Problem, options: StageOptions, keys: Mapping[str, str]) -> dict:
     upstream = (
         {"verification": keys["verification"]}
@@ -421,6 +530,7 @@ def _recording_inputs(problem: Problem, options: StageOptions, keys: Mapping[str
         "axes": list(options.axes),
         "traces": options.traces,
         "name": problem.name,
+        "view": view_code_sha(),
     }
 
 
@@ -456,7 +566,8 @@ def _recording_load(path: Path, problem: Problem) -> Path:
 def _recording_describe(path: Path, upstream: Mapping[str, Any]) -> tuple[dict, dict]:
     result = upstream.get("verification")
     boxes = result.tube.num_boxes if result is not None else 0
-    return ({"boxes": boxes}, {"bytes": Path(path).stat().st_size})
+    # (the drawing code's hash is in the key: the journal says which code drew it)
+    return ({"boxes": boxes}, {"bytes": Path(path).stat().st_size, "view": view_code_sha()})
 
 
 # --------------------------------------------------------------------------------------------
@@ -484,6 +595,8 @@ TABLE = StageTable(
             load=_synthesis_load,
             describe=_synthesis_describe,
             check=_synthesis_check,
+            check_options=_synthesis_check_options,
+            ext_for=_synthesis_ext,
         ),
         Stage(
             name="verification",

@@ -6,14 +6,18 @@ This module knows the files and how to trust them, not what a stage computes::
     spec.toml             the spec of the latest run (or the workbench's edit)
     specs/<sha[:16]>.toml every spec a run used or spec.toml held, by the SHA-256 of its text
     journal.jsonl         one JSON object per stage executed
-    artifacts/<stage>-<key[:16]>.<ext>   a stage's cached result
+    artifacts/<stage>-<key[:16]>.<ext>   a stage's cached result (a file, or a folder of
+                          files with a manifest: a law written as shards)
     artifacts/index.json  artifact name -> stage, key, SHA-256, size, engine
     .lock                 serialises read-modify-write of the journal and the index
 
 Every file is written atomically (temporary file, then rename: :mod:`codev_engine.io.atomic`);
 an artifact enters the index only after its rename, and is trusted only if the index lists it
-under the same key and its bytes still hash to the indexed SHA-256. Reads never unpickle or
-run anything: JSON, TOML text and hashes only.
+under the same key and its bytes still hash to the indexed SHA-256. A folder artifact is
+renamed into place whole (:func:`codev_engine.io.atomic.atomic_folder`); the index holds the
+SHA-256 of its manifest, which holds the SHA-256 of each of its files: it is trusted only if
+all of them still match. Reads never unpickle or run anything: JSON, TOML text and hashes
+only.
 """
 
 from __future__ import annotations
@@ -52,6 +56,9 @@ __all__ = [
 ]
 
 SESSION_FORMAT = "codev-session/1"
+#: the manifest of a folder artifact: ``{"shards": [{"file", "sha256"}, ...]}`` (a law
+#: written as shards: ``codev_engine.law_shards.MANIFEST``, whose format it is)
+FOLDER_MANIFEST = "shards.json"
 
 
 class SessionError(SpecError):
@@ -514,18 +521,24 @@ def register_artifact(folder: Path, path: Path, stage: str, key: str) -> str:
     Returns
     -------
     str
-        The artifact's SHA-256.
+        The artifact's SHA-256 (a folder's: its manifest's).
     """
-    digest = file_sha(path)
+    if path.is_dir():  # (a folder: its manifest's hash, which holds its files' hashes)
+        digest = file_sha(path / FOLDER_MANIFEST)
+        size = sum(p.stat().st_size for p in path.iterdir() if p.is_file())
+    else:
+        digest, size = file_sha(path), path.stat().st_size
     with locked(folder):
         index = _index(folder)
         index[path.name] = {
             "stage": stage,
             "key": key,
             "sha256": digest,
-            "bytes": path.stat().st_size,
+            "bytes": size,
             "engine": __version__,
         }
+        if path.is_dir():
+            index[path.name]["folder"] = True
         write_text(folder / "artifacts" / "index.json", json.dumps(index, indent=1, sort_keys=True))
     return digest
 
@@ -534,7 +547,9 @@ def check_artifact(folder: Path, path: Path, key: str) -> str | None:
     """Why the artifact at ``path`` cannot be used for ``key``.
 
     The file must be regular, listed in the index under ``key``, and hash to the indexed
-    SHA-256. (Whether its loader accepts it is the stage's business.)
+    SHA-256; a folder must be listed as one, its manifest hash to the indexed SHA-256 and
+    each of its files to the manifest's. (Whether its loader accepts it is the stage's
+    business.)
 
     Parameters
     ----------
@@ -549,11 +564,40 @@ def check_artifact(folder: Path, path: Path, key: str) -> str | None:
     """
     if not path.exists():
         return "missing"
+    entry = _index(folder).get(path.name)
+    if path.is_dir() and not path.is_symlink():
+        if not isinstance(entry, dict) or entry.get("key") != key or not entry.get("folder"):
+            return "not in the artifact index (an interrupted write?)"
+        return _check_folder(path, entry)
     if not path.is_file():
         return "not a regular file"
-    entry = _index(folder).get(path.name)
     if not isinstance(entry, dict) or entry.get("key") != key:
         return "not in the artifact index (an interrupted write?)"
     if entry.get("sha256") != file_sha(path):
         return "its content does not match the recorded SHA-256 (damaged or edited)"
+    return None
+
+
+def _check_folder(path: Path, entry: dict[str, Any]) -> str | None:
+    """Why a folder artifact cannot be used: its manifest must hash to the index's SHA-256
+    and every file it lists to the manifest's (the same rule as a file's, every file read:
+    a damaged shard is found here, where the session recomputes it, not in the middle of
+    a verification)."""
+    manifest = path / FOLDER_MANIFEST
+    if not manifest.is_file():
+        return f"no {FOLDER_MANIFEST} (an interrupted write?)"
+    if entry.get("sha256") != file_sha(manifest):
+        return f"its {FOLDER_MANIFEST} does not match the recorded SHA-256 (damaged or edited)"
+    try:
+        files = json.loads(manifest.read_text(encoding="utf-8"))["shards"]
+        listed = [(str(f["file"]), str(f["sha256"])) for f in files]
+    except (OSError, ValueError, RecursionError, UnicodeDecodeError, KeyError, TypeError):
+        return f"its {FOLDER_MANIFEST} does not list its files"
+    for name, digest in listed:
+        file = path / name
+        if Path(name).name != name or not file.is_file():
+            return f"{name} is missing"
+        if file_sha(file) != digest:
+            return (f"{name}: its content does not match the SHA-256 its manifest records "
+                    "(damaged or edited)")
     return None

@@ -905,7 +905,9 @@ def law_html(law: ExplicitLaw, png: bytes | None = None) -> str:
     if png is None:
         png = png_bytes(figure_law(law))
     rows = [
-        ("regions", str(law.num_regions)),
+        # (a law stored as shards: "N in S shards", its files read, never merged)
+        ("regions", str(law.num_regions) if getattr(law, "shards", None) is None
+         else f"{law.num_regions} in {law.shards} shard{'s' if law.shards != 1 else ''}"),
         ("states", f"{len(law.states)} ({', '.join(law.states)})" if law.states else str(law.n)),
         ("inputs", f"{law.m} ({', '.join(law.inputs)})" if law.inputs else str(law.m)),
     ]

@@ -152,6 +152,10 @@ def report_figures(
     if getattr(law, "on_demand", False):  # (issue 39: the regions computed, not the law)
         parts.append((fig, "The regions reached by the verification (not the whole law): "
                       f"{scene.partition_title}."))
+    elif getattr(law, "shards", None) is not None:  # (a law stored as shards, issue 43)
+        many = "s" if law.shards != 1 else ""
+        parts.append((fig, f"The partition of the explicit law: {scene.partition_title}; "
+                      f"the law is stored as {law.shards} shard{many}."))
     else:
         parts.append((fig, f"The partition of the explicit law: {scene.partition_title}."))
     if content.traces is not None and problem.plant.m:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 import time
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -88,6 +89,12 @@ class Workbench:
         else:
             base = load_spec(design)
         self.session = Session.open_or_create(session or Path("sessions") / base.name)
+        # (a session whose law is stored as shards keeps them: codev run --sharded)
+        try:
+            sharded = self.session.last_options().sharded
+        except CodevError:  # (a malformed journal: reported where the stages read it)
+            sharded = False
+        self._options = RunOptions(sharded=sharded)
         self._base = base
         self.problem: Problem | None = base
         self.law: Any = None
@@ -227,7 +234,7 @@ class Workbench:
         """
         if self.problem is None:
             return {}
-        out = {s.stage: s.status for s in self.session.status(self.problem, RunOptions())}
+        out = {s.stage: s.status for s in self.session.status(self.problem, self._options)}
         if self.busy is not None:
             out[self.busy] = "running"
         return out
@@ -239,7 +246,7 @@ class Workbench:
             self.status.value = head + "<span style='color:red'>✗ the design is not valid</span>"
             self._keys = {}
         else:
-            self._keys = stage_keys(self.problem, RunOptions())
+            self._keys = stage_keys(self.problem, self._options)
             parts = [
                 f"<span style='color:{_STYLE.get(st, 'black')}'>{stage} {st}</span>"
                 for stage, st in self.statuses().items()
@@ -320,7 +327,7 @@ class Workbench:
         report, error = None, None
         try:
             report = self.session.run(
-                problem, RunOptions(upto=upto), on_event=on_event, raise_errors=False
+                problem, replace(self._options, upto=upto), on_event=on_event, raise_errors=False
             )
         except _CancelledError:
             error = "cancelled"
@@ -379,14 +386,15 @@ class Workbench:
         """The cached law and verdict of the design as it is, shown at once."""
         if self.problem is None:
             return
-        from codev_engine import ExplicitLaw, VerificationResult
-
-        for st in self.session.status(self.problem, RunOptions()):
-            cls = {"synthesis": ExplicitLaw, "verification": VerificationResult}.get(st.stage)
-            if cls is None or st.status != "cached" or st.artifact is None:
+        for st in self.session.status(self.problem, self._options):
+            if st.stage not in ("synthesis", "verification") or st.status != "cached" \
+                    or st.artifact is None:
                 continue
             try:
-                self._show(st.stage, cls.load(self.session.path / st.artifact), st.key)
+                # (the stage's loader: a law file, or the folder of a law stored as shards)
+                value = self.session.table[st.stage].load(self.session.path / st.artifact,
+                                                          self.problem)
+                self._show(st.stage, value, st.key)
             except (CodevError, OSError):
                 continue
         self._refresh()

@@ -224,7 +224,8 @@ class CodevApp(App):
         self.has_verify: bool = opened.has_verify
         self.start_note = opened.note
         self._dirty = opened.save_now  # the form differs from the session's spec.toml
-        self.options = RunOptions(traces=traces)
+        # (a session whose law is stored as shards keeps them: codev run --sharded)
+        self.options = RunOptions(traces=traces, sharded=_stores_shards(self.session))
         self.check: FormCheck | None = None
         self.statuses: dict[str, StageStatus] = {}
         self.keys: dict[str, str] = {}
@@ -362,20 +363,17 @@ class CodevApp(App):
     ) -> dict[str, Any]:
         """Cached results for the current spec that the screens do not show yet (e.g. the
         user put Q back to a value synthesised before)."""
-        from codev_engine import ExplicitLaw, VerificationResult
-
         out: dict[str, Any] = {}
-        for stage, cls, shown in (
-            ("synthesis", ExplicitLaw, self.law_key),
-            ("verification", VerificationResult, self.result_key),
-        ):
+        for stage, shown in (("synthesis", self.law_key), ("verification", self.result_key)):
             st = statuses.get(stage)
             if st is None or st.status != "cached" or st.artifact is None:
                 continue
             if shown == keys.get(stage):
                 continue
             try:
-                out[stage] = cls.load(self.session.path / st.artifact)
+                # (the stage's loader: a law file, or the folder of a law stored as shards)
+                out[stage] = self.session.table[stage].load(
+                    self.session.path / st.artifact, chk.problem)
             except (CodevError, OSError):
                 continue
         return out
@@ -1002,6 +1000,8 @@ class CodevApp(App):
             self.call_from_thread(
                 self.notify, "preparing the C export's kernels, once (about 15 s, then cached)")
         try:
+            if hasattr(law, "merged"):  # (a law stored as shards: one C table, merged here)
+                law = law.merged()
             h, c = export_c(law, dest, name=name)
         except (CodevError, OSError, ValueError) as exc:
             self.call_from_thread(pane.show_law_export, typed, error=str(exc))
@@ -1106,3 +1106,11 @@ def _lower_priority(niceness: int = 10) -> None:
         os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + niceness)
     except (AttributeError, OSError):
         pass
+
+
+def _stores_shards(session: Session) -> bool:
+    """The session's latest run stored its law as shards (``Session.last_options``)."""
+    try:
+        return session.last_options().sharded
+    except CodevError:  # (a malformed journal: reported where the stages read it)
+        return False

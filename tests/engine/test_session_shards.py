@@ -1,0 +1,262 @@
+"""A session stores a sharded synthesis as a folder of shards (issue 43, Deliver 2).
+
+``RunOptions(sharded=True)`` (``codev run --session DIR --workers N --sharded``): the workers
+write the law's shards into a temporary folder beside the artifact, renamed into place once
+its manifest is written; the store trusts the folder through its manifest's SHA-256 and each
+shard's; loading opens a ``ShardedLaw`` that reads no shard until asked. A damaged shard is
+reported, naming it, and recomputed (the store's rule for every artifact); a torn folder is
+never taken. Sharding is in the synthesis key, the serial keys are as they were. The
+recording's key follows the code that draws it. The cluster runs are slow (a LocalCluster);
+the rest runs the same stage without one (one shard).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from codev_engine.law_shards import ShardedLaw
+from codev_engine.pipeline import load_spec, loads_spec
+from codev_engine.session import RunOptions, Session, SessionError, stage_keys
+from codev_engine.session.stages import view_code_sha
+from codev_engine.session.store import check_artifact
+from tests.engine.test_law_shards import SPEC
+from workbench.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+SHARDED = RunOptions(sharded=True, traces=1)
+
+
+@pytest.fixture
+def spec(tmp_path) -> Path:
+    path = tmp_path / "t.toml"
+    path.write_text(SPEC)
+    return path
+
+
+def _leftovers(session: Path) -> list[str]:
+    """Temporary files or folders left in the session's artifacts."""
+    return [p.name for p in (session / "artifacts").iterdir() if p.name.startswith(".tmp-")]
+
+
+def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
+    problem = load_spec(spec)
+    session = Session.create(tmp_path / "s")
+    rep = session.run(problem, SHARDED)
+    syn = rep.stage("synthesis")
+    folder = session.path / syn.artifact
+    assert folder.is_dir() and folder.suffix == ".shards"
+    assert sorted(p.name for p in folder.iterdir()) == ["shard-0.npz", "shards.json"]
+    assert isinstance(rep.law, ShardedLaw) and rep.law.shards == syn.details["shards"] == 1
+    assert not _leftovers(session.path)
+    assert rep.stage("recording").details["view"] == view_code_sha()  # (which code drew it)
+    from codev_engine.view.figures import law_html
+
+    assert f"{rep.law.num_regions} in 1 shard<" in law_html(rep.law)  # (the notebook's)
+    # the serial law beside it, under another key: the same function, the same verdict
+    serial = session.run(problem, RunOptions(traces=1))
+    assert serial.stage("synthesis").key != syn.key
+    assert serial.stage("synthesis").outcome == syn.outcome
+    assert serial.stage("verification").outcome == rep.stage("verification").outcome
+    X = np.random.default_rng(0).uniform([-6, -2.5], [6, 2.5], size=(500, 2))
+    np.testing.assert_array_equal(rep.law.locate(X) >= 0, serial.law.locate(X) >= 0)
+    np.testing.assert_allclose(rep.law.evaluate(X), serial.law.evaluate(X), atol=1e-9)
+    # again: every stage cached, the law opened without reading a shard (nothing asks it)
+    again = session.run(problem, SHARDED)
+    assert [s.status for s in again.stages] == ["cached"] * 4
+    assert isinstance(again.law, ShardedLaw) and again.law.loads == 0
+    # the journal keeps the choice; the status of the last run's options finds the folder
+    assert session.journal()[-1]["options"]["sharded"] is True
+    assert {s.stage: s.status for s in session.status(problem)}["synthesis"] == "cached"
+
+
+def test_a_damaged_shard_is_named_and_recomputed(spec, tmp_path, capsys):
+    """The store's rule for a damaged artifact: ``codev session`` names the shard,
+    a run (here ``codev replay``, which recomputes without a cluster: one shard) says so on
+    one warning line and recomputes it; the verification downstream, whose key holds the
+    law's, stays cached."""
+    problem = load_spec(spec)
+    session = Session.create(tmp_path / "s")
+    rep = session.run(problem, SHARDED)
+    folder = session.path / rep.stage("synthesis").artifact
+    shard = folder / "shard-0.npz"
+    data = bytearray(shard.read_bytes())
+    data[len(data) // 2] ^= 1
+    shard.write_bytes(bytes(data))
+    status = {s.stage: s for s in session.status(problem)}["synthesis"]
+    assert status.status == "corrupt" and "shard-0.npz" in status.reason
+    assert main(["session", str(session.path)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "synthesis" in ln)
+    assert "corrupt" in line and "shard-0.npz" in line
+    assert main(["replay", str(session.path), "--json"]) == 0
+    out, err = capsys.readouterr()
+    got = json.loads(out)
+    assert got["match"] and got["cached"] == 3  # (all but the law)
+    warned = [ln for ln in err.splitlines() if "warning" in ln]
+    assert len(warned) == 1 and "shard-0.npz" in warned[0] and "recomputed" in warned[0]
+    assert check_artifact(session.path, folder, rep.stage("synthesis").key) is None
+    assert not _leftovers(session.path)  # (the damaged folder removed once replaced)
+
+
+@pytest.mark.parametrize("tear", ["manifest", "index"])
+def test_a_torn_folder_is_never_taken(spec, tmp_path, tear):
+    """A folder without its manifest, or one the index does not list (a write killed
+    before the rename, a folder copied in): refused, recomputed."""
+    problem = load_spec(spec)
+    session = Session.create(tmp_path / "s")
+    rep = session.run(problem, replace_upto(SHARDED, "synthesis"))
+    folder = session.path / rep.stage("synthesis").artifact
+    if tear == "manifest":
+        (folder / "shards.json").unlink()
+    else:
+        (session.path / "artifacts" / "index.json").unlink()
+    status = {s.stage: s for s in session.status(problem)}["synthesis"]
+    assert status.status == "corrupt"
+    assert ("shards.json" if tear == "manifest" else "index") in status.reason
+    again = session.run(problem, replace_upto(SHARDED, "synthesis"))
+    assert again.stage("synthesis").status == "computed"
+    assert isinstance(again.law, ShardedLaw)
+
+
+def replace_upto(options: RunOptions, upto: str) -> RunOptions:
+    from dataclasses import replace
+
+    return replace(options, upto=upto)
+
+
+def test_sharding_keys_the_law_and_leaves_the_serial_keys_as_they_were():
+    """The bundled session's first run, recorded before sharding existed: its synthesis
+    and verification keys are the ones computed today."""
+    bundled = Session.open(ROOT / "sessions" / "double-integrator")
+    journal = bundled.journal()
+    first = [r for r in journal if r["run"] == 1]
+    problem = bundled._spec_of(first[0]["spec"], "run 1")
+    options = RunOptions.from_json(first[0]["options"])
+    keys = stage_keys(problem, options)
+    recorded = {r["stage"]: r["key"] for r in first}
+    assert keys["model"] == recorded["model"]
+    assert keys["synthesis"] == recorded["synthesis"]
+    assert keys["verification"] == recorded["verification"]
+    sharded = stage_keys(problem, RunOptions.from_json({**first[0]["options"], "sharded": True}))
+    assert sharded["model"] == keys["model"]
+    assert all(sharded[s] != keys[s] for s in ("synthesis", "verification", "recording"))
+
+
+def test_a_law_on_demand_is_not_sharded(tmp_path):
+    text = SPEC.replace('name = "t"', 'name = "t"\n[synthesis]\nregions = "reached"')
+    problem = loads_spec(text, path=str(tmp_path / "t.toml"))
+    session = Session.create(tmp_path / "s")
+    with pytest.raises(SessionError, match="sharded"):
+        session.run(problem, SHARDED)
+    assert not session.journal()
+    # a journal's options are checked field by field: no junk in ``sharded``
+    with pytest.raises(SessionError, match="options.sharded: must be true or false"):
+        RunOptions.from_json({"sharded": "yes"})
+
+
+def test_the_cli_refuses_sharded_without_a_session_or_a_cluster(spec, tmp_path, capsys):
+    for args, field in (
+        (["run", spec, "--sharded", "--workers", "2"], "--sharded needs --session"),
+        (["run", spec, "--session", tmp_path / "s", "--sharded"], "--workers N"),
+    ):
+        code = main([str(a) for a in args])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and field in err[0], err
+    assert not (tmp_path / "s").exists()
+
+
+def test_the_recording_key_follows_the_drawing_code(tmp_path):
+    """A copy of the engine with one line of its drawing code changed (as a picture fix
+    would): the recording's key changes, no other stage's does, so the cached recording of
+    the old drawing is not served (before, a fix needed ``--fresh``)."""
+    import codev_engine
+
+    copy = tmp_path / "pkg" / "codev_engine"
+    shutil.copytree(Path(codev_engine.__file__).parent, copy,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    records = copy / "view" / "records.py"
+    records.write_text(records.read_text(encoding="utf-8") + "\n# a picture fixed\n",
+                       encoding="utf-8")
+    spec = ROOT / "examples" / "double_integrator.toml"
+    code = ("import json, sys, codev_engine\n"
+            "from codev_engine.pipeline import load_spec\n"
+            "from codev_engine.session import stage_keys\n"
+            "assert codev_engine.__file__.startswith(sys.argv[2]), codev_engine.__file__\n"
+            "print(json.dumps(stage_keys(load_spec(sys.argv[1]))))\n")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "pkg")}
+    out = subprocess.run([sys.executable, "-c", code, str(spec), str(tmp_path / "pkg")],
+                         capture_output=True, text=True, env=env, timeout=120, check=True,
+                         cwd=tmp_path)  # (not the checkout's folder, first on sys.path)
+    theirs = json.loads(out.stdout)
+    ours = stage_keys(load_spec(spec))
+    assert theirs["recording"] != ours["recording"]
+    assert {k: v for k, v in theirs.items() if k != "recording"} == {
+        k: v for k, v in ours.items() if k != "recording"}
+
+
+@pytest.mark.slow  # (a LocalCluster of 2 workers: ~15 s at load 8)
+def test_codev_run_sharded_on_a_cluster_stores_the_workers_shards(spec, tmp_path, capsys,
+                                                                   monkeypatch):
+    """``codev run --session --workers 2 --sharded``: each worker writes its shard into
+    the session ("regions=N in 2 shards"); the rerun, the replay and the status load it
+    without a cluster; ``codev export`` of the session names the folder, which exports."""
+    from codev_engine.mp import mpqp, sharded
+
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)  # (sharded from the first region)
+    monkeypatch.setattr(sharded, "BUDGET", 16)  # (rounds, keys crossing shards)
+    s = tmp_path / "s"
+    code = main(["run", str(spec), "--session", str(s), "--workers", "2", "--sharded",
+                 "--traces", "1"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    line = next(ln for ln in out.splitlines() if ln.strip().startswith("synthesis"))
+    assert "computed" in line and "in 2 shards" in line
+    serial = Session.create(tmp_path / "serial").run(load_spec(spec), RunOptions(traces=1))
+    assert f"regions={serial.law.num_regions} in 2 shards" in line
+    folder = next((s / "artifacts").glob("synthesis-*.shards"))
+    assert sorted(p.name for p in folder.iterdir()) == [
+        "shard-0.npz", "shard-1.npz", "shards.json"]
+    assert not _leftovers(s)
+    # the rerun from the cache starts no cluster (nothing asks it) and says the same
+    code = main(["run", str(spec), "--session", str(s), "--workers", "2", "--sharded",
+                 "--traces", "1", "--json"])
+    got = json.loads(capsys.readouterr().out)
+    assert code == 0 and all(st["status"] == "cached" for st in got["session"]["stages"].values())
+    assert got["verdict"] == serial.result.verdict
+    # the replay (no cluster) loads the folder and matches
+    assert main(["replay", str(s), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["match"]
+    # export: the session names its folder of shards, which exports (merged on demand)
+    assert main(["export", str(s), "--python", str(tmp_path / "law.py")]) == 2
+    assert str(folder) in capsys.readouterr().err
+    assert main(["export", str(folder), "--python", str(tmp_path / "law.py")]) == 0
+
+
+def test_atomic_folder_is_renamed_whole_or_not_at_all(tmp_path):
+    """``io.atomic.atomic_folder``: the folder takes its name only when the body returns
+    (replacing the one there, moved aside first); a body that raises, Ctrl-C included,
+    leaves the old folder as it was and no temporary folder."""
+    from codev_engine.io.atomic import atomic_folder
+
+    target = tmp_path / "law.shards"
+    with atomic_folder(target) as tmp:
+        assert tmp.parent == tmp_path and tmp.name.startswith(".tmp-") and not target.exists()
+        (tmp / "a").write_text("1")
+    assert (target / "a").read_text() == "1"
+    for exc in (RuntimeError, KeyboardInterrupt):
+        with pytest.raises(exc), atomic_folder(target) as tmp:
+            (tmp / "b").write_text("2")
+            raise exc
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["law.shards"]
+        assert sorted(p.name for p in target.iterdir()) == ["a"]
+    with atomic_folder(target) as tmp:
+        (tmp / "c").write_text("3")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["law.shards"]
+    assert sorted(p.name for p in target.iterdir()) == ["c"]
