@@ -149,7 +149,17 @@ class Stage:
     ext_for: Callable[[StageOptions], str] | None = None
 
     def extension(self, options: StageOptions) -> str:
-        """The artifact's extension for a run's options (``ext`` unless ``ext_for``)."""
+        """The artifact's extension for a run's options (``ext`` unless ``ext_for``).
+
+        Parameters
+        ----------
+        options : StageOptions
+            The run's options (a sharded synthesis is a folder, ``.shards``).
+
+        Returns
+        -------
+        str
+        """
         return self.ext if self.ext_for is None else self.ext_for(options)
 
 
