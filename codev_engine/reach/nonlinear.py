@@ -227,13 +227,19 @@ class NonlinearReach(ClosedLoopSetup):
     carry: bool = True
 
     def __post_init__(self) -> None:
-        from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
+        from codev_engine.reach.enclosure import (
+            plant_enclosures,
+            plant_hessian,
+            uncertain_enclosures,
+        )
 
         p = self.problem
         vs = p.verify
-        # all compiled once per plant (the shared plant model) and reused by every run
-        self.enc = plant_enclosures(p)
-        self.hess = plant_hessian(p)
+        # all compiled once per plant (the shared plant model) and reused by every run; with
+        # disturbances or parameters, the field over (x, u, w, p) below instead
+        if not p.plant.uncertain:
+            self.enc = plant_enclosures(p)
+            self.hess = plant_hessian(p)
         self._init_properties()
         # measurement noise (docs/verification.md, "Nonlinear plants with measurement
         # noise"): vc, vr, the offsets Gn = G + F vc (None: no noise, nothing changes)
@@ -242,7 +248,7 @@ class NonlinearReach(ClosedLoopSetup):
         # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
         self.xlo = self.xhi = self.xnom = self.xdev = None
         if p.plant.uncertain:
-            self.enc, self.hess, self.xlo, self.xhi, self.xnom = _uncertain_enclosures(p)
+            self.enc, self.hess, self.xlo, self.xhi, self.xnom = uncertain_enclosures(p)
             self.xdev = np.maximum(self.xhi - self.xnom, self.xnom - self.xlo) * (1 + 1e-12)
         self._fnum = plant_model(p).scalar_field  # the (non-rigorous) centre trajectory
         self.h = float(vs.step)
@@ -1984,41 +1990,3 @@ def _dn(x):
 
 def _up(x):
     return np.nextafter(np.nextafter(x, np.inf), np.inf)
-
-
-def _uncertain_enclosures(problem: Problem):
-    """Enclosures of ``f(x, u, w, p)`` (the field before the nominal values are put in):
-    ``(enclosures over (x, (u, w, p)), its second derivatives, lower, upper, nominal)``
-    (the last three of the ``(w, p)`` box)."""
-    import sympy
-
-    from codev_engine.plant import full_field
-    from codev_engine.reach.enclosure import PlantEnclosures
-    from codev_engine.reach.interval_function import compile_interval
-
-    pl = problem.plant
-    f, xs, us, ws, ps = full_field(pl)
-    args = (*xs, *us, *ws, *ps)
-    ext = sympy.Matrix([*us, *ws, *ps])
-    sym = _AugSym(xs, (*us, *ws, *ps))
-    hess = compile_interval([sympy.diff(fi, za, zb) for fi in f for za in args for zb in args],
-                            args)
-    enc = PlantEnclosures(
-        sym=sym,  # type: ignore[arg-type]
-        f_fn=compile_interval(list(f), args),
-        jac_x_fn=compile_interval(f.jacobian(sympy.Matrix(xs)), args),
-        jac_u_fn=compile_interval(f.jacobian(ext), args),
-    )
-    boxes = [b for b in (pl.disturbances, pl.parameters) if b is not None]
-    lo = np.concatenate([np.asarray(b.lower, float) for b in boxes])
-    hi = np.concatenate([np.asarray(b.upper, float) for b in boxes])
-    nom = np.concatenate([np.asarray(b.nominal, float) for b in boxes])
-    return enc, hess, lo, hi, nom
-
-
-@dataclass(frozen=True)
-class _AugSym:
-    """The symbols a :class:`PlantEnclosures` reads its sizes from (x, and u with w, p)."""
-
-    x: tuple
-    u: tuple

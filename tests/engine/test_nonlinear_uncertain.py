@@ -268,6 +268,25 @@ def test_a_piece_of_the_parameter_box_is_a_problem_with_its_midpoint_as_nominal(
     assert split_axis(problem, np.array([0.4]), np.array([0.6])) == 0
 
 
+def test_the_pieces_of_a_parameter_box_share_one_compiled_field():
+    # the enclosures and second derivatives of f(x, u, w, p) are derived and compiled once
+    # per field, not once per piece (each piece is a problem with its own box and nominal)
+    from codev_engine.reach.enclosure import uncertain_enclosures
+    from codev_engine.reach.parameter_split import sub_problem
+
+    problem = _pendulum(c=(0.4, 0.6))
+    a = uncertain_enclosures(sub_problem(problem, np.array([0.4]), np.array([0.5])))
+    b = uncertain_enclosures(sub_problem(problem, np.array([0.5]), np.array([0.6])))
+    assert a[0] is b[0] and a[1] is b[1]
+    assert a[3][-1] == pytest.approx(0.5) and b[3][-1] == pytest.approx(0.6)  # (own boxes)
+    assert b[4][-1] == pytest.approx(0.55)
+    # another field compiles its own
+    other = loads_spec((EXAMPLES / "pendulum.toml").read_text().replace(
+        '"9.81*sin(th) - 0.5*w + T"', '"9.81*sin(th) - c*w + 2*T"').replace(
+        "[model]", "parameters = { c = [0.4, 0.6] }\n\n[model]", 1))
+    assert uncertain_enclosures(other)[0] is not a[0]
+
+
 def test_the_split_parameter_is_the_one_whose_forcing_dominates():
     # -c*w with |w| <= 0.1 on the initial set against k*T with |T| <= 6: the gain's box,
     # though narrower, forces far more, so it is cut
