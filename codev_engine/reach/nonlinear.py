@@ -225,6 +225,10 @@ class NonlinearReach(ClosedLoopSetup):
     #: (its second-order forcing carried as a zonotope about an offset, "The remainder per
     #: axis"); False: both go into the remainder ball, isotropic in ``W``, as before
     carry: bool = True
+    #: with ``carry``, under the continuous hold: each ``step`` is cut into this many
+    #: substeps (the remainder's curvature term squares the substep's a-priori deviation,
+    #: which holds the set's and the centre's sweeps over it)
+    continuous_substeps: int = 2
 
     def __post_init__(self) -> None:
         from codev_engine.reach.enclosure import (
@@ -252,6 +256,12 @@ class NonlinearReach(ClosedLoopSetup):
             self.xdev = np.maximum(self.xhi - self.xnom, self.xnom - self.xlo) * (1 + 1e-12)
         self._fnum = plant_model(p).scalar_field  # the (non-rigorous) centre trajectory
         self.h = float(vs.step)
+        # the substep of the enclosures: under the continuous hold with disturbances or
+        # parameters, a fraction of ``step`` (``continuous_substeps``; docs/verification.md,
+        # "The remainder per axis")
+        self.h_sub = self.h
+        if self.hold == "continuous" and self.xlo is not None and self.carry:
+            self.h_sub = self.h / max(1, int(self.continuous_substeps))
         self.W, self.Winv = self._metric()
         cond = float(np.linalg.norm(self.W, 2) * np.linalg.norm(self.Winv, 2))
         # Winv is the inverse of W up to rounding: directions through Winv are inflated by
@@ -611,8 +621,8 @@ class NonlinearReach(ClosedLoopSetup):
             G, nu = self.Gn[i], self._noise_input(i)
         t_k = s.k * self.Ts
         tau_end = min(self.Ts, self.T - t_k)
-        N = max(1, int(np.ceil(tau_end / self.h - 1e-9)))
-        taus = np.minimum(np.arange(N + 1) * self.h, tau_end)
+        N = max(1, int(np.ceil(tau_end / self.h_sub - 1e-9)))
+        taus = np.minimum(np.arange(N + 1) * self.h_sub, tau_end)
         taus[-1] = tau_end
         hs = np.diff(taus)
         zoh = self.hold == "zoh"

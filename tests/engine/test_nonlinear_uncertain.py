@@ -237,6 +237,22 @@ def test_quadruple_tank_is_proved_on_its_whole_valve_box_and_its_tube_holds_ever
     _assert_sound(problem, law, result, P=100, seed=10)
 
 
+def test_quadruple_tank_under_continuous_hold_halves_its_substeps_and_holds_every_run():
+    # under the continuous hold (g1 in [0.67, 0.73], |d| <= 0.2) each 0.5 s step is cut in
+    # two: the curvature term of the remainder squares the substep's a-priori deviation
+    # (h2 at 60 s 2.08x -> 1.83x the worst-case runs' hull); one run, every run in the tube
+    problem = loads_spec(QUADRUPLE_TANK.read_text())
+    problem = replace(problem, verify=replace(problem.verify, hold="continuous"))
+    law = synthesize(problem)
+    result = verify(problem, law, hold="continuous")
+    assert result.verdict == "robustly_safe", result.summary()
+    assert result.stats["parameter_runs"] == 1
+    tb = result.tube
+    assert float(np.max(tb.t_end - tb.t_start)) == pytest.approx(0.25)
+    assert float(tb.t_end.max()) == pytest.approx(60.0)
+    _assert_sound(problem, law, result, P=100, seed=12)
+
+
 def test_quadruple_tank_is_proved_over_pieces_of_the_valve_split():
     # a wider valve split, g1 in [0.62, 0.78]: the whole box fails its enclosure (the
     # bilinear g1 x v1 term of the remainder); on eighths of it, each about its own
