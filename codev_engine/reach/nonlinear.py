@@ -187,6 +187,9 @@ class NonlinearReach(ClosedLoopSetup):
         Under disturbances or uncertain parameters, their first-order part is carried
         through the linear flow as a zonotope (``reach/carried.py``) and folded into the
         star at each sample; False: it goes into the remainder ball, as before.
+    continuous_substeps : int
+        With ``carry``, under the continuous hold: how many substeps each ``step`` is cut
+        into (docs/verification.md, "The continuous hold's substep").
     """
 
     problem: Problem
