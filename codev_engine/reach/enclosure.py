@@ -8,7 +8,7 @@ reach engine of every verification of the same plant reuses them.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -21,7 +21,7 @@ from codev_engine.reach.interval_function import IntervalFunction, compile_inter
 if TYPE_CHECKING:
     from codev_engine.spec.problem import PlantSpec, Problem
 
-__all__ = ["PlantEnclosures", "plant_enclosures", "plant_hessian"]
+__all__ = ["PlantEnclosures", "plant_enclosures", "plant_hessian", "uncertain_enclosures"]
 
 
 @dataclass(frozen=True)
@@ -213,3 +213,92 @@ def _hessian(model: PlantModel) -> IntervalFunction:
     args = model.args
     exprs = [sympy.diff(fi, za, zb) for fi in model.sym.f for za in args for zb in args]
     return compile_interval(exprs, args)
+
+
+def uncertain_enclosures(
+    problem: Problem,
+) -> tuple[PlantEnclosures, IntervalFunction, np.ndarray, np.ndarray, np.ndarray]:
+    """Enclosures of ``f(x, u, w, p)``, the field before the nominal values are put in.
+
+    Parameters
+    ----------
+    problem : Problem
+        With disturbances or uncertain parameters.
+
+    Returns
+    -------
+    enc : PlantEnclosures
+        ``f``, ``jac_x`` and ``jac_u`` over (x, (u, w, p)): ``jac_u`` is (n, m + e).
+    hess : IntervalFunction
+        The second derivatives over ``(x, u, w, p)`` (as :func:`plant_hessian`).
+    lower, upper, nominal : (e,) ndarray
+        The ``(w, p)`` box and its nominal values.
+
+    Notes
+    -----
+    The compiled functions are keyed by the field's expressions and names, not by the boxes'
+    values: the pieces of a split parameter box (``reach/parameter_split.py``, each a problem
+    with its own box and nominal) share one derivation and compilation.
+    """
+    pl = problem.plant
+    enc, hess = _uncertain_field(_FieldKey(
+        tuple(pl.states), tuple(pl.inputs),
+        None if pl.dynamics is None else tuple(pl.dynamics),
+        _array_key(pl.A), _array_key(pl.B), _array_key(getattr(pl, "E", None)),
+        pl.disturbances.names if pl.disturbances else (),
+        pl.parameters.names if pl.parameters else (),
+        pl,
+    ))
+    boxes = [b for b in (pl.disturbances, pl.parameters) if b is not None]
+    lo = np.concatenate([np.asarray(b.lower, float) for b in boxes])
+    hi = np.concatenate([np.asarray(b.upper, float) for b in boxes])
+    nom = np.concatenate([np.asarray(b.nominal, float) for b in boxes])
+    return enc, hess, lo, hi, nom
+
+
+@dataclass(frozen=True)
+class _FieldKey:
+    """What ``full_field`` reads of a plant, by value (the boxes' values left out)."""
+
+    states: tuple[str, ...]
+    inputs: tuple[str, ...]
+    dynamics: tuple[str, ...] | None
+    A: tuple | None
+    B: tuple | None
+    E: tuple | None
+    disturbances: tuple[str, ...]
+    parameters: tuple[str, ...]
+    plant: PlantSpec = field(compare=False, repr=False)
+
+
+def _array_key(a: Any) -> tuple | None:
+    if a is None:
+        return None
+    a = np.asarray(a, dtype=float)
+    return a.shape, a.tobytes()
+
+
+@functools.lru_cache(maxsize=16)
+def _uncertain_field(key: _FieldKey) -> tuple[PlantEnclosures, IntervalFunction]:
+    from codev_engine.plant import full_field
+
+    f, xs, us, ws, ps = full_field(key.plant)
+    args = (*xs, *us, *ws, *ps)
+    ext = sympy.Matrix([*us, *ws, *ps])
+    hess = compile_interval([sympy.diff(fi, za, zb) for fi in f for za in args for zb in args],
+                            args)
+    enc = PlantEnclosures(
+        sym=_AugSym(xs, (*us, *ws, *ps)),  # type: ignore[arg-type]
+        f_fn=compile_interval(list(f), args),
+        jac_x_fn=compile_interval(f.jacobian(sympy.Matrix(xs)), args),
+        jac_u_fn=compile_interval(f.jacobian(ext), args),
+    )
+    return enc, hess
+
+
+@dataclass(frozen=True)
+class _AugSym:
+    """The symbols a :class:`PlantEnclosures` reads its sizes from (x, and u with w, p)."""
+
+    x: tuple
+    u: tuple

@@ -187,6 +187,9 @@ class NonlinearReach(ClosedLoopSetup):
         Under disturbances or uncertain parameters, their first-order part is carried
         through the linear flow as a zonotope (``reach/carried.py``) and folded into the
         star at each sample; False: it goes into the remainder ball, as before.
+    continuous_substeps : int
+        With ``carry``, under the continuous hold: how many substeps each ``step`` is cut
+        into (docs/verification.md, "The continuous hold's substep").
     """
 
     problem: Problem
@@ -225,15 +228,25 @@ class NonlinearReach(ClosedLoopSetup):
     #: (its second-order forcing carried as a zonotope about an offset, "The remainder per
     #: axis"); False: both go into the remainder ball, isotropic in ``W``, as before
     carry: bool = True
+    #: with ``carry``, under the continuous hold: each ``step`` is cut into this many
+    #: substeps (the remainder's curvature term squares the substep's a-priori deviation,
+    #: which holds the set's and the centre's sweeps over it)
+    continuous_substeps: int = 2
 
     def __post_init__(self) -> None:
-        from codev_engine.reach.enclosure import plant_enclosures, plant_hessian
+        from codev_engine.reach.enclosure import (
+            plant_enclosures,
+            plant_hessian,
+            uncertain_enclosures,
+        )
 
         p = self.problem
         vs = p.verify
-        # all compiled once per plant (the shared plant model) and reused by every run
-        self.enc = plant_enclosures(p)
-        self.hess = plant_hessian(p)
+        # all compiled once per plant (the shared plant model) and reused by every run; with
+        # disturbances or parameters, the field over (x, u, w, p) below instead
+        if not p.plant.uncertain:
+            self.enc = plant_enclosures(p)
+            self.hess = plant_hessian(p)
         self._init_properties()
         # measurement noise (docs/verification.md, "Nonlinear plants with measurement
         # noise"): vc, vr, the offsets Gn = G + F vc (None: no noise, nothing changes)
@@ -242,10 +255,16 @@ class NonlinearReach(ClosedLoopSetup):
         # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
         self.xlo = self.xhi = self.xnom = self.xdev = None
         if p.plant.uncertain:
-            self.enc, self.hess, self.xlo, self.xhi, self.xnom = _uncertain_enclosures(p)
+            self.enc, self.hess, self.xlo, self.xhi, self.xnom = uncertain_enclosures(p)
             self.xdev = np.maximum(self.xhi - self.xnom, self.xnom - self.xlo) * (1 + 1e-12)
         self._fnum = plant_model(p).scalar_field  # the (non-rigorous) centre trajectory
         self.h = float(vs.step)
+        # the substep of the enclosures: under the continuous hold with disturbances or
+        # parameters, a fraction of ``step`` (``continuous_substeps``; docs/verification.md,
+        # "The remainder per axis")
+        self.h_sub = self.h
+        if self.hold == "continuous" and self.xlo is not None and self.carry:
+            self.h_sub = self.h / max(1, int(self.continuous_substeps))
         self.W, self.Winv = self._metric()
         cond = float(np.linalg.norm(self.W, 2) * np.linalg.norm(self.Winv, 2))
         # Winv is the inverse of W up to rounding: directions through Winv are inflated by
@@ -605,8 +624,8 @@ class NonlinearReach(ClosedLoopSetup):
             G, nu = self.Gn[i], self._noise_input(i)
         t_k = s.k * self.Ts
         tau_end = min(self.Ts, self.T - t_k)
-        N = max(1, int(np.ceil(tau_end / self.h - 1e-9)))
-        taus = np.minimum(np.arange(N + 1) * self.h, tau_end)
+        N = max(1, int(np.ceil(tau_end / self.h_sub - 1e-9)))
+        taus = np.minimum(np.arange(N + 1) * self.h_sub, tau_end)
         taus[-1] = tau_end
         hs = np.diff(taus)
         zoh = self.hold == "zoh"
@@ -1984,41 +2003,3 @@ def _dn(x):
 
 def _up(x):
     return np.nextafter(np.nextafter(x, np.inf), np.inf)
-
-
-def _uncertain_enclosures(problem: Problem):
-    """Enclosures of ``f(x, u, w, p)`` (the field before the nominal values are put in):
-    ``(enclosures over (x, (u, w, p)), its second derivatives, lower, upper, nominal)``
-    (the last three of the ``(w, p)`` box)."""
-    import sympy
-
-    from codev_engine.plant import full_field
-    from codev_engine.reach.enclosure import PlantEnclosures
-    from codev_engine.reach.interval_function import compile_interval
-
-    pl = problem.plant
-    f, xs, us, ws, ps = full_field(pl)
-    args = (*xs, *us, *ws, *ps)
-    ext = sympy.Matrix([*us, *ws, *ps])
-    sym = _AugSym(xs, (*us, *ws, *ps))
-    hess = compile_interval([sympy.diff(fi, za, zb) for fi in f for za in args for zb in args],
-                            args)
-    enc = PlantEnclosures(
-        sym=sym,  # type: ignore[arg-type]
-        f_fn=compile_interval(list(f), args),
-        jac_x_fn=compile_interval(f.jacobian(sympy.Matrix(xs)), args),
-        jac_u_fn=compile_interval(f.jacobian(ext), args),
-    )
-    boxes = [b for b in (pl.disturbances, pl.parameters) if b is not None]
-    lo = np.concatenate([np.asarray(b.lower, float) for b in boxes])
-    hi = np.concatenate([np.asarray(b.upper, float) for b in boxes])
-    nom = np.concatenate([np.asarray(b.nominal, float) for b in boxes])
-    return enc, hess, lo, hi, nom
-
-
-@dataclass(frozen=True)
-class _AugSym:
-    """The symbols a :class:`PlantEnclosures` reads its sizes from (x, and u with w, p)."""
-
-    x: tuple
-    u: tuple

@@ -237,6 +237,22 @@ def test_quadruple_tank_is_proved_on_its_whole_valve_box_and_its_tube_holds_ever
     _assert_sound(problem, law, result, P=100, seed=10)
 
 
+def test_quadruple_tank_under_continuous_hold_halves_its_substeps_and_holds_every_run():
+    # under the continuous hold (g1 in [0.67, 0.73], |d| <= 0.2) each 0.5 s step is cut in
+    # two: the curvature term of the remainder squares the substep's a-priori deviation
+    # (h2 at 60 s 2.08x -> 1.83x the worst-case runs' hull); one run, every run in the tube
+    problem = loads_spec(QUADRUPLE_TANK.read_text())
+    problem = replace(problem, verify=replace(problem.verify, hold="continuous"))
+    law = synthesize(problem)
+    result = verify(problem, law, hold="continuous")
+    assert result.verdict == "robustly_safe", result.summary()
+    assert result.stats["parameter_runs"] == 1
+    tb = result.tube
+    assert float(np.max(tb.t_end - tb.t_start)) == pytest.approx(0.25)
+    assert float(tb.t_end.max()) == pytest.approx(60.0)
+    _assert_sound(problem, law, result, P=100, seed=12)
+
+
 def test_quadruple_tank_is_proved_over_pieces_of_the_valve_split():
     # a wider valve split, g1 in [0.62, 0.78]: the whole box fails its enclosure (the
     # bilinear g1 x v1 term of the remainder); on eighths of it, each about its own
@@ -266,6 +282,25 @@ def test_a_piece_of_the_parameter_box_is_a_problem_with_its_midpoint_as_nominal(
     assert sub.plant.parameters.upper == pytest.approx([0.45])
     assert problem.plant.parameters.upper == pytest.approx([0.6])  # (a new problem)
     assert split_axis(problem, np.array([0.4]), np.array([0.6])) == 0
+
+
+def test_the_pieces_of_a_parameter_box_share_one_compiled_field():
+    # the enclosures and second derivatives of f(x, u, w, p) are derived and compiled once
+    # per field, not once per piece (each piece is a problem with its own box and nominal)
+    from codev_engine.reach.enclosure import uncertain_enclosures
+    from codev_engine.reach.parameter_split import sub_problem
+
+    problem = _pendulum(c=(0.4, 0.6))
+    a = uncertain_enclosures(sub_problem(problem, np.array([0.4]), np.array([0.5])))
+    b = uncertain_enclosures(sub_problem(problem, np.array([0.5]), np.array([0.6])))
+    assert a[0] is b[0] and a[1] is b[1]
+    assert a[3][-1] == pytest.approx(0.5) and b[3][-1] == pytest.approx(0.6)  # (own boxes)
+    assert b[4][-1] == pytest.approx(0.55)
+    # another field compiles its own
+    other = loads_spec((EXAMPLES / "pendulum.toml").read_text().replace(
+        '"9.81*sin(th) - 0.5*w + T"', '"9.81*sin(th) - c*w + 2*T"').replace(
+        "[model]", "parameters = { c = [0.4, 0.6] }\n\n[model]", 1))
+    assert uncertain_enclosures(other)[0] is not a[0]
 
 
 def test_the_split_parameter_is_the_one_whose_forcing_dominates():
