@@ -13,6 +13,7 @@ about the origin (2.1x the simulated hull); it must stay well below that.
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -101,3 +102,11 @@ def test_cruise_loaded_tube_is_tighter_than_the_interval_bound_at_every_time(cru
     # and it is not narrower than what the loop does (0.118 m/s with the worst-case runs)
     assert widths.min() > 0.105
     assert result.stats.get("certificate", {}).get("kind") == "invariant"
+
+
+def test_cruise_loaded_is_safe_for_all_time_with_the_centred_bound():
+    # with the bound about the origin the tube did not close: unknown / no_invariant
+    problem = load_spec(CRUISE)
+    problem = replace(problem, verify=replace(problem.verify, time_horizon=float("inf")))
+    result = verify(problem, synthesize(problem))
+    assert result.verdict == "robustly_safe" and result.reason == "invariant", result.summary()
