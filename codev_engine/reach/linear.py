@@ -25,6 +25,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from scipy.linalg import expm
@@ -86,6 +87,11 @@ class AffinePlant:
         Likewise ``|c(p) - c(p_nom)|``, ``c(p) = f(0, 0, 0, p)``.
     w_abs : (d,) ndarray or None
         ``max |w|`` over the disturbance box (zeros (0,) without disturbances).
+    p_offset : callable or None
+        With uncertain parameters: ``p_offset(x, u, w) -> (n,)``, a bound on
+        ``|f(x, u, w, p) - f_nom(x, u, w)|`` over the parameter box at one point ``(x, u,
+        w)`` (the whole field's interval enclosure there, so the parameters' effect keeps
+        its correlation across the terms; :func:`_parameter_offset`).
     """
 
     Ac: np.ndarray
@@ -98,6 +104,7 @@ class AffinePlant:
     dE: np.ndarray | None = None
     dc: np.ndarray | None = None
     w_abs: np.ndarray | None = None
+    p_offset: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
 
 
 def affine_plant(problem: Problem) -> AffinePlant | None:
@@ -201,8 +208,50 @@ def _parametric_plant(problem: Problem) -> AffinePlant | None:
         E, w_radius = En, wr
     else:
         f0, w_abs, E, w_radius = cn, np.zeros(0), None, None
+    try:
+        ff = compile_interval(f, (*xs, *us, *ws, *ps))
+    except (TypeError, ValueError, ArithmeticError, NotImplementedError):
+        ff = None  # (then the bound about the origin alone, as before)
+    offset = None if ff is None else partial(_parameter_offset, ff, Jn, cn, lo, hi)
     return AffinePlant(Ac, Bc, f0, E, w_radius, dJ[:, :n], dJ[:, n : n + m], dJ[:, n + m :],
-                       dc, w_abs)
+                       dc, w_abs, offset)
+
+
+def _parameter_offset(ff, Jn: np.ndarray, cn: np.ndarray, plo: np.ndarray, phi: np.ndarray,
+                      x: np.ndarray, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """A bound on ``|f(z, p) - (Jn z + cn)|`` over the parameter box at the point ``z =
+    (x, u, w)``: the field's interval enclosure with ``z`` a point and ``p`` the box,
+    minus the nominal model's value (its float rounding bounded by ``1e-12`` of the terms).
+
+    Parameters
+    ----------
+    ff : IntervalFunction
+        The field ``f`` (n,) over ``(x, u, w, p)``.
+    Jn : (n, n + m + d) ndarray
+        The nominal Jacobian in ``(x, u, w)``.
+    cn : (n,) ndarray
+        The nominal ``f(0, 0, 0, p_nom)``.
+    plo, phi : (q,) ndarray
+        The parameter box.
+    x, u, w : (n,), (m,), (d,) ndarray
+        The point.
+
+    Returns
+    -------
+    (n,) ndarray
+        ``inf`` where the enclosure fails (the caller then keeps its other bound).
+    """
+    z = np.concatenate([x, u, w])
+    lo = np.concatenate([z, plo])
+    hi = np.concatenate([z, phi])
+    try:
+        flo, fhi = (np.asarray(a, float).reshape(-1) for a in ff(lo, hi))
+    except (TypeError, ValueError, ArithmeticError):
+        return np.full(cn.shape, np.inf)
+    fn = Jn @ z + cn
+    mag = np.abs(Jn) @ np.abs(z) + np.abs(cn)
+    out = np.maximum(fhi - fn, fn - flo) * (1.0 + 1e-12) + 1e-12 * mag
+    return np.where(np.isfinite(out), np.maximum(out, 0.0), np.inf)
 
 
 @dataclass
@@ -885,7 +934,11 @@ class LinearReach(ClosedLoopSetup):
         """Set ``_prad``, the radius of the parameters' deviation over this period.
 
         ``f(x, u, w, p) - f_nom = dA(p) x + dB(p) u + dE(p) w + dc(p)``: with ``x`` in a box
-        ``B``, ``u`` in its range, ``|.| <= |dA| |x|_B + |dB| |u| + |dE| |w| + |dc|``. ``B``
+        ``B``, ``u`` in its range, ``|.| <= |dA| |x|_B + |dB| |u| + |dE| |w| + |dc|``; and,
+        centred at the point ``z_c = (x_c, u_c, w_c)`` of the ranges' midpoints (the field
+        being affine in ``z`` for each ``p``), ``|.| <= |dA| x_r + |dB| u_r + |dE| w_r +
+        |f(z_c, p) - f_nom(z_c)|``, the last term the whole field's interval enclosure at
+        ``z_c`` (``AffinePlant.p_offset``): the smaller of the two per state is taken. ``B``
         is found by bootstrapping: if the period's tube computed with the bound of ``B``
         lies in ``B``'s interior, every trajectory stays in ``B`` over the period (at the
         first time one would leave ``B`` it is still in the tube, inside the interior: a
@@ -897,20 +950,32 @@ class LinearReach(ClosedLoopSetup):
         _, _, _, slo, shi, u_lo, u_hi = self._segments(s, i, taus)
         lo, hi = slo.min(axis=0), shi.max(axis=0)
         wterm = pl.dE @ pl.w_abs if pl.w_abs is not None and pl.w_abs.size else 0.0
+        wbox = self.problem.plant.disturbances
+        if wbox is not None:  # the disturbance box about its centre
+            wc, wr = _mid_rad(np.asarray(wbox.lower, float), np.asarray(wbox.upper, float))
+        else:
+            wc, wr = np.zeros(0), np.zeros(0)
         for _ in range(8):
             pad = 0.25 * (hi - lo) + 1e-9 * (1.0 + np.abs(lo) + np.abs(hi))
             blo, bhi = lo - pad, hi + pad
             xa = np.maximum(np.abs(blo), np.abs(bhi))
+            xc, xr = _mid_rad(blo, bhi)
             if self.hold == "zoh":  # the held input: from the sample, this period's B aside
                 ua = np.maximum(np.abs(u_lo), np.abs(u_hi)).max(axis=0)
+                uc, ur = _mid_rad(u_lo.min(axis=0), u_hi.max(axis=0))
             else:  # u = F (x + v) + G over B
                 F = self.law.F[i][:, : self.n]
-                xc, xr = 0.5 * (blo + bhi), 0.5 * (bhi - blo)
                 uc = F @ xc + self.Gn[i]
                 if self.d > self.n:  # (not reached: theta laws are verified under zoh)
                     raise _NeedExactError
-                ua = (np.abs(uc) + np.abs(F) @ xr + self._noise_input(i)) * (1.0 + 1e-12)
-            self._prad = (pl.dA @ xa + pl.dB @ ua + wterm + pl.dc) * (1.0 + 1e-12) + 1e-300
+                ur = ((np.abs(F) @ xr + self._noise_input(i)) * (1.0 + 1e-12)
+                      + 1e-12 * (np.abs(F) @ np.abs(xc) + np.abs(self.Gn[i])))
+                ua = (np.abs(uc) + ur) * (1.0 + 1e-12)
+            about0 = pl.dA @ xa + pl.dB @ ua + wterm + pl.dc
+            if pl.p_offset is not None:  # centred: the parameters' effect at z_c is exact-ish
+                centred = pl.dA @ xr + pl.dB @ ur + pl.dE @ wr + pl.p_offset(xc, uc, wc)
+                about0 = np.minimum(about0, centred)
+            self._prad = about0 * (1.0 + 1e-12) + 1e-300
             _, _, _, slo, shi, _, _ = self._segments(s, i, taus)
             nlo, nhi = slo.min(axis=0), shi.max(axis=0)
             if np.all(nlo > blo) and np.all(nhi < bhi):
@@ -1429,6 +1494,31 @@ class LinearReach(ClosedLoopSetup):
         delta = 0.05 * (np.maximum(hi, xs) - np.minimum(lo, xs)) + 1e-9 * (1.0 + np.abs(xs))
         return self._hull(frontier, None, extra=box_corners(xs - delta, xs + delta))
 
+    def _reanchor(self, anchor: dict, frontier: list[_Star], k: int,
+                  done: int) -> _Star | None:
+        """A tighter candidate set than the anchor's, from the sets at sample ``k`` (which
+        lie in it), or None to close the certificate now.
+
+        The tube repeated by a certificate is the anchor set's own transient, so an anchor
+        taken while the sets still converge (a wide ``S``) repeats that width up to the
+        horizon. With disturbances or parameters (the sets never shrink to a point) and a
+        finite horizon, the loop goes on from the sets at ``k`` anchored again, while that
+        set's box is at most ``_REANCHOR_SHRINK`` of the anchor's along some axis, at most
+        ``_REANCHORS`` times and while ``_ANCHOR_MIN_SAMPLES`` remain (docs/verification.md,
+        "Merging and invariance certificates"). Nominal runs and ``"inf"`` horizons close
+        at once, as before.
+        """
+        remaining = (self.T - k * self.Ts) / self.Ts
+        if (not self.uncertain or self.unbounded or done >= _REANCHORS
+                or remaining < _ANCHOR_MIN_SAMPLES):
+            return None
+        S2 = self._anchor(frontier)
+        old, new = (np.ptp(S.c[None, :] + S.verts @ S.V.T, axis=0) + 2.0 * S.err
+                    for S in (anchor["S"], S2))
+        if not np.any(new <= _REANCHOR_SHRINK * old):
+            return None
+        return S2
+
     def _close(self, anchor: dict, k: int) -> None:
         """Every set at sample k lies in the anchor's set S (sample ka < k): the tube of
         [t_ka, t_k] repeats with period (k - ka) Ts up to the horizon (docs/verification.md,
@@ -1492,17 +1582,25 @@ class LinearReach(ClosedLoopSetup):
                   box_corners(-np.ones(n), np.ones(n)), np.zeros(n), 0)
         ]
         anchor: dict | None = None
-        next_try, attempts = 1, 0
+        next_try, attempts, reanchors = 1, 0, 0
         while frontier:
             k = frontier[0].k
             # (sample by sample: a stop leaves the tube complete up to this sample)
             self._pending = frontier
             if anchor is not None and k > anchor["k"]:
                 if all(self._inside(s, anchor["S"]) for s in frontier):
-                    anchor["closing"] = frontier
-                    self._close(anchor, k)
-                    return
-                if k - anchor["k"] > _ANCHOR_BUDGET:
+                    S2 = self._reanchor(anchor, frontier, k, reanchors)
+                    if S2 is None:
+                        anchor["closing"] = frontier
+                        self._close(anchor, k)
+                        return
+                    # the tube of [t_ka, t_k] from S stays (it holds every trajectory);
+                    # the loop goes on from the tighter S2, a new candidate
+                    reanchors += 1
+                    anchor = {"k": k, "S": S2, "ntubes": len(self.tubes),
+                              "frontier": frontier}
+                    frontier = [S2]
+                elif k - anchor["k"] > _ANCHOR_BUDGET:
                     anchor, next_try = None, k + 10  # keep the (sound, wider) sets
             remaining = (self.T - k * self.Ts) / self.Ts
             if (
@@ -1575,6 +1673,11 @@ _MERGE_ABOVE = 8
 _MERGED_DEPTH = 2
 #: anchors tried per run (each undone one costs the samples it ran)
 _ANCHOR_ATTEMPTS = 5
+#: with disturbances or parameters, a closed anchor is taken again from the closing sets
+#: (a tighter repeated tube) while their box is at most this share of the anchor's along
+#: some axis, at most _REANCHORS times (_reanchor)
+_REANCHOR_SHRINK = 0.9
+_REANCHORS = 4
 
 
 def _tight_piece(A: np.ndarray, b: np.ndarray) -> tuple | None:
@@ -1620,6 +1723,13 @@ def _zonotope_normals(G: np.ndarray, most: int = 8) -> np.ndarray:
             continue  # dependent generators: no facet
         out += [vt[-1], -vt[-1]]
     return np.array(out).reshape(-1, n)
+
+
+def _mid_rad(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The midpoint ``c`` of the box ``[lo, hi]`` (k,) as computed, and a radius ``r`` with
+    ``|x - c| <= r`` for every ``x`` in the box despite the rounding of ``c`` and ``r``."""
+    c = 0.5 * (lo + hi)
+    return c, np.maximum(hi - c, c - lo) * (1.0 + 1e-12)
 
 
 def _grid(tau_end: float, step: float) -> np.ndarray:
