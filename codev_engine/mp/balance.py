@@ -20,9 +20,11 @@ from __future__ import annotations
 import numpy as np
 
 from codev_engine.mp.program import MpProgram
+from codev_engine.mp.reduce import parameter_box, reduce_program
 from codev_engine.mp.solution import MpSolution, RegionArrays
 
-__all__ = ["BALANCE_RATIO", "balanced", "parameter_scaling", "unbalanced"]
+__all__ = ["BALANCE_RATIO", "balanced", "parameter_scaling", "program_scaling", "rows_back",
+           "unbalanced"]
 
 #: an axis of the parameter box narrower than the widest by more than this factor is
 #: rescaled (a power of two, to the widest's width)
@@ -56,6 +58,21 @@ def parameter_scaling(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
     return D
 
 
+def program_scaling(program: MpProgram) -> np.ndarray | None:
+    """``parameter_scaling`` of the program's parameter box (after ``reduce_program``).
+
+    Parameters
+    ----------
+    program : MpProgram
+
+    Returns
+    -------
+    (d,) ndarray or None
+    """
+    size = parameter_box(reduce_program(program))
+    return parameter_scaling(size.lo, size.hi)
+
+
 def balanced(program: MpProgram, D: np.ndarray) -> MpProgram:
     """The program in ``theta_s = D^-1 theta``: every parameter column times ``D`` (exact).
 
@@ -78,8 +95,19 @@ def balanced(program: MpProgram, D: np.ndarray) -> MpProgram:
     )
 
 
-def _rows_back(A: np.ndarray, b: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows ``A theta_s <= b`` in ``theta``: ``A D^-1``, made unit-norm again."""
+def rows_back(A: np.ndarray, b: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``A theta_s <= b`` in ``theta``: ``A D^-1``, made unit-norm again.
+
+    Parameters
+    ----------
+    A : (q, d) ndarray
+    b : (q,) ndarray
+    D : (d,) ndarray
+
+    Returns
+    -------
+    A, b : (q, d), (q,) ndarrays
+    """
     A = A / D
     if A.shape[0] == 0:
         return A, b
@@ -106,11 +134,11 @@ def unbalanced(sol: MpSolution, program: MpProgram, D: np.ndarray) -> MpSolution
         likewise; the stats say how many axes were rescaled (``parameter_axes_scaled``).
     """
     ra = sol.regions
-    A, b = _rows_back(ra.A, ra.b, D)
-    sA, sb = _rows_back(ra.shared_A, ra.shared_b, D)
+    A, b = rows_back(ra.A, ra.b, D)
+    sA, sb = rows_back(ra.shared_A, ra.shared_b, D)
     regions = RegionArrays(A, b, ra.offsets, ra.K / D, ra.k, ra.active, ra.active_offsets,
                            ra.implied, sA, sb)
-    dA, db = (None, None) if sol.domain_A is None else _rows_back(sol.domain_A,
+    dA, db = (None, None) if sol.domain_A is None else rows_back(sol.domain_A,
                                                                   sol.domain_b, D)
     stats = dict(sol.stats)
     stats["parameter_axes_scaled"] = int(np.sum(D != 1.0))

@@ -24,12 +24,14 @@ from test_synthesis_oracle import (
     _check,
     _slow_gate,
     compare,
+    domain_box,
     make_model,
     make_problem,
     make_spec,
 )
 
 import codev_engine as ce
+from codev_engine.law_on_demand import OnDemandLaw
 
 # (A, B, weights for norms 1/inf, weights for norm 2, state box, input box, horizon)
 _PLANTS = {
@@ -101,6 +103,25 @@ def test_double_integrator_in_mm_and_km_per_s_is_the_mpc(norm):
     _, _, spec, model, _ = scaled_case("di", norm, [0.0, 0.0])
     assert law.num_regions == ce.synthesize(make_problem(spec, model), model=model).num_regions
     run("di", norm, [-3.0, 3.0])
+
+
+@pytest.mark.parametrize("norm", ["1", "inf", "2"])
+def test_regions_on_demand_in_rescaled_units(norm):
+    """The walk on demand (``regions = "reached"``) runs in the same balanced units: asked
+    for the whole domain box, it knows the whole law, the MPC's."""
+    spec_s, model_s, spec, model, S = scaled_case("di", norm, [-3.0, 3.0])
+    law = OnDemandLaw(make_problem(spec_s, model_s), model=model_s)
+    law.regions_meeting(*domain_box(spec_s, model_s))
+    assert law.complete
+    full = ce.ExplicitLaw(A=list(law.A), b=list(law.b), F=law.F, G=law.G)
+    rep = compare(f"on demand {norm}", spec, model, in_plant_units(full, S), n_uniform=60)
+    _check(rep)
+    X = domain_box(spec, model)[0] + np.random.default_rng(0).uniform(size=(40, 2)) * 20.0
+    Xs = X @ S
+    np.testing.assert_array_equal(law.locate(Xs) >= 0, full.locate(Xs) >= 0)
+    ok = full.locate(Xs) >= 0
+    np.testing.assert_allclose(law.evaluate(Xs)[ok], full.evaluate(Xs)[ok], rtol=1e-9,
+                               atol=1e-9)
 
 
 _exps = st.lists(st.integers(-6, 6).map(lambda k: k / 2.0), min_size=3, max_size=3)
