@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 from test_synthesis_oracle import (
     DI_A,
@@ -32,6 +32,7 @@ from test_synthesis_oracle import (
 
 import codev_engine as ce
 from codev_engine.law_on_demand import OnDemandLaw
+from codev_engine.synthesis import WEIGHT_SPREAD_LIMIT, weight_spread
 
 # (A, B, weights for norms 1/inf, weights for norm 2, state box, input box, horizon)
 _PLANTS = {
@@ -124,14 +125,20 @@ def test_regions_on_demand_in_rescaled_units(norm):
                                atol=1e-9)
 
 
-_exps = st.lists(st.integers(-6, 6).map(lambda k: k / 2.0), min_size=3, max_size=3)
+# decades of each state's factor: 1e-3 ... 1e3
+_exps = st.lists(st.integers(-3, 3).map(float), min_size=3, max_size=3)
 
 
-@settings(max_examples=6, deadline=None, derandomize=True, database=None)
+@settings(max_examples=8, deadline=None, derandomize=True, database=None)
 @given(plant=st.sampled_from(sorted(_PLANTS)), norm=st.sampled_from(["1", "inf", "2"]),
        exps=_exps)
+@example(plant="chain3", norm="1", exps=[3.0, -3.0, 0.0])  # (a hole without balancing)
 def test_rescaled_plants_keep_the_mpc_law(plant, norm, exps):
-    run(plant, norm, exps[: len(_PLANTS[plant][0])], n_uniform=40)
+    exps = exps[: len(_PLANTS[plant][0])]
+    # (weights spanning more than double precision resolves are refused in one line, by
+    # design: x'Qx with factors 1e-3 and 1e3 spans 1e12 times Q's own spread)
+    assume(weight_spread(scaled_case(plant, norm, exps)[0])[0] <= WEIGHT_SPREAD_LIMIT)
+    run(plant, norm, exps, n_uniform=40)
 
 
 @pytest.mark.slow
@@ -142,5 +149,7 @@ def test_rescaled_plants_sweep(seed, request):
     for plant in sorted(_PLANTS):
         n = len(_PLANTS[plant][0])
         for norm in ("1", "inf", "2"):
-            run(plant, norm, rng.integers(-6, 7, n) / 2.0, n_uniform=150)
+            exps = rng.integers(-6, 7, n) / 2.0
+            if weight_spread(scaled_case(plant, norm, exps)[0])[0] <= WEIGHT_SPREAD_LIMIT:
+                run(plant, norm, exps, n_uniform=150)
 
