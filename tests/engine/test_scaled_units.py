@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from test_synthesis_oracle import (
     DI_A,
     DI_B,
+    EXAMPLES_DIR,
     _check,
     _slow_gate,
     compare,
@@ -104,6 +105,57 @@ def test_double_integrator_in_mm_and_km_per_s_is_the_mpc(norm):
     _, _, spec, model, _ = scaled_case("di", norm, [0.0, 0.0])
     assert law.num_regions == ce.synthesize(make_problem(spec, model), model=model).num_regions
     run("di", norm, [-3.0, 3.0])
+
+
+#: examples/double_integrator.toml with x1 in units of 1e-3 (x1e3) and x2 in units of 1e3
+#: (x1e-3): dynamics, weights, bounds and the sets transformed consistently
+DI_SCALED = """
+name = "double-integrator-scaled"
+
+[plant]
+states = ["x1", "x2"]
+inputs = ["u"]
+dynamics = ["1e6 * x2", "1e-3 * u"]
+
+[model]
+sample_time = 1.0
+method = "zoh"
+
+[mpc]
+horizon = 2
+norm = "inf"
+Q = [[1e-3, 1e3], [0.0, 1e3]]
+R = [[0.8]]
+x_min = [-1e4, -1e-2]
+x_max = [1e4, 1e-2]
+u_min = [-1.0]
+u_max = [1.0]
+
+[verify]
+time_horizon = 9.0
+hold = "continuous"
+max_depth = 6
+step = 0.01
+initial_set = { lower = [8990.0, -5.01e-3], upper = [9010.0, -4.99e-3] }
+input_bounds = true
+
+[[verify.safe]]
+lower = [-1e4, -1e-2]
+upper = [1e4, 1e-2]
+"""
+
+
+def test_rescaled_double_integrator_spec_verifies_as_the_original(tmp_path):
+    """The spec of issue 38: its law had one region and the verdict was ``unsafe`` (the
+    initial set outside the law's domain at t = 0); it is the original's, 10 regions and
+    ``robustly_safe``."""
+    path = tmp_path / "di_scaled.toml"
+    path.write_text(DI_SCALED)
+    problem = ce.load_spec(path)
+    law = ce.synthesize(problem)
+    original = ce.load_spec(EXAMPLES_DIR / "double_integrator.toml")
+    assert law.num_regions == ce.synthesize(original).num_regions
+    assert ce.verify(problem, law).verdict == "robustly_safe"
 
 
 @pytest.mark.parametrize("norm", ["1", "inf", "2"])
