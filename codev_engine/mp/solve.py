@@ -146,8 +146,15 @@ def mpsolve(
     D = (parameter_scaling(size.lo, size.hi) if shard_writer is None and not sharded
          else None)
     if D is not None:
-        sol = mpsolve(balanced(program, D), options=opts, progress=progress,
-                      executor=executor)
+        try:
+            sol = mpsolve(balanced(program, D), options=opts, progress=progress,
+                          executor=executor)
+        except SolverError as exc:
+            if "theta=" in str(exc):  # (a point named in the search's units, not the caller's)
+                scales = np.array2string(D, precision=3)
+                exc.args = (f"{exc} [theta in the search's balanced units: theta / {scales}]",
+                            *exc.args[1:])
+            raise
         sol = unbalanced(sol, program, D)
         sol.seconds = time.perf_counter() - t0
         return sol

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
+from test_formulations import oracle
 from test_synthesis_oracle import (
     DI_A,
     DI_B,
@@ -33,6 +34,9 @@ from test_synthesis_oracle import (
 
 import codev_engine as ce
 from codev_engine.law_on_demand import OnDemandLaw
+from codev_engine.mp.balance import rows_back
+from codev_engine.pipeline import loads_spec
+from codev_engine.plant import discretize
 from codev_engine.synthesis import WEIGHT_SPREAD_LIMIT, weight_spread
 
 # (A, B, weights for norms 1/inf, weights for norm 2, state box, input box, horizon)
@@ -205,3 +209,72 @@ def test_rescaled_plants_sweep(seed, request):
             if weight_spread(scaled_case(plant, norm, exps)[0])[0] <= WEIGHT_SPREAD_LIMIT:
                 run(plant, norm, exps, n_uniform=150)
 
+
+
+# ---- laws over theta = (x, u_prev): input rates, and soft output bounds ----------------
+
+#: test_formulations.BASE's plant with p in units of 10**-k (times 10**k) and v in units
+#: of 10**k (times 10**-k): A_s = S A S^-1, B_s = S B, C_s = C S^-1, the state weight and
+#: bounds likewise; the output y = C x (and so its soft slack) keeps its units
+_THETA_SCALED = """
+name = "t"
+[plant]
+states = ["p", "v"]
+inputs = ["u"]
+A = [[0.0, {a12}], [0.0, 0.0]]
+B = [[0.0], [{b2}]]
+[model]
+sample_time = 0.2
+[mpc]
+horizon = {N}
+norm = "{norm}"
+Q = {Q}
+R = [[0.5]]
+x_min = [{pmin}, {vmin}]
+x_max = [{pmax}, {vmax}]
+u_min = [-1.0]
+u_max = [1.0]
+"""
+
+
+def _theta_scaled(extra: str, norm: str, N: int, k: float):
+    s = [10.0**k, 10.0**-k]  # (python floats: their repr is TOML)
+    if norm == "2":
+        Q = f"[[{1 / s[0] ** 2!r}, 0.0], [0.0, {1 / s[1] ** 2!r}]]"
+    else:
+        Q = f"[[{1 / s[0]!r}, 0.0], [0.0, {1 / s[1]!r}]]"
+    text = _THETA_SCALED.format(a12=repr(s[0] / s[1]), b2=repr(s[1]), N=N, norm=norm, Q=Q,
+                                pmin=repr(-5.0 * s[0]), vmin=repr(-2.0 * s[1]),
+                                pmax=repr(5.0 * s[0]), vmax=repr(2.0 * s[1]))
+    return loads_spec(text + extra.replace("{C1}", repr(1 / s[0]))), np.array(s)
+
+
+#: name -> (extra [mpc] lines, norm, horizon, decades k)
+_THETA_CASES = {
+    "rates_inf": ("du_min = [-0.3]\ndu_max = [0.3]\nRd = [[0.5]]\n", "inf", 3, 2.0),
+    "rates_1": ("Rd = [[1.0]]\n", "1", 3, 2.0),
+    "rates_2": ("du_min = [-0.3]\ndu_max = [0.3]\nRd = [[1.0]]\n", "2", 4, 2.0),
+    # (k = 1.5 and 2 are refused, "the mp-LP is too degenerate", balanced or not: open)
+    "soft_y_1": ('C = [[{C1}, 0.0]]\ny_max = [1.0]\nsoft = ["y_max"]\n', "1", 4, -2.0),
+    "soft_y_2": ('C = [[{C1}, 0.0]]\ny_max = [1.0]\nsoft = ["y_max"]\n', "2", 4, 2.0),
+}
+
+
+@pytest.mark.parametrize("name", sorted(_THETA_CASES))
+def test_rates_and_soft_outputs_in_rescaled_units(name):
+    """Laws over ``theta = (x, u_prev)`` (input rates) and with a soft output bound, the
+    states rescaled by 1e2 and 1e-2 (or the reverse): the law mapped back to the plant's
+    units passes ``test_formulations.oracle`` against the online MPC of the plant in its
+    own units."""
+    extra, norm, N, k = _THETA_CASES[name]
+    problem_s, s = _theta_scaled(extra, norm, N, k)
+    problem, _ = _theta_scaled(extra, norm, N, 0.0)
+    law = ce.synthesize(problem_s)
+    d = law.F.shape[2]
+    St = np.diag(np.concatenate([s, np.ones(d - 2)]))
+    plant = in_plant_units(law, St)
+    dA, db = rows_back(law.domain_A, law.domain_b, 1.0 / np.diag(St))
+    plant = ce.ExplicitLaw(A=plant.A, b=plant.b, F=plant.F, G=plant.G, domain_A=dA,
+                           domain_b=db)
+    fails = oracle(problem, discretize(problem), plant, 80)
+    assert not fails, f"{name}: {len(fails)} failures\n" + "\n".join(fails[:6])
