@@ -181,6 +181,24 @@ def test_regions_on_demand_in_rescaled_units(norm):
                                atol=1e-9)
 
 
+@pytest.mark.parametrize(("norm", "su"), [("1", 1e3), ("inf", 1e-3), ("2", 1e3)])
+def test_input_in_units_far_apart(norm, su):
+    """The input in other units (``u_s = su u``: B / su, R / su or / su**2, bounds times su):
+    the decision variables are not rescaled by the search, the row normalisation and the
+    cost's scaling take care of them."""
+    A, B = np.asarray(DI_A), np.asarray(DI_B)
+    Q = np.eye(2) if norm == "2" else np.array([[1.0, 1.0], [0.0, 1.0]])
+    R = np.array([[0.8]])
+    box = dict(x_min=[-10.0, -10.0], x_max=[10.0, 10.0])
+    spec = make_spec(2, norm, Q, R, 2, 1, u_min=[-1.0], u_max=[1.0], **box)
+    spec_s = make_spec(2, norm, Q, R / (su**2 if norm == "2" else su), 2, 1, u_min=[-su],
+                       u_max=[su], **box)
+    model_s = make_model(A, B / su)
+    law = ce.synthesize(make_problem(spec_s, model_s), model=model_s)
+    back = ce.ExplicitLaw(A=law.A, b=law.b, F=law.F / su, G=law.G / su)
+    _check(compare(f"u x{su:g} {norm}", spec, make_model(A, B), back, n_uniform=60))
+
+
 # decades of each state's factor: 1e-3 ... 1e3
 _exps = st.lists(st.integers(-3, 3).map(float), min_size=3, max_size=3)
 
