@@ -136,6 +136,9 @@ class OnDemandLaw:
         # seed (the replay's start), and the engine (its rounding)
         self._cache_key = (f"{self.fingerprint} region_tol={opts.region_tol!r} "
                            f"seed={opts.seed!r} engine={__version__}")
+        if self._D is not None:
+            # (regions cached by a walk in other units, before issue 38, are not these)
+            self._cache_key += f" balance={self._D.tolist()!r}"
         #: candidates the walk had evaluated when last saved or loaded (:attr:`grown`)
         self._saved_candidates = 0
         self.meta: dict = {"on_demand": True, "norm": mp.spec.norm, "horizon": mp.N,

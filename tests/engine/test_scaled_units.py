@@ -181,6 +181,23 @@ def test_regions_on_demand_in_rescaled_units(norm):
                                atol=1e-9)
 
 
+def test_region_cache_of_a_rescaled_walk_round_trips(tmp_path):
+    """A walk's region cache holds its regions in the balanced units: loaded again, the
+    same law in the caller's (and the cache key names the units)."""
+    spec_s, model_s, *_ = scaled_case("di", "inf", [3.0, -3.0])
+    problem = make_problem(spec_s, model_s)
+    law = OnDemandLaw(problem, model=model_s)
+    lo, hi = domain_box(spec_s, model_s)
+    law.regions_meeting(lo, 0.5 * (lo + hi))
+    path = law.save(tmp_path / "regions.npz")
+    again = OnDemandLaw.load(path, problem, model=model_s)
+    assert again.num_regions == law.num_regions > 1
+    for a, b in zip(law.A + law.b, again.A + again.b, strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(law.F, again.F)
+    assert "balance=" in str(np.load(path)["fingerprint"])
+
+
 @pytest.mark.parametrize(("norm", "su"), [("1", 1e3), ("inf", 1e-3), ("2", 1e3)])
 def test_input_in_units_far_apart(norm, su):
     """The input in other units (``u_s = su u``: B / su, R / su or / su**2, bounds times su):
