@@ -2,7 +2,8 @@
 
 ``mpsolve`` reduces the program (``reduce.py``: equalities eliminated, pure-parameter rows
 moved to the parameter set, rows normalised and de-duplicated) and measures its parameter
-set, then hands it on:
+set (when its axes are far apart in size, the search runs in balanced units and the law is
+mapped back: ``balance.py``), then hands it on:
 
 - **mp-QPs** (H != 0 after the reduction; positive definite, or semi-definite with a
   lexicographic selection of the optimizer, refused when the constraints leave a direction
