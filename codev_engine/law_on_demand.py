@@ -24,6 +24,7 @@ from codev_engine.formulation import parameter_names
 from codev_engine.geometry.locate import PointLocator, bounding_boxes
 from codev_engine.geometry.polytope import box_halfspaces
 from codev_engine.io.npz import NpzFormat, array, load_npz, save_npz, text
+from codev_engine.mp.balance import balanced, program_scaling, rows_back
 from codev_engine.mp.on_demand import OnDemandRegions
 from codev_engine.mp.on_demand_lp import OnDemandBases
 from codev_engine.mp.reduce import parameter_box
@@ -107,7 +108,11 @@ class OnDemandLaw:
         try:
             # norms 1 and inf: the basis graph of the mp-LP (mp.on_demand_lp)
             walk = OnDemandRegions if mp.spec.norm == "2" else OnDemandBases
-            self._solver = walk(mp.program, options)
+            # the walk runs in balanced units when the parameter's axes are far apart, as
+            # the full search does (mp/balance.py): theta - theta_op = D theta_s
+            self._D = program_scaling(mp.program)
+            program = mp.program if self._D is None else balanced(mp.program, self._D)
+            self._solver = walk(program, options)
         except SolverError as exc:
             raise SpecError(str(exc), field="synthesis.regions") from None
         self._mp = mp
@@ -131,6 +136,9 @@ class OnDemandLaw:
         # seed (the replay's start), and the engine (its rounding)
         self._cache_key = (f"{self.fingerprint} region_tol={opts.region_tol!r} "
                            f"seed={opts.seed!r} engine={__version__}")
+        if self._D is not None:
+            # (regions cached by a walk in other units, before issue 38, are not these)
+            self._cache_key += f" balance={self._D.tolist()!r}"
         #: candidates the walk had evaluated when last saved or loaded (:attr:`grown`)
         self._saved_candidates = 0
         self.meta: dict = {"on_demand": True, "norm": mp.spec.norm, "horizon": mp.N,
@@ -174,6 +182,8 @@ class OnDemandLaw:
         """Bounding boxes of the regions computed so far, lower and upper (k, d)."""
         if self._boxes is None:
             lo, hi = self._solver.boxes
+            if self._D is not None:
+                lo, hi = lo * self._D, hi * self._D
             self._boxes = (lo + self._op, hi + self._op)
         return self._boxes
 
@@ -211,7 +221,7 @@ class OnDemandLaw:
         key = np.concatenate([lo, hi]).tobytes()
         if self._last is not None and self._last[0] == key:
             return self._last[1]
-        A, b = box_halfspaces(lo - self._op, hi - self._op)
+        A, b = box_halfspaces(*self._walk_box(lo, hi))
         try:
             found = np.array(self._solver.meeting(A, b), dtype=int)
         except TooManyRegionsError:
@@ -258,6 +268,7 @@ class OnDemandLaw:
         red, op = solver._red, self._op
         packed = RegionArrays.from_regions([regs[i] for i in order])
         dA, db = _domain_from_regions(red, packed, solver.scale, parameter_box(red).box)
+        dA, db = self._rows_out(dA, db)
         domain = (dA, db + dA @ op)
         A = [self.A[i] for i in order]
         b = [self.b[i] for i in order]
@@ -295,14 +306,14 @@ class OnDemandLaw:
         idx = self.regions_meeting(lo, hi)
         op = self._op
         if idx.size:
-            A, b = self._solver.boundary_rows(list(idx))
+            A, b = self._rows_out(*self._solver.boundary_rows(list(idx)))
             return A, b + A @ op
-        Ab, bb = box_halfspaces(np.asarray(lo, float) - op, np.asarray(hi, float) - op)
+        Ab, bb = box_halfspaces(*self._walk_box(lo, hi))
         sep = self._solver.separating_row(Ab, bb)
         if sep is None:
             return np.zeros((0, self.n)), np.zeros(0)
-        a, beta = sep
-        return a[None, :], np.array([beta + a @ op])
+        A, b = self._rows_out(sep[0][None, :], np.array([sep[1]]))
+        return A, b + A @ op
 
     # ---- evaluation ---------------------------------------------------------------------
 
@@ -333,6 +344,8 @@ class OnDemandLaw:
         out = np.full(X.shape[0], -1, dtype=int)
         margin = 1e-8 * self._solver.scale
         pad = 1e-7 * self._solver.scale
+        if self._D is not None:
+            pad = pad * self._D  # (a box in proportion to each axis)
         for p, x in enumerate(X):
             if not np.all(np.isfinite(x)):
                 continue
@@ -499,15 +512,31 @@ class OnDemandLaw:
         mp, op = self._mp, self._op
         sl = mp.u0_slice
         new = regs[k:]
-        self.A += [r.A for r in new]
-        self.b += [r.b + r.A @ op for r in new]
-        F = np.array([r.K[sl] for r in new]).reshape(len(new), mp.m, mp.d)
-        G = np.array([mp.u_op + r.k[sl] - r.K[sl] @ op for r in new]).reshape(len(new), mp.m)
+        rows = [self._rows_out(r.A, r.b) for r in new]
+        self.A += [A for A, _ in rows]
+        self.b += [b + A @ op for A, b in rows]
+        K = [r.K if self._D is None else r.K / self._D for r in new]
+        F = np.array([Kr[sl] for Kr in K]).reshape(len(new), mp.m, mp.d)
+        G = np.array([mp.u_op + r.k[sl] - Kr[sl] @ op
+                      for r, Kr in zip(new, K, strict=True)]).reshape(len(new), mp.m)
         self.F = np.concatenate([self.F, F])
         self.G = np.concatenate([self.G, G])
         self._boxes = None
         self._stacked = None
         self.meta["regions"] = len(self.A)
+
+    def _walk_box(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The box ``[lo, hi]`` (theta) in the walk's parameter: ``(theta - op) / D`` (exact:
+        ``D`` holds powers of two)."""
+        lo = np.asarray(lo, float) - self._op
+        hi = np.asarray(hi, float) - self._op
+        if self._D is None:
+            return lo, hi
+        return lo / self._D, hi / self._D
+
+    def _rows_out(self, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows in the walk's parameter as rows in ``theta - op`` (unit rows)."""
+        return (A, b) if self._D is None else rows_back(A, b, self._D)
 
     def _well_inside(self, x: np.ndarray, margin: float) -> int:
         """A known region that holds ``x`` with every row by more than ``margin``, or -1."""

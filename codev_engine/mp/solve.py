@@ -2,7 +2,8 @@
 
 ``mpsolve`` reduces the program (``reduce.py``: equalities eliminated, pure-parameter rows
 moved to the parameter set, rows normalised and de-duplicated) and measures its parameter
-set, then hands it on:
+set (when its axes are far apart in size, the search runs in balanced units and the law is
+mapped back: ``balance.py``), then hands it on:
 
 - **mp-QPs** (H != 0 after the reduction; positive definite, or semi-definite with a
   lexicographic selection of the optimizer, refused when the constraints leave a direction
@@ -30,6 +31,7 @@ import numpy as np
 from codev_engine.errors import CodevError, SolverError
 from codev_engine.executor import Executor
 from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
+from codev_engine.mp.balance import balanced, parameter_scaling, unbalanced
 from codev_engine.mp.coverage import check_coverage, feasibility_rows
 from codev_engine.mp.mplp import COUNTERS, explore_facets
 from codev_engine.mp.mplp_graph import explore_bases
@@ -140,6 +142,23 @@ def mpsolve(
     if semidefinite:
         _check_no_recession(red)
     size = parameter_box(red)
+    # axes in units far apart: search in balanced units, map the law back (balance.py; a
+    # law written as shards is written by the workers in the search's units: not rescaled)
+    D = (parameter_scaling(size.lo, size.hi) if shard_writer is None and not sharded
+         else None)
+    if D is not None:
+        try:
+            sol = mpsolve(balanced(program, D), options=opts, progress=progress,
+                          executor=executor)
+        except SolverError as exc:
+            if "theta=" in str(exc):  # (a point named in the search's units, not the caller's)
+                scales = np.array2string(D, precision=3)
+                exc.args = (f"{exc} [theta in the search's balanced units: theta / {scales}]",
+                            *exc.args[1:])
+            raise
+        sol = unbalanced(sol, program, D)
+        sol.seconds = time.perf_counter() - t0
+        return sol
     region_tol = opts.region_tol * size.scale
     # the mp-LP's counters are in an mp-QP's stats too, at zero (as when one object
     # measured both programs: the reports keep their keys)

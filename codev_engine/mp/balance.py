@@ -1,0 +1,146 @@
+"""Parameters in balanced units: a diagonal power-of-two rescaling of ``theta``.
+
+Every length of the mp searches (the region tolerance, the step across a facet, the
+thinness of a ball) is relative to **one** number, the parameter set's largest width
+(``reduce.parameter_box``). A plant in badly matched units (a position in mm next to a
+velocity in km/s: widths 2e4 and 2e-2) then has a step across a facet as wide as the whole
+short axis; the mp-LP search of such a double integrator found one region that missed most
+of the feasible set (issue 38). The cure is at the cause: the search runs on
+``theta = D theta_s`` with ``D`` diagonal, so that no axis of the parameter box is much
+narrower than the widest one, and the regions and laws are mapped back.
+
+``D``'s entries are powers of two, so the program's columns times ``D`` and the laws'
+``K D^-1`` are exact in floating point (a region's rows are made unit-norm again after
+``A D^-1``, which rounds by an ulp). An axis within ``BALANCE_RATIO`` of the widest keeps
+``D_i = 1``: the problems in sensible units are solved exactly as before.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from codev_engine.mp.program import MpProgram
+from codev_engine.mp.reduce import parameter_box, reduce_program
+from codev_engine.mp.solution import MpSolution, RegionArrays
+
+__all__ = ["BALANCE_RATIO", "balanced", "parameter_scaling", "program_scaling", "rows_back",
+           "unbalanced"]
+
+#: an axis of the parameter box narrower than the widest by more than this factor is
+#: rescaled (a power of two, to the widest's width)
+BALANCE_RATIO = 64.0
+
+
+def parameter_scaling(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+    """The diagonal ``D`` (``theta = D theta_s``) that balances the box ``[lo, hi]``.
+
+    Parameters
+    ----------
+    lo, hi : (d,) ndarrays
+        The parameter set's bounding box (finite).
+
+    Returns
+    -------
+    (d,) ndarray or None
+        Powers of two, at most 1 (the widest axis keeps its units); None when every axis
+        is within ``BALANCE_RATIO`` of the widest (nothing to do).
+    """
+    width = np.asarray(hi, float) - np.asarray(lo, float)
+    top = float(np.max(width, initial=0.0))
+    if not np.isfinite(top) or top <= 0.0:
+        return None
+    # (a point-like axis, width 0, is left alone: there is no scale to match)
+    narrow = (width > 0.0) & (width * BALANCE_RATIO < top)
+    if not np.any(narrow):
+        return None
+    D = np.ones_like(width)
+    D[narrow] = np.exp2(np.round(np.log2(width[narrow] / top)))
+    return D
+
+
+def program_scaling(program: MpProgram) -> np.ndarray | None:
+    """``parameter_scaling`` of the program's parameter box (after ``reduce_program``).
+
+    Parameters
+    ----------
+    program : MpProgram
+
+    Returns
+    -------
+    (d,) ndarray or None
+    """
+    size = parameter_box(reduce_program(program))
+    return parameter_scaling(size.lo, size.hi)
+
+
+def balanced(program: MpProgram, D: np.ndarray) -> MpProgram:
+    """The program in ``theta_s = D^-1 theta``: every parameter column times ``D`` (exact).
+
+    Parameters
+    ----------
+    program : MpProgram
+    D : (d,) ndarray
+        Powers of two.
+
+    Returns
+    -------
+    MpProgram
+    """
+    eq = program.Aeq is not None
+    return MpProgram(
+        H=program.H, c=program.c, C=program.C * D, A=program.A, b=program.b,
+        F=program.F * D, A_theta=program.A_theta * D, b_theta=program.b_theta,
+        Aeq=program.Aeq, beq=program.beq, Feq=program.Feq * D if eq else None,
+        name=program.name,
+    )
+
+
+def rows_back(A: np.ndarray, b: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``A theta_s <= b`` in ``theta``: ``A D^-1``, made unit-norm again.
+
+    Parameters
+    ----------
+    A : (q, d) ndarray
+    b : (q,) ndarray
+    D : (d,) ndarray
+
+    Returns
+    -------
+    A, b : (q, d), (q,) ndarrays
+    """
+    A = A / D
+    if A.shape[0] == 0:
+        return A, b
+    norm = np.linalg.norm(A, axis=1)
+    norm[norm == 0.0] = 1.0
+    return A / norm[:, None], b / norm
+
+
+def unbalanced(sol: MpSolution, program: MpProgram, D: np.ndarray) -> MpSolution:
+    """A solution of ``balanced(program, D)`` as a solution of ``program``.
+
+    Parameters
+    ----------
+    sol : MpSolution
+        Regions, laws and domain in ``theta_s``.
+    program : MpProgram
+        The original program.
+    D : (d,) ndarray
+
+    Returns
+    -------
+    MpSolution
+        Regions ``A D^-1 theta <= b`` (unit rows), laws ``K D^-1`` (exact), the domain
+        likewise; the stats say how many axes were rescaled (``parameter_axes_scaled``).
+    """
+    ra = sol.regions
+    A, b = rows_back(ra.A, ra.b, D)
+    sA, sb = rows_back(ra.shared_A, ra.shared_b, D)
+    regions = RegionArrays(A, b, ra.offsets, ra.K / D, ra.k, ra.active, ra.active_offsets,
+                           ra.implied, sA, sb)
+    dA, db = (None, None) if sol.domain_A is None else rows_back(sol.domain_A,
+                                                                  sol.domain_b, D)
+    stats = dict(sol.stats)
+    stats["parameter_axes_scaled"] = int(np.sum(D != 1.0))
+    return MpSolution(program=program, regions=regions, domain_A=dA, domain_b=db,
+                      seconds=sol.seconds, stats=stats)
