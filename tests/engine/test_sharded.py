@@ -207,3 +207,28 @@ def test_a_worker_killed_while_the_workers_write_the_law_loses_nothing(
         assert killed and got.stats["shards_restored"] >= 1
         _same_function(serial, got.law)
         _wait_for_workers(client, killed[0])
+
+
+def test_kd_cells_partition_space_and_balance_the_weight():
+    """The end's cells (``shard_space.kd_cells``) are half-open boxes: every point is in
+    exactly one (the cuts' own coordinates and the sample's outliers too), and each holds
+    about its share of the weighted sample."""
+    from codev_engine.mp.shard_space import cell_of, kd_cells
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(3000, 3)) * [1.0, 4.0, 0.5]
+    w = np.where(pts[:, 0] > 0, 3.0, 1.0)  # (a shard of 3x the regions per sample)
+    for cells in (1, 2, 3, 5, 8):
+        lo, hi = kd_cells(pts, w, cells)
+        assert lo.shape == hi.shape == (cells, 3)
+        c = cell_of(pts, lo, hi)
+        share = np.bincount(c, weights=w, minlength=cells) / w.sum()
+        assert np.all(np.abs(share - 1 / cells) < 0.02), share
+        # the cuts themselves and far points are in exactly one cell
+        edges = np.vstack([np.where(np.isfinite(lo), lo, 0.0), np.full((1, 3), 1e300),
+                           np.full((1, 3), -1e300)])
+        assert np.all(cell_of(edges, lo, hi) < cells)
+    lo, hi = kd_cells(np.zeros((0, 2)), np.zeros(0), 4)  # (no region: 4 cells, all of space)
+    assert cell_of(np.array([[0.0, 0.0], [1.0, -1.0]]), lo, hi).shape == (2,)
+    lo, hi = kd_cells(np.ones((10, 2)), np.ones(10), 3)  # (all at one point: one cell)
+    assert len(set(cell_of(np.ones((10, 2)), lo, hi))) == 1
