@@ -183,7 +183,8 @@ def _centres_task(directory: str, j: int, seeds: RegionArrays, x0: np.ndarray,
 def _cut_task(directory: str, j: int, seeds: RegionArrays, lo: np.ndarray,
               hi: np.ndarray) -> tuple:
     """Worker side, step 3: shard ``j``'s regions to ``cell-<c>.npz`` by the cell of their
-    centre (from step 1's memory, else its files); (regions per cell, CPU seconds)."""
+    centre (from step 1's memory, else its files); (regions per cell, whether it read
+    them from the files, CPU seconds)."""
     from codev_engine.errors import SolverError
     from codev_engine.mp.sharded import _read, _write
 
@@ -208,7 +209,7 @@ def _cut_task(directory: str, j: int, seeds: RegionArrays, lo: np.ndarray,
             "active": part.active, "active_offsets": part.active_offsets,
             "implied": part.implied, "shared_A": part.shared_A, "shared_b": part.shared_b,
         })
-    return counts, time.process_time() - t0
+    return counts, held is None, time.process_time() - t0
 
 
 def _cell_task(directory: str, c: int, n: int, merge, finish) -> tuple:
@@ -264,7 +265,9 @@ def end_by_space(client, directory: str, n: int, seeds: list[RegionArrays], wher
         As ``sharded.sharded_walk``'s.
     totals : dict
         Updated with ``end_worker_cpu_seconds`` (also in ``worker_cpu_seconds``),
-        ``end_sample`` (the centres the client got) and the merge's counters.
+        ``end_sample`` (the centres the client got), ``end_restored`` (shards cut by a
+        worker that had not computed their centres: the first one was lost) and the
+        merge's counters.
     gather : callable
         ``sharded._gather_retrying``.
 
@@ -294,7 +297,9 @@ def end_by_space(client, directory: str, n: int, seeds: list[RegionArrays], wher
     lo, hi = kd_cells(points, np.concatenate(wts) if wts else np.zeros(0), n)
     totals["end_sample"] = totals.get("end_sample", 0) + points.shape[0]
     cut = tasks(_cut_task, "cut", lambda j: (directory, j, seeds[j], lo, hi))
-    cpu += sum(t for _, t in cut)
+    cpu += sum(t for _, _, t in cut)
+    # (a worker lost after step 1: its shard was read again from the files)
+    totals["end_restored"] = totals.get("end_restored", 0) + sum(r for _, r, _ in cut)
     ends = tasks(_cell_task, "end", lambda c: (directory, c, n, merge, finish))
     out = []
     for answer, st, found, t in ends:

@@ -232,3 +232,57 @@ def test_kd_cells_partition_space_and_balance_the_weight():
     assert cell_of(np.array([[0.0, 0.0], [1.0, -1.0]]), lo, hi).shape == (2,)
     lo, hi = kd_cells(np.ones((10, 2)), np.ones(10), 3)  # (all at one point: one cell)
     assert len(set(cell_of(np.ones((10, 2)), lo, hi))) == 1
+
+
+@pytest.mark.slow  # (two searches and a worker restarted: ~40 s on a loaded machine)
+def test_a_worker_killed_in_the_search_s_last_step_writes_the_same_law(
+        monkeypatch, tmp_path):
+    """SIGKILL to a worker while it runs a task of the end (``shard_space``: the regions
+    cut by space): its tasks run again on the other worker from the files, and the law
+    written is the one written without the kill, shard by shard."""
+    import threading
+    import time
+
+    from codev_engine.law_shards import ShardedLaw, ShardWriter
+
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(sharded, "BUDGET", 128)
+    p = _program()
+    with ce.Executor(workers=2) as ex:
+        client = ex.client
+        ce.mpsolve(p, executor=ex, sharded=True,
+                   shard_writer=ShardWriter(str(tmp_path / "calm"), np.zeros(p.d),
+                                            rows=(0, p.nz)))
+        pids = client.run(os.getpid)
+        killed: list[int] = []
+
+        def kill_in_the_last_step() -> None:
+            for _ in range(20000):  # (a task cutting a shard by space, on its worker)
+                for address, keys in client.processing().items():
+                    if any("-cut-" in str(k) for k in keys) and address in pids:
+                        os.kill(pids[address], signal.SIGKILL)
+                        killed.append(pids[address])
+                        return
+                time.sleep(0.002)
+
+        def progress(found: int) -> None:
+            if not getattr(progress, "started", False):
+                progress.started = True
+                threading.Thread(target=kill_in_the_last_step, daemon=True).start()
+
+        got = ce.mpsolve(p, executor=ex, sharded=True, progress=progress,
+                         shard_writer=ShardWriter(str(tmp_path / "killed"), np.zeros(p.d),
+                                                  rows=(0, p.nz)))
+        assert killed, "no task of the last step was seen on a worker"
+        # (the killed worker's shard was cut again elsewhere, from its files)
+        assert got.stats["end_restored"] >= 1
+        _wait_for_workers(client, killed[0])
+    calm, law = ShardedLaw(tmp_path / "calm"), ShardedLaw(tmp_path / "killed")
+    assert law.shards == calm.shards == 2 and got.num_regions == calm.num_regions
+    np.testing.assert_array_equal(law.offsets, calm.offsets)
+    for j in range(law.shards):
+        a, b = law.shard(j), calm.shard(j)
+        for name in ("F", "G"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        for x, y in zip(a.A + a.b, b.A + b.b, strict=True):
+            np.testing.assert_array_equal(x, y)
