@@ -108,6 +108,24 @@ def _peak_mb() -> float:
     return float("nan")
 
 
+def _shards_per_point(law, points: int = 20000) -> dict:
+    """How many shard boxes (the shards ``locate`` may read) hold a point of the law's
+    domain: points uniform in the shards' boxes' hull, kept where the domain's rows hold
+    (the manifest alone: no shard is read)."""
+    boxes = [(lo, hi) for lo, hi in zip(law._lo, law._hi, strict=True) if lo is not None]
+    if not boxes:
+        return {}
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
+    X = np.random.default_rng(0).uniform(lo, hi, size=(points, lo.size))
+    if law.domain_A is not None and law.domain_A.shape[0]:
+        X = X[np.all(X @ law.domain_A.T <= law.domain_b, axis=1)]
+    k = law.shards_at(X)
+    return {"shards": law.shards, "points": int(X.shape[0]),
+            "mean": float(k.mean()) if k.size else float("nan"),
+            "max": int(k.max(initial=0)), "one": float(np.mean(k == 1)) if k.size else 0.0}
+
+
 def _cpu(client) -> float:
     return sum(client.run(time.process_time).values())
 
@@ -258,6 +276,10 @@ def main(argv: list[str] | None = None) -> int:
                     "coordinator_cpu_seconds": st.get("coordinator_cpu_seconds"),
                     "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
                     "worker_cpu_seconds": st.get("worker_cpu_seconds"),
+                    # (the end on the workers: centres, the cut by space, merge and write)
+                    "end_worker_cpu_seconds": st.get("end_worker_cpu_seconds"),
+                    "shards_per_point": (_shards_per_point(sol.law) if writer is not None
+                                         and hasattr(sol, "law") else None),
                     "rounds_client_cpu_seconds": st.get("rounds_client_cpu_seconds"),
                     "setup_client_cpu_seconds": st.get("setup_client_cpu_seconds"),
                     # (this process before the sharded walk: the program reduced, the
@@ -295,6 +317,13 @@ def main(argv: list[str] | None = None) -> int:
                              " (domain from the shards' facets, manifest, coverage)"
                              if d["finish_client_cpu_seconds"] is not None else ""),
                           flush=True)
+                    if d["shards_per_point"]:
+                        q = d["shards_per_point"]
+                        print(f"  the law's shards: {q['shards']}; a point of the domain is "
+                              f"in {q['mean']:.2f} shard boxes on average (max {q['max']}, "
+                              f"one box: {100 * q['one']:.0f} %; {q['points']} points); "
+                              f"the end on the workers {d['end_worker_cpu_seconds'] or 0:.1f} s "
+                              "CPU", flush=True)
             if w == max(counts):
                 n = 2000
                 t1 = time.perf_counter()

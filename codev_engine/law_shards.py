@@ -654,6 +654,26 @@ class ShardedLaw:
                 out[near[hit]] = idx[hit] + self.offsets[j]
         return out
 
+    def shards_at(self, X: np.ndarray) -> np.ndarray:
+        """How many shards' boxes hold each point: the shards :meth:`locate` may read for
+        it (from the manifest alone; a measure of how the shards cut space).
+
+        Parameters
+        ----------
+        X : (P, n) array_like
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        out = np.zeros(X.shape[0], dtype=np.int64)
+        for j in range(self.shards):
+            if self._lo[j] is not None:
+                out += (np.all(X >= self._lo[j] - _BOX_TOL, axis=1)
+                        & np.all(X <= self._hi[j] + _BOX_TOL, axis=1))
+        return out
+
     def evaluate(self, X: np.ndarray) -> np.ndarray:
         """The control ``u = F_i x + G_i`` (NaN rows outside the domain).
 
