@@ -172,7 +172,9 @@ def _centres_task(directory: str, j: int, seeds: RegionArrays, x0: np.ndarray,
     t0 = time.process_time()
     regions = _regions(directory, j, seeds)
     centres = region_centres(regions, x0, bound)
-    _write(Path(directory) / f"{j}" / "centres.npz", {"centres": centres})
+    folder = Path(directory) / f"{j}"
+    folder.mkdir(parents=True, exist_ok=True)  # (a shard that found no region has none)
+    _write(folder / "centres.npz", {"centres": centres})
     _HELD[(directory, j)] = (regions, centres)
     R = centres.shape[0]
     # (evenly spread over the shard's regions: deterministic)
