@@ -108,22 +108,27 @@ def _peak_mb() -> float:
     return float("nan")
 
 
-def _shards_per_point(law, points: int = 20000) -> dict:
-    """How many shard boxes (the shards ``locate`` may read) hold a point of the law's
-    domain: points uniform in the shards' boxes' hull, kept where the domain's rows hold
-    (the manifest alone: no shard is read)."""
-    boxes = [(lo, hi) for lo, hi in zip(law._lo, law._hi, strict=True) if lo is not None]
-    if not boxes:
+def _shards_per_point(law, points: int = 4000) -> dict:
+    """How many shard boxes (the shards ``locate`` may read) hold a point of the law, and
+    how many shards ``locate`` looks in for it: the Chebyshev centres of ``points``
+    regions drawn at random (this reads the shards; a uniform draw in the domain's box
+    misses the regions of a --stop-at prefix, and a draw in a region's box its sliver)."""
+    from codev_engine.geometry.polytope import chebyshev_ball
+
+    if not law.num_regions:
         return {}
-    lo = np.min([b[0] for b in boxes], axis=0)
-    hi = np.max([b[1] for b in boxes], axis=0)
-    X = np.random.default_rng(0).uniform(lo, hi, size=(points, lo.size))
-    if law.domain_A is not None and law.domain_A.shape[0]:
-        X = X[np.all(X @ law.domain_A.T <= law.domain_b, axis=1)]
+    rng = np.random.default_rng(0)
+    pick = rng.integers(0, law.num_regions, size=points)
+    X = np.array([chebyshev_ball(law.A[int(i)], law.b[int(i)])[0] for i in pick])
+    X = X[type(law)(law.dir, cache=law.shards).locate(X) >= 0]
     k = law.shards_at(X)
+    # the look-ups ``locate`` makes (its cell's shard first, when the manifest has cells)
+    fresh = type(law)(law.dir, cache=law.shards)
+    fresh.locate(X)
     return {"shards": law.shards, "points": int(X.shape[0]),
             "mean": float(k.mean()) if k.size else float("nan"),
-            "max": int(k.max(initial=0)), "one": float(np.mean(k == 1)) if k.size else 0.0}
+            "max": int(k.max(initial=0)), "one": float(np.mean(k == 1)) if k.size else 0.0,
+            "asked": fresh.asked / max(1, X.shape[0])}
 
 
 def _cpu(client) -> float:
@@ -322,6 +327,7 @@ def main(argv: list[str] | None = None) -> int:
                         print(f"  the law's shards: {q['shards']}; a point of the domain is "
                               f"in {q['mean']:.2f} shard boxes on average (max {q['max']}, "
                               f"one box: {100 * q['one']:.0f} %; {q['points']} points); "
+                              f"locate looks in {q['asked']:.2f} shards per point; "
                               f"the end on the workers {d['end_worker_cpu_seconds'] or 0:.1f} s "
                               "CPU", flush=True)
             if w == max(counts):

@@ -276,7 +276,8 @@ def end_by_space(client, directory: str, n: int, seeds: list[RegionArrays], wher
     Returns
     -------
     list of tuple
-        ``(answer, stats, regions)`` for each cell, in order.
+        ``(answer, stats, regions, (lo, hi))`` for each cell, in order: ``lo <= x < hi``
+        is the cell (-inf / inf on its outer sides).
     """
     tag = os.path.basename(directory)
 
@@ -304,11 +305,11 @@ def end_by_space(client, directory: str, n: int, seeds: list[RegionArrays], wher
     totals["end_restored"] = totals.get("end_restored", 0) + sum(r for _, r, _ in cut)
     ends = tasks(_cell_task, "end", lambda c: (directory, c, n, merge, finish))
     out = []
-    for answer, st, found, t in ends:
+    for c, (answer, st, found, t) in enumerate(ends):
         for key, v in st.items():
             totals[key] = totals.get(key, 0) + v
         cpu += t
-        out.append((answer, st, found))
+        out.append((answer, st, found, (lo[c], hi[c])))
     totals["worker_cpu_seconds"] = totals.get("worker_cpu_seconds", 0.0) + cpu
     totals["end_worker_cpu_seconds"] = totals.get("end_worker_cpu_seconds", 0.0) + cpu
     return out

@@ -468,8 +468,8 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     -------
     RegionArrays or list of tuple
         Every region (the ones given and the shards'), sorted by active set; with
-        ``finish``, its answer for each cell with the cell's merge stats and its number
-        of regions before the merge: ``(answer, stats, regions)``.
+        ``finish``, its answer for each cell with the cell's merge stats, its number
+        of regions before the merge and the cell: ``(answer, stats, regions, (lo, hi))``.
     """
     import copy
 

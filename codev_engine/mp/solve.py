@@ -228,17 +228,21 @@ def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, 
     regions), the manifest, and the coverage check on the sharded law."""
     cpu0 = time.process_time()
     d = red.At.shape[1]
-    facets = np.vstack([f for (_, f), _, _ in shards] + [np.zeros((0, d + 1))])
+    facets = np.vstack([f for (_, f), _, _, _ in shards] + [np.zeros((0, d + 1))])
     # (a facet of the feasible set split between regions is in each of them)
     facets = facets[unique_rows(facets, 7)] if facets.shape[0] else facets
-    found = sum(k for _, _, k in shards)
+    found = sum(k for _, _, k, _ in shards)
     if found:
         domain = _domain_rows(red, facets, size.scale, size.box)
     else:
         domain = _empty_domain(red)
     stats["domain_facets"] = int(facets.shape[0])
     stats["regions_before_merge"] = found
-    law = writer.open([entry for (entry, _), _, _ in shards], domain[0], domain[1],
+    # each shard's cell of space (its regions' centres are in it), in the law's variables:
+    # ``locate`` asks first the shard whose cell holds the point
+    entries = [dict(entry, cell_lo=(lo + writer.op).tolist(), cell_hi=(hi + writer.op).tolist())
+               for (entry, _), _, _, (lo, hi) in shards]
+    law = writer.open(entries, domain[0], domain[1],
                       {"stats": stats, "regions_before_merge": found})
     offsets = law.offsets
 

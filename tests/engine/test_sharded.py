@@ -172,6 +172,11 @@ def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
                                np.sort(np.hstack([serial.domain_A, serial.domain_b[:, None]]),
                                        0), atol=1e-9)
     _same_function(serial, law)
+    # the shards are cells of space: locate asks the point's cell's shard first
+    X = np.random.default_rng(4).uniform(-1, 1, size=(500, 4))
+    fresh = ShardedLaw(tmp_path / "law")
+    np.testing.assert_array_equal(fresh.locate(X) >= 0, serial.locate(X) >= 0)
+    assert fresh.asked < law.shards_at(X).sum()
     # a shard damaged after the fact is refused, naming it
     path = tmp_path / "law" / "shard-1.npz"
     data = bytearray(path.read_bytes())
