@@ -256,9 +256,10 @@ def main(argv: list[str] | None = None) -> int:
                     st, regions = sol.stats, sol.num_regions
                     digest = (_digest(sol) if writer is None
                               else f"{sol.law.shards} shards written by the workers")
-                except ce.SolverError:  # (--max-regions: the prefix)
+                except ce.SolverError as exc:  # (--max-regions: the prefix)
                     regions, digest = found[0], f"prefix of {found[0]}"
-                    st = _LAST_STATS
+                    st, sol = _LAST_STATS, None
+                    print(f"  stopped: {exc}", flush=True)
                 wall = time.perf_counter() - t1
                 out["mp"][w] = {
                     "seconds": wall, "regions": regions, "digest": digest,
@@ -283,8 +284,6 @@ def main(argv: list[str] | None = None) -> int:
                     "worker_cpu_seconds": st.get("worker_cpu_seconds"),
                     # (the end on the workers: centres, the cut by space, merge and write)
                     "end_worker_cpu_seconds": st.get("end_worker_cpu_seconds"),
-                    "shards_per_point": (_shards_per_point(sol.law) if writer is not None
-                                         and hasattr(sol, "law") else None),
                     "rounds_client_cpu_seconds": st.get("rounds_client_cpu_seconds"),
                     "setup_client_cpu_seconds": st.get("setup_client_cpu_seconds"),
                     # (this process before the sharded walk: the program reduced, the
@@ -293,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
                     - (st.get("client_cpu_seconds") or 0.0),
                 }
                 d = out["mp"][w]
+                # (after the client's CPU is read: this reads the law's shards here)
+                d["shards_per_point"] = (_shards_per_point(sol.law) if writer is not None
+                                         and hasattr(sol, "law") else None)
                 print(f"mp {args.mp}, {w} workers: {wall:.1f} s, {d['regions']} regions "
                       f"[{d['digest']}], {d['tasks']} tasks ({d['task_seconds']:.1f} s on "
                       f"workers), client CPU {d['client_cpu_seconds']:.1f} s (the walk's thread "
