@@ -352,14 +352,14 @@ class ShardWriter:
 
 
 def _cell(entry: dict, n: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """A manifest entry's cell ``(lo, hi)`` (None without one, or a malformed one: the
-    cell only orders ``locate``'s look-ups, its boxes decide)."""
+    """A manifest entry's cell ``(lo, hi)``, null for an open side (None without one, or
+    a malformed one: the cell only orders ``locate``'s look-ups, its boxes decide)."""
     try:
-        lo = np.asarray(entry["cell_lo"], dtype=float).reshape(n)
-        hi = np.asarray(entry["cell_hi"], dtype=float).reshape(n)
+        lo = np.array([-np.inf if v is None else float(v) for v in entry["cell_lo"]])
+        hi = np.array([np.inf if v is None else float(v) for v in entry["cell_hi"]])
     except (KeyError, TypeError, ValueError):
         return None
-    return lo, hi
+    return (lo, hi) if lo.shape == hi.shape == (n,) else None
 
 
 def _json(obj):

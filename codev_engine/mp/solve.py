@@ -240,7 +240,11 @@ def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, 
     stats["regions_before_merge"] = found
     # each shard's cell of space (its regions' centres are in it), in the law's variables:
     # ``locate`` asks first the shard whose cell holds the point
-    entries = [dict(entry, cell_lo=(lo + writer.op).tolist(), cell_hi=(hi + writer.op).tolist())
+    # (an open side as null: the manifest stays strict JSON)
+    def side(v: np.ndarray) -> list:
+        return [float(x) if np.isfinite(x) else None for x in v + writer.op]
+
+    entries = [dict(entry, cell_lo=side(lo), cell_hi=side(hi))
                for (entry, _), _, _, (lo, hi) in shards]
     law = writer.open(entries, domain[0], domain[1],
                       {"stats": stats, "regions_before_merge": found})

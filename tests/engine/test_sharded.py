@@ -7,6 +7,7 @@ rebuilt from its checked files on another worker. A torn shard file is refused.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 
@@ -177,6 +178,12 @@ def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
     fresh = ShardedLaw(tmp_path / "law")
     np.testing.assert_array_equal(fresh.locate(X) >= 0, serial.locate(X) >= 0)
     assert fresh.asked < law.shards_at(X).sum()
+    assert all(cell is not None for cell in fresh._cells)  # (the manifest's, read back)
+
+    def strict(name: str):
+        raise AssertionError(f"the manifest is not strict JSON: {name}")
+
+    json.loads((tmp_path / "law" / "shards.json").read_text(), parse_constant=strict)
     # a shard damaged after the fact is refused, naming it
     path = tmp_path / "law" / "shard-1.npz"
     data = bytearray(path.read_bytes())
