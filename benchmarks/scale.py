@@ -26,6 +26,12 @@ the spec on it: the workers' plant enclosures compiled), then timed:
 - the scheduler's per-task overhead on the largest cluster: 2000 no-op tasks submitted at
   once (wall time per task), and one task's round trip (median of 50).
 
+With ``--sharded --out-shards DIR`` the workers write the law (``mpsolve(shard_writer=...)``)
+and the run also reports the end's CPU on the workers (``end_worker_cpu_seconds``: the
+regions' centres, the cut by space, the merge and the law files) and, on the law written,
+how many shard boxes hold a point and how many shards ``locate`` asks per point (the
+Chebyshev centres of 4,000 regions drawn at random; read after the client's CPU is taken).
+
 The load average is printed before and after. It is a benchmark, not a test: it prints a
 table and exits 0 (the equality checks print ``DIFFER`` if they fail).
 """
