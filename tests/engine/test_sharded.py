@@ -298,3 +298,25 @@ def test_a_worker_killed_in_the_search_s_last_step_writes_the_same_law(
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
         for x, y in zip(a.A + a.b, b.A + b.b, strict=True):
             np.testing.assert_array_equal(x, y)
+
+
+def test_region_centres_are_points_of_their_regions():
+    """The end stores a region by its centre (``shard_space.region_centres``): a point of
+    the region (a Chebyshev centre); of an empty one (none in a law), a finite point."""
+    from codev_engine.mp.shard_space import region_centres
+    from codev_engine.mp.solution import RegionArrays
+
+    eye = np.eye(2)
+    box = lambda lo, hi: (np.vstack([eye, -eye]), np.r_[hi, -np.asarray(lo)])  # noqa: E731
+    regions = [box([0.0, 0.0], [4.0, 1.0]), box([-3.0, -3.0], [-2.0, 5.0]),
+               (np.array([[1.0, 0.0], [-1.0, 0.0]]), np.array([-1.0, 0.0]))]  # (empty)
+    A = np.vstack([a for a, _ in regions])
+    b = np.concatenate([b for _, b in regions])
+    ra = RegionArrays(A, b, np.array([0, 4, 8, 10]), np.zeros((3, 1, 2)), np.zeros((3, 1)),
+                      np.zeros(0, np.int64), np.zeros(4, np.int64))
+    x0 = np.array([7.0, 7.0])
+    c = region_centres(ra, x0, 10.0)
+    assert c.shape == (3, 2) and np.all(np.isfinite(c))
+    for i in range(2):
+        assert np.all(regions[i][0] @ c[i] <= regions[i][1] - 0.4)  # (inside, with a ball)
+    assert abs(c[2, 0] + 0.5) < 1e-9  # (the LP's ball of radius -0.5: the least violation)
