@@ -45,8 +45,9 @@ _HELD: dict[tuple[str, int], tuple[RegionArrays, np.ndarray]] = {}
 def region_centres(regions: RegionArrays, x0: np.ndarray, bound: float) -> np.ndarray:
     """A point of each region: its Chebyshev centre (one LP; the compiled ``lp_kernel``).
 
-    A region whose LP fails gets ``x0``: the centre only decides which cell stores the
-    region, never the law.
+    A region whose LP fails gets ``x0`` (an empty one, which a law never has, the LP's
+    point of least violation): the centre only decides which cell stores the region,
+    never the law.
 
     Parameters
     ----------
