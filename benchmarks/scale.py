@@ -26,6 +26,12 @@ the spec on it: the workers' plant enclosures compiled), then timed:
 - the scheduler's per-task overhead on the largest cluster: 2000 no-op tasks submitted at
   once (wall time per task), and one task's round trip (median of 50).
 
+With ``--sharded --out-shards DIR`` the workers write the law (``mpsolve(shard_writer=...)``)
+and the run also reports the end's CPU on the workers (``end_worker_cpu_seconds``: the
+regions' centres, the cut by space, the merge and the law files) and, on the law written,
+how many shard boxes hold a point and how many shards ``locate`` asks per point (the
+Chebyshev centres of 4,000 regions drawn at random; read after the client's CPU is taken).
+
 The load average is printed before and after. It is a benchmark, not a test: it prints a
 table and exits 0 (the equality checks print ``DIFFER`` if they fail).
 """
@@ -106,6 +112,29 @@ def _peak_mb() -> float:
     except OSError:
         pass
     return float("nan")
+
+
+def _shards_per_point(law, points: int = 4000) -> dict:
+    """How many shard boxes (the shards ``locate`` may read) hold a point of the law, and
+    how many shards ``locate`` looks in for it: the Chebyshev centres of ``points``
+    regions drawn at random (this reads the shards; a uniform draw in the domain's box
+    misses the regions of a --stop-at prefix, and a draw in a region's box its sliver)."""
+    from codev_engine.geometry.polytope import chebyshev_ball
+
+    if not law.num_regions:
+        return {}
+    rng = np.random.default_rng(0)
+    pick = rng.integers(0, law.num_regions, size=points)
+    X = np.array([chebyshev_ball(law.A[int(i)], law.b[int(i)])[0] for i in pick])
+    X = X[type(law)(law.dir, cache=law.shards).locate(X) >= 0]
+    k = law.shards_at(X)
+    # the look-ups ``locate`` makes (its cell's shard first, when the manifest has cells)
+    fresh = type(law)(law.dir, cache=law.shards)
+    fresh.locate(X)
+    return {"shards": law.shards, "points": int(X.shape[0]),
+            "mean": float(k.mean()) if k.size else float("nan"),
+            "max": int(k.max(initial=0)), "one": float(np.mean(k == 1)) if k.size else 0.0,
+            "asked": fresh.asked / max(1, X.shape[0])}
 
 
 def _cpu(client) -> float:
@@ -233,9 +262,10 @@ def main(argv: list[str] | None = None) -> int:
                     st, regions = sol.stats, sol.num_regions
                     digest = (_digest(sol) if writer is None
                               else f"{sol.law.shards} shards written by the workers")
-                except ce.SolverError:  # (--max-regions: the prefix)
+                except ce.SolverError as exc:  # (--max-regions: the prefix)
                     regions, digest = found[0], f"prefix of {found[0]}"
-                    st = _LAST_STATS
+                    st, sol = _LAST_STATS, None
+                    print(f"  stopped: {exc}", flush=True)
                 wall = time.perf_counter() - t1
                 out["mp"][w] = {
                     "seconds": wall, "regions": regions, "digest": digest,
@@ -258,6 +288,8 @@ def main(argv: list[str] | None = None) -> int:
                     "coordinator_cpu_seconds": st.get("coordinator_cpu_seconds"),
                     "rounds": st.get("rounds"), "merge_cpu_seconds": st.get("merge_cpu_seconds"),
                     "worker_cpu_seconds": st.get("worker_cpu_seconds"),
+                    # (the end on the workers: centres, the cut by space, merge and write)
+                    "end_worker_cpu_seconds": st.get("end_worker_cpu_seconds"),
                     "rounds_client_cpu_seconds": st.get("rounds_client_cpu_seconds"),
                     "setup_client_cpu_seconds": st.get("setup_client_cpu_seconds"),
                     # (this process before the sharded walk: the program reduced, the
@@ -266,6 +298,9 @@ def main(argv: list[str] | None = None) -> int:
                     - (st.get("client_cpu_seconds") or 0.0),
                 }
                 d = out["mp"][w]
+                # (after the client's CPU is read: this reads the law's shards here)
+                d["shards_per_point"] = (_shards_per_point(sol.law) if writer is not None
+                                         and hasattr(sol, "law") else None)
                 print(f"mp {args.mp}, {w} workers: {wall:.1f} s, {d['regions']} regions "
                       f"[{d['digest']}], {d['tasks']} tasks ({d['task_seconds']:.1f} s on "
                       f"workers), client CPU {d['client_cpu_seconds']:.1f} s (the walk's thread "
@@ -295,6 +330,14 @@ def main(argv: list[str] | None = None) -> int:
                              " (domain from the shards' facets, manifest, coverage)"
                              if d["finish_client_cpu_seconds"] is not None else ""),
                           flush=True)
+                    if d["shards_per_point"]:
+                        q = d["shards_per_point"]
+                        print(f"  the law's shards: {q['shards']}; a point of the domain is "
+                              f"in {q['mean']:.2f} shard boxes on average (max {q['max']}, "
+                              f"one box: {100 * q['one']:.0f} %; {q['points']} points); "
+                              f"locate looks in {q['asked']:.2f} shards per point; "
+                              f"the end on the workers {d['end_worker_cpu_seconds'] or 0:.1f} s "
+                              "CPU", flush=True)
             if w == max(counts):
                 n = 2000
                 t1 = time.perf_counter()

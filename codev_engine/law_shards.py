@@ -10,7 +10,8 @@ manifest, the first time a question needs it:
 
 - :meth:`ShardedLaw.regions_meeting` reads only the shards whose box meets the box asked;
 - :meth:`ShardedLaw.locate` / :meth:`ShardedLaw.evaluate` only the shards whose box holds
-  one of the points;
+  one of the points (first the shard whose *cell* holds it, when the manifest records the
+  cells of space the sharded search cut the regions by: most points are answered there);
 - ``law.A[i]``, ``law.F[i]`` (and ``law.F[idx]`` for an index array) the shards of those
   regions.
 
@@ -350,6 +351,17 @@ class ShardWriter:
         return ShardedLaw(self.directory)
 
 
+def _cell(entry: dict, n: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """A manifest entry's cell ``(lo, hi)``, null for an open side (None without one, or
+    a malformed one: the cell only orders ``locate``'s look-ups, its boxes decide)."""
+    try:
+        lo = np.array([-np.inf if v is None else float(v) for v in entry["cell_lo"]])
+        hi = np.array([np.inf if v is None else float(v) for v in entry["cell_hi"]])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return (lo, hi) if lo.shape == hi.shape == (n,) else None
+
+
 def _json(obj):
     if isinstance(obj, np.generic):
         return obj.item()
@@ -454,6 +466,9 @@ class ShardedLaw:
         # each shard's box (None: no region), to skip the shards a question does not meet
         self._lo = [None if e.get("lo") is None else np.asarray(e["lo"], float) for e in shards]
         self._hi = [None if e.get("hi") is None else np.asarray(e["hi"], float) for e in shards]
+        # each shard's cell of space, when the sharded search cut its regions by space
+        # (``lo <= x < hi``, from the regions' centres): ``locate`` asks it first
+        self._cells = [_cell(e, self._n) for e in shards]
         # the domain, when the manifest holds it (the sharded search's workers write their
         # shards before it is known); else the shards' own
         self._domain = None
@@ -468,6 +483,7 @@ class ShardedLaw:
         self._cache: OrderedDict[int, ExplicitLaw] = OrderedDict()
         self._most = max(1, int(cache))
         self.loads = 0  # shard files read (and checked) so far
+        self.asked = 0  # (point, shard) pairs ``locate`` has looked up in a shard so far
         self.A, self.b = _Rows(self, "A"), _Rows(self, "b")
         self.F, self.G = _Rows(self, "F"), _Rows(self, "G")
 
@@ -619,8 +635,10 @@ class ShardedLaw:
         return None if self.domain_A is None else (self.domain_A, self.domain_b)
 
     def locate(self, X: np.ndarray) -> np.ndarray:
-        """Region index of each point (-1 outside the domain): the first shard, in the
-        manifest's order, whose regions hold it.
+        """Region index of each point (-1 outside the domain), from a shard whose regions
+        hold it: first the shard whose cell holds the point (a manifest of the sharded
+        search: ``cell_lo``, ``cell_hi``), then the others whose box holds it, in the
+        manifest's order (:attr:`asked` counts the look-ups).
 
         Parameters
         ----------
@@ -642,16 +660,48 @@ class ShardedLaw:
             norm = np.maximum(np.linalg.norm(dA, axis=1), 1e-300)
             outside = np.any((X @ dA.T - db) / norm > 1e-6 * (1.0 + np.abs(db) / norm),
                              axis=1)
+        # first the shard whose cell holds the point (most regions about a point have
+        # their centre in its cell), then any other whose box holds it
+        first = np.full(X.shape[0], -1, dtype=np.int64)
+        for j, cell in enumerate(self._cells):
+            if cell is not None:
+                first[np.all((X >= cell[0]) & (X < cell[1]), axis=1)] = j
         for j in range(self.shards):
-            if self._lo[j] is None:
-                continue
-            todo = np.flatnonzero((out < 0) & ~outside)
-            near = todo[np.all(X[todo] >= self._lo[j] - _BOX_TOL, axis=1)
-                        & np.all(X[todo] <= self._hi[j] + _BOX_TOL, axis=1)]
-            if near.size:
-                idx = self.shard(j).locate(X[near])
-                hit = idx >= 0
-                out[near[hit]] = idx[hit] + self.offsets[j]
+            self._ask(j, X, np.flatnonzero((first == j) & ~outside), out)
+        for j in range(self.shards):
+            self._ask(j, X, np.flatnonzero((out < 0) & ~outside & (first != j)), out)
+        return out
+
+    def _ask(self, j: int, X: np.ndarray, todo: np.ndarray, out: np.ndarray) -> None:
+        """Locate the points ``X[todo]`` that shard ``j``'s box holds in its regions."""
+        if self._lo[j] is None or not todo.size:
+            return
+        near = todo[np.all(X[todo] >= self._lo[j] - _BOX_TOL, axis=1)
+                    & np.all(X[todo] <= self._hi[j] + _BOX_TOL, axis=1)]
+        if near.size:
+            self.asked += int(near.size)
+            idx = self.shard(j).locate(X[near])
+            hit = idx >= 0
+            out[near[hit]] = idx[hit] + self.offsets[j]
+
+    def shards_at(self, X: np.ndarray) -> np.ndarray:
+        """How many shards' boxes hold each point: the shards :meth:`locate` may read for
+        it (from the manifest alone; a measure of how the shards cut space).
+
+        Parameters
+        ----------
+        X : (P, n) array_like
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        out = np.zeros(X.shape[0], dtype=np.int64)
+        for j in range(self.shards):
+            if self._lo[j] is not None:
+                out += (np.all(X >= self._lo[j] - _BOX_TOL, axis=1)
+                        & np.all(X <= self._hi[j] + _BOX_TOL, axis=1))
         return out
 
     def evaluate(self, X: np.ndarray) -> np.ndarray:

@@ -31,6 +31,11 @@ set alone (the compiled kernel's certificates, ``mpqp._Kernel._chebyshev``), so 
 active sets reached, and each one's region, is the same however the walk is split. The
 numbering is made canonical at the end: the regions are sorted by active set
 (``RegionArrays.active_order``) before the laws are merged (``mpqp._merge_equal_laws``).
+
+**The end** (with ``finish``: the workers write the law): the regions are re-partitioned by
+space on the workers (``shard_space``): the law's shard ``c`` holds the regions whose
+centre lies in the ``c``-th cell of a k-d split, so a question about a point reads the one
+or two shards near it. The client gets a sample of centres and sends the cuts, never a region.
 """
 
 from __future__ import annotations
@@ -313,10 +318,12 @@ def cached_shards() -> int:
 
 def _forget(directory: str) -> int:
     """Worker side: drop the cached shards of a search."""
+    from codev_engine.mp.shard_space import forget
+
     gone = [key for key in _CACHE if key[0] == directory]
     for key in gone:
         del _CACHE[key]
-    return len(gone)
+    return len(gone) + forget(directory)
 
 
 def read_shards(directory: str | os.PathLike) -> RegionArrays:
@@ -360,46 +367,21 @@ def _read_parts(folder: Path) -> list[RegionArrays]:
     return parts
 
 
-def _finish(directory: str, j: int, seeds: RegionArrays, merge, finish) -> tuple:
-    """Worker side: shard ``j``'s regions (its part files and the seeds it owns), sorted
-    by active set, equal laws merged (``merge``), handed to ``finish`` (which writes the
-    shard's law file); (``finish``'s answer, stats, regions, CPU seconds). A pure function
-    of the files: run twice (a worker lost), it writes the same file."""
-    t0 = time.process_time()
-    parts = _read_parts(Path(directory) / f"{j}")
-    if len(seeds):
-        parts.append(seeds)
-    regions = RegionArrays.concat(parts) if parts else seeds
-    regions = regions.take(regions.active_order())
-    stats: dict = {}
-    found = len(regions)
-    regions = merge(regions, stats)
-    answer = finish(regions, j)
-    return answer, stats, found, time.process_time() - t0
-
-
 def _finish_on_workers(client, directory: str, n: int, regions: list, g, kernel,
                        where: dict, merge, finish, totals: dict) -> list[tuple]:
-    """Each shard's law written by the worker that holds it (``_finish``); the given
-    regions (the few hundred found before the walk was sharded) each to its owner."""
+    """The law's shards written by the workers, the regions re-partitioned by space on the
+    way (``shard_space.end_by_space``); the given regions (the few hundred found before the
+    walk was sharded) each to the hash shard that owns it."""
+    from codev_engine.mp.shard_space import end_by_space
+
     seeds = RegionArrays.from_regions(regions, kernel.nz, kernel.d)
     keys = (np.stack([g.key(a) for a in (r.active for r in regions)]) if regions
             else np.zeros((0, g.W), np.uint64))
     own = owners(keys, n)
-    # (cancelled: run again, as a round is; the same files)
-    results = _gather_retrying(client, lambda attempt: [
-        client.submit(_finish, directory, j, seeds.take(np.flatnonzero(own == j)), merge,
-                      finish, workers=[where[j]], allow_other_workers=True, pure=False,
-                      key=f"codev-shard-{os.path.basename(directory)}-{j}-end-{attempt}")
-        for j in range(n)
-    ], "last step", totals)
-    out = []
-    for answer, st, found, cpu in results:
-        for key, v in st.items():
-            totals[key] = totals.get(key, 0) + v
-        totals["worker_cpu_seconds"] = totals.get("worker_cpu_seconds", 0.0) + cpu
-        out.append((answer, st, found))
-    return out
+    return end_by_space(client, directory, n,
+                        [seeds.take(np.flatnonzero(own == j)) for j in range(n)], where,
+                        np.asarray(kernel.box[0], float), float(kernel.bound), merge, finish,
+                        totals, _gather_retrying)
 
 
 def _gather_retrying(client, submit: Callable[[int], list], what: str, totals: dict,
@@ -472,21 +454,22 @@ def sharded_walk(kernel, opposite: dict, explored: set, stack: list, regions: li
     warm : callable
         ``mpqp._warm_worker``, run once on every worker before the first round.
     finish : callable, optional
-        ``finish(regions, j) -> answer``, run on the workers at the end, once per shard,
-        with the shard's regions (its own and the given ones it owns, sorted by active set,
-        equal laws merged by ``merge``): it writes the shard's law where the regions are.
-        Then no region comes back to this process.
+        ``finish(regions, c) -> answer``, run on the workers at the end, once per *cell*
+        of space (as many as shards: the regions re-partitioned by their centres,
+        ``shard_space``), with the cell's regions (sorted by active set, equal laws merged
+        by ``merge``): it writes the law's shard ``c`` where the regions are. Then no
+        region comes back to this process.
     merge : callable, optional
         ``merge(regions, stats) -> regions`` (with ``finish``): ``mpqp._merge_equal_laws``
-        on one shard (regions of equal laws in different shards stay apart: the law is the
+        on one cell (regions of equal laws in different cells stay apart: the law is the
         same function).
 
     Returns
     -------
     RegionArrays or list of tuple
         Every region (the ones given and the shards'), sorted by active set; with
-        ``finish``, its answer for each shard with the shard's merge stats and its number
-        of regions before the merge: ``(answer, stats, regions)``.
+        ``finish``, its answer for each cell with the cell's merge stats, its number
+        of regions before the merge and the cell: ``(answer, stats, regions, (lo, hi))``.
     """
     import copy
 

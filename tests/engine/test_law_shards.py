@@ -84,9 +84,14 @@ def test_shards_read_lazily_answer_as_the_law(law, tmp_path):
     assert 0 < slabs.loads < 4
     X = np.random.default_rng(1).uniform([-6, -3], [6, 3], size=(3000, 2))
     np.testing.assert_array_equal(slabs.evaluate(X), law.evaluate(X))
+    # the shards a point may be read from (the manifest's boxes): few in slabs
+    inside = X[law.locate(X) >= 0]
+    near = slabs.shards_at(inside)
+    assert near.min() >= 1 and near.mean() < 2.5  # (every point of the law is in a box)
     # in the law's order: the same numbering
     write_law_shards(tmp_path, split_law(law, 4))
     shards = ShardedLaw.load(tmp_path, cache=2)
+    assert shards.shards_at(inside).mean() > near.mean()
     assert shards.shards == 4 and shards.num_regions == law.num_regions and shards.loads == 0
     np.testing.assert_array_equal(shards.regions_meeting(lo, hi), law.regions_meeting(lo, hi))
     np.testing.assert_array_equal(shards.locate(X), law.locate(X))

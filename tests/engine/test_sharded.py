@@ -7,6 +7,7 @@ rebuilt from its checked files on another worker. A torn shard file is refused.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 
@@ -172,6 +173,17 @@ def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
                                np.sort(np.hstack([serial.domain_A, serial.domain_b[:, None]]),
                                        0), atol=1e-9)
     _same_function(serial, law)
+    # the shards are cells of space: locate asks the point's cell's shard first
+    X = np.random.default_rng(4).uniform(-1, 1, size=(500, 4))
+    fresh = ShardedLaw(tmp_path / "law")
+    np.testing.assert_array_equal(fresh.locate(X) >= 0, serial.locate(X) >= 0)
+    assert fresh.asked < law.shards_at(X).sum()
+    assert all(cell is not None for cell in fresh._cells)  # (the manifest's, read back)
+
+    def strict(name: str):
+        raise AssertionError(f"the manifest is not strict JSON: {name}")
+
+    json.loads((tmp_path / "law" / "shards.json").read_text(), parse_constant=strict)
     # a shard damaged after the fact is refused, naming it
     path = tmp_path / "law" / "shard-1.npz"
     data = bytearray(path.read_bytes())
@@ -207,3 +219,104 @@ def test_a_worker_killed_while_the_workers_write_the_law_loses_nothing(
         assert killed and got.stats["shards_restored"] >= 1
         _same_function(serial, got.law)
         _wait_for_workers(client, killed[0])
+
+
+def test_kd_cells_partition_space_and_balance_the_weight():
+    """The end's cells (``shard_space.kd_cells``) are half-open boxes: every point is in
+    exactly one (the cuts' own coordinates and the sample's outliers too), and each holds
+    about its share of the weighted sample."""
+    from codev_engine.mp.shard_space import cell_of, kd_cells
+
+    rng = np.random.default_rng(5)
+    pts = rng.normal(size=(3000, 3)) * [1.0, 4.0, 0.5]
+    w = np.where(pts[:, 0] > 0, 3.0, 1.0)  # (a shard of 3x the regions per sample)
+    for cells in (1, 2, 3, 5, 8):
+        lo, hi = kd_cells(pts, w, cells)
+        assert lo.shape == hi.shape == (cells, 3)
+        c = cell_of(pts, lo, hi)
+        share = np.bincount(c, weights=w, minlength=cells) / w.sum()
+        assert np.all(np.abs(share - 1 / cells) < 0.02), share
+        # the cuts themselves and far points are in exactly one cell
+        edges = np.vstack([np.where(np.isfinite(lo), lo, 0.0), np.full((1, 3), 1e300),
+                           np.full((1, 3), -1e300)])
+        assert np.all(cell_of(edges, lo, hi) < cells)
+    lo, hi = kd_cells(np.zeros((0, 2)), np.zeros(0), 4)  # (no region: 4 cells, all of space)
+    assert cell_of(np.array([[0.0, 0.0], [1.0, -1.0]]), lo, hi).shape == (2,)
+    lo, hi = kd_cells(np.ones((10, 2)), np.ones(10), 3)  # (all at one point: one cell)
+    assert len(set(cell_of(np.ones((10, 2)), lo, hi))) == 1
+
+
+@pytest.mark.slow  # (two searches and a worker restarted: ~40 s on a loaded machine)
+def test_a_worker_killed_in_the_search_s_last_step_writes_the_same_law(
+        monkeypatch, tmp_path):
+    """SIGKILL to a worker while it runs a task of the end (``shard_space``: the regions
+    cut by space): its tasks run again on the other worker from the files, and the law
+    written is the one written without the kill, shard by shard."""
+    import threading
+    import time
+
+    from codev_engine.law_shards import ShardedLaw, ShardWriter
+
+    monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
+    monkeypatch.setattr(sharded, "BUDGET", 128)
+    p = _program()
+    with ce.Executor(workers=2) as ex:
+        client = ex.client
+        ce.mpsolve(p, executor=ex, sharded=True,
+                   shard_writer=ShardWriter(str(tmp_path / "calm"), np.zeros(p.d),
+                                            rows=(0, p.nz)))
+        pids = client.run(os.getpid)
+        killed: list[int] = []
+
+        def kill_in_the_last_step() -> None:
+            for _ in range(20000):  # (a task cutting a shard by space, on its worker)
+                for address, keys in client.processing().items():
+                    if any("-cut-" in str(k) for k in keys) and address in pids:
+                        os.kill(pids[address], signal.SIGKILL)
+                        killed.append(pids[address])
+                        return
+                time.sleep(0.002)
+
+        def progress(found: int) -> None:
+            if not getattr(progress, "started", False):
+                progress.started = True
+                threading.Thread(target=kill_in_the_last_step, daemon=True).start()
+
+        got = ce.mpsolve(p, executor=ex, sharded=True, progress=progress,
+                         shard_writer=ShardWriter(str(tmp_path / "killed"), np.zeros(p.d),
+                                                  rows=(0, p.nz)))
+        assert killed, "no task of the last step was seen on a worker"
+        # (the killed worker's shard was cut again elsewhere, from its files)
+        assert got.stats["end_restored"] >= 1
+        _wait_for_workers(client, killed[0])
+    calm, law = ShardedLaw(tmp_path / "calm"), ShardedLaw(tmp_path / "killed")
+    assert law.shards == calm.shards == 2 and got.num_regions == calm.num_regions
+    np.testing.assert_array_equal(law.offsets, calm.offsets)
+    for j in range(law.shards):
+        a, b = law.shard(j), calm.shard(j)
+        for name in ("F", "G"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        for x, y in zip(a.A + a.b, b.A + b.b, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_region_centres_are_points_of_their_regions():
+    """The end stores a region by its centre (``shard_space.region_centres``): a point of
+    the region (a Chebyshev centre); of an empty one (none in a law), a finite point."""
+    from codev_engine.mp.shard_space import region_centres
+    from codev_engine.mp.solution import RegionArrays
+
+    eye = np.eye(2)
+    box = lambda lo, hi: (np.vstack([eye, -eye]), np.r_[hi, -np.asarray(lo)])  # noqa: E731
+    regions = [box([0.0, 0.0], [4.0, 1.0]), box([-3.0, -3.0], [-2.0, 5.0]),
+               (np.array([[1.0, 0.0], [-1.0, 0.0]]), np.array([-1.0, 0.0]))]  # (empty)
+    A = np.vstack([a for a, _ in regions])
+    b = np.concatenate([b for _, b in regions])
+    ra = RegionArrays(A, b, np.array([0, 4, 8, 10]), np.zeros((3, 1, 2)), np.zeros((3, 1)),
+                      np.zeros(0, np.int64), np.zeros(4, np.int64))
+    x0 = np.array([7.0, 7.0])
+    c = region_centres(ra, x0, 10.0)
+    assert c.shape == (3, 2) and np.all(np.isfinite(c))
+    for i in range(2):
+        assert np.all(regions[i][0] @ c[i] <= regions[i][1] - 0.4)  # (inside, with a ball)
+    assert abs(c[2, 0] + 0.5) < 1e-9  # (the LP's ball of radius -0.5: the least violation)
