@@ -156,7 +156,7 @@ def cell_of(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 def _regions(directory: str, j: int, seeds: RegionArrays) -> RegionArrays:
     """Hash shard ``j``'s regions: its part files, round by round, then its seeds (the same
     order in every step)."""
-    from codev_engine.mp.sharded import _read_parts
+    from codev_engine.mp.shard_files import _read_parts
 
     parts = _read_parts(Path(directory) / f"{j}")
     if len(seeds):
@@ -168,7 +168,7 @@ def _centres_task(directory: str, j: int, seeds: RegionArrays, x0: np.ndarray,
                   bound: float, sample: int) -> tuple:
     """Worker side, step 1: shard ``j``'s region centres (written to ``centres.npz``,
     checked) and a sample of at most ``sample`` of them; (sample, regions, CPU seconds)."""
-    from codev_engine.mp.sharded import _write
+    from codev_engine.mp.shard_files import _write
 
     t0 = time.process_time()
     regions = _regions(directory, j, seeds)
@@ -189,7 +189,7 @@ def _cut_task(directory: str, j: int, seeds: RegionArrays, lo: np.ndarray,
     centre (from step 1's memory, else its files); (regions per cell, whether it read
     them from the files, CPU seconds)."""
     from codev_engine.errors import SolverError
-    from codev_engine.mp.sharded import _read, _write
+    from codev_engine.mp.shard_files import _read, _write
 
     t0 = time.process_time()
     held = _HELD.pop((directory, j), None)
@@ -219,7 +219,7 @@ def _cell_task(directory: str, c: int, n: int, merge, finish) -> tuple:
     """Worker side, step 4: cell ``c``'s regions from every shard's ``cell-<c>.npz``,
     sorted by active set, equal laws merged (``merge``), handed to ``finish`` (which writes
     the law's shard ``c``); (``finish``'s answer, stats, regions, CPU seconds)."""
-    from codev_engine.mp.sharded import _read
+    from codev_engine.mp.shard_files import _read
 
     t0 = time.process_time()
     parts = []

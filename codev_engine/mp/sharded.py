@@ -40,12 +40,10 @@ or two shards near it. The client gets a sample of centres and sends the cuts, n
 
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import tempfile
 import time
-import zipfile
 from collections.abc import Callable
 from concurrent.futures import CancelledError
 from pathlib import Path
@@ -55,6 +53,7 @@ from numba import njit
 
 from codev_engine.errors import SolverError
 from codev_engine.mp.active_sets import _hash, _insert, _push_if_new
+from codev_engine.mp.shard_files import _read, _read_parts, _write
 from codev_engine.mp.solution import RegionArrays, TooManyRegionsError, too_many_regions
 
 __all__ = ["owners", "read_shards", "sharded_walk"]
@@ -116,41 +115,6 @@ def _receive(table, used, stack, points, meta, keys, pts):
 def _insert_all(table, used, keys):
     for c in range(keys.shape[0]):
         _insert(table, used, keys[c])
-
-
-# -- checked files -------------------------------------------------------------------------
-
-
-def _digest(arrays: dict[str, np.ndarray]) -> str:
-    h = hashlib.sha256()
-    for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """``arrays`` as an .npz at ``path``, atomically, with their SHA-256."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, sha256=np.array(_digest(arrays)), **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def _read(path: Path) -> dict[str, np.ndarray]:
-    """A file of :func:`_write`, checked; ``SolverError`` naming it when it is not whole."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-        raise SolverError(f"{path}: unreadable shard file ({exc})") from exc
-    digest = str(arrays.pop("sha256", ""))
-    if digest != _digest(arrays):
-        raise SolverError(f"{path}: shard file fails its checksum (torn or altered)")
-    return arrays
 
 
 # -- a shard ----------------------------------------------------------------------------------
@@ -352,19 +316,6 @@ def read_shards(directory: str | os.PathLike) -> RegionArrays:
         return None
     out = RegionArrays.concat(parts)
     return out.take(out.active_order())
-
-
-def _read_parts(folder: Path) -> list[RegionArrays]:
-    """The regions of one shard's checked ``part-<round>.npz`` files, round by round."""
-    parts = []
-    files = sorted(folder.glob("part-*.npz"), key=lambda p: int(p.stem.split("-")[1]))
-    for path in files:
-        a = _read(path)
-        if a["K"].shape[0]:
-            parts.append(RegionArrays(
-                a["A"], a["b"], a["offsets"], a["K"], a["k"], a["active"],
-                a["active_offsets"], a["implied"], a["shared_A"], a["shared_b"]))
-    return parts
 
 
 def _finish_on_workers(client, directory: str, n: int, regions: list, g, kernel,

@@ -16,7 +16,7 @@ import pytest
 
 import codev_engine as ce
 from codev_engine.errors import SolverError
-from codev_engine.mp import mpqp, sharded
+from codev_engine.mp import mpqp, shard_files, sharded
 from tests.engine.test_mpqp_graph import _program
 from tests.engine.test_scale import _wait_for_workers
 
@@ -81,18 +81,18 @@ def test_a_worker_killed_mid_sharded_search_loses_nothing(serial, monkeypatch, t
 
 def test_a_torn_shard_file_is_refused(tmp_path):
     path = tmp_path / "part-0.npz"
-    sharded._write(path, {"K": np.zeros((2, 1, 1)), "explored": np.ones((2, 1), np.uint64)})
-    assert sharded._read(path)["K"].shape == (2, 1, 1)
+    shard_files._write(path, {"K": np.zeros((2, 1, 1)), "explored": np.ones((2, 1), np.uint64)})
+    assert shard_files._read(path)["K"].shape == (2, 1, 1)
     whole = path.read_bytes()
     at = whole.index(np.ones(2, np.uint64).tobytes())  # (the keys, stored as they are)
     altered = bytearray(whole)
     altered[at] = 2
     path.write_bytes(bytes(altered))
     with pytest.raises(SolverError, match="part-0.npz: "):  # (zip's CRC, or the SHA-256)
-        sharded._read(path)
+        shard_files._read(path)
     path.write_bytes(whole[: len(whole) // 2])  # (torn)
     with pytest.raises(SolverError, match="part-0.npz: unreadable"):
-        sharded._read(path)
+        shard_files._read(path)
 
 
 def test_owners_spread_the_keys():
