@@ -591,6 +591,9 @@ def _check_folder(path: Path, entry: dict[str, Any]) -> str | None:
     try:
         files = json.loads(manifest.read_text(encoding="utf-8"))["shards"]
         listed = [(str(f["file"]), str(f["sha256"])) for f in files]
+        # (a sharded search's law: each shard's facets of the domain in a file of its own)
+        listed += [(str(f["facets_file"]), str(f["facets_sha256"])) for f in files
+                   if "facets_file" in f]
     except (OSError, ValueError, RecursionError, UnicodeDecodeError, KeyError, TypeError):
         return f"its {FOLDER_MANIFEST} does not list its files"
     for name, digest in listed:

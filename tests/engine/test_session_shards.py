@@ -53,7 +53,8 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     syn = rep.stage("synthesis")
     folder = session.path / syn.artifact
     assert folder.is_dir() and folder.suffix == ".shards"
-    assert sorted(p.name for p in folder.iterdir()) == ["shard-0.npz", "shards.json"]
+    assert sorted(p.name for p in folder.iterdir()) == ["facets-0.npz", "shard-0.npz",
+                                                         "shards.json"]
     assert isinstance(rep.law, ShardedLaw) and rep.law.shards == syn.details["shards"] == 1
     assert not _leftovers(session.path)
     assert rep.stage("recording").details["view"] == view_code_sha()  # (which code drew it)
@@ -75,6 +76,13 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     # the journal keeps the choice; the status of the last run's options finds the folder
     assert session.journal()[-1]["options"]["sharded"] is True
     assert {s.stage: s.status for s in session.status(problem)}["synthesis"] == "cached"
+    # the shard's facets of the domain are checked as its shards: an edited one is named
+    facets = folder / "facets-0.npz"
+    raw = bytearray(facets.read_bytes())
+    raw[len(raw) // 2] ^= 1
+    facets.write_bytes(bytes(raw))
+    status = {s.stage: s for s in session.status(problem)}["synthesis"]
+    assert status.status == "corrupt" and "facets-0.npz" in status.reason
 
 
 def test_a_damaged_shard_is_named_and_recomputed(spec, tmp_path, capsys):
