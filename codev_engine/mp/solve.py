@@ -121,11 +121,13 @@ def mpsolve(
     shard_writer : law_shards.ShardWriter, optional
         With ``sharded``: each worker writes its shard's law (``shard_writer.write``, on
         the worker, with the shard's regions: equal laws merged within the shard, the
-        feasible set's facets among its rows found there too) and this process only
-        collects the manifest's entries and the facets, computes the domain from them and
-        opens the law (``shard_writer.open``): no region comes back. Without a sharded
-        walk (a small program, or no compiled kernel) the regions are here anyway and are
-        written as one shard.
+        feasible set's facets among its rows found there too and written beside it) and
+        this process only collects the manifest's entries, writes the manifest with the
+        parameter set's rows and opens the law (``shard_writer.open``): no region and no
+        facet comes back. Without a sharded walk (a small program, or no compiled kernel)
+        the regions are here anyway and are written as one shard. In balanced units
+        (``balance.py``) the writer is wrapped (``balance.BalancedWriter``): the shards are
+        written in the program's units.
 
     Returns
     -------
