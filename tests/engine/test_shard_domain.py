@@ -136,7 +136,9 @@ def test_a_verification_on_the_sharded_law_is_the_merged_law_s(written, problem,
         path = tmp_path / "p.toml"
         path.write_text(text)
         p = ce.load_spec(path)
-        got, whole = ce.verify(p, written), ce.verify(p, merged)
+        law = ShardedLaw(written.dir)
+        got, whole = ce.verify(p, law), ce.verify(p, merged)
+        assert law._whole_domain is None  # (the domain near its sets alone was read)
         assert got.verdict == whole.verdict
         assert got.reason == whole.reason
         assert got.stats["partitions"] == whole.stats["partitions"]
@@ -144,6 +146,39 @@ def test_a_verification_on_the_sharded_law_is_the_merged_law_s(written, problem,
         np.testing.assert_array_equal(got.tube.upper, whole.tube.upper)
         verdicts.append(got.verdict)
     # (the second leaves the domain: a finding, not a proof)
+    assert verdicts[0] == "robustly_safe" != verdicts[1]
+
+
+def test_the_nonlinear_engine_reads_the_domain_near_its_sets(cluster, tmp_path):
+    """A nonlinear plant (a cubic drag): its engine asks ``domain_rows`` of a law whose
+    domain is in its shards (``local_domain``), and gets the merged law's verdict and tube,
+    inside the domain and for a set that leaves it."""
+    nonlinear = SPEC.replace('A = [[0.0, 1.0], [0.0, 0.0]]\nB = [[0.0], [1.0]]\n',
+                             'dynamics = ["v", "u - 0.05 * v * v * v"]\n')
+    assert nonlinear != SPEC
+    path = tmp_path / "nl.toml"
+    path.write_text(nonlinear)
+    problem = ce.load_spec(path)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mpqp, "JIT_AFTER", 0)
+        mp.setattr(sharded, "BUDGET", 16)
+        written = ce.synthesize(problem, executor=cluster, sharded=True,
+                                out_shards=tmp_path / "law")
+    merged = written.merged()
+    verdicts = []
+    for text in (nonlinear, nonlinear.replace(
+            "initial_set = { lower = [-0.5, -0.2], upper = [0.5, 0.2] }",
+            "initial_set = { lower = [3.5, 1.2], upper = [4.0, 1.6] }")):
+        path.write_text(text)
+        p = ce.load_spec(path)
+        law = ShardedLaw(written.dir)
+        got, whole = ce.verify(p, law), ce.verify(p, merged)
+        assert "refinements" in got.stats  # (the nonlinear engine)
+        assert law._whole_domain is None  # (the domain near its sets alone was read)
+        assert (got.verdict, got.reason) == (whole.verdict, whole.reason)
+        np.testing.assert_array_equal(got.tube.lower, whole.tube.lower)
+        np.testing.assert_array_equal(got.tube.upper, whole.tube.upper)
+        verdicts.append(got.verdict)
     assert verdicts[0] == "robustly_safe" != verdicts[1]
 
 
