@@ -182,6 +182,33 @@ def test_the_nonlinear_engine_reads_the_domain_near_its_sets(cluster, tmp_path):
     assert verdicts[0] == "robustly_safe" != verdicts[1]
 
 
+def test_a_plant_in_mm_and_km_per_s_is_written_in_its_units(cluster, tmp_path):
+    """Issue 38's double integrator (x1 x1e3, x2 x1e-3), norm 2, synthesised as shards:
+    searched in balanced units, written in the plant's (the serial law's function and
+    domain); the fast case of the test below."""
+    from test_scaled_units import scaled_case
+    from test_synthesis_oracle import make_problem
+
+    spec_s, model_s, *_ = scaled_case("di", "2", [3.0, -3.0])
+    problem = make_problem(spec_s, model_s)
+    serial = ce.synthesize(problem, model=model_s)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mpqp, "JIT_AFTER", 0)
+        law = ce.synthesize(problem, model=model_s, executor=cluster, sharded=True,
+                            out_shards=tmp_path / "law")
+    assert law.meta["stats"]["parameter_axes_scaled"] == 1
+    X = np.random.default_rng(1).uniform([-1.2e4, -1.2e-2], [1.2e4, 1.2e-2], size=(2000, 2))
+    inside = serial.locate(X) >= 0
+    assert 0 < inside.sum() < X.shape[0]
+    np.testing.assert_array_equal(law.locate(X) >= 0, inside)
+    np.testing.assert_allclose(law.evaluate(X)[inside], serial.evaluate(X)[inside],
+                               rtol=1e-7, atol=1e-9)
+    A, b = law.domain_rows(X.min(axis=0), X.max(axis=0))
+    clear = np.min(np.abs(X @ serial.domain_A.T - serial.domain_b)
+                   / np.linalg.norm(serial.domain_A, axis=1), axis=1) > 1e-6
+    np.testing.assert_array_equal(np.all(X @ A.T <= b + 1e-9, axis=1)[clear], inside[clear])
+
+
 @pytest.mark.slow  # (two sharded searches of 743 regions: ~20 s on a loaded machine)
 def test_the_sharded_search_in_balanced_units_is_the_serial_law(cluster, tmp_path):
     """A 4-parameter mp-QP with two axes rescaled by 2**-12 and 2**12 (widths 2**-11 and
