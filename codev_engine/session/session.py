@@ -26,7 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from codev_engine.errors import CodevError
+from codev_engine.errors import CodevError, DamagedFileError
 from codev_engine.io.atomic import atomic_path
 from codev_engine.kernel_cache import prepare
 from codev_engine.session import store
@@ -371,11 +371,13 @@ class Session:
                                      executor)
                         )
                     except CodevError as exc:
+                        if isinstance(exc, DamagedFileError):  # (a shard of a cached law)
+                            exc = self._damaged(exc)
                         error = {"error": type(exc).__name__, "message": str(exc)}
                         sr = StageReport(name, "failed", key, time.perf_counter() - t0, error)
                         records.append(_record(sr, spec_sha, options, started))
                         if raise_errors:
-                            raise
+                            raise exc from None
                         report.stages.append(sr)
                         emit(name, "done", sr.to_json())
                         break
@@ -396,6 +398,19 @@ class Session:
                 report.run = store.append_journal(self.path, records, self.table.names)
         report.seconds = time.perf_counter() - t_run
         return report
+
+    def _damaged(self, exc: DamagedFileError) -> DamagedFileError:
+        """A file of a cached artifact found damaged when a stage read it (a shard of the
+        law: the store checks its size when the session opens the law, its SHA-256 is
+        checked when it is read). The store's rule for a damaged artifact: it is not used
+        again, the next run recomputes it (the artifact is marked in the index); the error
+        says so."""
+        name = None if exc.file is None else store.mark_damaged(self.path, exc.file,
+                                                                exc.reason)
+        if name is None:  # (a file of no artifact of this session)
+            return exc
+        return DamagedFileError(f"{exc.reason}; the session's next run recomputes {name}",
+                                file=exc.file, field=exc.field)
 
     def _save_regions(self, law: Any, keys: dict[str, str]) -> None:
         """Write the region cache of a law on demand again when the run grew it, so that
