@@ -10,6 +10,9 @@ loaded ("cached"), otherwise computed. Artifacts are written atomically (temp fi
 rename), then entered in the index; an artifact is used only if the index has it and its
 bytes hash to the indexed SHA-256 and its loader accepts it, so a run killed mid-write, a
 truncated or edited file, or a file from elsewhere is reported and recomputed, never used.
+A law stored as shards is opened from its manifest's SHA-256 and each shard's size; each
+shard's SHA-256 is checked when it is read, and a shard found damaged then ends the run in
+one line and is recomputed by the next (docs/sessions.md, "What is checked when").
 Nothing is unpickled; loading a session never runs code from it.
 
 :class:`Session` runs, reports the status of, replays and exports from a session; it knows
