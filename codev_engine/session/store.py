@@ -582,6 +582,8 @@ def check_artifact(folder: Path, path: Path, key: str) -> str | None:
         return "not a regular file"
     if not isinstance(entry, dict) or entry.get("key") != key:
         return "not in the artifact index (an interrupted write?)"
+    if isinstance(entry.get("damaged"), str):  # (found when read, by an earlier run)
+        return entry["damaged"]
     if entry.get("sha256") != file_sha(path):
         return "its content does not match the recorded SHA-256 (damaged or edited)"
     return None

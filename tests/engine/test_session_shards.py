@@ -29,7 +29,7 @@ from codev_engine.law_shards import ShardedLaw
 from codev_engine.pipeline import load_spec, loads_spec
 from codev_engine.session import RunOptions, Session, SessionError, stage_keys
 from codev_engine.session.stages import view_code_sha
-from codev_engine.session.store import check_artifact, register_artifact
+from codev_engine.session.store import check_artifact, mark_damaged, register_artifact
 from tests.engine.test_law_shards import SPEC
 from workbench.cli import main
 
@@ -183,6 +183,10 @@ def test_a_shard_damaged_in_place_is_refused_when_read_and_recomputed(spec, tmp_
     failed = session.journal()[-1]
     assert failed["stage"] == "verification" and failed["status"] == "failed"
     assert "shard-0.npz" in check_artifact(s, s / syn.artifact, syn.key)
+    status = {st.stage: st for st in session.status(problem, SHARDED)}["synthesis"]
+    assert status.status == "corrupt" and "found when read" in status.reason
+    # (a file of no artifact of this session, a law from elsewhere: nothing to mark)
+    assert mark_damaged(s, tmp_path / "law.shards" / "shard-0.npz", "damaged") is None
     warned: list[str] = []
     after = session.run(problem, SHARDED, warn=warned.append)
     assert [st.status for st in after.stages] == ["cached", "computed", "computed", "computed"]
