@@ -318,7 +318,9 @@ class Session:
         raise_errors : bool
             A stage failing with a ``CodevError`` (bad input, solver breakdown) is journaled
             as "failed" and re-raised; with False the run stops there and the report ends
-            with that stage's "failed" StageReport (its outcome holds the error).
+            with that stage's "failed" StageReport (its outcome holds the error). A file of
+            a cached artifact found damaged when read (``DamagedFileError``: a shard of the
+            law) is re-raised either way, the artifact marked for the next run to recompute.
         executor : Executor, optional
             Where the stages' parallel work runs (see ``StageRun``); the artifacts, keys
             and journal are the same whatever runs them.
@@ -379,7 +381,9 @@ class Session:
                         error = {"error": type(exc).__name__, "message": str(exc)}
                         sr = StageReport(name, "failed", key, time.perf_counter() - t0, error)
                         records.append(_record(sr, spec_sha, options, started))
-                        if raise_errors:
+                        if raise_errors or isinstance(exc, DamagedFileError):
+                            # (a damaged file of the session is no outcome of the stage: a
+                            # replay would report it as a mismatch; the run ends in its line)
                             raise exc from None
                         report.stages.append(sr)
                         emit(name, "done", sr.to_json())

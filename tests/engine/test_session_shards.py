@@ -200,6 +200,23 @@ def test_a_shard_damaged_in_place_is_refused_when_read_and_recomputed(spec, tmp_
     assert code == 0 and all(st["status"] == "cached" for st in got["session"]["stages"].values())
 
 
+def test_a_replay_that_finds_a_damaged_shard_ends_and_the_next_recomputes(spec, tmp_path):
+    """A replay compares the stages' outcomes, a failed stage's included; a damaged shard
+    is no outcome of the stage that read it: the replay ends in its error, and the replay
+    after recomputes the law (one warning naming the shard) and matches."""
+    problem = load_spec(spec)
+    session = Session.create(tmp_path / "s")
+    rep = session.run(problem, SHARDED)
+    (session.path / rep.stage("verification").artifact).unlink()  # (the replay reads the law)
+    _flip(session.path / rep.stage("synthesis").artifact / "shard-0.npz")
+    with pytest.raises(DamagedFileError, match=r"shard-0\.npz: its SHA-256.*next run recomp"):
+        session.replay()
+    warned: list[str] = []
+    again = session.replay(warn=warned.append)
+    assert again.ok and again.cached == 2  # (the model, the recording: its key is the same)
+    assert len(warned) == 1 and "shard-0.npz" in warned[0] and "recomputed" in warned[0]
+
+
 @pytest.mark.parametrize("tear", ["manifest", "index"])
 def test_a_torn_folder_is_never_taken(spec, tmp_path, tear):
     """A folder without its manifest, or one the index does not list (a write killed
