@@ -4,9 +4,9 @@ A law of millions of regions made by the sharded search (``mp/sharded.py``) need
 whole in one process: :func:`write_law_shards` writes it as a folder of law files (each in
 ``ExplicitLaw``'s own format, ``law.LAW_FORMAT``, written atomically, with its regions'
 bounding boxes) and a manifest, ``shards.json``, written last, that records each file's
-SHA-256, its number of regions and the bounding box of its regions. :class:`ShardedLaw`
-reads the manifest alone; a shard is read, and checked against its SHA-256 and the
-manifest, the first time a question needs it:
+SHA-256, its size, its number of regions and the bounding box of its regions.
+:class:`ShardedLaw` reads the manifest alone; a shard is read, and checked against its
+SHA-256 and the manifest, the first time a question needs it:
 
 - :meth:`ShardedLaw.regions_meeting` reads only the shards whose box meets the box asked;
 - :meth:`ShardedLaw.locate` / :meth:`ShardedLaw.evaluate` only the shards whose box holds
@@ -21,9 +21,11 @@ what an exporter of one C table needs). The interface is the one ``ExplicitLaw``
 ``law_on_demand.OnDemandLaw`` give the reach engines. At most ``cache`` shards are held at
 once (the least recently used one is dropped).
 
-A damaged or edited shard is refused (``SpecError`` naming the file): its SHA-256 is not
-the manifest's. A manifest torn by a crash is not there at all (it is renamed into place
-after every shard), so a folder either is a whole law or is refused.
+A damaged or edited shard is refused when read (``errors.DamagedFileError``, a ``SpecError``
+naming the file): its size or its SHA-256 is not the manifest's (a manifest written before
+the size was recorded: its SHA-256 alone). A manifest torn by a crash is not there at all
+(it is renamed into place after every shard), so a folder either is a whole law or is
+refused.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codev_engine.errors import SpecError
+from codev_engine.errors import DamagedFileError, SpecError
 from codev_engine.io.atomic import write_text
 from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
@@ -170,8 +172,9 @@ def _save_shard(part: ExplicitLaw, path: Path) -> dict:
     """Save one shard (atomically, with its boxes) and return its manifest entry."""
     lo, hi = part.boxes  # (saved with the shard: its regions' LPs are not solved again)
     path = part.save(path)
-    return {
-        "file": path.name, "sha256": _file_sha(path), "regions": part.num_regions,
+    return {  # (bytes: what a session checks when it opens the law, the SHA-256 when read)
+        "file": path.name, "sha256": _file_sha(path), "bytes": path.stat().st_size,
+        "regions": part.num_regions,
         "lo": lo.min(axis=0).tolist() if lo.shape[0] else None,
         "hi": hi.max(axis=0).tolist() if hi.shape[0] else None,
     }
@@ -190,7 +193,8 @@ def write_manifest(directory: str | os.PathLike, head: dict, entries: list[dict]
         when the shard files do not hold it: the sharded search's workers write theirs
         before the domain is known).
     entries : list of dict
-        One per shard file, in order (``file``, ``sha256``, ``regions``, ``lo``, ``hi``).
+        One per shard file, in order (``file``, ``sha256``, ``bytes``, ``regions``, ``lo``,
+        ``hi``).
 
     Returns
     -------
@@ -362,6 +366,15 @@ def _cell(entry: dict, n: int) -> tuple[np.ndarray, np.ndarray] | None:
     return (lo, hi) if lo.shape == hi.shape == (n,) else None
 
 
+def _size(entry: dict) -> int | None:
+    """A manifest entry's ``bytes`` (None: not recorded, a manifest written before it was;
+    -1: not a count)."""
+    got = entry.get("bytes")
+    if got is None:
+        return None
+    return got if isinstance(got, int) and not isinstance(got, bool) and got >= 0 else -1
+
+
 def _json(obj):
     if isinstance(obj, np.generic):
         return obj.item()
@@ -450,9 +463,11 @@ class ShardedLaw:
         for j, e in enumerate(shards):
             ok = (isinstance(e, dict) and isinstance(e.get("file"), str)
                   and Path(e["file"]).name == e["file"] and isinstance(e.get("sha256"), str)
-                  and isinstance(e.get("regions"), int) and e["regions"] >= 0)
+                  and isinstance(e.get("regions"), int) and e["regions"] >= 0
+                  and _size(e) != -1)
             if not ok:
-                raise SpecError("must name a file in the folder, its sha256 and its regions",
+                raise SpecError("must name a file in the folder, its sha256 and its regions "
+                                "(and its bytes, a count, when recorded)",
                                 file=where, field=f"shards[{j}]")
             counts.append(e["regions"])
         self._entries = shards
@@ -565,9 +580,9 @@ class ShardedLaw:
 
         Raises
         ------
-        SpecError
-            The file is missing, is not the one the manifest records (its SHA-256), or
-            is not a law of this problem.
+        DamagedFileError
+            The file is missing, is not the one the manifest records (its size, its
+            SHA-256), or is not a law of this problem.
         """
         got = self._cache.get(j)
         if got is not None:
@@ -576,14 +591,18 @@ class ShardedLaw:
         entry = self._entries[j]
         path = self.dir / entry["file"]
         if not path.is_file():
-            raise SpecError("missing (a shard of the law)", file=str(path))
+            raise DamagedFileError("missing (a shard of the law)", file=str(path))
+        size = _size(entry)
+        if size is not None and path.stat().st_size != size:
+            raise DamagedFileError(f"its size is not the one {MANIFEST} records (damaged or "
+                              "edited): refused", file=str(path))
         if _file_sha(path) != entry["sha256"]:
-            raise SpecError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
-                            "edited): refused", file=str(path))
+            raise DamagedFileError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
+                              "edited): refused", file=str(path))
         law = ExplicitLaw.load(path)
         if law.num_regions != entry["regions"] or law.fingerprint != self.fingerprint:
-            raise SpecError(f"not the shard {MANIFEST} records (regions or fingerprint)",
-                            file=str(path))
+            raise DamagedFileError(f"not the shard {MANIFEST} records (regions or fingerprint)",
+                              file=str(path))
         self.loads += 1
         self._cache[j] = law
         while len(self._cache) > self._most:
