@@ -7,12 +7,19 @@ For each spec, in a fresh temporary session folder:
 - **CLI**: ``codev run SPEC --session DIR --json`` twice as subprocesses (wall time,
   interpreter start and imports included, which caching cannot remove).
 
+With ``--sharded DIR``: the law as shards (issue 43). A session in ``DIR`` (made when
+missing: a chain of ``--chain`` integrators, ``RunOptions(sharded=True, upto="synthesis")``,
+one shard without a cluster), then its cached run, ``--repeats`` times: the run's wall time,
+the synthesis stage's, the bytes this process read in it (``rchar`` of ``/proc/self/io``:
+every ``read``, page cache included) and the shards the law read (``ShardedLaw.loads``).
+
 Prints a table and, with ``--json OUT``, writes the numbers. A benchmark, not a test:
 exits 0 whatever the ratios are.
 
 Usage::
 
     .venv/bin/python benchmarks/session.py [--specs a.toml b.toml] [--repeats 3] [--json out.json]
+    .venv/bin/python benchmarks/session.py --sharded /tmp/s6 [--chain 6] [--repeats 5]
 """
 
 from __future__ import annotations
@@ -90,12 +97,83 @@ def cli(spec: Path) -> dict:
     return out
 
 
+def _rchar() -> int:
+    """Bytes this process has read so far (every ``read``, the page cache's included)."""
+    for line in Path("/proc/self/io").read_text().splitlines():
+        if line.startswith("rchar:"):
+            return int(line.split()[1])
+    return 0
+
+
+def chain(n: int) -> str:
+    """A chain of ``n`` integrators under a quadratic MPC, horizon 4 (as
+    ``tests/engine/test_interrupt.chain``: 5 -> ~1,400 regions)."""
+    eye = [[1.0 if i == j else 0.0 for j in range(n)] for i in range(n)]
+    return (
+        f'name = "chain{n}"\n[plant]\nstates = {json.dumps([f"x{i}" for i in range(n)])}\n'
+        f'inputs = ["u"]\ndynamics = {json.dumps([f"x{i + 1}" for i in range(n - 1)] + ["u"])}\n'
+        f"[model]\nsample_time = 0.5\n[mpc]\nhorizon = 4\nnorm = 2\nQ = {eye}\nR = [[1.0]]\n"
+        f"u_min = [-1.0]\nu_max = [1.0]\nx_min = {[-2.0] * n}\nx_max = {[2.0] * n}\n"
+        f"[verify]\ntime_horizon = 2.0\n"
+        f"initial_set = {{ lower = {[-0.1] * n}, upper = {[0.1] * n} }}\n"
+    )
+
+
+def sharded_open(folder: Path, chain_n: int, repeats: int) -> dict:
+    """The cached run of a session whose law is stored as shards (made in ``folder`` when
+    missing): wall time, the synthesis stage's, bytes read, shards read."""
+    problem = ce.loads_spec(chain(chain_n), path=str(folder.parent / f"chain{chain_n}.toml"))
+    options = RunOptions(sharded=True, upto="synthesis")
+    out: dict = {"chain": chain_n}
+    if not (folder / "session.json").exists():
+        t0 = time.perf_counter()
+        rep = Session.create(folder).run(problem, options)
+        out["computed_s"] = time.perf_counter() - t0
+        assert rep.stage("synthesis").status == "computed"
+    session = Session.open(folder)
+    shards = next((folder / "artifacts").glob("synthesis-*.shards"))
+    out["artifact_bytes"] = sum(p.stat().st_size for p in shards.iterdir())
+    runs = []
+    for _ in range(repeats):
+        before = _rchar()
+        c0, t0 = time.process_time(), time.perf_counter()
+        rep = session.run(problem, options, journal=False)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        read = _rchar() - before
+        syn = rep.stage("synthesis")
+        assert syn.status == "cached", syn
+        runs.append({"wall_s": wall, "cpu_s": cpu, "synthesis_s": syn.seconds, "read_bytes": read,
+                     "shards_read": rep.law.loads})
+    out["regions"] = rep.law.num_regions
+    out["shards"] = rep.law.shards
+    out["runs"] = runs
+    best = min(runs, key=lambda r: r["wall_s"])
+    print(f"load average {os.getloadavg()[0]:.1f}; chain{chain_n}: {out['regions']} regions "
+          f"in {out['shards']} shard(s), {out['artifact_bytes'] / 1e6:.2f} MB"
+          + (f", computed in {out['computed_s']:.1f} s" if "computed_s" in out else ""))
+    print(f"cached run (best of {repeats}): {best['wall_s'] * 1e3:.1f} ms, synthesis stage "
+          f"{best['synthesis_s'] * 1e3:.1f} ms, {best['read_bytes'] / 1e6:.2f} MB read, "
+          f"{best['shards_read']} shards read; median wall "
+          f"{statistics.median(r['wall_s'] for r in runs) * 1e3:.1f} ms, median CPU "
+          f"{statistics.median(r['cpu_s'] for r in runs) * 1e3:.1f} ms")
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--specs", nargs="+", default=DEFAULT_SPECS)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", metavar="OUT")
+    ap.add_argument("--sharded", metavar="DIR", type=Path,
+                    help="the cached run of a session whose law is stored as shards")
+    ap.add_argument("--chain", type=int, default=6,
+                    help="with --sharded: the chain of integrators whose law it stores")
     args = ap.parse_args()
+    if args.sharded:
+        got = sharded_open(args.sharded.resolve(), args.chain, args.repeats)
+        if args.json:
+            Path(args.json).write_text(json.dumps(got, indent=2))
+        return 0
     rows = []
     print(f"load average {os.getloadavg()[0]:.1f}; best of {args.repeats} in-process runs")
     header = (

@@ -6,7 +6,7 @@ for bad input (``SpecError``) and for solver breakdowns (``SolverError``).
 
 from __future__ import annotations
 
-__all__ = ["CodevError", "SpecError", "SolverError", "RegionLimitError"]
+__all__ = ["CodevError", "DamagedFileError", "RegionLimitError", "SolverError", "SpecError"]
 
 
 class CodevError(Exception):
@@ -54,6 +54,16 @@ class SpecError(CodevError, ValueError):
             The same reason and field, with ``file`` set.
         """
         return SpecError(self.reason, file=file, field=self.field)
+
+
+class DamagedFileError(SpecError):
+    """A checked file found damaged when it was read: its bytes are not the ones its
+    manifest records (a shard of a law read lazily, ``law_shards.ShardedLaw``).
+
+    ``file`` names it. A session whose cached artifact holds the file marks that artifact
+    damaged (``session.store.mark_damaged``), so that its next run recomputes it: the file
+    is checked when read, not when the artifact is opened.
+    """
 
 
 class SolverError(CodevError, RuntimeError):

@@ -4,9 +4,9 @@ A law of millions of regions made by the sharded search (``mp/sharded.py``) need
 whole in one process: :func:`write_law_shards` writes it as a folder of law files (each in
 ``ExplicitLaw``'s own format, ``law.LAW_FORMAT``, written atomically, with its regions'
 bounding boxes) and a manifest, ``shards.json``, written last, that records each file's
-SHA-256, its number of regions and the bounding box of its regions. :class:`ShardedLaw`
-reads the manifest alone; a shard is read, and checked against its SHA-256 and the
-manifest, the first time a question needs it:
+SHA-256, its size, its number of regions and the bounding box of its regions.
+:class:`ShardedLaw` reads the manifest alone; a shard is read, and checked against its
+SHA-256 and the manifest, the first time a question needs it:
 
 - :meth:`ShardedLaw.regions_meeting` reads only the shards whose box meets the box asked;
 - :meth:`ShardedLaw.locate` / :meth:`ShardedLaw.evaluate` only the shards whose box holds
@@ -28,9 +28,11 @@ in a checked side file ``facets-<j>.npz``, the parameter set's rows in the manif
 facets of the shards whose box meets it (:attr:`ShardedLaw.local_domain`: no file but
 those shards' facets is read; docs/scale.md says why that describes ``D`` in the box).
 
-A damaged or edited shard is refused (``SpecError`` naming the file): its SHA-256 is not
-the manifest's. A manifest torn by a crash is not there at all (it is renamed into place
-after every shard), so a folder either is a whole law or is refused.
+A damaged or edited shard is refused when read (``errors.DamagedFileError``, a ``SpecError``
+naming the file): its size or its SHA-256 is not the manifest's (a manifest written before
+the size was recorded: its SHA-256 alone). A manifest torn by a crash is not there at all
+(it is renamed into place after every shard), so a folder either is a whole law or is
+refused.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from codev_engine.errors import SpecError
+from codev_engine.errors import DamagedFileError, SpecError
 from codev_engine.io.atomic import write_text
 from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
@@ -76,7 +78,7 @@ def _save_facets(facets: np.ndarray, path: Path) -> dict:
         os.fsync(f.fileno())
     os.replace(tmp, path)
     return {"facets_file": path.name, "facets_sha256": _file_sha(path),
-            "facets": int(facets.shape[0])}
+            "facets_bytes": path.stat().st_size, "facets": int(facets.shape[0])}
 
 
 def _file_sha(path: Path) -> str:
@@ -193,8 +195,9 @@ def _save_shard(part: ExplicitLaw, path: Path) -> dict:
     """Save one shard (atomically, with its boxes) and return its manifest entry."""
     lo, hi = part.boxes  # (saved with the shard: its regions' LPs are not solved again)
     path = part.save(path)
-    return {
-        "file": path.name, "sha256": _file_sha(path), "regions": part.num_regions,
+    return {  # (bytes: what a session checks when it opens the law, the SHA-256 when read)
+        "file": path.name, "sha256": _file_sha(path), "bytes": path.stat().st_size,
+        "regions": part.num_regions,
         "lo": lo.min(axis=0).tolist() if lo.shape[0] else None,
         "hi": hi.max(axis=0).tolist() if hi.shape[0] else None,
     }
@@ -213,8 +216,9 @@ def write_manifest(directory: str | os.PathLike, head: dict, entries: list[dict]
         parameter set's rows, when the entries name each shard's facets of the domain:
         the sharded search's) or ``domain_A`` / ``domain_b`` (the law's whole domain).
     entries : list of dict
-        One per shard file, in order (``file``, ``sha256``, ``regions``, ``lo``, ``hi``;
-        ``facets_file``, ``facets_sha256``, ``facets`` with the facets in side files).
+        One per shard file, in order (``file``, ``sha256``, ``bytes``, ``regions``, ``lo``,
+        ``hi``; ``facets_file``, ``facets_sha256``, ``facets_bytes``, ``facets`` with the
+        facets in side files).
 
     Returns
     -------
@@ -450,6 +454,15 @@ def _matrix(data: dict, a: str, b: str, n: int, where: str
     return A, rhs
 
 
+def _size(entry: dict) -> int | None:
+    """A manifest entry's ``bytes`` (None: not recorded, a manifest written before it was;
+    -1: not a count)."""
+    got = entry.get("bytes")
+    if got is None:
+        return None
+    return got if isinstance(got, int) and not isinstance(got, bool) and got >= 0 else -1
+
+
 def _json(obj):
     if isinstance(obj, np.generic):
         return obj.item()
@@ -542,15 +555,18 @@ class ShardedLaw:
         for j, e in enumerate(shards):
             ok = (isinstance(e, dict) and isinstance(e.get("file"), str)
                   and Path(e["file"]).name == e["file"] and isinstance(e.get("sha256"), str)
-                  and isinstance(e.get("regions"), int) and e["regions"] >= 0)
+                  and isinstance(e.get("regions"), int) and e["regions"] >= 0
+                  and _size(e) != -1)
             if not ok:
-                raise SpecError("must name a file in the folder, its sha256 and its regions",
+                raise SpecError("must name a file in the folder, its sha256 and its regions "
+                                "(and its bytes, a count, when recorded)",
                                 file=where, field=f"shards[{j}]")
             if "facets_file" in e and not (
                     isinstance(e["facets_file"], str)
                     and Path(e["facets_file"]).name == e["facets_file"]
                     and isinstance(e.get("facets_sha256"), str)
-                    and isinstance(e.get("facets"), int) and e["facets"] >= 0):
+                    and isinstance(e.get("facets"), int) and e["facets"] >= 0
+                    and _size({"bytes": e.get("facets_bytes")}) != -1):
                 raise SpecError("must name its facets file in the folder, its sha256 and "
                                 "its count", file=where, field=f"shards[{j}].facets_file")
             counts.append(e["regions"])
@@ -693,19 +709,22 @@ class ShardedLaw:
             return np.zeros((0, self.n + 1))
         path = self.dir / entry["facets_file"]
         if not path.is_file():
-            raise SpecError("missing (a shard's facets of the law's domain)", file=str(path))
-        if _file_sha(path) != entry["facets_sha256"]:
-            raise SpecError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
-                            "edited): refused", file=str(path))
+            raise DamagedFileError("missing (a shard's facets of the law's domain)",
+                                   file=str(path))
+        size = entry.get("facets_bytes")
+        if (size is not None and path.stat().st_size != size) or (
+                _file_sha(path) != entry["facets_sha256"]):
+            raise DamagedFileError(f"its size or SHA-256 is not the one {MANIFEST} records "
+                                   "(damaged or edited): refused", file=str(path))
         try:
             with np.load(path, allow_pickle=False) as z:
                 tag, F = str(z["format"]), np.asarray(z["facets"], dtype=float)
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
-            raise SpecError("unreadable facets file", file=str(path)) from None
+            raise DamagedFileError("unreadable facets file", file=str(path)) from None
         if (tag != FACETS_FORMAT or F.shape != (entry["facets"], self.n + 1)
                 or not np.all(np.isfinite(F))):
-            raise SpecError(f"not the facets {MANIFEST} records (format, count or values)",
-                            file=str(path))
+            raise DamagedFileError(f"not the facets {MANIFEST} records (format, count or "
+                                   "values)", file=str(path))
         self._facets[j] = F
         return F
 
@@ -732,9 +751,9 @@ class ShardedLaw:
 
         Raises
         ------
-        SpecError
-            The file is missing, is not the one the manifest records (its SHA-256), or
-            is not a law of this problem.
+        DamagedFileError
+            The file is missing, is not the one the manifest records (its size, its
+            SHA-256), or is not a law of this problem.
         """
         got = self._cache.get(j)
         if got is not None:
@@ -743,14 +762,18 @@ class ShardedLaw:
         entry = self._entries[j]
         path = self.dir / entry["file"]
         if not path.is_file():
-            raise SpecError("missing (a shard of the law)", file=str(path))
+            raise DamagedFileError("missing (a shard of the law)", file=str(path))
+        size = _size(entry)
+        if size is not None and path.stat().st_size != size:
+            raise DamagedFileError(f"its size is not the one {MANIFEST} records (damaged or "
+                              "edited): refused", file=str(path))
         if _file_sha(path) != entry["sha256"]:
-            raise SpecError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
-                            "edited): refused", file=str(path))
+            raise DamagedFileError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
+                              "edited): refused", file=str(path))
         law = ExplicitLaw.load(path)
         if law.num_regions != entry["regions"] or law.fingerprint != self.fingerprint:
-            raise SpecError(f"not the shard {MANIFEST} records (regions or fingerprint)",
-                            file=str(path))
+            raise DamagedFileError(f"not the shard {MANIFEST} records (regions or fingerprint)",
+                              file=str(path))
         self.loads += 1
         self._cache[j] = law
         while len(self._cache) > self._most:

@@ -1,6 +1,6 @@
 """A linear system's response to a bounded forcing, carried as a zonotope (issue 38).
 
-The nonlinear engine (``reach/nonlinear.py``) splits the deviation from its centre under
+The nonlinear engine (``reach/nonlinear_flow.py``) splits the deviation from its centre under
 disturbances and uncertain parameters as ``x - z = Phi (D d + M e) + psi_w + psi``; ``psi_w``
 is the response of the linearisation to the disturbances' and parameters' first-order
 forcing, which this module bounds by a zonotope (docs/verification.md, "The disturbances'

@@ -293,7 +293,7 @@ def _check(problem, enc, x_op, u_op, F0, G0, Ax, Bu, c0, c0_err, Ts, half, rho, 
            eps_M, eps_d, d, Gabs, sc):
     """The invariance and safety checks of ``S_c`` (``sqrt(c) = sc``, box half-widths
     ``half``): (margin, box_lo, box_hi), or a string saying which check failed."""
-    from codev_engine.reach.nonlinear import _add_pad
+    from codev_engine.reach.nonlinear_flow import _add_pad
 
     vs = problem.verify
     n = x_op.shape[0]

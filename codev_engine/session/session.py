@@ -10,6 +10,9 @@ loaded ("cached"), otherwise computed. Artifacts are written atomically (temp fi
 rename), then entered in the index; an artifact is used only if the index has it and its
 bytes hash to the indexed SHA-256 and its loader accepts it, so a run killed mid-write, a
 truncated or edited file, or a file from elsewhere is reported and recomputed, never used.
+A law stored as shards is opened from its manifest's SHA-256 and each shard's size; each
+shard's SHA-256 is checked when it is read, and a shard found damaged then ends the run in
+one line and is recomputed by the next (docs/sessions.md, "What is checked when").
 Nothing is unpickled; loading a session never runs code from it.
 
 :class:`Session` runs, reports the status of, replays and exports from a session; it knows
@@ -26,7 +29,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from codev_engine.errors import CodevError
+from codev_engine.errors import CodevError, DamagedFileError
 from codev_engine.io.atomic import atomic_path
 from codev_engine.kernel_cache import prepare
 from codev_engine.session import store
@@ -315,7 +318,9 @@ class Session:
         raise_errors : bool
             A stage failing with a ``CodevError`` (bad input, solver breakdown) is journaled
             as "failed" and re-raised; with False the run stops there and the report ends
-            with that stage's "failed" StageReport (its outcome holds the error).
+            with that stage's "failed" StageReport (its outcome holds the error). A file of
+            a cached artifact found damaged when read (``DamagedFileError``: a shard of the
+            law) is re-raised either way, the artifact marked for the next run to recompute.
         executor : Executor, optional
             Where the stages' parallel work runs (see ``StageRun``); the artifacts, keys
             and journal are the same whatever runs them.
@@ -371,11 +376,15 @@ class Session:
                                      executor)
                         )
                     except CodevError as exc:
+                        if isinstance(exc, DamagedFileError):  # (a shard of a cached law)
+                            exc = self._damaged(exc)
                         error = {"error": type(exc).__name__, "message": str(exc)}
                         sr = StageReport(name, "failed", key, time.perf_counter() - t0, error)
                         records.append(_record(sr, spec_sha, options, started))
-                        if raise_errors:
-                            raise
+                        if raise_errors or isinstance(exc, DamagedFileError):
+                            # (a damaged file of the session is no outcome of the stage: a
+                            # replay would report it as a mismatch; the run ends in its line)
+                            raise exc from None
                         report.stages.append(sr)
                         emit(name, "done", sr.to_json())
                         break
@@ -396,6 +405,19 @@ class Session:
                 report.run = store.append_journal(self.path, records, self.table.names)
         report.seconds = time.perf_counter() - t_run
         return report
+
+    def _damaged(self, exc: DamagedFileError) -> DamagedFileError:
+        """A file of a cached artifact found damaged when a stage read it (a shard of the
+        law: the store checks its size when the session opens the law, its SHA-256 is
+        checked when it is read). The store's rule for a damaged artifact: it is not used
+        again, the next run recomputes it (the artifact is marked in the index); the error
+        says so."""
+        name = None if exc.file is None else store.mark_damaged(self.path, exc.file,
+                                                                exc.reason)
+        if name is None:  # (a file of no artifact of this session)
+            return exc
+        return DamagedFileError(f"{exc.reason}; the session's next run recomputes {name}",
+                                file=exc.file, field=exc.field)
 
     def _save_regions(self, law: Any, keys: dict[str, str]) -> None:
         """Write the region cache of a law on demand again when the run grew it, so that

@@ -352,7 +352,9 @@ def _sharded_compute(run: StageRun) -> Any:
 def _synthesis_load(path: Path, problem: Problem) -> Any:
     from codev_engine.law import ExplicitLaw
 
-    if path.is_dir():  # (a law as shards: opened, read lazily, never merged here)
+    if path.is_dir():
+        # (a law as shards: opened from its manifest, read lazily, never merged here; the
+        # store checked each shard's size, ShardedLaw checks its SHA-256 when it reads it)
         from codev_engine.law_shards import ShardedLaw
 
         return ShardedLaw(path)

@@ -15,9 +15,13 @@ Every file is written atomically (temporary file, then rename: :mod:`codev_engin
 an artifact enters the index only after its rename, and is trusted only if the index lists it
 under the same key and its bytes still hash to the indexed SHA-256. A folder artifact is
 renamed into place whole (:func:`codev_engine.io.atomic.atomic_folder`); the index holds the
-SHA-256 of its manifest, which holds the SHA-256 of each of its files: it is trusted only if
-all of them still match. Reads never unpickle or run anything: JSON, TOML text and hashes
-only.
+SHA-256 of its manifest, which holds the SHA-256 and the size of each of its files. Opening
+it checks what is cheap and catches a torn or swapped folder: the manifest's SHA-256, and
+every file it lists there with its size (``os.stat``, no byte read: a law of 13 GB is not
+read to be opened). Each file's SHA-256 is checked by its reader when it first reads it
+(``law_shards.ShardedLaw``); one found damaged then (``errors.DamagedFileError``) marks the
+artifact damaged in the index (:func:`mark_damaged`), and the next run recomputes it. Reads
+never unpickle or run anything: JSON, TOML text and hashes only.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import os
+import stat
 from collections.abc import Collection, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
@@ -43,6 +49,7 @@ __all__ = [
     "create_folder",
     "file_sha",
     "locked",
+    "mark_damaged",
     "now",
     "read_journal",
     "read_jsonl",
@@ -56,8 +63,9 @@ __all__ = [
 ]
 
 SESSION_FORMAT = "codev-session/1"
-#: the manifest of a folder artifact: ``{"shards": [{"file", "sha256"}, ...]}`` (a law
-#: written as shards: ``codev_engine.law_shards.MANIFEST``, whose format it is)
+#: the manifest of a folder artifact: ``{"shards": [{"file", "sha256", "bytes"}, ...]}`` (a
+#: law written as shards: ``codev_engine.law_shards.MANIFEST``, whose format it is; a manifest
+#: written before ``bytes`` was recorded is checked without sizes)
 FOLDER_MANIFEST = "shards.json"
 
 
@@ -547,9 +555,10 @@ def check_artifact(folder: Path, path: Path, key: str) -> str | None:
     """Why the artifact at ``path`` cannot be used for ``key``.
 
     The file must be regular, listed in the index under ``key``, and hash to the indexed
-    SHA-256; a folder must be listed as one, its manifest hash to the indexed SHA-256 and
-    each of its files to the manifest's. (Whether its loader accepts it is the stage's
-    business.)
+    SHA-256; a folder must be listed as one, not marked damaged (:func:`mark_damaged`), its
+    manifest hash to the indexed SHA-256 and each of its files be there with the size the
+    manifest records (their SHA-256 is their reader's to check, when it reads them).
+    (Whether its loader accepts it is the stage's business.)
 
     Parameters
     ----------
@@ -573,34 +582,85 @@ def check_artifact(folder: Path, path: Path, key: str) -> str | None:
         return "not a regular file"
     if not isinstance(entry, dict) or entry.get("key") != key:
         return "not in the artifact index (an interrupted write?)"
+    if isinstance(entry.get("damaged"), str):  # (found when read, by an earlier run)
+        return entry["damaged"]
     if entry.get("sha256") != file_sha(path):
         return "its content does not match the recorded SHA-256 (damaged or edited)"
     return None
 
 
 def _check_folder(path: Path, entry: dict[str, Any]) -> str | None:
-    """Why a folder artifact cannot be used: its manifest must hash to the index's SHA-256
-    and every file it lists to the manifest's (the same rule as a file's, every file read:
-    a damaged shard is found here, where the session recomputes it, not in the middle of
-    a verification)."""
+    """Why a folder artifact cannot be used, from what is cheap to check: its manifest must
+    hash to the index's SHA-256 and every file it lists must be there with the size it
+    records (a stat each: no file is read). A torn or swapped folder is found here; a file
+    damaged in place, its size kept, is found by its reader's SHA-256 when first read
+    (:func:`mark_damaged` then, and the next run recomputes it)."""
+    if isinstance(entry.get("damaged"), str):  # (found when read, by an earlier run)
+        return entry["damaged"]
     manifest = path / FOLDER_MANIFEST
     if not manifest.is_file():
         return f"no {FOLDER_MANIFEST} (an interrupted write?)"
-    if entry.get("sha256") != file_sha(manifest):
+    try:
+        text = manifest.read_bytes()  # (read once: hashed, then parsed)
+    except OSError as exc:
+        return f"its {FOLDER_MANIFEST} is unreadable ({exc.__class__.__name__})"
+    if entry.get("sha256") != sha(text):
         return f"its {FOLDER_MANIFEST} does not match the recorded SHA-256 (damaged or edited)"
     try:
-        files = json.loads(manifest.read_text(encoding="utf-8"))["shards"]
-        listed = [(str(f["file"]), str(f["sha256"])) for f in files]
+        files = json.loads(text.decode("utf-8"))["shards"]
+        listed = [(str(f["file"]), f.get("bytes")) for f in files]
         # (a sharded search's law: each shard's facets of the domain in a file of its own)
-        listed += [(str(f["facets_file"]), str(f["facets_sha256"])) for f in files
+        listed += [(str(f["facets_file"]), f.get("facets_bytes")) for f in files
                    if "facets_file" in f]
-    except (OSError, ValueError, RecursionError, UnicodeDecodeError, KeyError, TypeError):
+    except (OSError, ValueError, RecursionError, UnicodeDecodeError, KeyError, TypeError,
+            AttributeError):
         return f"its {FOLDER_MANIFEST} does not list its files"
-    for name, digest in listed:
+    for name, size in listed:
         file = path / name
-        if Path(name).name != name or not file.is_file():
+        try:
+            st = None if Path(name).name != name else file.stat()
+        except OSError:
+            st = None
+        if st is None or not stat.S_ISREG(st.st_mode):
             return f"{name} is missing"
-        if file_sha(file) != digest:
-            return (f"{name}: its content does not match the SHA-256 its manifest records "
-                    "(damaged or edited)")
+        if size is not None and st.st_size != size:  # (None: a manifest without sizes)
+            return (f"{name}: its size is not the one its manifest records ({st.st_size} "
+                    f"bytes, not {size}: damaged, truncated or swapped)")
+    return None
+
+
+def mark_damaged(folder: Path, file: str | os.PathLike, why: str) -> str | None:
+    """Mark the artifact that holds ``file`` damaged in the index, so that the next run
+    recomputes it: ``file`` was found damaged when read (``errors.DamagedFileError``: a
+    shard of a law, whose SHA-256 is checked when read, not when the artifact is opened).
+
+    Parameters
+    ----------
+    folder : Path
+        The session folder.
+    file : path-like
+        The damaged file: an artifact, or a file of a folder artifact.
+    why : str
+        What its reader found (the reason the next run's warning gives).
+
+    Returns
+    -------
+    str or None
+        The artifact's name, or None when ``file`` is no artifact of this session's index
+        (a law from elsewhere: nothing to mark).
+    """
+    file = Path(file)
+    artifacts = folder / "artifacts"
+    for path in (file, file.parent):
+        if path.parent.resolve() != artifacts.resolve():
+            continue
+        with locked(folder):
+            index = _index(folder)
+            entry = index.get(path.name)
+            if not isinstance(entry, dict):
+                return None
+            part = f"{file.name}: " if path != file else ""
+            entry["damaged"] = f"{part}{why} (found when read)"
+            write_text(artifacts / "index.json", json.dumps(index, indent=1, sort_keys=True))
+        return path.name
     return None

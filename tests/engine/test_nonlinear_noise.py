@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from codev_engine.pipeline import loads_spec
-from codev_engine.reach.nonlinear import NonlinearReach, _Set
+from codev_engine.reach.nonlinear import NonlinearReach
+from codev_engine.reach.nonlinear_flow import _Set
 from codev_engine.reach.simulate import first_violation, simulate
 from codev_engine.reach.verification import verify
 from codev_engine.synthesis import synthesize

@@ -2,12 +2,14 @@
 
 ``RunOptions(sharded=True)`` (``codev run --session DIR --workers N --sharded``): the workers
 write the law's shards into a temporary folder beside the artifact, renamed into place once
-its manifest is written; the store trusts the folder through its manifest's SHA-256 and each
-shard's; loading opens a ``ShardedLaw`` that reads no shard until asked. A damaged shard is
-reported, naming it, and recomputed (the store's rule for every artifact); a torn folder is
-never taken. Sharding is in the synthesis key, the serial keys are as they were. The
-recording's key follows the code that draws it. The cluster runs are slow (a LocalCluster);
-the rest runs the same stage without one (one shard).
+its manifest is written; the store opens the folder from its manifest's SHA-256 and a stat
+of each shard (its size); loading opens a ``ShardedLaw`` that reads no shard until asked,
+and checks each shard's SHA-256 when it reads it. A shard of the wrong size is reported at
+open, one damaged in place when read (one line), naming it, and recomputed by the next run
+(the store's rule for every artifact); a torn folder is never taken. Sharding is in the
+synthesis key, the serial keys are as they were. The recording's key follows the code that
+draws it. The cluster runs are slow (a LocalCluster); the rest runs the same stage without
+one (one shard).
 """
 
 from __future__ import annotations
@@ -22,11 +24,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from codev_engine.errors import DamagedFileError
 from codev_engine.law_shards import ShardedLaw
 from codev_engine.pipeline import load_spec, loads_spec
 from codev_engine.session import RunOptions, Session, SessionError, stage_keys
 from codev_engine.session.stages import view_code_sha
-from codev_engine.session.store import check_artifact
+from codev_engine.session.store import check_artifact, mark_damaged, register_artifact
 from tests.engine.test_law_shards import SPEC
 from workbench.cli import main
 
@@ -76,30 +79,39 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     # the journal keeps the choice; the status of the last run's options finds the folder
     assert session.journal()[-1]["options"]["sharded"] is True
     assert {s.stage: s.status for s in session.status(problem)}["synthesis"] == "cached"
-    # the shard's facets of the domain are checked as its shards: an edited one is named
+    # the shard's facets of the domain are checked as its shards: one damaged in place is
+    # refused when read, naming it; one truncated is named at open
     facets = folder / "facets-0.npz"
-    raw = bytearray(facets.read_bytes())
-    raw[len(raw) // 2] ^= 1
-    facets.write_bytes(bytes(raw))
+    kept = facets.read_bytes()
+    _flip(facets)
+    with pytest.raises(DamagedFileError, match="facets-0.npz"):
+        ShardedLaw(folder).domain_rows(np.full(2, -1.0), np.full(2, 1.0))
+    facets.write_bytes(kept[:-1])
     status = {s.stage: s for s in session.status(problem)}["synthesis"]
-    assert status.status == "corrupt" and "facets-0.npz" in status.reason
+    assert status.status == "corrupt" and "facets-0.npz: its size" in status.reason
 
 
-def test_a_damaged_shard_is_named_and_recomputed(spec, tmp_path, capsys):
-    """The store's rule for a damaged artifact: ``codev session`` names the shard,
-    a run (here ``codev replay``, which recomputes without a cluster: one shard) says so on
-    one warning line and recomputes it; the verification downstream, whose key holds the
+def _flip(path: Path) -> None:
+    """One byte of ``path`` changed, its size kept (what a stat cannot see)."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 1
+    path.write_bytes(bytes(data))
+
+
+def test_a_truncated_shard_is_named_at_open_and_recomputed(spec, tmp_path, capsys):
+    """A shard of another size than its manifest's (truncated, or another law's swapped
+    in), found when the session opens the law (a stat): ``codev session`` names it, a run
+    (here ``codev replay``, which recomputes without a cluster: one shard) says so on one
+    warning line and recomputes it; the verification downstream, whose key holds the
     law's, stays cached."""
     problem = load_spec(spec)
     session = Session.create(tmp_path / "s")
     rep = session.run(problem, SHARDED)
     folder = session.path / rep.stage("synthesis").artifact
     shard = folder / "shard-0.npz"
-    data = bytearray(shard.read_bytes())
-    data[len(data) // 2] ^= 1
-    shard.write_bytes(bytes(data))
+    shard.write_bytes(shard.read_bytes()[:-1])
     status = {s.stage: s for s in session.status(problem)}["synthesis"]
-    assert status.status == "corrupt" and "shard-0.npz" in status.reason
+    assert status.status == "corrupt" and "shard-0.npz: its size" in status.reason
     assert main(["session", str(session.path)]) == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "synthesis" in ln)
     assert "corrupt" in line and "shard-0.npz" in line
@@ -111,6 +123,109 @@ def test_a_damaged_shard_is_named_and_recomputed(spec, tmp_path, capsys):
     assert len(warned) == 1 and "shard-0.npz" in warned[0] and "recomputed" in warned[0]
     assert check_artifact(session.path, folder, rep.stage("synthesis").key) is None
     assert not _leftovers(session.path)  # (the damaged folder removed once replaced)
+
+
+def test_opening_a_cached_sharded_law_reads_no_shard(spec, tmp_path):
+    """The session opens a law of shards from its manifest and a stat of each shard: every
+    file the process opens during a cached run is recorded (the interpreter's audit
+    hook, nothing patched), and no shard is among them, though every shard's content is
+    damaged (its size kept: found only when read). The first question reads one and
+    refuses it, naming it. A manifest written before the sizes were recorded is opened
+    too (a shard's SHA-256 is checked when read)."""
+    problem = load_spec(spec)
+    session = Session.create(tmp_path / "s")
+    upto = replace_upto(SHARDED, "synthesis")
+    folder = session.path / session.run(problem, upto).stage("synthesis").artifact
+    for shard in folder.glob("shard-*.npz"):
+        _flip(shard)
+    opened: list[str] = []
+    recording = [False]
+
+    def hook(event: str, args: tuple) -> None:
+        if recording[0] and event == "open" and isinstance(args[0], (str, bytes, os.PathLike)):
+            opened.append(os.fsdecode(args[0]))
+
+    sys.addaudithook(hook)  # (for the rest of the process: off outside the block)
+    recording[0] = True
+    try:
+        again = session.run(problem, upto)
+        status = {s.stage: s.status for s in session.status(problem)}
+    finally:
+        recording[0] = False
+    assert again.stage("synthesis").status == "cached" and status["synthesis"] == "cached"
+    assert again.law.loads == 0
+    assert any(Path(f).name == "shards.json" for f in opened)  # (the hook saw the opens)
+    assert not [f for f in opened if Path(f).name.startswith("shard-")], opened
+    with pytest.raises(DamagedFileError, match=r"shard-0\.npz: its SHA-256 is not the one"):
+        again.law.locate(np.zeros((1, 2)))
+    # a manifest without sizes (written before they were recorded): opened, checked when read
+    manifest = folder / "shards.json"
+    data = json.loads(manifest.read_text())
+    for entry in data["shards"]:
+        del entry["bytes"]
+    manifest.write_text(json.dumps(data))
+    register_artifact(session.path, folder, "synthesis", again.stage("synthesis").key)
+    old = session.run(problem, upto)
+    assert old.stage("synthesis").status == "cached" and old.law.loads == 0
+    with pytest.raises(DamagedFileError, match=r"shard-0\.npz"):
+        old.law.locate(np.zeros((1, 2)))
+
+
+def test_a_shard_damaged_in_place_is_refused_when_read_and_recomputed(spec, tmp_path,
+                                                                      capsys):
+    """A flipped byte, the size kept: the session opens the law (cached), and the
+    verification's first read of the shard refuses it: ``codev run --session`` ends in one
+    line naming the file, exit 2, no traceback, and the artifact is marked damaged in the
+    index. The run after recomputes the law (one warning naming the shard), verifies, and
+    the one after that finds everything cached."""
+    problem = load_spec(spec)
+    s = tmp_path / "s"
+    session = Session.create(s)
+    syn = session.run(problem, replace_upto(SHARDED, "synthesis")).stage("synthesis")
+    _flip(s / syn.artifact / "shard-0.npz")
+    # (--workers: the CLI's sharded run needs a cluster; the law is cached and the linear
+    # verification asks none, so none is started)
+    code = main(["run", str(spec), "--session", str(s), "--workers", "2", "--sharded",
+                 "--traces", "1"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith("codev: error: ") and "shard-0.npz: its SHA-256" in err[0]
+    assert "next run recomputes" in err[0]
+    failed = session.journal()[-1]
+    assert failed["stage"] == "verification" and failed["status"] == "failed"
+    assert "shard-0.npz" in check_artifact(s, s / syn.artifact, syn.key)
+    status = {st.stage: st for st in session.status(problem, SHARDED)}["synthesis"]
+    assert status.status == "corrupt" and "found when read" in status.reason
+    # (a file of no artifact of this session, a law from elsewhere: nothing to mark)
+    assert mark_damaged(s, tmp_path / "law.shards" / "shard-0.npz", "damaged") is None
+    warned: list[str] = []
+    after = session.run(problem, SHARDED, warn=warned.append)
+    assert [st.status for st in after.stages] == ["cached", "computed", "computed", "computed"]
+    assert len(warned) == 1 and "shard-0.npz" in warned[0] and "recomputed" in warned[0]
+    assert after.stage("synthesis").outcome == syn.outcome
+    assert after.result.verdict == "robustly_safe"
+    assert check_artifact(s, s / syn.artifact, syn.key) is None
+    code = main(["run", str(spec), "--session", str(s), "--workers", "2", "--sharded",
+                 "--traces", "1", "--json"])
+    got = json.loads(capsys.readouterr().out)
+    assert code == 0 and all(st["status"] == "cached" for st in got["session"]["stages"].values())
+
+
+def test_a_replay_that_finds_a_damaged_shard_ends_and_the_next_recomputes(spec, tmp_path):
+    """A replay compares the stages' outcomes, a failed stage's included; a damaged shard
+    is no outcome of the stage that read it: the replay ends in its error, and the replay
+    after recomputes the law (one warning naming the shard) and matches."""
+    problem = load_spec(spec)
+    session = Session.create(tmp_path / "s")
+    rep = session.run(problem, SHARDED)
+    (session.path / rep.stage("verification").artifact).unlink()  # (the replay reads the law)
+    _flip(session.path / rep.stage("synthesis").artifact / "shard-0.npz")
+    with pytest.raises(DamagedFileError, match=r"shard-0\.npz: its SHA-256.*next run recomp"):
+        session.replay()
+    warned: list[str] = []
+    again = session.replay(warn=warned.append)
+    assert again.ok and again.cached == 2  # (the model, the recording: its key is the same)
+    assert len(warned) == 1 and "shard-0.npz" in warned[0] and "recomputed" in warned[0]
 
 
 @pytest.mark.parametrize("tear", ["manifest", "index"])
