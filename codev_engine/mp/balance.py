@@ -161,25 +161,74 @@ class BalancedWriter:
         return self.writer.op
 
     def write(self, regions: RegionArrays, j: int, facets: np.ndarray | None = None) -> dict:
-        """Worker side: shard ``j``'s regions (and facets ``[a, beta]``) of ``theta_s``
-        written in ``theta`` (``ShardWriter.write``)."""
+        """Worker side: shard ``j``'s regions (and facets) of ``theta_s`` written in
+        ``theta`` (``ShardWriter.write``).
+
+        Parameters
+        ----------
+        regions : RegionArrays
+            In ``theta_s`` (the laws in the program's original variables).
+        j : int
+            The shard.
+        facets : (q, d + 1) ndarray, optional
+            Rows ``[a, beta]``, ``a theta_s <= beta``.
+
+        Returns
+        -------
+        dict
+            The shard's manifest entry.
+        """
         if facets is not None and facets.shape[0]:
             A, b = rows_back(facets[:, :-1], facets[:, -1], self.D)
             facets = np.hstack([A, b[:, None]])
         return self.writer.write(regions_back(regions, self.D), j, facets, scale=self.D)
 
     def point(self, X: np.ndarray) -> np.ndarray:
-        """Points of ``theta_s`` in the law's variables: ``D theta_s + op``."""
+        """Points of ``theta_s`` in the law's variables: ``D theta_s + op``.
+
+        Parameters
+        ----------
+        X : (P, d) or (d,) ndarray
+
+        Returns
+        -------
+        ndarray
+            ``X``'s shape.
+        """
         return self.writer.point(np.asarray(X, float) * self.D)
 
     def locate(self, j: int, X: np.ndarray) -> np.ndarray:
-        """Worker side: ``ShardWriter.locate`` (``X`` already in the law's variables)."""
+        """Worker side: ``ShardWriter.locate``.
+
+        Parameters
+        ----------
+        j : int
+        X : (P, d) ndarray
+            In the law's variables already (:meth:`point`).
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
         return self.writer.locate(j, X)
 
     def open(self, entries: list[dict], set_A: np.ndarray, set_b: np.ndarray,
              meta: dict | None = None):
         """Client side: ``ShardWriter.open`` with the parameter set's rows of ``theta_s``
-        in ``theta``; the stats say how many axes were rescaled."""
+        in ``theta``; the stats say how many axes were rescaled.
+
+        Parameters
+        ----------
+        entries : list of dict
+            :meth:`write`'s answers, in shard order.
+        set_A, set_b : (p, d), (p,) ndarrays
+            The parameter set's rows in ``theta_s``.
+        meta : dict, optional
+
+        Returns
+        -------
+        law_shards.ShardedLaw
+        """
         A, b = rows_back(np.asarray(set_A, float), np.asarray(set_b, float), self.D)
         meta = dict(meta or {})
         if isinstance(meta.get("stats"), dict):
