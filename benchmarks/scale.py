@@ -326,8 +326,8 @@ def main(argv: list[str] | None = None) -> int:
                           f"{after:.2f} s after (merge, clean-up)", flush=True)
                     print(f"  client peak memory (VmHWM) {d['client_peak_rss_mb']:.0f} MB, "
                           f"its CPU from the last round on {d['end_client_cpu_seconds'] or 0:.2f} s"
-                          + (f"; the end on the client: {d['finish_client_cpu_seconds']:.2f} s"
-                             " (domain from the shards' facets, manifest, coverage)"
+                          + (f"; the end on the client: {d['finish_client_cpu_seconds']:.4f} s"
+                             " (the manifest, coverage; the facets stay in the shards)"
                              if d["finish_client_cpu_seconds"] is not None else ""),
                           flush=True)
                     if d["shards_per_point"]:

@@ -21,6 +21,13 @@ what an exporter of one C table needs). The interface is the one ``ExplicitLaw``
 ``law_on_demand.OnDemandLaw`` give the reach engines. At most ``cache`` shards are held at
 once (the least recently used one is dropped).
 
+A law of the sharded search keeps its **domain** (the feasible parameter set ``D``) in the
+shards too: each shard's facets of ``D`` (the rows of its regions that hold on all of ``D``)
+in a checked side file ``facets-<j>.npz``, the parameter set's rows in the manifest.
+:meth:`ShardedLaw.domain_rows` then answers a box with the parameter set's rows and the
+facets of the shards whose box meets it (:attr:`ShardedLaw.local_domain`: no file but
+those shards' facets is read; docs/scale.md says why that describes ``D`` in the box).
+
 A damaged or edited shard is refused when read (``errors.DamagedFileError``, a ``SpecError``
 naming the file): its size or its SHA-256 is not the manifest's (a manifest written before
 the size was recorded: its SHA-256 alone). A manifest torn by a crash is not there at all
@@ -33,6 +40,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import zipfile
 from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -45,8 +53,8 @@ from codev_engine.io.atomic import write_text
 from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
 
-__all__ = ["SHARDS_FORMAT", "ShardWriter", "ShardedLaw", "spatial_order", "split_law",
-           "update_meta", "write_law_shards"]
+__all__ = ["FACETS_FORMAT", "SHARDS_FORMAT", "ShardWriter", "ShardedLaw", "spatial_order",
+           "split_law", "update_meta", "write_law_shards"]
 
 #: format tag of a sharded law's manifest
 SHARDS_FORMAT = "codev-law-shards/1"
@@ -54,8 +62,23 @@ SHARDS_FORMAT = "codev-law-shards/1"
 MANIFEST = "shards.json"
 #: shards held in memory at once by default
 CACHE = 4
+#: format tag of a shard's facets file (``facets-<j>.npz``)
+FACETS_FORMAT = "codev-law-facets/1"
 #: the bounding-box tolerance of ``ExplicitLaw.regions_meeting``
 _BOX_TOL = 1e-9
+
+
+def _save_facets(facets: np.ndarray, path: Path) -> dict:
+    """Save a shard's facets ``(q, n + 1)`` rows ``[a, beta]`` (``a x <= beta``) atomically
+    and return the fields of its manifest entry (the file, its SHA-256, the count)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as f:
+        np.savez(f, format=np.array(FACETS_FORMAT), facets=np.asarray(facets, float))
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    return {"facets_file": path.name, "facets_sha256": _file_sha(path),
+            "facets_bytes": path.stat().st_size, "facets": int(facets.shape[0])}
 
 
 def _file_sha(path: Path) -> str:
@@ -189,12 +212,13 @@ def write_manifest(directory: str | os.PathLike, head: dict, entries: list[dict]
         The folder of the shard files.
     head : dict
         ``fingerprint``, ``states``, ``inputs``, ``parameters``, ``n``, ``m``, ``meta``,
-        ``domain`` (bool) and, optionally, ``domain_A`` / ``domain_b`` (the law's domain,
-        when the shard files do not hold it: the sharded search's workers write theirs
-        before the domain is known).
+        ``domain`` (bool) and, optionally, ``parameter_set_A`` / ``parameter_set_b`` (the
+        parameter set's rows, when the entries name each shard's facets of the domain:
+        the sharded search's) or ``domain_A`` / ``domain_b`` (the law's whole domain).
     entries : list of dict
         One per shard file, in order (``file``, ``sha256``, ``bytes``, ``regions``, ``lo``,
-        ``hi``).
+        ``hi``; ``facets_file``, ``facets_sha256``, ``facets_bytes``, ``facets`` with the
+        facets in side files).
 
     Returns
     -------
@@ -295,14 +319,24 @@ class ShardWriter:
                            fingerprint=self.fingerprint, meta={"shard": True},
                            parameters=self.parameters)
 
-    def write(self, regions: RegionArrays, j: int) -> dict:
-        """Worker side: write shard ``j`` (``shard-<j>.npz``, atomic) and return its
-        manifest entry (its SHA-256, regions and box).
+    def write(self, regions: RegionArrays, j: int, facets: np.ndarray | None = None,
+              scale: np.ndarray | None = None) -> dict:
+        """Worker side: write shard ``j`` (``shard-<j>.npz``, atomic) and, given, its facets
+        of the law's domain (``facets-<j>.npz``, atomic, in the law's variables) and return
+        its manifest entry (the files' SHA-256, the regions, the box, the facets' count).
 
         Parameters
         ----------
         regions : RegionArrays
         j : int
+        facets : (q, d + 1) ndarray, optional
+            Rows ``[a, beta]``, ``a theta <= beta`` in the program's variables
+            (``theta - op``): the feasible set's facets among the shard's rows.
+        scale : (d,) ndarray, optional
+            The search ran on ``theta = scale * theta_s`` (``mp.balance``): the regions'
+            boxes are computed in ``theta_s``, where the axes are of like size, and scaled
+            (in ``theta`` the LPs of a box stopped short of a region 2**-11 wide on one
+            axis and 2**13 on another, by 2e-6: a box that missed part of its region).
 
         Returns
         -------
@@ -310,7 +344,29 @@ class ShardWriter:
         """
         folder = Path(self.directory)
         folder.mkdir(parents=True, exist_ok=True)
-        return _save_shard(self.law(regions), folder / f"shard-{j}.npz")
+        law = self.law(regions)
+        if scale is not None and law.num_regions:
+            law._boxes = _scaled_boxes(law, np.asarray(scale, float), self.op)
+        entry = _save_shard(law, folder / f"shard-{j}.npz")
+        if facets is not None:
+            F = np.asarray(facets, float).reshape(-1, self.op.size + 1).copy()
+            F[:, -1] += F[:, :-1] @ self.op  # (to the law's variables)
+            entry.update(_save_facets(F, folder / f"facets-{j}.npz"))
+        return entry
+
+    def point(self, X: np.ndarray) -> np.ndarray:
+        """Points of the search's ``theta`` in the law's variables (``theta + op``).
+
+        Parameters
+        ----------
+        X : (P, d) or (d,) ndarray
+
+        Returns
+        -------
+        ndarray
+            ``X``'s shape.
+        """
+        return np.asarray(X, float) + self.op
 
     def locate(self, j: int, X: np.ndarray) -> np.ndarray:
         """Worker side: region index of each point in shard ``j`` alone (-1 outside its
@@ -328,16 +384,18 @@ class ShardWriter:
         """
         return ExplicitLaw.load(Path(self.directory) / f"shard-{j}.npz").locate(X)
 
-    def open(self, entries: list[dict], domain_A: np.ndarray, domain_b: np.ndarray,
+    def open(self, entries: list[dict], set_A: np.ndarray, set_b: np.ndarray,
              meta: dict | None = None) -> ShardedLaw:
-        """Client side: write the manifest of the shards written (the domain, in the
-        program's variables, shifted to the law's) and open the law.
+        """Client side: write the manifest of the shards written (with the parameter
+        set's rows, in the program's variables, shifted to the law's: with the shards'
+        facets, the law's domain) and open the law.
 
         Parameters
         ----------
         entries : list of dict
-            :meth:`write`'s answers, in shard order.
-        domain_A, domain_b : (p, d), (p,) ndarrays
+            :meth:`write`'s answers (with their facets), in shard order.
+        set_A, set_b : (p, d), (p,) ndarrays
+            The parameter set's rows (every one: the domain is the set cut by the facets).
         meta : dict, optional
             Added to :attr:`meta`.
 
@@ -346,13 +404,31 @@ class ShardWriter:
         ShardedLaw
         """
         m = self.rows[1] - self.rows[0]
-        dA = np.asarray(domain_A, float).reshape(-1, self.op.size)
+        pA = np.asarray(set_A, float).reshape(-1, self.op.size)
         head = {"fingerprint": self.fingerprint, "states": list(self.states),
                 "inputs": list(self.inputs), "parameters": list(self.parameters),
                 "n": int(self.op.size), "m": int(m), "meta": dict(self.meta, **(meta or {})),
-                "domain": True, "domain_A": dA, "domain_b": np.asarray(domain_b) + dA @ self.op}
+                "domain": True, "parameter_set_A": pA,
+                "parameter_set_b": np.asarray(set_b, float) + pA @ self.op}
         write_manifest(self.directory, head, entries)
         return ShardedLaw(self.directory)
+
+
+def _scaled_boxes(law: ExplicitLaw, D: np.ndarray, op: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The bounding boxes of ``law``'s regions (in ``theta``), computed in ``theta_s``
+    with ``theta = D theta_s + op`` (``D`` powers of two: the scaling back is exact)."""
+    from codev_engine.geometry.locate import bounding_boxes
+
+    As, bs = [], []
+    for A, b in zip(law.A, law.b, strict=True):
+        As_ = A * D
+        nrm = np.linalg.norm(As_, axis=1)
+        nrm[nrm == 0.0] = 1.0
+        As.append(As_ / nrm[:, None])
+        bs.append((b - A @ op) / nrm)
+    lo, hi = bounding_boxes(As, bs)
+    return lo * D + op, hi * D + op
 
 
 def _cell(entry: dict, n: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -364,6 +440,18 @@ def _cell(entry: dict, n: int) -> tuple[np.ndarray, np.ndarray] | None:
     except (KeyError, TypeError, ValueError):
         return None
     return (lo, hi) if lo.shape == hi.shape == (n,) else None
+
+
+def _matrix(data: dict, a: str, b: str, n: int, where: str
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """The manifest's rows ``data[a] x <= data[b]``, checked (``SpecError`` naming ``a``)."""
+    try:
+        A = np.asarray(data[a], dtype=float).reshape(-1, n)
+        rhs = np.asarray(data[b], dtype=float).reshape(A.shape[0])
+    except (TypeError, ValueError, KeyError):
+        raise SpecError(f"must be a ({n}-column) matrix and its offsets", file=where,
+                        field=a) from None
+    return A, rhs
 
 
 def _size(entry: dict) -> int | None:
@@ -442,6 +530,10 @@ class ShardedLaw:
     meta : dict
     offsets : (S + 1,) ndarray of int
         Shard ``j`` holds the regions ``offsets[j]:offsets[j + 1]``.
+    local_domain : bool
+        The domain is held as each shard's facets (the sharded search's law):
+        :meth:`domain_rows` reads only the facets of the shards a box meets, and a
+        consumer that needs the domain near a set asks it rather than :attr:`domain_A`.
     """
 
     def __init__(self, directory: str | os.PathLike, *, cache: int = CACHE):
@@ -469,6 +561,14 @@ class ShardedLaw:
                 raise SpecError("must name a file in the folder, its sha256 and its regions "
                                 "(and its bytes, a count, when recorded)",
                                 file=where, field=f"shards[{j}]")
+            if "facets_file" in e and not (
+                    isinstance(e["facets_file"], str)
+                    and Path(e["facets_file"]).name == e["facets_file"]
+                    and isinstance(e.get("facets_sha256"), str)
+                    and isinstance(e.get("facets"), int) and e["facets"] >= 0
+                    and _size({"bytes": e.get("facets_bytes")}) != -1):
+                raise SpecError("must name its facets file in the folder, its sha256 and "
+                                "its count", file=where, field=f"shards[{j}].facets_file")
             counts.append(e["regions"])
         self._entries = shards
         self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -488,13 +588,17 @@ class ShardedLaw:
         # shards before it is known); else the shards' own
         self._domain = None
         if data.get("domain_A") is not None:
-            try:
-                dA = np.asarray(data["domain_A"], dtype=float).reshape(-1, self._n)
-                db = np.asarray(data["domain_b"], dtype=float).reshape(dA.shape[0])
-            except (TypeError, ValueError, KeyError):
-                raise SpecError(f"must be a ({self._n}-column) matrix and its offsets",
-                                file=where, field="domain_A") from None
-            self._domain = (dA, db)
+            self._domain = _matrix(data, "domain_A", "domain_b", self._n, where)
+        # the sharded search's: the parameter set's rows here, each shard's facets of the
+        # domain in its own file (read when a box meets the shard)
+        self._set = None
+        if data.get("parameter_set_A") is not None:
+            self._set = _matrix(data, "parameter_set_A", "parameter_set_b", self._n, where)
+            if not all("facets_file" in e for e in shards):
+                raise SpecError("a law with the parameter set's rows must name every "
+                                "shard's facets file", file=where, field="shards")
+        self._facets: dict[int, np.ndarray] = {}  # (the boundary: small, all kept)
+        self._whole_domain: tuple[np.ndarray, np.ndarray] | None = None
         self._cache: OrderedDict[int, ExplicitLaw] = OrderedDict()
         self._most = max(1, int(cache))
         self.loads = 0  # shard files read (and checked) so far
@@ -547,15 +651,82 @@ class ShardedLaw:
         return self.parameters or self.states
 
     @property
+    def local_domain(self) -> bool:
+        """The domain is held as each shard's facets (see the class)."""
+        return self._set is not None
+
+    @property
     def domain_A(self) -> np.ndarray | None:
-        """The law's domain rows (the manifest's, else every shard holds them: read from
-        the first)."""
+        """The law's domain rows (the manifest's; with :attr:`local_domain` the parameter
+        set's rows and every shard's facets, read now: for a consumer of the whole law,
+        an exporter or a picture; else every shard holds them: read from the first)."""
+        if self._set is not None:
+            return self._whole()[0]
         return self._domain[0] if self._domain is not None else self.shard(0).domain_A
 
     @property
     def domain_b(self) -> np.ndarray | None:
         """The right-hand side of :attr:`domain_A`."""
+        if self._set is not None:
+            return self._whole()[1]
         return self._domain[1] if self._domain is not None else self.shard(0).domain_b
+
+    def _whole(self) -> tuple[np.ndarray, np.ndarray]:
+        """The parameter set's rows and every shard's facets, each once (a facet of the
+        domain split between shards is in each)."""
+        if self._whole_domain is None:
+            from codev_engine.geometry.polytope import unique_rows
+
+            rows = np.vstack([np.hstack([self._set[0], self._set[1][:, None]])]
+                             + [self.facets(j) for j in range(self.shards)])
+            rows = rows[unique_rows(rows, 9)] if rows.shape[0] else rows
+            self._whole_domain = (rows[:, :-1], rows[:, -1])
+        return self._whole_domain
+
+    def facets(self, j: int) -> np.ndarray:
+        """Shard ``j``'s facets of the law's domain, read and checked on first use.
+
+        Parameters
+        ----------
+        j : int
+
+        Returns
+        -------
+        (q, n + 1) ndarray
+            Rows ``[a, beta]``: ``a theta <= beta`` holds on the whole domain (none for a
+            law without facets files).
+
+        Raises
+        ------
+        SpecError
+            The file is missing, is not the one the manifest records, or is malformed.
+        """
+        got = self._facets.get(j)
+        if got is not None:
+            return got
+        entry = self._entries[j]
+        if "facets_file" not in entry:
+            return np.zeros((0, self.n + 1))
+        path = self.dir / entry["facets_file"]
+        if not path.is_file():
+            raise DamagedFileError("missing (a shard's facets of the law's domain)",
+                                   file=str(path))
+        size = entry.get("facets_bytes")
+        if (size is not None and path.stat().st_size != size) or (
+                _file_sha(path) != entry["facets_sha256"]):
+            raise DamagedFileError(f"its size or SHA-256 is not the one {MANIFEST} records "
+                                   "(damaged or edited): refused", file=str(path))
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                tag, F = str(z["format"]), np.asarray(z["facets"], dtype=float)
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            raise DamagedFileError("unreadable facets file", file=str(path)) from None
+        if (tag != FACETS_FORMAT or F.shape != (entry["facets"], self.n + 1)
+                or not np.all(np.isfinite(F))):
+            raise DamagedFileError(f"not the facets {MANIFEST} records (format, count or "
+                                   "values)", file=str(path))
+        self._facets[j] = F
+        return F
 
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -641,7 +812,16 @@ class ShardedLaw:
         return np.concatenate(found) if found else np.zeros(0, dtype=np.int64)
 
     def domain_rows(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The domain's rows (as ``ExplicitLaw.domain_rows``: the same whatever the box).
+        """Rows of the law's domain ``D`` valid on all of it that describe it inside the
+        box ``[lo, hi]``.
+
+        With :attr:`local_domain`: the parameter set's rows and the facets of the shards
+        whose box meets the box (every facet of ``D`` that meets the box is among them), so
+        when the box meets ``D`` a point of the box is in ``D`` exactly when it satisfies
+        them all (docs/scale.md, "The domain's facets in the shards"). When the box misses
+        ``D`` they may all hold on part of it: as ``law_on_demand.OnDemandLaw.domain_rows``,
+        the engine then finds no region for the set there. Otherwise the whole domain
+        (``ExplicitLaw.domain_rows``: the same whatever the box).
 
         Parameters
         ----------
@@ -650,8 +830,15 @@ class ShardedLaw:
         Returns
         -------
         (A, b) or None
+            ``(q, n)``, ``(q,)``; None when the law holds no domain.
         """
-        return None if self.domain_A is None else (self.domain_A, self.domain_b)
+        if self._set is None:
+            return None if self.domain_A is None else (self.domain_A, self.domain_b)
+        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        rows = np.vstack([np.hstack([self._set[0], self._set[1][:, None]])]
+                         + [self.facets(j) for j in range(self.shards)
+                            if self._meets(j, lo, hi)])
+        return rows[:, :-1], rows[:, -1]
 
     def locate(self, X: np.ndarray) -> np.ndarray:
         """Region index of each point (-1 outside the domain), from a shard whose regions
@@ -674,8 +861,10 @@ class ShardedLaw:
         # a point clearly outside the domain is in no region: no shard is read for it
         # (the margin is far above the locator's tolerance, 1e-9 on unit rows)
         outside = np.zeros(X.shape[0], dtype=bool)
-        if self._domain is not None and self._domain[0].shape[0]:
-            dA, db = self._domain
+        # (with the facets in the shards, the parameter set's rows: the manifest's)
+        known = self._domain if self._set is None else self._set
+        if known is not None and known[0].shape[0]:
+            dA, db = known
             norm = np.maximum(np.linalg.norm(dA, axis=1), 1e-300)
             outside = np.any((X @ dA.T - db) / norm > 1e-6 * (1.0 + np.abs(db) / norm),
                              axis=1)

@@ -17,14 +17,16 @@ narrower than the widest one, and the regions and laws are mapped back.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from codev_engine.mp.program import MpProgram
 from codev_engine.mp.reduce import parameter_box, reduce_program
 from codev_engine.mp.solution import MpSolution, RegionArrays
 
-__all__ = ["BALANCE_RATIO", "balanced", "parameter_scaling", "program_scaling", "rows_back",
-           "unbalanced"]
+__all__ = ["BALANCE_RATIO", "BalancedWriter", "balanced", "parameter_scaling",
+           "program_scaling", "regions_back", "rows_back", "unbalanced"]
 
 #: an axis of the parameter box narrower than the widest by more than this factor is
 #: rescaled (a power of two, to the widest's width)
@@ -116,6 +118,124 @@ def rows_back(A: np.ndarray, b: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, 
     return A / norm[:, None], b / norm
 
 
+def regions_back(ra: RegionArrays, D: np.ndarray) -> RegionArrays:
+    """Regions and laws of ``theta_s`` in ``theta``: rows ``A D^-1`` (unit rows again), laws
+    ``K D^-1`` (exact).
+
+    Parameters
+    ----------
+    ra : RegionArrays
+        In ``theta_s``.
+    D : (d,) ndarray
+
+    Returns
+    -------
+    RegionArrays
+    """
+    A, b = rows_back(ra.A, ra.b, D)
+    sA, sb = rows_back(ra.shared_A, ra.shared_b, D)
+    return RegionArrays(A, b, ra.offsets, ra.K / D, ra.k, ra.active, ra.active_offsets,
+                        ra.implied, sA, sb)
+
+
+@dataclass(frozen=True)
+class BalancedWriter:
+    """A sharded search's law writer (``law_shards.ShardWriter``) for a search in balanced
+    units: what the workers hand it in ``theta_s`` is written in ``theta = D theta_s``, so
+    the law's shards are the program's law, in its own units.
+
+    Attributes
+    ----------
+    writer : law_shards.ShardWriter
+        Writes in ``theta`` (its ``op`` added after the rescaling).
+    D : (d,) ndarray
+        Powers of two.
+    """
+
+    writer: object
+    D: np.ndarray
+
+    @property
+    def op(self) -> np.ndarray:
+        """The writer's ``op`` (in ``theta``)."""
+        return self.writer.op
+
+    def write(self, regions: RegionArrays, j: int, facets: np.ndarray | None = None) -> dict:
+        """Worker side: shard ``j``'s regions (and facets) of ``theta_s`` written in
+        ``theta`` (``ShardWriter.write``).
+
+        Parameters
+        ----------
+        regions : RegionArrays
+            In ``theta_s`` (the laws in the program's original variables).
+        j : int
+            The shard.
+        facets : (q, d + 1) ndarray, optional
+            Rows ``[a, beta]``, ``a theta_s <= beta``.
+
+        Returns
+        -------
+        dict
+            The shard's manifest entry.
+        """
+        if facets is not None and facets.shape[0]:
+            A, b = rows_back(facets[:, :-1], facets[:, -1], self.D)
+            facets = np.hstack([A, b[:, None]])
+        return self.writer.write(regions_back(regions, self.D), j, facets, scale=self.D)
+
+    def point(self, X: np.ndarray) -> np.ndarray:
+        """Points of ``theta_s`` in the law's variables: ``D theta_s + op``.
+
+        Parameters
+        ----------
+        X : (P, d) or (d,) ndarray
+
+        Returns
+        -------
+        ndarray
+            ``X``'s shape.
+        """
+        return self.writer.point(np.asarray(X, float) * self.D)
+
+    def locate(self, j: int, X: np.ndarray) -> np.ndarray:
+        """Worker side: ``ShardWriter.locate``.
+
+        Parameters
+        ----------
+        j : int
+        X : (P, d) ndarray
+            In the law's variables already (:meth:`point`).
+
+        Returns
+        -------
+        (P,) ndarray of int
+        """
+        return self.writer.locate(j, X)
+
+    def open(self, entries: list[dict], set_A: np.ndarray, set_b: np.ndarray,
+             meta: dict | None = None):
+        """Client side: ``ShardWriter.open`` with the parameter set's rows of ``theta_s``
+        in ``theta``; the stats say how many axes were rescaled.
+
+        Parameters
+        ----------
+        entries : list of dict
+            :meth:`write`'s answers, in shard order.
+        set_A, set_b : (p, d), (p,) ndarrays
+            The parameter set's rows in ``theta_s``.
+        meta : dict, optional
+
+        Returns
+        -------
+        law_shards.ShardedLaw
+        """
+        A, b = rows_back(np.asarray(set_A, float), np.asarray(set_b, float), self.D)
+        meta = dict(meta or {})
+        if isinstance(meta.get("stats"), dict):
+            meta["stats"]["parameter_axes_scaled"] = int(np.sum(self.D != 1.0))
+        return self.writer.open(entries, A, b, meta)
+
+
 def unbalanced(sol: MpSolution, program: MpProgram, D: np.ndarray) -> MpSolution:
     """A solution of ``balanced(program, D)`` as a solution of ``program``.
 
@@ -133,11 +253,7 @@ def unbalanced(sol: MpSolution, program: MpProgram, D: np.ndarray) -> MpSolution
         Regions ``A D^-1 theta <= b`` (unit rows), laws ``K D^-1`` (exact), the domain
         likewise; the stats say how many axes were rescaled (``parameter_axes_scaled``).
     """
-    ra = sol.regions
-    A, b = rows_back(ra.A, ra.b, D)
-    sA, sb = rows_back(ra.shared_A, ra.shared_b, D)
-    regions = RegionArrays(A, b, ra.offsets, ra.K / D, ra.k, ra.active, ra.active_offsets,
-                           ra.implied, sA, sb)
+    regions = regions_back(sol.regions, D)
     dA, db = (None, None) if sol.domain_A is None else rows_back(sol.domain_A,
                                                                   sol.domain_b, D)
     stats = dict(sol.stats)

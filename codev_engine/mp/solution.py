@@ -610,21 +610,32 @@ class ShardedSolution:
         The sharded law (``law_shards.ShardedLaw``): ``locate``, ``evaluate``,
         ``regions_meeting``, ``merged()``, in the law's variables (``shard_writer.op``
         added to the program's ``theta``).
-    domain_A, domain_b : ndarray
-        The feasible parameter set, in the program's ``theta`` (as ``MpSolution``'s).
+    op : (d,) ndarray
+        ``shard_writer.op``: the law's ``theta`` is the program's plus ``op``.
     seconds : float
     stats : dict
         ``MpSolution``'s, and ``domain_facets`` (the feasible set's facets the shards
-        found), ``finish_client_cpu_seconds`` (this process's end: the domain, the
-        manifest, the coverage check).
+        found: each shard holds its own), ``finish_client_cpu_seconds`` (this process's
+        end: the manifest, the coverage check).
     """
 
     program: MpProgram
     law: object
-    domain_A: np.ndarray
-    domain_b: np.ndarray
+    op: np.ndarray
     seconds: float = 0.0
     stats: dict = field(default_factory=dict)
+
+    @property
+    def domain_A(self) -> np.ndarray:
+        """The feasible parameter set's rows, in the program's ``theta`` (as
+        ``MpSolution``'s, redundant rows of the parameter set kept): the law's domain,
+        every shard's facets read now."""
+        return self.law.domain_A
+
+    @property
+    def domain_b(self) -> np.ndarray:
+        """The right-hand side of :attr:`domain_A` (the law's, shifted back by ``op``)."""
+        return self.law.domain_b - self.law.domain_A @ self.op
 
     @property
     def num_regions(self) -> int:

@@ -31,7 +31,7 @@ import numpy as np
 from codev_engine.errors import CodevError, SolverError
 from codev_engine.executor import Executor
 from codev_engine.geometry.polytope import certified_minimal_rows, rows_in, solve_lp, unique_rows
-from codev_engine.mp.balance import balanced, parameter_scaling, unbalanced
+from codev_engine.mp.balance import BalancedWriter, balanced, parameter_scaling, unbalanced
 from codev_engine.mp.coverage import check_coverage, feasibility_rows
 from codev_engine.mp.mplp import COUNTERS, explore_facets
 from codev_engine.mp.mplp_graph import explore_bases
@@ -121,11 +121,13 @@ def mpsolve(
     shard_writer : law_shards.ShardWriter, optional
         With ``sharded``: each worker writes its shard's law (``shard_writer.write``, on
         the worker, with the shard's regions: equal laws merged within the shard, the
-        feasible set's facets among its rows found there too) and this process only
-        collects the manifest's entries and the facets, computes the domain from them and
-        opens the law (``shard_writer.open``): no region comes back. Without a sharded
-        walk (a small program, or no compiled kernel) the regions are here anyway and are
-        written as one shard.
+        feasible set's facets among its rows found there too and written beside it) and
+        this process only collects the manifest's entries, writes the manifest with the
+        parameter set's rows and opens the law (``shard_writer.open``): no region and no
+        facet comes back. Without a sharded walk (a small program, or no compiled kernel)
+        the regions are here anyway and are written as one shard. In balanced units
+        (``balance.py``) the writer is wrapped (``balance.BalancedWriter``): the shards are
+        written in the program's units.
 
     Returns
     -------
@@ -143,20 +145,25 @@ def mpsolve(
         _check_no_recession(red)
     size = parameter_box(red)
     # axes in units far apart: search in balanced units, map the law back (balance.py; a
-    # law written as shards is written by the workers in the search's units: not rescaled)
-    D = (parameter_scaling(size.lo, size.hi) if shard_writer is None and not sharded
-         else None)
+    # law the workers write as shards is mapped back by them, shard by shard, as written)
+    D = parameter_scaling(size.lo, size.hi)
     if D is not None:
+        writer = None if shard_writer is None else BalancedWriter(shard_writer, D)
         try:
             sol = mpsolve(balanced(program, D), options=opts, progress=progress,
-                          executor=executor)
+                          executor=executor, sharded=sharded, shard_dir=shard_dir,
+                          shard_writer=writer)
         except SolverError as exc:
             if "theta=" in str(exc):  # (a point named in the search's units, not the caller's)
                 scales = np.array2string(D, precision=3)
                 exc.args = (f"{exc} [theta in the search's balanced units: theta / {scales}]",
                             *exc.args[1:])
             raise
-        sol = unbalanced(sol, program, D)
+        if isinstance(sol, ShardedSolution):  # (written in the program's units already)
+            sol.program = program
+            sol.stats["parameter_axes_scaled"] = int(np.sum(D != 1.0))
+        else:
+            sol = unbalanced(sol, program, D)
         sol.seconds = time.perf_counter() - t0
         return sol
     region_tol = opts.region_tol * size.scale
@@ -173,10 +180,10 @@ def mpsolve(
         if isinstance(regions, list):  # (the workers wrote the law's shards)
             return _sharded_result(program, red, size, region_tol, opts, regions,
                                    shard_writer, stats, t0, executor.client)
-        domain = (
-            _domain_from_regions(red, regions, size.scale, size.box) if len(regions)
-            else _empty_domain(red)
-        )
+        facets = (_boundary_facets(red, regions, size.scale) if len(regions)
+                  else np.zeros((0, red.At.shape[1] + 1)))
+        domain = (_domain_rows(red, facets, size.scale, size.box) if len(regions)
+                  else _empty_domain(red))
     # back to the original variables: z = Z0 + Z1 theta + Nz w (the same without equalities)
     _to_original(red, regions, program.nz)
     sol = MpSolution(
@@ -200,9 +207,10 @@ def mpsolve(
     sol.seconds = time.perf_counter() - t0
     _end_cpu(stats)
     if shard_writer is not None:  # (no sharded walk: the regions are here, one shard)
-        entry = shard_writer.write(regions, 0)
-        law = shard_writer.open([entry], domain[0], domain[1], {"stats": stats})
-        return ShardedSolution(program, law, domain[0], domain[1], sol.seconds, stats)
+        stats["domain_facets"] = int(facets.shape[0])
+        entry = shard_writer.write(regions, 0, facets)
+        law = shard_writer.open([entry], red.At, red.bt, {"stats": stats})
+        return ShardedSolution(program, law, shard_writer.op, sol.seconds, stats)
     return sol
 
 
@@ -225,11 +233,12 @@ class _ShardFinish:
     def __init__(self, red: Reduced, scale: float, writer, nz: int):
         self.red, self.scale, self.writer, self.nz = red, scale, writer, nz
 
-    def __call__(self, regions: RegionArrays, j: int) -> tuple[dict, np.ndarray]:
+    def __call__(self, regions: RegionArrays, j: int) -> dict:
         facets = (_boundary_facets(self.red, regions, self.scale) if len(regions)
                   else np.zeros((0, self.red.At.shape[1] + 1)))
         _to_original(self.red, regions, self.nz)
-        return self.writer.write(regions, j), facets
+        # (the shard's facets of the domain stay with it: the client never unites them)
+        return self.writer.write(regions, j, facets)
 
 
 def _to_original(red: Reduced, regions: RegionArrays, nz: int) -> None:
@@ -242,36 +251,32 @@ def _to_original(red: Reduced, regions: RegionArrays, nz: int) -> None:
 
 def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, stats: dict,
                     t0: float, client) -> ShardedSolution:
-    """The client's end of a search whose workers wrote the law's shards: the domain from
-    the shards' facets (one row per facet of the feasible set: its boundary, not its
-    regions), the manifest, and the coverage check on the sharded law."""
+    """The client's end of a search whose workers wrote the law's shards and each its
+    facets of the domain: the manifest (the parameter set's rows, each shard's entry) and
+    the coverage check on the sharded law. Nothing here grows with the regions or the
+    facets (``law_shards.ShardedLaw.domain_rows`` reads the facets of the shards a set
+    meets: docs/scale.md)."""
     cpu0 = time.process_time()
-    d = red.At.shape[1]
-    facets = np.vstack([f for (_, f), _, _, _ in shards] + [np.zeros((0, d + 1))])
-    # (a facet of the feasible set split between regions is in each of them)
-    facets = facets[unique_rows(facets, 7)] if facets.shape[0] else facets
     found = sum(k for _, _, k, _ in shards)
-    if found:
-        domain = _domain_rows(red, facets, size.scale, size.box)
-    else:
-        domain = _empty_domain(red)
-    stats["domain_facets"] = int(facets.shape[0])
+    # (a facet of the feasible set split between cells is in each of them)
+    stats["domain_facets"] = sum(int(entry["facets"]) for entry, _, _, _ in shards)
     stats["regions_before_merge"] = found
     # each shard's cell of space (its regions' centres are in it), in the law's variables:
     # ``locate`` asks first the shard whose cell holds the point
     # (an open side as null: the manifest stays strict JSON)
     def side(v: np.ndarray) -> list:
-        return [float(x) if np.isfinite(x) else None for x in v + writer.op]
+        return [float(x) if np.isfinite(x) else None for x in writer.point(v)]
 
     entries = [dict(entry, cell_lo=side(lo), cell_hi=side(hi))
-               for (entry, _), _, _, (lo, hi) in shards]
-    law = writer.open(entries, domain[0], domain[1],
-                      {"stats": stats, "regions_before_merge": found})
+               for entry, _, _, (lo, hi) in shards]
+    # every parameter-set row is a row of the domain (it holds on all of it): kept, none
+    # dropped by an LP here (the facets that would imply one are on the workers)
+    law = writer.open(entries, red.At, red.bt, {"stats": stats, "regions_before_merge": found})
     offsets = law.offsets
 
     def locate(X: np.ndarray) -> np.ndarray:
         # each shard's worker locates the points in its own file: the client reads none
-        X = np.atleast_2d(X) + writer.op
+        X = writer.point(np.atleast_2d(X))
         found = client.gather([client.submit(writer.locate, j, X, pure=False)
                                for j in range(law.shards)])
         out = np.full(X.shape[0], -1, dtype=np.int64)
@@ -297,7 +302,7 @@ def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, 
         ))
     stats["finish_client_cpu_seconds"] = time.process_time() - cpu0
     _end_cpu(stats)
-    return ShardedSolution(program, law, domain[0], domain[1], time.perf_counter() - t0, stats)
+    return ShardedSolution(program, law, writer.op, time.perf_counter() - t0, stats)
 
 
 #: the failures of a search that are breakdowns of its arithmetic or of a library it calls

@@ -478,7 +478,7 @@ class NonlinearReach(NonlinearFlow):
     def _domain_near(self, s: _Set) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Rows of the law's domain valid on it that describe it around the set (what the
         law may see of it): ``law.domain_rows`` (None, None when unknown)."""
-        if not getattr(self.law, "on_demand", False):
+        if not (getattr(self.law, "on_demand", False) or getattr(self.law, "local_domain", False)):
             return self.law.domain_A, self.law.domain_b
         rows = self.law.domain_rows(*self._seen_box(s))
         self._law_grown()

@@ -609,6 +609,9 @@ def _check_folder(path: Path, entry: dict[str, Any]) -> str | None:
     try:
         files = json.loads(text.decode("utf-8"))["shards"]
         listed = [(str(f["file"]), f.get("bytes")) for f in files]
+        # (a sharded search's law: each shard's facets of the domain in a file of its own)
+        listed += [(str(f["facets_file"]), f.get("facets_bytes")) for f in files
+                   if "facets_file" in f]
     except (OSError, ValueError, RecursionError, UnicodeDecodeError, KeyError, TypeError,
             AttributeError):
         return f"its {FOLDER_MANIFEST} does not list its files"

@@ -56,7 +56,8 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     syn = rep.stage("synthesis")
     folder = session.path / syn.artifact
     assert folder.is_dir() and folder.suffix == ".shards"
-    assert sorted(p.name for p in folder.iterdir()) == ["shard-0.npz", "shards.json"]
+    assert sorted(p.name for p in folder.iterdir()) == ["facets-0.npz", "shard-0.npz",
+                                                         "shards.json"]
     assert isinstance(rep.law, ShardedLaw) and rep.law.shards == syn.details["shards"] == 1
     assert not _leftovers(session.path)
     assert rep.stage("recording").details["view"] == view_code_sha()  # (which code drew it)
@@ -78,6 +79,16 @@ def test_a_sharded_run_stores_a_folder_of_shards_opened_lazily(spec, tmp_path):
     # the journal keeps the choice; the status of the last run's options finds the folder
     assert session.journal()[-1]["options"]["sharded"] is True
     assert {s.stage: s.status for s in session.status(problem)}["synthesis"] == "cached"
+    # the shard's facets of the domain are checked as its shards: one damaged in place is
+    # refused when read, naming it; one truncated is named at open
+    facets = folder / "facets-0.npz"
+    kept = facets.read_bytes()
+    _flip(facets)
+    with pytest.raises(DamagedFileError, match="facets-0.npz"):
+        ShardedLaw(folder).domain_rows(np.full(2, -1.0), np.full(2, 1.0))
+    facets.write_bytes(kept[:-1])
+    status = {s.stage: s for s in session.status(problem)}["synthesis"]
+    assert status.status == "corrupt" and "facets-0.npz: its size" in status.reason
 
 
 def _flip(path: Path) -> None:

@@ -168,10 +168,18 @@ def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
     # (equal laws merged within a shard: at most the serial count before its merge)
     assert serial.num_regions <= law.num_regions <= serial.num_regions + serial.stats.get(
         "merged", 0)
-    # the domain from the shards' facets: the serial one's rows
-    np.testing.assert_allclose(np.sort(np.hstack([got.domain_A, got.domain_b[:, None]]), 0),
-                               np.sort(np.hstack([serial.domain_A, serial.domain_b[:, None]]),
-                                       0), atol=1e-9)
+    # the domain from the shards' facets (each shard's in its own file) and the parameter
+    # set's rows: the serial one's rows, and parameter-set rows the facets imply
+    rows = np.hstack([got.domain_A, got.domain_b[:, None]])
+    theirs = np.hstack([serial.domain_A, serial.domain_b[:, None]])
+    assert np.all(np.min(np.abs(theirs[:, None, :] - rows[None]).max(axis=2), axis=1) < 1e-9)
+    box = np.hstack([p.A_theta, p.b_theta[:, None]])
+    extra = np.min(np.abs(rows[:, None, :] - theirs[None]).max(axis=2), axis=1) > 1e-9
+    assert np.all(np.min(np.abs(rows[extra][:, None, :] - box[None]).max(axis=2), axis=1)
+                  < 1e-9)
+    manifest = json.loads((tmp_path / "law" / "shards.json").read_text())
+    assert "domain_A" not in manifest and sum(e["facets"] for e in manifest["shards"]) == (
+        got.stats["domain_facets"])
     _same_function(serial, law)
     # the shards are cells of space: locate asks the point's cell's shard first
     X = np.random.default_rng(4).uniform(-1, 1, size=(500, 4))
