@@ -63,6 +63,15 @@ class DamagedFileError(SpecError):
     ``file`` names it. A session whose cached artifact holds the file marks that artifact
     damaged (``session.store.mark_damaged``), so that its next run recomputes it: the file
     is checked when read, not when the artifact is opened.
+
+    Parameters
+    ----------
+    reason : str
+        What is wrong with the file (its size or SHA-256 is not the manifest's).
+    file : str, optional
+        The damaged file.
+    field : str, optional
+        Unused by the readers (as ``SpecError``).
     """
 
 
