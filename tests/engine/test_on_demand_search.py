@@ -11,7 +11,8 @@ the full law.
   search takes the same rows from both laws (the regions at the tube's points) and finds
   the same run (``-m slow``);
 - a chain of 5 integrators with a disturbance and a safe box it leaves: 225 of 1,398
-  regions on demand (measured before issue 43's close calls: the law has 1,407 now), the same counterexample (``-m slow``).
+  regions on demand (measured before issue 43's close calls: the law has 1,407 now), the
+  same counterexample (``-m slow``).
 """
 
 from __future__ import annotations
