@@ -251,6 +251,7 @@ def chebyshev_ball(
     *,
     solver: str = "daqp",
     multipliers: bool = False,
+    tol: float | None = None,
 ) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray | None]:
     """Largest ball inside ``{A x <= b}`` (within the affine set ``Aeq x = beq``).
 
@@ -267,6 +268,9 @@ def chebyshev_ball(
         DAQP (fast; its proximal LP can be off by ~1e-5 on badly scaled rows) or HiGHS.
     multipliers : bool
         Also return the LP's multipliers.
+    tol : float, optional
+        With HiGHS: its primal and dual feasibility tolerances (default HiGHS's own, 1e-7,
+        which leaves a ball of radius 1e-8 unproved: ``mpqp._Kernel._chebyshev``).
 
     Returns
     -------
@@ -298,7 +302,7 @@ def chebyshev_ball(
     f[-1] = -1.0
     Aeq_b = None if Aeq is None else np.hstack([Aeq, np.zeros((Aeq.shape[0], 1))])
     if solver == "highs":
-        x, y = _highs_lp(f, Ab, bb, Aeq_b, beq)
+        x, y = _highs_lp(f, Ab, bb, Aeq_b, beq, tol=tol)
         status = "failed" if x is None else "optimal"
     else:
         x, status, y = solve_lp(f, Ab, bb, Aeq_b, beq)
@@ -312,11 +316,12 @@ def chebyshev_ball(
 
 def _highs_lp(
     f: np.ndarray, A: np.ndarray, b: np.ndarray, Aeq: np.ndarray | None = None,
-    beq: np.ndarray | None = None,
+    beq: np.ndarray | None = None, *, tol: float | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """``min f'x  s.t.  A x <= b, Aeq x = beq`` by HiGHS through highspy (scipy's
     ``linprog`` costs ~2 ms of checks around a 0.2 ms solve here): (x, y) with the
-    multipliers y >= 0 of the rows (``A' y = -f`` on the inequality part), or (None, None)."""
+    multipliers y >= 0 of the rows (``A' y = -f`` on the inequality part), or (None, None).
+    ``tol``: HiGHS's primal and dual feasibility tolerances (default its own)."""
     import highspy
 
     inf = highspy.kHighsInf
@@ -326,6 +331,9 @@ def _highs_lp(
     nr, nx = rows.shape
     h = highspy.Highs()
     h.setOptionValue("output_flag", False)
+    if tol is not None:
+        h.setOptionValue("primal_feasibility_tolerance", float(tol))
+        h.setOptionValue("dual_feasibility_tolerance", float(tol))
     lp = highspy.HighsLp()
     lp.num_col_, lp.num_row_ = nx, nr
     lp.col_cost_ = np.asarray(f, dtype=float)

@@ -77,6 +77,15 @@ _DEPTH = 64
 #: a Dask task costs milliseconds); _DEPTH / _GROUP tasks are in flight
 _GROUP = 16
 
+#: HiGHS's primal and dual feasibility tolerances where it decides a candidate's class
+#: (``_Kernel._chebyshev``): a ball of radius 5e-9 then checks (scale 4)
+CANONICAL_TOL = 1e-10
+#: the compiled kernel concludes on a candidate only with a proof this factor clear of the
+#: region tolerance (a ball above ``CLOSE_CALL * region_tol``, a radius bound below
+#: ``region_tol / CLOSE_CALL``); the close calls between are handed to the numpy kernel,
+#: whose decision is a function of the active set alone (``_Kernel._chebyshev``)
+CLOSE_CALL = 10.0
+
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
 ILL_CONDITIONED = 1e6
@@ -149,7 +158,7 @@ class _Kernel:
             f(self.rhs_z), f(self.wS), f(self.At),
             f(self.bt), f(self.box[0]), f(self.box[1]), float(self.scale),
             float(self.region_tol), float(self.nonempty_tol), float(ILL_CONDITIONED),
-            int(50 * (self.m + self.At.shape[0] + self.d)),
+            int(50 * (self.m + self.At.shape[0] + self.d)), float(CLOSE_CALL),
         )
         self._jit = mpqp_kernel
         return True
@@ -258,20 +267,41 @@ class _Kernel:
         compiled kernel: a region is full only with a centre whose slack in every row
         exceeds the region tolerance, empty or lower-dimensional only with an upper bound
         of the radius from the LP's multipliers (:func:`radius_upper_bound`). DAQP's ball
-        comes first; where it proves nothing, HiGHS's decides, with a full region's ball
-        checked the same way (else lower-dimensional). DAQP's proximal LP was seen 1e-5
-        off: it judged empty regions of ``pop_mpqp_001`` and ``pop_mpqp_084`` of radius
-        1e-5, and the partitions had holes there.
+        comes first; where it proves nothing, HiGHS's decides, with tolerances of
+        ``CANONICAL_TOL`` (its default 1e-7 left thin regions of radius 2e-8 with a
+        centre that does not check: taken as lower-dimensional, while the compiled kernel
+        proved them full from some start points: chain5's partitions differed by such
+        regions, and had holes there). What no ball nor bound proves is lower-dimensional.
+        DAQP's proximal LP was seen 1e-5 off: it judged empty regions of ``pop_mpqp_001``
+        and ``pop_mpqp_084`` of radius 1e-5, and the partitions had holes there.
+
+        Every step is a function of the rows alone (no start point, fixed solver options):
+        the compiled kernel hands its close calls to this one (``CLOSE_CALL``), so a thin
+        region's class does not depend on the walk's order nor on the kernel.
+
+        Returns
+        -------
+        centre : (d,) ndarray
+        rho : float
+            Above ``region_tol``: a proved ball (full); below ``-nonempty_tol``: proved empty;
+            else lower-dimensional (``rho`` is then the centre's radius, clipped to that
+            range).
         """
         centre, rho, y = chebyshev_ball(Ar, br, multipliers=True)
         if self.box is None or self._proved(Ar, br, centre, rho, y):
             return centre, rho
-        centre, rho = chebyshev_ball(Ar, br, solver="highs")
-        if rho > self.region_tol:
-            slack = float(np.min(br - Ar @ centre))
-            if slack <= self.region_tol:  # no ball checked: lower-dimensional, not empty
-                rho = max(slack, -self.nonempty_tol)
-        return centre, rho
+        centre, rho, y = chebyshev_ball(Ar, br, solver="highs", multipliers=True,
+                                        tol=CANONICAL_TOL)
+        if not np.all(np.isfinite(centre)):  # (HiGHS failed: empty, as it always was)
+            return centre, rho
+        ball = float(np.min(br - Ar @ centre))
+        if ball > self.region_tol:
+            return centre, ball
+        upper = np.inf if y is None else radius_upper_bound(Ar, br, y, self.bound)
+        if upper < -self.nonempty_tol:
+            return centre, upper
+        # lower-dimensional: proved (upper <= region_tol), or the unproved default
+        return centre, min(max(ball, -self.nonempty_tol), self.region_tol)
 
     def _proved(
         self, Ar: np.ndarray, br: np.ndarray, centre: np.ndarray, rho: float,

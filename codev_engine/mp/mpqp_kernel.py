@@ -82,7 +82,7 @@ def _cho_solve(L, B):
 @njit(cache=True, nogil=True)
 def evaluate(
     act, start, G, M, Dfull, negZ0, Hinv_Gt, H, rhs_z, wS, At, bt, box_c, box_h, scale,
-    region_tol, nonempty_tol, ill_conditioned, maxit,
+    region_tol, nonempty_tol, ill_conditioned, maxit, close,
 ):
     """One candidate active set ``act`` (sorted int64): see ``mpqp._Kernel.evaluate``.
     ``start`` (d,) is where the Chebyshev LP starts: any point will do, one near the
@@ -131,6 +131,11 @@ def evaluate(
         gives the multipliers and the law.
     maxit : int
         The LPs' pivot limit.
+    close : float
+        ``mpqp.CLOSE_CALL``: FULL needs a ball above ``close * region_tol``, LOWER a radius
+        bound below ``region_tol / close``; the close calls between are FALLBACK (the numpy
+        kernel decides them from the active set alone: here the LP's result depends on
+        ``start``).
 
     Returns
     -------
@@ -303,7 +308,12 @@ def evaluate(
     # full a ball (true_rho, from the rows themselves)
     if upper < -nonempty_tol:
         return EMPTY, e2, e1, ez, ek, em, True, es, start
-    if upper <= region_tol:
+    # a close call (a thin region: its radius near the region tolerance) is not decided
+    # here: from one start the LP proves it full, from another it proves nothing, and its
+    # class (kept or not) and its neighbours would follow the walk's order
+    if upper > region_tol / close and true_rho <= close * region_tol:
+        return FALLBACK, e2, e1, ez, ek, em, True, es, start
+    if upper <= region_tol / close:
         # lower-dimensional: its neighbours are the constraints tight at a point of it
         tol = -max(rho, 0.0) - 1e-7 * scale
         tight = np.zeros(nr, dtype=np.bool_)
@@ -314,7 +324,7 @@ def evaluate(
             if s >= tol:
                 tight[i] = True
         return LOWER, e2, e1, ez, ek, src[tight], True, es, centre
-    if true_rho <= region_tol or rho < -nonempty_tol:
+    if true_rho <= close * region_tol or rho < -nonempty_tol:
         return FALLBACK, e2, e1, ez, ek, em, True, es, start
     sm = src[maybe]
     fixed = sm == 0

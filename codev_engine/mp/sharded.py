@@ -26,11 +26,22 @@ shared file system).
 
 **Order.** The serial walk is depth first; its order decides the regions' numbering and the
 point each candidate's LPs start from (the point of the candidate that pushed it first).
-Neither decides a region: a candidate's class, rows and law are proved from its active
-set alone (the compiled kernel's certificates, ``mpqp._Kernel._chebyshev``), so the set of
-active sets reached, and each one's region, is the same however the walk is split. The
-numbering is made canonical at the end: the regions are sorted by active set
-(``RegionArrays.active_order``) before the laws are merged (``mpqp._merge_equal_laws``).
+Neither decides a region. Where it once did: a thin region (inscribed radius near the
+region tolerance) was proved full by the compiled kernel from some start points and not
+from others, and the numpy kernel (HiGHS at its default tolerance 1e-7) found it no
+checked centre: chain5's partition had 1,392 to 1,402 regions by how the search ran
+(numpy kernel, compiled, Dask, sharded on 1 or 2 workers). Now the compiled kernel decides
+only with a proof ``mpqp.CLOSE_CALL`` clear of the tolerance, and hands every close call to
+the numpy kernel, whose decision is a function of the active set alone (no start point,
+HiGHS at fixed tolerances: ``mpqp._Kernel._chebyshev``). So each candidate's class is the
+same however the walk is split, and so is the set of regions reached (1,407 on chain5,
+every way: ``tests/engine/test_mpqp_same.py``). What the order still moves: the
+*candidates* and *explored* counters (a lower-dimensional candidate's neighbours are the
+constraints tight at the point its LP found), a region's rows where one is redundant by
+less than the proof's margin, and the last bits of rows and laws where one kernel computed
+them and not the other. The numbering is made canonical at the end: the regions are sorted
+by active set (``RegionArrays.active_order``) before the laws are merged
+(``mpqp._merge_equal_laws``).
 
 **The end** (with ``finish``: the workers write the law): the regions are re-partitioned by
 space on the workers (``shard_space``): the law's shard ``c`` holds the regions whose
