@@ -84,7 +84,7 @@ CANONICAL_TOL = 1e-10
 #: region tolerance (a ball above ``CLOSE_CALL * region_tol``, a radius bound below
 #: ``region_tol / CLOSE_CALL``); the close calls between are handed to the numpy kernel,
 #: whose decision is a function of the active set alone (``_Kernel._chebyshev``)
-CLOSE_CALL = 10.0
+CLOSE_CALL = 2.0
 
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)

@@ -267,9 +267,9 @@ def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
     centre of the region that pushed it ends where no class is proved, is lower-dimensional
     from the box centre. (pop_mpqp_047's sliver (5, 7, 29, 33, 34, 35, 42), radius 1.1e-7,
     was left a hole when the numpy kernel judged it; since the LP stops taking a dropped
-    row back at once, it is full from both points. Its radius is within ``CLOSE_CALL`` of
-    the region tolerance, 2e-8: a close call, which the compiled kernel now hands back from
-    both points, and the numpy kernel proves full from its active set alone.)"""
+    row back at once, it is full from both points. Its radius is 5.5 region tolerances
+    (2e-8), past ``CLOSE_CALL``: the compiled kernel proves it full from both points, and
+    the numpy kernel, which decides the close calls from the active set alone, agrees.)"""
     kernel, _ = _kernel_of("pop_mpqp_036", max_regions=300)
     act = np.array([3, 26, 30, 31, 34, 38, 40, 47], dtype=np.int64)
     pushed_from = np.array([
@@ -291,7 +291,8 @@ def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
     ])
     for start in (pushed_from, kernel._jit_args[10]):
         got = mpqp_kernel.evaluate(act, start, *kernel._jit_args)
-        assert got[0] == mpqp_kernel.FALLBACK
+        assert got[0] == mpqp_kernel.FULL
+    assert 1.1e-7 > mpqp.CLOSE_CALL * kernel.region_tol
     status, rows, *_ = kernel.evaluate_numpy(tuple(act.tolist()))
     assert status == "full"
     assert polytope.chebyshev_ball(*rows, solver="highs", tol=1e-10)[1] > 5e-8
