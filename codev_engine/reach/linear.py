@@ -372,7 +372,6 @@ class ClosedLoopSetup:
         # point location on region boundaries: input bounds are checked with 1e-7 slack
         self.u_min = np.asarray(p.mpc.u_min, float) - 1e-7 * (1 + np.abs(p.mpc.u_min))
         self.u_max = np.asarray(p.mpc.u_max, float) + 1e-7 * (1 + np.abs(p.mpc.u_max))
-        self.boxes_lo, self.boxes_hi = self.law.boxes
         # the closed loop's state is the law's parameter theta = (x, u_prev, r): u_prev is
         # the input held over the last period, r a constant (d = n for a law in x alone)
         self.d = (int(self.law.n) if self.law.num_regions or getattr(self.law, "on_demand", False)
