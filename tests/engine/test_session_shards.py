@@ -344,8 +344,9 @@ def test_codev_run_sharded_on_a_cluster_stores_the_workers_shards(spec, tmp_path
     serial = Session.create(tmp_path / "serial").run(load_spec(spec), RunOptions(traces=1))
     assert f"regions={serial.law.num_regions} in 2 shards" in line
     folder = next((s / "artifacts").glob("synthesis-*.shards"))
+    # (each shard's law and its facets of the domain, then the manifest)
     assert sorted(p.name for p in folder.iterdir()) == [
-        "shard-0.npz", "shard-1.npz", "shards.json"]
+        "facets-0.npz", "facets-1.npz", "shard-0.npz", "shard-1.npz", "shards.json"]
     assert not _leftovers(s)
     # the rerun from the cache starts no cluster (nothing asks it) and says the same
     code = main(["run", str(spec), "--session", str(s), "--workers", "2", "--sharded",
