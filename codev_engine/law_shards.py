@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.errors import DamagedFileError, SpecError
-from codev_engine.io.atomic import write_text
+from codev_engine.io.atomic import write_npz, write_text
 from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
 
@@ -71,12 +71,8 @@ _BOX_TOL = 1e-9
 def _save_facets(facets: np.ndarray, path: Path) -> dict:
     """Save a shard's facets ``(q, n + 1)`` rows ``[a, beta]`` (``a x <= beta``) atomically
     and return the fields of its manifest entry (the file, its SHA-256, the count)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, format=np.array(FACETS_FORMAT), facets=np.asarray(facets, float))
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    write_npz(path, {"format": np.array(FACETS_FORMAT), "facets": np.asarray(facets, float)},
+              compress=False)
     return {"facets_file": path.name, "facets_sha256": _file_sha(path),
             "facets_bytes": path.stat().st_size, "facets": int(facets.shape[0])}
 
@@ -463,6 +459,20 @@ def _size(entry: dict) -> int | None:
     return got if isinstance(got, int) and not isinstance(got, bool) and got >= 0 else -1
 
 
+def _checked(path: Path, sha256: str, size: int | None, what: str) -> Path:
+    """``path``, once it is there with the size (when recorded) and the SHA-256 the
+    manifest records; else ``DamagedFileError`` naming it (``what`` says what it holds)."""
+    if not path.is_file():
+        raise DamagedFileError(f"missing ({what})", file=str(path))
+    if size is not None and path.stat().st_size != size:
+        raise DamagedFileError(f"its size is not the one {MANIFEST} records (damaged or "
+                               "edited): refused", file=str(path))
+    if _file_sha(path) != sha256:
+        raise DamagedFileError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
+                               "edited): refused", file=str(path))
+    return path
+
+
 def _json(obj):
     if isinstance(obj, np.generic):
         return obj.item()
@@ -707,15 +717,9 @@ class ShardedLaw:
         entry = self._entries[j]
         if "facets_file" not in entry:
             return np.zeros((0, self.n + 1))
-        path = self.dir / entry["facets_file"]
-        if not path.is_file():
-            raise DamagedFileError("missing (a shard's facets of the law's domain)",
-                                   file=str(path))
-        size = entry.get("facets_bytes")
-        if (size is not None and path.stat().st_size != size) or (
-                _file_sha(path) != entry["facets_sha256"]):
-            raise DamagedFileError(f"its size or SHA-256 is not the one {MANIFEST} records "
-                                   "(damaged or edited): refused", file=str(path))
+        path = _checked(self.dir / entry["facets_file"], entry["facets_sha256"],
+                        _size({"bytes": entry.get("facets_bytes")}),
+                        "a shard's facets of the law's domain")
         try:
             with np.load(path, allow_pickle=False) as z:
                 tag, F = str(z["format"]), np.asarray(z["facets"], dtype=float)
@@ -760,16 +764,8 @@ class ShardedLaw:
             self._cache.move_to_end(j)
             return got
         entry = self._entries[j]
-        path = self.dir / entry["file"]
-        if not path.is_file():
-            raise DamagedFileError("missing (a shard of the law)", file=str(path))
-        size = _size(entry)
-        if size is not None and path.stat().st_size != size:
-            raise DamagedFileError(f"its size is not the one {MANIFEST} records (damaged or "
-                              "edited): refused", file=str(path))
-        if _file_sha(path) != entry["sha256"]:
-            raise DamagedFileError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
-                              "edited): refused", file=str(path))
+        path = _checked(self.dir / entry["file"], entry["sha256"], _size(entry),
+                        "a shard of the law")
         law = ExplicitLaw.load(path)
         if law.num_regions != entry["regions"] or law.fingerprint != self.fingerprint:
             raise DamagedFileError(f"not the shard {MANIFEST} records (regions or fingerprint)",

@@ -8,13 +8,13 @@ other's internals.
 from __future__ import annotations
 
 import hashlib
-import os
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from codev_engine.errors import SolverError
+from codev_engine.io.atomic import write_npz
 from codev_engine.mp.solution import RegionArrays
 
 __all__: list[str] = []
@@ -31,12 +31,7 @@ def _digest(arrays: dict[str, np.ndarray]) -> str:
 
 def _write(path: Path, arrays: dict[str, np.ndarray]) -> None:
     """``arrays`` as an .npz at ``path``, atomically, with their SHA-256."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, sha256=np.array(_digest(arrays)), **arrays)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    write_npz(path, {"sha256": np.array(_digest(arrays)), **arrays}, compress=False)
 
 
 def _read(path: Path) -> dict[str, np.ndarray]:
