@@ -38,6 +38,7 @@ __all__ = [
     "linearize",
     "model_derivations",
     "numeric_dynamics",
+    "plant_key",
     "plant_model",
     "symbolic_model",
 ]
@@ -688,29 +689,50 @@ def plant_model(problem_or_plant: Problem | PlantSpec) -> PlantModel:
     SpecError
         If the plant has no continuous-time dynamics, or an expression is invalid.
     """
+    return _model_of(plant_key(problem_or_plant))
+
+
+def plant_key(problem_or_plant: Problem | PlantSpec, *, box_values: bool = True) -> _PlantKey:
+    """A plant by value, hashable: the key of :func:`plant_model`'s cache.
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+    box_values : bool
+        Key the disturbances' and parameters' boxes by their values too (False: by their
+        names alone, for what does not depend on the boxes' values, such as the field over
+        ``(x, u, w, p)`` that the pieces of a split parameter box share).
+
+    Returns
+    -------
+    _PlantKey
+        Equal for equal plants; it holds the plant itself (not compared).
+    """
     plant = _plant_of(problem_or_plant)
     dyn = None if plant.dynamics is None else tuple(plant.dynamics)
-    key = _PlantKey(
+    return _PlantKey(
         tuple(plant.states),
         tuple(plant.inputs),
         dyn,
         _matrix_key(plant.A),
         _matrix_key(plant.B),
-        _uncertain_key(plant),
+        _uncertain_key(plant, box_values),
         plant,
     )
-    return _model_of(key)
 
 
-def _uncertain_key(plant: PlantSpec) -> tuple:
-    """The disturbances, parameters and ``E`` by value (empty when there are none)."""
+def _uncertain_key(plant: PlantSpec, box_values: bool = True) -> tuple:
+    """The disturbances, parameters and ``E`` by value (empty when there are none; the
+    boxes by their names alone without ``box_values``)."""
     out: list = []
     for box in (getattr(plant, "disturbances", None), getattr(plant, "parameters", None)):
-        if box is not None:
+        if box is None:
+            out.append(None)
+        elif box_values:
             out.append((box.names, _matrix_key(box.lower), _matrix_key(box.upper),
                         _matrix_key(box.nominal)))
         else:
-            out.append(None)
+            out.append((box.names,))
     out.append(_matrix_key(getattr(plant, "E", None)))
     return tuple(out) if any(v is not None for v in out) else ()
 

@@ -8,17 +8,18 @@ reach engine of every verification of the same plant reuses them.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import sympy
 
-from codev_engine.plant import PlantModel, SymbolicPlant, plant_model
+from codev_engine.plant import PlantModel, SymbolicPlant, plant_key, plant_model
 from codev_engine.reach.interval import Array
 from codev_engine.reach.interval_function import IntervalFunction, compile_interval
 
 if TYPE_CHECKING:
+    from codev_engine.plant import _PlantKey
     from codev_engine.spec.problem import PlantSpec, Problem
 
 __all__ = ["PlantEnclosures", "plant_enclosures", "plant_hessian", "uncertain_enclosures"]
@@ -241,14 +242,7 @@ def uncertain_enclosures(
     with its own box and nominal) share one derivation and compilation.
     """
     pl = problem.plant
-    enc, hess = _uncertain_field(_FieldKey(
-        tuple(pl.states), tuple(pl.inputs),
-        None if pl.dynamics is None else tuple(pl.dynamics),
-        _array_key(pl.A), _array_key(pl.B), _array_key(getattr(pl, "E", None)),
-        pl.disturbances.names if pl.disturbances else (),
-        pl.parameters.names if pl.parameters else (),
-        pl,
-    ))
+    enc, hess = _uncertain_field(plant_key(pl, box_values=False))
     boxes = [b for b in (pl.disturbances, pl.parameters) if b is not None]
     lo = np.concatenate([np.asarray(b.lower, float) for b in boxes])
     hi = np.concatenate([np.asarray(b.upper, float) for b in boxes])
@@ -256,30 +250,8 @@ def uncertain_enclosures(
     return enc, hess, lo, hi, nom
 
 
-@dataclass(frozen=True)
-class _FieldKey:
-    """What ``full_field`` reads of a plant, by value (the boxes' values left out)."""
-
-    states: tuple[str, ...]
-    inputs: tuple[str, ...]
-    dynamics: tuple[str, ...] | None
-    A: tuple | None
-    B: tuple | None
-    E: tuple | None
-    disturbances: tuple[str, ...]
-    parameters: tuple[str, ...]
-    plant: PlantSpec = field(compare=False, repr=False)
-
-
-def _array_key(a: Any) -> tuple | None:
-    if a is None:
-        return None
-    a = np.asarray(a, dtype=float)
-    return a.shape, a.tobytes()
-
-
 @functools.lru_cache(maxsize=16)
-def _uncertain_field(key: _FieldKey) -> tuple[PlantEnclosures, IntervalFunction]:
+def _uncertain_field(key: _PlantKey) -> tuple[PlantEnclosures, IntervalFunction]:
     from codev_engine.plant import full_field
 
     f, xs, us, ws, ps = full_field(key.plant)
