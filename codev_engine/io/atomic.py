@@ -10,13 +10,26 @@ from __future__ import annotations
 import os
 import secrets
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["atomic_folder", "atomic_path", "write_npz", "write_text"]
+
+
+def _sibling(path: Path, create: Callable[[Path], object]) -> Path:
+    """A new ``.tmp-<random hex><suffix of path>`` beside ``path``, made by ``create`` (which
+    must fail with ``FileExistsError`` on a name taken); the missing parents are created."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        tmp = path.parent / f".tmp-{secrets.token_hex(6)}{path.suffix}"
+        try:
+            create(tmp)
+            return tmp
+        except FileExistsError:  # pragma: no cover - 48 random bits
+            continue
 
 
 @contextmanager
@@ -46,14 +59,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     libraries that choose a format, or append an extension, by the file name.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    while True:
-        tmp = path.parent / f".tmp-{secrets.token_hex(6)}{path.suffix}"
-        try:
-            os.close(os.open(tmp, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
-            break
-        except FileExistsError:  # pragma: no cover - 48 random bits
-            continue
+    tmp = _sibling(path, lambda t: os.close(os.open(t, os.O_CREAT | os.O_EXCL | os.O_WRONLY,
+                                                    0o666)))
     try:
         yield tmp
         with tmp.open("rb+") as fh:  # the data must be on disk before the rename
@@ -88,14 +95,7 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
         atomic within one file system only).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    while True:
-        tmp = path.parent / f".tmp-{secrets.token_hex(6)}{path.suffix}"
-        try:
-            tmp.mkdir()
-            break
-        except FileExistsError:  # pragma: no cover - 48 random bits
-            continue
+    tmp = _sibling(path, Path.mkdir)
     try:
         yield tmp
         old = None
