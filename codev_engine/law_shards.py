@@ -53,8 +53,8 @@ from codev_engine.io.atomic import write_npz, write_text
 from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
 
-__all__ = ["FACETS_FORMAT", "SHARDS_FORMAT", "ShardWriter", "ShardedLaw", "spatial_order",
-           "split_law", "update_meta", "write_law_shards"]
+__all__ = ["FACETS_FORMAT", "SHARDS_FORMAT", "ShardWriter", "ShardedLaw", "manifest_files",
+           "spatial_order", "split_law", "update_meta", "write_law_shards"]
 
 #: format tag of a sharded law's manifest
 SHARDS_FORMAT = "codev-law-shards/1"
@@ -75,6 +75,31 @@ def _save_facets(facets: np.ndarray, path: Path) -> dict:
               compress=False)
     return {"facets_file": path.name, "facets_sha256": _file_sha(path),
             "facets_bytes": path.stat().st_size, "facets": int(facets.shape[0])}
+
+
+def manifest_files(entries: list[dict]) -> list[tuple[str, int | None]]:
+    """Every file a manifest's shard entries name, with the size it records (None: a
+    manifest written before sizes were recorded): each shard's law file and, for the
+    sharded search's law, its facets file. What a session checks when it opens the law.
+
+    Parameters
+    ----------
+    entries : list of dict
+        The manifest's ``shards``.
+
+    Returns
+    -------
+    list of (str, int or None)
+
+    Raises
+    ------
+    KeyError, TypeError, AttributeError
+        An entry that is not a dict naming its ``file``.
+    """
+    listed = [(str(e["file"]), e.get("bytes")) for e in entries]
+    listed += [(str(e["facets_file"]), e.get("facets_bytes")) for e in entries
+               if "facets_file" in e]
+    return listed
 
 
 def _file_sha(path: Path) -> str:

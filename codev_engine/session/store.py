@@ -606,12 +606,10 @@ def _check_folder(path: Path, entry: dict[str, Any]) -> str | None:
         return f"its {FOLDER_MANIFEST} is unreadable ({exc.__class__.__name__})"
     if entry.get("sha256") != sha(text):
         return f"its {FOLDER_MANIFEST} does not match the recorded SHA-256 (damaged or edited)"
+    from codev_engine.law_shards import manifest_files
+
     try:
-        files = json.loads(text.decode("utf-8"))["shards"]
-        listed = [(str(f["file"]), f.get("bytes")) for f in files]
-        # (a sharded search's law: each shard's facets of the domain in a file of its own)
-        listed += [(str(f["facets_file"]), f.get("facets_bytes")) for f in files
-                   if "facets_file" in f]
+        listed = manifest_files(json.loads(text.decode("utf-8"))["shards"])
     except (OSError, ValueError, RecursionError, UnicodeDecodeError, KeyError, TypeError,
             AttributeError):
         return f"its {FOLDER_MANIFEST} does not list its files"
