@@ -54,7 +54,20 @@ def _read_parts(folder: Path) -> list[RegionArrays]:
     for path in files:
         a = _read(path)
         if a["K"].shape[0]:
-            parts.append(RegionArrays(
-                a["A"], a["b"], a["offsets"], a["K"], a["k"], a["active"],
-                a["active_offsets"], a["implied"], a["shared_A"], a["shared_b"]))
+            parts.append(regions_of(a))
     return parts
+
+
+#: a RegionArrays' arrays, as the checked files name them
+_FIELDS = ("A", "b", "offsets", "K", "k", "active", "active_offsets", "implied", "shared_A",
+           "shared_b")
+
+
+def region_arrays(regions: RegionArrays) -> dict[str, np.ndarray]:
+    """The arrays of ``regions`` by name, for :func:`_write` (:func:`regions_of` reads them)."""
+    return {name: getattr(regions, name) for name in _FIELDS}
+
+
+def regions_of(a: dict[str, np.ndarray]) -> RegionArrays:
+    """The regions in a file's arrays (:func:`region_arrays`' names)."""
+    return RegionArrays(*(a[name] for name in _FIELDS))

@@ -189,7 +189,7 @@ def _cut_task(directory: str, j: int, seeds: RegionArrays, lo: np.ndarray,
     centre (from step 1's memory, else its files); (regions per cell, whether it read
     them from the files, CPU seconds)."""
     from codev_engine.errors import SolverError
-    from codev_engine.mp.shard_files import _read, _write
+    from codev_engine.mp.shard_files import _read, _write, region_arrays
 
     t0 = time.process_time()
     held = _HELD.pop((directory, j), None)
@@ -207,11 +207,7 @@ def _cut_task(directory: str, j: int, seeds: RegionArrays, lo: np.ndarray,
         part = regions.take(np.flatnonzero(cell == c))
         counts.append(len(part))
         folder.mkdir(parents=True, exist_ok=True)
-        _write(folder / f"cell-{c}.npz", {
-            "A": part.A, "b": part.b, "offsets": part.offsets, "K": part.K, "k": part.k,
-            "active": part.active, "active_offsets": part.active_offsets,
-            "implied": part.implied, "shared_A": part.shared_A, "shared_b": part.shared_b,
-        })
+        _write(folder / f"cell-{c}.npz", region_arrays(part))
     return counts, held is None, time.process_time() - t0
 
 
@@ -219,15 +215,10 @@ def _cell_task(directory: str, c: int, n: int, merge, finish) -> tuple:
     """Worker side, step 4: cell ``c``'s regions from every shard's ``cell-<c>.npz``,
     sorted by active set, equal laws merged (``merge``), handed to ``finish`` (which writes
     the law's shard ``c``); (``finish``'s answer, stats, regions, CPU seconds)."""
-    from codev_engine.mp.shard_files import _read
+    from codev_engine.mp.shard_files import _read, regions_of
 
     t0 = time.process_time()
-    parts = []
-    for i in range(n):
-        a = _read(Path(directory) / f"{i}" / f"cell-{c}.npz")
-        parts.append(RegionArrays(a["A"], a["b"], a["offsets"], a["K"], a["k"], a["active"],
-                                  a["active_offsets"], a["implied"], a["shared_A"],
-                                  a["shared_b"]))
+    parts = [regions_of(_read(Path(directory) / f"{i}" / f"cell-{c}.npz")) for i in range(n)]
     regions = RegionArrays.concat(parts)
     regions = regions.take(regions.active_order())
     stats: dict = {}
