@@ -263,17 +263,15 @@ def _span(seconds: float) -> tuple[float, float, int]:
 
 
 def test_the_costliest_calls_start_first_on_a_cluster(cluster):
-    # 4 calls on 2 workers, given cheapest first: each worker runs what it is given in the
-    # order of cost, the costliest first (in the order given, the cheapest went first). Said
-    # per worker, not against the clock: on a loaded machine a worker process may wait
-    # ~1 s before it starts its first call while the other has run two
+    # 4 calls on 2 workers, given cheapest first: one of the two costliest starts first, and
+    # the costliest does not start last (in the order given, the cheapest went first). Not
+    # the whole order on each worker: on a loaded machine a worker process may wait ~1 s
+    # before its first call, and the other, idle, steals its queued calls, so a worker may
+    # run call 0 before a call 1 it stole afterwards (seen on a CI machine)
     spans = cluster.map(_span, [(0.3,)] * 4, cost=[1.0, 2.0, 3.0, 4.0])
-    for pid in {p for _, _, p in spans}:
-        ran = sorted((t0, i) for i, (t0, _, p) in enumerate(spans) if p == pid)
-        assert [i for _, i in ran] == sorted((i for _, i in ran), reverse=True), spans
-    first = {p: min(t0 for t0, _, q in spans if q == p) for _, _, p in spans}
-    assert spans[3][0] == first[spans[3][2]]  # the costliest is the first of its worker
-    assert spans[0][0] > first[spans[0][2]]  # the cheapest waited for its worker
+    started = [i for _, i in sorted((t0, i) for i, (t0, _, _) in enumerate(spans))]
+    assert started[0] in (2, 3), spans
+    assert started[-1] != 3, spans
     with pytest.raises(ValueError, match="2 values for 4 calls"):
         cluster.map(_span, [(0.0,)] * 4, cost=[1.0, 2.0])
 
