@@ -38,16 +38,8 @@ from codev_engine.geometry.polytope import solve_lp
 from codev_engine.geometry.vertices import checked_piece
 from codev_engine.limits import beat
 from codev_engine.reach.linear import ExplorationLimitError, Finding
-from codev_engine.reach.nonlinear_flow import (
-    _GAMMA,
-    _U,
-    NonlinearFlow,
-    _dn,
-    _ell_rows,
-    _Rec,
-    _Set,
-    _up,
-)
+from codev_engine.reach.matrix_bounds import GAMMA, down2, up2
+from codev_engine.reach.nonlinear_flow import _U, NonlinearFlow, _ell_rows, _Rec, _Set
 from codev_engine.reach.tube import Tube
 
 __all__ = ["NonlinearReach"]
@@ -189,7 +181,7 @@ class NonlinearReach(NonlinearFlow):
                 slo, shi = c + dlo - e - pad - nu, c + dhi + e + pad + nu
                 xlo, xhi = self._box(s)
                 if self.vr is not None:  # the measurement x + v: in this box and the region
-                    xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
+                    xlo, xhi = down2(xlo + self.vc - self.vr), up2(xhi + self.vc + self.vr)
                 ulo, uhi = self._u_range(i, xlo, xhi)
                 ulo, uhi = np.maximum(ulo, slo), np.minimum(uhi, shi)
                 umin, umax = self._u_bounds(i)
@@ -212,7 +204,7 @@ class NonlinearReach(NonlinearFlow):
             dlo = rec.flo @ Fp.T + rec.fhi @ Fn.T
             dhi = rec.fhi @ Fp.T + rec.flo @ Fn.T
             fmag = np.maximum(np.abs(rec.flo), np.abs(rec.fhi))
-            mag = (self.n + 2) * _GAMMA * (fmag @ np.abs(F).T)
+            mag = (self.n + 2) * GAMMA * (fmag @ np.abs(F).T)
             hc = rec.hs[:, None]
             dlo = hc * np.minimum(dlo - mag, 0.0)
             dhi = hc * np.maximum(dhi + mag, 0.0)
@@ -472,7 +464,7 @@ class NonlinearReach(NonlinearFlow):
         """The box of what the law may see of the set: its states, plus the noise."""
         xlo, xhi = self._box(s)
         if self.vr is not None:  # what the law may see: x + v
-            xlo, xhi = _dn(xlo + self.vc - self.vr), _up(xhi + self.vc + self.vr)
+            xlo, xhi = down2(xlo + self.vc - self.vr), up2(xhi + self.vc + self.vr)
         return xlo, xhi
 
     def _domain_near(self, s: _Set) -> tuple[np.ndarray | None, np.ndarray | None]:

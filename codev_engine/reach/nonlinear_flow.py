@@ -52,6 +52,16 @@ from codev_engine.plant import linearize, plant_model
 from codev_engine.reach.carried import carried_zonotope, offset_zonotope
 from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import ClosedLoopSetup, Finding, affine_range
+from codev_engine.reach.matrix_bounds import (
+    add_pad,
+    down2,
+    expabs_vec,
+    gronwall,
+    imat_add_point,
+    imatvec,
+    norm2,
+    up2,
+)
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
 
@@ -334,7 +344,7 @@ class NonlinearFlow(ClosedLoopSetup):
         c, r = 0.5 * (xlo + xhi), 0.5 * (xhi - xlo)
         mid = F @ c + G
         rad = np.abs(F) @ r
-        blo, bhi = _dn(mid - rad), _up(mid + rad)
+        blo, bhi = down2(mid - rad), up2(mid + rad)
         A, b = self.law.A[i], self.law.b[i] + 1e-9
         lo, hi = blo.copy(), bhi.copy()
         for r in range(F.shape[0]):
@@ -437,7 +447,7 @@ class NonlinearFlow(ClosedLoopSetup):
         pad = 4 * _U * (np.abs(c) @ np.abs(F).T + np.abs(G) + rad) + 1e-300
         if self.vr is not None and not nom:
             rad = rad + self._noise_input(i)
-        return _dn(mid - rad - pad), _up(mid + rad + pad)
+        return down2(mid - rad - pad), up2(mid + rad + pad)
 
     def _picard(self, slo, shi, i, ulo, uhi, h, nom=False):
         """Boxes B (N, n) with S + [0, h] f(B, U) inside B, batched over rows.
@@ -471,8 +481,8 @@ class NonlinearFlow(ClosedLoopSetup):
             hh = hc[todo]
             dlo, dhi = hh * np.minimum(flo, 0.0), hh * np.maximum(fhi, 0.0)
             s0, s1 = slo[todo], shi[todo]
-            nlo = s0 + dlo - _add_pad(s0, dlo)
-            nhi = s1 + dhi + _add_pad(s1, dhi)
+            nlo = s0 + dlo - add_pad(s0, dlo)
+            nhi = s1 + dhi + add_pad(s1, dhi)
             good = np.all(nlo >= lo[todo], axis=1) & np.all(nhi <= hi[todo], axis=1)
             g = todo[good]
             Blo[g], Bhi[g], Flo[g], Fhi[g] = nlo[good], nhi[good], flo[good], fhi[good]
@@ -509,7 +519,7 @@ class NonlinearFlow(ClosedLoopSetup):
         lo, hi = s.range(np.eye(self.n))
         extra = s.ell(np.eye(self.n))
         pad = 1e-12 * (np.abs(s.y) + s.mag() + extra) + 1e-15
-        return _dn(s.y + lo - extra - pad), _up(s.y + hi + extra + pad)
+        return down2(s.y + lo - extra - pad), up2(s.y + hi + extra + pad)
 
     def _centre(self, y0, uc, F, G, hs) -> np.ndarray:
         """Point trajectory of the centre (RK4 per substep; validated afterwards)."""
@@ -575,12 +585,12 @@ class NonlinearFlow(ClosedLoopSetup):
         if zoh:
             # held input of the set's trajectories: u = uc + F (D d + M e)
             pad = 1e-12 * (np.abs(F) @ (np.abs(y0) + s.mag()) + np.abs(G) + FMn)
-            ulo = _dn(uc + FDlo - FMn - pad)
-            uhi = _up(uc + FDhi + FMn + pad)
+            ulo = down2(uc + FDlo - FMn - pad)
+            uhi = up2(uc + FDhi + FMn + pad)
             # the centre's input may lie outside (y need not be in a cut set): hull
-            ulo, uhi = np.minimum(ulo, _dn(uc)), np.maximum(uhi, _up(uc))
+            ulo, uhi = np.minimum(ulo, down2(uc)), np.maximum(uhi, up2(uc))
             if nu is not None:  # every held input of every noise value
-                ulo, uhi = _dn(ulo - nu), _up(uhi + nu)
+                ulo, uhi = down2(ulo - nu), up2(uhi + nu)
             FDv = s.V @ (F @ s.D).T
             du_norm = (
                 float(np.max(np.linalg.norm(FDv, axis=1))) + float(np.linalg.norm(F @ s.M, 2))
@@ -612,15 +622,15 @@ class NonlinearFlow(ClosedLoopSetup):
         if zoh:
             Jl, Jh = jxl, jxh
         else:
-            Jl, Jh = _imat_add_point(jxl, jxh, jul, juh, F)
-        ddl, ddh = _imatvec(Jl, Jh, gl, gh)
+            Jl, Jh = imat_add_point(jxl, jxh, jul, juh, F)
+        ddl, ddh = imatvec(Jl, Jh, gl, gh)
         cjl, cjh = (jxl, jul), (jxh, juh)  # Jacobians along the centre's substep trajectory
         hc = hs[:, None]
         t1l, t1h = hc * fyl, hc * fyh
         h2 = 0.5 * hc * hc
         t2l, t2h = h2 * np.minimum(ddl, ddh), h2 * np.maximum(ddl, ddh)
-        Tlo = Y0 + t1l + t2l - _add_pad(Y0, t1l, t2l)
-        Thi = Y0 + t1h + t2h + _add_pad(Y0, t1h, t2h)
+        Tlo = Y0 + t1l + t2l - add_pad(Y0, t1l, t2l)
+        Thi = Y0 + t1h + t2h + add_pad(Y0, t1h, t2h)
         Y1 = Y[1:]
         eps = np.maximum(Thi - Y1, Y1 - Tlo)
         eps = np.maximum(eps, 0.0) * (1 + 8 * _U) + 4 * _U * np.abs(Y1) + 1e-300
@@ -737,8 +747,8 @@ class NonlinearFlow(ClosedLoopSetup):
             if zsub is not None:
                 ext = ext + zbox
             bpad = 1e-12 * (np.abs(Y0) + vmag[:-1] + Mrows[:-1] + ext) + 1e-15
-            Slo = _dn(base_lo - ext - bpad)
-            Shi = _up(base_hi + ext + bpad)
+            Slo = down2(base_lo - ext - bpad)
+            Shi = up2(base_hi + ext + bpad)
             if zoh:
                 Blo, Bhi, flo, fhi, okb = self._picard(Slo, Shi, i, ulo, uhi, hs)
             else:
@@ -839,9 +849,9 @@ class NonlinearFlow(ClosedLoopSetup):
                 Ru = np.maximum(np.abs(Ul - Juc[jfin]), np.abs(Uh - Juc[jfin]))
                 R = Rx if zoh else Rx + Ru @ np.abs(F)
                 with np.errstate(invalid="ignore"):
-                    a[jfin] = _norm2(self.absW @ R @ self.absWinv) * (1 + 1e-12) * self.winv_pad
+                    a[jfin] = norm2(self.absW @ R @ self.absWinv) * (1 + 1e-12) * self.winv_pad
                     if zoh:
-                        b[jfin] = _norm2(self.absW @ Ru) * (1 + 1e-12) * du_norm
+                        b[jfin] = norm2(self.absW @ Ru) * (1 + 1e-12) * du_norm
                 b[jfin] = (b[jfin] + bw) * (1 + 1e-12)
             qall = None
             if jfin.size == N and np.all(np.isfinite(c2)):
@@ -858,8 +868,8 @@ class NonlinearFlow(ClosedLoopSetup):
                     last = j
                     break
                 with np.errstate(all="ignore"):
-                    r1 = _gronwall(r, mu[j], a[j], Sfull[j], hs[j], b[j])
-                    r2 = _gronwall(r, mu[j], 0.0, 0.0, hs[j], c2[j]) if np.isfinite(c2[j]) else r1
+                    r1 = gronwall(r, mu[j], a[j], Sfull[j], hs[j], b[j])
+                    r2 = gronwall(r, mu[j], 0.0, 0.0, hs[j], c2[j]) if np.isfinite(c2[j]) else r1
                     r = (np.fmin(r1, r2) + eps_w[j] + fpm[j]) * (1 + 1e-12)
                 if not np.isfinite(r):
                     # no finite bound (an enclosure met a singularity): the substep fails
@@ -940,8 +950,8 @@ class NonlinearFlow(ClosedLoopSetup):
             qsub,
         )
         tube = _tube(t_k + taus[:-1], t_k + taus[1:], Blo, Bhi, self.stats["branches"])
-        swlo = _dn(hc * np.minimum(flo, 0.0))
-        swhi = _up(hc * np.maximum(fhi, 0.0))
+        swlo = down2(hc * np.minimum(flo, 0.0))
+        swhi = up2(hc * np.maximum(fhi, 0.0))
         rec = _Rec(Y0, PD[:-1], PM[:-1], rho[:-1], swlo, swhi, s.V, flo, fhi, hs, vmag[:-1],
                    zsub)
         Mn = self._ell_plus_ball(PM[N], float(rho[N]))
@@ -1003,7 +1013,7 @@ class NonlinearFlow(ClosedLoopSetup):
             The tightened boxes (each inside the a-priori one).
         """
         n = self.n
-        v = _expabs_vec(Ma * hs[:, None, None], zeta)
+        v = expabs_vec(Ma * hs[:, None, None], zeta)
         if v is None:
             return Blo, Bhi
         g2 = np.einsum("jab,jbc,jc->ja", Ma, Ma, v)[:, :n] * (1 + 1e-10)
@@ -1023,8 +1033,8 @@ class NonlinearFlow(ClosedLoopSetup):
             np.abs(Bclo) + np.abs(Bchi) + np.maximum(vmag[:-1], vmag[1:]) + ell
             + np.maximum(np.abs(blo), np.abs(bhi)) + err
         ) + 1e-15
-        lo = _dn(Bclo + dlo - pad)
-        hi = _up(Bchi + dhi + pad)
+        lo = down2(Bclo + dlo - pad)
+        hi = up2(Bchi + dhi + pad)
         ok = np.all(np.isfinite(lo), axis=1) & np.all(np.isfinite(hi), axis=1)
         lo = np.where(ok[:, None], np.maximum(Blo, lo), Blo)
         hi = np.where(ok[:, None], np.minimum(Bhi, hi), Bhi)
@@ -1072,98 +1082,3 @@ def _tube(t0, t1, lo, hi, branch) -> Tube:
 
 def _empty_tube(n: int) -> Tube:
     return Tube.empty(n)
-
-
-def _norm2(mats: np.ndarray) -> np.ndarray:
-    """Spectral norms of a batch (P, r, c) of matrices; inf where an entry is not finite (an
-    enclosure that met a singularity)."""
-    fin = np.all(np.isfinite(mats), axis=(1, 2))
-    out = np.full(mats.shape[0], np.inf)
-    if fin.any():
-        out[fin] = np.linalg.norm(mats[fin], 2, axis=(1, 2))
-    return out
-
-
-def _gronwall(rho: float, mu: float, a: float, S: float, h: float, b: float) -> float:
-    """Bound of |r(h)|_W for r' = Jc r + w, |w|_W <= a (S + |r|_W) + b, |r(0)|_W <= rho."""
-    k = mu + a
-    grow = np.exp(k * h)
-    integ = h if abs(k * h) < 1e-12 else (grow - 1.0) / k
-    return float(grow * rho + integ * (a * S + b)) * (1 + 1e-12)
-
-
-_GAMMA = 4 * 2.0**-52  # per-term rounding allowance for short float sums and products
-
-
-def _imat_add_point(Al, Ah, Bl, Bh, F):
-    """[A] + [B] F for interval matrices [A] (..., n, n), [B] (..., n, m) and a point matrix
-    F (m, n).
-
-    Float sums are widened by the size of their *terms* (a cancelling sum's rounding error
-    scales with the terms, not with the result).
-    """
-    Fp, Fn = np.maximum(F, 0), np.minimum(F, 0)
-    lo = Al + Bl @ Fp + Bh @ Fn
-    hi = Ah + Bh @ Fp + Bl @ Fn
-    k = F.shape[0] + 2
-    mag = np.maximum(np.abs(Al), np.abs(Ah)) + np.maximum(np.abs(Bl), np.abs(Bh)) @ np.abs(F)
-    pad = k * _GAMMA * mag + 1e-300
-    return lo - pad, hi + pad
-
-
-def _imatvec(Al, Ah, xl, xh):
-    """Interval matrices (..., n, k) times interval vectors (..., k), widened by the size of
-    the summed terms."""
-    xl, xh = xl[..., None, :], xh[..., None, :]
-    cands = np.stack([Al * xl, Al * xh, Ah * xl, Ah * xh])
-    lo = cands.min(axis=0).sum(axis=-1)
-    hi = cands.max(axis=0).sum(axis=-1)
-    pad = (xl.shape[-1] + 2) * _GAMMA * np.abs(cands).max(axis=0).sum(axis=-1) + 1e-300
-    return lo - pad, hi + pad
-
-
-def _expabs_vec(A: np.ndarray, z: np.ndarray) -> np.ndarray | None:
-    """Upper bounds of ``exp(A) z`` for non-negative ``A`` (N, q, q) and ``z`` (N, q).
-
-    The Taylor series, every term non-negative (so float sums round by a relative
-    ``(k + q) u`` at most, covered by the ``1e-9`` inflation), cut once the terms shrink
-    geometrically (ratio ``|A|_inf / (k + 1) <= 1/2``) and are below ``1e-17`` of the sum;
-    the tail is at most twice the last term's max-norm, added to every entry.
-
-    Parameters
-    ----------
-    A : (N, q, q) ndarray
-        Non-negative matrices.
-    z : (N, q) ndarray
-        Non-negative vectors.
-
-    Returns
-    -------
-    ndarray or None
-        (N, q) bounds, or None when an entry is not finite or the series is too long.
-    """
-    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(z))):
-        return None
-    an = float(np.abs(A).sum(axis=2).max()) if A.size else 0.0
-    total = z.copy()
-    term = z.copy()
-    for k in range(1, 200):
-        term = np.einsum("jab,jb->ja", A, term) / k
-        total = total + term
-        tn = float(term.max()) if term.size else 0.0
-        if an / (k + 1) <= 0.5 and tn <= 1e-17 * float(total.max() + 1e-300):
-            return total * (1 + 1e-9) + 2.0 * tn * (1 + 1e-9) + 1e-300
-    return None
-
-
-def _add_pad(*terms):
-    """Rounding allowance of a short float sum of these terms (element-wise)."""
-    return (len(terms) + 1) * _GAMMA * sum(np.abs(t) for t in terms) + 1e-300
-
-
-def _dn(x):
-    return np.nextafter(np.nextafter(x, -np.inf), -np.inf)
-
-
-def _up(x):
-    return np.nextafter(np.nextafter(x, np.inf), np.inf)

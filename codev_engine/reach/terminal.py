@@ -293,7 +293,7 @@ def _check(problem, enc, x_op, u_op, F0, G0, Ax, Bu, c0, c0_err, Ts, half, rho, 
            eps_M, eps_d, d, Gabs, sc):
     """The invariance and safety checks of ``S_c`` (``sqrt(c) = sc``, box half-widths
     ``half``): (margin, box_lo, box_hi), or a string saying which check failed."""
-    from codev_engine.reach.nonlinear_flow import _add_pad
+    from codev_engine.reach.matrix_bounds import add_pad
 
     vs = problem.verify
     n = x_op.shape[0]
@@ -313,8 +313,8 @@ def _check(problem, enc, x_op, u_op, F0, G0, Ax, Bu, c0, c0_err, Ts, half, rho, 
         if not (np.all(np.isfinite(flo)) and np.all(np.isfinite(fhi))):
             return "the field is not finite over the period's enclosure"
         dlo, dhi = Ts * np.minimum(flo, 0.0), Ts * np.maximum(fhi, 0.0)
-        nlo = slo + dlo - _add_pad(slo, dlo)
-        nhi = shi + dhi + _add_pad(shi, dhi)
+        nlo = slo + dlo - add_pad(slo, dlo)
+        nhi = shi + dhi + add_pad(shi, dhi)
         if np.all(nlo >= blo) and np.all(nhi <= bhi):
             ok = True
             break
