@@ -813,10 +813,12 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 
 
 #: the benchmark scripts ``codev bench NAME`` runs (``benchmarks/NAME.py`` in the checkout)
+#: the scripts of a checkout's benchmarks/ that ``codev bench`` runs: every one
+#: (``hylaa_peer.py`` is ``paper.py``'s Hylaa model, not a benchmark of its own)
 BENCHMARKS = (
-    "mp", "synth", "session", "recording", "tui", "paper", "hylaa_peer", "export",
-    "long_horizon", "formulations", "sweep", "startup", "scale", "first_run", "on_demand",
-    "newcomer",
+    "mp", "mplp", "synth", "formulations", "export", "paper", "long_horizon", "on_demand",
+    "nonlinear_tube", "uncertain_tube", "disturbance", "verdicts", "session", "recording",
+    "startup", "first_run", "newcomer", "tui", "panel", "sweep", "scale",
 )
 
 

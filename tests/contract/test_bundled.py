@@ -115,6 +115,14 @@ def test_bench_runs_the_checkouts_script(tmp_path):
     assert "usage: synth.py" in out.stdout
 
 
+def test_bench_offers_every_benchmark_script():
+    # a script added to benchmarks/ is offered by codev bench (helpers of a script aside)
+    from workbench.cli import BENCHMARKS
+
+    scripts = {p.stem for p in (ROOT / "benchmarks").glob("*.py")} - {"hylaa_peer"}
+    assert set(BENCHMARKS) == scripts
+
+
 def test_bench_without_a_checkout_says_so(tmp_path):
     # the workbench package alone, as an installed wheel lays it out, first on the path
     site = tmp_path / "site-packages"
