@@ -6,7 +6,8 @@ Usage::
         [--no-adversarial] [--hold zoh|continuous]
 
 Cases: ``pendulum_near_saturation`` (examples/pendulum.toml with ``-c*w + T + d``, ``c`` in
-[0.4, 0.6], ``|d| <= 0.2``, 3 s: the design of issue 38), ``quadruple_tank``
+[0.4, 0.6], ``|d| <= 0.2``, 3 s: the design of issue 38), ``pendulum_disturbed_3`` (the
+same with ``|d| <= 3``: unsafe, its verdict and CPU alone), ``quadruple_tank``
 (tests/engine/quadruple_tank.toml, Johansson 2000, ``g1`` in [0.67, 0.73], ``|d| <= 0.2``) and
 ``cruise_loaded`` (examples/, an affine plant: the linear engine). Per case: the verdict, CPU
 seconds of ``ce.verify`` (``time.process_time``), branches and boxes, then per state the width
@@ -47,15 +48,16 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))  # (the ratio is nonlinear_tube.py's)
 from benchmarks.nonlinear_tube import hull_ratios  # noqa: E402
 
-CASES = ["pendulum_near_saturation", "quadruple_tank", "cruise_loaded"]
+CASES = ["pendulum_near_saturation", "pendulum_disturbed_3", "quadruple_tank", "cruise_loaded"]
 
 
 def problem_of(case: str) -> ce.Problem:
     """The case's problem (see the module docstring)."""
-    if case == "pendulum_near_saturation":
+    if case in ("pendulum_near_saturation", "pendulum_disturbed_3"):
+        d = 0.2 if case == "pendulum_near_saturation" else 3.0
         text = (ROOT / "examples" / "pendulum.toml").read_text()
         text = text.replace('"9.81*sin(th) - 0.5*w + T"', '"9.81*sin(th) - c*w + T + d"')
-        text = text.replace("[model]", "disturbances = { d = [-0.2, 0.2] }\n"
+        text = text.replace("[model]", f"disturbances = {{ d = [-{d}, {d}] }}\n"
                             "parameters = { c = [0.4, 0.6] }\n\n[model]", 1)
         return loads_spec(text)
     if case == "quadruple_tank":
@@ -167,8 +169,8 @@ def main() -> int:
         st = res.stats
         print(f"{case}: {res.verdict} ({res.reason or '-'}), {cpu:.2f} s CPU, "
               f"{st.get('branches', 0)} branches, {res.tube.num_boxes} boxes", flush=True)
-        if res.tube.num_boxes == 0:
-            continue
+        if res.tube.num_boxes == 0 or res.verdict == "unsafe":
+            continue  # (an unsafe verdict's tube is cut at the counterexample)
         rs, adv, outside = ratios(problem, law, res.tube, args.samples,
                                   not args.no_adversarial)
         for j, (tk, r) in enumerate(rs):
