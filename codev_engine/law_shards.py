@@ -664,6 +664,10 @@ class ShardedLaw:
         The domain is held as each shard's facets (the sharded search's law):
         :meth:`domain_rows` reads only the facets of the shards a box meets, and a
         consumer that needs the domain near a set asks it rather than :attr:`domain_A`.
+    loads, asked, met : int
+        Counters so far: the shard files read; the (point, shard) look-ups of
+        :meth:`locate`; the (box, shard) pairs :meth:`regions_meeting` and
+        :meth:`domain_rows` looked in (one of the shard's group boxes met the box).
     """
 
     def __init__(self, directory: str | os.PathLike, *, cache: int = CACHE):
