@@ -4,14 +4,18 @@ A law of millions of regions made by the sharded search (``mp/sharded.py``) need
 whole in one process: :func:`write_law_shards` writes it as a folder of law files (each in
 ``ExplicitLaw``'s own format, ``law.LAW_FORMAT``, written atomically, with its regions'
 bounding boxes) and a manifest, ``shards.json``, written last, that records each file's
-SHA-256, its size, its number of regions and the bounding box of its regions.
+SHA-256, its size, its number of regions, the bounding box of its regions and its
+*groups*: at most ``GROUPS`` boxes, each the bounding box of a group of its regions (a k-d
+split of their boxes, :func:`box_groups`), a summary of fixed size whatever the regions.
 :class:`ShardedLaw` reads the manifest alone; a shard is read, and checked against its
 SHA-256 and the manifest, the first time a question needs it:
 
-- :meth:`ShardedLaw.regions_meeting` reads only the shards whose box meets the box asked;
-- :meth:`ShardedLaw.locate` / :meth:`ShardedLaw.evaluate` only the shards whose box holds
-  one of the points (first the shard whose *cell* holds it, when the manifest records the
-  cells of space the sharded search cut the regions by: most points are answered there);
+- :meth:`ShardedLaw.regions_meeting` reads only the shards one of whose group boxes meets
+  the box asked (a manifest written before the groups: whose box meets it);
+- :meth:`ShardedLaw.locate` / :meth:`ShardedLaw.evaluate` only the shards one of whose
+  group boxes holds one of the points (first the shard whose *cell* holds it, when the
+  manifest records the cells of space the sharded search cut the regions by: most points
+  are answered there);
 - ``law.A[i]``, ``law.F[i]`` (and ``law.F[idx]`` for an index array) the shards of those
   regions.
 
@@ -25,8 +29,13 @@ A law of the sharded search keeps its **domain** (the feasible parameter set ``D
 shards too: each shard's facets of ``D`` (the rows of its regions that hold on all of ``D``)
 in a checked side file ``facets-<j>.npz``, the parameter set's rows in the manifest.
 :meth:`ShardedLaw.domain_rows` then answers a box with the parameter set's rows and the
-facets of the shards whose box meets it (:attr:`ShardedLaw.local_domain`: no file but
-those shards' facets is read; docs/scale.md says why that describes ``D`` in the box).
+facets of the shards whose group boxes meet it (:attr:`ShardedLaw.local_domain`: no file
+but those shards' facets is read; docs/scale.md says why that describes ``D`` in the box).
+
+A group box is the union of its regions' boxes, compared with the box asked at the same
+tolerance (``_BOX_TOL``) as ``ExplicitLaw.regions_meeting`` compares theirs: a shard one of
+whose regions' boxes meets the box always has a group box that meets it, so no shard that
+holds an answer is skipped.
 
 A damaged or edited shard is refused when read (``errors.DamagedFileError``, a ``SpecError``
 naming the file): its size or its SHA-256 is not the manifest's (a manifest written before
@@ -53,8 +62,9 @@ from codev_engine.io.atomic import write_npz, write_text
 from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
 
-__all__ = ["FACETS_FORMAT", "SHARDS_FORMAT", "ShardWriter", "ShardedLaw", "manifest_files",
-           "spatial_order", "split_law", "update_meta", "write_law_shards"]
+__all__ = ["FACETS_FORMAT", "GROUPS", "SHARDS_FORMAT", "ShardWriter", "ShardedLaw",
+           "box_groups", "manifest_files", "spatial_order", "split_law", "update_meta",
+           "write_law_shards"]
 
 #: format tag of a sharded law's manifest
 SHARDS_FORMAT = "codev-law-shards/1"
@@ -66,6 +76,9 @@ CACHE = 4
 FACETS_FORMAT = "codev-law-facets/1"
 #: the bounding-box tolerance of ``ExplicitLaw.regions_meeting``
 _BOX_TOL = 1e-9
+#: group boxes per shard in the manifest at most (``box_groups``): what a question checks
+#: before it reads a shard; the manifest grows by ``2 * GROUPS * n`` numbers per shard
+GROUPS = 64
 
 
 def _save_facets(facets: np.ndarray, path: Path) -> dict:
@@ -130,6 +143,54 @@ def spatial_order(law: ExplicitLaw) -> np.ndarray:
     centre = 0.5 * (lo + hi)
     axis = int(np.argmax(np.ptp(centre, axis=0)))
     return np.argsort(centre[:, axis], kind="stable")
+
+
+def box_groups(lo: np.ndarray, hi: np.ndarray, most: int = GROUPS
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``most`` boxes that together hold every given box: the bounding boxes of
+    groups of them, made by a k-d split of the boxes' centres (each split on the axis the
+    centres spread most, at the median), the summary of a shard's regions that a question
+    checks before it reads the shard.
+
+    Each box is in exactly one group and each group's box is the ``min`` / ``max`` of its
+    boxes' sides (exact in floating point): a box that meets a set (at any tolerance)
+    lies in a group box that meets it too.
+
+    Parameters
+    ----------
+    lo, hi : (k, n) ndarrays
+        The boxes (a shard's regions' bounding boxes, ``ExplicitLaw.boxes``).
+    most : int
+        At least 1.
+
+    Returns
+    -------
+    lo, hi : (g, n) ndarrays
+        ``g = min(most, k)`` boxes (none for no box).
+    """
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    k = lo.shape[0]
+    centre = 0.5 * (lo + hi)
+    out: list[np.ndarray] = []
+
+    def split(idx: np.ndarray, groups: int) -> None:
+        if groups <= 1 or idx.size <= 1:
+            out.append(idx)
+            return
+        # (a box of an infinite side has a NaN or infinite centre: sorted like any other,
+        # the group's box is then infinite on that side, as it must be)
+        spread = np.ptp(np.nan_to_num(centre[idx]), axis=0)
+        axis = int(np.argmax(spread))
+        order = idx[np.argsort(centre[idx, axis], kind="stable")]
+        left = groups // 2
+        cut = min(max(1, round(order.size * left / groups)), order.size - 1)
+        split(order[:cut], left)
+        split(order[cut:], groups - left)
+
+    if k:
+        split(np.arange(k), min(max(1, int(most)), k))
+    return (np.array([lo[g].min(axis=0) for g in out]).reshape(-1, lo.shape[1]),
+            np.array([hi[g].max(axis=0) for g in out]).reshape(-1, lo.shape[1]))
 
 
 def split_law(law: ExplicitLaw, shards: int, order: np.ndarray | None = None
@@ -216,12 +277,21 @@ def _save_shard(part: ExplicitLaw, path: Path) -> dict:
     """Save one shard (atomically, with its boxes) and return its manifest entry."""
     lo, hi = part.boxes  # (saved with the shard: its regions' LPs are not solved again)
     path = part.save(path)
+    # the groups' boxes: what a question checks before it reads the shard (the same boxes
+    # as the file's, so a region's box is in its group's)
+    glo, ghi = box_groups(lo, hi)
     return {  # (bytes: what a session checks when it opens the law, the SHA-256 when read)
         "file": path.name, "sha256": _file_sha(path), "bytes": path.stat().st_size,
         "regions": part.num_regions,
         "lo": lo.min(axis=0).tolist() if lo.shape[0] else None,
         "hi": hi.max(axis=0).tolist() if hi.shape[0] else None,
+        "groups_lo": [_sides(v) for v in glo], "groups_hi": [_sides(v) for v in ghi],
     }
+
+
+def _sides(v: np.ndarray) -> list:
+    """A box's side as strict JSON: an infinite end as null (read back as -inf / inf)."""
+    return [float(x) if np.isfinite(x) else None for x in v]
 
 
 def write_manifest(directory: str | os.PathLike, head: dict, entries: list[dict]) -> Path:
@@ -238,8 +308,8 @@ def write_manifest(directory: str | os.PathLike, head: dict, entries: list[dict]
         the sharded search's) or ``domain_A`` / ``domain_b`` (the law's whole domain).
     entries : list of dict
         One per shard file, in order (``file``, ``sha256``, ``bytes``, ``regions``, ``lo``,
-        ``hi``; ``facets_file``, ``facets_sha256``, ``facets_bytes``, ``facets`` with the
-        facets in side files).
+        ``hi``, ``groups_lo``, ``groups_hi``; ``facets_file``, ``facets_sha256``,
+        ``facets_bytes``, ``facets`` with the facets in side files).
 
     Returns
     -------
@@ -463,6 +533,31 @@ def _cell(entry: dict, n: int) -> tuple[np.ndarray, np.ndarray] | None:
     return (lo, hi) if lo.shape == hi.shape == (n,) else None
 
 
+def _groups(entry: dict, n: int, where: str, j: int) -> tuple[np.ndarray, np.ndarray]:
+    """A manifest entry's group boxes ``(g, n)`` each (null sides read as -inf / inf); a
+    manifest written before the groups: the entry's box as one group, or none (no region).
+    ``SpecError`` naming the field when they are malformed: a group box the reader cannot
+    trust would skip a shard that holds an answer."""
+    if "groups_lo" not in entry and "groups_hi" not in entry:
+        if entry.get("lo") is None or entry.get("hi") is None:
+            return np.zeros((0, n)), np.zeros((0, n))
+        return (np.asarray(entry["lo"], float).reshape(1, n),
+                np.asarray(entry["hi"], float).reshape(1, n))
+    try:
+        lo = np.array([[-np.inf if v is None else float(v) for v in row]
+                       for row in entry["groups_lo"]], dtype=float).reshape(-1, n)
+        hi = np.array([[np.inf if v is None else float(v) for v in row]
+                       for row in entry["groups_hi"]], dtype=float).reshape(-1, n)
+        ok = (lo.shape == hi.shape and not np.isnan(lo).any() and not np.isnan(hi).any()
+              and (lo.shape[0] > 0) == (entry["regions"] > 0))
+    except (KeyError, TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise SpecError(f"must be as many boxes of {n} sides in groups_lo as in groups_hi "
+                        "(none without regions)", file=where, field=f"shards[{j}].groups_lo")
+    return lo, hi
+
+
 def _matrix(data: dict, a: str, b: str, n: int, where: str
             ) -> tuple[np.ndarray, np.ndarray]:
     """The manifest's rows ``data[a] x <= data[b]``, checked (``SpecError`` naming ``a``)."""
@@ -569,6 +664,10 @@ class ShardedLaw:
         The domain is held as each shard's facets (the sharded search's law):
         :meth:`domain_rows` reads only the facets of the shards a box meets, and a
         consumer that needs the domain near a set asks it rather than :attr:`domain_A`.
+    loads, asked, met : int
+        Counters so far: the shard files read; the (point, shard) look-ups of
+        :meth:`locate`; the (box, shard) pairs :meth:`regions_meeting` and
+        :meth:`domain_rows` looked in (one of the shard's group boxes met the box).
     """
 
     def __init__(self, directory: str | os.PathLike, *, cache: int = CACHE):
@@ -613,9 +712,13 @@ class ShardedLaw:
         self.parameters = tuple(data.get("parameters", ()))
         self.meta = data.get("meta") if isinstance(data.get("meta"), dict) else {}
         self._n, self._m = int(data.get("n", 0)), int(data.get("m", 0))
-        # each shard's box (None: no region), to skip the shards a question does not meet
-        self._lo = [None if e.get("lo") is None else np.asarray(e["lo"], float) for e in shards]
-        self._hi = [None if e.get("hi") is None else np.asarray(e["hi"], float) for e in shards]
+        # each shard's group boxes ((g, n) each; none: no region), to skip the shards a
+        # question does not meet: the manifest's groups, or (written before them) its box
+        self._lo, self._hi = [], []
+        for j, e in enumerate(shards):
+            glo, ghi = _groups(e, self._n, where, j)
+            self._lo.append(glo)
+            self._hi.append(ghi)
         # each shard's cell of space, when the sharded search cut its regions by space
         # (``lo <= x < hi``, from the regions' centres): ``locate`` asks it first
         self._cells = [_cell(e, self._n) for e in shards]
@@ -638,6 +741,9 @@ class ShardedLaw:
         self._most = max(1, int(cache))
         self.loads = 0  # shard files read (and checked) so far
         self.asked = 0  # (point, shard) pairs ``locate`` has looked up in a shard so far
+        # (box, shard) pairs ``regions_meeting`` and ``domain_rows`` have looked up so far
+        # (the shard, or its facets, read for them)
+        self.met = 0
         self.A, self.b = _Rows(self, "A"), _Rows(self, "b")
         self.F, self.G = _Rows(self, "F"), _Rows(self, "G")
 
@@ -809,14 +915,25 @@ class ShardedLaw:
         return j, i - int(self.offsets[j])
 
     def _meets(self, j: int, lo: np.ndarray, hi: np.ndarray) -> bool:
-        return self._lo[j] is not None and bool(
-            np.all(self._lo[j] <= hi + _BOX_TOL) and np.all(self._hi[j] >= lo - _BOX_TOL))
+        """One of shard ``j``'s group boxes meets ``[lo, hi]`` (``ExplicitLaw``'s test of
+        a region's box, at its tolerance: every region box that meets it is in one)."""
+        met = bool(np.any(np.all(self._lo[j] <= hi + _BOX_TOL, axis=1)
+                          & np.all(self._hi[j] >= lo - _BOX_TOL, axis=1)))
+        self.met += met
+        return met
+
+    def _holding(self, j: int, X: np.ndarray) -> np.ndarray:
+        """(P,) bool: which points one of shard ``j``'s group boxes holds."""
+        out = np.zeros(X.shape[0], dtype=bool)
+        for glo, ghi in zip(self._lo[j], self._hi[j], strict=True):
+            out |= (np.all(X >= glo - _BOX_TOL, axis=1) & np.all(X <= ghi + _BOX_TOL, axis=1))
+        return out
 
     # ---- the interface of the reach engines ------------------------------------------
 
     def regions_meeting(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """The regions whose bounding box meets ``[lo, hi]`` (``ExplicitLaw``'s answer),
-        from the shards whose box meets it alone.
+        from the shards one of whose group boxes meets it alone (:attr:`met` counts them).
 
         Parameters
         ----------
@@ -837,7 +954,8 @@ class ShardedLaw:
         box ``[lo, hi]``.
 
         With :attr:`local_domain`: the parameter set's rows and the facets of the shards
-        whose box meets the box (every facet of ``D`` that meets the box is among them), so
+        one of whose group boxes meets the box (every facet of ``D`` that meets the box is
+        among them: a region's box that holds a point of it is in a group box), so
         when the box meets ``D`` a point of the box is in ``D`` exactly when it satisfies
         them all (docs/scale.md, "The domain's facets in the shards"). When the box misses
         ``D`` they may all hold on part of it: as ``law_on_demand.OnDemandLaw.domain_rows``,
@@ -864,8 +982,8 @@ class ShardedLaw:
     def locate(self, X: np.ndarray) -> np.ndarray:
         """Region index of each point (-1 outside the domain), from a shard whose regions
         hold it: first the shard whose cell holds the point (a manifest of the sharded
-        search: ``cell_lo``, ``cell_hi``), then the others whose box holds it, in the
-        manifest's order (:attr:`asked` counts the look-ups).
+        search: ``cell_lo``, ``cell_hi``), then the others one of whose group boxes holds
+        it, in the manifest's order (:attr:`asked` counts the look-ups).
 
         Parameters
         ----------
@@ -890,7 +1008,7 @@ class ShardedLaw:
             outside = np.any((X @ dA.T - db) / norm > 1e-6 * (1.0 + np.abs(db) / norm),
                              axis=1)
         # first the shard whose cell holds the point (most regions about a point have
-        # their centre in its cell), then any other whose box holds it
+        # their centre in its cell), then any other one of whose group boxes holds it
         first = np.full(X.shape[0], -1, dtype=np.int64)
         for j, cell in enumerate(self._cells):
             if cell is not None:
@@ -902,11 +1020,11 @@ class ShardedLaw:
         return out
 
     def _ask(self, j: int, X: np.ndarray, todo: np.ndarray, out: np.ndarray) -> None:
-        """Locate the points ``X[todo]`` that shard ``j``'s box holds in its regions."""
-        if self._lo[j] is None or not todo.size:
+        """Locate the points ``X[todo]`` that shard ``j``'s group boxes hold in its
+        regions."""
+        if not todo.size:
             return
-        near = todo[np.all(X[todo] >= self._lo[j] - _BOX_TOL, axis=1)
-                    & np.all(X[todo] <= self._hi[j] + _BOX_TOL, axis=1)]
+        near = todo[self._holding(j, X[todo])]
         if near.size:
             self.asked += int(near.size)
             idx = self.shard(j).locate(X[near])
@@ -914,8 +1032,9 @@ class ShardedLaw:
             out[near[hit]] = idx[hit] + self.offsets[j]
 
     def shards_at(self, X: np.ndarray) -> np.ndarray:
-        """How many shards' boxes hold each point: the shards :meth:`locate` may read for
-        it (from the manifest alone; a measure of how the shards cut space).
+        """How many shards' group boxes (their boxes, in a manifest written before the
+        groups) hold each point: the shards :meth:`locate` may read for it (from the
+        manifest alone; a measure of how the shards cut space).
 
         Parameters
         ----------
@@ -928,9 +1047,7 @@ class ShardedLaw:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         out = np.zeros(X.shape[0], dtype=np.int64)
         for j in range(self.shards):
-            if self._lo[j] is not None:
-                out += (np.all(X >= self._lo[j] - _BOX_TOL, axis=1)
-                        & np.all(X <= self._hi[j] + _BOX_TOL, axis=1))
+            out += self._holding(j, X)
         return out
 
     def evaluate(self, X: np.ndarray) -> np.ndarray:

@@ -23,7 +23,7 @@ import codev_engine as ce
 from codev_engine.errors import SpecError
 from codev_engine.law_shards import MANIFEST, ShardedLaw
 from codev_engine.mp import mpqp, sharded
-from tests.engine.test_law_shards import SPEC
+from tests.engine.test_law_shards import SPEC, _boxes_meeting
 
 #: the spec with an initial set that leaves the MPC's feasible set (fast towards a wall)
 WIDE = SPEC.replace("initial_set = { lower = [-0.5, -0.2], upper = [0.5, 0.2] }",
@@ -102,6 +102,47 @@ def test_domain_rows_describe_the_domain_in_a_box(written, serial):
             kinds["outside"] += 1
     assert min(kinds["inside"], kinds["across"], kinds["outside"]) >= 5, kinds
     assert fewer > 0  # (some boxes meet one shard: its facets alone are read)
+
+
+def _unit(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rows ``[a, beta]`` scaled to unit ``a``."""
+    norm = np.linalg.norm(A, axis=1, keepdims=True)
+    return np.hstack([A, b[:, None]]) / norm
+
+
+def test_domain_rows_hold_every_facet_that_meets_the_box(written, serial):
+    """The guarantee ``domain_rows`` documents, with the shards skipped by their group
+    boxes: every facet of the domain that meets the box (an LP each) is among the rows."""
+    law = written
+    dA, db = serial.domain_A, serial.domain_b
+    theirs = _unit(dA, db)
+    rng = np.random.default_rng(3)
+    met = boxes = hits = 0
+    for q in range(60):
+        c = rng.uniform([-6.0, -2.5], [6.0, 2.5])
+        if q % 2:  # (half of them about a point of the boundary: a facet's middle)
+            f = rng.integers(dA.shape[0])
+            ends = [linprog(s * np.array([1.0, 1.0]), A_ub=dA, b_ub=db, A_eq=dA[f:f + 1],
+                            b_eq=db[f:f + 1], bounds=[(None, None)] * 2, method="highs").x
+                    for s in (1.0, -1.0)]
+            c = 0.5 * (ends[0] + ends[1]) + rng.normal(0.0, 0.05, 2)
+        r = rng.choice([0.06, 0.3]) * np.array([1.0, 0.5])  # (1 % and 5 % of its box)
+        lo, hi = c - r, c + r
+        before = law.met
+        A, b = law.domain_rows(lo, hi)
+        met += law.met - before
+        boxes += _boxes_meeting(law.dir, lo, hi)
+        ours = _unit(A, b)
+        for f in range(dA.shape[0]):
+            # the facet {x in D : dA[f] x = db[f]} meets [lo, hi]?
+            res = linprog(np.zeros(2), A_ub=dA, b_ub=db + 1e-12, A_eq=dA[f:f + 1],
+                          b_eq=db[f:f + 1], bounds=list(zip(lo, hi, strict=True)),
+                          method="highs")
+            if res.status == 0:
+                hits += 1
+                assert np.min(np.abs(ours - theirs[f]).max(axis=1)) < 1e-7, (f, lo, hi)
+    assert hits >= 20  # (boxes across the boundary)
+    assert met < boxes, (met, boxes)  # (fewer shards than their boxes meet)
 
 
 def test_the_manifest_holds_no_facet(written, tmp_path):
