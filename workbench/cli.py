@@ -818,7 +818,7 @@ def _cmd_tui(args: argparse.Namespace) -> int:
 BENCHMARKS = (
     "mp", "mplp", "synth", "formulations", "export", "paper", "long_horizon", "on_demand",
     "nonlinear_tube", "uncertain_tube", "disturbance", "verdicts", "session", "recording",
-    "startup", "first_run", "newcomer", "tui", "panel", "sweep", "scale",
+    "startup", "first_run", "newcomer", "tui", "panel", "sweep", "scale", "shard_queries",
 )
 
 
