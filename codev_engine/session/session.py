@@ -336,6 +336,9 @@ class Session:
             (the spec's plant not linearisable, its MPC infeasible) for a stage not cached.
         """
         options.check(stages=self.table.names)
+        # (what killed runs left: the temporaries no live writer holds, a concurrent run's
+        # kept; nothing reads them, they only take space)
+        store.remove_temporaries(self.path)
         prepare()  # a fresh installation's kernels, announced, before any stage's clock
         t_run = time.perf_counter()
         emit = on_event or (lambda _s, _e, _d: None)
