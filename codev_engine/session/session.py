@@ -227,6 +227,43 @@ class Session:
         """
         return store.artifact_path(self.path, stage, key, self.table[stage].extension(options))
 
+    def load(self, stage: str, path: Path, problem: Problem) -> Any:
+        """A stage's cached artifact, loaded by the stage, bound to this session.
+
+        What every front end that opens a cached artifact uses (``codev report``, the
+        workbench, the notebook; :meth:`run` and :meth:`status` too): a law held as shards
+        reads a shard only when a question needs it, after the run that opened it maybe,
+        and a shard found damaged then marks the artifact damaged in the index wherever the
+        question came from, so that the next run recomputes it (its error says so).
+
+        Parameters
+        ----------
+        stage : str
+            The stage's name.
+        path : Path
+            The artifact (checked already: ``status`` or the run's check).
+        problem : Problem
+            The spec it was computed for.
+
+        Returns
+        -------
+        object
+            The stage's value.
+
+        Raises
+        ------
+        CodevError
+            The stage's loader refuses it.
+        """
+        return self._bind(self.table[stage].load(path, problem))
+
+    def _bind(self, value: Any) -> Any:
+        """``value``, a law held as shards told to mark this session's artifact when it
+        finds one of its files damaged (``ShardedLaw.on_damaged``)."""
+        if hasattr(value, "on_damaged"):
+            value.on_damaged = self._damaged
+        return value
+
     def _check_artifact(
         self, stage: Stage, key: str, options: RunOptions
     ) -> tuple[Path, str | None]:
@@ -267,7 +304,7 @@ class Session:
             rel = str(path.relative_to(self.path))
             if why is None:
                 try:
-                    stage.load(path, problem)
+                    self.load(name, path, problem)
                 except CodevError as exc:
                     out.append(StageStatus(name, key, "corrupt", rel, str(exc)))
                     continue
@@ -365,7 +402,7 @@ class Session:
                 path, why = self._check_artifact(stage, key, options)
                 if not fresh and why is None:
                     try:
-                        value = stage.load(path, problem)
+                        value = self.load(name, path, problem)
                         status = "cached"
                     except CodevError as exc:
                         why = f"unreadable ({exc})"
@@ -374,10 +411,10 @@ class Session:
                         note = f"{path.name}: {why}; recomputed"
                         say(f"{self.path}: artifact {note}")
                     try:
-                        value = stage.compute(
+                        value = self._bind(stage.compute(
                             StageRun(problem, options, values, path, _progress(emit, name),
                                      executor)
-                        )
+                        ))
                     except CodevError as exc:
                         if isinstance(exc, DamagedFileError):  # (a shard of a cached law)
                             exc = self._damaged(exc)
@@ -410,17 +447,23 @@ class Session:
         return report
 
     def _damaged(self, exc: DamagedFileError) -> DamagedFileError:
-        """A file of a cached artifact found damaged when a stage read it (a shard of the
-        law: the store checks its size when the session opens the law, its SHA-256 is
-        checked when it is read). The store's rule for a damaged artifact: it is not used
-        again, the next run recomputes it (the artifact is marked in the index); the error
-        says so."""
+        """A file of a cached artifact found damaged when read (a shard of the law: the
+        store checks its size when the session opens the law, its SHA-256 is checked when
+        it is read: by a stage, or by a front end after the run). The store's rule for a
+        damaged artifact: it is not used again, the next run recomputes it (the artifact
+        is marked in the index); the error says so. Called by the law itself
+        (:meth:`_bind`), and by :meth:`run` for an error that comes back from a worker
+        (which held a copy of the law, unbound); once per error."""
+        if exc.artifact is not None:  # (marked already: by the law, before it reached run)
+            return exc
         name = None if exc.file is None else store.mark_damaged(self.path, exc.file,
                                                                 exc.reason)
         if name is None:  # (a file of no artifact of this session)
             return exc
-        return DamagedFileError(f"{exc.reason}; the session's next run recomputes {name}",
-                                file=exc.file, field=exc.field)
+        out = DamagedFileError(f"{exc.reason}; the session's next run recomputes {name}",
+                               file=exc.file, field=exc.field)
+        out.artifact = name
+        return out
 
     def _save_regions(self, law: Any, keys: dict[str, str]) -> None:
         """Write the region cache of a law on demand again when the run grew it, so that
