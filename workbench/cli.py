@@ -788,14 +788,21 @@ def _from_session(d: Path):
     problem = session.problem()
     status = {s.stage: s for s in session.status(problem)}
     syn = status.get("synthesis")
+    if syn is not None and syn.status == "corrupt":  # (named, with what is wrong with it)
+        raise SpecError(
+            f"the session's law is unusable ({syn.reason}); its next run recomputes it: "
+            f"codev run {session.spec_path()} --session {d}",
+            file=str(d / syn.artifact),
+        )
     if syn is None or syn.status != "cached":
         raise SpecError(
             f"the session has no cached law for its spec; run: codev run {session.spec_path()} "
             f"--session {d}",
             file=str(d),
         )
-    # (the stage's loader: a full law, or the region cache of regions = "reached")
-    law = session.table["synthesis"].load(d / syn.artifact, problem)
+    # (the stage's loader, through the session: a full law, the region cache of regions =
+    # "reached", or a law as shards, which marks the artifact if a shard it reads is damaged)
+    law = session.load("synthesis", d / syn.artifact, problem)
     ver = status.get("verification")
     result = None
     if ver is not None and ver.status == "cached":
