@@ -37,16 +37,20 @@ STALE_AFTER = 60.0
 _STALE_UNLOCKED = 86400.0
 
 
-def _sibling(path: Path, create: Callable[[Path], object]) -> Path:
+def _sibling(path: Path, create: Callable[[Path], object], made: list[Path]) -> Path:
     """A new ``.tmp-<random hex><suffix of path>`` beside ``path``, made by ``create`` (which
-    must fail with ``FileExistsError`` on a name taken); the missing parents are created."""
+    must fail with ``FileExistsError`` on a name taken); the missing parents are created.
+    Its name is put in ``made`` before it is made: a caller interrupted (Ctrl-C) as it is
+    made, before this returns, still knows what to remove."""
     path.parent.mkdir(parents=True, exist_ok=True)
     while True:
         tmp = path.parent / f".tmp-{secrets.token_hex(6)}{path.suffix}"
+        made[:] = [tmp]
         try:
             create(tmp)
             return tmp
         except FileExistsError:  # pragma: no cover - 48 random bits
+            made.clear()
             continue
 
 
@@ -98,16 +102,18 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     libraries that choose a format, or append an extension, by the file name.
     """
     path = Path(path)
-    tmp = _sibling(path, lambda t: os.close(os.open(t, os.O_CREAT | os.O_EXCL | os.O_WRONLY,
-                                                    0o666)))
+    made: list[Path] = []
     try:
+        tmp = _sibling(path, lambda t: os.close(os.open(t, os.O_CREAT | os.O_EXCL | os.O_WRONLY,
+                                                        0o666)), made)
         with _held(tmp):
             yield tmp
             with tmp.open("rb+") as fh:  # the data must be on disk before the rename
                 os.fsync(fh.fileno())
             os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        for t in made:
+            t.unlink(missing_ok=True)
         raise
 
 
@@ -135,20 +141,25 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
         atomic within one file system only).
     """
     path = Path(path)
-    tmp = _sibling(path, Path.mkdir)
+    made: list[Path] = []
+    old = None
     try:
+        tmp = _sibling(path, Path.mkdir, made)
         with _held(tmp):
             yield tmp
-            old = None
             if path.exists() or path.is_symlink():
                 # (a folder cannot be renamed onto a folder that holds files: the old one
                 # goes aside, under a name no reader looks at, and is removed once the new
                 # one is in; left by a writer killed in between, remove_stale removes it)
-                old = path.parent / f".tmp-{secrets.token_hex(6)}-old{path.suffix}"
-                os.replace(path, old)
+                aside = path.parent / f".tmp-{secrets.token_hex(6)}-old{path.suffix}"
+                os.replace(path, aside)
+                old = aside
             os.replace(tmp, path)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        for t in made:
+            shutil.rmtree(t, ignore_errors=True)
+        if old is not None and not (path.exists() or path.is_symlink()):
+            os.replace(old, path)  # (interrupted between the two renames: put it back)
         raise
     if old is not None:
         if old.is_dir() and not old.is_symlink():

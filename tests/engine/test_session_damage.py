@@ -327,16 +327,31 @@ def test_codev_run_killed_writing_an_artifact(tmp_path, sig):
 @pytest.mark.slow  # (a LocalCluster of 2 workers started by each run: ~15 s at load 8)
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
 def test_codev_run_sharded_on_a_cluster_killed_writing_the_law(spec, tmp_path, sig):
-    """``codev run --session --workers 2 --sharded``, its workers writing the law's shards
-    into the ``.tmp-*.shards`` folder, interrupted (Ctrl-C to the group: exit 130) or
-    killed (SIGKILL to the group) meanwhile: no folder of shards is taken half-written,
+    """``codev run --session --workers 2 --sharded``, the search writing its files into the
+    law's ``.tmp-*.shards`` folder (the first one seen there, a ``.tmp-*.npz`` being
+    written), interrupted (Ctrl-C to the group: exit 130) or killed (SIGKILL to the group)
+    meanwhile: no folder of shards is taken half-written,
     whatever a worker still wrote after the client left is removed by the next run, which
     recomputes the law (without a cluster: the same key)."""
     s = tmp_path / "s"
+    inside: list[str] = []
+
+    def workers_writing(names: list[str]) -> bool:
+        # (the folder is made before the cluster starts: wait for the workers' files in it)
+        for n in names:
+            if n.startswith(".tmp-") and n.endswith(".shards"):
+                try:
+                    inside[:] = os.listdir(s / "artifacts" / n)
+                except OSError:
+                    continue
+                if inside:
+                    return True
+        return False
+
     code, names = _kill_when(["-m", "workbench.cli", "run", str(spec), "--session", str(s),
                               "--workers", "2", "--sharded", "--traces", "1"], s, sig,
-                             _writing(".shards"), deadline=120)
-    assert any(n.endswith(".shards") and n.startswith(".tmp-") for n in names), names
+                             workers_writing, deadline=120)
+    assert inside, names  # (killed while the workers' files were being written)
     assert code == (130 if sig == signal.SIGINT else -sig), code
     assert not list((s / "artifacts").glob("synthesis-*.shards"))
     _check_next_run(spec, s, SHARDED, f"cluster-{sig}")
