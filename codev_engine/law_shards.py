@@ -645,6 +645,8 @@ class ShardedLaw:
         A folder of :func:`write_law_shards`.
     cache : int
         Shards held in memory at once (at least 1).
+    on_damaged : callable, optional
+        See the attribute.
 
     Raises
     ------
