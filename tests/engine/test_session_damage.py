@@ -8,7 +8,7 @@ stores the shards").
 - A law folder that lost a shard file, or whose manifest is truncated: ``codev session``
   lists it corrupt naming the file, ``codev report`` refuses it in one line (exit 2),
   ``codev replay`` and the next run recompute it.
-- A writer killed mid-write (SIGKILL; SIGINT removes its own) leaves ``.tmp-*`` entries,
+- A writer killed mid-write (SIGKILL, SIGTERM; SIGINT removes its own) leaves ``.tmp-*`` entries,
   never used; the next run removes those no live writer holds (``io.atomic.remove_stale``:
   the writer's ``flock``), never one a concurrent live run is writing.
 """
@@ -31,7 +31,7 @@ from codev_engine.io.atomic import STALE_AFTER, remove_stale
 from codev_engine.law_shards import ShardedLaw
 from codev_engine.pipeline import load_spec
 from codev_engine.session import RunOptions, Session
-from codev_engine.session.store import check_artifact, file_sha
+from codev_engine.session.store import check_artifact, file_sha, remove_temporaries
 from tests.engine.test_law_shards import SPEC
 from tests.engine.test_session_shards import SHARDED, _flip, _leftovers, replace_upto
 from workbench.cli import main
@@ -185,20 +185,23 @@ with atomic_path(folder / "a.npz") as f, atomic_folder(folder / "b.shards") as d
 """
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT])
 def test_a_live_writers_temporaries_are_kept_a_killed_ones_removed(tmp_path, sig):
-    """``remove_stale`` never removes what a live writer holds (its ``flock``), however old
-    it looks; killed by SIGKILL the writer leaves its temporaries, removed then (once past
-    ``STALE_AFTER``: the lock is taken just after the entry is made); interrupted (SIGINT)
-    it removes its own. A young unlocked entry is kept."""
-    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(tmp_path)], cwd=ROOT,
+    """What a session run removes first (``store.remove_temporaries``: its folder,
+    ``specs/``, ``artifacts/``) never includes what a live writer holds (its ``flock``),
+    however old it looks; killed (SIGKILL, or SIGTERM: no unwinding) the writer leaves its
+    temporaries, removed then (once past ``STALE_AFTER``: the lock is taken just after the
+    entry is made); interrupted (SIGINT) it removes its own. A young unlocked entry is
+    kept."""
+    arts = tmp_path / "artifacts"
+    proc = subprocess.Popen([sys.executable, "-c", _WRITER, str(arts)], cwd=ROOT,
                             stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline() == "writing\n"
-        tmps = sorted(p for p in tmp_path.iterdir() if p.name.startswith(".tmp-"))
+        tmps = sorted(p for p in arts.iterdir() if p.name.startswith(".tmp-"))
         assert sorted(p.suffix for p in tmps) == [".npz", ".shards"]
         _age(tmps)
-        assert remove_stale(tmp_path) == [] and remove_stale(tmp_path, older_than=0) == []
+        assert remove_temporaries(tmp_path) == [] and remove_stale(arts, older_than=0) == []
         assert all(p.exists() for p in tmps)
         proc.send_signal(sig)
         proc.wait(timeout=30)
@@ -206,16 +209,16 @@ def test_a_live_writers_temporaries_are_kept_a_killed_ones_removed(tmp_path, sig
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    left = sorted(p.name for p in tmp_path.iterdir())
+    left = sorted(p.name for p in arts.iterdir())
     if sig == signal.SIGINT:
         assert left == []  # (removed by the writer's own unwinding)
         return
     assert left == sorted(p.name for p in tmps)
     _age(tmps, 0)
-    assert remove_stale(tmp_path) == []  # (young: it may be a writer not yet locked)
+    assert remove_temporaries(tmp_path) == []  # (young: it may be a writer not yet locked)
     _age(tmps)
-    assert sorted(remove_stale(tmp_path)) == sorted(p.name for p in tmps)
-    assert list(tmp_path.iterdir()) == []
+    assert sorted(remove_temporaries(tmp_path)) == sorted(f"artifacts/{p.name}" for p in tmps)
+    assert list(arts.iterdir()) == []
 
 
 def _kill_when(args: list[str], d: Path, sig: int, condition, deadline: float = 60.0
