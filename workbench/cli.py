@@ -284,9 +284,7 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
         return _verify_reached(args, problem, executor)
     if args.law:
         if Path(args.law).is_dir():  # (a law written as shards: read lazily)
-            from codev_engine.law_shards import ShardedLaw
-
-            law = ShardedLaw.load(args.law)
+            law = _sharded_law(args.law)
         else:
             law = ExplicitLaw.load(args.law)
         check_law_matches(problem, law, file=args.law)
@@ -779,6 +777,17 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sharded_law(path: str | Path):
+    """The law as shards in folder ``path``; a session's artifact is bound to its session
+    (``Session.holding``): a shard found damaged marks it, the next run recomputes it."""
+    from codev_engine.law_shards import ShardedLaw
+    from codev_engine.session import Session
+
+    law = ShardedLaw.load(path)
+    session = Session.holding(path)
+    return law if session is None else session.bind(law)
+
+
 def _from_session(d: Path):
     """The spec, the law and the result (or None) cached in a session folder."""
     from codev_engine.reach.verification import VerificationResult
@@ -1055,10 +1064,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
             raise SpecError(exc.reason, field="--name") from None
     note = None
     if (Path(args.file) / "shards.json").is_file():  # a law as shards (codev synth --out-shards)
-        from codev_engine.law_shards import ShardedLaw
-
         _prepare_kernels(export=True)
-        obj, tag = ShardedLaw(args.file).merged(), None  # (one table: merged on demand)
+        obj, tag = _sharded_law(args.file).merged(), None  # (one table: merged on demand)
     elif Path(args.file).is_dir():
         _prepare_kernels(export=True)  # (the region cache may grow: the mp-QP kernel)
         obj, note = _operation_of(Path(args.file))

@@ -255,14 +255,53 @@ class Session:
         CodevError
             The stage's loader refuses it.
         """
-        return self._bind(self.table[stage].load(path, problem))
+        return self.bind(self.table[stage].load(path, problem))
 
-    def _bind(self, value: Any) -> Any:
-        """``value``, a law held as shards told to mark this session's artifact when it
-        finds one of its files damaged (``ShardedLaw.on_damaged``)."""
+    def bind(self, value: Any) -> Any:
+        """``value``, a law held as shards, told to mark this session's artifact when it
+        finds one of its files damaged (``ShardedLaw.on_damaged``); anything else as it is.
+
+        Parameters
+        ----------
+        value : object
+            A stage's value (a law opened from this session's artifacts).
+
+        Returns
+        -------
+        object
+            ``value``.
+        """
         if hasattr(value, "on_damaged"):
             value.on_damaged = self._damaged
         return value
+
+    @classmethod
+    def holding(cls, path: str | os.PathLike) -> Session | None:
+        """The session whose ``artifacts/`` holds ``path``, or None.
+
+        For a law's folder given by its path (``codev export DIR``, ``codev verify --law
+        DIR``): bound to its session (:meth:`bind`), a damaged shard it reads is marked
+        there as when the session opens it.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            An artifact (a file or a folder).
+
+        Returns
+        -------
+        Session or None
+            None when ``path`` is in no session's ``artifacts/`` (or the session is not
+            readable: then there is nothing to mark).
+        """
+        path = Path(path).resolve()
+        folder = path.parent.parent
+        if path.parent.name != "artifacts" or not (folder / "session.json").is_file():
+            return None
+        try:
+            return cls.open(folder)
+        except SessionError:
+            return None
 
     def _check_artifact(
         self, stage: Stage, key: str, options: RunOptions
@@ -411,7 +450,7 @@ class Session:
                         note = f"{path.name}: {why}; recomputed"
                         say(f"{self.path}: artifact {note}")
                     try:
-                        value = self._bind(stage.compute(
+                        value = self.bind(stage.compute(
                             StageRun(problem, options, values, path, _progress(emit, name),
                                      executor)
                         ))
@@ -452,7 +491,7 @@ class Session:
         it is read: by a stage, or by a front end after the run). The store's rule for a
         damaged artifact: it is not used again, the next run recomputes it (the artifact
         is marked in the index); the error says so. Called by the law itself
-        (:meth:`_bind`), and by :meth:`run` for an error that comes back from a worker
+        (:meth:`bind`), and by :meth:`run` for an error that comes back from a worker
         (which held a copy of the law, unbound); once per error."""
         if exc.artifact is not None:  # (marked already: by the law, before it reached run)
             return exc

@@ -31,7 +31,12 @@ from codev_engine.io.atomic import STALE_AFTER, remove_stale
 from codev_engine.law_shards import ShardedLaw
 from codev_engine.pipeline import load_spec
 from codev_engine.session import RunOptions, Session
-from codev_engine.session.store import check_artifact, file_sha, remove_temporaries
+from codev_engine.session.store import (
+    check_artifact,
+    file_sha,
+    register_artifact,
+    remove_temporaries,
+)
 from tests.engine.test_law_shards import SPEC
 from tests.engine.test_session_shards import SHARDED, _flip, _leftovers, replace_upto
 from workbench.cli import main
@@ -125,6 +130,34 @@ def test_every_law_the_session_opens_marks_its_artifact_when_a_shard_is_damaged(
     import pickle
 
     assert pickle.loads(pickle.dumps(law)).on_damaged is None
+
+
+def test_a_session_law_folder_given_by_its_path_is_marked_too(spec, tmp_path, capsys):
+    """``codev export DIR`` and ``codev verify SPEC --law DIR`` of a session's folder of
+    shards (``codev export SESSION`` names it): a damaged shard is one line naming it (exit
+    2) and marks the artifact in its session (``Session.holding``); a copy of the folder
+    out of the session marks nothing."""
+    problem = load_spec(spec)
+    s = tmp_path / "s"
+    syn = Session.create(s).run(problem, replace_upto(SHARDED, "synthesis")).stage("synthesis")
+    folder = s / syn.artifact
+    import shutil
+
+    shutil.copytree(folder, tmp_path / "copy.shards")
+    _flip(folder / "shard-0.npz")
+    _flip(tmp_path / "copy.shards" / "shard-0.npz")
+    code = main(["export", str(tmp_path / "copy.shards"), "--python", str(tmp_path / "l.py")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "copy.shards/shard-0.npz" in err[0], err
+    assert "next run" not in err[0] and check_artifact(s, folder, syn.key) is None
+    for args in (["export", str(folder), "--python", str(tmp_path / "l.py")],
+                 ["verify", str(spec), "--law", str(folder)]):
+        code = main(args)
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1, (args, err)
+        assert "shard-0.npz: its SHA-256" in err[0] and "next run recomputes" in err[0]
+        assert "shard-0.npz" in check_artifact(s, folder, syn.key)
+        register_artifact(s, folder, "synthesis", syn.key)  # (unmarked, for the next)
 
 
 # --------------------------------------------------------------------------------------------
