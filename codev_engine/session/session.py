@@ -9,10 +9,13 @@ of the stages upstream, and the engine version). A stage whose key has a valid a
 loaded ("cached"), otherwise computed. Artifacts are written atomically (temp file +
 rename), then entered in the index; an artifact is used only if the index has it and its
 bytes hash to the indexed SHA-256 and its loader accepts it, so a run killed mid-write, a
-truncated or edited file, or a file from elsewhere is reported and recomputed, never used.
+truncated or edited file, or a file from elsewhere is reported and recomputed, never used;
+the temporaries a killed run left are removed by the next run (those no live writer holds).
 A law stored as shards is opened from its manifest's SHA-256 and each shard's size; each
-shard's SHA-256 is checked when it is read, and a shard found damaged then ends the run in
-one line and is recomputed by the next (docs/sessions.md, "What is checked when").
+shard's SHA-256 is checked when it is read, and a shard found damaged then (by a stage, or
+by a front end after the run: the session binds every law it opens, :meth:`Session.load`)
+is said in one line, marked, and recomputed by the next run (docs/sessions.md, "What is
+checked when").
 Nothing is unpickled; loading a session never runs code from it.
 
 :class:`Session` runs, reports the status of, replays and exports from a session; it knows
@@ -412,9 +415,6 @@ class Session:
             (the spec's plant not linearisable, its MPC infeasible) for a stage not cached.
         """
         options.check(stages=self.table.names)
-        # (what killed runs left: the temporaries no live writer holds, a concurrent run's
-        # kept; nothing reads them, they only take space)
-        store.remove_temporaries(self.path)
         prepare()  # a fresh installation's kernels, announced, before any stage's clock
         t_run = time.perf_counter()
         emit = on_event or (lambda _s, _e, _d: None)
@@ -426,6 +426,9 @@ class Session:
                 stage.check_options(problem, options)
         self.journal()  # a malformed journal fails here, before anything is written
         self._check_stages(problem, options, keys, fresh)
+        # (what killed runs left, once the run is known to write: the temporaries no live
+        # writer holds, a concurrent run's kept; nothing reads them, they only take space)
+        store.remove_temporaries(self.path)
         spec_sha = self.save_spec(problem) if journal else store.sha(problem.source.encode())
         # run 0 until the records are appended: numbered then, under the lock
         report = RunReport(run=0, stages=[], problem=problem)
