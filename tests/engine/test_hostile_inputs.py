@@ -273,7 +273,11 @@ def test_progress_under_json_goes_to_stderr_and_stdout_stays_json(tmp_path):
     ):
         mp.setattr("workbench.progress.PLAIN_AFTER", 0.2)
         on_event("synthesis", "start", {})
-        time.sleep(1.2)  # no progress event at all
+        # no progress event at all: the heartbeat thread (it polls every 0.5 s) speaks;
+        # waited for, not slept (a fixed 1.2 s left a loaded machine 0.7 s to run it)
+        t0 = time.monotonic()
+        while "codev: synthesis: 0 regions" not in buf.getvalue() and time.monotonic() - t0 < 60:
+            time.sleep(0.05)
         on_event("synthesis", "done", {"status": "done"})
     assert "codev: synthesis: 0 regions" in buf.getvalue()
     out = run_codev("verify", DI_PATH, "--json", cwd=tmp_path, timeout=120)
