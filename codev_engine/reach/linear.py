@@ -1500,16 +1500,15 @@ class LinearReach(ClosedLoopSetup):
 
         The tube repeated by a certificate is the anchor set's own transient, so an anchor
         taken while the sets still converge (a wide ``S``) repeats that width up to the
-        horizon. With disturbances or parameters (the sets never shrink to a point) and a
-        finite horizon, the loop goes on from the sets at ``k`` anchored again, while that
+        horizon (``"inf"``: the band of :func:`~codev_engine.reach.claim.certificate_band`
+        is that width). The loop goes on from the sets at ``k`` anchored again, while that
         set's box is at most ``_REANCHOR_SHRINK`` of the anchor's along some axis, at most
         ``_REANCHORS`` times and while ``_ANCHOR_MIN_SAMPLES`` remain (docs/verification.md,
-        "Merging and invariance certificates"). Nominal runs and ``"inf"`` horizons close
-        at once, as before.
+        "Merging and invariance certificates"); nominal runs too (their sets shrink toward
+        the operating point, the early anchor's saw-tooth does not).
         """
         remaining = (self.T - k * self.Ts) / self.Ts
-        if (not self.uncertain or self.unbounded or done >= _REANCHORS
-                or remaining < _ANCHOR_MIN_SAMPLES):
+        if done >= _REANCHORS or remaining < _ANCHOR_MIN_SAMPLES:
             return None
         S2 = self._anchor(frontier)
         old, new = (np.ptp(S.c[None, :] + S.verts @ S.V.T, axis=0) + 2.0 * S.err
@@ -1566,6 +1565,12 @@ class LinearReach(ClosedLoopSetup):
             )
         )
 
+    def _close_previous(self, anchor: dict) -> None:
+        """Undo a re-anchored candidate (``anchor``: its tube dropped) and close the
+        certificate that closed at its sample instead (``_reanchor``)."""
+        del self.tubes[anchor["ntubes"]:]
+        self._close(anchor["closed"], anchor["k"])
+
     def _run_merged(self) -> None:
         """Breadth first over samples; the sets of a sample that lie in one region become
         one (``_hull``), and a set anchored at an attracting fixed point is checked for an
@@ -1594,12 +1599,17 @@ class LinearReach(ClosedLoopSetup):
                         self._close(anchor, k)
                         return
                     # the tube of [t_ka, t_k] from S stays (it holds every trajectory);
-                    # the loop goes on from the tighter S2, a new candidate
+                    # the loop goes on from the tighter S2, a new candidate; the closed
+                    # certificate is kept should S2's fail
                     reanchors += 1
+                    anchor["closing"] = frontier
                     anchor = {"k": k, "S": S2, "ntubes": len(self.tubes),
-                              "frontier": frontier}
+                              "frontier": frontier, "closed": anchor}
                     frontier = [S2]
                 elif k - anchor["k"] > _ANCHOR_BUDGET:
+                    if "closed" in anchor:
+                        self._close_previous(anchor)
+                        return
                     anchor, next_try = None, k + 10  # keep the (sound, wider) sets
             remaining = (self.T - k * self.Ts) / self.Ts
             if (
@@ -1652,6 +1662,12 @@ class LinearReach(ClosedLoopSetup):
             if failed:
                 if anchor is None:
                     raise _NeedExactError
+                if "closed" in anchor:
+                    # a re-anchored set met a possible violation: the certificate that
+                    # closed before it holds (its tube is kept); close it
+                    self.findings = []
+                    self._close_previous(anchor)
+                    return
                 # undo the anchor: back to its sample; inflate again only later
                 self.findings = []
                 del self.tubes[anchor["ntubes"] :]
