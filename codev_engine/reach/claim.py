@@ -197,9 +197,13 @@ def build_claim(problem: Problem, result: VerificationResult | None = None) -> C
         initial.append("reference (a constant): " + _box(names, ref_lo, ref_hi))
     uncertainty = []
     if p.disturbances is not None:
+        from codev_engine.plant import disturbances_matter
+
         u = p.disturbances
         uncertainty.append("disturbance signal " + _box(u.names, u.lower, u.upper)
-                           + " at every t")
+                           + (" at every t" if disturbances_matter(p) else
+                              ": cannot change the plant (a zero-width box or a zero input), "
+                              "verified as the nominal plant"))
     if p.parameters is not None:
         u = p.parameters
         uncertainty.append("parameter value " + _box(u.names, u.lower, u.upper))

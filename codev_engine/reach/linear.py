@@ -38,7 +38,7 @@ from codev_engine.geometry.polytope import (
 from codev_engine.geometry.vertices import FACET_TOL, box_corners, checked_piece, vertices
 from codev_engine.law import ExplicitLaw
 from codev_engine.limits import DeadlineReached, beat, limits, stoppable, time_over_kind
-from codev_engine.plant import symbolic_model
+from codev_engine.plant import disturbances_matter, symbolic_model
 from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
@@ -126,10 +126,14 @@ def affine_plant(problem: Problem) -> AffinePlant | None:
     pl = problem.plant
     if pl.parameters is not None:
         return _parametric_plant(problem)
-    w = pl.disturbances
+    # disturbances that cannot change the field (a zero-width box, a zero input): the
+    # nominal plant, its drift E w_nominal included
+    w = pl.disturbances if disturbances_matter(pl) else None
     if pl.A is not None and pl.B is not None:
         if w is None:
-            return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
+            drift = (np.zeros(pl.n) if pl.E is None or pl.disturbances is None else
+                     np.asarray(pl.E, float) @ np.asarray(pl.disturbances.nominal, float))
+            return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), drift)
         E = np.asarray(pl.E, float)
         return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float),
                            E @ np.asarray(w.centre, float), E, np.asarray(w.radius, float))
