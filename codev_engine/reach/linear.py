@@ -1517,7 +1517,8 @@ class LinearReach(ClosedLoopSetup):
         S2 = self._anchor(frontier)
         old, new = (np.ptp(S.c[None, :] + S.verts @ S.V.T, axis=0) + 2.0 * S.err
                     for S in (anchor["S"], S2))
-        if not np.any(new <= _REANCHOR_SHRINK * old):
+        shrink = _REANCHOR_SHRINK if self.uncertain else _REANCHOR_SHRINK_NOMINAL
+        if not np.any(new <= shrink * old):
             return None
         return S2
 
@@ -1696,6 +1697,9 @@ _ANCHOR_ATTEMPTS = 5
 #: (a tighter repeated tube) while their box is at most this share of the anchor's along
 #: some axis, at most _REANCHORS times (_reanchor)
 _REANCHOR_SHRINK = 0.9
+#: the same for a nominal run, whose sets keep shrinking: a new anchor (its period run
+#: again) only while it halves the width along some axis
+_REANCHOR_SHRINK_NOMINAL = 0.5
 _REANCHORS = 4
 
 
