@@ -51,10 +51,10 @@ def test_an_all_time_band_is_the_last_anchor_s_and_holds_every_state():
     T, width, which = width_at_end(problem, result)
     assert which == WIDTH_OF_BAND and np.all(width < 0.1), width
     vs = problem.verify
-    X0 = _initial_states(vs.initial_lower, vs.initial_upper, 40, 20)
-    t_end = 4 * band.t_closed
+    X0 = _initial_states(vs.initial_lower, vs.initial_upper, 24, 12)
+    t_end = 2 * band.t_closed
     t, X, _, alive = simulate_many(problem, law, X0, hold=result.hold, t_end=t_end,
-                                   dt_out=0.1)
+                                   dt=0.01, dt_out=0.1)
     assert np.all(alive)
     res = _outside(result.tube, t, X)  # (up to the tube's end, the closing sample)
     assert res["count"] == 0 and res["gap_count"] == 0, res
