@@ -1324,7 +1324,17 @@ class LinearReach(ClosedLoopSetup):
         First with merging and invariance certificates (:meth:`_run_merged`); when that
         meets a possible violation on a merged set, again exactly (every branch kept).
         """
+        #: a re-anchored candidate's anchor while it runs, a certificate closed behind it
+        self._reanchored: dict | None = None
         self._limited(self._run)
+        behind = self._reanchored
+        if behind is not None and self.findings and all(
+                f.kind in ("limit", "budget") for f in self.findings):
+            # a limit or the budget stopped the run from a re-anchored set: the certificate
+            # that closed before it holds (re-anchoring never costs a verdict)
+            self.findings = []
+            self.stats.pop("complete_until", None)
+            self._close_previous(behind)
 
     def _run(self) -> None:
         if (self.merge or self.unbounded) and self.d == self.n:
@@ -1526,6 +1536,7 @@ class LinearReach(ClosedLoopSetup):
         """Every set at sample k lies in the anchor's set S (sample ka < k): the tube of
         [t_ka, t_k] repeats with period (k - ka) Ts up to the horizon (docs/verification.md,
         "Invariance certificates")."""
+        self._reanchored = None  # (closed: nothing to fall back to)
         ka = anchor["k"]
         L = (k - ka) * self.Ts
         t_k = k * self.Ts
@@ -1610,6 +1621,7 @@ class LinearReach(ClosedLoopSetup):
                     anchor["closing"] = frontier
                     anchor = {"k": k, "S": S2, "ntubes": len(self.tubes),
                               "frontier": frontier, "closed": anchor}
+                    self._reanchored = anchor
                     frontier = [S2]
                 elif k - anchor["k"] > _ANCHOR_BUDGET:
                     if "closed" in anchor:

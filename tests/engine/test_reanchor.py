@@ -60,3 +60,25 @@ def test_an_all_time_band_is_the_last_anchor_s_and_holds_every_state():
     assert res["count"] == 0 and res["gap_count"] == 0, res
     after = X[:, t >= band.t_anchor - 1e-9, :]
     assert np.all(after >= band.lower - 1e-9) and np.all(after <= band.upper + 1e-9)
+
+
+def test_a_limit_while_re_anchored_keeps_the_certificate_that_closed(monkeypatch):
+    # the branch limit reached in the re-anchored set's period: the certificate that closed
+    # before it still holds; the verdict stays robustly_safe (was unknown / limit), with
+    # the first certificate's (wider, sound) repeated tube
+    text = DI_PATH.read_text().replace("time_horizon = 9.0", "time_horizon = 60.0")
+    problem = ce.loads_spec(text, path="<double integrator, 60 s>")
+    law = ce.synthesize(problem)
+    full = ce.verify(problem, law)
+    assert full.verdict == "robustly_safe", full.summary()
+    monkeypatch.setenv("CODEV_LIMITS", f"branches={full.stats['branches'] - 2}")
+    result = ce.verify(problem, law)
+    assert (result.verdict, result.reason) == ("robustly_safe", None), result.summary()
+    first, last = result.stats["certificate"], full.stats["certificate"]
+    assert first["closed_sample"] <= last["anchor_sample"] < last["closed_sample"]
+    vs = problem.verify
+    X0 = _initial_states(vs.initial_lower, vs.initial_upper, 24, 12)
+    t, X, _, alive = simulate_many(problem, law, X0, hold=result.hold, dt=0.01, dt_out=0.25)
+    assert np.all(alive) and result.tube.t_end.max() == 60.0
+    res = _outside(result.tube, t, X)
+    assert res["count"] == 0 and res["gap_count"] == 0, res
