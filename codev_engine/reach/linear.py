@@ -1516,7 +1516,8 @@ class LinearReach(ClosedLoopSetup):
         taken while the sets still converge (a wide ``S``) repeats that width up to the
         horizon (``"inf"``: the band of :func:`~codev_engine.reach.claim.certificate_band`
         is that width). The loop goes on from the sets at ``k`` anchored again, while that
-        set's box is at most ``_REANCHOR_SHRINK`` of the anchor's along some axis, at most
+        set's box is at most ``_REANCHOR_SHRINK`` (nominal: ``_REANCHOR_SHRINK_NOMINAL``)
+        of the anchor's along some axis, at most
         ``_REANCHORS`` times and while ``_ANCHOR_MIN_SAMPLES`` remain (docs/verification.md,
         "Merging and invariance certificates"); nominal runs too (their sets shrink toward
         the operating point, the early anchor's saw-tooth does not).
@@ -1705,8 +1706,8 @@ _MERGE_ABOVE = 8
 _MERGED_DEPTH = 2
 #: anchors tried per run (each undone one costs the samples it ran)
 _ANCHOR_ATTEMPTS = 5
-#: with disturbances or parameters, a closed anchor is taken again from the closing sets
-#: (a tighter repeated tube) while their box is at most this share of the anchor's along
+#: with disturbances, noise or parameters, a closed anchor is taken again from the closing
+#: sets (a tighter repeated tube) while their box is at most this share of the anchor's along
 #: some axis, at most _REANCHORS times (_reanchor)
 _REANCHOR_SHRINK = 0.9
 #: the same for a nominal run, whose sets keep shrinking: a new anchor (its period run
