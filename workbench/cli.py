@@ -191,7 +191,7 @@ def _print_result(problem, law, result, tube_path) -> None:
     t_end, width, which = width_at_end(problem, result)
     if np.any(np.isfinite(width)):
         print(f"  width at t = {t_end:.4g} s ({which}): " + np.array2string(width, precision=4))
-    else:  # a violation, a limit or an ellipsoid certificate stopped the tube before t
+    else:  # a violation or a limit stopped the tube before t
         print(f"  width at t = {t_end:.4g} s: none (no box of the tube reaches it)")
     print("the claim:")  # what the verdict says, and what it does not
     for line in build_claim(problem, result).lines():
