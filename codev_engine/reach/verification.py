@@ -908,6 +908,15 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
                 j = max(a[0] for a in eng.absorbed)
                 lo = np.vstack([a[1] for a in eng.absorbed])
                 hi = np.vstack([a[2] for a in eng.absorbed])
+                # a set stopped at the sample it entered e: from then on its states are in
+                # e at the samples and in e's period box between them. That box, from the
+                # first entry on, keeps the tube's contract (every state in an active box)
+                first = min(a[0] for a in eng.absorbed) * Ts
+                end = max(float(tube.t_end.max()) if tube.num_boxes else 0.0, j * Ts)
+                band = Tube(np.array([first]), np.array([end]), e.box_lo[None].copy(),
+                            e.box_hi[None].copy(),
+                            np.array([int(tube.branch.max()) + 1 if tube.num_boxes else 0]))
+                tube = Tube.concatenate([tube, band], problem.plant.n)
                 return _ellipsoid_result(problem, law, hold, eng, tube, e, j, lo, hi, t0,
                                          per_set=True), ""
             if k >= vs.max_samples:
