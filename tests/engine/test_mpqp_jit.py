@@ -268,11 +268,12 @@ def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
     (The start point is one of 300 random ones; the centre of the region that pushed it in
     the walk was one such point until the slacks of rows in the span of the active ones
     were taken from the dependency, ``mpqp._Kernel._dependent_slacks``: this active set
-    has 8 rows in 8 variables, so every slack is one.) (pop_mpqp_047's sliver (5, 7, 29, 33, 34, 35, 42), radius 1.1e-7,
-    was left a hole when the numpy kernel judged it; since the LP stops taking a dropped
-    row back at once, it is full from both points. Its radius is 5.5 region tolerances
-    (2e-8), past ``CLOSE_CALL``: the compiled kernel proves it full from both points, and
-    the numpy kernel, which decides the close calls from the active set alone, agrees.)"""
+    has 8 rows in 8 variables, so every slack is one.) (pop_mpqp_047's sliver (5, 7, 29,
+    33, 34, 35, 42), radius 1.1e-7, was left a hole when the numpy kernel judged it; since
+    the LP stops taking a dropped row back at once, it is full from both points. Its radius
+    is 5.5 region tolerances (2e-8), past ``CLOSE_CALL``: the compiled kernel proves it full
+    from both points, and the numpy kernel, which decides the close calls from the active
+    set alone, agrees.)"""
     kernel, _ = _kernel_of("pop_mpqp_036", max_regions=300)
     act = np.array([3, 26, 30, 31, 34, 38, 40, 47], dtype=np.int64)
     pushed_from = np.array([
