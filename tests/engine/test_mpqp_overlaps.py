@@ -26,6 +26,7 @@ from codev_engine.mp import mpqp_kernel
 from codev_engine.mp.reduce import parameter_box, reduce_program
 from tests.engine.overlaps import overlapping_pairs
 from tests.engine.test_mpqp_same import _chain5, _kernel
+from tests.engine.test_mpsolve import compare
 
 #: points of chain5's degenerate facets where regions overlapped: on ``x_4 = 1.5`` (the
 #: twins 0 and 12) and where ``-u_1 <= 1``, ``-(u_0 + u_1)/sqrt(2) <= ...`` and ``-u_0 <= 1``
@@ -92,9 +93,9 @@ def test_a_twins_slack_is_the_facet_itself():
 @pytest.mark.parametrize("k", range(len(FACET_POINTS)))
 def test_no_overlaps_near_degenerate_facets(k):
     """chain5's program on a random box of half-width 0.05 around a point of a degenerate
-    facet (20 to 50 regions, thin ones among them): no two regions overlap, and every
-    region holds its law's optimum (the partition covers the box: ``mpsolve``'s coverage
-    check)."""
+    facet (20 to 50 regions, thin ones among them): no two regions overlap, and at random
+    points and probes across the regions' facets there is no hole and the law is the
+    online optimum (``test_mpsolve.compare``: Clarabel)."""
     rng = np.random.default_rng(43 + k)
     centre = np.array(FACET_POINTS[k]) + rng.normal(size=5) * 0.02
     program = _on_box(_chain5(), np.maximum(centre - 0.05, -2.0),
@@ -104,6 +105,9 @@ def test_no_overlaps_near_degenerate_facets(k):
     pairs = overlapping_pairs(sol.regions, _tolerance(program))
     assert pairs == [], [(sol.regions[i].active, sol.regions[j].active, r)
                          for i, j, r in pairs[:5]]
+    problems = compare(program, sol, seed=k).problems
+    assert not any(problems.values()), {what: items[:3] for what, items in problems.items()
+                                        if items}
 
 
 @pytest.mark.slow  # (the solve and ~200k pairs of boxes that meet: ~30 s)
