@@ -30,7 +30,7 @@ from dataclasses import replace
 
 import daqp
 import numpy as np
-from scipy.linalg import cho_solve
+from scipy.linalg import cho_solve, solve_triangular
 from scipy.linalg.lapack import dgeqrf
 
 from codev_engine.errors import SolverError
@@ -85,6 +85,11 @@ CANONICAL_TOL = 1e-10
 #: ``region_tol / CLOSE_CALL``); the close calls between are handed to the numpy kernel,
 #: whose decision is a function of the active set alone (``_Kernel._chebyshev``)
 CLOSE_CALL = 2.0
+
+#: an inactive constraint's row this close (unit rows) to the span of the active rows has its
+#: slack computed from that dependency, not from the multipliers
+#: (``_Kernel._dependent_slacks``; the same bound as ``mpqp_kernel._swaps``' dependency)
+DEPENDENT_SLACK = 1e-9
 
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
@@ -340,7 +345,60 @@ class _Kernel:
             Lam = np.zeros((0, self.d + 1))
         inact = self._inactive(A)
         Sl = self.Dfull[inact] + MA[:, inact].T @ Lam
+        Sl = self._dependent_slacks(A, inact, Sl, lambda: self.negZ0 - self.Hinv_Gt[:, A] @ Lam)
         return Lam, Sl, inact, None, None
+
+    def _dependent_slacks(
+        self, A: np.ndarray, inact: np.ndarray, Sl: np.ndarray, law: Callable[[], np.ndarray]
+    ) -> np.ndarray:
+        """``Sl`` with the slack of every inactive constraint whose row lies in the span of
+        the active rows (``g_i = G_A' c + r``, ``|r| < DEPENDENT_SLACK``) taken from that
+        dependency: ``w_i + S_i theta - c' (w_A + S_A theta) - r' z(theta)``.
+
+        Where LICQ nearly fails the multipliers are huge (chain5's thin regions: 3e9 on
+        rows of size 1), and ``d_i + M_iA lambda_A`` loses ~1e-7 to rounding, while the
+        slack of a constraint in the span of the active ones does not depend on the
+        multipliers at all (the active constraints hold with equality): a twin of an
+        active constraint (chain5's ``u_0 <= 1`` and ``u_0 <= 4 - 2 x_4``) and a row that
+        is a combination of active ones. Those rows are the degenerate facets, where the
+        region across has the twin active instead (``mpqp_kernel._swaps``); computed from
+        the multipliers, the facet of each side was off by up to 1.4e-7, and the regions
+        on either side overlapped by that (radius 7e-8, the region tolerance 4e-9).
+
+        Parameters
+        ----------
+        A : (na,) ndarray of int
+            The active set (LICQ holds).
+        inact : (ni,) ndarray of int
+            The other constraints, ``Sl``'s rows.
+        Sl : (ni, k) ndarray
+            Their slacks as columns (constant, theta, ...), as ``wS`` (``self.wS``'s
+            columns).
+        law : callable
+            Gives the optimizer's columns ``z`` (nz, k) (called only when a row is
+            dependent).
+
+        Returns
+        -------
+        (ni, k) ndarray
+        """
+        if not A.size or not inact.size:
+            return Sl
+        Q, R = np.linalg.qr(self.G[A].T)  # G_A' = Q R
+        P = self.G[inact] @ Q  # (ni, na)
+        resid = self.G[inact] - P @ Q.T
+        dep = np.flatnonzero(np.einsum("ij,ij->i", resid, resid) < DEPENDENT_SLACK**2)
+        if not dep.size:
+            return Sl
+        wS = self._slack_columns()
+        c = solve_triangular(R, P[dep].T)  # (na, nd): G_A' c = Q P' for each row
+        Sl = Sl.copy()
+        Sl[dep] = wS[inact[dep]] - c.T @ wS[A] - resid[dep] @ law()
+        return Sl
+
+    def _slack_columns(self) -> np.ndarray:
+        """``w + S theta`` as columns (constant, theta), as the slacks' columns."""
+        return self.wS
 
     def _kkt_augmented(self, A: np.ndarray):
         """The KKT system ``[[H, G_A'], [G_A, 0]] [z; lambda] = [-(c + C theta); w_A + S_A
@@ -354,7 +412,7 @@ class _Kernel:
         Z, Lam = self._solve_kkt(A, np.vstack([self.rhs_z, self.wS[A]]))  # columns (1, theta)
         inact = self._inactive(A)
         Sl = self.wS[inact] - self.G[inact] @ Z
-        return Lam, Sl, inact, None, Z
+        return Lam, self._dependent_slacks(A, inact, Sl, lambda: Z), inact, None, Z
 
 
 #: a set of rows whose smallest singular value is below this is taken as exactly dependent
@@ -454,8 +512,13 @@ class _KernelSemidefinite(_Kernel):
         inact = self._inactive(A)
         Sf = np.hstack([self.w[inact, None], self.S[inact], np.zeros((inact.size, 1))])
         Sf -= self.G[inact] @ Zf
+        Sf = self._dependent_slacks(A, inact, Sf, lambda: Zf)
         tie = np.concatenate([Lf[:, -1], Sf[:, -1]])
         return Lf[:, : d + 1], Sf[:, : d + 1], inact, tie, Zf[:, : d + 1]
+
+    def _slack_columns(self) -> np.ndarray:
+        """``w + S theta + 0 eps`` as columns (constant, theta, eps)."""
+        return np.hstack([self.w[:, None], self.S, np.zeros((self.m, 1))])
 
 
 def _evaluate_chunk(kernel: _Kernel, acts: list[tuple[int, ...]]) -> list:

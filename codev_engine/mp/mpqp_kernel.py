@@ -35,6 +35,9 @@ from codev_engine.geometry.lp_kernel import (
 
 #: statuses returned by ``evaluate``
 LICQ, EMPTY, LOWER, FULL, FALLBACK = 0, 1, 2, 3, 4
+#: an inactive row this close to the span of the active rows (unit rows) has its slack from
+#: that dependency (``mpqp.DEPENDENT_SLACK``, the same)
+DEPENDENT_SLACK = 1e-9
 #: their names in ``mpqp._Kernel.evaluate_numpy`` (FALLBACK: it has none, it concludes)
 STATUS_NAMES = {LICQ: "licq", EMPTY: "empty", LOWER: "lower", FULL: "full"}
 
@@ -229,9 +232,26 @@ def evaluate(
         br[i] = Lam[i, 0]
         src[i] = act[i] + 1
     row = np.empty(d + 1)
+    # the optimizer's columns, for the slacks of rows in the span of the active ones
+    Zdep = Zaug if augmented else _law(negZ0, Hinv_Gt, act, Lam) if na else Zaug
+    qv = np.empty(na)
+    cv = np.empty(na)
+    rv = np.empty(nz)
     for q in range(ni):
         iq = inact[q]
-        if augmented:
+        if na and _dependent(G, iq, Qb, na, qv, rv):
+            # g_i = G_A' c + r: the slack from the dependency, not from the multipliers
+            # (mpqp._Kernel._dependent_slacks: they lose ~1e-7 where they are huge)
+            solve_rt(Rb, qv, na, cv)
+            for s in range(d + 1):
+                row[s] = wS[iq, s]
+            for i in range(na):
+                for s in range(d + 1):
+                    row[s] -= cv[i] * wS[act[i], s]
+            for t in range(nz):
+                for s in range(d + 1):
+                    row[s] -= rv[t] * Zdep[t, s]
+        elif augmented:
             # slack = w + S theta - G z
             for s in range(d + 1):
                 row[s] = wS[iq, s]
@@ -352,16 +372,39 @@ def evaluate(
     swaps = es
     if not vanished and na:
         moves, swaps = _swaps(moves, on_plane == 1, sm[kept], G, act, Qb, Rb)
-    # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
     if augmented:
         return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True, swaps, centre
-    Z = negZ0.copy()
-    for i in range(na):
-        for t in range(nz):
-            h = Hinv_Gt[t, act[i]]
-            for s in range(d + 1):
-                Z[t, s] -= h * Lam[i, s]
+    Z = _law(negZ0, Hinv_Gt, act, Lam)
     return FULL, Ak, bk, Z[:, 1:].copy(), Z[:, 0].copy(), moves, True, swaps, centre
+
+
+@njit(cache=True)
+def _law(negZ0, Hinv_Gt, act, Lam):
+    """The optimizer's columns (constant, theta): ``z = -H^-1 (c + C theta) - H^-1 G_A'
+    lambda_A(theta)``, (nz, d + 1)."""
+    Z = negZ0.copy()
+    for i in range(act.size):
+        for t in range(Z.shape[0]):
+            h = Hinv_Gt[t, act[i]]
+            for s in range(Z.shape[1]):
+                Z[t, s] -= h * Lam[i, s]
+    return Z
+
+
+@njit(cache=True)
+def _dependent(G, i, Q, na, q, r):
+    """Whether the unit row ``G[i]`` lies within ``DEPENDENT_SLACK`` of the span of the
+    orthonormal rows ``Q[:na]``; its coordinates ``q`` (na,) and the residual ``r`` (nz,)
+    written in place."""
+    project_row(Q, na, G, i, q)
+    res = 0.0
+    for t in range(G.shape[1]):
+        v = G[i, t]
+        for l in range(na):
+            v -= q[l] * Q[l, t]
+        r[t] = v
+        res += v * v
+    return res < DEPENDENT_SLACK * DEPENDENT_SLACK
 
 
 @njit(cache=True)

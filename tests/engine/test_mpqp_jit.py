@@ -263,18 +263,22 @@ def test_swaps_are_taken_past_rows_that_vanish_with_a_positive_constant():
 def test_a_candidate_handed_back_is_tried_again_from_the_box_centre():
     """A candidate the compiled kernel hands back from the start point the walk gives it
     is evaluated once more from the parameter box's centre before the numpy kernel:
-    pop_mpqp_036's (3, 26, 30, 31, 34, 38, 40, 47), a sliver whose Chebyshev LP from the
-    centre of the region that pushed it ends where no class is proved, is lower-dimensional
-    from the box centre. (pop_mpqp_047's sliver (5, 7, 29, 33, 34, 35, 42), radius 1.1e-7,
-    was left a hole when the numpy kernel judged it; since the LP stops taking a dropped
-    row back at once, it is full from both points. Its radius is 5.5 region tolerances
-    (2e-8), past ``CLOSE_CALL``: the compiled kernel proves it full from both points, and
-    the numpy kernel, which decides the close calls from the active set alone, agrees.)"""
+    pop_mpqp_036's (3, 26, 30, 31, 34, 38, 40, 47), a sliver whose Chebyshev LP from some
+    start points ends where no class is proved, is lower-dimensional from the box centre.
+    (The start point is one of 300 random ones; the centre of the region that pushed it in
+    the walk was one such point until the slacks of rows in the span of the active ones
+    were taken from the dependency, ``mpqp._Kernel._dependent_slacks``: this active set
+    has 8 rows in 8 variables, so every slack is one.) (pop_mpqp_047's sliver (5, 7, 29,
+    33, 34, 35, 42), radius 1.1e-7, was left a hole when the numpy kernel judged it; since
+    the LP stops taking a dropped row back at once, it is full from both points. Its radius
+    is 5.5 region tolerances (2e-8), past ``CLOSE_CALL``: the compiled kernel proves it full
+    from both points, and the numpy kernel, which decides the close calls from the active
+    set alone, agrees.)"""
     kernel, _ = _kernel_of("pop_mpqp_036", max_regions=300)
     act = np.array([3, 26, 30, 31, 34, 38, 40, 47], dtype=np.int64)
     pushed_from = np.array([
-        -4.723129842630359, 3.9426458815635277, 0.778939684603324, 0.8009440276682488,
-        6.6037038362022615, -1.5330459492445925, -4.267572052062844, -6.867831724062033,
+        -4.049519252846971, 6.502665906605449, 1.5988114721594062, -3.3841377357590616,
+        0.7116659170764486, -0.7752183338182963, 0.8827557528998433, -5.249171873419717,
     ])
     alone = mpqp_kernel.evaluate(act, pushed_from, *kernel._jit_args)
     assert alone[0] == mpqp_kernel.FALLBACK
