@@ -63,7 +63,8 @@ from codev_engine.law import ExplicitLaw
 from codev_engine.mp.solution import RegionArrays
 
 __all__ = ["FACETS_FORMAT", "GROUPS", "SHARDS_FORMAT", "ShardWriter", "ShardedLaw",
-           "box_groups", "manifest_files", "spatial_order", "split_law", "update_meta",
+           "box_groups", "manifest_files", "spatial_order", "split_by_cells", "split_law",
+           "update_meta",
            "write_law_shards"]
 
 #: format tag of a sharded law's manifest
@@ -93,7 +94,8 @@ def _save_facets(facets: np.ndarray, path: Path) -> dict:
 def manifest_files(entries: list[dict]) -> list[tuple[str, int | None]]:
     """Every file a manifest's shard entries name, with the size it records (None: a
     manifest written before sizes were recorded): each shard's law file and, for the
-    sharded search's law, its facets file. What a session checks when it opens the law.
+    sharded search's law, its facets file; with a halo, its halo file. What a session
+    checks when it opens the law.
 
     Parameters
     ----------
@@ -112,6 +114,8 @@ def manifest_files(entries: list[dict]) -> list[tuple[str, int | None]]:
     listed = [(str(e["file"]), e.get("bytes")) for e in entries]
     listed += [(str(e["facets_file"]), e.get("facets_bytes")) for e in entries
                if "facets_file" in e]
+    listed += [(str(e["halo_file"]), e.get("halo_bytes")) for e in entries
+               if "halo_file" in e]
     return listed
 
 
@@ -214,24 +218,54 @@ def split_law(law: ExplicitLaw, shards: int, order: np.ndarray | None = None
     k = law.num_regions
     order = np.arange(k) if order is None else np.asarray(order, dtype=np.int64)
     cuts = np.linspace(0, k, max(1, min(int(shards), max(k, 1))) + 1).astype(int)
-    boxes = law._boxes
-    out = []
-    for lo, hi in zip(cuts[:-1], cuts[1:], strict=True):
-        take = order[lo:hi]
-        part = ExplicitLaw(
-            A=[law.A[i] for i in take], b=[law.b[i] for i in take], F=law.F[take],
-            G=law.G[take],
-            states=law.states, inputs=law.inputs, fingerprint=law.fingerprint,
-            meta=law.meta, domain_A=law.domain_A, domain_b=law.domain_b,
-            parameters=law.parameters,
-        )
-        if boxes is not None:
-            part._boxes = (boxes[0][take], boxes[1][take])
-        out.append(part)
-    return out
+    return [_part(law, order[lo:hi]) for lo, hi in zip(cuts[:-1], cuts[1:], strict=True)]
 
 
-def write_law_shards(directory: str | os.PathLike, shards: Iterable[ExplicitLaw]) -> Path:
+def _part(law: ExplicitLaw, take: np.ndarray) -> ExplicitLaw:
+    """The regions ``take`` of ``law`` as a law of their own (its names, meta, domain)."""
+    part = ExplicitLaw(
+        A=[law.A[i] for i in take], b=[law.b[i] for i in take], F=law.F[take],
+        G=law.G[take],
+        states=law.states, inputs=law.inputs, fingerprint=law.fingerprint,
+        meta=law.meta, domain_A=law.domain_A, domain_b=law.domain_b,
+        parameters=law.parameters,
+    )
+    if law._boxes is not None:
+        part._boxes = (law._boxes[0][take], law._boxes[1][take])
+    return part
+
+
+def split_by_cells(law: ExplicitLaw, shards: int
+                   ) -> tuple[list[ExplicitLaw], tuple[np.ndarray, np.ndarray]]:
+    """Cut a law by space, as the sharded search does: the cells of a k-d split of its
+    regions' box centres (``mp.shard_space.kd_cells``: half-open boxes that partition
+    ``R^n``), shard ``c`` the regions whose box centre is in cell ``c`` (for
+    :func:`write_law_shards` with ``cells``: a halo).
+
+    Parameters
+    ----------
+    law : ExplicitLaw
+    shards : int
+        At least 1.
+
+    Returns
+    -------
+    parts : list of ExplicitLaw
+        One per cell (a cell may hold no region).
+    cells : (lo, hi)
+        ``(shards, n)`` each, -inf / inf on the outer sides.
+    """
+    from codev_engine.mp.shard_space import cell_of, kd_cells
+
+    lo, hi = law.boxes
+    centre = np.nan_to_num(0.5 * (lo + hi))
+    clo, chi = kd_cells(centre, np.ones(centre.shape[0]), max(1, int(shards)))
+    cell = cell_of(centre, clo, chi) if centre.shape[0] else np.zeros(0, np.int64)
+    return [_part(law, np.flatnonzero(cell == c)) for c in range(clo.shape[0])], (clo, chi)
+
+
+def write_law_shards(directory: str | os.PathLike, shards: Iterable[ExplicitLaw],
+                     cells: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """Write a law as shards: ``shard-<j>.npz`` for each, then the manifest.
 
     The shards are taken one at a time (an iterator may make each when it is asked for:
@@ -243,6 +277,11 @@ def write_law_shards(directory: str | os.PathLike, shards: Iterable[ExplicitLaw]
     directory : path-like
         Made when missing; its manifest, and shard files of the same names, are replaced.
     shards : iterable of ExplicitLaw
+    cells : (lo, hi), optional
+        ``(S, n)`` each: the cells of space the shards were cut by (:func:`split_by_cells`:
+        a k-d partition of ``R^n``, shard ``j`` in cell ``j``). Then each shard's cell is in
+        the manifest and its halo (``law_halo``: copies of the other shards' regions whose
+        boxes meet its cell) in ``halo-<j>.npz``, built here after the shards.
 
     Returns
     -------
@@ -252,7 +291,8 @@ def write_law_shards(directory: str | os.PathLike, shards: Iterable[ExplicitLaw]
     Raises
     ------
     ValueError
-        Shards of different problems (fingerprint, names or dimensions), or none.
+        Shards of different problems (fingerprint, names or dimensions), or none, or not
+        one per cell.
     """
     folder = Path(directory)
     folder.mkdir(parents=True, exist_ok=True)
@@ -270,6 +310,15 @@ def write_law_shards(directory: str | os.PathLike, shards: Iterable[ExplicitLaw]
         entries.append(_save_shard(part, folder / f"shard-{j}.npz"))
     if head is None:
         raise ValueError("a sharded law needs at least one shard")
+    if cells is not None:
+        from codev_engine.law_halo import build_halo
+
+        clo, chi = (np.asarray(v, float) for v in cells)
+        if clo.shape != chi.shape or clo.shape[0] != len(entries):
+            raise ValueError(f"{len(entries)} shards need as many cells, not {clo.shape[0]}")
+        entries = [dict(e, cell_lo=_sides(a), cell_hi=_sides(b))
+                   for e, a, b in zip(entries, clo, chi, strict=True)]
+        entries = build_halo(folder, entries, head["n"], head["m"])
     return write_manifest(folder, head, entries)
 
 
@@ -475,6 +524,28 @@ class ShardWriter:
         """
         return ExplicitLaw.load(Path(self.directory) / f"shard-{j}.npz").locate(X)
 
+    def halo(self, client, entries: list[dict]) -> tuple[list[dict], float]:
+        """Client side: each cell's halo (``law_halo``) built by the workers from the
+        shard files written (``law_halo.build_halo_on_workers``); the entries with the
+        halo files' fields and the workers' CPU seconds for it.
+
+        Parameters
+        ----------
+        client : distributed.Client
+        entries : list of dict
+            :meth:`write`'s answers with their cells (``cell_lo``, ``cell_hi``, in the
+            law's variables), in shard order.
+
+        Returns
+        -------
+        entries : list of dict
+        cpu : float
+        """
+        from codev_engine.law_halo import build_halo_on_workers
+
+        return build_halo_on_workers(client, self.directory, entries, int(self.op.size),
+                                     int(self.rows[1] - self.rows[0]))
+
     def open(self, entries: list[dict], set_A: np.ndarray, set_b: np.ndarray,
              meta: dict | None = None) -> ShardedLaw:
         """Client side: write the manifest of the shards written (with the parameter
@@ -616,11 +687,11 @@ class _Rows:
             return [self[q] for q in range(*i.indices(len(self)))]
         idx = np.asarray(i)
         if idx.ndim == 0:
-            j, q = self.law._where(int(idx))
-            return getattr(self.law.shard(j), self.name)[q]
+            law, q = self.law._source(int(idx))
+            return getattr(law, self.name)[q]
         if idx.dtype == bool:
             idx = np.flatnonzero(idx)
-        parts = [getattr(self.law.shard(j), self.name)[q] for j, q in map(self.law._where, idx)]
+        parts = [getattr(law, self.name)[q] for law, q in map(self.law._source, idx)]
         if self.name in ("F", "G"):
             F = self.law.shard(0).F if self.name == "F" else self.law.shard(0).G
             return np.array(parts).reshape((len(parts),) + F.shape[1:])
@@ -703,6 +774,15 @@ class ShardedLaw:
                     and _size({"bytes": e.get("facets_bytes")}) != -1):
                 raise SpecError("must name its facets file in the folder, its sha256 and "
                                 "its count", file=where, field=f"shards[{j}].facets_file")
+            if "halo_file" in e and not (
+                    isinstance(e["halo_file"], str)
+                    and Path(e["halo_file"]).name == e["halo_file"]
+                    and isinstance(e.get("halo_sha256"), str)
+                    and isinstance(e.get("halo"), int) and e["halo"] >= 0
+                    and isinstance(e.get("halo_facets"), int) and e["halo_facets"] >= 0
+                    and _size({"bytes": e.get("halo_bytes")}) != -1):
+                raise SpecError("must name its halo file in the folder, its sha256 and its "
+                                "counts", file=where, field=f"shards[{j}].halo_file")
             counts.append(e["regions"])
         self._entries = shards
         self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -722,6 +802,22 @@ class ShardedLaw:
         # each shard's cell of space, when the sharded search cut its regions by space
         # (``lo <= x < hi``, from the regions' centres): ``locate`` asks it first
         self._cells = [_cell(e, self._n) for e in shards]
+        # a halo (``law_halo``): every shard names its halo file and the cells partition
+        # space, so a box question reads the shards (and halos) of the cells it meets
+        self._halo = None
+        if any("halo_file" in e for e in shards):
+            from codev_engine.law_halo import cells_partition
+
+            if not all("halo_file" in e for e in shards) or any(c is None for c in self._cells):
+                raise SpecError("a law with a halo must name every shard's halo file and "
+                                "cell", file=where, field="shards")
+            lo = np.array([c[0] for c in self._cells])
+            hi = np.array([c[1] for c in self._cells])
+            if not cells_partition(lo, hi):
+                raise SpecError("the shards' cells (cell_lo, cell_hi) must be a k-d "
+                                "partition of space for a halo", file=where, field="shards")
+            self._halo = (lo, hi)
+        self._halos: OrderedDict[int, object] = OrderedDict()
         # the domain, when the manifest holds it (the sharded search's workers write their
         # shards before it is known); else the shards' own
         self._domain = None
@@ -739,7 +835,7 @@ class ShardedLaw:
         self._whole_domain: tuple[np.ndarray, np.ndarray] | None = None
         self._cache: OrderedDict[int, ExplicitLaw] = OrderedDict()
         self._most = max(1, int(cache))
-        self.loads = 0  # shard files read (and checked) so far
+        self.loads = 0  # shard (and halo) files read (and checked) so far
         self.asked = 0  # (point, shard) pairs ``locate`` has looked up in a shard so far
         # (box, shard) pairs ``regions_meeting`` and ``domain_rows`` have looked up so far
         # (the shard, or its facets, read for them)
@@ -907,6 +1003,73 @@ class ShardedLaw:
             self._cache.popitem(last=False)
         return law
 
+    @property
+    def has_halo(self) -> bool:
+        """Each shard also holds copies of the regions reaching into its cell
+        (``law_halo``): a box question reads the shards of the cells it meets alone."""
+        return self._halo is not None
+
+    def halo(self, c: int):
+        """Cell ``c``'s halo (``law_halo.Halo``), read and checked on first use (at most
+        ``cache`` held, as the shards).
+
+        Parameters
+        ----------
+        c : int
+
+        Returns
+        -------
+        law_halo.Halo
+
+        Raises
+        ------
+        DamagedFileError
+            The file is missing, is not the one the manifest records (its size, its
+            SHA-256) or is malformed.
+        """
+        from codev_engine.law_halo import read_halo
+
+        got = self._halos.get(c)
+        if got is not None:
+            self._halos.move_to_end(c)
+            return got
+        entry = self._entries[c]
+        path = _checked(self.dir / entry["halo_file"], entry["halo_sha256"],
+                        _size({"bytes": entry.get("halo_bytes")}),
+                        "a shard's halo: copies of the regions reaching into its cell")
+        got = read_halo(path, entry, self.n, self.m, {
+            "states": self.states, "inputs": self.inputs, "parameters": self.parameters,
+            "fingerprint": self.fingerprint})
+        if got.owner.size and (got.owner[0] < 0 or got.owner[-1] >= self.num_regions):
+            raise DamagedFileError("not the halo shards.json records (a region's index)",
+                                   file=str(path))
+        self.loads += 1
+        self._halos[c] = got
+        while len(self._halos) > self._most:
+            self._halos.popitem(last=False)
+        return got
+
+    def _source(self, i: int) -> tuple[ExplicitLaw, int]:
+        """A law holding region ``i`` and its index there: its shard when held, else a
+        held halo's copy of it, else its shard read (the rows of a region a box question
+        found in a halo are read from the halo)."""
+        j, q = self._where(i)
+        if j not in self._cache:
+            for h in reversed(self._halos.values()):
+                k = h.index(i)
+                if k >= 0:
+                    return h.law, k
+        return self.shard(j), q
+
+    def _cells_meeting(self, lo: np.ndarray, hi: np.ndarray) -> list[int]:
+        """The cells whose (closed) box meets ``[lo, hi]`` (at the boxes' tolerance, on
+        both): with a halo, the shards a box question reads (:attr:`met` counts them)."""
+        clo, chi = self._halo
+        met = np.flatnonzero(np.all(clo <= hi + 2 * _BOX_TOL, axis=1)
+                             & np.all(chi >= lo - 2 * _BOX_TOL, axis=1))
+        self.met += int(met.size)
+        return [int(c) for c in met]
+
     def _where(self, i: int) -> tuple[int, int]:
         """(shard, index in it) of region ``i``."""
         if not 0 <= i < self.num_regions:
@@ -945,6 +1108,16 @@ class ShardedLaw:
             Ascending.
         """
         lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+        if self._halo is not None:
+            # (every region whose box meets the box meets it in a cell the box meets: that
+            # cell's shard holds it, or its halo a copy; each region once, by its index)
+            found = []
+            for c in self._cells_meeting(lo, hi):
+                found.append(self.shard(c).regions_meeting(lo, hi) + self.offsets[c])
+                h = self.halo(c)
+                found.append(h.owner[h.law.regions_meeting(lo, hi)])
+            return (np.unique(np.concatenate(found)) if found
+                    else np.zeros(0, dtype=np.int64))
         found = [self.shard(j).regions_meeting(lo, hi) + self.offsets[j]
                  for j in range(self.shards) if self._meets(j, lo, hi)]
         return np.concatenate(found) if found else np.zeros(0, dtype=np.int64)
@@ -974,9 +1147,14 @@ class ShardedLaw:
         if self._set is None:
             return None if self.domain_A is None else (self.domain_A, self.domain_b)
         lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-        rows = np.vstack([np.hstack([self._set[0], self._set[1][:, None]])]
-                         + [self.facets(j) for j in range(self.shards)
-                            if self._meets(j, lo, hi)])
+        if self._halo is not None:
+            # (a facet meeting the box meets it in a cell the box meets: among that cell's
+            # facets or its halo's; ``law_halo`` says why)
+            met = self._cells_meeting(lo, hi)
+            parts = [p for c in met for p in (self.facets(c), self.halo(c).facets)]
+        else:
+            parts = [self.facets(j) for j in range(self.shards) if self._meets(j, lo, hi)]
+        rows = np.vstack([np.hstack([self._set[0], self._set[1][:, None]])] + parts)
         return rows[:, :-1], rows[:, -1]
 
     def locate(self, X: np.ndarray) -> np.ndarray:
