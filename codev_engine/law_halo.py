@@ -364,13 +364,18 @@ def _out_task(directory: str, entries: list[dict], j: int, n: int) -> tuple:
     return pieces, time.process_time() - t0
 
 
-def _in_task(directory: str, c: int, n: int, m: int, *outs) -> tuple:
-    """Worker side: cell ``c``'s halo file from every other shard's pieces; (its manifest
-    fields, CPU seconds)."""
+def _in_task(directory: str, c: int, n: int, m: int, *pieces) -> tuple:
+    """Worker side: cell ``c``'s halo file from every other shard's piece for it; (its
+    manifest fields, CPU seconds)."""
     t0 = time.process_time()
-    pieces = [pieces.get(c) for pieces, _ in outs]
-    fields = write_halo(Path(directory) / f"halo-{c}.npz", pieces, n, m)
+    fields = write_halo(Path(directory) / f"halo-{c}.npz", list(pieces), n, m)
     return fields, time.process_time() - t0
+
+
+def _piece(out: tuple, c: int) -> dict | None:
+    """Worker side: the piece for cell ``c`` of a shard's :func:`_out_task` answer (run
+    where it is: only that piece travels to the cell's worker)."""
+    return out[0].get(c)
 
 
 def build_halo(directory: str | Path, entries: list[dict], n: int, m: int) -> list[dict]:
@@ -389,7 +394,7 @@ def build_halo(directory: str | Path, entries: list[dict], n: int, m: int) -> li
     list of dict
     """
     outs = [_out_task(str(directory), entries, j, n) for j in range(len(entries))]
-    return [dict(e, **_in_task(str(directory), c, n, m, *outs)[0])
+    return [dict(e, **_in_task(str(directory), c, n, m, *(_piece(o, c) for o in outs))[0])
             for c, e in enumerate(entries)]
 
 
@@ -417,7 +422,12 @@ def build_halo_on_workers(client, directory: str, entries: list[dict], n: int, m
     """
     S = len(entries)
     outs = [client.submit(_out_task, directory, entries, j, n, pure=False) for j in range(S)]
-    ins = [client.submit(_in_task, directory, c, n, m, *outs, pure=False) for c in range(S)]
+    # (each cell's worker gets only the pieces for it: a small task per pair picks them
+    # where they are)
+    ins = [client.submit(_in_task, directory, c, n, m,
+                         *[client.submit(_piece, outs[j], c, pure=False)
+                           for j in range(S) if j != c], pure=False)
+           for c in range(S)]
     got = client.gather(ins)
     # (the pieces' CPU: each task's second number, the pieces themselves stay put)
     cpu_out = sum(client.gather([client.submit(_second, o, pure=False) for o in outs]))
