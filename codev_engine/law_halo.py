@@ -64,7 +64,9 @@ def cells_partition(lo: np.ndarray, hi: np.ndarray) -> bool:
     """Whether the half-open boxes ``lo <= x < hi`` are a k-d partition of ``R^n``: some
     cut ``x_i = v`` parts them into the cells below and above it, recursively, down to one
     cell, whose box is the whole part (the outer sides infinite). What makes a halo's
-    answers exact (see the module): every point is in a cell.
+    answers exact (see the module): every point is in a cell. Empty cells (``lo >= hi``
+    on an axis: ``kd_cells`` cuts at ``inf`` when all its points go left) hold no point
+    and are left out.
 
     Parameters
     ----------
@@ -96,7 +98,8 @@ def cells_partition(lo: np.ndarray, hi: np.ndarray) -> bool:
         return False
 
     n = lo.shape[1]
-    return check(np.arange(lo.shape[0]), np.full(n, -np.inf), np.full(n, np.inf))
+    keep = np.flatnonzero(np.all(lo < hi, axis=1))
+    return bool(keep.size) and check(keep, np.full(n, -np.inf), np.full(n, np.inf))
 
 
 def _meets(blo: np.ndarray, bhi: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

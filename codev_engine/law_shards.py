@@ -826,10 +826,10 @@ class ShardedLaw:
                                 "cell", file=where, field="shards")
             lo = np.array([c[0] for c in self._cells])
             hi = np.array([c[1] for c in self._cells])
-            if not cells_partition(lo, hi):
-                raise SpecError("the shards' cells (cell_lo, cell_hi) must be a k-d "
-                                "partition of space for a halo", file=where, field="shards")
-            self._halo = (lo, hi)
+            # (cells that are no partition of space: the halo is not used, the group boxes
+            # answer, as exactly)
+            if cells_partition(lo, hi):
+                self._halo = (lo, hi)
         self._halos: OrderedDict[int, object] = OrderedDict()
         # the domain, when the manifest holds it (the sharded search's workers write their
         # shards before it is known); else the shards' own

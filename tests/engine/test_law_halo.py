@@ -19,7 +19,7 @@ import pytest
 from scipy.optimize import linprog
 
 import codev_engine as ce
-from codev_engine.errors import DamagedFileError, SpecError
+from codev_engine.errors import DamagedFileError
 from codev_engine.law_halo import cells_partition
 from codev_engine.law_shards import MANIFEST, ShardedLaw, split_by_cells, write_law_shards
 from codev_engine.mp import mpqp, sharded
@@ -108,7 +108,8 @@ def test_a_box_question_reads_the_cells_it_meets_alone(written):
 
 def test_the_cells_must_partition_space(written, tmp_path):
     """A halo answers exactly because every point is in a cell: a manifest whose cells
-    leave a gap is refused, naming the field; one without the halo opens as before."""
+    leave a gap is answered without it (by the group boxes); one without the halo opens
+    as before."""
     _, folder = written
     data = json.loads((folder / MANIFEST).read_text())
     lo = np.array([[-np.inf if v is None else v for v in e["cell_lo"]] for e in data["shards"]])
@@ -123,8 +124,11 @@ def test_the_cells_must_partition_space(written, tmp_path):
     shutil.copytree(folder, copy)
     data["shards"][0]["cell_hi"] = [float(v) for v in shrunk[0]]
     (copy / MANIFEST).write_text(json.dumps(data))
-    with pytest.raises(SpecError, match="partition"):
-        ShardedLaw(copy)
+    gap = ShardedLaw(copy)
+    assert not gap.has_halo
+    box = (np.full(gap.n, -0.3), np.full(gap.n, 0.3))
+    np.testing.assert_array_equal(gap.regions_meeting(*box),
+                                  ShardedLaw(folder).regions_meeting(*box))
     # (a manifest written before the halo: its group boxes, the same answers)
     for e in data["shards"]:
         for key in ("halo_file", "halo_sha256", "halo_bytes", "halo", "halo_facets"):
@@ -132,7 +136,6 @@ def test_the_cells_must_partition_space(written, tmp_path):
     (copy / MANIFEST).write_text(json.dumps(data))
     old = ShardedLaw(copy)
     assert not old.has_halo
-    box = (np.full(old.n, -0.3), np.full(old.n, 0.3))
     np.testing.assert_array_equal(old.regions_meeting(*box),
                                   ShardedLaw(folder).regions_meeting(*box))
 
@@ -237,3 +240,21 @@ def test_domain_rows_with_a_halo_hold_every_facet_that_meets_the_box(searched):
                 hits += 1
                 assert np.min(np.abs(ours - theirs[f]).max(axis=1)) < 1e-7, (f, lo, hi)
     assert hits >= 20
+
+
+def test_the_k_d_cells_of_the_sharded_search_are_a_partition():
+    """``kd_cells``' cells, however many and however few points (empty cells, a cut at
+    infinity), pass ``cells_partition``; a missing cell or an overlap does not."""
+    from codev_engine.mp.shard_space import kd_cells
+
+    rng = np.random.default_rng(2)
+    for cells in (1, 2, 3, 4, 7, 8):
+        for points in (rng.normal(size=(500, 3)), rng.normal(size=(2, 3)),
+                       np.zeros((1, 3))):
+            lo, hi = kd_cells(points, np.ones(points.shape[0]), cells)
+            assert cells_partition(lo, hi), (cells, points.shape)
+    lo, hi = kd_cells(rng.normal(size=(500, 3)), np.ones(500), 4)
+    assert not cells_partition(lo[1:], hi[1:])  # (a hole)
+    over = hi.copy()
+    over[0][np.isfinite(over[0])] += 0.1  # (an overlap)
+    assert not cells_partition(lo, over)
