@@ -38,9 +38,9 @@ other shards' regions whose boxes reach into it, and the facets of the domain th
 it, in a checked side file ``halo-<j>.npz``. With it, :meth:`ShardedLaw.regions_meeting` and
 :meth:`ShardedLaw.domain_rows` read the shards and halos of the cells the box meets alone
 (:attr:`ShardedLaw.has_halo`; the cells are checked to be a k-d partition of space when the
-manifest is read, else the halo is not used): the same answers, from ~1.1 shards of 4 for a box of 1 % on
-``pop_mpqp_051`` where the group boxes read 3.99. A region found in a halo is read from it
-(``law.A[i]``), its own shard unread.
+manifest is read, else the halo is not used): the same answers, from ~1.1 shards of 4 for
+a box of 1 % on ``pop_mpqp_051`` where the group boxes read 3.99. A region found in a halo
+is read from it (``law.A[i]``), its own shard unread.
 
 A group box is the union of its regions' boxes, compared with the box asked at the same
 tolerance (``_BOX_TOL``) as ``ExplicitLaw.regions_meeting`` compares theirs: a shard one of
