@@ -165,17 +165,18 @@ def main(argv: list[str] | None = None) -> int:
                 got = _run(folder, C, r, args.cold)
                 same &= all(np.array_equal(a, b) for a, b in zip(old["answers"],
                                                                  got["answers"], strict=True))
-                print(f"width {frac:g}, halo: shards read per query {got['shards_per_query']:.2f}"
-                      f" (cells met {cells:.2f}), files read cold {new['files']:.2f} -> "
-                      f"{got['files']:.2f}; per query warm {new['warm_ms']:.2f} -> "
-                      f"{got['warm_ms']:.2f} ms, cold {new['cold_ms']:.0f} -> "
-                      f"{got['cold_ms']:.0f} ms", flush=True)
             print(f"width {frac:g}: shards read per query {old['shards_per_query']:.2f} "
                   f"(shard boxes) -> {new['shards_per_query']:.2f} (group boxes), at least "
                   f"{least:.2f} (the region boxes); per query warm {old['warm_ms']:.2f} -> "
                   f"{new['warm_ms']:.2f} ms, cold {old['cold_ms']:.0f} -> "
                   f"{new['cold_ms']:.0f} ms; answers {'equal' if same else 'DIFFER'}",
                   flush=True)
+            if law.has_halo:
+                print(f"width {frac:g}, halo: shards read per query {got['shards_per_query']:.2f}"
+                      f" (cells met {cells:.2f}), files read cold {new['files']:.2f} -> "
+                      f"{got['files']:.2f}; per query warm {new['warm_ms']:.2f} -> "
+                      f"{got['warm_ms']:.2f} ms, cold {new['cold_ms']:.0f} -> "
+                      f"{got['cold_ms']:.0f} ms", flush=True)
     print(f"load average after: {os.getloadavg()}")
     built.cleanup()
     return 0
