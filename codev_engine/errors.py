@@ -72,7 +72,14 @@ class DamagedFileError(SpecError):
         The damaged file.
     field : str, optional
         Unused by the readers (as ``SpecError``).
+
+    Attributes
+    ----------
+    artifact : str or None
+        The session artifact marked damaged for it (set by the session), else None.
     """
+
+    artifact: str | None = None
 
 
 class SolverError(CodevError, RuntimeError):

@@ -61,7 +61,7 @@ import json
 import os
 import zipfile
 from collections import OrderedDict
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -726,6 +726,8 @@ class ShardedLaw:
         A folder of :func:`write_law_shards`.
     cache : int
         Shards held in memory at once (at least 1).
+    on_damaged : callable, optional
+        See the attribute.
 
     Raises
     ------
@@ -752,10 +754,18 @@ class ShardedLaw:
         :meth:`locate`; the (box, shard) pairs :meth:`regions_meeting` and
         :meth:`domain_rows` looked in (one of the shard's group boxes met the box; with a
         halo, its cell).
+    on_damaged : callable or None
+        Called with the ``DamagedFileError`` of a file found damaged when read, before it
+        is raised; what it returns is raised instead. Who opened the law from a store sets
+        it (a session marks its artifact damaged so that its next run recomputes it,
+        whichever front end asked the question). Not pickled: a copy sent to a worker
+        raises the error as it is, and the session marks it when it comes back.
     """
 
-    def __init__(self, directory: str | os.PathLike, *, cache: int = CACHE):
+    def __init__(self, directory: str | os.PathLike, *, cache: int = CACHE,
+                 on_damaged: Callable[[DamagedFileError], DamagedFileError] | None = None):
         self.dir = Path(directory)
+        self.on_damaged = on_damaged
         where = str(self.dir / MANIFEST)
         try:
             data = json.loads((self.dir / MANIFEST).read_text(encoding="utf-8"))
@@ -957,6 +967,15 @@ class ShardedLaw:
         entry = self._entries[j]
         if "facets_file" not in entry:
             return np.zeros((0, self.n + 1))
+        try:
+            F = self._read_facets(entry)
+        except DamagedFileError as exc:
+            raise self._damaged(exc) from None
+        self._facets[j] = F
+        return F
+
+    def _read_facets(self, entry: dict) -> np.ndarray:
+        """A shard's facets file, checked (``DamagedFileError``: see :meth:`facets`)."""
         path = _checked(self.dir / entry["facets_file"], entry["facets_sha256"],
                         _size({"bytes": entry.get("facets_bytes")}),
                         "a shard's facets of the law's domain")
@@ -969,8 +988,15 @@ class ShardedLaw:
                 or not np.all(np.isfinite(F))):
             raise DamagedFileError(f"not the facets {MANIFEST} records (format, count or "
                                    "values)", file=str(path))
-        self._facets[j] = F
         return F
+
+    def _damaged(self, exc: DamagedFileError) -> DamagedFileError:
+        """The error to raise for a file found damaged: :attr:`on_damaged`'s, if set."""
+        return exc if self.on_damaged is None else self.on_damaged(exc)
+
+    def __getstate__(self) -> dict:
+        # (the callback is its opener's, in this process: see on_damaged)
+        return {**self.__dict__, "on_damaged": None}
 
     @property
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -1004,12 +1030,15 @@ class ShardedLaw:
             self._cache.move_to_end(j)
             return got
         entry = self._entries[j]
-        path = _checked(self.dir / entry["file"], entry["sha256"], _size(entry),
-                        "a shard of the law")
-        law = ExplicitLaw.load(path)
-        if law.num_regions != entry["regions"] or law.fingerprint != self.fingerprint:
-            raise DamagedFileError(f"not the shard {MANIFEST} records (regions or fingerprint)",
-                              file=str(path))
+        try:
+            path = _checked(self.dir / entry["file"], entry["sha256"], _size(entry),
+                            "a shard of the law")
+            law = ExplicitLaw.load(path)
+            if law.num_regions != entry["regions"] or law.fingerprint != self.fingerprint:
+                raise DamagedFileError(f"not the shard {MANIFEST} records (regions or "
+                                       "fingerprint)", file=str(path))
+        except DamagedFileError as exc:
+            raise self._damaged(exc) from None
         self.loads += 1
         self._cache[j] = law
         while len(self._cache) > self._most:
@@ -1047,15 +1076,18 @@ class ShardedLaw:
             self._halos.move_to_end(c)
             return got
         entry = self._entries[c]
-        path = _checked(self.dir / entry["halo_file"], entry["halo_sha256"],
-                        _size({"bytes": entry.get("halo_bytes")}),
-                        "a shard's halo: copies of the regions reaching into its cell")
-        got = read_halo(path, entry, self.n, self.m, {
-            "states": self.states, "inputs": self.inputs, "parameters": self.parameters,
-            "fingerprint": self.fingerprint})
-        if got.owner.size and (got.owner[0] < 0 or got.owner[-1] >= self.num_regions):
-            raise DamagedFileError("not the halo shards.json records (a region's index)",
-                                   file=str(path))
+        try:
+            path = _checked(self.dir / entry["halo_file"], entry["halo_sha256"],
+                            _size({"bytes": entry.get("halo_bytes")}),
+                            "a shard's halo: copies of the regions reaching into its cell")
+            got = read_halo(path, entry, self.n, self.m, {
+                "states": self.states, "inputs": self.inputs,
+                "parameters": self.parameters, "fingerprint": self.fingerprint})
+            if got.owner.size and (got.owner[0] < 0 or got.owner[-1] >= self.num_regions):
+                raise DamagedFileError("not the halo shards.json records (a region's "
+                                       "index)", file=str(path))
+        except DamagedFileError as exc:
+            raise self._damaged(exc) from None
         self.loads += 1
         self._halos[c] = got
         while len(self._halos) > self._most:

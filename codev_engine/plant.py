@@ -737,6 +737,66 @@ def _uncertain_key(plant: PlantSpec, box_values: bool = True) -> tuple:
     return tuple(out) if any(v is not None for v in out) else ()
 
 
+def disturbances_matter(problem_or_plant: Problem | PlantSpec) -> bool:
+    """Can the disturbances change the plant's field over their box?
+
+    False without disturbances, and when every axis of the box either has zero width (the
+    disturbance is its one value, which is the nominal one) or does not enter the field
+    (a matrix plant's column of ``E`` is zero; an expression plant's derivative in it is
+    identically zero). Then ``f(x, u, w) = f(x, u, w_nominal)`` for every ``w`` in the box:
+    the plant is the nominal model, and the verification is the nominal one (docs/spec.md,
+    "Disturbances").
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+
+    Returns
+    -------
+    bool
+    """
+    plant = _plant_of(problem_or_plant)
+    box = plant.disturbances
+    if box is None:
+        return False
+    wide = np.asarray(box.upper, float) > np.asarray(box.lower, float)
+    if not np.any(wide):
+        return False
+    if plant.dynamics is None:
+        E = getattr(plant, "E", None)
+        return E is None or bool(np.any(np.asarray(E, float)[:, wide] != 0.0))
+    return _depends_on(plant_key(plant), tuple(bool(v) for v in wide))
+
+
+@functools.lru_cache(maxsize=16)
+def _depends_on(key: _PlantKey, wide: tuple[bool, ...]) -> bool:
+    """Does the expression field depend on a disturbance marked ``wide``? (a derivative
+    sympy cannot show to be zero counts as a dependence)"""
+    import sympy
+
+    f, _, _, w, _ = full_field(key.plant)
+    cols = [s for s, keep in zip(w, wide, strict=True) if keep]
+    J = f.jacobian(sympy.Matrix(cols))
+    return J.is_zero_matrix is not True
+
+
+def field_uncertain(problem_or_plant: Problem | PlantSpec) -> bool:
+    """Uncertain parameters, or disturbances that can change the field
+    (:func:`disturbances_matter`): what the verification must cover beyond the nominal
+    model. (``PlantSpec.uncertain`` says whether the spec declares them.)
+
+    Parameters
+    ----------
+    problem_or_plant : Problem or PlantSpec
+
+    Returns
+    -------
+    bool
+    """
+    plant = _plant_of(problem_or_plant)
+    return plant.parameters is not None or disturbances_matter(plant)
+
+
 def model_derivations() -> int:
     """How many symbolic derivations of a plant model this process has run."""
     return _derivations

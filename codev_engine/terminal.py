@@ -23,7 +23,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from codev_engine.errors import SpecError
-from codev_engine.geometry.polytope import chebyshev_ball, minimal_rows, normalize_rows, solve_lp
+from codev_engine.geometry.polytope import (
+    bounding_box,
+    chebyshev_ball,
+    minimal_rows,
+    normalize_rows,
+    solve_lp,
+)
+from codev_engine.mp.balance import parameter_scaling, rows_back
 
 __all__ = ["lqr_terms", "InvariantSet", "maximal_invariant_set"]
 
@@ -91,6 +98,34 @@ class InvariantSet:
     steps: int
 
 
+def _box(G: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The extent of ``G v <= g`` along each axis through the origin (the target, inside
+    the set: every ``g > 0``), else its LP bounding box.
+
+    It sets the iteration's units only (to a power of two), and needs no LP: the LPs'
+    tolerances in the plant's own coordinates are what the units are there to avoid (the
+    LP box of the double integrator with x1 x1e3 and x2 x1e-3 came out infinite along x1).
+
+    Parameters
+    ----------
+    G : (c, d) ndarray
+    g : (c,) ndarray
+
+    Returns
+    -------
+    lo, hi : (d,) ndarrays
+        +-inf where nothing bounds an axis.
+    """
+    if np.all(g > 0.0):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = g[:, None] / G  # where the ray along +-e_j meets row i
+        hi = np.min(np.where(G > 0.0, t, np.inf), axis=0)
+        lo = np.max(np.where(G < 0.0, t, -np.inf), axis=0)
+        if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)):
+            return lo, hi
+    return bounding_box(G, g)
+
+
 def maximal_invariant_set(Phi: np.ndarray, G: np.ndarray, g: np.ndarray, *,
                           field: str = "mpc.terminal_set",
                           max_steps: int = MAX_STEPS) -> InvariantSet:
@@ -122,6 +157,17 @@ def maximal_invariant_set(Phi: np.ndarray, G: np.ndarray, g: np.ndarray, *,
     G, g, feasible = normalize_rows(np.asarray(G, float), np.asarray(g, float))
     if not feasible:
         raise SpecError("the LQR terminal set is empty", field=field)
+    # axes far apart in size (states in units 1e3 and 1e-3): the iteration runs on
+    # v = W v_s (W powers of two, mp/balance.py) and the set is mapped back. In the
+    # plant's own coordinates the LPs' tolerances are of the wide axis' size: the double
+    # integrator with x1 x1e3 and x2 x1e-3 got 3 rows after 56 steps, a set unbounded
+    # along x2, for the 12 rows after 5 steps it has in its own units (issue 38)
+    W = parameter_scaling(*_box(G, g))
+    if W is not None:
+        inner = maximal_invariant_set(W[:, None] ** -1 * Phi * W, G * W, g, field=field,
+                                      max_steps=max_steps)
+        A, b = rows_back(inner.A, inner.b, W)
+        return InvariantSet(A=A, b=b, steps=inner.steps)
     A, b = G.copy(), g.copy()
     _, radius = chebyshev_ball(A, b)
     if not radius > 1e-9:

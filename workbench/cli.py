@@ -191,7 +191,7 @@ def _print_result(problem, law, result, tube_path) -> None:
     t_end, width, which = width_at_end(problem, result)
     if np.any(np.isfinite(width)):
         print(f"  width at t = {t_end:.4g} s ({which}): " + np.array2string(width, precision=4))
-    else:  # a violation, a limit or an ellipsoid certificate stopped the tube before t
+    else:  # a violation or a limit stopped the tube before t
         print(f"  width at t = {t_end:.4g} s: none (no box of the tube reaches it)")
     print("the claim:")  # what the verdict says, and what it does not
     for line in build_claim(problem, result).lines():
@@ -284,9 +284,7 @@ def _verify_on(args: argparse.Namespace, executor) -> int:
         return _verify_reached(args, problem, executor)
     if args.law:
         if Path(args.law).is_dir():  # (a law written as shards: read lazily)
-            from codev_engine.law_shards import ShardedLaw
-
-            law = ShardedLaw.load(args.law)
+            law = _sharded_law(args.law)
         else:
             law = ExplicitLaw.load(args.law)
         check_law_matches(problem, law, file=args.law)
@@ -779,6 +777,17 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sharded_law(path: str | Path):
+    """The law as shards in folder ``path``; a session's artifact is bound to its session
+    (``Session.holding``): a shard found damaged marks it, the next run recomputes it."""
+    from codev_engine.law_shards import ShardedLaw
+    from codev_engine.session import Session
+
+    law = ShardedLaw.load(path)
+    session = Session.holding(path)
+    return law if session is None else session.bind(law)
+
+
 def _from_session(d: Path):
     """The spec, the law and the result (or None) cached in a session folder."""
     from codev_engine.reach.verification import VerificationResult
@@ -788,14 +797,21 @@ def _from_session(d: Path):
     problem = session.problem()
     status = {s.stage: s for s in session.status(problem)}
     syn = status.get("synthesis")
+    if syn is not None and syn.status == "corrupt":  # (named, with what is wrong with it)
+        raise SpecError(
+            f"the session's law is unusable ({syn.reason}); its next run recomputes it: "
+            f"codev run {session.spec_path()} --session {d}",
+            file=str(d / syn.artifact),
+        )
     if syn is None or syn.status != "cached":
         raise SpecError(
             f"the session has no cached law for its spec; run: codev run {session.spec_path()} "
             f"--session {d}",
             file=str(d),
         )
-    # (the stage's loader: a full law, or the region cache of regions = "reached")
-    law = session.table["synthesis"].load(d / syn.artifact, problem)
+    # (the stage's loader, through the session: a full law, the region cache of regions =
+    # "reached", or a law as shards, which marks the artifact if a shard it reads is damaged)
+    law = session.load("synthesis", d / syn.artifact, problem)
     ver = status.get("verification")
     result = None
     if ver is not None and ver.status == "cached":
@@ -1048,10 +1064,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
             raise SpecError(exc.reason, field="--name") from None
     note = None
     if (Path(args.file) / "shards.json").is_file():  # a law as shards (codev synth --out-shards)
-        from codev_engine.law_shards import ShardedLaw
-
         _prepare_kernels(export=True)
-        obj, tag = ShardedLaw(args.file).merged(), None  # (one table: merged on demand)
+        obj, tag = _sharded_law(args.file).merged(), None  # (one table: merged on demand)
     elif Path(args.file).is_dir():
         _prepare_kernels(export=True)  # (the region cache may grow: the mp-QP kernel)
         obj, note = _operation_of(Path(args.file))

@@ -2,34 +2,77 @@
 
 A reader never sees a half-written file: either the old artifact or the new one. A writer
 killed midway leaves at most a ``.tmp-*`` file (or folder: :func:`atomic_folder`), which no
-reader looks at.
+reader looks at, and which :func:`remove_stale` removes later: while it is written, its
+writer holds a lock on it (``flock``, released by the kernel when the writer dies however
+it dies: SIGKILL included), so a temporary nobody holds is one nobody will finish.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import secrets
 import shutil
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_folder", "atomic_path", "write_npz", "write_text"]
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: temporaries are told stale by age alone
+    fcntl = None  # type: ignore[assignment]
+
+__all__ = ["STALE_AFTER", "atomic_folder", "atomic_path", "remove_stale", "write_npz",
+           "write_text"]
+
+#: seconds after which an unlocked ``.tmp-*`` entry is stale (:func:`remove_stale`): the
+#: lock is taken microseconds after the entry is made, the margin covers that window (and a
+#: clock a little off on a shared file system); where no lock can be taken (not POSIX, or a
+#: file system without ``flock``) the age alone decides, and a writer is assumed done or
+#: dead after a day
+STALE_AFTER = 60.0
+_STALE_UNLOCKED = 86400.0
 
 
-def _sibling(path: Path, create: Callable[[Path], object]) -> Path:
+def _sibling(path: Path, create: Callable[[Path], object], made: list[Path]) -> Path:
     """A new ``.tmp-<random hex><suffix of path>`` beside ``path``, made by ``create`` (which
-    must fail with ``FileExistsError`` on a name taken); the missing parents are created."""
+    must fail with ``FileExistsError`` on a name taken); the missing parents are created.
+    Its name is put in ``made`` before it is made: a caller interrupted (Ctrl-C) as it is
+    made, before this returns, still knows what to remove."""
     path.parent.mkdir(parents=True, exist_ok=True)
     while True:
         tmp = path.parent / f".tmp-{secrets.token_hex(6)}{path.suffix}"
+        made[:] = [tmp]
         try:
             create(tmp)
             return tmp
         except FileExistsError:  # pragma: no cover - 48 random bits
+            made.clear()
             continue
+
+
+@contextmanager
+def _held(tmp: Path) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``tmp`` (a file or a folder) for the ``with`` body:
+    the mark of a live writer that :func:`remove_stale` respects. The kernel drops it when
+    the descriptor is closed, the writer's death included."""
+    if fcntl is None:  # pragma: no cover - not POSIX
+        yield
+        return
+    fd = os.open(tmp, os.O_RDONLY)  # (a folder opens read-only too: flock takes any fd)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError:
+            # (a file system without flock on a read-only descriptor, NFS's emulation: the
+            # cleaner cannot lock it either, and goes by age alone there)
+            pass
+        yield
+    finally:
+        os.close(fd)
 
 
 @contextmanager
@@ -59,15 +102,18 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     libraries that choose a format, or append an extension, by the file name.
     """
     path = Path(path)
-    tmp = _sibling(path, lambda t: os.close(os.open(t, os.O_CREAT | os.O_EXCL | os.O_WRONLY,
-                                                    0o666)))
+    made: list[Path] = []
     try:
-        yield tmp
-        with tmp.open("rb+") as fh:  # the data must be on disk before the rename
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        tmp = _sibling(path, lambda t: os.close(os.open(t, os.O_CREAT | os.O_EXCL | os.O_WRONLY,
+                                                        0o666)), made)
+        with _held(tmp):
+            yield tmp
+            with tmp.open("rb+") as fh:  # the data must be on disk before the rename
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        for t in made:
+            t.unlink(missing_ok=True)
         raise
 
 
@@ -95,24 +141,98 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
         atomic within one file system only).
     """
     path = Path(path)
-    tmp = _sibling(path, Path.mkdir)
+    made: list[Path] = []
+    old = None
     try:
-        yield tmp
-        old = None
-        if path.exists() or path.is_symlink():
-            # (a folder cannot be renamed onto a folder that holds files: the old one goes
-            # aside, under a name no reader looks at, and is removed once the new one is in)
-            old = path.parent / f".tmp-{secrets.token_hex(6)}-old{path.suffix}"
-            os.replace(path, old)
-        os.replace(tmp, path)
+        tmp = _sibling(path, Path.mkdir, made)
+        with _held(tmp):
+            yield tmp
+            if path.exists() or path.is_symlink():
+                # (a folder cannot be renamed onto a folder that holds files: the old one
+                # goes aside, under a name no reader looks at, and is removed once the new
+                # one is in; left by a writer killed in between, remove_stale removes it)
+                aside = path.parent / f".tmp-{secrets.token_hex(6)}-old{path.suffix}"
+                os.replace(path, aside)
+                old = aside
+            os.replace(tmp, path)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        for t in made:
+            shutil.rmtree(t, ignore_errors=True)
+        if old is not None and not (path.exists() or path.is_symlink()):
+            os.replace(old, path)  # (interrupted between the two renames: put it back)
         raise
     if old is not None:
         if old.is_dir() and not old.is_symlink():
             shutil.rmtree(old, ignore_errors=True)
         else:
             old.unlink(missing_ok=True)
+
+
+def remove_stale(folder: str | os.PathLike, older_than: float = STALE_AFTER) -> list[str]:
+    """Remove the ``.tmp-*`` entries of ``folder`` that no live writer holds.
+
+    What a writer killed midway left (SIGKILL, SIGTERM, a power cut; Ctrl-C removes its
+    own): a temporary file, a temporary folder, or a folder artifact's old copy moved aside.
+    No reader looks at them; this frees their space. An entry is removed when nobody holds
+    its lock (:func:`atomic_path` and :func:`atomic_folder` hold it from the moment it is
+    made until it is renamed) and it was last modified more than ``older_than`` seconds ago
+    (the lock is taken just after the entry is made). A temporary that a concurrent live
+    writer is writing is never removed.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The folder to clean (not recursively: a temporary folder goes whole); a missing
+        folder has nothing to clean.
+    older_than : float
+        Seconds since the entry's last modification.
+
+    Returns
+    -------
+    list of str
+        The names removed.
+    """
+    folder = Path(folder)
+    try:
+        entries = [p for p in folder.iterdir() if p.name.startswith(".tmp-")]
+    except OSError:  # (missing, or not a folder)
+        return []
+    removed = []
+    now = time.time()
+    for p in entries:
+        try:
+            st = p.lstat()
+        except OSError:  # (renamed or removed meanwhile by its writer)
+            continue
+        age = now - st.st_mtime
+        if age < older_than:
+            continue
+        if p.is_symlink() or not (p.is_dir() or p.is_file()):
+            continue  # (none of ours: a writer makes files and folders only)
+        try:
+            fd = os.open(p, os.O_RDONLY)
+        except OSError:
+            continue
+        try:
+            try:
+                if fcntl is None:  # pragma: no cover - not POSIX
+                    raise OSError(errno.ENOLCK, "no flock")
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    continue  # (held: a live writer)
+                if age < _STALE_UNLOCKED:  # (no lock to tell: by age alone)
+                    continue
+            # (removed while locked: a writer cannot take it meanwhile, and would find it
+            # gone if it tried; its name is random, no writer makes it again)
+            if p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
+            removed.append(p.name)
+        finally:
+            os.close(fd)
+    return removed
 
 
 def write_npz(

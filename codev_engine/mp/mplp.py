@@ -587,9 +587,11 @@ class _Explorer:
             act = self._lex_refine(act, q)
             if act is not None:
                 return act
-        for delta in (self.lp_perturbation, 1e-3 * self.lp_perturbation):
+        for delta in self._highs_perturbations():
             act = self._highs_basis(q, delta)
-            if act is None or (isinstance(act, str)):
+            if isinstance(act, str):  # (the perturbed LP is unbounded: a smaller one)
+                continue
+            if act is None:
                 return None
             if self._lex_optimal(act, q):
                 return act
@@ -598,6 +600,31 @@ class _Explorer:
                 return act
             self.stats["rejected_bases"] = self.stats.get("rejected_bases", 0) + 1
         return None
+
+    def _highs_perturbations(self) -> tuple[float, ...]:
+        """The sizes (relative to ``max|c|``) of the perturbation HiGHS is asked with, in
+        turn: ``lp_perturbation`` and a thousandth of it, then, when the smallest cost
+        coefficient is below the perturbation, the same relative to that coefficient.
+
+        The cost's coefficients can be further apart than ``lp_perturbation``: a soft
+        weight of 1e4 next to a state weight of 10^-1.5 (the state in units 10^1.5 times
+        smaller, issue 38) leaves that state's slack at a cost of 3e-6 of the largest, and
+        the perturbation (up to 1e-5) made it negative: the perturbed LP was unbounded,
+        and the first unbounded answer ended the basis search before the smaller size was
+        tried (every start point, then "too degenerate"). An unbounded size now moves on
+        to the next (``_solve_at`` has the same cure for DAQP,
+        :meth:`_smaller_perturbations`).
+
+        Returns
+        -------
+        tuple of float
+        """
+        base = (self.lp_perturbation, 1e-3 * self.lp_perturbation)
+        c = np.abs(self.r.c)
+        small = float(np.min(c[c > 0.0], initial=self.cmag)) / self.cmag
+        if small > base[-1]:  # (|pert| <= 1: every cost stays > 0 at the last size)
+            return base
+        return (*base, self.lp_perturbation * small, 1e-3 * self.lp_perturbation * small)
 
     def _primal_ok(self, act: np.ndarray, q: np.ndarray) -> bool:
         """Is the vertex of the basis ``act`` feasible at q (to 1e-9, relative)? DAQP's
@@ -664,11 +691,16 @@ class _Explorer:
                 h.setOptionValue("dual_feasibility_tolerance", 1e-10)
         return h
 
-    def _highs_basis(self, q: np.ndarray, delta: float) -> np.ndarray | None:
+    def _highs_basis(self, q: np.ndarray, delta: float) -> np.ndarray | str | None:
+        """HiGHS's basis of the LP perturbed by ``delta`` at q, completed to ``nw`` rows;
+        ``"unbounded"`` when the perturbed LP is unbounded, None when HiGHS fails."""
         import highspy
 
         h = self._highs(q, delta)
-        if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+        status = h.getModelStatus()
+        if status == highspy.HighsModelStatus.kUnbounded:
+            return "unbounded"
+        if status != highspy.HighsModelStatus.kOptimal:
             return None
         rows = np.array(
             [st == highspy.HighsBasisStatus.kUpper for st in h.getBasis().row_status], dtype=bool

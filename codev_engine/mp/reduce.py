@@ -177,6 +177,44 @@ class ParameterBox:
         return self.lo, self.hi
 
 
+#: axes of the parameter set wider apart than this (by the rows on one axis) are measured
+#: in units of their own width (a power of two) when the parameter box is computed
+BOX_RATIO = 64.0
+
+
+def _axis_units(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Powers of two ``W`` (``theta = W theta_w``) that bring the widths of ``A theta <=
+    b`` along each axis, as its rows on that axis alone bound them, within ``BOX_RATIO`` of
+    the widest (each narrow axis to the widest's width); ones when they are already, or
+    when an axis has no such rows.
+
+    Parameters
+    ----------
+    A : (p, d) ndarray
+    b : (p,) ndarray
+
+    Returns
+    -------
+    (d,) ndarray
+    """
+    d = A.shape[1]
+    lo, hi = np.full(d, -np.inf), np.full(d, np.inf)
+    for i in np.flatnonzero(np.count_nonzero(A, axis=1) == 1):
+        j = int(np.flatnonzero(A[i])[0])
+        if A[i, j] > 0.0:
+            hi[j] = min(hi[j], b[i] / A[i, j])
+        else:
+            lo[j] = max(lo[j], b[i] / A[i, j])
+    width = hi - lo
+    W = np.ones(d)
+    if not np.all(np.isfinite(width)) or np.any(width <= 0.0):
+        return W
+    top = float(np.max(width))
+    narrow = width * BOX_RATIO < top
+    W[narrow] = np.exp2(np.round(np.log2(width[narrow] / top)))
+    return W
+
+
 def parameter_box(red: Reduced) -> ParameterBox:
     """The bounding box of the parameter set ``At theta <= bt``.
 
@@ -194,10 +232,17 @@ def parameter_box(red: Reduced) -> ParameterBox:
         When the parameter set is empty or unbounded.
     """
     d = red.At.shape[1]
-    _, st, _ = solve_lp(np.zeros(d), red.At, red.bt)
+    # the LPs in units where the axes' widths (read off the rows on one axis) are within
+    # BOX_RATIO: in the plant's own (x1 in 1e3, x2 in 1e-3 units, and an output bound
+    # x1 1e-6 + x2 <= 2e-3) DAQP called the set infeasible when asked for max x1, and the
+    # spec was refused, "the parameter set is unbounded" (issue 38)
+    W = _axis_units(red.At, red.bt)
+    At, bt = (red.At, red.bt) if np.all(W == 1.0) else normalize_rows(red.At * W, red.bt)[:2]
+    _, st, _ = solve_lp(np.zeros(d), At, bt)
     if st == "infeasible":
         raise SpecError("the parameter set is empty", field="A_theta")
-    lo, hi = bounding_box(red.At, red.bt)
+    lo, hi = bounding_box(At, bt)
+    lo, hi = lo * W, hi * W
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         raise SpecError("the parameter set is unbounded", field="A_theta")
     if np.any(hi - lo < 0):

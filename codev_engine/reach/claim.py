@@ -197,9 +197,13 @@ def build_claim(problem: Problem, result: VerificationResult | None = None) -> C
         initial.append("reference (a constant): " + _box(names, ref_lo, ref_hi))
     uncertainty = []
     if p.disturbances is not None:
+        from codev_engine.plant import disturbances_matter
+
         u = p.disturbances
         uncertainty.append("disturbance signal " + _box(u.names, u.lower, u.upper)
-                           + " at every t")
+                           + (" at every t" if disturbances_matter(p) else
+                              ": cannot change the plant (a zero-width box or a zero input), "
+                              "verified as the nominal plant"))
     if p.parameters is not None:
         u = p.parameters
         uncertainty.append("parameter value " + _box(u.names, u.lower, u.upper))
@@ -316,11 +320,39 @@ def certificate_band(result: VerificationResult) -> CertificateBand | None:
                            np.max(tube.upper[keep], axis=0))
 
 
+def ellipsoid_box(result: VerificationResult) -> tuple[np.ndarray, np.ndarray] | None:
+    """The bounding box of an invariant ellipsoid certificate (the nonlinear engine's,
+    kind ``ellipsoid``), or None without one.
+
+    The ellipsoid ``{x : (x - c)' P (x - c) <= 1}`` holds every state at every sample from
+    its closing sample on; its box is ``c +- sqrt(diag(P^-1))`` (the support of ``+-e_i``),
+    widened for the inverse's rounding (relative 1e-6 and ``cond(P)`` times the epsilon).
+
+    Parameters
+    ----------
+    result : VerificationResult
+
+    Returns
+    -------
+    (lower, upper) : pair of (n,) ndarray, or None
+    """
+    cert = result.certificate
+    if cert is None or "P" not in cert:
+        return None
+    P = np.asarray(cert["P"], dtype=float)
+    c = np.asarray(cert["centre"], dtype=float)
+    reach = np.sqrt(np.abs(np.diag(np.linalg.inv(P))))
+    reach = reach * (1.0 + 1e-6 + np.linalg.cond(P) * np.finfo(float).eps) + 1e-12
+    return c - reach, c + reach
+
+
 #: what :func:`width_at_end` measured, in words (CLI, ``--json``'s ``width_at.of``, the
 #: sweep's ``width_at_horizon_of``, the recording's and the report's summary)
 WIDTH_OF_LAST_BOX = "tube's last box"
 WIDTH_OF_REPEAT = "tube's last box, a repeat of the certificate's period"
 WIDTH_OF_BAND = "certificate band"
+WIDTH_OF_ELLIPSOID = "invariant ellipsoid's box"
+WIDTH_OF_BOX_AND_ELLIPSOID = "tube's last box and the invariant ellipsoid's box"
 WIDTH_OF_NONE = "none"
 
 
@@ -344,8 +376,11 @@ def width_at_end(problem: Problem, result: VerificationResult) -> tuple[float, n
         certificate closed before ``t`` and the tube after it repeats its period: sound,
         but not the reach set of ``t`` -- designs compare only on the same kind),
         :data:`WIDTH_OF_BAND` (a tube that stops at the closing sample of a certificate,
-        ``time_horizon = "inf"``: :func:`certificate_band`) or :data:`WIDTH_OF_NONE` (no box
-        at ``t``: a tube stopped by a violation, a limit, or an ellipsoid certificate).
+        ``time_horizon = "inf"``: :func:`certificate_band`), :data:`WIDTH_OF_ELLIPSOID`
+        (the nonlinear engine's invariant ellipsoid closed by ``t``, a sample time:
+        :func:`ellipsoid_box`), :data:`WIDTH_OF_BOX_AND_ELLIPSOID` (the hull of both, when
+        some of the sets stopped in the ellipsoid before ``t`` and others go on) or
+        :data:`WIDTH_OF_NONE` (no box at ``t``: a tube stopped by a violation or a limit).
     """
     from codev_engine.reach.simulate import shown_horizon
 
@@ -359,6 +394,23 @@ def width_at_end(problem: Problem, result: VerificationResult) -> tuple[float, n
     # the tube's boxes at T (a finite horizon's tube, repeated after a certificate, is sound
     # and tighter pointwise than the band)
     width = result.width_at(T)
+    ell = ellipsoid_box(result)
+    if ell is not None:
+        # every state at every sample from the closing one on is in the ellipsoid (T, the
+        # shown horizon of "inf", is a sample time); before it, a set that stopped in the
+        # ellipsoid (per_set) has no box at T, so the hull of both holds the states
+        c = result.stats.get("certificate") or {}
+        t_closed = float(c.get("closed_time", np.inf))
+        k = T / float(problem.model.sample_time)
+        at_sample = abs(k - round(k)) <= 1e-9 * max(1.0, k)  # (between samples: in B only)
+        if at_sample and T >= t_closed * (1 - 1e-12):
+            return T, ell[1] - ell[0], WIDTH_OF_ELLIPSOID
+        if at_sample and c.get("per_set"):
+            lo, hi = tube.hull_at(T)
+            if np.all(np.isfinite(lo)):
+                return (T, np.maximum(hi, ell[1]) - np.minimum(lo, ell[0]),
+                        WIDTH_OF_BOX_AND_ELLIPSOID)
+            return T, ell[1] - ell[0], WIDTH_OF_ELLIPSOID
     if not np.any(np.isfinite(width)):
         return T, width, WIDTH_OF_NONE
     if band is not None and T > band.t_closed * (1 + 1e-12):

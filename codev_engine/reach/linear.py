@@ -38,7 +38,7 @@ from codev_engine.geometry.polytope import (
 from codev_engine.geometry.vertices import FACET_TOL, box_corners, checked_piece, vertices
 from codev_engine.law import ExplicitLaw
 from codev_engine.limits import DeadlineReached, beat, limits, stoppable, time_over_kind
-from codev_engine.plant import symbolic_model
+from codev_engine.plant import disturbances_matter, symbolic_model
 from codev_engine.reach.simulate import theta_initial_box
 from codev_engine.reach.tube import Tube
 from codev_engine.spec.problem import Problem
@@ -126,10 +126,14 @@ def affine_plant(problem: Problem) -> AffinePlant | None:
     pl = problem.plant
     if pl.parameters is not None:
         return _parametric_plant(problem)
-    w = pl.disturbances
+    # disturbances that cannot change the field (a zero-width box, a zero input): the
+    # nominal plant, its drift E w_nominal included
+    w = pl.disturbances if disturbances_matter(pl) else None
     if pl.A is not None and pl.B is not None:
         if w is None:
-            return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), np.zeros(pl.n))
+            drift = (np.zeros(pl.n) if pl.E is None or pl.disturbances is None else
+                     np.asarray(pl.E, float) @ np.asarray(pl.disturbances.nominal, float))
+            return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float), drift)
         E = np.asarray(pl.E, float)
         return AffinePlant(np.asarray(pl.A, float), np.asarray(pl.B, float),
                            E @ np.asarray(w.centre, float), E, np.asarray(w.radius, float))
@@ -1320,7 +1324,17 @@ class LinearReach(ClosedLoopSetup):
         First with merging and invariance certificates (:meth:`_run_merged`); when that
         meets a possible violation on a merged set, again exactly (every branch kept).
         """
+        #: a re-anchored candidate's anchor while it runs, a certificate closed behind it
+        self._reanchored: dict | None = None
         self._limited(self._run)
+        behind = self._reanchored
+        if behind is not None and self.findings and all(
+                f.kind in ("limit", "budget") for f in self.findings):
+            # a limit or the budget stopped the run from a re-anchored set: the certificate
+            # that closed before it holds (re-anchoring never costs a verdict)
+            self.findings = []
+            self.stats.pop("complete_until", None)
+            self._close_previous(behind)
 
     def _run(self) -> None:
         if (self.merge or self.unbounded) and self.d == self.n:
@@ -1500,21 +1514,22 @@ class LinearReach(ClosedLoopSetup):
 
         The tube repeated by a certificate is the anchor set's own transient, so an anchor
         taken while the sets still converge (a wide ``S``) repeats that width up to the
-        horizon. With disturbances or parameters (the sets never shrink to a point) and a
-        finite horizon, the loop goes on from the sets at ``k`` anchored again, while that
-        set's box is at most ``_REANCHOR_SHRINK`` of the anchor's along some axis, at most
+        horizon (``"inf"``: the band of :func:`~codev_engine.reach.claim.certificate_band`
+        is that width). The loop goes on from the sets at ``k`` anchored again, while that
+        set's box is at most ``_REANCHOR_SHRINK`` (nominal: ``_REANCHOR_SHRINK_NOMINAL``)
+        of the anchor's along some axis, at most
         ``_REANCHORS`` times and while ``_ANCHOR_MIN_SAMPLES`` remain (docs/verification.md,
-        "Merging and invariance certificates"). Nominal runs and ``"inf"`` horizons close
-        at once, as before.
+        "Merging and invariance certificates"); nominal runs too (their sets shrink toward
+        the operating point, the early anchor's saw-tooth does not).
         """
         remaining = (self.T - k * self.Ts) / self.Ts
-        if (not self.uncertain or self.unbounded or done >= _REANCHORS
-                or remaining < _ANCHOR_MIN_SAMPLES):
+        if done >= _REANCHORS or remaining < _ANCHOR_MIN_SAMPLES:
             return None
         S2 = self._anchor(frontier)
         old, new = (np.ptp(S.c[None, :] + S.verts @ S.V.T, axis=0) + 2.0 * S.err
                     for S in (anchor["S"], S2))
-        if not np.any(new <= _REANCHOR_SHRINK * old):
+        shrink = _REANCHOR_SHRINK if self.uncertain else _REANCHOR_SHRINK_NOMINAL
+        if not np.any(new <= shrink * old):
             return None
         return S2
 
@@ -1522,6 +1537,7 @@ class LinearReach(ClosedLoopSetup):
         """Every set at sample k lies in the anchor's set S (sample ka < k): the tube of
         [t_ka, t_k] repeats with period (k - ka) Ts up to the horizon (docs/verification.md,
         "Invariance certificates")."""
+        self._reanchored = None  # (closed: nothing to fall back to)
         ka = anchor["k"]
         L = (k - ka) * self.Ts
         t_k = k * self.Ts
@@ -1566,6 +1582,12 @@ class LinearReach(ClosedLoopSetup):
             )
         )
 
+    def _close_previous(self, anchor: dict) -> None:
+        """Undo a re-anchored candidate (``anchor``: its tube dropped) and close the
+        certificate that closed at its sample instead (``_reanchor``)."""
+        del self.tubes[anchor["ntubes"]:]
+        self._close(anchor["closed"], anchor["k"])
+
     def _run_merged(self) -> None:
         """Breadth first over samples; the sets of a sample that lie in one region become
         one (``_hull``), and a set anchored at an attracting fixed point is checked for an
@@ -1594,12 +1616,18 @@ class LinearReach(ClosedLoopSetup):
                         self._close(anchor, k)
                         return
                     # the tube of [t_ka, t_k] from S stays (it holds every trajectory);
-                    # the loop goes on from the tighter S2, a new candidate
+                    # the loop goes on from the tighter S2, a new candidate; the closed
+                    # certificate is kept should S2's fail
                     reanchors += 1
+                    anchor["closing"] = frontier
                     anchor = {"k": k, "S": S2, "ntubes": len(self.tubes),
-                              "frontier": frontier}
+                              "frontier": frontier, "closed": anchor}
+                    self._reanchored = anchor
                     frontier = [S2]
                 elif k - anchor["k"] > _ANCHOR_BUDGET:
+                    if "closed" in anchor:
+                        self._close_previous(anchor)
+                        return
                     anchor, next_try = None, k + 10  # keep the (sound, wider) sets
             remaining = (self.T - k * self.Ts) / self.Ts
             if (
@@ -1652,6 +1680,12 @@ class LinearReach(ClosedLoopSetup):
             if failed:
                 if anchor is None:
                     raise _NeedExactError
+                if "closed" in anchor:
+                    # a re-anchored set met a possible violation: the certificate that
+                    # closed before it holds (its tube is kept); close it
+                    self.findings = []
+                    self._close_previous(anchor)
+                    return
                 # undo the anchor: back to its sample; inflate again only later
                 self.findings = []
                 del self.tubes[anchor["ntubes"] :]
@@ -1672,10 +1706,13 @@ _MERGE_ABOVE = 8
 _MERGED_DEPTH = 2
 #: anchors tried per run (each undone one costs the samples it ran)
 _ANCHOR_ATTEMPTS = 5
-#: with disturbances or parameters, a closed anchor is taken again from the closing sets
-#: (a tighter repeated tube) while their box is at most this share of the anchor's along
+#: with disturbances, noise or parameters, a closed anchor is taken again from the closing
+#: sets (a tighter repeated tube) while their box is at most this share of the anchor's along
 #: some axis, at most _REANCHORS times (_reanchor)
 _REANCHOR_SHRINK = 0.9
+#: the same for a nominal run, whose sets keep shrinking: a new anchor (its period run
+#: again) only while it halves the width along some axis
+_REANCHOR_SHRINK_NOMINAL = 0.5
 _REANCHORS = 4
 
 

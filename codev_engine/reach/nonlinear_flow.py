@@ -48,7 +48,7 @@ from scipy.linalg import expm, solve_continuous_lyapunov, solve_triangular
 
 from codev_engine.geometry.polytope import solve_lp
 from codev_engine.law import ExplicitLaw
-from codev_engine.plant import linearize, plant_model
+from codev_engine.plant import field_uncertain, linearize, plant_model
 from codev_engine.reach.carried import carried_zonotope, offset_zonotope
 from codev_engine.reach.interval import IntervalDomainError
 from codev_engine.reach.linear import ClosedLoopSetup, Finding, affine_range
@@ -199,7 +199,8 @@ class NonlinearFlow(ClosedLoopSetup):
         vs = p.verify
         # all compiled once per plant (the shared plant model) and reused by every run; with
         # disturbances or parameters, the field over (x, u, w, p) below instead
-        if not p.plant.uncertain:
+        uncertain = field_uncertain(p)  # (disturbances that cannot act: nominal)
+        if not uncertain:
             self.enc = plant_enclosures(p)
             self.hess = plant_hessian(p)
         self._init_properties()
@@ -209,7 +210,7 @@ class NonlinearFlow(ClosedLoopSetup):
         # disturbances and uncertain parameters (docs/verification.md, "Nonlinear plants
         # with disturbances"): enclosures over (x, u, w, p), (w, p) appended to the input box
         self.xlo = self.xhi = self.xnom = self.xdev = None
-        if p.plant.uncertain:
+        if uncertain:
             self.enc, self.hess, self.xlo, self.xhi, self.xnom = uncertain_enclosures(p)
             self.xdev = np.maximum(self.xhi - self.xnom, self.xnom - self.xlo) * (1 + 1e-12)
         self._fnum = plant_model(p).scalar_field  # the (non-rigorous) centre trajectory

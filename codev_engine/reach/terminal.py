@@ -165,8 +165,8 @@ def terminal_ellipsoids(problem: Problem, law: ExplicitLaw
     Parameters
     ----------
     problem : Problem
-        A plant without disturbances or parameters, zoh, no measurement noise, a law over
-        the state alone.
+        A plant without disturbances (that can act) or parameters, zoh, no measurement
+        noise, a law over the state alone.
     law : ExplicitLaw
 
     Returns
@@ -175,8 +175,10 @@ def terminal_ellipsoids(problem: Problem, law: ExplicitLaw
     reason : str
         Empty when some were found; otherwise why none was established.
     """
+    from codev_engine.plant import field_uncertain
+
     pl, vs = problem.plant, problem.verify
-    if pl.uncertain or vs.noisy or law.n != pl.n:
+    if field_uncertain(pl) or vs.noisy or law.n != pl.n:  # (inert disturbances: nominal)
         return [], "ellipsoid certificates cover nominal plants and laws over the state"
     if vs.hold != "zoh":
         return [], "ellipsoid certificates cover the zoh hold only"

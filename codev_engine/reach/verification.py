@@ -908,6 +908,15 @@ def _ellipsoid_certificate(problem: Problem, law: ExplicitLaw, hold: str, depth:
                 j = max(a[0] for a in eng.absorbed)
                 lo = np.vstack([a[1] for a in eng.absorbed])
                 hi = np.vstack([a[2] for a in eng.absorbed])
+                # a set stopped at the sample it entered e: from then on its states are in
+                # e at the samples and in e's period box between them. That box, from the
+                # first entry on, keeps the tube's contract (every state in an active box)
+                first = min(a[0] for a in eng.absorbed) * Ts
+                end = max(float(tube.t_end.max()) if tube.num_boxes else 0.0, j * Ts)
+                band = Tube(np.array([first]), np.array([end]), e.box_lo[None].copy(),
+                            e.box_hi[None].copy(),
+                            np.array([int(tube.branch.max()) + 1 if tube.num_boxes else 0]))
+                tube = Tube.concatenate([tube, band], problem.plant.n)
                 return _ellipsoid_result(problem, law, hold, eng, tube, e, j, lo, hi, t0,
                                          per_set=True), ""
             if k >= vs.max_samples:
@@ -1037,9 +1046,12 @@ def _limited(problem: Problem, law: ExplicitLaw, hold: str, t0: float, reason: s
 
 
 def _uncertain(problem: Problem) -> bool:
-    """Disturbances, uncertain parameters or measurement noise: searched under signals."""
-    return bool(problem.plant.uncertain or (problem.verify is not None
-                                            and problem.verify.noisy))
+    """Disturbances (that can change the field), uncertain parameters or measurement
+    noise: searched under signals."""
+    from codev_engine.plant import field_uncertain
+
+    return bool(field_uncertain(problem) or (problem.verify is not None
+                                             and problem.verify.noisy))
 
 
 def _confirm(
@@ -1052,6 +1064,7 @@ def _confirm(
     replayed until one violates; the counterexample keeps it. With measurement noise and no
     ``signals``, the noise sequences of :func:`_search` from x0 (adversaries included).
     """
+    from codev_engine.plant import field_uncertain
     from codev_engine.reach.simulate import first_violation, simulate, theta_initial_box
 
     n = problem.plant.n
@@ -1061,7 +1074,7 @@ def _confirm(
         return _search(problem, law, hold, X0=theta0[None, :])
     x0, extra0 = theta0[:n], theta0[n:]
     if signals is None:
-        signals = _signal_list(problem) if problem.plant.uncertain else [None]
+        signals = _signal_list(problem) if field_uncertain(problem) else [None]
     for sig in signals:
         try:
             try:
@@ -1264,13 +1277,14 @@ def _search_runs(problem: Problem, law: ExplicitLaw, hold: str, X0: np.ndarray,
                  noise) -> Counterexample | None:
     """Simulate from the rows of X0 (under signals when uncertain, and ``noise``); the
     first replayed violation."""
+    from codev_engine.plant import field_uncertain
     from codev_engine.reach.simulate import simulate_many, theta_initial_box, violations_many
 
     lo, _ = theta_initial_box(problem)
     n = lo.shape[0]
     nx = problem.plant.n
     dist = None
-    if problem.plant.uncertain:
+    if field_uncertain(problem):
         # every initial state under every signal kind: centre, constant corners, bang-bang
         # and random pieces (_signals), each replayed exactly before it is reported
         per = 8 if noise is None else 1
@@ -1326,6 +1340,7 @@ def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[f
     with disturbances, a law over the state alone, no measurement noise; every violation
     replayed (:func:`_confirm`) before it is reported. None when none is found (or the
     case is not covered)."""
+    from codev_engine.plant import disturbances_matter
     from codev_engine.reach.adversary import adjoint_signals
     from codev_engine.reach.simulate import (
         DisturbanceSignal,
@@ -1334,7 +1349,7 @@ def _adjoint_search(problem: Problem, law: ExplicitLaw, hold: str, times: list[f
     )
 
     pl, vs = problem.plant, problem.verify
-    if pl.disturbances is None or law.n != pl.n or vs.noisy:
+    if not disturbances_matter(pl) or law.n != pl.n or vs.noisy:
         return None
     n = pl.n
     T = float(vs.time_horizon)
@@ -1414,6 +1429,7 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
     -------
     Counterexample or None
     """
+    from codev_engine.plant import disturbances_matter
     from codev_engine.reach.adversary import adjoint_signals
     from codev_engine.reach.simulate import (
         DisturbanceSignal,
@@ -1422,7 +1438,7 @@ def _input_search(problem: Problem, law: ExplicitLaw, hold: str, per_period: int
     )
 
     pl, vs = problem.plant, problem.verify
-    if pl.disturbances is None or law.n != pl.n or vs.noisy or not vs.input_bounds:
+    if not disturbances_matter(pl) or law.n != pl.n or vs.noisy or not vs.input_bounds:
         return None
     n = pl.n
     Ts = float(problem.model.sample_time)

@@ -9,10 +9,13 @@ of the stages upstream, and the engine version). A stage whose key has a valid a
 loaded ("cached"), otherwise computed. Artifacts are written atomically (temp file +
 rename), then entered in the index; an artifact is used only if the index has it and its
 bytes hash to the indexed SHA-256 and its loader accepts it, so a run killed mid-write, a
-truncated or edited file, or a file from elsewhere is reported and recomputed, never used.
+truncated or edited file, or a file from elsewhere is reported and recomputed, never used;
+the temporaries a killed run left are removed by the next run (those no live writer holds).
 A law stored as shards is opened from its manifest's SHA-256 and each shard's size; each
-shard's SHA-256 is checked when it is read, and a shard found damaged then ends the run in
-one line and is recomputed by the next (docs/sessions.md, "What is checked when").
+shard's SHA-256 is checked when it is read, and a shard found damaged then (by a stage, or
+by a front end after the run: the session binds every law it opens, :meth:`Session.load`)
+is said in one line, marked, and recomputed by the next run (docs/sessions.md, "What is
+checked when").
 Nothing is unpickled; loading a session never runs code from it.
 
 :class:`Session` runs, reports the status of, replays and exports from a session; it knows
@@ -227,6 +230,82 @@ class Session:
         """
         return store.artifact_path(self.path, stage, key, self.table[stage].extension(options))
 
+    def load(self, stage: str, path: Path, problem: Problem) -> Any:
+        """A stage's cached artifact, loaded by the stage, bound to this session.
+
+        What every front end that opens a cached artifact uses (``codev report``, the
+        workbench, the notebook; :meth:`run` and :meth:`status` too): a law held as shards
+        reads a shard only when a question needs it, after the run that opened it maybe,
+        and a shard found damaged then marks the artifact damaged in the index wherever the
+        question came from, so that the next run recomputes it (its error says so).
+
+        Parameters
+        ----------
+        stage : str
+            The stage's name.
+        path : Path
+            The artifact (checked already: ``status`` or the run's check).
+        problem : Problem
+            The spec it was computed for.
+
+        Returns
+        -------
+        object
+            The stage's value.
+
+        Raises
+        ------
+        CodevError
+            The stage's loader refuses it.
+        """
+        return self.bind(self.table[stage].load(path, problem))
+
+    def bind(self, value: Any) -> Any:
+        """``value``, a law held as shards, told to mark this session's artifact when it
+        finds one of its files damaged (``ShardedLaw.on_damaged``); anything else as it is.
+
+        Parameters
+        ----------
+        value : object
+            A stage's value (a law opened from this session's artifacts).
+
+        Returns
+        -------
+        object
+            ``value``.
+        """
+        if hasattr(value, "on_damaged"):
+            value.on_damaged = self._damaged
+        return value
+
+    @classmethod
+    def holding(cls, path: str | os.PathLike) -> Session | None:
+        """The session whose ``artifacts/`` holds ``path``, or None.
+
+        For a law's folder given by its path (``codev export DIR``, ``codev verify --law
+        DIR``): bound to its session (:meth:`bind`), a damaged shard it reads is marked
+        there as when the session opens it.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            An artifact (a file or a folder).
+
+        Returns
+        -------
+        Session or None
+            None when ``path`` is in no session's ``artifacts/`` (or the session is not
+            readable: then there is nothing to mark).
+        """
+        path = Path(path).resolve()
+        folder = path.parent.parent
+        if path.parent.name != "artifacts" or not (folder / "session.json").is_file():
+            return None
+        try:
+            return cls.open(folder)
+        except SessionError:
+            return None
+
     def _check_artifact(
         self, stage: Stage, key: str, options: RunOptions
     ) -> tuple[Path, str | None]:
@@ -267,7 +346,7 @@ class Session:
             rel = str(path.relative_to(self.path))
             if why is None:
                 try:
-                    stage.load(path, problem)
+                    self.load(name, path, problem)
                 except CodevError as exc:
                     out.append(StageStatus(name, key, "corrupt", rel, str(exc)))
                     continue
@@ -347,6 +426,9 @@ class Session:
                 stage.check_options(problem, options)
         self.journal()  # a malformed journal fails here, before anything is written
         self._check_stages(problem, options, keys, fresh)
+        # (what killed runs left, once the run is known to write: the temporaries no live
+        # writer holds, a concurrent run's kept; nothing reads them, they only take space)
+        store.remove_temporaries(self.path)
         spec_sha = self.save_spec(problem) if journal else store.sha(problem.source.encode())
         # run 0 until the records are appended: numbered then, under the lock
         report = RunReport(run=0, stages=[], problem=problem)
@@ -362,7 +444,7 @@ class Session:
                 path, why = self._check_artifact(stage, key, options)
                 if not fresh and why is None:
                     try:
-                        value = stage.load(path, problem)
+                        value = self.load(name, path, problem)
                         status = "cached"
                     except CodevError as exc:
                         why = f"unreadable ({exc})"
@@ -371,10 +453,10 @@ class Session:
                         note = f"{path.name}: {why}; recomputed"
                         say(f"{self.path}: artifact {note}")
                     try:
-                        value = stage.compute(
+                        value = self.bind(stage.compute(
                             StageRun(problem, options, values, path, _progress(emit, name),
                                      executor)
-                        )
+                        ))
                     except CodevError as exc:
                         if isinstance(exc, DamagedFileError):  # (a shard of a cached law)
                             exc = self._damaged(exc)
@@ -407,17 +489,23 @@ class Session:
         return report
 
     def _damaged(self, exc: DamagedFileError) -> DamagedFileError:
-        """A file of a cached artifact found damaged when a stage read it (a shard of the
-        law: the store checks its size when the session opens the law, its SHA-256 is
-        checked when it is read). The store's rule for a damaged artifact: it is not used
-        again, the next run recomputes it (the artifact is marked in the index); the error
-        says so."""
+        """A file of a cached artifact found damaged when read (a shard of the law: the
+        store checks its size when the session opens the law, its SHA-256 is checked when
+        it is read: by a stage, or by a front end after the run). The store's rule for a
+        damaged artifact: it is not used again, the next run recomputes it (the artifact
+        is marked in the index); the error says so. Called by the law itself
+        (:meth:`bind`), and by :meth:`run` for an error that comes back from a worker
+        (which held a copy of the law, unbound); once per error."""
+        if exc.artifact is not None:  # (marked already: by the law, before it reached run)
+            return exc
         name = None if exc.file is None else store.mark_damaged(self.path, exc.file,
                                                                 exc.reason)
         if name is None:  # (a file of no artifact of this session)
             return exc
-        return DamagedFileError(f"{exc.reason}; the session's next run recomputes {name}",
-                                file=exc.file, field=exc.field)
+        out = DamagedFileError(f"{exc.reason}; the session's next run recomputes {name}",
+                               file=exc.file, field=exc.field)
+        out.artifact = name
+        return out
 
     def _save_regions(self, law: Any, keys: dict[str, str]) -> None:
         """Write the region cache of a law on demand again when the run grew it, so that

@@ -12,7 +12,9 @@ This module knows the files and how to trust them, not what a stage computes::
     .lock                 serialises read-modify-write of the journal and the index
 
 Every file is written atomically (temporary file, then rename: :mod:`codev_engine.io.atomic`);
-an artifact enters the index only after its rename, and is trusted only if the index lists it
+a writer killed midway leaves a ``.tmp-*`` entry, which no reader looks at and the next run
+removes (:func:`remove_temporaries`: those no live writer holds). An artifact enters the
+index only after its rename, and is trusted only if the index lists it
 under the same key and its bytes still hash to the indexed SHA-256. A folder artifact is
 renamed into place whole (:func:`codev_engine.io.atomic.atomic_folder`); the index holds the
 SHA-256 of its manifest, which holds the SHA-256 and the size of each of its files. Opening
@@ -37,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from codev_engine.errors import SpecError
-from codev_engine.io.atomic import write_text
+from codev_engine.io.atomic import remove_stale, write_text
 from codev_engine.version import __version__
 
 __all__ = [
@@ -56,6 +58,7 @@ __all__ = [
     "read_meta",
     "read_spec_snapshot",
     "register_artifact",
+    "remove_temporaries",
     "save_spec_text",
     "sha",
     "snapshot_path",
@@ -231,6 +234,28 @@ def create_folder(path: Path) -> dict[str, Any]:
     write_text(path / "session.json", json.dumps(meta, indent=2) + "\n")
     (path / "artifacts").mkdir(exist_ok=True)
     return meta
+
+
+def remove_temporaries(folder: Path) -> list[str]:
+    """Remove what killed writers left in the session: the ``.tmp-*`` files and folders of
+    its folder, ``specs/`` and ``artifacts/`` that no live writer holds
+    (:func:`codev_engine.io.atomic.remove_stale`; a run's writes hold theirs, so a
+    concurrent run loses nothing). No reader looks at them: this frees their space.
+
+    Parameters
+    ----------
+    folder : Path
+        The session folder.
+
+    Returns
+    -------
+    list of str
+        The paths removed, relative to ``folder``.
+    """
+    removed = []
+    for sub in (".", "specs", "artifacts"):
+        removed += [str(Path(sub) / name) for name in remove_stale(folder / sub)]
+    return removed
 
 
 def _empty(folder: Path) -> bool:

@@ -95,9 +95,10 @@ def test_every_bundled_claim_states_time_initial_set_and_properties(name):
 
 
 def test_certificate_band_holds_simulated_states_long_after_the_tube_stops():
-    # cruise_grade, "inf": the tube stops at the closing sample (1 s); the band must hold
-    # every state after it, for any grade profile -- simulated up to 40 s, piecewise
-    # constant extreme and random grades
+    # cruise_grade, "inf": the tube stops at the closing sample (3 s, the certificate
+    # anchored again twice after 1 s: a band of 0.11 m/s, not the early anchor's 1.6); the
+    # band must hold every state after it, for any grade profile -- simulated up to 40 s,
+    # piecewise constant extreme and random grades
     from codev_engine.reach.claim import certificate_band, width_at_end
     from codev_engine.reach.simulate import simulate_many
 
@@ -105,7 +106,8 @@ def test_certificate_band_holds_simulated_states_long_after_the_tube_stops():
     law = ce.synthesize(problem)
     result = ce.verify(problem, law)
     band = certificate_band(result)
-    assert band is not None and band.t_closed == pytest.approx(1.0)
+    assert band is not None and band.t_closed <= 5.0
+    assert np.all(band.upper - band.lower < 0.2)
     T, width, which = width_at_end(problem, result)
     assert which == "certificate band" and np.allclose(width, band.upper - band.lower)
     rng = np.random.default_rng(3)

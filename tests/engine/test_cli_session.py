@@ -411,9 +411,7 @@ def test_view_web_ctrl_c_leaves_no_server(base, tmp_path):
     import sys
 
     rrd = Path(base[1]["recording"])
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = _free_port_pair()
     proc = subprocess.Popen(
         [sys.executable, "-m", "workbench.cli", "view", "--web", "--port", str(port), str(rrd)],
         start_new_session=True,
@@ -443,6 +441,25 @@ def test_view_web_ctrl_c_leaves_no_server(base, tmp_path):
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+def _free_port_pair() -> int:
+    """A port P with P + 1 free too (``codev view --web --port P`` serves the data on P + 1):
+    the system's free port alone left P + 1 to chance, taken by any connection's port."""
+    import socket
+
+    for _ in range(100):
+        with socket.socket() as a, socket.socket() as b:
+            a.bind(("127.0.0.1", 0))
+            port = a.getsockname()[1]
+            if port >= 65535:
+                continue
+            try:
+                b.bind(("127.0.0.1", port + 1))
+            except OSError:
+                continue
+            return port
+    raise AssertionError("no two free ports in a row on 127.0.0.1")
 
 
 def _pgid(pid: int) -> int | None:

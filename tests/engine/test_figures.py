@@ -535,14 +535,17 @@ def test_output_panel_draws_the_counterexample_through_c(example_law):
 
 
 def test_all_time_tube_ends_in_the_certificate_band_and_shows_the_unsafe_limits():
-    # cruise_grade ("inf"): the tube stops at the closing sample (1 s); the band covers the
+    # cruise_grade ("inf"): the tube stops at the closing sample (3 s); the band covers the
     # rest of the 25 s view, hatched; the unsafe limits v = 7 and v = 11 are in view
     from matplotlib.patches import Rectangle
+
+    from codev_engine.reach.claim import certificate_band
 
     problem = ce.load_spec(ROOT / "examples" / "cruise_grade.toml")
     result = ce.verify(problem, ce.synthesize(problem))
     ax = figures.figure_result(result, problem).axes[0]
     (band,) = [p for p in ax.patches if isinstance(p, Rectangle) and p.get_hatch() == "///"]
-    assert band.get_x() == pytest.approx(1.0) and band.get_x() + band.get_width() == 25.0
+    t_closed = certificate_band(result).t_closed
+    assert band.get_x() == pytest.approx(t_closed) and band.get_x() + band.get_width() == 25.0
     lo, hi = ax.get_ylim()
     assert lo <= 7.0 and hi >= 11.0 and ax.get_xlim() == (0.0, 25.0)

@@ -809,7 +809,7 @@ def test_counterexample_output_is_c_of_its_states(tmp_path):
 
 
 def test_all_time_recording_draws_the_certificate_band_to_the_view_s_end(tmp_path):
-    # cruise_grade ("inf"): the tube's series stop at the closing sample (1 s), the band's
+    # cruise_grade ("inf"): the tube's series stop at the closing sample (3 s), the band's
     # run from there to the shown horizon (25 s); the verdict names the set of the width
     from codev_engine.reach.claim import certificate_band
 
@@ -821,10 +821,10 @@ def test_all_time_recording_draws_the_certificate_band_to_the_view_s_end(tmp_pat
     entities = read(tmp_path / "cg.rrd")
     band = certificate_band(result)
     lo, hi = entities["/time/v/certificate/lower"], entities["/time/v/certificate/upper"]
-    assert np.allclose(lo.time / 1e9, [1.0, 25.0]) and np.allclose(hi.time, lo.time)
+    assert np.allclose(lo.time / 1e9, [band.t_closed, 25.0]) and np.allclose(hi.time, lo.time)
     assert np.allclose(lo.values("Scalars:scalars"), band.lower[0], atol=1e-5)
     assert np.allclose(hi.values("Scalars:scalars"), band.upper[0], atol=1e-5)
-    assert entities["/time/v/tube/lower"].time.max() / 1e9 == pytest.approx(1.0)
+    assert entities["/time/v/tube/lower"].time.max() / 1e9 == pytest.approx(band.t_closed)
     text = entities["/verdict"].per_row("TextDocument:text")[0][0]
     assert "| width at t = 25 s (certificate band) |" in text
     assert "**time**: for all t >= 0 (invariance certificate" in text

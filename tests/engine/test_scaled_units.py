@@ -289,8 +289,12 @@ _THETA_CASES = {
     "rates_inf": ("du_min = [-0.3]\ndu_max = [0.3]\nRd = [[0.5]]\n", "inf", 3, 2.0),
     "rates_1": ("Rd = [[1.0]]\n", "1", 3, 2.0),
     "rates_2": ("du_min = [-0.3]\ndu_max = [0.3]\nRd = [[1.0]]\n", "2", 4, 2.0),
-    # (k = 1.5 and 2 are refused, "the mp-LP is too degenerate", balanced or not: open)
     "soft_y_1": ('C = [[{C1}, 0.0]]\ny_max = [1.0]\nsoft = ["y_max"]\n', "1", 4, -2.0),
+    # p times 10^1.5 and 10^2 were refused, "the mp-LP is too degenerate", balanced or not:
+    # the p slack's cost (10^-1.5 next to soft_weight 1e4) was below the LP's perturbation,
+    # and an unbounded perturbed LP ended the basis search (mplp._highs_perturbations)
+    "soft_y_1_p15": ('C = [[{C1}, 0.0]]\ny_max = [1.0]\nsoft = ["y_max"]\n', "1", 4, 1.5),
+    "soft_y_1_p2": ('C = [[{C1}, 0.0]]\ny_max = [1.0]\nsoft = ["y_max"]\n', "1", 4, 2.0),
     "soft_y_2": ('C = [[{C1}, 0.0]]\ny_max = [1.0]\nsoft = ["y_max"]\n', "2", 4, 2.0),
 }
 

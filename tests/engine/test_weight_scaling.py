@@ -289,3 +289,21 @@ def test_empty_feasible_set_still_gives_no_regions():
     model = make_model([[1.1]], [[0.1]])
     sol = ce.mpsolve(build_program(spec, model).program)
     assert sol.num_regions == 0 and sol.stats["coverage_points"] == 0
+
+
+@pytest.mark.parametrize("norm", ["1", "inf"])
+def test_soft_weight_far_above_the_state_weight_is_solved(norm):
+    """``soft_weight = 1e6`` next to ``Q = 1``: the state slacks cost 1e-6 of the soft
+    slack, below the LP's perturbation (1e-5), so HiGHS's perturbed LP was unbounded at the
+    start point and the search ended, "the mp-LP is too degenerate" (issue 38, found on a
+    soft output bound with the position in units 10^1.5 smaller). Now the smaller
+    perturbation is tried and the law is the online MPC's."""
+    from codev_engine.pipeline import loads_spec
+    from tests.engine.test_formulations import BASE, oracle
+
+    problem = loads_spec(BASE.format(N=4, norm=norm)
+                         + 'C = [[1.0, 0.0]]\ny_max = [1.0]\nsoft = ["y_max"]\n'
+                         "soft_weight = 1e6\n")
+    law = ce.synthesize(problem)
+    fails = oracle(problem, discretize(problem), law, 60)
+    assert not fails, "\n".join(fails[:6])

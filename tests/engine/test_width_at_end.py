@@ -90,3 +90,47 @@ def test_a_tube_stopped_by_a_violation_has_no_width_and_says_none(example_law, t
     got = json.loads(capsys.readouterr().out)
     assert got["verdict"] == "unsafe" and got["width_at"] == {"t": 9.0, "of": WIDTH_OF_NONE}
     assert got["tube_width_at_horizon"] == [None, None]
+
+
+def test_an_invariant_ellipsoid_s_box_is_the_width_for_all_time():
+    # the pendulum for all time: its tube stops where each set enters the invariant
+    # ellipsoid (closed at 2 s of the 2.5 s shown); the width there was "none", now the
+    # ellipsoid's box c +- sqrt(diag(P^-1)), which holds every simulated state at every
+    # sample after the closing one (up to 10 s), named in --json and the recording's summary
+    import re
+
+    from codev_engine.reach.claim import WIDTH_OF_ELLIPSOID, ellipsoid_box
+    from codev_engine.view.record_content import RecordingContent, RecordingOptions
+    from workbench.cli import _result_payload
+
+    text = re.sub(r"time_horizon = [0-9.]+", 'time_horizon = "inf"',
+                  (EXAMPLES / "pendulum.toml").read_text(encoding="utf-8"))
+    problem = ce.loads_spec(text)
+    law = ce.synthesize(problem)
+    result = ce.verify(problem, law)
+    cert = result.stats["certificate"]
+    assert (result.reason, cert["kind"]) == ("invariant", "ellipsoid"), result.summary()
+    T, width, which = width_at_end(problem, result)
+    lo, hi = ellipsoid_box(result)
+    assert T >= cert["closed_time"] and which == WIDTH_OF_ELLIPSOID
+    assert np.allclose(width, hi - lo) and np.all(width > 0) and np.all(np.isfinite(width))
+    # the box is the ellipsoid's: its support along each axis (a boundary point attains it)
+    P, c = result.certificate["P"], result.certificate["centre"]
+    for i in range(P.shape[0]):
+        y = np.linalg.solve(P, np.eye(P.shape[0])[i])
+        x = c + y / np.sqrt(y @ P @ y)  # on the boundary, extreme along axis i
+        assert x[i] <= hi[i] and x[i] >= hi[i] - 1e-5 * (hi[i] - lo[i])
+    vs = problem.verify
+    rng = np.random.default_rng(38)
+    X0 = rng.uniform(vs.initial_lower, vs.initial_upper, (100, P.shape[0]))
+    Ts = problem.model.sample_time
+    tr = simulate_many(problem, law, X0, t_end=10.0, dt_out=Ts)
+    after = tr.X[:, tr.t >= cert["closed_time"] - 1e-9, :]
+    assert np.all(tr.alive) and after.shape[1] > 150
+    assert np.all(after >= lo) and np.all(after <= hi)
+    # named wherever the width is shown: --json and the recording's / report's summary
+    got = json.loads(json.dumps(_result_payload(problem, law, result, None, None)))
+    assert got["width_at"] == {"t": T, "of": WIDTH_OF_ELLIPSOID}
+    assert np.allclose(got["tube_width_at_horizon"], width)
+    content = RecordingContent.build(problem, law, result, RecordingOptions(traces=2), (0, 1))
+    assert f"| width at t = {T:.4g} s ({WIDTH_OF_ELLIPSOID}) |" in content.verdict_text()

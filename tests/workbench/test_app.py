@@ -288,29 +288,47 @@ def test_a_late_picture_does_not_replace_the_latest():
     from workbench.tui.app import STYLESHEET
     from workbench.tui.widgets import Plot
 
+    class Seen(Plot):
+        """The plot, noting each picture handed back to the app (shown or not)."""
+
+        handed: list[str] = []
+
+        def _show(self, request: int, text: Text) -> None:
+            super()._show(request, text)
+            self.handed.append(str(text))
+
     class One(App):
         CSS_PATH = STYLESHEET  # the plot's size
 
         def compose(self):
-            yield Plot(id="plot")
+            yield Seen(id="plot")
 
-    release = threading.Event()
+    release, started = threading.Event(), threading.Event()
 
     def old(w, h):
-        release.wait(10)
+        started.set()
+        release.wait(60)
         return Text("old picture")
 
     async def scenario():
         app = One()
         async with app.run_test(size=(60, 20)) as pilot:
-            plot = app.query_one(Plot)
-            await pilot.pause(0.05)
+
+            async def until(ok, what: str) -> None:  # conditions, not pauses: under load
+                end = asyncio.get_running_loop().time() + 60  # a thread may wait seconds
+                while not ok():
+                    assert asyncio.get_running_loop().time() < end, f"no {what} in 60 s"
+                    await pilot.pause(0.02)
+
+            plot = app.query_one(Seen)
+            await until(lambda: plot.content_size.width >= 12, "layout")  # (drawn from 12)
             plot.set_draw(old)
-            await pilot.pause(0.05)
+            await until(started.is_set, "start of the old drawing")
             plot.set_draw(lambda w, h: Text("new picture"))
-            await pilot.pause(0.3)
+            await until(lambda: str(plot.render()) == "new picture", "new picture")
             release.set()  # the old one finishes now, after the new one
-            await pilot.pause(0.3)
+            await until(lambda: "old picture" in plot.handed, "old picture handed back")
+            await pilot.pause()
             assert str(plot.render()) == "new picture"
 
     run(scenario())

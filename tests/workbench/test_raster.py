@@ -126,9 +126,11 @@ def test_boxes_are_fast():
     lo = rng.uniform(0, 1, (100_000, 2))
     hi = lo + rng.uniform(0, 0.01, (100_000, 2))
     r = Raster(150, 40, (0.0, 1.0), (0.0, 1.0))
-    t = time.perf_counter()
+    # CPU seconds of this process (vectorised: ~0.04 s), not the wall clock, which a loaded
+    # machine stretches
+    t = time.process_time()
     r.boxes(lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1], "a")
-    assert time.perf_counter() - t < 2.0
+    assert time.process_time() - t < 2.0
     assert (r.pixels >= 0).mean() > 0.9
 
 

@@ -121,7 +121,7 @@ def test_workbench_in_tmux(tmux, tmp_path):
     print(f"\nlaunch to first full screen: {first:.2f} s")
     assert "CODEV-EXIT" not in screen
     try:
-        _, t_pipe = tmux.wait_for(lambda s: PIPELINE.search(s) is not None, 20, "pipeline")
+        _, t_pipe = tmux.wait_for(lambda s: PIPELINE.search(s) is not None, 60, "pipeline")
         pipeline_seen = True
         print(f"launch to the pipeline line: {first + t_pipe:.2f} s")
     except AssertionError:
@@ -143,7 +143,7 @@ def test_workbench_in_tmux(tmux, tmp_path):
     assert "▀" in screen  # the partition is drawn
 
     tmux.keys("C-q")
-    screen, _ = tmux.wait_for(lambda s: "CODEV-EXIT=" in s, 20, "the app to exit")
+    screen, _ = tmux.wait_for(lambda s: "CODEV-EXIT=" in s, 60, "the app to exit")
     status = re.search(r"CODEV-EXIT=(\d+)", screen).group(1)
     assert status == "0", screen
 
@@ -198,15 +198,16 @@ def test_a_plant_typed_from_scratch_without_a_tab_first(tmux, tmp_path):
     tmux.keys("C-s")  # the form is not a valid spec yet: its entries go to the draft
     draft = session / "tui-draft.json"
     t0 = time.perf_counter()
-    while not draft.is_file() and time.perf_counter() - t0 < 10:
+    while not draft.is_file() and time.perf_counter() - t0 < 60:
         time.sleep(0.1)
+    assert draft.is_file(), "ctrl+s wrote no draft in 60 s"
     values = json.loads(draft.read_text(encoding="utf-8"))["values"]
     assert values["name"] == "msd"
     assert values["plant.states"] == "p, v" and values["plant.inputs"] == "u"
     assert values["plant.dynamics"] == "v\n-2*p - 0.5*v + u"
     assert values["model.sample_time"] == "0.2"
     tmux.keys("C-q")
-    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")
+    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 60, "the app to exit")
 
 
 def _start(tmux: Tmux, *args: str) -> None:
@@ -220,30 +221,42 @@ def _start(tmux: Tmux, *args: str) -> None:
 def test_esc_stops_a_sweep_inside_its_current_design(tmux, tmp_path):
     """Issue 41: Esc during a sweep of inf-norm designs (the double integrator at N = 28
     and 20 with a fine tube step: the first about 20 s, 8 s of it its synthesis, at load 7)
-    stops the design that runs, not only the ones to come: the status line says
-    "cancelled" within about a second (asserted with slack for a loaded machine: far below
-    what is left of the design)."""
+    stops the design that runs, not only the ones to come: Esc is typed once the first
+    design's model is cached (its synthesis under way), and when the status line says
+    "cancelled" no design has a verification nor a row. Not a time bound (it was "within
+    5 s"): stopped between designs, the first would have finished, its row shown and its
+    verification cached."""
     _start(tmux, "examples/double_integrator.toml", "--session", str(tmp_path / "s"))
     tmux.wait_for(lambda s: "Plant [F1]" in s and PIPELINE.search(s), 60, "the first screen")
     tmux.keys("F6")
     grid = "mpc.horizon=28,20; verify.step=0.0002"
     tmux("send-keys", "-t", tmux.name, "-l", "--", grid)
-    tmux.wait_for(lambda s: grid in s, 10, "the grid typed")
+    tmux.wait_for(lambda s: grid in s, 30, "the grid typed")
     tmux.keys("C-g")
-    tmux.wait_for(lambda s: "sweeping 2 designs" in s, 30, "the sweep to start")
-    time.sleep(3.0)  # well inside the first design's synthesis
+    tmux.wait_for(lambda s: "sweeping 2 designs" in s, 60, "the sweep to start")
+    designs = tmp_path / "s" / "sweep"
+
+    def cached(stage: str) -> list[Path]:  # a stage's artifacts, in every design's session
+        return sorted(designs.glob(f"*/artifacts/{stage}-*"))
+
+    t0 = time.perf_counter()
+    while not cached("model") and time.perf_counter() - t0 < 120:
+        time.sleep(0.05)
+    assert cached("model"), f"no design's model cached after 120 s: {sorted(designs.rglob('*'))}"
     screen = tmux.screen()
     assert "designs done" not in screen and "cancelled" not in screen, screen
-    t0 = time.perf_counter()
     tmux.keys("Escape")
-    screen, took = tmux.wait_for(lambda s: "sweep cancelled" in s, 30, "the cancel")
+    screen, took = tmux.wait_for(lambda s: "sweep cancelled" in s, 120, "the cancel")
     print(f"\nEsc to 'sweep cancelled' on the status line: {took:.2f} s")
-    assert took < 5.0, f"took {took:.1f} s (issue 41: within about a second)"
     assert "Esc cancels" not in screen, screen
-    # the app is free again: a new sweep would be refused while one ran
+    # the design that ran was stopped inside: no verification cached, no row shown (a row
+    # not done is "…" after its values)
+    assert cached("verification") == [], sorted(designs.rglob("*"))
+    rows = [line.split() for line in screen.splitlines() if line.split()[:1] in (["28"], ["20"])]
+    assert len(rows) == 2 and all(r[2:] == ["…"] for r in rows), screen
+    # the app is free again: quitting ends it (a sweep still running would hold it)
     tmux.keys("C-q")
-    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")
-    assert time.perf_counter() - t0 < 30
+    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 60, "the app to exit")
 
 
 def test_a_dynamics_error_shows_under_its_field_with_the_other_tabs_empty(tmux, tmp_path):
@@ -263,11 +276,11 @@ def test_a_dynamics_error_shows_under_its_field_with_the_other_tabs_empty(tmux, 
     typed("u")
     tmux.keys("Tab")
     typed("x^2 + u")
-    screen, took = tmux.wait_for(lambda s: "not a power operator" in s, 30, "the message")
+    screen, took = tmux.wait_for(lambda s: "not a power operator" in s, 60, "the message")
     print(f"\nthe dynamics message {took:.2f} s after the keys")
     # under the Dynamics entry (its help line replaced), before the next field
     field = screen[screen.index("Dynamics dx/dt"):screen.index("Continuous A")]
     assert "✗ plant.dynamics[0]" in field and "not a power operator" in field, screen
     assert "use ** for" in field, screen
     tmux.keys("C-q")
-    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 20, "the app to exit")
+    tmux.wait_for(lambda s: "CODEV-EXIT=0" in s, 60, "the app to exit")

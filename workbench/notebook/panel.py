@@ -391,9 +391,10 @@ class Workbench:
                     or st.artifact is None:
                 continue
             try:
-                # (the stage's loader: a law file, or the folder of a law stored as shards)
-                value = self.session.table[st.stage].load(self.session.path / st.artifact,
-                                                          self.problem)
+                # (the stage's loader, through the session: a law file, or the folder of a
+                # law stored as shards, which marks it damaged if a shard read later is)
+                value = self.session.load(st.stage, self.session.path / st.artifact,
+                                          self.problem)
                 self._show(st.stage, value, st.key)
             except (CodevError, OSError):
                 continue

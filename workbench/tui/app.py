@@ -371,9 +371,10 @@ class CodevApp(App):
             if shown == keys.get(stage):
                 continue
             try:
-                # (the stage's loader: a law file, or the folder of a law stored as shards)
-                out[stage] = self.session.table[stage].load(
-                    self.session.path / st.artifact, chk.problem)
+                # (the stage's loader, through the session: a law file, or the folder of a
+                # law stored as shards, which marks it damaged if a shard read later is)
+                out[stage] = self.session.load(stage, self.session.path / st.artifact,
+                                               chk.problem)
             except (CodevError, OSError):
                 continue
         return out

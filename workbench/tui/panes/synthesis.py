@@ -5,12 +5,14 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+from rich.markup import escape
 from textual import work
 from textual.app import ComposeResult
 from textual.containers import Horizontal, Vertical
 from textual.widget import Widget
 from textual.widgets import Button, DataTable, Input, Label, Static
 
+from codev_engine.errors import CodevError
 from codev_engine.session import RunReport
 
 from ..design import locate_state, region_rows, shared_laws
@@ -315,8 +317,20 @@ class SynthesisPane(Vertical):
 
     @work(thread=True, exclusive=True, group="regions")
     def _regions(self, law: ExplicitLaw) -> None:
-        rows, shared = region_rows(law), shared_laws(law)
+        try:
+            rows, shared = region_rows(law), shared_laws(law)
+        except (CodevError, OSError) as exc:
+            # (a law stored as shards reads them all here: a damaged one is said on the
+            # status line, the session has marked it; a worker's error would end the app)
+            self.app.call_from_thread(self._regions_failed, law, str(exc))
+            return
         self.app.call_from_thread(self._show_regions, law, rows, shared)
+
+    def _regions_failed(self, law: ExplicitLaw, message: str) -> None:
+        if law is not self._law_shown:
+            return  # another law is on screen by now
+        self._note = f"[red]✗ {escape(message)}[/red]"
+        self.query_one("#synth-status", Static).update(self._note)
 
     def _show_regions(self, law: ExplicitLaw, rows: list[tuple[str, ...]], shared: int) -> None:
         if law is not self._law_shown:
