@@ -413,6 +413,17 @@ def test_a_stored_law_with_a_halo_has_its_halo_files_checked(spec, tmp_path):
     halo = next(f for f in sorted(folder.glob("halo-*.npz"))
                 if json.loads((folder / "shards.json").read_text())["shards"][
                     int(f.stem.split("-")[1])]["halo"])
-    halo.write_bytes(halo.read_bytes()[:-1])
+    raw = halo.read_bytes()
+    # damaged in place, its size kept: refused when a question first reads it, naming it,
+    # and the artifact marked damaged (the next run recomputes it)
+    fresh = session.run(problem, upto).law
+    _flip(halo)
+    with pytest.raises(DamagedFileError, match=halo.name):
+        fresh.regions_meeting(np.full(2, -100.0), np.full(2, 100.0))
+    status = {s.stage: s for s in session.status(problem)}["synthesis"]
+    assert status.status == "corrupt" and halo.name in status.reason
+    # truncated: named when the session opens the law (a stat)
+    halo.write_bytes(raw[:-1])
+    register_artifact(session.path, folder, "synthesis", rep.stage("synthesis").key)
     status = {s.stage: s for s in session.status(problem)}["synthesis"]
     assert status.status == "corrupt" and f"{halo.name}: its size" in status.reason
