@@ -1,5 +1,5 @@
 """Benchmark: the shards a box question reads on a sharded law, with and without the
-manifest's group boxes (issue 43).
+manifest's group boxes, and with its halo (issue 43).
 
 Usage::
 
@@ -19,8 +19,13 @@ temporary folder), it reports per query:
 - the time of ``regions_meeting`` + ``domain_rows`` on a fresh ``ShardedLaw`` (cold: the
   shards read from disk and checked) and on one holding every shard (warm).
 
-The answers with and without the groups must be equal (it prints ``DIFFER`` if not). The
-load average is printed before and after. A benchmark, not a test.
+With a halo (``law_halo``: the law of the sharded search has one; ``--add-halo`` builds one
+for a law written before, in a copy of its folder, timing the CPU it takes here), a third
+run reads the law as written (a box question reads the shards and halos of the cells it
+meets) and the first two the same files under a manifest without the halo. It also
+reports the files read per query (``ShardedLaw.loads``, cold: shards and halos) and the
+halo's storage. The answers must all be equal (it prints ``DIFFER`` if not). The load
+average is printed before and after. A benchmark, not a test.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -39,8 +45,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 
-def _without_groups(folder: Path, into: Path) -> Path:
-    """The law of ``folder`` under a manifest without group boxes (links to its files)."""
+#: a halo's fields in a manifest entry
+HALO_KEYS = ("halo_file", "halo_sha256", "halo_bytes", "halo", "halo_facets")
+
+
+def _without(folder: Path, into: Path, keys: tuple[str, ...]) -> Path:
+    """The law of ``folder`` under a manifest without ``keys`` in its entries (links to
+    its files)."""
     from codev_engine.law_shards import MANIFEST
 
     into.mkdir()
@@ -49,10 +60,24 @@ def _without_groups(folder: Path, into: Path) -> Path:
             (into / f.name).symlink_to(f.resolve())
     data = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
     for e in data["shards"]:
-        e.pop("groups_lo", None)
-        e.pop("groups_hi", None)
+        for key in keys:
+            e.pop(key, None)
     (into / MANIFEST).write_text(json.dumps(data), encoding="utf-8")
     return into
+
+
+def _add_halo(folder: Path, into: Path) -> tuple[Path, float]:
+    """A copy of ``folder`` with a halo built here (its manifest's cells); the CPU seconds."""
+    from codev_engine.law_halo import build_halo
+    from codev_engine.law_shards import MANIFEST
+
+    shutil.copytree(folder, into)
+    data = json.loads((into / MANIFEST).read_text(encoding="utf-8"))
+    t0 = time.process_time()
+    data["shards"] = build_halo(into, data["shards"], int(data["n"]), int(data["m"]))
+    cpu = time.process_time() - t0
+    (into / MANIFEST).write_text(json.dumps(data), encoding="utf-8")
+    return into, cpu
 
 
 def _queries(law, k: int, seed: int = 0) -> np.ndarray:
@@ -76,15 +101,17 @@ def _run(folder: Path, C: np.ndarray, r: float, cold: int) -> dict:
         t.append(time.perf_counter() - t0)
         answers.append(got)
     met = warm.met / (2 * len(C))  # (each query asks both)
-    t_cold = []
+    t_cold, loads = [], []
     for x in C[:cold]:
         t0 = time.perf_counter()
         fresh = ShardedLaw(folder, cache=10**6)
         fresh.regions_meeting(x - r, x + r)
         fresh.domain_rows(x - r, x + r)
         t_cold.append(time.perf_counter() - t0)
+        loads.append(fresh.loads)
     return {"shards_per_query": met, "warm_ms": 1e3 * float(np.median(t[1:] or t)),
-            "cold_ms": 1e3 * float(np.median(t_cold)), "answers": answers}
+            "cold_ms": 1e3 * float(np.median(t_cold)), "answers": answers,
+            "files": float(np.mean(loads))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -96,10 +123,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cold", type=int, default=20, help="queries timed cold (default 20)")
     ap.add_argument("--widths", default="0.01,0.05",
                     help="query widths, fractions of the law's box (default 0.01,0.05)")
+    ap.add_argument("--add-halo", action="store_true",
+                    help="build a halo for a law without one (in a copy of its folder)")
     args = ap.parse_args(argv)
     print(f"load average before: {os.getloadavg()}")
     folder = Path(args.law)
+    built = tempfile.TemporaryDirectory()
+    if args.add_halo:
+        folder, cpu = _add_halo(folder, Path(built.name) / "halo")
+        print(f"halo built here: {cpu:.1f} s CPU (load {os.getloadavg()[0]:.1f})")
     law = ShardedLaw(folder, cache=10**6)
+    if law.has_halo:
+        own = sum(f.stat().st_size for f in folder.glob("shard-*.npz"))
+        halo = sum(f.stat().st_size for f in folder.glob("halo-*.npz"))
+        copies = sum(int(e["halo"]) for e in law._entries)
+        print(f"halo: {copies} copies of {law.num_regions} regions ("
+              f"{copies / max(1, law.num_regions):.2f} per region), {halo / 1e6:.1f} MB "
+              f"beside the shards' {own / 1e6:.1f} MB (x{(own + halo) / max(1, own):.2f}), "
+              f"{sum(int(e['halo_facets']) for e in law._entries)} facets")
     lo = np.min([g.min(axis=0) for g in law._lo if g.shape[0]], axis=0)
     hi = np.max([g.max(axis=0) for g in law._hi if g.shape[0]], axis=0)
     width = float(np.max(hi - lo))
@@ -109,22 +150,35 @@ def main(argv: list[str] | None = None) -> int:
           f"{(folder / 'shards.json').stat().st_size / 1e3:.0f} kB; {len(C)} queries, "
           f"the law's box {width:.3g} wide")
     with tempfile.TemporaryDirectory() as tmp:
-        before = _without_groups(folder, Path(tmp) / "law")
+        stripped = _without(folder, Path(tmp) / "nohalo", HALO_KEYS)
+        before = _without(stripped, Path(tmp) / "law", ("groups_lo", "groups_hi"))
         for frac in (float(w) for w in args.widths.split(",")):
             r = 0.5 * frac * width
             least = np.mean([sum(bool(np.any(np.all(blo <= x + r + 1e-9, axis=1)
                                              & np.all(bhi >= x - r - 1e-9, axis=1)))
                                  for blo, bhi in boxes) for x in C])
-            old, new = _run(before, C, r, args.cold), _run(folder, C, r, args.cold)
+            old, new = _run(before, C, r, args.cold), _run(stripped, C, r, args.cold)
             same = all(np.array_equal(a, b) for a, b in zip(old["answers"], new["answers"],
                                                             strict=True))
+            if law.has_halo:
+                cells = np.mean([len(law._cells_meeting(x - r, x + r)) for x in C])
+                got = _run(folder, C, r, args.cold)
+                same &= all(np.array_equal(a, b) for a, b in zip(old["answers"],
+                                                                 got["answers"], strict=True))
             print(f"width {frac:g}: shards read per query {old['shards_per_query']:.2f} "
                   f"(shard boxes) -> {new['shards_per_query']:.2f} (group boxes), at least "
                   f"{least:.2f} (the region boxes); per query warm {old['warm_ms']:.2f} -> "
                   f"{new['warm_ms']:.2f} ms, cold {old['cold_ms']:.0f} -> "
                   f"{new['cold_ms']:.0f} ms; answers {'equal' if same else 'DIFFER'}",
                   flush=True)
+            if law.has_halo:
+                print(f"width {frac:g}, halo: shards read per query {got['shards_per_query']:.2f}"
+                      f" (cells met {cells:.2f}), files read cold {new['files']:.2f} -> "
+                      f"{got['files']:.2f}; per query warm {new['warm_ms']:.2f} -> "
+                      f"{got['warm_ms']:.2f} ms, cold {new['cold_ms']:.0f} -> "
+                      f"{got['cold_ms']:.0f} ms", flush=True)
     print(f"load average after: {os.getloadavg()}")
+    built.cleanup()
     return 0
 
 

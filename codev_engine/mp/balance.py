@@ -212,6 +212,21 @@ class BalancedWriter:
         """
         return self.writer.locate(j, X)
 
+    def halo(self, client, entries: list[dict]) -> tuple[list[dict], float]:
+        """Client side: ``ShardWriter.halo`` (the shards are in ``theta`` already).
+
+        Parameters
+        ----------
+        client : distributed.Client
+        entries : list of dict
+
+        Returns
+        -------
+        entries : list of dict
+        cpu : float
+        """
+        return self.writer.halo(client, entries)
+
     def open(self, entries: list[dict], set_A: np.ndarray, set_b: np.ndarray,
              meta: dict | None = None):
         """Client side: ``ShardWriter.open`` with the parameter set's rows of ``theta_s``

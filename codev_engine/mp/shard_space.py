@@ -121,6 +121,10 @@ def kd_cells(points: np.ndarray, weights: np.ndarray, cells: int
             v = 0.5 * (x[i] + x[i + 1]) if i + 1 < x.size else np.inf
         else:
             v = 0.0
+        # (inside the part: a cut past its side, +inf above a part of one point or 0 in
+        # an empty one, would make a half larger than the part, overlapping its
+        # neighbours; at its side, the other half is empty)
+        v = min(max(v, lo[axis]), hi[axis])
         go_left = points[idx, axis] < v
         lhi, rlo = hi.copy(), lo.copy()
         lhi[axis], rlo[axis] = v, v

@@ -269,6 +269,15 @@ def _sharded_result(program, red, size, region_tol, opts, shards: list, writer, 
 
     entries = [dict(entry, cell_lo=side(lo), cell_hi=side(hi))
                for entry, _, _, (lo, hi) in shards]
+    # each cell's halo (copies of the other shards' regions whose boxes reach into it):
+    # built by the workers from the shard files, so that a box question reads the shards
+    # of the cells it meets alone (law_halo); back here, each halo file's manifest fields
+    if len(entries) > 1:
+        entries, cpu = writer.halo(client, entries)
+        stats["halo_worker_cpu_seconds"] = cpu
+        stats["worker_cpu_seconds"] = stats.get("worker_cpu_seconds", 0.0) + cpu
+        stats["halo_regions"] = sum(int(e["halo"]) for e in entries)
+        stats["halo_bytes"] = sum(int(e["halo_bytes"]) for e in entries)
     # every parameter-set row is a row of the domain (it holds on all of it): kept, none
     # dropped by an LP here (the facets that would imply one are on the workers)
     law = writer.open(entries, red.At, red.bt, {"stats": stats, "regions_before_merge": found})

@@ -344,9 +344,10 @@ def test_codev_run_sharded_on_a_cluster_stores_the_workers_shards(spec, tmp_path
     serial = Session.create(tmp_path / "serial").run(load_spec(spec), RunOptions(traces=1))
     assert f"regions={serial.law.num_regions} in 2 shards" in line
     folder = next((s / "artifacts").glob("synthesis-*.shards"))
-    # (each shard's law and its facets of the domain, then the manifest)
+    # (each shard's law, its facets of the domain and its halo, then the manifest)
     assert sorted(p.name for p in folder.iterdir()) == [
-        "facets-0.npz", "facets-1.npz", "shard-0.npz", "shard-1.npz", "shards.json"]
+        "facets-0.npz", "facets-1.npz", "halo-0.npz", "halo-1.npz", "shard-0.npz",
+        "shard-1.npz", "shards.json"]
     assert not _leftovers(s)
     # the rerun from the cache starts no cluster (nothing asks it) and says the same
     code = main(["run", str(spec), "--session", str(s), "--workers", "2", "--sharded",
@@ -384,3 +385,45 @@ def test_atomic_folder_is_renamed_whole_or_not_at_all(tmp_path):
         (tmp / "c").write_text("3")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["law.shards"]
     assert sorted(p.name for p in target.iterdir()) == ["c"]
+
+
+def test_a_stored_law_with_a_halo_has_its_halo_files_checked(spec, tmp_path):
+    """A law of shards cut by space, with its halo (``law_halo``: copies of the regions
+    reaching into each shard's cell), stored in a session: the store checks each halo
+    file's size as it does a shard's, and the law read back answers box questions from
+    its halos; a truncated halo is named at open, as a shard is."""
+    from codev_engine.law_shards import split_by_cells, write_law_shards
+
+    problem = load_spec(spec)
+    session = Session.create(tmp_path / "s")
+    upto = replace_upto(SHARDED, "synthesis")
+    rep = session.run(problem, upto)
+    folder = session.path / rep.stage("synthesis").artifact
+    law = rep.law.merged()
+    for f in folder.iterdir():
+        f.unlink()
+    write_law_shards(folder, *split_by_cells(law, 3))
+    register_artifact(session.path, folder, "synthesis", rep.stage("synthesis").key)
+    again = session.run(problem, upto)
+    assert again.stage("synthesis").status == "cached" and again.law.has_halo
+    box = (np.array([-1.0, -0.5]), np.array([1.0, 0.5]))
+    got = again.law.regions_meeting(*box)
+    np.testing.assert_array_equal(got, again.law.merged().regions_meeting(*box))
+    assert got.size and again.law.halo(0).owner.size
+    halo = next(f for f in sorted(folder.glob("halo-*.npz"))
+                if json.loads((folder / "shards.json").read_text())["shards"][
+                    int(f.stem.split("-")[1])]["halo"])
+    raw = halo.read_bytes()
+    # damaged in place, its size kept: refused when a question first reads it, naming it,
+    # and the artifact marked damaged (the next run recomputes it)
+    fresh = session.run(problem, upto).law
+    _flip(halo)
+    with pytest.raises(DamagedFileError, match=halo.name):
+        fresh.regions_meeting(np.full(2, -100.0), np.full(2, 100.0))
+    status = {s.stage: s for s in session.status(problem)}["synthesis"]
+    assert status.status == "corrupt" and halo.name in status.reason
+    # truncated: named when the session opens the law (a stat)
+    halo.write_bytes(raw[:-1])
+    register_artifact(session.path, folder, "synthesis", rep.stage("synthesis").key)
+    status = {s.stage: s for s in session.status(problem)}["synthesis"]
+    assert status.status == "corrupt" and f"{halo.name}: its size" in status.reason

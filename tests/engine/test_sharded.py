@@ -181,6 +181,20 @@ def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
     assert "domain_A" not in manifest and sum(e["facets"] for e in manifest["shards"]) == (
         got.stats["domain_facets"])
     _same_function(serial, law)
+    # the workers built each cell's halo: a box question (4-d) reads the cells it meets
+    # alone and answers the merged law's
+    assert law.has_halo and got.stats["halo_regions"] > 0
+    merged = law.merged()
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        c, r = rng.uniform(-1, 1, 4), rng.choice([0.02, 0.1, 0.4])
+        fresh = ShardedLaw(tmp_path / "law")
+        np.testing.assert_array_equal(fresh.regions_meeting(c - r, c + r),
+                                      merged.regions_meeting(c - r, c + r))
+        clo, chi = fresh._halo
+        met = set(np.flatnonzero(np.all(clo <= c + r + 1e-8, axis=1)
+                                 & np.all(chi >= c - r - 1e-8, axis=1)).tolist())
+        assert set(fresh._cache) <= met and set(fresh._halos) <= met
     # the shards are cells of space: locate asks the point's cell's shard first
     X = np.random.default_rng(4).uniform(-1, 1, size=(500, 4))
     fresh = ShardedLaw(tmp_path / "law")
