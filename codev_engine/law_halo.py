@@ -281,7 +281,18 @@ class Halo:
         self.law, self.owner, self.facets = law, owner, facets
 
     def index(self, i: int) -> int:
-        """The copy of global region ``i`` here (-1: none)."""
+        """The copy of global region ``i`` here.
+
+        Parameters
+        ----------
+        i : int
+            A region's global index.
+
+        Returns
+        -------
+        int
+            The copy's index in this halo, -1 when it holds none.
+        """
         q = int(np.searchsorted(self.owner, i))
         return q if q < self.owner.size and self.owner[q] == i else -1
 
