@@ -353,6 +353,43 @@ def _highs_lp(
     return np.array(sol.col_value), -np.array(sol.row_dual)[: A.shape[0]]
 
 
+def _highs_box_lps(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The bounding box ``(lo, hi)`` of ``{A x <= b}`` by the 2d LPs ``min / max x_j``, in
+    one HiGHS model whose cost alone changes between them (each LP starts from the last
+    one's basis: the same optima as :func:`_highs_lp` one by one, without building a model
+    per LP); None when one has no optimum."""
+    import highspy
+
+    inf = highspy.kHighsInf
+    nr, nx = A.shape
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = nx, nr
+    lp.col_cost_ = np.zeros(nx)
+    lp.col_lower_ = np.full(nx, -inf)
+    lp.col_upper_ = np.full(nx, inf)
+    lp.row_lower_ = np.full(nr, -inf)
+    lp.row_upper_ = np.asarray(b, dtype=float)
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_ = np.arange(0, nr * nx + 1, nx)
+    lp.a_matrix_.index_ = np.tile(np.arange(nx), nr)
+    lp.a_matrix_.value_ = np.ascontiguousarray(A, dtype=float).ravel()
+    h.passModel(lp)
+    lo, hi = np.empty(nx), np.empty(nx)
+    cols = np.arange(nx, dtype=np.int32)
+    for j in range(nx):
+        for sign, side in ((1.0, lo), (-1.0, hi)):
+            cost = np.zeros(nx)
+            cost[j] = sign
+            h.changeColsCost(nx, cols, cost)
+            h.run()
+            if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+                return None
+            side[j] = h.getSolution().col_value[j]
+    return lo, hi
+
+
 def radius_upper_bound(A: np.ndarray, b: np.ndarray, y: np.ndarray, bound: float) -> float:
     """An upper bound of the radius of every ball inside ``{A x <= b}`` (unit rows, among
     them rows that keep the set within ``|x|_inf <= bound``), from any multipliers ``y``

@@ -62,6 +62,7 @@ import numpy as np
 
 from codev_engine.errors import SolverError
 from codev_engine.geometry.polytope import (
+    _highs_box_lps,
     _highs_lp,
     chebyshev_ball,
     minimal_rows,
@@ -741,17 +742,10 @@ def _highs_piece(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 
 def _highs_box(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The bounding box (lo, hi) of ``{A x <= b}`` by 2d HiGHS LPs (ValueError when one
-    has no optimum)."""
-    d = A.shape[1]
-    lo, hi = np.empty(d), np.empty(d)
-    for j in range(d):
-        e = np.zeros(d)
-        e[j] = 1.0
-        for sign, side in ((1.0, lo), (-1.0, hi)):
-            x, _ = _highs_lp(sign * e, A, b)
-            if x is None:
-                raise ValueError("no bounding box for a degenerate polytope (HiGHS finds no "
-                                 "optimum)")
-            side[j] = x[j]
-    return lo, hi
+    """The bounding box (lo, hi) of ``{A x <= b}`` by 2d HiGHS LPs in one model
+    (``polytope._highs_box_lps``; ValueError when one has no optimum)."""
+    box = _highs_box_lps(A, b)
+    if box is None:
+        raise ValueError("no bounding box for a degenerate polytope (HiGHS finds no "
+                         "optimum)")
+    return box

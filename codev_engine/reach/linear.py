@@ -807,7 +807,11 @@ class LinearReach(ClosedLoopSetup):
             # a disturbance, the disturbance's part too)
             amax = amax + (np.abs(pl.Ac) @ np.abs(pl.Bc) @ np.abs(F) @ s.err)[None, :]
         hseg = np.diff(taus)
-        growth = expm(hseg[:, None, None] * np.abs(M)[None])
+        # the same for every period of region i on this grid (zoh: of every region)
+        gkey = ("growth", i if self.hold == "continuous" else -1, hseg.tobytes())
+        growth = self._flows.get(gkey)
+        if growth is None:
+            growth = self._flows[gkey] = expm(hseg[:, None, None] * np.abs(M)[None])
         E = (hseg**2 / 8.0)[:, None] * np.einsum("jab,jb->ja", growth, amax[:-1])
         if D is not None:
             # err holds D(tau_j) at the ends; between them the disturbance's part may grow
