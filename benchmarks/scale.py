@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
                     sharded.STOP_AT = args.stop_at
                     opts = ce.SolveOptions(max_regions=opts.max_regions, coverage_samples=0)
                 if args.out_shards:
-                    from codev_engine.law_shards import ShardWriter
+                    from codev_engine.law_shard_writer import ShardWriter
 
                     writer = ShardWriter(str(Path(args.out_shards) / str(w)),
                                          np.zeros(program.d), rows=(0, program.nz))

@@ -9,7 +9,7 @@ Usage::
 ``DIR/<workers>``). The query boxes are cubes of ``width`` times the widest side of the
 law's shard boxes, centred at the Chebyshev centres of regions drawn at random (points of
 the domain). For each width, once with the manifest as written (its shards' group boxes,
-``law_shards.box_groups``) and once with the same shard files under a manifest without
+``law_shard_writer.box_groups``) and once with the same shard files under a manifest without
 the groups (as one written before them: each shard's box alone; a folder of links in a
 temporary folder), it reports per query:
 

@@ -30,7 +30,7 @@ The halo is built from the shard files once they are written (:func:`halo_pieces
 each shard: what it sends to each other cell; :func:`write_halo` for each cell: its
 pieces into one checked file), on the workers for the sharded search
 (:func:`build_halo_on_workers`, the client handling the manifest entries only) and in
-this process for ``law_shards.write_law_shards`` (:func:`build_halo`). Storage: each region
+this process for ``law_shard_writer.write_law_shards`` (:func:`build_halo`). Storage: each region
 is stored once per cell its box meets (x2 at 4 cells and x3 at 8 on ``pop_mpqp_051``).
 """
 

@@ -14,7 +14,8 @@ from codev_engine.executor import Executor
 from codev_engine.formulation import parameter_names
 from codev_engine.kernel_cache import prepare
 from codev_engine.law import ExplicitLaw, fingerprint_arrays
-from codev_engine.law_shards import ShardedLaw, ShardWriter, update_meta
+from codev_engine.law_shard_writer import ShardWriter, update_meta
+from codev_engine.law_shards import ShardedLaw
 from codev_engine.limits import check_time, limits, stage_deadline
 from codev_engine.mp.merge import merge_equal_laws
 from codev_engine.mp.program import MpProgram
@@ -219,7 +220,7 @@ def synthesize(
         ``shard_dir`` (``mpsolve``; docs/scale.md); the same law.
     out_shards : path-like, optional
         With ``sharded``: the law's folder of shards, each written by the worker that
-        found its regions (``law_shards.ShardWriter``; every worker must reach the
+        found its regions (``law_shard_writer.ShardWriter``; every worker must reach the
         folder); the law returned is read from it, lazily.
 
     Returns

@@ -90,10 +90,10 @@ def _cmd_synth(args: argparse.Namespace) -> int:
     if args.out_shards and hasattr(law, "merged"):
         out = out or args.out_shards
     elif args.out_shards:
-        from codev_engine.law_shards import split_by_cells, write_law_shards
+        from codev_engine.law_shard_writer import split_by_cells, write_law_shards
 
         # (one checked law file per worker, in cells of space, each with its halo, and the
-        # manifest: codev_engine/law_shards.py, law_halo.py)
+        # manifest: codev_engine/law_shard_writer.py, law_halo.py)
         write_law_shards(args.out_shards, *split_by_cells(law, shards))
         out = out or args.out_shards
     if args.json:

@@ -140,13 +140,13 @@ def regions_back(ra: RegionArrays, D: np.ndarray) -> RegionArrays:
 
 @dataclass(frozen=True)
 class BalancedWriter:
-    """A sharded search's law writer (``law_shards.ShardWriter``) for a search in balanced
+    """A sharded search's law writer (``law_shard_writer.ShardWriter``) for a search in balanced
     units: what the workers hand it in ``theta_s`` is written in ``theta = D theta_s``, so
     the law's shards are the program's law, in its own units.
 
     Attributes
     ----------
-    writer : law_shards.ShardWriter
+    writer : law_shard_writer.ShardWriter
         Writes in ``theta`` (its ``op`` added after the rescaling).
     D : (d,) ndarray
         Powers of two.

@@ -118,7 +118,7 @@ def mpsolve(
         With ``sharded``: the folder in which the search's shard files go (a fresh folder
         in it, removed at the end; default the system's temporary folder). Every worker
         must reach it: on a remote cluster, a shared file system.
-    shard_writer : law_shards.ShardWriter, optional
+    shard_writer : law_shard_writer.ShardWriter, optional
         With ``sharded``: each worker writes its shard's law (``shard_writer.write``, on
         the worker, with the shard's regions: equal laws merged within the shard, the
         feasible set's facets among its rows found there too and written beside it) and

@@ -337,7 +337,8 @@ def _sharded_compute(run: StageRun) -> Any:
     need it on a shared file system) renamed into place once its manifest is written, so a
     folder of that name is never a torn law (``io.atomic.atomic_folder``)."""
     from codev_engine.io.atomic import atomic_folder
-    from codev_engine.law_shards import ShardedLaw, split_law, write_law_shards
+    from codev_engine.law_shard_writer import split_law, write_law_shards
+    from codev_engine.law_shards import ShardedLaw
     from codev_engine.synthesis import synthesize
 
     with atomic_folder(run.path) as tmp:

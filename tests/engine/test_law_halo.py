@@ -21,7 +21,8 @@ from scipy.optimize import linprog
 import codev_engine as ce
 from codev_engine.errors import DamagedFileError
 from codev_engine.law_halo import cells_partition
-from codev_engine.law_shards import MANIFEST, ShardedLaw, split_by_cells, write_law_shards
+from codev_engine.law_shard_writer import split_by_cells, write_law_shards
+from codev_engine.law_shards import MANIFEST, ShardedLaw
 from codev_engine.mp import mpqp, sharded
 from tests.engine.test_law_shards import SPEC
 

@@ -1,4 +1,5 @@
-"""A law written as shards (``law_shards.py``): read lazily, it is the whole law.
+"""A law written as shards (``law_shard_writer.py``) and read lazily (``law_shards.py``) is
+the whole law.
 
 The shards of a synthesised law answer ``locate``, ``evaluate``, ``regions_meeting`` and
 ``law.F[i]`` as the law does, reading only the shards a question meets; a verification on
@@ -17,14 +18,13 @@ import pytest
 
 import codev_engine as ce
 from codev_engine.errors import SpecError
-from codev_engine.law_shards import (
-    MANIFEST,
-    ShardedLaw,
+from codev_engine.law_shard_writer import (
     box_groups,
     spatial_order,
     split_law,
     write_law_shards,
 )
+from codev_engine.law_shards import MANIFEST, ShardedLaw
 from workbench.cli import main
 
 SPEC = """

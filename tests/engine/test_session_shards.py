@@ -392,7 +392,7 @@ def test_a_stored_law_with_a_halo_has_its_halo_files_checked(spec, tmp_path):
     reaching into each shard's cell), stored in a session: the store checks each halo
     file's size as it does a shard's, and the law read back answers box questions from
     its halos; a truncated halo is named at open, as a shard is."""
-    from codev_engine.law_shards import split_by_cells, write_law_shards
+    from codev_engine.law_shard_writer import split_by_cells, write_law_shards
 
     problem = load_spec(spec)
     session = Session.create(tmp_path / "s")

@@ -257,7 +257,7 @@ def test_the_sharded_search_in_balanced_units_is_the_serial_law(cluster, tmp_pat
     743, points of the feasible set in none). The search runs in balanced units; the
     workers write the law in the program's (as the serial law: the same function at random
     points, no holes); so does the search without a writer."""
-    from codev_engine.law_shards import ShardWriter
+    from codev_engine.law_shard_writer import ShardWriter
     from codev_engine.mp.balance import balanced
     from tests.engine.test_mpqp_graph import _program
 

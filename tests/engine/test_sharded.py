@@ -154,7 +154,8 @@ def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
     collects the manifest's entries and the domain's facets alone; a damaged shard is
     refused."""
     from codev_engine.errors import SpecError
-    from codev_engine.law_shards import ShardedLaw, ShardWriter
+    from codev_engine.law_shard_writer import ShardWriter
+    from codev_engine.law_shards import ShardedLaw
 
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
     monkeypatch.setattr(sharded, "BUDGET", 128)
@@ -218,7 +219,7 @@ def test_the_workers_write_the_law_s_shards(serial, monkeypatch, tmp_path):
 @pytest.mark.slow  # (~40 s: the nanny starts a new worker on a loaded machine)
 def test_a_worker_killed_while_the_workers_write_the_law_loses_nothing(
         serial, monkeypatch, tmp_path):
-    from codev_engine.law_shards import ShardWriter
+    from codev_engine.law_shard_writer import ShardWriter
 
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
     monkeypatch.setattr(sharded, "BUDGET", 64)
@@ -277,7 +278,8 @@ def test_a_worker_killed_in_the_search_s_last_step_writes_the_same_law(
     import threading
     import time
 
-    from codev_engine.law_shards import ShardedLaw, ShardWriter
+    from codev_engine.law_shard_writer import ShardWriter
+    from codev_engine.law_shards import ShardedLaw
 
     monkeypatch.setattr(mpqp, "JIT_AFTER", 0)
     monkeypatch.setattr(sharded, "BUDGET", 128)
