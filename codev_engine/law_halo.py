@@ -36,7 +36,6 @@ is stored once per cell its box meets (x2 at 4 cells and x3 at 8 on ``pop_mpqp_0
 
 from __future__ import annotations
 
-import hashlib
 import time
 import zipfile
 from pathlib import Path
@@ -45,6 +44,7 @@ import numpy as np
 
 from codev_engine.errors import DamagedFileError
 from codev_engine.io.atomic import write_npz
+from codev_engine.io.digest import file_sha256
 from codev_engine.law import ExplicitLaw
 
 __all__ = ["HALO_FORMAT", "Halo", "build_halo", "build_halo_on_workers", "cells_partition",
@@ -213,14 +213,6 @@ def halo_pieces(shard: ExplicitLaw, j: int, offset: int, facets: np.ndarray | No
     return out
 
 
-def _file_sha(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def write_halo(path: Path, pieces: list[dict], n: int, m: int) -> dict:
     """Write one cell's halo (atomic): the pieces the other shards sent it, the regions in
     ascending global index, the facets each once; return its manifest fields.
@@ -261,7 +253,7 @@ def write_halo(path: Path, pieces: list[dict], n: int, m: int) -> dict:
                      "counts": counts[order], "A": A[rows], "b": b[rows], "F": F[order],
                      "G": G[order], "box_lo": blo[order], "box_hi": bhi[order],
                      "facets": facets})
-    return {"halo_file": path.name, "halo_sha256": _file_sha(path),
+    return {"halo_file": path.name, "halo_sha256": file_sha256(path),
             "halo_bytes": path.stat().st_size, "halo": int(owner.size),
             "halo_facets": int(facets.shape[0])}
 

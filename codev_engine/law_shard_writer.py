@@ -32,13 +32,13 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.io.atomic import write_npz, write_text
+from codev_engine.io.digest import file_sha256
 from codev_engine.law import ExplicitLaw
 from codev_engine.law_shards import (
     FACETS_FORMAT,
     MANIFEST,
     SHARDS_FORMAT,
     ShardedLaw,
-    _file_sha,
 )
 from codev_engine.mp.solution import RegionArrays
 
@@ -55,7 +55,7 @@ def _save_facets(facets: np.ndarray, path: Path) -> dict:
     and return the fields of its manifest entry (the file, its SHA-256, the count)."""
     write_npz(path, {"format": np.array(FACETS_FORMAT), "facets": np.asarray(facets, float)},
               compress=False)
-    return {"facets_file": path.name, "facets_sha256": _file_sha(path),
+    return {"facets_file": path.name, "facets_sha256": file_sha256(path),
             "facets_bytes": path.stat().st_size, "facets": int(facets.shape[0])}
 
 
@@ -262,7 +262,7 @@ def _save_shard(part: ExplicitLaw, path: Path) -> dict:
     # as the file's, so a region's box is in its group's)
     glo, ghi = box_groups(lo, hi)
     return {  # (bytes: what a session checks when it opens the law, the SHA-256 when read)
-        "file": path.name, "sha256": _file_sha(path), "bytes": path.stat().st_size,
+        "file": path.name, "sha256": file_sha256(path), "bytes": path.stat().st_size,
         "regions": part.num_regions,
         "lo": lo.min(axis=0).tolist() if lo.shape[0] else None,
         "hi": hi.max(axis=0).tolist() if hi.shape[0] else None,

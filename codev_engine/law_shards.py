@@ -58,7 +58,6 @@ refused.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import zipfile
@@ -69,6 +68,7 @@ from pathlib import Path
 import numpy as np
 
 from codev_engine.errors import DamagedFileError, SpecError
+from codev_engine.io.digest import file_sha256
 from codev_engine.law import ExplicitLaw
 
 __all__ = ["FACETS_FORMAT", "SHARDS_FORMAT", "ShardedLaw", "manifest_files"]
@@ -111,14 +111,6 @@ def manifest_files(entries: list[dict]) -> list[tuple[str, int | None]]:
     listed += [(str(e["halo_file"]), e.get("halo_bytes")) for e in entries
                if "halo_file" in e]
     return listed
-
-
-def _file_sha(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _cell(entry: dict, n: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -186,7 +178,7 @@ def _checked(path: Path, sha256: str, size: int | None, what: str) -> Path:
     if size is not None and path.stat().st_size != size:
         raise DamagedFileError(f"its size is not the one {MANIFEST} records (damaged or "
                                "edited): refused", file=str(path))
-    if _file_sha(path) != sha256:
+    if file_sha256(path) != sha256:
         raise DamagedFileError(f"its SHA-256 is not the one {MANIFEST} records (damaged or "
                                "edited): refused", file=str(path))
     return path
