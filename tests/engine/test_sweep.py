@@ -263,15 +263,15 @@ def _span(seconds: float) -> tuple[float, float, int]:
 
 
 def test_the_costliest_calls_start_first_on_a_cluster(cluster):
-    # 4 calls on 2 workers, given cheapest first: one of the two costliest starts first, and
-    # the costliest does not start last (in the order given, the cheapest went first). Not
-    # the whole order on each worker: on a loaded machine a worker process may wait ~1 s
-    # before its first call, and the other, idle, steals its queued calls, so a worker may
-    # run call 0 before a call 1 it stole afterwards (seen on a CI machine)
+    # 4 calls on 2 workers, given cheapest first: one of the two costliest starts first (in
+    # the order given, the cheapest went first): each worker holds one of them and starts
+    # with the costliest it holds. No more of the order: on a loaded machine a worker
+    # process may wait ~1 s before its first call, and the other, idle, steals its queued
+    # calls in any order, so a worker may run call 0 before a call 1 it stole afterwards
+    # (seen on a CI machine), or the costliest may start last
     spans = cluster.map(_span, [(0.3,)] * 4, cost=[1.0, 2.0, 3.0, 4.0])
     started = [i for _, i in sorted((t0, i) for i, (t0, _, _) in enumerate(spans))]
     assert started[0] in (2, 3), spans
-    assert started[-1] != 3, spans
     with pytest.raises(ValueError, match="2 values for 4 calls"):
         cluster.map(_span, [(0.0,)] * 4, cost=[1.0, 2.0])
 
