@@ -339,10 +339,10 @@ def ellipsoid_box(result: VerificationResult) -> tuple[np.ndarray, np.ndarray] |
     cert = result.certificate
     if cert is None or "P" not in cert:
         return None
-    P = np.asarray(cert["P"], dtype=float)
+    from codev_engine.reach.terminal import ellipsoid_reach
+
     c = np.asarray(cert["centre"], dtype=float)
-    reach = np.sqrt(np.abs(np.diag(np.linalg.inv(P))))
-    reach = reach * (1.0 + 1e-6 + np.linalg.cond(P) * np.finfo(float).eps) + 1e-12
+    reach = ellipsoid_reach(cert["P"])
     return c - reach, c + reach
 
 

@@ -96,6 +96,25 @@ def ellipsoid_holds(P: np.ndarray, centre: np.ndarray, lo: np.ndarray, hi: np.nd
     return bool(np.all(q + 1e-12 * bound <= 1.0 - 1e-9))
 
 
+def ellipsoid_reach(P: np.ndarray) -> np.ndarray:
+    """Half-widths of the bounding box of ``{x : (x - c)' P (x - c) <= 1}`` about ``c``:
+    ``sqrt(diag(P^-1))`` (the support of ``+-e_i``), widened for the inverse's rounding
+    (relative 1e-6 and ``cond(P)`` times the epsilon, plus 1e-12).
+
+    Parameters
+    ----------
+    P : (n, n) ndarray
+        Symmetric positive definite.
+
+    Returns
+    -------
+    (n,) ndarray
+    """
+    P = np.asarray(P, dtype=float)
+    reach = np.sqrt(np.abs(np.diag(np.linalg.inv(P))))
+    return reach * (1.0 + 1e-6 + np.linalg.cond(P) * np.finfo(float).eps) + 1e-12
+
+
 def ellipsoid_outline(P: np.ndarray, centre: np.ndarray, axes: tuple[int, ...],
                       points: int = 97) -> np.ndarray | None:
     """The shadow of ``{x : (x - centre)' P (x - centre) <= 1}`` on the plane of ``axes``, as

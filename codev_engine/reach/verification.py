@@ -954,11 +954,11 @@ def _in_ellipsoids(ells: list) -> Callable[[np.ndarray, np.ndarray], np.ndarray]
     -------
     callable
     """
-    from codev_engine.reach.terminal import ellipsoid_holds
+    from codev_engine.reach.terminal import ellipsoid_holds, ellipsoid_reach
 
     # each ellipsoid's bounding box (c +- sqrt(diag(P^-1)), widened): a box not inside it is
     # not inside the ellipsoid (a quick refusal; refusing is always sound)
-    reach = [np.sqrt(np.abs(np.diag(np.linalg.inv(e.P)))) * (1 + 1e-6) for e in ells]
+    reach = [ellipsoid_reach(e.P) for e in ells]
 
     def inside(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         return np.array([
