@@ -1614,16 +1614,15 @@ class LinearReach(ClosedLoopSetup):
             self._pending = frontier
             if anchor is not None and k > anchor["k"]:
                 if all(self._inside(s, anchor["S"]) for s in frontier):
+                    anchor["closing"] = frontier  # (closed: the sets its certificate holds)
                     S2 = self._reanchor(anchor, frontier, k, reanchors)
                     if S2 is None:
-                        anchor["closing"] = frontier
                         self._close(anchor, k)
                         return
                     # the tube of [t_ka, t_k] from S stays (it holds every trajectory);
                     # the loop goes on from the tighter S2, a new candidate; the closed
                     # certificate is kept should S2's fail
                     reanchors += 1
-                    anchor["closing"] = frontier
                     anchor = {"k": k, "S": S2, "ntubes": len(self.tubes),
                               "frontier": frontier, "closed": anchor}
                     self._reanchored = anchor
