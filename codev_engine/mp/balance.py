@@ -22,43 +22,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from codev_engine.mp.program import MpProgram
-from codev_engine.mp.reduce import parameter_box, reduce_program
+from codev_engine.mp.reduce import (  # (the rule is reduce's: its box LPs use it too)
+    BALANCE_RATIO,
+    parameter_box,
+    parameter_scaling,
+    reduce_program,
+)
 from codev_engine.mp.solution import MpSolution, RegionArrays
 
 __all__ = ["BALANCE_RATIO", "BalancedWriter", "balanced", "parameter_scaling",
            "program_scaling", "regions_back", "rows_back", "unbalanced"]
-
-#: an axis of the parameter box narrower than the widest by more than this factor is
-#: rescaled (a power of two, to the widest's width)
-BALANCE_RATIO = 64.0
-
-
-def parameter_scaling(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
-    """The diagonal ``D`` (``theta = D theta_s``) that balances the box ``[lo, hi]``.
-
-    Parameters
-    ----------
-    lo, hi : (d,) ndarrays
-        The parameter set's bounding box (finite).
-
-    Returns
-    -------
-    (d,) ndarray or None
-        Powers of two, at most 1 (the widest axis keeps its units); None when every axis
-        is within ``BALANCE_RATIO`` of the widest (nothing to do).
-    """
-    width = np.asarray(hi, float) - np.asarray(lo, float)
-    top = float(np.max(width, initial=0.0))
-    if not np.isfinite(top) or top <= 0.0:
-        return None
-    # (a point-like axis, width 0, is left alone: there is no scale to match)
-    narrow = (width > 0.0) & (width * BALANCE_RATIO < top)
-    if not np.any(narrow):
-        return None
-    D = np.ones_like(width)
-    D[narrow] = np.exp2(np.round(np.log2(width[narrow] / top)))
-    return D
-
 
 def program_scaling(program: MpProgram) -> np.ndarray | None:
     """``parameter_scaling`` of the program's parameter box (after ``reduce_program``).

@@ -24,7 +24,10 @@ from codev_engine.geometry.polytope import bounding_box, normalize_rows, solve_l
 from codev_engine.mp.coverage import feasibility_rows, feasible_ball
 from codev_engine.mp.program import MpProgram
 
-__all__ = ["ParameterBox", "Reduced", "lifted", "parameter_box", "reduce_program", "start_point"]
+__all__ = [
+    "BALANCE_RATIO", "ParameterBox", "Reduced", "lifted", "parameter_box", "parameter_scaling",
+    "reduce_program", "start_point",
+]
 
 
 @dataclass(frozen=True)
@@ -177,16 +180,43 @@ class ParameterBox:
         return self.lo, self.hi
 
 
-#: axes of the parameter set wider apart than this (by the rows on one axis) are measured
-#: in units of their own width (a power of two) when the parameter box is computed
-BOX_RATIO = 64.0
+#: an axis of the parameter box narrower than the widest by more than this factor is
+#: rescaled (a power of two, to the widest's width)
+BALANCE_RATIO = 64.0
+
+
+def parameter_scaling(lo: np.ndarray, hi: np.ndarray) -> np.ndarray | None:
+    """The diagonal ``D`` (``theta = D theta_s``) that balances the box ``[lo, hi]``.
+
+    Parameters
+    ----------
+    lo, hi : (d,) ndarrays
+        The parameter set's bounding box (finite).
+
+    Returns
+    -------
+    (d,) ndarray or None
+        Powers of two, at most 1 (the widest axis keeps its units); None when every axis
+        is within ``BALANCE_RATIO`` of the widest (nothing to do).
+    """
+    width = np.asarray(hi, float) - np.asarray(lo, float)
+    top = float(np.max(width, initial=0.0))
+    if not np.isfinite(top) or top <= 0.0:
+        return None
+    # (a point-like axis, width 0, is left alone: there is no scale to match)
+    narrow = (width > 0.0) & (width * BALANCE_RATIO < top)
+    if not np.any(narrow):
+        return None
+    D = np.ones_like(width)
+    D[narrow] = np.exp2(np.round(np.log2(width[narrow] / top)))
+    return D
 
 
 def _axis_units(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Powers of two ``W`` (``theta = W theta_w``) that bring the widths of ``A theta <=
-    b`` along each axis, as its rows on that axis alone bound them, within ``BOX_RATIO`` of
-    the widest (each narrow axis to the widest's width); ones when they are already, or
-    when an axis has no such rows.
+    b`` along each axis, as its rows on that axis alone bound them, within
+    ``BALANCE_RATIO`` of the widest (:func:`parameter_scaling` of those widths); ones when
+    they are already, or when an axis has no such rows.
 
     Parameters
     ----------
@@ -206,13 +236,10 @@ def _axis_units(A: np.ndarray, b: np.ndarray) -> np.ndarray:
         else:
             lo[j] = max(lo[j], b[i] / A[i, j])
     width = hi - lo
-    W = np.ones(d)
     if not np.all(np.isfinite(width)) or np.any(width <= 0.0):
-        return W
-    top = float(np.max(width))
-    narrow = width * BOX_RATIO < top
-    W[narrow] = np.exp2(np.round(np.log2(width[narrow] / top)))
-    return W
+        return np.ones(d)
+    W = parameter_scaling(lo, hi)
+    return np.ones(d) if W is None else W
 
 
 def parameter_box(red: Reduced) -> ParameterBox:
@@ -233,7 +260,7 @@ def parameter_box(red: Reduced) -> ParameterBox:
     """
     d = red.At.shape[1]
     # the LPs in units where the axes' widths (read off the rows on one axis) are within
-    # BOX_RATIO: in the plant's own (x1 in 1e3, x2 in 1e-3 units, and an output bound
+    # BALANCE_RATIO: in the plant's own (x1 in 1e3, x2 in 1e-3 units, and an output bound
     # x1 1e-6 + x2 <= 2e-3) DAQP called the set infeasible when asked for max x1, and the
     # spec was refused, "the parameter set is unbounded" (issue 38)
     W = _axis_units(red.At, red.bt)
