@@ -374,7 +374,7 @@ def evaluate(
         moves, swaps = _swaps(moves, on_plane == 1, sm[kept], G, act, Qb, Rb)
     if augmented:
         return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True, swaps, centre
-    Z = _law(negZ0, Hinv_Gt, act, Lam)
+    Z = Zdep if na else _law(negZ0, Hinv_Gt, act, Lam)  # (the law, computed above)
     return FULL, Ak, bk, Z[:, 1:].copy(), Z[:, 0].copy(), moves, True, swaps, centre
 
 
