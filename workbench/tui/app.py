@@ -58,6 +58,7 @@ from .form import (
     field_for_error,
     with_typed_errors,
 )
+from .handoff import to_ui
 from .messages import (
     CancelRequested,
     ExportRequested,
@@ -348,15 +349,13 @@ class CodevApp(App):
             else:
                 write_draft(self.session, values, has_verify)
         except (CodevError, OSError) as exc:
-            self.call_from_thread(self.notify, f"session: {exc}", severity="error")
+            to_ui(self, self.notify, f"session: {exc}", severity="error")
         if before_verify is not None:
             # the law of the spec before its [verify] section is current, not stale
             every = stage_keys(before_verify, self.options)
             keys = {k: every[k] for k in ("model", "synthesis") if k in every}
         loaded = self._load_cached(chk, statuses, keys)
-        self.call_from_thread(
-            self._apply_check, chk, statuses, keys, loaded, plant, before_verify, seq
-        )
+        to_ui(self, self._apply_check, chk, statuses, keys, loaded, plant, before_verify, seq)
 
     def _load_cached(
         self, chk: FormCheck, statuses: dict[str, StageStatus], keys: dict[str, str]
@@ -598,13 +597,13 @@ class CodevApp(App):
                 problem, options, on_event=on_event, warn=warnings.append, raise_errors=False
             )
         except RunCancelledError:
-            self.call_from_thread(self._finish, None, "cancelled", warnings)
+            to_ui(self, self._finish, None, "cancelled", warnings)
         except CodevError as exc:
-            self.call_from_thread(self._finish, None, exc, warnings)
+            to_ui(self, self._finish, None, exc, warnings)
         except Exception as exc:  # an engine bug must not take the app (and the session) down
-            self.call_from_thread(self._finish, None, exc, warnings)
+            to_ui(self, self._finish, None, exc, warnings)
         else:
-            self.call_from_thread(self._finish, report, None, warnings)
+            to_ui(self, self._finish, report, None, warnings)
 
     def _finish(self, report: RunReport | None, error: object, warnings: list[str]) -> None:
         stage = self.busy or ""
@@ -768,7 +767,7 @@ class CodevApp(App):
         t0 = time.perf_counter()
 
         def progress(i: int, row: dict) -> None:
-            self.call_from_thread(pane.show_row, i, row)
+            to_ui(self, pane.show_row, i, row)
             interrupt()
 
         def interrupt() -> None:  # polled inside the current design too (Esc stops it)
@@ -783,12 +782,11 @@ class CodevApp(App):
                 rows = sweep(problem, grid, executor=executor, progress=progress,
                              session=folder, interrupt=interrupt)
         except RunCancelledError:
-            self.call_from_thread(self._sweep_finished, None, "cancelled", 0.0, folder)
+            to_ui(self, self._sweep_finished, None, "cancelled", 0.0, folder)
         except Exception as exc:  # an engine bug must not take the app down
-            self.call_from_thread(self._sweep_finished, None, exc, 0.0, folder)
+            to_ui(self, self._sweep_finished, None, exc, 0.0, folder)
         else:
-            self.call_from_thread(self._sweep_finished, rows, None,
-                                  time.perf_counter() - t0, folder)
+            to_ui(self, self._sweep_finished, rows, None, time.perf_counter() - t0, folder)
 
     def _sweep_finished(self, rows: list[dict] | None, error: object, seconds: float,
                         folder: Path) -> None:
@@ -998,14 +996,14 @@ class CodevApp(App):
         from codev_engine.kernel_cache import LATER, ready
 
         if not ready(LATER):  # the tree's kernels, once: said here (stderr is not seen)
-            self.call_from_thread(
-                self.notify, "preparing the C export's kernels, once (about 15 s, then cached)")
+            to_ui(self, self.notify,
+                  "preparing the C export's kernels, once (about 15 s, then cached)")
         try:
             if hasattr(law, "merged"):  # (a law stored as shards: one C table, merged here)
                 law = law.merged()
             h, c = export_c(law, dest, name=name)
         except (CodevError, OSError, ValueError) as exc:
-            self.call_from_thread(pane.show_law_export, typed, error=str(exc))
+            to_ui(self, pane.show_law_export, typed, error=str(exc))
             return
         text = h.read_text(encoding="utf-8")
         up = name.upper()
@@ -1016,8 +1014,7 @@ class CodevApp(App):
                              ("ROM bytes", nums["ROM_BYTES"]))
             if m
         )
-        self.call_from_thread(pane.show_law_export, typed, files=(str(h), c.name),
-                              summary=summary)
+        to_ui(self, pane.show_law_export, typed, files=(str(h), c.name), summary=summary)
 
     def load(self, opened: Opened) -> None:
         """Switch to another session / spec (the Session tab's Open).

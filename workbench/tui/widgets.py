@@ -17,6 +17,7 @@ from textual.widget import Widget
 from textual.widgets import Collapsible, Input, Label, Select, Static, Switch, TextArea
 
 from .form import FIELD_BY_NAME, FieldDef
+from .handoff import to_ui
 
 __all__ = ["EntryInput", "EntryTextArea", "FieldEntry", "Plot", "field_entries", "open_groups"]
 
@@ -426,7 +427,7 @@ class Plot(Static):
             text = draw(max(w - 8, 4), max(h - 3, 2))
         except Exception as exc:  # a picture must never take the app down
             text = Text(f"(cannot draw: {type(exc).__name__}: {exc})", style="red")
-        self.app.call_from_thread(self._show, request, text)
+        to_ui(self, self._show, request, text)
 
     def _show(self, request: int, text: Text) -> None:
         # a thread cannot be stopped: a picture for an older size or drawing may finish

@@ -16,6 +16,7 @@ from codev_engine.errors import CodevError
 
 from ..design import MpcPreview, mpc_preview, preview_extras, preview_signals
 from ..form import FIELDS
+from ..handoff import to_ui
 from ..parsers import parse_state
 from ..views import series_text
 from ..widgets import EntryInput, FieldEntry, Plot, field_entries
@@ -199,11 +200,13 @@ class MpcPane(Horizontal):
                 problem, model, x0, steps, should_stop=self._stop.is_set, reference=reference
             )
         except CodevError as exc:
-            self.app.call_from_thread(
-                self.query_one("#preview-status", Static).update, f"[red]✗ {exc}[/red]"
-            )
+            # (the status widget is looked up on the UI thread, where the DOM lives)
+            to_ui(self, self._show_error, f"[red]✗ {exc}[/red]")
             return
-        self.app.call_from_thread(self._show, prev, problem)
+        to_ui(self, self._show, prev, problem)
+
+    def _show_error(self, message: str) -> None:
+        self.query_one("#preview-status", Static).update(message)
 
     def _show(self, prev: MpcPreview, problem: Problem) -> None:
         self.last = prev

@@ -15,6 +15,7 @@ from codev_engine.errors import CodevError
 
 from ..design import plant_report
 from ..form import FIELDS, FormCheck
+from ..handoff import to_ui
 from ..widgets import FieldEntry, field_entries
 
 if TYPE_CHECKING:
@@ -102,7 +103,7 @@ class PlantPane(Horizontal):
         except CodevError as exc:
             text = f"✗ {exc}"
             body = f"[red]✗ {exc}[/red]"
-        self.app.call_from_thread(self._show, body, text)
+        to_ui(self, self._show, body, text)
 
     def _show(self, body: object, text: str) -> None:
         self.report_text = text

@@ -16,6 +16,7 @@ from codev_engine.errors import CodevError
 from codev_engine.session import RunReport
 
 from ..design import locate_state, region_rows, shared_laws
+from ..handoff import to_ui
 from ..messages import CancelRequested, LawExportRequested, RunRequested
 from ..parsers import parse_axes, parse_state
 from ..views import partition_text
@@ -322,9 +323,9 @@ class SynthesisPane(Vertical):
         except (CodevError, OSError) as exc:
             # (a law stored as shards reads them all here: a damaged one is said on the
             # status line, the session has marked it; a worker's error would end the app)
-            self.app.call_from_thread(self._regions_failed, law, str(exc))
+            to_ui(self, self._regions_failed, law, str(exc))
             return
-        self.app.call_from_thread(self._show_regions, law, rows, shared)
+        to_ui(self, self._show_regions, law, rows, shared)
 
     def _regions_failed(self, law: ExplicitLaw, message: str) -> None:
         if law is not self._law_shown:
