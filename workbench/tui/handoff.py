@@ -29,7 +29,6 @@ def to_ui(node: MessagePump, callback: Callable[..., Any], *args: Any, **kwargs:
     *args, **kwargs
         Its arguments.
     """
-
     app = node if isinstance(node, App) else node.app
 
     def if_running() -> None:
