@@ -80,3 +80,15 @@ def test_snapping_is_within_the_laws_rounding_and_only_there():
                                       "[0.0, 1.0]]").replace("soft_weight = 10000.0",
                                                              "soft_weight = 1.0"))
     assert snap_saturated(F, G, plain.mpc, lo, hi)[2] == 0
+
+
+def test_a_law_on_demand_snaps_its_saturated_moves_too():
+    from codev_engine.law_on_demand import OnDemandLaw
+
+    od = OnDemandLaw(loads_spec(SPREAD))
+    lo, hi = np.array([-1500.0, -1900.0]), np.array([1500.0, 1900.0])
+    od.regions_meeting(lo, hi)  # (grown over most of the domain)
+    X = np.random.default_rng(1).uniform(lo, hi, size=(20000, 2))
+    U = od.evaluate(X)[:, 0]
+    U = U[np.isfinite(U)]
+    assert U.size > 10000 and U.max() == 1.0 and U.min() == -1.0
