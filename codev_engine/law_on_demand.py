@@ -33,7 +33,7 @@ from codev_engine.mp.solve import SolveOptions
 from codev_engine.mpc import build_program
 from codev_engine.plant import LinearModel, discretize
 from codev_engine.spec.problem import Problem
-from codev_engine.synthesis import problem_fingerprint, region_limit
+from codev_engine.synthesis import problem_fingerprint, region_limit, snap_saturated
 from codev_engine.version import __version__
 
 __all__ = ["OnDemandLaw", "law_for"]
@@ -519,6 +519,9 @@ class OnDemandLaw:
         F = np.array([Kr[sl] for Kr in K]).reshape(len(new), mp.m, mp.d)
         G = np.array([mp.u_op + r.k[sl] - Kr[sl] @ op
                       for r, Kr in zip(new, K, strict=True)]).reshape(len(new), mp.m)
+        fm = mp.formulation
+        if fm is not None:  # (a saturated move is its bound, as in a full law's synthesis)
+            F, G, _ = snap_saturated(F, G, mp.spec, fm.theta_lo + op, fm.theta_hi + op)
         self.F = np.concatenate([self.F, F])
         self.G = np.concatenate([self.G, G])
         self._boxes = None

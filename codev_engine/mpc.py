@@ -42,8 +42,21 @@ __all__ = [
     "check_feasible",
     "OnlineSolution",
     "OnlineMpc",
+    "ONLINE_SOFT_RATIO",
 ]
 
+
+#: the largest ``soft_weight`` the online MPC takes, as a multiple of the cost's smallest
+#: weight (a row's largest entry of ``Q``, ``R``, ``P``, ``Rd``, as
+#: ``synthesis.weight_spread``). The penalty is the cost's largest term there, and an
+#: interior point's tolerances are relative to it. The double integrator with a soft output
+#: bound (``Q = I``, ``R = 0.5``, horizons 4 and 8) is solved to the explicit law's moves up
+#: to a ratio of 4e6 in norms 1/inf; at 1e7 (inf) and 2e7 (1) Clarabel stalls on the moves,
+#: which rest on the weights below the penalty, at every setting of ``RETRY_OPTIONS``
+#: ("Clarabel failed"; norm 2 at 2e10); HiGHS's simplex, tried instead, trades its
+#: feasibility tolerance (1e-7 times the penalty) for cost. The explicit law (an exact
+#: active-set search, checked by HiGHS / DAQP on the condensed program) has no such limit.
+ONLINE_SOFT_RATIO = 2e6
 
 # Clarabel settings of the reference solver: much tighter than the defaults (1e-8) so the
 # online optimum is an oracle at 1e-6 relative.
@@ -237,6 +250,31 @@ def _as2d(M: np.ndarray | None, cols: int) -> np.ndarray | None:
     if M is None:
         return None
     return np.asarray(M, dtype=float).reshape(-1, cols)
+
+
+def _check_soft_weight(spec: MpcSpec, fm: Formulation) -> None:
+    """Refuse, naming ``mpc.soft_weight``, a penalty past ``ONLINE_SOFT_RATIO`` times the
+    cost's smallest weight: the online MPC would fail on it (a vague solver error) or
+    return moves off the optimum."""
+    if not spec.soft:
+        return
+    small = None
+    for name, M in (("Q", spec.Q), ("R", spec.R), ("P", fm.P), ("Rd", spec.Rd)):
+        if M is None:
+            continue
+        rows = np.max(np.abs(np.atleast_2d(np.asarray(M, dtype=float))), axis=1, initial=0.0)
+        rows = rows[rows > 0.0]
+        if rows.size and (small is None or rows.min() < small[0]):
+            small = (float(rows.min()), f"mpc.{name}")
+    w = float(spec.soft_weight)
+    if small is None or w <= ONLINE_SOFT_RATIO * small[0]:
+        return
+    raise SpecError(
+        f"{w:.3g} is {w / small[0]:.3g} times the cost's smallest weight ({small[1]} "
+        f"{small[0]:.3g}): the online MPC (cvxpy + Clarabel) cannot resolve the moves next "
+        f"to such a penalty; it takes soft_weight up to {ONLINE_SOFT_RATIO * small[0]:.3g} "
+        f"here ({ONLINE_SOFT_RATIO:.0e} times it). The explicit law (codev run) has no such "
+        "limit", field="mpc.soft_weight")
 
 
 def _check_dims(spec: MpcSpec, n: int, m: int) -> None:
@@ -832,7 +870,9 @@ class OnlineMpc:
     Raises
     ------
     SpecError
-        When ``spec`` does not fit the model (as :func:`build_program`).
+        When ``spec`` does not fit the model (as :func:`build_program`), or a soft
+        constraint's ``soft_weight`` is over ``ONLINE_SOFT_RATIO`` times the cost's smallest
+        weight (naming ``mpc.soft_weight`` and the largest value taken).
     """
 
     def __init__(self, spec: MpcSpec, model: LinearModel,
@@ -854,6 +894,7 @@ class OnlineMpc:
         import cvxpy as cp  # imported here: loading a spec or a law does not need it
 
         fm = formulation(spec, model)
+        _check_soft_weight(spec, fm)
         self.formulation = fm
         self.d = fm.d
         x = cp.Variable((N + 1, n), name="x")

@@ -40,6 +40,11 @@ WEIGHT_SPREAD_LIMIT = 1e12
 #: above this spread a failure of the solver names the weights as a likely cause
 _SPREAD_NOTED = 1e6
 
+#: a move within this much (relative to ``1 + |bound|``) of an input bound over the whole
+#: parameter box is the bound (:func:`snap_saturated`), and this times the weights' spread
+#: past 1e3: the law's rounding grows with the KKT system's conditioning
+SATURATION_TOL = 1e-12
+
 
 def weight_spread(spec) -> tuple[float, str]:
     """How far apart in magnitude the cost's weights are.
@@ -162,6 +167,9 @@ def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> Exp
     G = np.array([mp.u_op + r.k[sl] - r.K[sl] @ op for r in sol.regions]).reshape(
         len(As), mp.m
     )
+    fm = mp.formulation
+    if fm is not None and As:
+        F, G, _ = snap_saturated(F, G, mp.spec, fm.theta_lo + op, fm.theta_hi + op)
     merged = len(As)
     if simplify and As:
         As, bs, F, G = merge_equal_laws(As, bs, F, G)
@@ -185,6 +193,54 @@ def law_from_solution(mp: MpcProgram, sol: MpSolution, *, simplify: bool) -> Exp
             "stats": sol.stats,
         },
     )
+
+
+def snap_saturated(
+    F: np.ndarray, G: np.ndarray, spec, lo: np.ndarray, hi: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Make a saturated move exactly its input bound.
+
+    Where an input bound is active the exact law is ``F_ij = 0``, ``G_ij = bound``; the
+    law's derivation (the KKT system, conditioned like the weights' spread) leaves it off
+    by rounding: with a spread of 1e10 a region's move reached ``u_max + 6e-7`` and
+    ``u_min - 2.1e-6`` (``F_ij`` 4e-10, ``G_ij`` 1.4e-7 off). A move whose range over the
+    whole parameter box lies within ``SATURATION_TOL (1 + |bound|)`` of a bound (times the
+    spread past 1e3) is set to it: a change within the law's rounding, toward the exact
+    law (the MPC's inputs are hard-bounded, so its move is never past the bound).
+
+    Parameters
+    ----------
+    F : (k, m, d) ndarray
+    G : (k, m) ndarray
+        The regions' laws ``u = F theta + G`` (plant coordinates).
+    spec : MpcSpec
+        Its ``u_min``, ``u_max`` and weights.
+    lo, hi : (d,) ndarray
+        The parameter box (plant coordinates); nothing is snapped along an infinite one.
+
+    Returns
+    -------
+    F, G : ndarray
+        Copies, snapped.
+    snapped : int
+        How many (region, input) moves were set to a bound.
+    """
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        return F, G, 0
+    F, G = np.array(F, dtype=float), np.array(G, dtype=float)
+    centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    mid = F @ centre + G  # (k, m): the move at the box's centre
+    reach = np.abs(F) @ half  # its largest change over the box
+    tol = SATURATION_TOL * max(1.0, weight_spread(spec)[0] / 1e3)
+    snapped = 0
+    for bound in (np.asarray(spec.u_min, float), np.asarray(spec.u_max, float)):
+        near = (np.isfinite(bound)[None, :]
+                & (np.abs(mid - bound) + reach <= tol * (1.0 + np.abs(bound))))
+        i, j = np.nonzero(near)
+        F[i, j, :] = 0.0
+        G[i, j] = bound[j]
+        snapped += i.size
+    return F, G, snapped
 
 
 def synthesize(

@@ -68,6 +68,14 @@ def _prepare_kernels(*, export: bool = False) -> None:
         prepare(groups=LATER)
 
 
+def _clean_beside(*paths: str | os.PathLike | None) -> None:
+    """Remove the temporaries a killed write of these output files left beside them (the
+    engine's own writers of exports, reports and recordings do the same)."""
+    from codev_engine.io.atomic import remove_stale_beside
+
+    remove_stale_beside(*(p for p in paths if p))
+
+
 def _cmd_synth(args: argparse.Namespace) -> int:
     from codev_engine.pipeline import load_spec
     from codev_engine.synthesis import synthesize
@@ -84,7 +92,10 @@ def _cmd_synth(args: argparse.Namespace) -> int:
                          shard_dir=args.shard_dir, out_shards=args.out_shards if sharded else None)
         shards = executor.workers  # (1 when serial)
     out = None
+    if args.out_shards:  # (files in the folder: the shards, their facets, the manifest)
+        _clean_beside(Path(args.out_shards) / "shards.json", Path(args.out_shards) / "s.npz")
     if args.out:
+        _clean_beside(args.out)
         # (a single law file from the shards: merged here, on demand)
         out = str((law.merged() if hasattr(law, "merged") else law).save(args.out))
     if args.out_shards and hasattr(law, "merged"):
@@ -220,6 +231,7 @@ def _verification(
             executor=executor,
             budget=args.budget,
         )
+    _clean_beside(args.export_tube)
     tube_path = str(result.tube.save(args.export_tube)) if args.export_tube else None
     if getattr(args, "record", None):
         from codev_engine.view.records import RecordingOptions, write_recording
@@ -385,6 +397,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                              executor=executor)
     tube_path = None
     if args.export_tube and report.result is not None:
+        _clean_beside(args.export_tube)
         tube_path = str(report.result.tube.save(args.export_tube))
     record = None
     if report.recording is not None:
@@ -1020,6 +1033,7 @@ def _cmd_mpsolve(args: argparse.Namespace) -> int:
         return 1
     except SpecError as exc:  # found by the solver (empty parameter set, unbounded, ...)
         raise (exc if exc.file else exc.with_file(str(args.file))) from None
+    _clean_beside(args.out)
     out = str(sol.save(args.out)) if args.out else None
     if args.json:
         print(

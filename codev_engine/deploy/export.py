@@ -15,7 +15,7 @@ from codev_engine.deploy.c_code import c_source
 from codev_engine.deploy.escape import c_prefix, comment
 from codev_engine.deploy.plan import Export, plan
 from codev_engine.deploy.python_code import python_source
-from codev_engine.io.atomic import write_text
+from codev_engine.io.atomic import remove_stale_beside, write_text
 
 __all__ = ["export_c", "export_python"]
 
@@ -77,6 +77,7 @@ def export_c(
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     h, c = directory / f"{name}.h", directory / f"{name}.c"
+    remove_stale_beside(h, c)  # (what an export killed while writing left)
     write_text(h, header)
     write_text(c, source)
     return h, c
@@ -110,5 +111,6 @@ def export_python(
     if note:
         first, rest = text.split("\n", 1)
         text = first + "\n\n" + "".join(f"{comment(x)}\n" for x in note.splitlines()) + rest
+    remove_stale_beside(path)  # (what an export killed while writing left)
     write_text(path, text)
     return path

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import secrets
 import shutil
 import time
@@ -25,8 +26,8 @@ try:
 except ImportError:  # pragma: no cover - not POSIX: temporaries are told stale by age alone
     fcntl = None  # type: ignore[assignment]
 
-__all__ = ["STALE_AFTER", "atomic_folder", "atomic_path", "remove_stale", "write_npz",
-           "write_text"]
+__all__ = ["STALE_AFTER", "atomic_folder", "atomic_path", "remove_stale", "remove_stale_beside",
+           "write_npz", "write_text"]
 
 #: seconds after which an unlocked ``.tmp-*`` entry is stale (:func:`remove_stale`): the
 #: lock is taken microseconds after the entry is made, the margin covers that window (and a
@@ -35,6 +36,8 @@ __all__ = ["STALE_AFTER", "atomic_folder", "atomic_path", "remove_stale", "write
 #: dead after a day
 STALE_AFTER = 60.0
 _STALE_UNLOCKED = 86400.0
+#: the random part of a temporary's name (:func:`_sibling`: 6 bytes in hex)
+_TOKEN = "[0-9a-f]{12}"
 
 
 def _sibling(path: Path, create: Callable[[Path], object], made: list[Path]) -> Path:
@@ -168,7 +171,12 @@ def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
             old.unlink(missing_ok=True)
 
 
-def remove_stale(folder: str | os.PathLike, older_than: float = STALE_AFTER) -> list[str]:
+def remove_stale(
+    folder: str | os.PathLike,
+    older_than: float = STALE_AFTER,
+    *,
+    names: re.Pattern[str] | None = None,
+) -> list[str]:
     """Remove the ``.tmp-*`` entries of ``folder`` that no live writer holds.
 
     What a writer killed midway left (SIGKILL, SIGTERM, a power cut; Ctrl-C removes its
@@ -186,6 +194,9 @@ def remove_stale(folder: str | os.PathLike, older_than: float = STALE_AFTER) -> 
         folder has nothing to clean.
     older_than : float
         Seconds since the entry's last modification.
+    names : re.Pattern, optional
+        Only the ``.tmp-*`` names it matches whole (:func:`remove_stale_beside`: in a
+        folder codev does not own, only the temporaries codev's writes make there).
 
     Returns
     -------
@@ -194,7 +205,8 @@ def remove_stale(folder: str | os.PathLike, older_than: float = STALE_AFTER) -> 
     """
     folder = Path(folder)
     try:
-        entries = [p for p in folder.iterdir() if p.name.startswith(".tmp-")]
+        entries = [p for p in folder.iterdir() if p.name.startswith(".tmp-")
+                   and (names is None or names.fullmatch(p.name))]
     except OSError:  # (missing, or not a folder)
         return []
     removed = []
@@ -232,6 +244,33 @@ def remove_stale(folder: str | os.PathLike, older_than: float = STALE_AFTER) -> 
             removed.append(p.name)
         finally:
             os.close(fd)
+    return removed
+
+
+def remove_stale_beside(*paths: str | os.PathLike) -> list[str]:
+    """Remove the stale temporaries that atomic writes of ``paths`` left beside them.
+
+    For the files written into a folder that is the user's, not codev's (an export, a
+    report, a recording copied out): there only the names :func:`atomic_path` and
+    :func:`atomic_folder` make for such a path (``.tmp-<12 hex digits>[-old]<its
+    suffix>``) are candidates, another program's ``.tmp-*`` never; each is removed as
+    :func:`remove_stale` removes (nobody holds its lock, older than ``STALE_AFTER``).
+
+    Parameters
+    ----------
+    *paths : str or os.PathLike
+        The files about to be written.
+
+    Returns
+    -------
+    list of str
+        The paths removed.
+    """
+    removed = []
+    for path in map(Path, paths):
+        ours = re.compile(rf"\.tmp-{_TOKEN}(?:-old)?{re.escape(path.suffix)}")
+        removed += [str(path.parent / name)
+                    for name in remove_stale(path.parent, names=ours)]
     return removed
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from codev_engine.errors import CodevError, DamagedFileError
-from codev_engine.io.atomic import atomic_path
+from codev_engine.io.atomic import atomic_path, remove_stale_beside
 from codev_engine.kernel_cache import prepare
 from codev_engine.session import store
 from codev_engine.session.keys import stage_keys
@@ -628,6 +628,7 @@ class Session:
         Path
             ``dest``.
         """
+        remove_stale_beside(dest)  # (what a copy killed while writing left)
         with atomic_path(dest) as tmp:
             shutil.copyfile(artifact, tmp)
         return Path(dest)

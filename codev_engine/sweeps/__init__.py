@@ -113,9 +113,13 @@ def sweep(
     texts = [text for text, _ in loaded]
     cost_of = {text: design_cost(design) for text, design in loaded}
     if session is not None:
+        from codev_engine.io.atomic import remove_stale
         from codev_engine.sweeps.folder import check_target
 
         check_target(session)
+        # (what a killed sweep left in its folder: the temporaries of its manifest, journal
+        # or recording no live writer holds; each design's session cleans its own as it runs)
+        remove_stale(session)
     values = _value_rows(grid)
     # equal designs (a value listed twice) run once: one task, one session folder
     unique = list(dict.fromkeys(texts))

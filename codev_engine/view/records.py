@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from codev_engine.errors import CodevError, SpecError
-from codev_engine.io.atomic import atomic_path
+from codev_engine.io.atomic import atomic_path, remove_stale_beside
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem
 from codev_engine.view.blueprint import blueprint
@@ -126,6 +126,7 @@ def write_recording(
     import rerun as rr
     from rerun.error_utils import catch_and_log_exceptions
 
+    remove_stale_beside(path)  # (what a recording killed while writing left)
     with atomic_path(path) as tmp:  # temp file + fsync + rename, removed on failure
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4().hex)
         if not rec.is_enabled():

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from codev_engine.io.atomic import write_text
+from codev_engine.io.atomic import remove_stale_beside, write_text
 from codev_engine.law import ExplicitLaw
 from codev_engine.spec.problem import Problem
 from codev_engine.view import figures
@@ -187,7 +187,9 @@ def write_report(
     -------
     Path
     """
-    return write_text(path, report_html(problem, law, result, **options))  # type: ignore[arg-type]
+    html = report_html(problem, law, result, **options)  # type: ignore[arg-type]
+    remove_stale_beside(path)  # (what a report killed while writing left)
+    return write_text(path, html)
 
 
 def figure_inputs(

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from codev_engine.errors import CodevError
-from codev_engine.io.atomic import atomic_path
+from codev_engine.io.atomic import atomic_path, remove_stale_beside
 
 __all__ = ["SWEEP_TIMELINE", "sweep_markdown", "write_sweep_recording"]
 
@@ -131,6 +131,7 @@ def write_sweep_recording(
     path = Path(path)
     top = 1.1 * max((float(r["regions"]) for r in rows if r.get("regions")), default=1.0)
     colours = {**VERDICT_COLOURS, "error": _ERROR_COLOUR, "synthesised": "#1565c0"}
+    remove_stale_beside(path)  # (what a recording killed while writing left)
     with atomic_path(path) as tmp:
         rec = rr.RecordingStream(APPLICATION_ID, recording_id=uuid.uuid4().hex)
         if not rec.is_enabled():

@@ -242,9 +242,11 @@ def run(name: str, exps, npts: int = 40, seed: int = 0) -> ce.ExplicitLaw:
     return law
 
 
-#: the weights' spread the property covers. Past it, up to ``WEIGHT_SPREAD_LIMIT``, a law
-#: is synthesised but not always exact to rounding: soft bounds on both states, norm 2,
-#: factors 10^2.5 and 10^3 (spread 1e10) gave a move 5.5e-8 above ``u_max`` (open)
+#: the weights' spread the property covers. Past it, up to ``WEIGHT_SPREAD_LIMIT``, the
+#: online reference (Clarabel, in the plant's units) can fail: soft bounds on both states,
+#: norm 2, factors 10^3 and 10^2.5 (spread 1e10). The same with 10^2.5 and 10^3 gave a
+#: move 5.5e-8 above ``u_max``, a saturated region's rounding, now its bound
+#: (``synthesis.snap_saturated``, ``test_saturation``)
 SPREAD_TESTED = 1e9
 
 

@@ -307,3 +307,46 @@ def test_soft_weight_far_above_the_state_weight_is_solved(norm):
     law = ce.synthesize(problem)
     fails = oracle(problem, discretize(problem), law, 60)
     assert not fails, "\n".join(fails[:6])
+
+
+def _soft_design(norm: str, soft_weight: str):
+    from codev_engine.pipeline import loads_spec
+    from tests.engine.test_formulations import BASE
+
+    return loads_spec(BASE.format(N=4, norm=norm) + 'C = [[1.0, 0.0]]\ny_max = [1.0]\n'
+                      f'soft = ["y_max"]\nsoft_weight = {soft_weight}\n')
+
+
+@pytest.mark.parametrize("norm", ["1", "inf"])
+def test_a_soft_weight_far_above_the_weights_is_exact_offline_and_refused_online(norm):
+    """``soft_weight = 1e10`` next to ``R = 0.5``: the explicit law is the exact optimum
+    (HiGHS on the condensed program judges: no Clarabel); the online MPC (the TUI's
+    preview, the reference solves), whose Clarabel stalled from 1e7 with "Clarabel failed
+    ... Try another solver", refuses it up front naming the field, why, and the largest
+    value it takes (``ONLINE_SOFT_RATIO`` times ``R``'s 0.5), which it solves."""
+    from codev_engine.formulation import formulation
+    from codev_engine.mpc import ONLINE_SOFT_RATIO
+    from tests.engine.test_scaled_formulations import exact_judge
+    from workbench.tui.design import mpc_preview
+
+    problem = _soft_design(norm, "1e10")
+    model = discretize(problem)
+    law = ce.synthesize(problem)
+    fm = formulation(problem.mpc, model)
+    lo, hi = fm.theta_lo + fm.theta_op, fm.theta_hi + fm.theta_op
+    X = lo + (hi - lo) * np.random.default_rng(0).uniform(size=(40, 2))
+    U = law.evaluate(X)
+    judge = exact_judge(problem, model)
+    ok = np.isfinite(U[:, 0])  # (outside the domain: no move can stop the cart in time)
+    assert ok.sum() >= 30 and all(judge(x, u) for x, u in zip(X[ok], U[ok], strict=True))
+    for make in (lambda: ce.OnlineMpc(problem.mpc, model),
+                 lambda: mpc_preview(problem, model, np.array([0.5, 0.5]), 3)):
+        with pytest.raises(ce.SpecError) as info:
+            make()
+        assert info.value.field == "mpc.soft_weight"
+        assert "online MPC" in info.value.reason and "soft_weight up to 1e+06" in info.value.reason
+    largest = _soft_design(norm, repr(ONLINE_SOFT_RATIO * 0.5))
+    online = ce.OnlineMpc(largest.mpc, model)
+    x = np.array([0.9, 0.6])  # (the soft bound binds ahead: the penalty is in play)
+    sol, u = online.solve(x), ce.synthesize(largest).evaluate(x[None])[0]
+    assert abs(online.first_move_cost(x, u) - sol.cost) <= 1e-6 * max(1.0, sol.cost)
