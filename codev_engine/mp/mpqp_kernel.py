@@ -401,10 +401,41 @@ def evaluate(
     swaps = es
     if not vanished and na:
         moves, swaps = _swaps(moves, on_plane == 1, sm[kept], G, act, Qb, Rb)
-    if augmented:
-        return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True, swaps, centre
-    Z = Zdep if na else _law(negZ0, Hinv_Gt, act, Lam)  # (the law, computed above)
+    Z = Zaug if augmented else Zdep if na else _law(negZ0, Hinv_Gt, act, Lam)  # (above)
+    if na:
+        Z = _refined(Z, Lam, act, G, H, rhs_z, wS)
     return FULL, Ak, bk, Z[:, 1:].copy(), Z[:, 0].copy(), moves, True, swaps, centre
+
+
+@njit(cache=True)
+def _refined(Z, Lam, act, G, H, rhs_z, wS):
+    """The law ``Z`` (nz, d + 1) after one step of iterative refinement on the KKT system
+    of the active set ``act`` (``mpqp._Kernel._refined``: its active constraints then
+    hold to the rounding of their own terms, whatever the multipliers' size)."""
+    nz, k = Z.shape
+    na = act.size
+    Kkt = np.zeros((nz + na, nz + na))
+    Kkt[:nz, :nz] = H
+    r = np.empty((nz + na, k))
+    for t in range(nz):
+        for s in range(k):
+            v = rhs_z[t, s]
+            for u in range(nz):
+                v -= H[t, u] * Z[u, s]
+            for i in range(na):
+                v -= G[act[i], t] * Lam[i, s]
+            r[t, s] = v
+    for i in range(na):
+        for t in range(nz):
+            Kkt[t, nz + i] = G[act[i], t]
+            Kkt[nz + i, t] = G[act[i], t]
+        for s in range(k):
+            v = wS[act[i], s]
+            for t in range(nz):
+                v -= G[act[i], t] * Z[t, s]
+            r[nz + i, s] = v
+    X = np.linalg.solve(Kkt, r)
+    return Z + X[:nz]
 
 
 @njit(cache=True)
