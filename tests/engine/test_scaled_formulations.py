@@ -37,6 +37,7 @@ from test_formulations import BASE, BASE2, CASES, oracle
 from test_synthesis_oracle import _slow_gate
 
 import codev_engine as ce
+from codev_engine.errors import SolverError
 from codev_engine.formulation import formulation
 from codev_engine.mp.balance import rows_back
 from codev_engine.mpc import build_program
@@ -316,3 +317,51 @@ def test_every_formulation_in_rescaled_units_sweep(name, request):
         exps = rng.integers(-6, 7, 3) / 2.0
         if _spread_ok(name, exps):
             run(name, exps, npts=80, seed=1)
+
+
+def _soft_both(exps, domain: float, npts: int, seed: int) -> None:
+    """``soft_x_both_2`` with p and v in units ``10**exps`` and ``domain_bound`` ``domain``
+    in the rescaled units (the plant's ``domain / min(s)``)."""
+    s = 10.0 ** np.asarray(exps, float)
+    run("soft_x_both_2", [*exps, 0.0], npts=npts, seed=seed, domain=domain / np.min(s))
+
+
+@pytest.mark.parametrize(("exps", "domain"), [
+    *(([1.5, 0.5], D) for D in (5.0, 10.0, 30.0, 60.0, 190.0)),
+    ([0.5, -0.5], 19.0), ([0.5, -0.5], 100.0), ([1.0, 0.0], 30.0), ([1.0, 0.0], 100.0),
+    ([-1.0, 0.5], 60.0), ([1.5, -0.5], 100.0),
+])
+def test_soft_state_bounds_over_domains_and_units(exps, domain):
+    """The neighbours of the case above: ``domain_bound`` 5 to 190 in the rescaled units
+    at its factors, and other factors (each axis' rows in the parameter set, the exact
+    penalty's multipliers in its units). Factors 10^1.5 and 10^0.5 at 190 (and 10 and 1 at
+    100) had a move 3e-9 (2e-9) past ``u_min`` before the law was refined
+    (``mpqp._Kernel._refined``)."""
+    _soft_both(exps, domain, npts=20, seed=0)
+
+
+#: the online MPC (Clarabel) fails there: the reference cannot judge (states of 40 to 100)
+_NO_REFERENCE = {(-1.0, 1.0, 30), (-0.5, 1.0, 19)}
+
+
+def _sweep_cases():
+    for a in (-1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0):
+        for b in (-0.5, 0.0, 0.5, 1.0):
+            for D in (5, 10, 19, 30, 60, 100, 190, 600):
+                marks = []
+                if (a, b, D) in _NO_REFERENCE:
+                    marks = [pytest.mark.xfail(strict=True, raises=SolverError,
+                                               reason="the online MPC fails")]
+                yield pytest.param([a, b], float(D), marks=marks, id=f"{a}_{b}_{D}")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("exps", "domain"), list(_sweep_cases()))
+def test_soft_state_bounds_over_domains_and_units_sweep(exps, domain, request):
+    """Every factor 10^-1 to 10^2 of p and 10^-0.5 to 10 of v (halves of decades), and
+    ``domain_bound`` 5 to 600 in the rescaled units: no hole (the search's coverage check),
+    and the law is the online MPC's. Before ``mpqp._Kernel._refined`` 25 of these 224 had
+    a move past its bound by 2e-9 to 1.8e-6 (multipliers of 1e6: the law of an active set
+    with ``u`` at its bound violated that bound by their rounding)."""
+    _slow_gate(request)
+    _soft_both(exps, domain, npts=20, seed=1)
