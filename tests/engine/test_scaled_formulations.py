@@ -247,9 +247,11 @@ def run(name: str, exps, npts: int = 40, seed: int = 0,
     return law
 
 
-#: the weights' spread the property covers. Past it, up to ``WEIGHT_SPREAD_LIMIT``, a law
-#: is synthesised but not always exact to rounding: soft bounds on both states, norm 2,
-#: factors 10^2.5 and 10^3 (spread 1e10) gave a move 5.5e-8 above ``u_max`` (open)
+#: the weights' spread the property covers. Past it, up to ``WEIGHT_SPREAD_LIMIT``, the
+#: online MPC cannot always judge: soft bounds on both states, norm 2, factors 10^2.5 and
+#: 10^3 (spread 1e10): Clarabel fails at some states (where it solves, the law is its
+#: optimum; before the law's refinement, ``mpqp._Kernel._refined``, a move was 2.6e-7
+#: above ``u_max`` there)
 SPREAD_TESTED = 1e9
 
 
