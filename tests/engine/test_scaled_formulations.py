@@ -22,7 +22,10 @@ is ``domain_bound * min(s)``, inside the reference's along every axis, and the s
 drawn in the rescaled law's parameter box (mapped back).
 
 The default run draws a few cases and rescalings (Hypothesis, derandomised); the sweep is
-``slow``.
+``slow``. Soft bounds on both states (norm 2) are also run over ``domain_bound`` 5 to 600
+and a grid of factors (a dozen by default, 224 behind ``slow``): where the mp-QP search had
+left a hole and the laws' moves went past their bounds (``mpqp.VANISH_ULPS``,
+``mpqp._Kernel._refined``).
 """
 
 from __future__ import annotations
