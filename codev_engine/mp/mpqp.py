@@ -93,7 +93,7 @@ DEPENDENT_SLACK = 1e-9
 
 #: a multiplier's or slack's row (columns constant, theta) vanishes for every theta when its
 #: theta part is below this many ulps of the terms it was computed from (at least 1e-12),
-#: and its constant then decides alone (``_Kernel._vanishing``): the terms, not 1, set
+#: and its constant then decides alone (``_vanishing``): the terms, not 1, set
 #: the rounding. An exact penalty of 1e4 on soft state bounds in units 10^1.5 apart gave
 #: multipliers of 1.5e5 and a slack that is zero for every theta computed as -1.1e-11 +
 #: 3.7e-13 theta_2: judged against an absolute 1e-12, the region across that facet was
