@@ -91,6 +91,15 @@ CLOSE_CALL = 2.0
 #: (``_Kernel._dependent_slacks``; the same bound as ``mpqp_kernel._swaps``' dependency)
 DEPENDENT_SLACK = 1e-9
 
+#: a multiplier's or slack's row (columns constant, theta) vanishes for every theta when its
+#: theta part is below this many ulps of the terms it was computed from (at least 1e-12),
+#: and its constant then decides alone (``_vanishing``): the terms, not 1, set
+#: the rounding. An exact penalty of 1e4 on soft state bounds in units 10^1.5 apart gave
+#: multipliers of 1.5e5 and a slack that is zero for every theta computed as -1.1e-11 +
+#: 3.7e-13 theta_2: judged against an absolute 1e-12, the region across that facet was
+#: "empty", the search stopped at 5 regions and left a hole (test_scaled_formulations)
+VANISH_ULPS = 64.0
+
 #: Estimated condition number of M_AA (from its Cholesky factor's diagonal) above which an
 #: active set's multipliers and law come from the augmented KKT system (_kkt_augmented)
 ILL_CONDITIONED = 1e6
@@ -206,16 +215,17 @@ class _Kernel:
         kkt = self._kkt(A)
         if isinstance(kkt, str):
             return kkt, None, None, None, False
-        Lam, Sl, inact, tie, Z = kkt
+        Lam, Sl, inact, tie, Z, mag = kkt
         # lambda >= 0  <=>  -Lam1 theta <= Lam0 ;  slack >= 0  <=>  -Sl1 theta <= Sl0
         Ar = np.vstack([-Lam[:, 1:], -Sl[:, 1:], self.At])
         br = np.concatenate([Lam[:, 0], Sl[:, 0], self.bt])
         src = np.concatenate([A + 1, -(inact + 1), self.zeros_t])
         norms = np.sqrt(np.einsum("ij,ij->i", Ar, Ar))
-        zero = norms <= 1e-12
+        zero_tol, const_tol = _vanishing(mag, self.At.shape[0])
+        zero = norms <= zero_tol
         if np.any(zero):
             bz = br[zero]
-            bad = bz < -1e-12
+            bad = bz < -const_tol[zero]
             if tie is not None:
                 # a multiplier or slack that is zero for every theta: the tie is broken by
                 # the perturbation direction (lexicographic selection, semi-definite H)
@@ -263,7 +273,25 @@ class _Kernel:
         if Z is None:
             # z = -H^-1 (c + C theta) - H^-1 G_A' lambda_A(theta)
             Z = self.negZ0 - self.Hinv_Gt[:, A] @ Lam
+        Z = self._refined(A, Z, Lam)
         return "full", (Ar[keep], br[keep]), (Z[:, 1:], Z[:, 0]), moves, True
+
+    def _refined(self, A: np.ndarray, Z: np.ndarray, Lam: np.ndarray) -> np.ndarray:
+        """The law ``Z`` (nz, d+1) after one step of iterative refinement on the KKT system
+        of ``A``: its active constraints then hold to the rounding of their own terms.
+
+        Through ``M_AA`` (or the augmented system) the multipliers carry the rounding of
+        the largest of them into the law: with an exact penalty's multipliers of 1e6 a
+        region with ``u`` at its bound had ``u`` 2e-9 to 1.8e-6 past it
+        (test_scaled_formulations, soft state bounds in units far apart). The same step
+        as ``mpqp_kernel._refined``."""
+        if not A.size:
+            return Z
+        GA, k = self.G[A], Z.shape[1]
+        r = np.vstack([self.rhs_z[:, :k] - self.H @ Z - GA.T @ Lam,
+                       self._slack_columns()[A, :k] - GA @ Z])
+        dZ, _ = self._solve_kkt(A, r)
+        return Z + dZ
 
     def _chebyshev(self, Ar: np.ndarray, br: np.ndarray) -> tuple[np.ndarray, float]:
         """Chebyshev ball of a candidate's rows (unit rows, parameter-set rows among them).
@@ -345,11 +373,18 @@ class _Kernel:
             Lam = np.zeros((0, self.d + 1))
         inact = self._inactive(A)
         Sl = self.Dfull[inact] + MA[:, inact].T @ Lam
-        Sl = self._dependent_slacks(A, inact, Sl, lambda: self.negZ0 - self.Hinv_Gt[:, A] @ Lam)
-        return Lam, Sl, inact, None, None
+        # the rounding of each row: the multipliers share the largest one's (one solve),
+        # a slack adds its terms' magnitudes (see VANISH_ULPS)
+        big = np.abs(Lam).max(axis=0, initial=0.0)
+        mag = np.vstack([np.broadcast_to(big, Lam.shape),
+                         np.abs(self.Dfull[inact]) + np.abs(MA[:, inact]).T @ (np.abs(Lam) + big)])
+        Sl = self._dependent_slacks(A, inact, Sl, lambda: self.negZ0 - self.Hinv_Gt[:, A] @ Lam,
+                                    mag)
+        return Lam, Sl, inact, None, None, mag
 
     def _dependent_slacks(
-        self, A: np.ndarray, inact: np.ndarray, Sl: np.ndarray, law: Callable[[], np.ndarray]
+        self, A: np.ndarray, inact: np.ndarray, Sl: np.ndarray, law: Callable[[], np.ndarray],
+        mag: np.ndarray,
     ) -> np.ndarray:
         """``Sl`` with the slack of every inactive constraint whose row lies in the span of
         the active rows (``g_i = G_A' c + r``, ``|r| < DEPENDENT_SLACK``) taken from that
@@ -377,6 +412,9 @@ class _Kernel:
         law : callable
             Gives the optimizer's columns ``z`` (nz, k) (called only when a row is
             dependent).
+        mag : (na + ni, k) ndarray
+            The magnitudes of the terms of the multipliers' and slacks' rows (their
+            rounding, ``VANISH_ULPS``); a dependent row's are set here, in place.
 
         Returns
         -------
@@ -393,7 +431,10 @@ class _Kernel:
         wS = self._slack_columns()
         c = solve_triangular(R, P[dep].T)  # (na, nd): G_A' c = Q P' for each row
         Sl = Sl.copy()
-        Sl[dep] = wS[inact[dep]] - c.T @ wS[A] - resid[dep] @ law()
+        Z = law()
+        Sl[dep] = wS[inact[dep]] - c.T @ wS[A] - resid[dep] @ Z
+        mag[A.size + dep] = (np.abs(wS[inact[dep]]) + np.abs(c.T) @ np.abs(wS[A])
+                             + np.abs(resid[dep]) @ np.abs(Z))
         return Sl
 
     def _slack_columns(self) -> np.ndarray:
@@ -412,7 +453,42 @@ class _Kernel:
         Z, Lam = self._solve_kkt(A, np.vstack([self.rhs_z, self.wS[A]]))  # columns (1, theta)
         inact = self._inactive(A)
         Sl = self.wS[inact] - self.G[inact] @ Z
-        return Lam, self._dependent_slacks(A, inact, Sl, lambda: Z), inact, None, Z
+        mag = _solved_magnitudes(Lam, self.wS[inact], self.G[inact], Z)
+        return Lam, self._dependent_slacks(A, inact, Sl, lambda: Z, mag), inact, None, Z, mag
+
+
+def _solved_magnitudes(Lam: np.ndarray, wS: np.ndarray, G: np.ndarray,
+                       Z: np.ndarray) -> np.ndarray:
+    """The terms' magnitudes (``VANISH_ULPS``) of multipliers ``Lam`` (na, k) and slacks
+    ``wS - G Z`` (ni, k) from one solve of the KKT system (columns as ``Lam``'s):
+    the multipliers share the largest one's, a slack adds its terms'."""
+    big = np.abs(Lam).max(axis=0, initial=0.0)
+    return np.vstack([np.broadcast_to(big, Lam.shape), np.abs(wS) + np.abs(G) @ np.abs(Z)])
+
+
+def _vanishing(mag: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """The tolerances under which a candidate's row vanishes for every theta.
+
+    Parameters
+    ----------
+    mag : (r, d + 1) ndarray
+        The magnitudes of the terms each multiplier's and slack's row was computed from,
+        columns (constant, theta).
+    p : int
+        The parameter-set rows that follow them (exact data: the absolute floor).
+
+    Returns
+    -------
+    zero_tol : (r + p,) ndarray
+        A row whose theta part's norm is at most this is constant (rounding).
+    const_tol : (r + p,) ndarray
+        Such a row with a constant below minus this is violated everywhere (empty).
+    """
+    ulp = VANISH_ULPS * np.finfo(float).eps
+    zero = np.maximum(1e-12, ulp * np.sqrt(np.einsum("ij,ij->i", mag[:, 1:], mag[:, 1:])))
+    const = np.maximum(1e-12, ulp * mag[:, 0])
+    floor = np.full(p, 1e-12)
+    return np.concatenate([zero, floor]), np.concatenate([const, floor])
 
 
 #: a set of rows whose smallest singular value is below this is taken as exactly dependent
@@ -511,10 +587,11 @@ class _KernelSemidefinite(_Kernel):
         Zf, Lf = self._solve_kkt(A, rhs)  # columns constant, theta, eps
         inact = self._inactive(A)
         Sf = np.hstack([self.w[inact, None], self.S[inact], np.zeros((inact.size, 1))])
+        mag = _solved_magnitudes(Lf, Sf, self.G[inact], Zf)
         Sf -= self.G[inact] @ Zf
-        Sf = self._dependent_slacks(A, inact, Sf, lambda: Zf)
+        Sf = self._dependent_slacks(A, inact, Sf, lambda: Zf, mag)
         tie = np.concatenate([Lf[:, -1], Sf[:, -1]])
-        return Lf[:, : d + 1], Sf[:, : d + 1], inact, tie, Zf[:, : d + 1]
+        return Lf[:, : d + 1], Sf[:, : d + 1], inact, tie, Zf[:, : d + 1], mag[:, : d + 1]
 
     def _slack_columns(self) -> np.ndarray:
         """``w + S theta + 0 eps`` as columns (constant, theta, eps)."""

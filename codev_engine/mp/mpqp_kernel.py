@@ -38,6 +38,8 @@ LICQ, EMPTY, LOWER, FULL, FALLBACK = 0, 1, 2, 3, 4
 #: an inactive row this close to the span of the active rows (unit rows) has its slack from
 #: that dependency (``mpqp.DEPENDENT_SLACK``, the same)
 DEPENDENT_SLACK = 1e-9
+#: a row vanishes for every theta below this many ulps of its terms (``mpqp.VANISH_ULPS``)
+VANISH_ULPS = 64.0
 #: their names in ``mpqp._Kernel.evaluate_numpy`` (FALLBACK: it has none, it concludes)
 STATUS_NAMES = {LICQ: "licq", EMPTY: "empty", LOWER: "lower", FULL: "full"}
 
@@ -226,12 +228,26 @@ def evaluate(
     Ar = np.empty((nr, d))
     br = np.empty(nr)
     src = np.zeros(nr, dtype=np.int64)
+    # the magnitudes of each row's terms (constant, theta): its rounding (VANISH_ULPS);
+    # the multipliers share the largest one's (one solve)
+    big = np.zeros(d + 1)
+    for i in range(na):
+        for u in range(d + 1):
+            big[u] = max(big[u], abs(Lam[i, u]))
+    magc = np.zeros(nr)
+    magt = np.zeros(nr)
+    bigt = 0.0
+    for t in range(d):
+        bigt += big[t + 1] * big[t + 1]
     for i in range(na):
         for t in range(d):
             Ar[i, t] = -Lam[i, t + 1]
         br[i] = Lam[i, 0]
         src[i] = act[i] + 1
+        magc[i] = big[0]
+        magt[i] = np.sqrt(bigt)
     row = np.empty(d + 1)
+    mrow = np.empty(d + 1)
     # the optimizer's columns, for the slacks of rows in the span of the active ones
     Zdep = Zaug if augmented else _law(negZ0, Hinv_Gt, act, Lam) if na else Zaug
     qv = np.empty(na)
@@ -245,31 +261,43 @@ def evaluate(
             solve_rt(Rb, qv, na, cv)
             for s in range(d + 1):
                 row[s] = wS[iq, s]
+                mrow[s] = abs(wS[iq, s])
             for i in range(na):
                 for s in range(d + 1):
                     row[s] -= cv[i] * wS[act[i], s]
+                    mrow[s] += abs(cv[i] * wS[act[i], s])
             for t in range(nz):
                 for s in range(d + 1):
                     row[s] -= rv[t] * Zdep[t, s]
+                    mrow[s] += abs(rv[t] * Zdep[t, s])
         elif augmented:
             # slack = w + S theta - G z
             for s in range(d + 1):
                 row[s] = wS[iq, s]
+                mrow[s] = abs(wS[iq, s])
             for t in range(nz):
                 g = G[iq, t]
                 for s in range(d + 1):
                     row[s] -= g * Zaug[t, s]
+                    mrow[s] += abs(g * Zaug[t, s])
         else:
             for s in range(d + 1):
                 row[s] = Dfull[iq, s]
+                mrow[s] = abs(Dfull[iq, s])
             for i in range(na):
-                coef = M[act[i], iq]
+                coef = abs(M[act[i], iq])
                 for s in range(d + 1):
-                    row[s] += coef * Lam[i, s]
+                    row[s] += M[act[i], iq] * Lam[i, s]
+                    mrow[s] += coef * (abs(Lam[i, s]) + big[s])
         for t in range(d):
             Ar[na + q, t] = -row[t + 1]
         br[na + q] = row[0]
         src[na + q] = -(iq + 1)
+        magc[na + q] = mrow[0]
+        mt = 0.0
+        for t in range(d):
+            mt += mrow[t + 1] * mrow[t + 1]
+        magt[na + q] = np.sqrt(mt)
     for q in range(p):
         for t in range(d):
             Ar[na + ni + q, t] = At[q, t]
@@ -280,13 +308,14 @@ def evaluate(
     # none); one constant and clearly positive is never zero (pop_mpqp_033's bounds
     # +-z_i <= 1e7 with g_i in the span of G_A: slack 1e7 for every theta)
     vanished = False
+    ulp = VANISH_ULPS * np.finfo(np.float64).eps
     for i in range(nr):
         s = 0.0
         for t in range(d):
             s += Ar[i, t] * Ar[i, t]
         s = np.sqrt(s)
-        if s <= 1e-12:
-            if br[i] < -1e-12:
+        if s <= max(1e-12, ulp * magt[i]):
+            if br[i] < -max(1e-12, ulp * magc[i]):
                 return EMPTY, e2, e1, ez, ek, em, False, es, start
             keep_row[i] = False
             if br[i] <= 1e-6 * (1.0 + scale):
@@ -372,10 +401,41 @@ def evaluate(
     swaps = es
     if not vanished and na:
         moves, swaps = _swaps(moves, on_plane == 1, sm[kept], G, act, Qb, Rb)
-    if augmented:
-        return FULL, Ak, bk, Zaug[:, 1:].copy(), Zaug[:, 0].copy(), moves, True, swaps, centre
-    Z = Zdep if na else _law(negZ0, Hinv_Gt, act, Lam)  # (the law, computed above)
+    Z = Zaug if augmented else Zdep if na else _law(negZ0, Hinv_Gt, act, Lam)  # (above)
+    if na:
+        Z = _refined(Z, Lam, act, G, H, rhs_z, wS)
     return FULL, Ak, bk, Z[:, 1:].copy(), Z[:, 0].copy(), moves, True, swaps, centre
+
+
+@njit(cache=True)
+def _refined(Z, Lam, act, G, H, rhs_z, wS):
+    """The law ``Z`` (nz, d + 1) after one step of iterative refinement on the KKT system
+    of the active set ``act`` (``mpqp._Kernel._refined``: its active constraints then
+    hold to the rounding of their own terms, whatever the multipliers' size)."""
+    nz, k = Z.shape
+    na = act.size
+    Kkt = np.zeros((nz + na, nz + na))
+    Kkt[:nz, :nz] = H
+    r = np.empty((nz + na, k))
+    for t in range(nz):
+        for s in range(k):
+            v = rhs_z[t, s]
+            for u in range(nz):
+                v -= H[t, u] * Z[u, s]
+            for i in range(na):
+                v -= G[act[i], t] * Lam[i, s]
+            r[t, s] = v
+    for i in range(na):
+        for t in range(nz):
+            Kkt[t, nz + i] = G[act[i], t]
+            Kkt[nz + i, t] = G[act[i], t]
+        for s in range(k):
+            v = wS[act[i], s]
+            for t in range(nz):
+                v -= G[act[i], t] * Z[t, s]
+            r[nz + i, s] = v
+    X = np.linalg.solve(Kkt, r)
+    return Z + X[:nz]
 
 
 @njit(cache=True)
