@@ -288,6 +288,13 @@ class CodevApp(App):
         self._show_recorded_sweep()
         self._run_check()
 
+    def on_unmount(self) -> None:
+        # quitting while a stage or a sweep runs: its thread stops at its next progress
+        # event, where it ran to its end (a thread cannot be stopped from outside, and the
+        # event loop waits for it before the app exits: minutes for a long synthesis). Its
+        # results would be dropped anyway (handoff.to_ui)
+        self._cancel.set()
+
     # ---- the form --------------------------------------------------------------------
 
     def on_field_entry_edited(self, event: FieldEntry.Edited) -> None:
@@ -753,17 +760,19 @@ class CodevApp(App):
         self.busy = "sweep"
         self._cancel.clear()
         self._show_pipeline()
-        self.query_one(SweepPane).start(list(grid), grid_values(grid), str(folder))
-        self._sweep_worker(problem, grid, folder, n_workers)
+        pane = self.query_one(SweepPane)
+        pane.start(list(grid), grid_values(grid), str(folder))
+        self._sweep_worker(pane, problem, grid, folder, n_workers)
 
     @work(thread=True, exclusive=True, group="stage")
-    def _sweep_worker(self, problem: Problem, grid: dict, folder: Path,
+    def _sweep_worker(self, pane: SweepPane, problem: Problem, grid: dict, folder: Path,
                       workers: int | None = None) -> None:
+        # (the pane is found on the UI thread: a thread that starts late, behind the
+        # executor's other threads, could find the DOM already pruned by a quit)
         _lower_priority()
         from codev_engine.executor import Executor
         from codev_engine.sweeps import sweep
 
-        pane = self.query_one(SweepPane)
         t0 = time.perf_counter()
 
         def progress(i: int, row: dict) -> None:
@@ -980,11 +989,13 @@ class CodevApp(App):
         dest = Path(event.dest).expanduser()
         if not dest.is_absolute():
             dest = Path.cwd() / dest
-        self._law_export_worker(law, dest, event.dest)
+        self._law_export_worker(self.query_one(SynthesisPane), law, dest, event.dest)
 
     @work(thread=True, exclusive=True, group="export")
-    def _law_export_worker(self, law: ExplicitLaw, dest: Path, typed: str) -> None:
-        # the tree can take seconds (and compiles a kernel once): off the UI thread
+    def _law_export_worker(self, pane: SynthesisPane, law: ExplicitLaw, dest: Path,
+                           typed: str) -> None:
+        # the tree can take seconds (and compiles a kernel once): off the UI thread (the
+        # pane found on it, as for the sweep: no DOM query in a thread)
         import re
 
         from codev_engine import export_c
@@ -992,7 +1003,6 @@ class CodevApp(App):
 
         # named after the design, made a prefix export_c accepts (no keyword, header...)
         name = prefix_for(str(law.meta.get("problem", "")))
-        pane = self.query_one(SynthesisPane)
         from codev_engine.kernel_cache import LATER, ready
 
         if not ready(LATER):  # the tree's kernels, once: said here (stderr is not seen)
