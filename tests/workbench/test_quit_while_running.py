@@ -79,3 +79,31 @@ def test_quitting_while_a_synthesis_runs_cancels_it(tmp_path, monkeypatch):
     session = Session.open(tmp_path / "s")
     assert not any(r["stage"] == "synthesis" for r in session.journal())
     assert not list((tmp_path / "s" / "artifacts").glob("synthesis-*"))
+
+
+def test_the_progress_tick_while_the_app_quits_touches_no_widget(tmp_path, monkeypatch):
+    """The 10 Hz tick shows a running stage's progress on the panes' status lines; it fires
+    on while a quit prunes the panes (the app's timers stop last). It looked for the
+    ``#pipeline`` line to tell: still up (a slow unmount holds it, as a loaded machine can),
+    the status lines already gone raised ``NoMatches``."""
+    import time as clock
+
+    from textual.widgets import Static
+
+    monkeypatch.chdir(tmp_path)
+    app = CodevApp(open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="s"))
+
+    async def slow_pipeline_unmount(self) -> None:
+        if self.id == "pipeline":
+            await asyncio.sleep(0.5)  # 5 ticks while the panes go
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            monkeypatch.setattr(Static, "on_unmount", slow_pipeline_unmount, raising=False)
+            # a stage running as the quit comes (its counters only: no thread needed)
+            app.busy, app.progress = "synthesis", ("synthesis", 7, clock.perf_counter())
+            await pilot.pause(0.15)
+            assert "7 regions" in str(app.query_one("#synth-status", Static).render())
+
+    run(scenario())  # raised NoMatches from _tick with the guard on #pipeline

@@ -822,8 +822,10 @@ class CodevApp(App):
 
     def _tick(self) -> None:
         """10 Hz: show the running stage's progress (the worker only stores counters)."""
-        if self.busy is None or self.progress is None or not self.query("#pipeline"):
-            return  # nothing runs, or the app is closing
+        if self.busy is None or self.progress is None or not self.is_running:
+            # nothing runs, or the app is quitting: its panes are being pruned, leaves first
+            # (the #pipeline line still up said nothing of the status lines already gone)
+            return
         stage, count, started = self.progress
         elapsed = time.perf_counter() - started
         unit = {"synthesis": "regions", "verification": "branches"}.get(stage, "")
@@ -868,6 +870,8 @@ class CodevApp(App):
         self._go_after_keys(tab, time.perf_counter() + 2.0)
 
     def _go_after_keys(self, tab: str, deadline: float) -> None:
+        if not self.is_running:
+            return  # quitting: the timer fired while the panes are being pruned
         if time.perf_counter() < deadline and any(e.keys_pending for e in self.query(FieldEntry)):
             self.set_timer(0.01, lambda: self._go_after_keys(tab, deadline))
             return
