@@ -107,3 +107,29 @@ def test_the_progress_tick_while_the_app_quits_touches_no_widget(tmp_path, monke
             assert "7 regions" in str(app.query_one("#synth-status", Static).render())
 
     run(scenario())  # raised NoMatches from _tick with the guard on #pipeline
+
+
+def test_a_pane_s_request_the_app_takes_while_it_quits_is_dropped(tmp_path, monkeypatch):
+    """The app's own queue closes last, after the panes: a request a pane posted just before
+    the quit (a button, ctrl+g) is taken while they are pruned, and its handler found no
+    pane (``NoMatches``); it is dropped, as a worker's late result is."""
+    from workbench.tui.messages import LawExportRequested
+
+    monkeypatch.chdir(tmp_path)
+    app = CodevApp(open_target(str(EXAMPLES / "double_integrator.toml"), session_dir="s"))
+    posted = threading.Event()
+
+    async def request_as_the_tab_goes(self) -> None:
+        # the Synthesis tab's pane is gone, the tab not yet: its export request comes now
+        if self.id == "synthesis":
+            posted.set()
+            self.app.post_message(LawExportRequested("law_c"))
+            await asyncio.sleep(0.5)
+
+    async def scenario():
+        async with app.run_test(size=SIZE) as pilot:
+            await settle(pilot, app)
+            monkeypatch.setattr(TabPane, "on_unmount", request_as_the_tab_goes, raising=False)
+
+    run(scenario())  # raised NoMatches(SynthesisPane) from on_law_export_requested before
+    assert posted.is_set()

@@ -58,7 +58,7 @@ from .form import (
     field_for_error,
     with_typed_errors,
 )
-from .handoff import to_ui
+from .handoff import to_ui, unless_quitting
 from .messages import (
     CancelRequested,
     ExportRequested,
@@ -519,9 +519,11 @@ class CodevApp(App):
 
     # ---- stages ----------------------------------------------------------------------
 
+    @unless_quitting
     def on_run_requested(self, event: RunRequested) -> None:
         self.run_stage(event.stage)
 
+    @unless_quitting
     def on_cancel_requested(self, event: CancelRequested) -> None:
         self.action_cancel()
 
@@ -706,6 +708,7 @@ class CodevApp(App):
         return (f"saved in {folder} · replay it: {codev} replay {folder} · "
                 f"view it: {codev} view {folder / 'sweep.rrd'}")
 
+    @unless_quitting
     def on_sweep_requested(self, event: SweepRequested) -> None:
         self.run_sweep(event.grid, event.workers)
 
@@ -915,6 +918,7 @@ class CodevApp(App):
             self.notify(f"cancelling {self.busy}…", timeout=3)
         self.query_one(MpcPane).cancel_preview()
 
+    @unless_quitting
     def on_save_requested(self, event: SaveRequested) -> None:
         self.action_save()
 
@@ -933,6 +937,7 @@ class CodevApp(App):
 
     # ---- the Session tab: opening another target, exporting the recording ---------------
 
+    @unless_quitting
     def on_open_requested(self, event: OpenRequested) -> None:
         try:
             opened = open_target(event.target)
@@ -941,6 +946,7 @@ class CodevApp(App):
             return
         self.load(opened)
 
+    @unless_quitting
     def on_new_requested(self, event: NewRequested) -> None:
         self.action_new()
 
@@ -969,13 +975,15 @@ class CodevApp(App):
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         """The app's keys wait while a dialog (the *New* templates) is on screen: the
-        workbench's widgets are not on that screen."""
-        if isinstance(self.screen, TemplateScreen) and action in (
-            "go", "save", "new", "show", "cancel"
+        workbench's widgets are not on that screen; and once the app quits (a key still
+        queued then would act on panes being pruned)."""
+        if action in ("go", "save", "new", "show", "cancel") and (
+            not self.is_running or isinstance(self.screen, TemplateScreen)
         ):
             return None
         return True
 
+    @unless_quitting
     def on_export_requested(self, event: ExportRequested) -> None:
         pane = self.query_one(SessionPane)
         try:
@@ -985,6 +993,7 @@ class CodevApp(App):
             return
         pane.show_export(event.recording, event.dest, copied=out)
 
+    @unless_quitting
     def on_law_export_requested(self, event: LawExportRequested) -> None:
         law = self.law
         if law is None:
