@@ -15,8 +15,13 @@ EXAMPLES = ROOT / "examples"
 SIZE = (160, 50)
 
 
-async def settle(pilot, app: CodevApp, timeout: float = 60.0) -> None:
-    """Wait until no stage runs, the form check is done and every worker has finished."""
+async def settle(pilot, app: CodevApp, timeout: float = 120.0) -> None:
+    """Wait until no stage runs, the form check is done and every worker has finished.
+
+    A condition, so the bound is generous: a fresh process's first check, plant report and
+    synthesis load their modules and kernels, and at load 8-9 (2 cores) one step of
+    test_first_hour's synthesis-while-verify-is-unfinished took 40 s of the 60 s it had.
+    """
     loop = asyncio.get_running_loop()
     end = loop.time() + timeout
     while loop.time() < end:

@@ -334,6 +334,60 @@ def test_a_late_picture_does_not_replace_the_latest():
     run(scenario())
 
 
+def test_a_plot_is_up_to_date_once_the_picture_for_its_size_is_up():
+    """What a screenshot waits for (tests/workbench/test_snapshots.py): a picture drawn for
+    the plot's size as laid out now, not the one before a resize still on screen."""
+    import threading
+
+    from rich.text import Text
+    from textual.app import App
+
+    from workbench.tui.app import STYLESHEET
+    from workbench.tui.widgets import Plot
+
+    class One(App):
+        CSS_PATH = STYLESHEET
+
+        def compose(self):
+            yield Plot(id="plot")
+
+    release = threading.Event()
+    asked: list[tuple[int, int]] = []
+
+    def draw(w: int, h: int) -> Text:
+        asked.append((w, h))
+        release.wait(60)
+        return Text(f"{w}x{h}")
+
+    async def scenario():
+        app = One()
+        async with app.run_test(size=(60, 20)) as pilot:
+
+            async def until(ok, what: str) -> None:
+                end = asyncio.get_running_loop().time() + 60
+                while not ok():
+                    assert asyncio.get_running_loop().time() < end, f"no {what} in 60 s"
+                    await pilot.pause(0.02)
+
+            plot = app.query_one(Plot)
+            await until(lambda: plot.content_size.width >= 12, "layout")
+            assert plot.up_to_date  # nothing to draw yet
+            plot.set_draw(draw)
+            await until(lambda: bool(asked), "drawing")
+            assert not plot.up_to_date  # drawn in its thread, not up yet
+            release.set()
+            await until(lambda: plot.up_to_date, "picture")
+            assert str(plot.render()) == f"{asked[-1][0]}x{asked[-1][1]}"
+            before = plot.content_size.height
+            await pilot.resize_terminal(60, 14)
+            await until(lambda: plot.content_size.height != before, "resize")
+            await until(lambda: plot.up_to_date, "picture for the new size")
+            assert asked[-1][1] == plot.content_size.height - 3  # (the axes' rows)
+            assert str(plot.render()) == f"{asked[-1][0]}x{asked[-1][1]}"
+
+    run(scenario())
+
+
 def test_synthesis_tab_exports_the_law_as_c(di_session, tmp_path):
     """F3: a folder typed in *export the law as C99* gets the .h and .c of the law on screen,
     and they compile (the C itself is checked against locate in tests/engine/test_export.py)."""

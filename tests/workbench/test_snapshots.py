@@ -13,10 +13,11 @@ from pathlib import Path
 
 import pytest
 from pilot_tools import EXAMPLES, ROOT, settle
-from textual.widgets import DataTable, Input, Static
+from textual.widgets import DataTable, Input, Static, TabbedContent
 
 from workbench.tui.app import CodevApp
 from workbench.tui.state import open_target
+from workbench.tui.widgets import Plot
 
 SIZE = (150, 44)
 
@@ -70,6 +71,7 @@ def _steps(*keys: str):
                 if regions.row_count >= app.law.num_regions:
                     break
                 await pilot.pause(0.05)
+        await _pictures_up(pilot, app)
         # a DataTable sizes its columns on a later refresh: under load the picture was
         # taken before (the region table's columns came out narrower, one run in three)
         # (and once again in a two-process CI run: so also wait until the table's scrollable
@@ -94,8 +96,26 @@ def _steps(*keys: str):
             t.refresh()
         await pilot.pause()
         await pilot.pause(0.1)
+        await _pictures_up(pilot, app)
 
     return run_before
+
+
+async def _pictures_up(pilot, app: CodevApp) -> None:
+    """Wait until each plot on screen shows the picture for its size as laid out now.
+
+    The pictures are drawn in threads, again after each resize, and the resize comes after
+    the layout that follows a run's end (a verification screen, under load on two test
+    processes, was taken with the reachtube drawn for the taller plot before the verdict's
+    lines were written: the settle had seen no worker running in between).
+    """
+    shown = app.query_one("#tabs", TabbedContent).active_pane
+    for _ in range(1200):
+        if shown is None or all(p.up_to_date for p in shown.query(Plot)):
+            await pilot.pause()  # (and painted)
+            return
+        await pilot.pause(0.05)
+    raise AssertionError("a plot's picture for its current size is not up in 60 s")
 
 
 def test_plant_screen(di_app, snap_compare):

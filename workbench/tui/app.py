@@ -58,7 +58,7 @@ from .form import (
     field_for_error,
     with_typed_errors,
 )
-from .handoff import to_ui
+from .handoff import to_ui, unless_quitting
 from .messages import (
     CancelRequested,
     ExportRequested,
@@ -288,6 +288,13 @@ class CodevApp(App):
         self._show_recorded_sweep()
         self._run_check()
 
+    def on_unmount(self) -> None:
+        # quitting while a stage or a sweep runs: its thread stops at its next progress
+        # event, where it ran to its end (a thread cannot be stopped from outside, and the
+        # event loop waits for it before the app exits: minutes for a long synthesis). Its
+        # results would be dropped anyway (handoff.to_ui)
+        self._cancel.set()
+
     # ---- the form --------------------------------------------------------------------
 
     def on_field_entry_edited(self, event: FieldEntry.Edited) -> None:
@@ -512,9 +519,11 @@ class CodevApp(App):
 
     # ---- stages ----------------------------------------------------------------------
 
+    @unless_quitting
     def on_run_requested(self, event: RunRequested) -> None:
         self.run_stage(event.stage)
 
+    @unless_quitting
     def on_cancel_requested(self, event: CancelRequested) -> None:
         self.action_cancel()
 
@@ -699,6 +708,7 @@ class CodevApp(App):
         return (f"saved in {folder} · replay it: {codev} replay {folder} · "
                 f"view it: {codev} view {folder / 'sweep.rrd'}")
 
+    @unless_quitting
     def on_sweep_requested(self, event: SweepRequested) -> None:
         self.run_sweep(event.grid, event.workers)
 
@@ -753,17 +763,19 @@ class CodevApp(App):
         self.busy = "sweep"
         self._cancel.clear()
         self._show_pipeline()
-        self.query_one(SweepPane).start(list(grid), grid_values(grid), str(folder))
-        self._sweep_worker(problem, grid, folder, n_workers)
+        pane = self.query_one(SweepPane)
+        pane.start(list(grid), grid_values(grid), str(folder))
+        self._sweep_worker(pane, problem, grid, folder, n_workers)
 
     @work(thread=True, exclusive=True, group="stage")
-    def _sweep_worker(self, problem: Problem, grid: dict, folder: Path,
+    def _sweep_worker(self, pane: SweepPane, problem: Problem, grid: dict, folder: Path,
                       workers: int | None = None) -> None:
+        # (the pane is found on the UI thread: a thread that starts late, behind the
+        # executor's other threads, could find the DOM already pruned by a quit)
         _lower_priority()
         from codev_engine.executor import Executor
         from codev_engine.sweeps import sweep
 
-        pane = self.query_one(SweepPane)
         t0 = time.perf_counter()
 
         def progress(i: int, row: dict) -> None:
@@ -813,8 +825,10 @@ class CodevApp(App):
 
     def _tick(self) -> None:
         """10 Hz: show the running stage's progress (the worker only stores counters)."""
-        if self.busy is None or self.progress is None or not self.query("#pipeline"):
-            return  # nothing runs, or the app is closing
+        if self.busy is None or self.progress is None or not self.is_running:
+            # nothing runs, or the app is quitting: its panes are being pruned, leaves first
+            # (the #pipeline line still up said nothing of the status lines already gone)
+            return
         stage, count, started = self.progress
         elapsed = time.perf_counter() - started
         unit = {"synthesis": "regions", "verification": "branches"}.get(stage, "")
@@ -859,6 +873,8 @@ class CodevApp(App):
         self._go_after_keys(tab, time.perf_counter() + 2.0)
 
     def _go_after_keys(self, tab: str, deadline: float) -> None:
+        if not self.is_running:
+            return  # quitting: the timer fired while the panes are being pruned
         if time.perf_counter() < deadline and any(e.keys_pending for e in self.query(FieldEntry)):
             self.set_timer(0.01, lambda: self._go_after_keys(tab, deadline))
             return
@@ -902,6 +918,7 @@ class CodevApp(App):
             self.notify(f"cancelling {self.busy}…", timeout=3)
         self.query_one(MpcPane).cancel_preview()
 
+    @unless_quitting
     def on_save_requested(self, event: SaveRequested) -> None:
         self.action_save()
 
@@ -920,6 +937,7 @@ class CodevApp(App):
 
     # ---- the Session tab: opening another target, exporting the recording ---------------
 
+    @unless_quitting
     def on_open_requested(self, event: OpenRequested) -> None:
         try:
             opened = open_target(event.target)
@@ -928,6 +946,7 @@ class CodevApp(App):
             return
         self.load(opened)
 
+    @unless_quitting
     def on_new_requested(self, event: NewRequested) -> None:
         self.action_new()
 
@@ -956,13 +975,15 @@ class CodevApp(App):
 
     def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
         """The app's keys wait while a dialog (the *New* templates) is on screen: the
-        workbench's widgets are not on that screen."""
-        if isinstance(self.screen, TemplateScreen) and action in (
-            "go", "save", "new", "show", "cancel"
+        workbench's widgets are not on that screen; and once the app quits (a key still
+        queued then would act on panes being pruned)."""
+        if action in ("go", "save", "new", "show", "cancel") and (
+            not self.is_running or isinstance(self.screen, TemplateScreen)
         ):
             return None
         return True
 
+    @unless_quitting
     def on_export_requested(self, event: ExportRequested) -> None:
         pane = self.query_one(SessionPane)
         try:
@@ -972,6 +993,7 @@ class CodevApp(App):
             return
         pane.show_export(event.recording, event.dest, copied=out)
 
+    @unless_quitting
     def on_law_export_requested(self, event: LawExportRequested) -> None:
         law = self.law
         if law is None:
@@ -980,11 +1002,13 @@ class CodevApp(App):
         dest = Path(event.dest).expanduser()
         if not dest.is_absolute():
             dest = Path.cwd() / dest
-        self._law_export_worker(law, dest, event.dest)
+        self._law_export_worker(self.query_one(SynthesisPane), law, dest, event.dest)
 
     @work(thread=True, exclusive=True, group="export")
-    def _law_export_worker(self, law: ExplicitLaw, dest: Path, typed: str) -> None:
-        # the tree can take seconds (and compiles a kernel once): off the UI thread
+    def _law_export_worker(self, pane: SynthesisPane, law: ExplicitLaw, dest: Path,
+                           typed: str) -> None:
+        # the tree can take seconds (and compiles a kernel once): off the UI thread (the
+        # pane found on it, as for the sweep: no DOM query in a thread)
         import re
 
         from codev_engine import export_c
@@ -992,7 +1016,6 @@ class CodevApp(App):
 
         # named after the design, made a prefix export_c accepts (no keyword, header...)
         name = prefix_for(str(law.meta.get("problem", "")))
-        pane = self.query_one(SynthesisPane)
         from codev_engine.kernel_cache import LATER, ready
 
         if not ready(LATER):  # the tree's kernels, once: said here (stderr is not seen)

@@ -388,6 +388,8 @@ class Plot(Static):
         self._draw: Callable[[int, int], Text] | None = None
         self._placeholder = placeholder
         self._drawn = 0  # the latest picture asked for (see _show)
+        self._asked_size: tuple[int, int] | None = None  # the size it was asked for
+        self._shown_request = 0  # the request whose picture is up
 
     def set_draw(self, draw: Callable[[int, int], Text] | None, placeholder: str = "") -> None:
         """Draw the picture with ``draw``, now and on every resize, in a worker thread.
@@ -416,7 +418,18 @@ class Plot(Static):
         if w < 12 or h < 4 or self._draw is None:
             return
         self._drawn += 1
+        self._asked_size = (w, h)
         self._render_in_thread(self._draw, w, h, self._drawn)
+
+    @property
+    def up_to_date(self) -> bool:
+        """Whether the picture up is the latest drawing's, for the widget's size as laid out
+        now: False while its thread draws, and from a resize until its new picture is up
+        (a screenshot taken then showed a picture of the size before)."""
+        w, h = self.content_size.width, self.content_size.height
+        if self._draw is None or w < 12 or h < 4:
+            return True  # a placeholder, or too small to draw (the picture is not redrawn)
+        return self._shown_request == self._drawn and self._asked_size == (w, h)
 
     @work(thread=True, exclusive=True, group="plot")
     def _render_in_thread(
@@ -435,3 +448,4 @@ class Plot(Static):
         # after the last resize)
         if request == self._drawn:
             self.update(text)
+            self._shown_request = request

@@ -145,6 +145,9 @@ class MpcPane(Horizontal):
                 msg += " · [yellow]stale: the spec changed since (ctrl+g previews again)[/yellow]"
             status.update(msg)
 
+    def on_unmount(self) -> None:
+        self._stop.set()  # the app quits: a preview in flight stops at its next solve
+
     def cancel_preview(self) -> None:
         """Stop the preview in flight before its next MPC solve (none: nothing happens)."""
         self._stop.set()
