@@ -15,6 +15,7 @@ import json
 import os
 import re
 import signal
+import threading
 import time
 import tomllib
 from pathlib import Path
@@ -231,18 +232,28 @@ def test_a_worker_killed_mid_sweep_changes_nothing(cluster, serial_rows):
     client = cluster.client
     before = client.run(os.getpid)  # worker address -> its process id
     killed: list[tuple[str, int, int]] = []
+    stop = threading.Event()
 
-    def kill_a_busy_worker(i, row):
-        if killed:
-            return
-        for address, keys in client.processing().items():
-            if keys:  # this worker holds tasks not finished yet
-                os.kill(before[address], signal.SIGKILL)
-                killed.append((address, before[address], len(keys)))
-                return
+    def kill_a_busy_worker() -> None:
+        # from the sweep's start, not after its first row: under load the 8 short designs
+        # (~0.05 s each) could all be done before the client saw the first row, leaving
+        # no worker with a task to lose
+        while not stop.is_set() and not killed:
+            for address, keys in client.processing().items():
+                if keys:  # this worker holds tasks not finished yet
+                    os.kill(before[address], signal.SIGKILL)
+                    killed.append((address, before[address], len(keys)))
+                    return
+            time.sleep(0.005)
 
-    rows = ce.sweep(ce.load_spec(DI), GRID, executor=cluster, progress=kill_a_busy_worker)
-    assert killed, "no worker had tasks left after the first design"
+    killer = threading.Thread(target=kill_a_busy_worker, daemon=True)
+    killer.start()
+    try:
+        rows = ce.sweep(ce.load_spec(DI), GRID, executor=cluster)
+    finally:
+        stop.set()
+        killer.join(30)
+    assert killed, "no worker held a task while the sweep ran"
     assert exact(rows) == exact(serial_rows)  # each design once, in its place
     # the process was really gone: the nanny started a new one in its place
     deadline = time.monotonic() + 30
