@@ -14,6 +14,13 @@ from dataclasses import dataclass
 import daqp
 import numpy as np
 
+from codev_engine.errors import SolverError
+from codev_engine.geometry.lp_proof import (
+    farkas_proof,
+    highs_infeasibility,
+    one_sided,
+    optimum_proved,
+)
 from codev_engine.limits import beat
 
 __all__ = [
@@ -210,11 +217,19 @@ def solve_lp(
         dual_tol=1e-12,
         iter_limit=iter_limit,
     )
+    box = None  # a bound on |x|_inf the rows impose, for a Farkas certificate's residual
+    if lb is not None and ub is not None and np.all(np.isfinite(lb)) and np.all(np.isfinite(ub)):
+        box = float(max(np.abs(lb).max(initial=0.0), np.abs(ub).max(initial=0.0)))
+    # DAQP's answer stands only with a proof checked here (``lp_proof``): a wrong
+    # "infeasible" or a maximum stopped short would drop states (see the list above)
     if flag == 1:
-        return np.asarray(x, dtype=float), "optimal", np.asarray(info["lam"], dtype=float)
-    if flag == -1:
+        x = np.asarray(x, dtype=float)
+        lam = np.asarray(info["lam"], dtype=float)
+        if optimum_proved(f, M, upper, lower, x, lam):
+            return x, "optimal", lam
+    elif flag == -1 and farkas_proof(M, upper, lower, sense == 5, box):
         return None, "infeasible", None
-    # anything else (cycling, iteration limit, unbounded claims): ask HiGHS
+    # anything else (no proof, cycling, iteration limit, unbounded claims): ask HiGHS
     bounds = [(None, None)] * nx
     if lb is not None or ub is not None:
         lo = np.full(nx, -np.inf) if lb is None else lb
@@ -234,13 +249,28 @@ def solve_lp(
         bounds=bounds,
         method="highs",
     )
+    if res.status not in (0, 3):
+        # HiGHS's "infeasible" (or its failure) needs a proof too; without one the LP is
+        # answered on its rows widened by the distance at which they meet (a superset of
+        # the set: every caller's use of an optimum, a maximum or a point in it, is then
+        # conservative), without presolve, whose reductions made the wrong calls found
+        # so far (tests/engine/test_lp_proof.py)
+        G, h, E, e = one_sided(M, upper, lower, sense == 5)
+        widen = highs_infeasibility(G, h, E, e, box)
+        if widen is None:
+            return None, "infeasible", None
+        if np.isfinite(widen):
+            h = h + widen * np.maximum(np.linalg.norm(G, axis=1), 1.0)
+            res = linprog(f, A_ub=G, b_ub=h, A_eq=E if E.shape[0] else None,
+                          b_eq=e if E.shape[0] else None, bounds=[(None, None)] * nx,
+                          method="highs", options={"presolve": False})
     if res.status == 0:
         return np.asarray(res.x), "optimal", None
-    if res.status == 2:
-        return None, "infeasible", None
     if res.status == 3:
         return None, "unbounded", None
-    return None, "infeasible", None
+    # (an iteration limit or numerical trouble: no answer is sound for every caller, and
+    # "infeasible" would drop whatever the LP was asked about)
+    raise SolverError(f"an LP failed in both DAQP (flag {flag}) and HiGHS: {res.message}")
 
 
 def chebyshev_ball(
