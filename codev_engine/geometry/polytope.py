@@ -157,6 +157,14 @@ def solve_lp(
 ) -> tuple[np.ndarray | None, str, np.ndarray | None]:
     """``min f'x  s.t.  A x <= b, Aeq x = beq, lb <= x <= ub``.
 
+    Every answer is proved (``lp_proof``): callers drop a piece of a reach set, skip a
+    violation or call a row redundant on "infeasible" or on an optimum's value, so DAQP's
+    answer stands only with a certificate checked here (weak duality for an optimum, a
+    Farkas certificate for "infeasible"), else HiGHS answers, and its "infeasible" needs the
+    certificate too; without one the LP is solved over its rows widened to where they meet
+    (a superset). Which callers are unsound on a wrong answer and which only conservative:
+    docs/verification.md, "The LPs' answers".
+
     Parameters
     ----------
     f : (nx,) ndarray
@@ -178,6 +186,11 @@ def solve_lp(
     lam : ndarray or None
         Multipliers of the rows of ``A`` (>= 0), then of ``Aeq`` (DAQP's sign convention,
         ``f + A' lam = 0`` at the optimum); None when they come from the fallback.
+
+    Raises
+    ------
+    SolverError
+        Neither DAQP nor HiGHS answers (even on the widened rows).
     """
     beat("LPs")  # (a verification's heartbeat: loops of many LPs report progress)
     nx = f.shape[0]
