@@ -230,17 +230,14 @@ def solve_lp(
         dual_tol=1e-12,
         iter_limit=iter_limit,
     )
-    box = None  # a bound on |x|_inf the rows impose, for a Farkas certificate's residual
-    if lb is not None and ub is not None and np.all(np.isfinite(lb)) and np.all(np.isfinite(ub)):
-        box = float(max(np.abs(lb).max(initial=0.0), np.abs(ub).max(initial=0.0)))
     # DAQP's answer stands only with a proof checked here (``lp_proof``): a wrong
-    # "infeasible" or a maximum stopped short would drop states (see the list above)
+    # "infeasible" or a maximum stopped short would drop states (see the docstring)
     if flag == 1:
         x = np.asarray(x, dtype=float)
         lam = np.asarray(info["lam"], dtype=float)
         if optimum_proved(f, M, upper, lower, x, lam):
             return x, "optimal", lam
-    elif flag == -1 and farkas_proof(M, upper, lower, sense == 5, box):
+    elif flag == -1 and farkas_proof(M, upper, lower, sense == 5, _box(lb, ub)):
         return None, "infeasible", None
     # anything else (no proof, cycling, iteration limit, unbounded claims): ask HiGHS
     bounds = [(None, None)] * nx
@@ -269,7 +266,7 @@ def solve_lp(
         # conservative), without presolve, whose reductions made the wrong calls found
         # so far (tests/engine/test_lp_proof.py)
         G, h, E, e = one_sided(M, upper, lower, sense == 5)
-        widen = highs_infeasibility(G, h, E, e, box)
+        widen = highs_infeasibility(G, h, E, e, _box(lb, ub))
         if widen is None:
             return None, "infeasible", None
         if np.isfinite(widen):
@@ -284,6 +281,13 @@ def solve_lp(
     # (an iteration limit or numerical trouble: no answer is sound for every caller, and
     # "infeasible" would drop whatever the LP was asked about)
     raise SolverError(f"an LP failed in both DAQP (flag {flag}) and HiGHS: {res.message}")
+
+
+def _box(lb: np.ndarray | None, ub: np.ndarray | None) -> float | None:
+    """A bound on ``|x|_inf`` from the variables' bounds (None unless all are finite)."""
+    if lb is None or ub is None or not (np.all(np.isfinite(lb)) and np.all(np.isfinite(ub))):
+        return None
+    return float(max(np.abs(lb).max(initial=0.0), np.abs(ub).max(initial=0.0)))
 
 
 def chebyshev_ball(
