@@ -149,7 +149,14 @@ def test_an_optimum_stopped_short_is_refused():
     lam = np.array([1.0, 0.0])
     assert optimum_proved(f, M, upper, lower, np.array([1.0]), lam)
     assert not optimum_proved(f, M, upper, lower, np.array([1.0 - 1e-6]), lam)
-    # a multiplier that leaves a residual: no bound from it
-    assert not optimum_proved(f, M, upper, lower, np.array([1.0]), np.array([0.999, 0.0]))
+    # a multiplier with a residual that re-solving on its support removes (x is optimal)
+    assert optimum_proved(f, M, upper, lower, np.array([1.0]), np.array([0.999, 0.0]))
+    # a residual outside the active rows' span: min -x1 - 1e-6 x2 over x1 <= 1, |x2| <= 5
+    # stopped at (1, 0), 5e-6 short of (1, 5), with the multiplier of x1 <= 1 alone
+    M2 = np.array([[1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    f2 = np.array([-1.0, -1e-6])
+    up2, lo2 = np.array([1.0, 5.0, 5.0]), np.full(3, -1e30)
+    assert not optimum_proved(f2, M2, up2, lo2, np.array([1.0, 0.0]), np.array([1.0, 0, 0]))
+    assert optimum_proved(f2, M2, up2, lo2, np.array([1.0, 5.0]), np.array([1.0, 1e-6, 0]))
     # a multiplier on an absent bound
     assert not optimum_proved(f, M, upper, lower, np.array([1.0]), np.array([1.0, -1.0]))
