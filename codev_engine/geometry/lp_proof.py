@@ -13,7 +13,8 @@ accepted only with a certificate that numpy checks, else HiGHS is asked:
   ``GAP (1 + |f|_1 (1 + |x|_inf))`` of it, the dual residual charged at ``1 + |x|_inf``
   included, and the residual is below ``GAP (1 + |f|_1)`` (the rule of
   ``vertices._box_side``). On the cruise control DAQP stopped at 7.8504 for a maximum of
-  7.8520 (issue 37) with a residual of 2e-6: refused here.
+  7.8520 (issue 37) with a residual of 2e-6: refused here. Multipliers whose residual is
+  rounding on their support are re-solved there (least squares) and checked again.
 - "infeasible": a Farkas certificate, ``y >= 0`` on the inequality rows ``G x <= h``
   (free on the equalities ``E x = e``) with ``G' y + E' y_e = r`` and
   ``h' y + e' y_e < -|r|_1 R``: every ``x`` with ``|x|_inf <= R`` then violates a row.
@@ -23,7 +24,16 @@ accepted only with a certificate that numpy checks, else HiGHS is asked:
   ``min t  s.t.  G x - |g| t <= h, E x = e, t >= 0`` (always feasible without
   equalities), solved by DAQP too: its optimum ``t > 0`` is the distance by which the
   rows miss each other, and its multipliers are the certificate. DAQP's own infeasible
-  exit carries no multipliers (its Python interface leaves ``info["lam"]`` unset).
+  exit carries no multipliers (its Python interface leaves ``info["lam"]`` unset). The
+  multipliers' residual is removed by least squares on their support, and the inequality
+  is checked in exact rational arithmetic on those few rows.
+
+DAQP called a strip of four nearly parallel rows infeasible with a point 2e-8 inside all of
+them, and HiGHS (with presolve) one of ten (``tests/engine/test_lp_proof.py``); in
+``benchmarks/verdicts.py`` DAQP called five of the point locator's box LPs infeasible
+where HiGHS found points within 4e-13 of every row. So HiGHS's "infeasible" needs the same
+certificate (:func:`highs_infeasibility`), and without one ``solve_lp`` answers over the
+rows widened to where they meet.
 """
 
 from __future__ import annotations
