@@ -295,8 +295,8 @@ def highs_infeasibility(
     Returns
     -------
     float or None
-        None: proved empty. Else the elastic LP's distance ``t >= 0`` (plus its
-        tolerance): the rows widened by ``t |g|`` surely meet.
+        None: proved empty. Else the elastic LP's distance ``t >= 0``: the rows widened
+        by ``t |g|`` meet (to HiGHS's tolerance: widen a little more).
     """
     from scipy.optimize import linprog
 
@@ -313,4 +313,4 @@ def highs_infeasibility(
     ye = -np.asarray(res.eqlin.marginals) if E.shape[0] else np.zeros(0)
     if certificate_holds(G, h, E, e, y, ye, box):
         return None
-    return max(float(res.x[-1]), 0.0) + 1e-9 * (1.0 + float(np.abs(h).max(initial=0.0)))
+    return max(float(res.x[-1]), 0.0)

@@ -262,7 +262,8 @@ def solve_lp(
         if widen is None:
             return None, "infeasible", None
         if np.isfinite(widen):
-            h = h + widen * np.maximum(np.linalg.norm(G, axis=1), 1.0)
+            # (and 1e-9 of each offset past it: HiGHS's distance has its tolerance)
+            h = h + widen * np.maximum(np.linalg.norm(G, axis=1), 1.0) + 1e-9 * (1 + abs(h))
             res = linprog(f, A_ub=G, b_ub=h, A_eq=E if E.shape[0] else None,
                           b_eq=e if E.shape[0] else None, bounds=[(None, None)] * nx,
                           method="highs", options={"presolve": False})
