@@ -21,7 +21,7 @@ accepted only with a certificate that numpy checks, else HiGHS is asked:
   ``R`` is the box of the variables' bounds when they are all finite, else
   ``REACH (1 + |h, e|_inf)``: no point of the engine's sets lies a million times farther
   out than their offsets. The certificate is the multipliers of the elastic LP
-  ``min t  s.t.  G x - |g| t <= h, E x = e, t >= 0`` (always feasible without
+  ``min t  s.t.  G x - max(|g|, 1) t <= h, E x = e, t >= 0`` (always feasible without
   equalities), solved by DAQP too: its optimum ``t > 0`` is the distance by which the
   rows miss each other, and its multipliers are the certificate. DAQP's own infeasible
   exit carries no multipliers (its Python interface leaves ``info["lam"]`` unset). The
@@ -221,11 +221,12 @@ def _holds(G, h, E, e, y, ye, box) -> bool:
 def _elastic(
     G: np.ndarray, h: np.ndarray, E: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The elastic LP's rows in ``(x, t)``: ``G x - |g| t <= h``, ``E x = e``, ``-t <= 0``
-    (zero rows relaxed at unit rate), and its cost ``t``."""
+    """The elastic LP's rows in ``(x, t)``: ``G x - max(|g|, 1) t <= h``, ``E x = e``,
+    ``-t <= 0``, and its cost ``t``. (Rows of norm below 1 are relaxed at unit rate: a
+    row of rounding, 1e-15 x <= -0.7 in a region's description, asked for t = 6e14 and
+    HiGHS called the elastic LP infeasible.)"""
     k, nx = G.shape
-    w = np.linalg.norm(G, axis=1)
-    w[w == 0.0] = 1.0
+    w = np.maximum(np.linalg.norm(G, axis=1), 1.0)
     Ge = np.zeros((k + 1, nx + 1))
     Ge[:k, :nx] = G
     Ge[:k, nx] = -w
@@ -296,7 +297,7 @@ def highs_infeasibility(
     -------
     float or None
         None: proved empty. Else the elastic LP's distance ``t >= 0``: the rows widened
-        by ``t |g|`` meet (to HiGHS's tolerance: widen a little more).
+        by ``t max(|g|, 1)`` meet (to HiGHS's tolerance: widen a little more).
     """
     from scipy.optimize import linprog
 
