@@ -307,6 +307,7 @@ def highs_infeasibility(
         cost, A_ub=Ge, b_ub=np.concatenate([h, [0.0]]),
         A_eq=Ee if E.shape[0] else None, b_eq=e if E.shape[0] else None,
         bounds=[(None, None)] * Ge.shape[1], method="highs",
+        options={"presolve": False},  # (its reductions made the wrong calls found so far)
     )
     if res.status != 0:
         return np.inf  # (equalities that cannot hold, or a failure: no widening helps)
