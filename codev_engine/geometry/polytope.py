@@ -154,6 +154,8 @@ def solve_lp(
     lb: np.ndarray | None = None,
     ub: np.ndarray | None = None,
     iter_limit: int = 10000,
+    *,
+    certify_optimum: bool = True,
 ) -> tuple[np.ndarray | None, str, np.ndarray | None]:
     """``min f'x  s.t.  A x <= b, Aeq x = beq, lb <= x <= ub``.
 
@@ -177,6 +179,11 @@ def solve_lp(
         Bounds of the variables; infinite entries are no bound.
     iter_limit : int
         DAQP's iteration limit (its default); past it HiGHS answers.
+    certify_optimum : bool
+        False: DAQP's optimum is taken without its proof (an "infeasible" still needs
+        one), for a caller whose decision by value is checked later: the mp-LP explorer's
+        facet pieces (synthesis' coverage check), where HiGHS's radii (1e-7 off by its
+        tolerances, on facets of radius 0) made the explorer run out of pieces.
 
     Returns
     -------
@@ -221,7 +228,7 @@ def solve_lp(
     # DAQP's answer stands only with a proof checked here (``lp_proof``): a wrong
     # "infeasible" or a maximum stopped short would drop states (see the docstring)
     if flag == 1:
-        if optimum_proved(f, M, upper, lower, x, lam):
+        if not certify_optimum or optimum_proved(f, M, upper, lower, x, lam):
             return x, "optimal", lam
         # DAQP's proximal iterations can stop one step early, their multipliers off by
         # eps_prox (x - x_prev) (5e-8 on the headbox's thin pieces' Chebyshev LPs): once
@@ -320,6 +327,7 @@ def chebyshev_ball(
     solver: str = "daqp",
     multipliers: bool = False,
     tol: float | None = None,
+    certify_optimum: bool = True,
 ) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray | None]:
     """Largest ball inside ``{A x <= b}`` (within the affine set ``Aeq x = beq``).
 
@@ -339,6 +347,8 @@ def chebyshev_ball(
     tol : float, optional
         With HiGHS: its primal and dual feasibility tolerances (default HiGHS's own, 1e-7,
         which leaves a ball of radius 1e-8 unproved: ``mpqp._Kernel._chebyshev``).
+    certify_optimum : bool
+        With DAQP: as in :func:`solve_lp`.
 
     Returns
     -------
@@ -373,7 +383,7 @@ def chebyshev_ball(
         x, y = _highs_lp(f, Ab, bb, Aeq_b, beq, tol=tol)
         status = "failed" if x is None else "optimal"
     else:
-        x, status, y = solve_lp(f, Ab, bb, Aeq_b, beq)
+        x, status, y = solve_lp(f, Ab, bb, Aeq_b, beq, certify_optimum=certify_optimum)
     y = None if y is None else y[: k + 1]  # (the rows and the cap, not the equalities)
     if status != "optimal" or x is None:
         out = np.full(d, np.nan), -np.inf
