@@ -14,6 +14,13 @@ from dataclasses import dataclass
 import daqp
 import numpy as np
 
+from codev_engine.errors import SolverError
+from codev_engine.geometry.lp_proof import (
+    farkas_proof,
+    highs_infeasibility,
+    one_sided,
+    optimum_proved,
+)
 from codev_engine.limits import beat
 
 __all__ = [
@@ -147,8 +154,18 @@ def solve_lp(
     lb: np.ndarray | None = None,
     ub: np.ndarray | None = None,
     iter_limit: int = 10000,
+    *,
+    certify_optimum: bool = True,
 ) -> tuple[np.ndarray | None, str, np.ndarray | None]:
     """``min f'x  s.t.  A x <= b, Aeq x = beq, lb <= x <= ub``.
+
+    Every answer is proved (``lp_proof``): callers drop a piece of a reach set, skip a
+    violation or call a row redundant on "infeasible" or on an optimum's value, so DAQP's
+    answer stands only with a certificate checked here (weak duality for an optimum, a
+    Farkas certificate for "infeasible"), else HiGHS answers, and its "infeasible" needs the
+    certificate too; without one the LP is solved over its rows widened to where they meet
+    (a superset). Which callers are unsound on a wrong answer and which only conservative:
+    docs/verification.md, "The LPs' answers".
 
     Parameters
     ----------
@@ -162,6 +179,11 @@ def solve_lp(
         Bounds of the variables; infinite entries are no bound.
     iter_limit : int
         DAQP's iteration limit (its default); past it HiGHS answers.
+    certify_optimum : bool
+        False: DAQP's optimum is taken without its proof (an "infeasible" still needs
+        one), for a caller whose decision by value is checked later: the mp-LP explorer's
+        facet pieces (synthesis' coverage check), where HiGHS's radii (1e-7 off by its
+        tolerances, on facets of radius 0) made the explorer run out of pieces.
 
     Returns
     -------
@@ -171,6 +193,11 @@ def solve_lp(
     lam : ndarray or None
         Multipliers of the rows of ``A`` (>= 0), then of ``Aeq`` (DAQP's sign convention,
         ``f + A' lam = 0`` at the optimum); None when they come from the fallback.
+
+    Raises
+    ------
+    SolverError
+        Neither DAQP nor HiGHS answers (even on the widened rows).
     """
     beat("LPs")  # (a verification's heartbeat: loops of many LPs report progress)
     nx = f.shape[0]
@@ -196,25 +223,22 @@ def solve_lp(
         upper[k + ke :] = _INF if ub is None else np.where(np.isfinite(ub), ub, _INF)
         if lb is not None:
             lower[k + ke :] = np.where(np.isfinite(lb), lb, -_INF)
-    x, _, flag, info = daqp.solve(
-        np.zeros((nx, nx)),
-        np.ascontiguousarray(f, dtype=float),
-        M,
-        upper,
-        lower,
-        sense,
-        eps_prox=1e-2,
-        # DAQP's default primal tolerance (1e-6) is far too loose for geometry: a facet
-        # centre 3e-7 off its hyperplane made the exploration cycle
-        primal_tol=1e-11,
-        dual_tol=1e-12,
-        iter_limit=iter_limit,
-    )
+    f = np.ascontiguousarray(f, dtype=float)
+    x, flag, lam = _daqp(f, M, upper, lower, sense, iter_limit)
+    # DAQP's answer stands only with a proof checked here (``lp_proof``): a wrong
+    # "infeasible" or a maximum stopped short would drop states (see the docstring)
     if flag == 1:
-        return np.asarray(x, dtype=float), "optimal", np.asarray(info["lam"], dtype=float)
-    if flag == -1:
+        if not certify_optimum or optimum_proved(f, M, upper, lower, x, lam):
+            return x, "optimal", lam
+        # DAQP's proximal iterations can stop one step early, their multipliers off by
+        # eps_prox (x - x_prev) (5e-8 on the headbox's thin pieces' Chebyshev LPs): once
+        # more from x, which proves those in one iteration, before HiGHS (~100x slower)
+        x, flag, lam = _daqp(f, M, upper, lower, sense, iter_limit, start=x)
+        if flag == 1 and optimum_proved(f, M, upper, lower, x, lam):
+            return x, "optimal", lam
+    elif flag == -1 and farkas_proof(M, upper, lower, sense == 5, _box(lb, ub)):
         return None, "infeasible", None
-    # anything else (cycling, iteration limit, unbounded claims): ask HiGHS
+    # anything else (no proof, cycling, iteration limit, unbounded claims): ask HiGHS
     bounds = [(None, None)] * nx
     if lb is not None or ub is not None:
         lo = np.full(nx, -np.inf) if lb is None else lb
@@ -234,13 +258,64 @@ def solve_lp(
         bounds=bounds,
         method="highs",
     )
+    if res.status not in (0, 3):
+        # HiGHS's "infeasible" (or its failure) needs a proof too; without one the LP is
+        # answered on its rows widened by the distance at which they meet (a superset of
+        # the set: every caller's use of an optimum, a maximum or a point in it, is then
+        # conservative), without presolve, whose reductions made the wrong calls found
+        # so far (tests/engine/test_lp_proof.py)
+        G, h, E, e = one_sided(M, upper, lower, sense == 5)
+        widen = highs_infeasibility(G, h, E, e, _box(lb, ub))
+        if widen is None:
+            return None, "infeasible", None
+        if np.isfinite(widen):
+            # (and 1e-9 of each offset past it: HiGHS's distance has its tolerance)
+            h = h + widen * np.maximum(np.linalg.norm(G, axis=1), 1.0) + 1e-9 * (1 + abs(h))
+            res = linprog(f, A_ub=G, b_ub=h, A_eq=E if E.shape[0] else None,
+                          b_eq=e if E.shape[0] else None, bounds=[(None, None)] * nx,
+                          method="highs", options={"presolve": False})
     if res.status == 0:
         return np.asarray(res.x), "optimal", None
-    if res.status == 2:
-        return None, "infeasible", None
     if res.status == 3:
         return None, "unbounded", None
-    return None, "infeasible", None
+    # (an iteration limit or numerical trouble: no answer is sound for every caller, and
+    # "infeasible" would drop whatever the LP was asked about)
+    raise SolverError(f"an LP failed in both DAQP (flag {flag}) and HiGHS: {res.message}")
+
+
+def _daqp(
+    f: np.ndarray,
+    M: np.ndarray,
+    upper: np.ndarray,
+    lower: np.ndarray,
+    sense: np.ndarray,
+    iter_limit: int,
+    start: np.ndarray | None = None,
+) -> tuple[np.ndarray, int, np.ndarray]:
+    """DAQP's LP (proximal mode): ``(x (nx,), flag, lam (n,))``, optionally from ``start``."""
+    x, _, flag, info = daqp.solve(
+        np.zeros((f.shape[0], f.shape[0])),
+        f,
+        M,
+        upper,
+        lower,
+        sense,
+        eps_prox=1e-2,
+        # DAQP's default primal tolerance (1e-6) is far too loose for geometry: a facet
+        # centre 3e-7 off its hyperplane made the exploration cycle
+        primal_tol=1e-11,
+        dual_tol=1e-12,
+        iter_limit=iter_limit,
+        primal_start=start,
+    )
+    return np.asarray(x, dtype=float), flag, np.asarray(info["lam"], dtype=float)
+
+
+def _box(lb: np.ndarray | None, ub: np.ndarray | None) -> float | None:
+    """A bound on ``|x|_inf`` from the variables' bounds (None unless all are finite)."""
+    if lb is None or ub is None or not (np.all(np.isfinite(lb)) and np.all(np.isfinite(ub))):
+        return None
+    return float(max(np.abs(lb).max(initial=0.0), np.abs(ub).max(initial=0.0)))
 
 
 def chebyshev_ball(
@@ -252,6 +327,7 @@ def chebyshev_ball(
     solver: str = "daqp",
     multipliers: bool = False,
     tol: float | None = None,
+    certify_optimum: bool = True,
 ) -> tuple[np.ndarray, float] | tuple[np.ndarray, float, np.ndarray | None]:
     """Largest ball inside ``{A x <= b}`` (within the affine set ``Aeq x = beq``).
 
@@ -271,6 +347,8 @@ def chebyshev_ball(
     tol : float, optional
         With HiGHS: its primal and dual feasibility tolerances (default HiGHS's own, 1e-7,
         which leaves a ball of radius 1e-8 unproved: ``mpqp._Kernel._chebyshev``).
+    certify_optimum : bool
+        With DAQP: as in :func:`solve_lp`.
 
     Returns
     -------
@@ -305,7 +383,7 @@ def chebyshev_ball(
         x, y = _highs_lp(f, Ab, bb, Aeq_b, beq, tol=tol)
         status = "failed" if x is None else "optimal"
     else:
-        x, status, y = solve_lp(f, Ab, bb, Aeq_b, beq)
+        x, status, y = solve_lp(f, Ab, bb, Aeq_b, beq, certify_optimum=certify_optimum)
     y = None if y is None else y[: k + 1]  # (the rows and the cap, not the equalities)
     if status != "optimal" or x is None:
         out = np.full(d, np.nan), -np.inf

@@ -672,12 +672,14 @@ def checked_piece(
     A, b, ok = normalize_rows(A, b)
     if not ok:
         return None
-    _, radius = chebyshev_ball(A, b)
+    _, radius, y = chebyshev_ball(A, b, multipliers=True)
     # DAQP's radius is off by up to ~1e-9 of the offsets on badly scaled rows (AFTI-16,
     # offsets 1000: -1.2e-6 for a piece HiGHS gives +1.5e-7): its "empty" is relative
     if radius < -_EMPTY * (1.0 + float(np.abs(b).max())):
         return None
-    if not radius > _THIN:
+    # (no multipliers: solve_lp found DAQP's answer unproved and HiGHS gave the radius,
+    # a piece DAQP misjudges, whose rows DAQP's minrep would cut wrongly too)
+    if not radius > _THIN or y is None:
         # thin, flat or empty within the LP's tolerance: HiGHS decides, else a superset
         _, radius = chebyshev_ball(A, b, solver="highs")
         if radius < -_EMPTY and np.isfinite(radius):

@@ -962,7 +962,9 @@ class _Explorer:
             if ball is None:
                 PA = np.vstack([baseA, EA])
                 Pb = np.concatenate([baseb, Eb])
-                ball = chebyshev_ball(PA, Pb, a[None, :], np.array([beta]))
+                # (DAQP's radius unproved: a facet piece missed is the coverage check's)
+                ball = chebyshev_ball(PA, Pb, a[None, :], np.array([beta]),
+                                      certify_optimum=False)
             p, rho = ball
             if not rho > self.region_tol:
                 continue
@@ -1057,6 +1059,7 @@ class _Explorer:
                 np.concatenate([baseb, Eb, R2.b]),
                 a[None, :],
                 np.array([beta]),
+                certify_optimum=False,
             )
             if not common > self.region_tol:
                 self.stats["step_refinements"] += 1
