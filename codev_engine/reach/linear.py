@@ -618,6 +618,8 @@ class LinearReach(ClosedLoopSetup):
         #: disturbance whose radius ``_prad`` (n,) is bounded per period (:meth:`_param_bound`)
         self.param = self.plant.dA is not None
         self._prad = np.zeros(self.n)
+        #: the times of the current period found free of exact violations (:meth:`_resolve`)
+        self._no_violation: set[float] = set()
         #: disturbances, noise or parameters: the star carries generators, nothing is exact
         self.uncertain = self.plant.E is not None or self.vr is not None or self.param
 
@@ -1051,7 +1053,7 @@ class LinearReach(ClosedLoopSetup):
         self._tick(int(keep.sum()), s.k + 1, t_k + tau_end)
         # the times of this period found free of exact violations: adjacent suspicious
         # segments share an end, and a refinement's first end is its parent's
-        self._no_violation: set[float] = set()
+        self._no_violation = set()
         for j in np.flatnonzero(bad):
             if not self._resolve(s, i, taus[j], taus[j + 1], 0, slo[j], shi[j], branch):
                 return None
