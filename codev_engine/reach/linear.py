@@ -1283,6 +1283,14 @@ class LinearReach(ClosedLoopSetup):
                     continue
             Hn = A @ s.V
             hn = self._reach_rows(A, b) - A @ s.c + np.abs(A) @ s.err + 1e-9
+            # P lies in the hull of s.verts: a row of the region that every one of them
+            # violates (beyond the products' rounding) leaves no point of P in the region,
+            # the piece is empty (no LP needed; as the nonlinear engine's split)
+            VH = s.verts @ Hn.T  # (nv, rows)
+            over = VH.min(axis=0) - hn
+            if np.any(over > 1e-12 * (1.0 + (np.abs(s.verts) @ np.abs(Hn).T).max(axis=0)
+                                      + np.abs(hn))):
+                continue
             exact = s.exact
             try:
                 piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))
