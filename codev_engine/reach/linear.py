@@ -618,6 +618,8 @@ class LinearReach(ClosedLoopSetup):
         #: disturbance whose radius ``_prad`` (n,) is bounded per period (:meth:`_param_bound`)
         self.param = self.plant.dA is not None
         self._prad = np.zeros(self.n)
+        #: the times of the current period found free of exact violations (:meth:`_resolve`)
+        self._no_violation: set[float] = set()
         #: disturbances, noise or parameters: the star carries generators, nothing is exact
         self.uncertain = self.plant.E is not None or self.vr is not None or self.param
 
@@ -862,7 +864,14 @@ class LinearReach(ClosedLoopSetup):
         X, W, _, err = self._images(s, i, np.array([tau]))
         X, W, err = X[0], W[0], err[0]
         margin = float(np.max(err)) * 10 + 1e-12
+        # the polytope P of alpha lies in the hull of s.verts (what the tube's boxes rest
+        # on too), so a linear function's maximum over P is at most its maximum over them:
+        # an LP whose bound the vertices already keep below the threshold finds nothing
+        # and is skipped (a suspicious segment's endpoints are mostly of this kind)
+        Y = X[None, :] + s.verts @ W.T  # (nv, n)
         for idx, (A, b) in enumerate(self.unsafe):
+            if np.any((Y @ A.T).min(axis=0) > b - margin):
+                continue  # a row of the unsafe set no point of P reaches by the margin
             # maximise r s.t. A (X + W a) + r <= b, a in P
             na = W.shape[1]
             Aa = np.vstack(
@@ -880,7 +889,10 @@ class LinearReach(ClosedLoopSetup):
             if st == "optimal" and x[-1] >= margin:
                 return Finding("unsafe", idx, t, x[:na])
         for idx, (A, b) in enumerate(self.safe):
+            high = (Y @ A.T).max(axis=0)
             for r in range(A.shape[0]):
+                if high[r] <= b[r] + margin:
+                    continue
                 x, st, _ = solve_lp(-(A[r] @ W), s.H, s.h)
                 if st == "optimal" and A[r] @ (X + W @ x) > b[r] + margin:
                     return Finding("safe", idx, t, x)
@@ -891,11 +903,14 @@ class LinearReach(ClosedLoopSetup):
             else:
                 Xu, Wu = X, W
             umin, umax = self._ubounds
+            Yu = Xu[None, :] + s.verts @ Wu.T  # (nv, d)
             for r in range(self.m):
                 for sign, bound in ((1.0, umax[r]), (-1.0, -umin[r])):
                     if not np.isfinite(bound):
                         continue
                     row = sign * F[r]
+                    if (Yu @ row).max() + sign * G[r] <= bound + margin:
+                        continue  # (as above: no point of P exceeds the bound)
                     x, st, _ = solve_lp(-(row @ Wu), s.H, s.h)
                     if st == "optimal" and row @ (Xu + Wu @ x) + sign * G[r] > bound + margin:
                         return Finding("input_bounds", r, t, x)
@@ -1036,6 +1051,9 @@ class LinearReach(ClosedLoopSetup):
             Tube(t0[keep], t1[keep], slo[keep], shi[keep], np.full(int(keep.sum()), branch))
         )
         self._tick(int(keep.sum()), s.k + 1, t_k + tau_end)
+        # the times of this period found free of exact violations: adjacent suspicious
+        # segments share an end, and a refinement's first end is its parent's
+        self._no_violation = set()
         for j in np.flatnonzero(bad):
             if not self._resolve(s, i, taus[j], taus[j + 1], 0, slo[j], shi[j], branch):
                 return None
@@ -1131,7 +1149,11 @@ class LinearReach(ClosedLoopSetup):
         """
         t_k = s.k * self.Ts
         for tau in (ta, tb):
+            if float(tau) in self._no_violation:
+                continue  # (the same star, region and time: the same answer)
             f = self._exact_violation(s, i, tau, t_k + tau)
+            if f is None:
+                self._no_violation.add(float(tau))
             if f is not None and not s.exact and self.uncertain:
                 # a point of a hull (a merge, a region's cut of a disturbed star: state
                 # coordinates, no initial state): a possible violation only, which the
@@ -1261,6 +1283,14 @@ class LinearReach(ClosedLoopSetup):
                     continue
             Hn = A @ s.V
             hn = self._reach_rows(A, b) - A @ s.c + np.abs(A) @ s.err + 1e-9
+            # P lies in the hull of s.verts: a row of the region that every one of them
+            # violates (beyond the products' rounding) leaves no point of P in the region,
+            # the piece is empty (no LP needed; as the nonlinear engine's split)
+            VH = s.verts @ Hn.T  # (nv, rows)
+            over = VH.min(axis=0) - hn
+            if np.any(over > 1e-12 * (1.0 + (np.abs(s.verts) @ np.abs(Hn).T).max(axis=0)
+                                      + np.abs(hn))):
+                continue
             exact = s.exact
             try:
                 piece = checked_piece(np.vstack([s.H, Hn]), np.concatenate([s.h, hn]))

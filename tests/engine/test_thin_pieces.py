@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linprog
 
-from codev_engine.geometry.polytope import normalize_rows
+from codev_engine.geometry.polytope import chebyshev_ball, normalize_rows
 from codev_engine.geometry.vertices import checked_piece
 
 # a thin piece (inscribed radius ~5e-12, flat in the attack angle): its relaxed rows' minrep
@@ -121,3 +121,67 @@ def test_a_piece_daqp_calls_empty_is_kept_when_highs_finds_it():
     assert piece is not None
     _, _, V = piece
     _assert_encloses(DROPPED_A, DROPPED_B, V)
+
+
+# a sliver along a region's face (the double integrator, norm 1, N = 10 over 9 s: a set cut
+# by the face y = -2 relaxed by 1e-9 on both sides): DAQP's Chebyshev radius 9.2e-10 with
+# a centre strictly inside, HiGHS's 1.001e-9 (above _THIN within its tolerances). The
+# centre proves it is not empty: kept, relaxed, and bounded by DAQP's proved box LPs
+SLIVER_A = np.array([
+    [1.0, 0.0],
+    [0.0, 1.0],
+    [0.7071067811865476, 0.7071067811865476],
+    [0.7071067811865476, -0.7071067811865476],
+    [-0.7071067811865476, 0.7071067811865476],
+    [0.16439898730535726, 0.9863939238321439],
+    [0.19611613513818407, 0.9805806756909202],
+    [0.1414213562373095, 0.9899494936611666],
+    [0.12403473458920847, 0.9922778767136677],
+    [0.447213595499958, 0.894427190999916],
+    [0.0, -1.0],
+    [-0.16439898730535726, -0.9863939238321439],
+    [-0.19611613513818402, -1.176696810829104],
+    [-0.37139067635410383, -1.299867367239363],
+    [0.0, 1.0],
+    [0.3162277660168379, 1.2649110640673515],
+    [0.0, -1.0],
+    [0.3713906763541037, 1.299867367239363],
+    [0.3713906763541037, 1.2998673672393632],
+    [0.3713906763541036, 1.299867367239363],
+    [0.3713906763541032, 1.2998673672393628],
+    [0.3713906763541041, 1.2998673672393632],
+    [0.37139067635410233, 1.2998673672393621],
+    [0.3713906763540924, 1.2998673672393564],
+    [0.3713906763541618, 1.2998673672393979],
+    [0.19611613513818404, 1.176696810829104],
+    [0.3713906763541038, 1.299867367239363],
+    [0.37139067635410306, 1.2998673672393628],
+    [0.37139067635410444, 1.2998673672393635],
+    [0.371390676354109, 1.2998673672393661],
+    [0.37139067635405937, 1.2998673672393366],
+])
+SLIVER_B = np.array([
+    -1.4599999878818994, -1.9899999969650004, -2.4395183843791437,
+    0.3747666004639064, -0.3480469135916834, -2.20294642490603,
+    -2.23768509657424, -2.1764746677740705, -2.155723682645931,
+    -2.432841951386148, 2.000000001, 2.2193863296223233,
+    3.1378581632133953, 3.6210590954552955, -1.999999998998,
+    -2.3717082441235964, 3.0000000010020003, -2.228344057121837,
+    -2.228344057121837, -2.2283440571218365, -2.2283440571218365,
+    -2.2283440571218387, -2.2283440571218462, -2.2283440571217925,
+    -2.2283440571217197, -2.647567823363033, -2.228344057121836,
+    -2.228344057121836, -2.2283440571218383, -2.2283440571218764,
+    -2.2283440571217907,
+])
+
+
+def test_a_sliver_along_a_face_is_kept_and_enclosed():
+    A, b, _ = normalize_rows(SLIVER_A, SLIVER_B)
+    centre, radius = chebyshev_ball(A, b)
+    assert 0.0 < radius <= 1e-9  # thin by DAQP: the path under test
+    piece = checked_piece(SLIVER_A, SLIVER_B)
+    assert piece is not None
+    H, h, V = piece
+    _assert_encloses(SLIVER_A, SLIVER_B, V)
+    # relaxed: the kept rows hold the centre with room to spare (a superset with interior)
+    assert np.all(H @ centre - h < -1e-8)
