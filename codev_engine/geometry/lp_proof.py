@@ -293,6 +293,18 @@ def highs_infeasibility(
     rows infeasible although a point satisfied every row by 1.2e-8
     (``tests/engine/test_lp_proof.py``).
 
+    Parameters
+    ----------
+    G : (k, n) ndarray
+    h : (k,) ndarray
+        The inequality rows ``G x <= h``.
+    E : (ke, n) ndarray
+    e : (ke,) ndarray
+        The equality rows ``E x = e`` (``ke`` may be 0).
+    box : float or None
+        A bound on ``|x|_inf`` the certificate's residual is charged at (None: one derived
+        from the rows, as in :func:`certificate_holds`).
+
     Returns
     -------
     float or None

@@ -177,13 +177,14 @@ def test_numpy_kernel_keeps_regions_daqps_ball_misjudges():
     """pop_mpqp_084's active set (0, 1, 3, 4, 8) has a region of radius 1.1e-5 (the compiled
     kernel's centre has that slack in every row) that DAQP's Chebyshev LP puts at -2.8e-6:
     the numpy kernel, which the walk uses before the compiled one starts and for what that
-    one hands back, dropped it and left a hole. It needs proofs now, as the compiled one."""
+    one hands back, dropped it and left a hole. It needs proofs now, as the compiled one (and
+    ``solve_lp`` takes DAQP's optimum only with its proof: the ball is right now)."""
     kernel, sol = _kernel_of("pop_mpqp_084")
     act = (0, 1, 3, 4, 8)
     status, rows, *_ = kernel.evaluate_numpy(act)
     assert status == "full"
     A, b = rows
-    assert polytope.chebyshev_ball(A, b)[1] < 0  # (DAQP's answer, still wrong)
+    assert polytope.chebyshev_ball(A, b)[1] > 1e-5  # (DAQP alone: -2.8e-6, unproved)
     got = mpqp_kernel.evaluate(np.array(act), kernel.box[0], *kernel._jit_args)
     assert got[0] == mpqp_kernel.FULL
     assert np.min(got[2] - got[1] @ got[8]) > 1e-5
