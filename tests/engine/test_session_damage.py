@@ -206,9 +206,12 @@ def test_a_lost_shard_or_a_truncated_manifest_is_named_and_recomputed(spec, tmp_
 
 #: a writer that holds a temporary file and a temporary folder open until killed
 _WRITER = """
-import sys, time
+import signal, sys, time
 from pathlib import Path
 from codev_engine.io.atomic import atomic_folder, atomic_path
+# Ctrl-C as a terminal gives it, whatever the test process's disposition: an ignored
+# SIGINT is inherited and Python keeps it (CI: SIGINT ignored, the writer slept on for 30 s)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 folder = Path(sys.argv[1])
 with atomic_path(folder / "a.npz") as f, atomic_folder(folder / "b.shards") as d:
     f.write_bytes(b"half")
